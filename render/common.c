@@ -1,0 +1,61 @@
+/* common.c — status table, stage timings and the clock: small things every module uses. */
+#include <stdio.h>
+#include <string.h>
+#include <time.h>
+
+#include "nscatter.h"
+
+typedef struct {
+    int value;
+    const char *name;
+    const char *message;
+    int http;
+} status_row;
+
+static const status_row status_rows[] = {
+#define NS_X_ROW(code, value, name, message, http) {value, name, message, http},
+    NS_STATUS_TABLE(NS_X_ROW)
+#undef NS_X_ROW
+};
+
+static const status_row *find_status(int status)
+{
+    for (size_t i = 0; i < sizeof status_rows / sizeof status_rows[0]; i++)
+        if (status_rows[i].value == status)
+            return &status_rows[i];
+    return NULL;
+}
+
+const char *ns_status_name(int status)
+{
+    const status_row *row = find_status(status);
+    return row ? row->name : "unknown";
+}
+
+const char *ns_status_message(int status)
+{
+    const status_row *row = find_status(status);
+    return row ? row->message : "unknown status";
+}
+
+int ns_status_http(int status)
+{
+    const status_row *row = find_status(status);
+    return row ? row->http : 500;
+}
+
+void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms)
+{
+    if (!stats || stats->stage_count >= NS_MAX_STAGES)
+        return;
+    ns_stage_time *stage = &stats->stages[stats->stage_count++];
+    snprintf(stage->name, sizeof stage->name, "%s", name);
+    stage->ms = ms;
+}
+
+double ns_now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
+}

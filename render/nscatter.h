@@ -1,0 +1,246 @@
+/* nscatter.h — the render library's public interface.
+ *
+ * This is the only header the server (HTTP, JSON, encoders, CLI) includes from render/.
+ * render/ never sees HTTP or JSON: a scene arrives here already parsed and validated into
+ * the plain structs below, in scene units, and an image leaves as linear RGB floats.
+ *
+ * Ownership: the caller owns every ns_scene and its arrays; ns_render() only reads them.
+ * ns_render() allocates the output image's pixels; free them with ns_image_free().
+ * Results are 0 for success or a negative ns_status.
+ */
+#ifndef NSCATTER_H
+#define NSCATTER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define NS_VERSION "0.1.0"
+
+/* ---------------------------------------------------------------------------------------
+ * Status codes. One table generates the codes, their stable names, a default message and
+ * the HTTP status the server answers with (render/ only carries the number).
+ * ------------------------------------------------------------------------------------- */
+#define NS_STATUS_TABLE(X)                                                                   \
+    X(NS_OK, 0, "ok", "success", 200)                                                         \
+    X(NS_ERR_INVALID_ARGUMENT, -1, "invalid_argument", "invalid argument", 422)               \
+    X(NS_ERR_NOT_AVAILABLE, -2, "not_available", "not available in this build", 422)         \
+    X(NS_ERR_OUT_OF_HOST_MEMORY, -3, "out_of_host_memory", "out of host memory", 503)         \
+    X(NS_ERR_OUT_OF_DEVICE_MEMORY, -4, "out_of_device_memory", "out of device memory", 503)   \
+    X(NS_ERR_DEVICE_LOST, -5, "device_lost", "the Vulkan device was lost", 500)               \
+    X(NS_ERR_VULKAN, -6, "vulkan_error", "Vulkan call failed", 500)                           \
+    X(NS_ERR_NO_DEVICE, -7, "no_device", "no suitable Vulkan device", 500)                    \
+    X(NS_ERR_IO, -8, "io_error", "input/output error", 500)                                   \
+    X(NS_ERR_LIMIT, -9, "limit_exceeded", "a size limit was exceeded", 422)                   \
+    X(NS_ERR_INTERNAL, -10, "internal_error", "internal error", 500)
+
+typedef enum {
+#define NS_X_ENUM(code, value, name, message, http) code = value,
+    NS_STATUS_TABLE(NS_X_ENUM)
+#undef NS_X_ENUM
+} ns_status;
+
+const char *ns_status_name(int status);    /* "invalid_argument"; "unknown" if not a status */
+const char *ns_status_message(int status); /* default human text */
+int ns_status_http(int status);            /* HTTP status the server answers with */
+
+/* Error detail filled by calls that can fail; message is one line, NUL-terminated. */
+typedef struct ns_error {
+    int status;
+    char message[512];
+} ns_error;
+
+/* ---------------------------------------------------------------------------------------
+ * Limits the parser enforces and the renderer relies on.
+ * ------------------------------------------------------------------------------------- */
+#define NS_MAX_IMAGE_SIDE 8192
+#define NS_MAX_PIXELS (4096u * 4096u)
+#define NS_MAX_SPP 4096
+#define NS_MAX_DEPTH 64
+#define NS_MAX_MATERIALS 256
+#define NS_MAX_OBJECTS 4096
+#define NS_MAX_LIGHTS 256
+#define NS_MAX_TRIANGLES (4u * 1024u * 1024u)
+#define NS_NAME_MAX 64
+
+/* ---------------------------------------------------------------------------------------
+ * Scene model (scene units throughout; see docs/scene.md for the JSON that maps onto it).
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_camera {
+    float position[3];
+    float look_at[3];
+    float up[3];
+    float fov_deg; /* horizontal field of view, degrees, in (0, 180) */
+    uint32_t width, height;
+} ns_camera;
+
+typedef enum { NS_MATERIAL_DIFFUSE = 0, NS_MATERIAL_MEDIUM = 1 } ns_material_type;
+
+typedef struct ns_material {
+    ns_material_type type;
+    char name[NS_NAME_MAX];
+    float reflectance[3]; /* diffuse: albedo of the Lambertian surface, in [0, 1] */
+    /* medium: coefficients per scene unit, already resolved from albedo/mfp, presets and
+     * scale by the parser, so the renderer sees one form only. */
+    float sigma_s[3];
+    float sigma_a[3];
+    float g;   /* Henyey-Greenstein, (-1, 1), shared by the three channels */
+    float ior; /* >= 1; exactly 1 means index matched (no refraction, no Fresnel) */
+} ns_material;
+
+typedef enum {
+    NS_SHAPE_SPHERE = 0,
+    NS_SHAPE_PLANE = 1,
+    NS_SHAPE_BOX = 2,
+    NS_SHAPE_MESH = 3,
+} ns_shape;
+
+typedef struct ns_object {
+    ns_shape shape;
+    uint32_t material; /* index into ns_scene.materials */
+    float center[3];   /* sphere */
+    float radius;      /* sphere */
+    float point[3];    /* plane: a point on it */
+    float normal[3];   /* plane: unit normal (normalised by the parser) */
+    float min[3];      /* box, axis aligned */
+    float max[3];
+    /* mesh: triangles [first_triangle, first_triangle + triangle_count) of
+     * ns_scene.triangles, already transformed to world space by the parser. A closed mesh
+     * with a medium material bounds that medium. */
+    uint32_t first_triangle;
+    uint32_t triangle_count;
+} ns_object;
+
+typedef struct ns_triangle {
+    float v[3][3]; /* world-space vertices, counter-clockwise seen from outside */
+} ns_triangle;
+
+typedef enum {
+    NS_LIGHT_DIRECTIONAL = 0,
+    NS_LIGHT_POINT = 1,
+    NS_LIGHT_SPHERE = 2,
+    NS_LIGHT_ENVIRONMENT = 3,
+} ns_light_type;
+
+typedef struct ns_light {
+    ns_light_type type;
+    float direction[3]; /* directional: unit direction the light travels */
+    float position[3];  /* point: position; sphere: centre */
+    float radius;       /* sphere */
+    /* directional: irradiance W/m^2 on a surface facing the light; point: intensity W/sr;
+     * sphere and environment: radiance W/(m^2 sr). */
+    float color[3];
+} ns_light;
+
+typedef enum {
+    NS_METHOD_NN = 0,     /* the paper's method: tables from the network */
+    NS_METHOD_TABLE = 1,  /* same pipeline, Monte Carlo tables of the exact material */
+    NS_METHOD_VRL = 2,    /* Novak et al. 2012 brute-force VRLs */
+    NS_METHOD_DIPOLE = 3, /* Jensen et al. 2001 */
+    NS_METHOD_PT = 4,     /* reference volumetric path tracer */
+} ns_method;
+
+enum {
+    NS_COMPONENT_SURFACE = 1u << 0,
+    NS_COMPONENT_SINGLE = 1u << 1,
+    NS_COMPONENT_DOUBLE = 1u << 2,
+    NS_COMPONENT_MULTIPLE = 1u << 3,
+};
+
+typedef struct ns_render_settings {
+    ns_method method;
+    uint32_t components; /* NS_COMPONENT_* bits */
+    uint32_t spp;        /* jittered camera samples per pixel, >= 1 */
+    uint32_t seed;
+    uint32_t max_depth; /* surface/boundary bounces of a camera path */
+    float exposure;     /* stops; applied by the encoders, not by the renderer */
+} ns_render_settings;
+
+typedef struct ns_scene {
+    ns_camera camera;
+    const ns_material *materials;
+    uint32_t material_count;
+    const ns_object *objects;
+    uint32_t object_count;
+    const ns_triangle *triangles;
+    uint32_t triangle_count;
+    const ns_light *lights;
+    uint32_t light_count;
+    ns_render_settings render;
+} ns_scene;
+
+/* ---------------------------------------------------------------------------------------
+ * Context: instance, device, queue, pipelines and pipeline cache, made once at start-up.
+ * One context may be used by one render at a time (the server serialises renders).
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_context ns_context;
+
+typedef struct ns_context_desc {
+    /* Device to use: NULL or "" picks lavapipe when present (else the first device);
+     * otherwise a decimal index into the enumeration or a case-insensitive substring of
+     * the device name. The NSCATTER_DEVICE environment variable is read when NULL. */
+    const char *device;
+    int validation; /* 1: enable VK_LAYER_KHRONOS_validation; any validation message
+                       then fails the call that caused it. Also NSCATTER_VALIDATION=1. */
+    const char *pipeline_cache_path; /* NULL: no on-disk pipeline cache */
+} ns_context_desc;
+
+int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err);
+void ns_context_destroy(ns_context *ctx); /* NULL is allowed */
+
+typedef struct ns_device_info {
+    char device_name[256];
+    char driver_name[256];
+    char driver_info[256];
+    uint32_t api_version;
+    uint32_t vendor_id, device_id;
+    int is_cpu; /* 1 for lavapipe and other CPU devices */
+} ns_device_info;
+
+void ns_context_device_info(const ns_context *ctx, ns_device_info *out);
+
+/* ---------------------------------------------------------------------------------------
+ * Rendering.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_image {
+    uint32_t width, height;
+    float *rgb; /* linear radiance, 3 floats per pixel, row 0 at the top; owned by the image */
+} ns_image;
+
+void ns_image_free(ns_image *img); /* frees rgb and zeroes the struct; NULL is allowed */
+
+#define NS_MAX_STAGES 16
+typedef struct ns_stage_time {
+    char name[32]; /* e.g. "upload", "bvh", "ray_pass", "readback" */
+    double ms;
+} ns_stage_time;
+
+typedef struct ns_render_stats {
+    ns_stage_time stages[NS_MAX_STAGES];
+    uint32_t stage_count;
+    uint64_t camera_segments; /* stretches of camera paths inside media */
+    uint64_t bvh_nodes;
+    uint64_t primitives;
+} ns_render_stats;
+
+/* Renders scene into *out (allocated here). Checks the scene's structural invariants
+ * again (indices in range, finite numbers) and fails with NS_ERR_INVALID_ARGUMENT rather
+ * than trusting the caller. Requested components that this build cannot render yet fail
+ * with NS_ERR_NOT_AVAILABLE and a message naming them. stats may be NULL. */
+int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
+              ns_error *err);
+
+/* Adds a named stage time to stats (ignored when full). Also used by the server to report
+ * parse and encode stages in the same list. */
+void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms);
+
+/* Monotonic clock in milliseconds, for stage timings. */
+double ns_now_ms(void);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

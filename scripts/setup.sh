@@ -1,0 +1,85 @@
+#!/usr/bin/env bash
+# setup.sh — install what is missing, build, then run the service or the tests.
+#
+#   scripts/setup.sh run    install, build, render scenes/default.json to out/default.png,
+#                           then serve the web page and API on http://127.0.0.1:8080
+#   scripts/setup.sh test   install (test tools too), build with warnings as errors, run
+#                           every test (ctest), then the sanitizer build's tests
+#   scripts/setup.sh deps   only install what is missing
+#   scripts/setup.sh build  install and build build/nscatter
+#
+# Works as root on a fresh Debian 12 (bookworm); as another user it uses sudo for apt.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Debian packages the build and the runtime need. Only missing ones are installed.
+BUILD_PACKAGES=(
+  build-essential cmake pkg-config
+  mesa-vulkan-drivers libvulkan-dev glslang-tools
+  libmicrohttpd-dev libjansson-dev zlib1g-dev
+  libstb-dev libtinyexr-dev libtinygltf-dev nlohmann-json3-dev
+  libopenblas-dev
+)
+# What only the tests need: validation layers, python3 for the HTTP tests, Chromium and
+# Node.js for the browser test.
+TEST_PACKAGES=(vulkan-validationlayers python3 chromium)
+
+as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
+
+install_missing() {
+  local missing=()
+  for p in "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "setup: installing ${missing[*]}"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
+  fi
+}
+
+install_node() {
+  # Any Node.js >= 18 will do (Debian 12 ships 18); keep one that is already there.
+  if ! command -v node >/dev/null 2>&1; then install_missing nodejs; fi
+  if ! command -v npm >/dev/null 2>&1; then install_missing npm; fi
+  if [ -f web/package.json ]; then (cd web && npm ci --no-audit --no-fund --loglevel=error); fi
+}
+
+build() { # build DIR [cmake options...]
+  local dir=$1; shift
+  cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=RelWithDebInfo "$@" >/dev/null
+  cmake --build "$dir" -j "$(nproc)"
+}
+
+mode=${1:-run}
+case "$mode" in
+  deps)
+    install_missing "${BUILD_PACKAGES[@]}"
+    ;;
+  build)
+    install_missing "${BUILD_PACKAGES[@]}"
+    build build
+    ;;
+  run)
+    install_missing "${BUILD_PACKAGES[@]}"
+    build build
+    mkdir -p out
+    ./build/nscatter render scenes/default.json -o out/default.png --timings
+    echo "setup: rendered out/default.png; serving http://127.0.0.1:8080/ (Ctrl-C stops)"
+    exec ./build/nscatter serve --host 127.0.0.1 --port 8080
+    ;;
+  test)
+    install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}"
+    install_node
+    build build -DNS_WERROR=ON
+    (cd build && ctest --output-on-failure --timeout 900)
+    # The sanitized build runs the tests that exercise our own code paths hardest
+    # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
+    build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
+    (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http')
+    ;;
+  *)
+    echo "usage: scripts/setup.sh run|test|deps|build" >&2
+    exit 2
+    ;;
+esac
