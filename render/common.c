@@ -59,3 +59,12 @@ double ns_now_ms(void)
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec * 1e3 + (double)ts.tv_nsec * 1e-6;
 }
+
+uint32_t ns_unsupported_components(ns_method method, uint32_t components)
+{
+    /* The surface pass (direct lighting, Fresnel boundaries, Beer-Lambert attenuation of
+     * camera paths in media) is shared by every method. The scattering components arrive
+     * with the accumulation/VRL/gather stages (issue 5) and the path tracer (issue 6). */
+    (void)method;
+    return components & ~(uint32_t)NS_COMPONENT_SURFACE;
+}

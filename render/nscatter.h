@@ -233,6 +233,11 @@ typedef struct ns_render_stats {
 int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
               ns_error *err);
 
+/* Which of `components` (NS_COMPONENT_* bits) this build can render with `method`:
+ * returns the subset it cannot (0 when all can be rendered). The parser uses it to reject
+ * a request early with a pointer to the component, never to ignore one silently. */
+uint32_t ns_unsupported_components(ns_method method, uint32_t components);
+
 /* Adds a named stage time to stats (ignored when full). Also used by the server to report
  * parse and encode stages in the same list. */
 void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms);

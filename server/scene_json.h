@@ -1,0 +1,50 @@
+/* scene_json.h — scene JSON (version 1, docs/scene.md) to the render library's ns_scene.
+ *
+ * Parsing is strict: duplicate keys, unknown keys, wrong types, non-finite numbers,
+ * out-of-range values, contradictory fields and unknown material references are errors,
+ * each reported with a JSON pointer to the offending field (RFC 6901, e.g.
+ * "/materials/wax/g") and a one-line detail. Meshes (glTF 2.0 GLB, via the tinygltf shim)
+ * are flattened to world-space triangles here.
+ *
+ * Ownership: scene_parse() allocates *out; the caller frees it with scene_doc_free(). The
+ * ns_scene it exposes points into the doc and lives exactly as long as the doc.
+ */
+#ifndef NS_SCENE_JSON_H
+#define NS_SCENE_JSON_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "nscatter.h"
+
+#define SCENE_MAX_ISSUES 32
+
+typedef struct scene_issue {
+    char pointer[256]; /* JSON pointer of the field, "" for the document itself */
+    char detail[512];  /* one line, names what is wrong and what is allowed */
+} scene_issue;
+
+typedef struct scene_issues {
+    scene_issue items[SCENE_MAX_ISSUES];
+    uint32_t count;   /* stored in items */
+    uint32_t total;   /* found; may exceed count */
+    int syntax_error; /* 1: the text is not JSON at all (HTTP 400); 0: invalid scene (422) */
+    int line, column; /* position of a syntax error, 1-based */
+} scene_issues;
+
+typedef struct scene_parse_options {
+    /* Folder holding named mesh assets ("asset": "bunny.glb"); NULL: assets are refused.
+     * Names only: anything with a path separator or starting with '.' is refused. */
+    const char *asset_dir;
+} scene_parse_options;
+
+typedef struct scene_doc scene_doc;
+
+/* Returns 0 and *out on success; NS_ERR_INVALID_ARGUMENT (and *out NULL) with issues
+ * filled otherwise; NS_ERR_OUT_OF_HOST_MEMORY when allocation fails. */
+int scene_parse(const char *json, size_t length, const scene_parse_options *opts, scene_doc **out,
+                scene_issues *issues);
+const ns_scene *scene_doc_scene(const scene_doc *doc);
+void scene_doc_free(scene_doc *doc); /* NULL is allowed */
+
+#endif
