@@ -1,0 +1,329 @@
+// browser_page.mjs — drives a real Chromium against a real `nscatter serve` on loopback and
+// checks the web page end to end: the info footer, the default scene, a render (image size,
+// Server-Timing table, device), the quick controls, syntax and validation errors with their
+// line/column and JSON pointers, the 503 display, PNG/EXR downloads, keyboard use and
+// layout at phone width. Saves screenshots next to the binary (browser_page*.png).
+//
+// Environment (set by ctest): NSCATTER_BIN (the binary), NSCATTER_SOURCE_DIR (the repo).
+// Needs Debian's chromium (/usr/bin/chromium, or NSCATTER_CHROMIUM) and web/node_modules
+// (`npm ci` in web/; scripts/setup.sh test does both).
+import { spawn } from 'node:child_process';
+import { createRequire } from 'node:module';
+import fs from 'node:fs';
+import path from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+const here = path.dirname(fileURLToPath(import.meta.url));
+const sourceDir = process.env.NSCATTER_SOURCE_DIR || path.resolve(here, '..');
+const binary = process.env.NSCATTER_BIN || path.join(sourceDir, 'build', 'nscatter');
+const chromiumPath = process.env.NSCATTER_CHROMIUM || '/usr/bin/chromium';
+const outDir = path.dirname(path.resolve(binary));
+// Rendering on lavapipe with two shared cores can take a while; everything else is quick.
+const RENDER_TIMEOUT_MS = 180_000;
+const STEP_TIMEOUT_MS = 20_000;
+
+// playwright-core lives in web/node_modules, not next to this file or the build directory.
+const requireFromWeb = createRequire(path.join(sourceDir, 'web', 'package.json'));
+const { chromium } = requireFromWeb('playwright-core');
+
+// ------------------------------------------------------------------------------------------
+// Tiny harness: named checks, each counted; a failing check prints expected vs. got.
+// ------------------------------------------------------------------------------------------
+let passed = 0;
+let failed = 0;
+function check(name, ok, detail = '') {
+  if (ok) {
+    passed++;
+    console.log(`ok   ${name}`);
+  } else {
+    failed++;
+    console.log(`FAIL ${name}${detail ? `\n     ${detail}` : ''}`);
+  }
+  return ok;
+}
+async function step(name, body) {
+  try {
+    await body();
+  } catch (error) {
+    check(`${name} (threw)`, false, String(error && error.stack ? error.stack : error));
+  }
+}
+
+// ------------------------------------------------------------------------------------------
+// The server: started on port 0, the real port read from its first stdout line.
+// ------------------------------------------------------------------------------------------
+function startServer() {
+  const child = spawn(binary, ['serve', '--host', '127.0.0.1', '--port', '0'], {
+    stdio: ['ignore', 'pipe', 'pipe'],
+  });
+  let stderr = '';
+  child.stderr.on('data', (d) => { stderr += d; process.stderr.write(d); });
+  const url = new Promise((resolve, reject) => {
+    let stdout = '';
+    const timer = setTimeout(() => reject(new Error(`no "listening on" line within 60 s; stderr: ${stderr}`)), 60_000);
+    child.stdout.on('data', (d) => {
+      stdout += d;
+      const match = /^listening on (http:\/\/[^\s]+)/m.exec(stdout);
+      if (match) { clearTimeout(timer); resolve(match[1].replace(/\/$/, '')); }
+    });
+    child.on('exit', (code, signal) => {
+      clearTimeout(timer);
+      reject(new Error(`server exited (code ${code}, signal ${signal}) before listening; stderr: ${stderr}`));
+    });
+    child.on('error', (error) => { clearTimeout(timer); reject(error); });
+  });
+  return { child, url };
+}
+
+function stopServer(child) {
+  if (child && child.exitCode === null && child.signalCode === null) child.kill('SIGKILL');
+}
+
+// ------------------------------------------------------------------------------------------
+// Page helpers
+// ------------------------------------------------------------------------------------------
+const PNG_MAGIC = Buffer.from([0x89, 0x50, 0x4e, 0x47, 0x0d, 0x0a, 0x1a, 0x0a]);
+const EXR_MAGIC = Buffer.from([0x76, 0x2f, 0x31, 0x01]);
+
+async function setEditor(page, text) {
+  await page.locator('#editor').fill(text);
+}
+
+async function historyCount(page) {
+  return page.locator('#history li').count();
+}
+
+// Clicks Render and waits until the click has finished: a new history entry or an error.
+async function renderAndWait(page, { via = 'button' } = {}) {
+  const before = await historyCount(page);
+  if (via === 'button') await page.locator('#render').click();
+  else {
+    await page.locator('#editor').focus();
+    await page.keyboard.press('Control+Enter');
+  }
+  await page.waitForFunction(
+    (n) => document.querySelectorAll('#history li').length > n || !document.getElementById('problem').hidden,
+    before,
+    { timeout: RENDER_TIMEOUT_MS },
+  );
+  await page.waitForFunction(() => !document.getElementById('render').disabled, null, { timeout: RENDER_TIMEOUT_MS });
+}
+
+async function shownImageSize(page) {
+  return page.locator('#image').evaluate((img) => ({
+    complete: img.complete, width: img.naturalWidth, height: img.naturalHeight, hidden: img.hidden,
+  }));
+}
+
+async function problemText(page) {
+  return page.locator('#problem').innerText();
+}
+
+function firstMediumName(scene) {
+  return Object.keys(scene.materials || {}).find((name) => scene.materials[name].type === 'medium');
+}
+
+// ------------------------------------------------------------------------------------------
+// The test
+// ------------------------------------------------------------------------------------------
+async function run() {
+  const server = startServer();
+  let browser = null;
+  // Whatever happens below, the server must not outlive the test.
+  process.on('exit', () => stopServer(server.child));
+  try {
+    const base = await server.url;
+    console.log(`server at ${base}`);
+    browser = await chromium.launch({ executablePath: chromiumPath, args: ['--no-sandbox'] });
+    const context = await browser.newContext({ acceptDownloads: true, viewport: { width: 1400, height: 1000 } });
+    const page = await context.newPage();
+    page.setDefaultTimeout(STEP_TIMEOUT_MS);
+
+    // Console errors and uncaught exceptions are failures, except the browser's own
+    // "Failed to load resource" line for the 4xx/503 answers this test asks for on purpose.
+    const consoleErrors = [];
+    const expectedStatuses = new Set();
+    page.on('console', (msg) => {
+      if (msg.type() !== 'error') return;
+      const status = /status of (\d{3})/.exec(msg.text());
+      if (status && expectedStatuses.has(Number(status[1]))) return;
+      consoleErrors.push(msg.text());
+    });
+    page.on('pageerror', (error) => consoleErrors.push(`uncaught: ${error.message}`));
+    const offsiteRequests = [];
+    page.on('request', (req) => { if (!req.url().startsWith(base) && !req.url().startsWith('blob:')) offsiteRequests.push(req.url()); });
+
+    const info = await (await fetch(`${base}/v1/info`)).json();
+    const infoDevice = typeof info.device === 'string' ? info.device : info.device && (info.device.name || info.device.device_name);
+    const defaultScene = JSON.parse(fs.readFileSync(path.join(sourceDir, 'scenes', 'default.json'), 'utf8'));
+
+    await step('page loads', async () => {
+      const response = await page.goto(`${base}/`);
+      check('GET / answers 200 with HTML', response.status() === 200 && /text\/html/.test(response.headers()['content-type'] || ''),
+        `status ${response.status()}, type ${response.headers()['content-type']}`);
+      check('title names nscatter', /nscatter/.test(await page.title()));
+    });
+
+    await step('info footer', async () => {
+      await page.waitForFunction(() => !/loading/i.test(document.getElementById('info-text').textContent));
+      const footer = await page.locator('#info-text').innerText();
+      check('footer shows the device from /v1/info', typeof infoDevice === 'string' && infoDevice.length > 0 && footer.includes(infoDevice),
+        `footer "${footer}", /v1/info device ${JSON.stringify(info.device)}`);
+      check('footer shows the version', typeof info.version === 'string' && footer.includes(info.version), `footer "${footer}"`);
+    });
+
+    await step('default scene', async () => {
+      const text = await page.locator('#editor').inputValue();
+      let shown = null;
+      try { shown = JSON.parse(text); } catch { /* reported below */ }
+      check('editor starts with scenes/default.json (app.js DEFAULT_SCENE in sync)',
+        JSON.stringify(shown) === JSON.stringify(defaultScene),
+        `editor: ${text.slice(0, 200)}…`);
+    });
+
+    await step('every control has an accessible name', async () => {
+      const unnamed = await page.evaluate(() => Array.from(document.querySelectorAll('input, select, textarea, button'))
+        .filter((e) => !(e.labels && e.labels.length) && !e.getAttribute('aria-label') && !e.getAttribute('aria-labelledby') && !e.textContent.trim())
+        .map((e) => e.id || e.outerHTML.slice(0, 60)));
+      check('no unlabelled control', unnamed.length === 0, `unlabelled: ${unnamed.join(', ')}`);
+    });
+
+    const camera = defaultScene.camera;
+    await step('render the default scene', async () => {
+      await renderAndWait(page);
+      const problemHidden = await page.locator('#problem').isHidden();
+      check('render succeeded (no problem shown)', problemHidden, problemHidden ? '' : await problemText(page));
+      const size = await shownImageSize(page);
+      check('image loaded with the scene size', size.complete && !size.hidden && size.width === camera.width && size.height === camera.height,
+        `expected ${camera.width}x${camera.height}, got ${JSON.stringify(size)}`);
+      const rows = await page.locator('#timings tbody tr').allInnerTexts();
+      check('timing table has rows', rows.length > 0, `rows: ${JSON.stringify(rows)}`);
+      check('every timing row has a number of ms', rows.length > 0 && rows.every((r) => /\d/.test(r.split('\t')[1] || '')), JSON.stringify(rows));
+      const device = await page.locator('#device').innerText();
+      check('device that rendered is shown', typeof infoDevice === 'string' && device.includes(infoDevice), `device "${device}", info ${infoDevice}`);
+      await page.screenshot({ path: path.join(outDir, 'browser_page.png'), fullPage: true });
+    });
+
+    await step('quick controls edit the JSON and the render follows', async () => {
+      const name = await page.locator('#material').inputValue();
+      check('material select offers a medium', name.length > 0, 'no medium material in the default scene');
+      await page.locator('#preset').selectOption('milk');
+      let scene = JSON.parse(await page.locator('#editor').inputValue());
+      check('preset writes {"type":"medium","preset":"milk"}', scene.materials[name] && scene.materials[name].preset === 'milk'
+        && scene.materials[name].type === 'medium' && scene.materials[name].albedo === undefined,
+        JSON.stringify(scene.materials[name]));
+      check('g slider shows the preset g (milk: 0.70)', (await page.locator('#g-out').innerText()) === '0.70');
+      await page.locator('#g').fill('0.3');
+      await page.locator('#width').fill('96');
+      await page.locator('#width').press('Tab');
+      await page.locator('#height').fill('64');
+      await page.locator('#height').press('Tab');
+      scene = JSON.parse(await page.locator('#editor').inputValue());
+      check('sliders and size fields write g, width, height', scene.materials[name].g === 0.3 && scene.camera.width === 96 && scene.camera.height === 64,
+        `g ${scene.materials[name].g}, size ${scene.camera.width}x${scene.camera.height}`);
+      await renderAndWait(page, { via: 'keyboard' });
+      const problemHidden = await page.locator('#problem').isHidden();
+      check('Ctrl+Enter renders the edited scene', problemHidden && (await historyCount(page)) === 2,
+        problemHidden ? `history ${await historyCount(page)}` : await problemText(page));
+      const size = await shownImageSize(page);
+      check('image has the new size 96x64', size.width === 96 && size.height === 64, JSON.stringify(size));
+    });
+
+    await step('history compares renders', async () => {
+      await page.locator('#history li').nth(1).locator('button').click();
+      await page.waitForFunction(() => document.getElementById('image').naturalWidth > 0);
+      const size = await shownImageSize(page);
+      check('older history entry shows the first render again', size.width === camera.width && size.height === camera.height, JSON.stringify(size));
+      await page.locator('#history li').nth(0).locator('button').click();
+    });
+
+    await step('downloads', async () => {
+      const pngDownload = page.waitForEvent('download');
+      await page.locator('#download-png').click();
+      const png = fs.readFileSync(await (await pngDownload).path());
+      check('Download PNG gives PNG bytes', png.subarray(0, 8).equals(PNG_MAGIC), png.subarray(0, 8).toString('hex'));
+      const exrDownload = page.waitForEvent('download', { timeout: RENDER_TIMEOUT_MS });
+      await page.locator('#download-exr').click();
+      const download = await exrDownload;
+      const exr = fs.readFileSync(await download.path());
+      check('Download EXR gives OpenEXR bytes', exr.subarray(0, 4).equals(EXR_MAGIC), exr.subarray(0, 4).toString('hex'));
+      check('EXR file name ends in .exr', download.suggestedFilename().endsWith('.exr'), download.suggestedFilename());
+    });
+
+    await step('JSON syntax error shows line and column', async () => {
+      expectedStatuses.add(400);
+      // A stray token at the start of line 5 (1-based) of the pretty-printed default scene.
+      const lines = JSON.stringify(defaultScene, null, 2).split('\n');
+      lines[4] = '@' + lines[4];
+      await setEditor(page, lines.join('\n'));
+      await renderAndWait(page);
+      const visible = await page.locator('#problem').isVisible();
+      const text = visible ? await problemText(page) : '';
+      check('error panel is shown', visible);
+      check('error panel names status 400', /\b400\b/.test(text), text);
+      check('error panel shows line 5 and a column', /line\D{0,3}5\b/i.test(text) && /column\D{0,3}\d+/i.test(text), text);
+      check('controls are disabled while the JSON is invalid', await page.locator('#controls').evaluate((f) => f.disabled));
+      const jump = page.locator('#problem-errors button', { hasText: /line 5/ });
+      if (await jump.count()) {
+        await jump.first().click();
+        const line = await page.locator('#editor').evaluate((e) => e.value.slice(0, e.selectionStart).split('\n').length);
+        check('"go to line" puts the cursor on line 5', line === 5, `cursor line ${line}`);
+      } else check('"go to line" button is offered', false, text);
+    });
+
+    await step('invalid g lists its JSON pointer', async () => {
+      expectedStatuses.add(422);
+      const scene = structuredClone(defaultScene);
+      const name = firstMediumName(scene);
+      scene.materials[name].g = 2;
+      await setEditor(page, JSON.stringify(scene, null, 2));
+      await renderAndWait(page);
+      const text = await problemText(page);
+      const pointer = `/materials/${name}/g`;
+      check('error panel names status 422', /\b422\b/.test(text), text);
+      const button = page.locator('#problem-errors button.pointer', { hasText: pointer });
+      check(`pointer ${pointer} is listed`, (await button.count()) === 1, text);
+      if (await button.count()) {
+        await button.first().click();
+        const selected = await page.locator('#editor').evaluate((e) => e.value.slice(e.selectionStart, e.selectionEnd));
+        check('clicking the pointer selects the offending value', selected === '2', `selected "${selected}"`);
+      }
+      await page.screenshot({ path: path.join(outDir, 'browser_page_error.png'), fullPage: true });
+    });
+
+    await step('503 shows busy with the Retry-After seconds', async () => {
+      // A full render queue cannot be produced on demand from one page, so this check answers
+      // one request in the browser with the server's 503 shape to test the page's display.
+      expectedStatuses.add(503);
+      await page.locator('#reset').click();
+      await page.route('**/v1/renders', (route) => route.fulfill({
+        status: 503,
+        headers: { 'Content-Type': 'application/problem+json', 'Retry-After': '7' },
+        body: JSON.stringify({ type: 'about:blank', title: 'Render queue full', status: 503, code: 'busy', detail: 'try later', errors: [] }),
+      }), { times: 1 });
+      await renderAndWait(page);
+      const text = await problemText(page);
+      check('503 shows "busy, retry in 7 s"', /busy, retry in 7 s/i.test(text), text);
+      await page.unrouteAll();
+    });
+
+    await step('layout at phone width', async () => {
+      await page.setViewportSize({ width: 390, height: 844 });
+      const overflow = await page.evaluate(() => document.documentElement.scrollWidth - window.innerWidth);
+      check('no horizontal scrolling at 390 px', overflow <= 0, `overflow ${overflow} px`);
+      await page.screenshot({ path: path.join(outDir, 'browser_page_narrow.png'), fullPage: true });
+    });
+
+    check('no console errors or uncaught exceptions', consoleErrors.length === 0, consoleErrors.join('\n     '));
+    check('no request leaves the server (works offline)', offsiteRequests.length === 0, offsiteRequests.join(', '));
+  } catch (error) {
+    check('test ran to the end', false, String(error && error.stack ? error.stack : error));
+  } finally {
+    if (browser) await browser.close().catch(() => {});
+    stopServer(server.child);
+  }
+}
+
+await run();
+console.log(`${passed} passed, ${failed} failed`);
+process.exit(failed === 0 && passed > 0 ? 0 : 1);

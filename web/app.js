@@ -1,0 +1,821 @@
+/* nscatter web page: edit a scene, render it through POST /v1/renders, compare renders.
+ *
+ * The JSON text in the editor is the source of truth. The quick controls read it and
+ * rewrite the parts they own; when the text is not valid JSON they are disabled rather
+ * than guessing. The server is the only validator: the page sends the text exactly as
+ * typed, so what the server says (RFC 9457 problem+json) is what the user sees.
+ *
+ * Plain ES2020, no build step, no external resources: the page is embedded in the binary
+ * and must work offline. */
+'use strict';
+
+/* ------------------------------------------------------------------------------------
+ * Constants
+ * ---------------------------------------------------------------------------------- */
+
+/* Kept identical to scenes/default.json: tests/browser_page.mjs compares the editor's
+ * initial text with that file, so edit both together. */
+const DEFAULT_SCENE = {
+  camera: { position: [0, 2, 6], look_at: [0, 0, 0], up: [0, 1, 0], fov: 30, width: 256, height: 256 },
+  materials: {
+    floor: { type: 'diffuse', reflectance: [0.5, 0.5, 0.5] },
+    wax: { type: 'medium', albedo: [0.98, 0.962, 0.75], mfp: [0.65, 0.63, 0.59], g: 0.8, ior: 1.45 },
+  },
+  objects: [
+    { shape: 'sphere', center: [0, 0, 0], radius: 1, material: 'wax' },
+    { shape: 'plane', point: [0, -1, 0], normal: [0, 1, 0], material: 'floor' },
+  ],
+  lights: [
+    { type: 'directional', direction: [0, -1, -1], irradiance: [2, 2, 2] },
+    { type: 'environment', radiance: [0.2, 0.2, 0.2] },
+  ],
+  render: { method: 'nn', components: ['surface'], spp: 1, seed: 1, max_depth: 8 },
+};
+
+/* The paper's Table 1 (Ge et al. 2021): albedo and mean free path per RGB channel, g, ior.
+ * Used only to show a preset's values on the sliders and to expand a preset into explicit
+ * fields when the user switches to "custom"; the server resolves presets itself. */
+const PRESETS = {
+  bumpy_sphere: { albedo: [0.955, 0.677, 0.457], mfp: [4.55, 3.23, 2.17], g: 0.9, ior: 1.5 },
+  candle: { albedo: [0.98, 0.962, 0.75], mfp: [0.65, 0.63, 0.59], g: 0.8, ior: 1.45 },
+  dragon: { albedo: [0.882, 0.938, 0.98], mfp: [0.29, 0.18, 0.33], g: 0.5, ior: 1.5 },
+  milk: { albedo: [0.999, 0.999, 0.999], mfp: [0.84, 0.75, 0.68], g: 0.7, ior: 1.3 },
+  oil: { albedo: [0.398, 0.453, 0.032], mfp: [9.71, 11.63, 2.74], g: 0.9, ior: 1.5 },
+  lucy: { albedo: [0.936, 0.939, 0.941], mfp: [0.21, 0.2, 0.19], g: 0.0, ior: 1.5 },
+  cloud: { albedo: [0.909, 0.909, 0.909], mfp: [0.909, 0.909, 0.909], g: 0.0, ior: 1.0 },
+};
+
+const COMPONENT_ORDER = ['surface', 'single', 'double', 'multiple'];
+const MEDIUM_FIELDS = ['albedo', 'mfp', 'sigma_s', 'sigma_a', 'g', 'ior', 'scale', 'preset'];
+const HISTORY_LIMIT = 24;
+const STORAGE_KEY = 'nscatter.scene.v1';
+
+/* ------------------------------------------------------------------------------------
+ * Small helpers
+ * ---------------------------------------------------------------------------------- */
+
+const $ = (id) => document.getElementById(id);
+
+function el(tag, props = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [key, value] of Object.entries(props)) {
+    if (key === 'class') node.className = value;
+    else if (key.startsWith('on')) node.addEventListener(key.slice(2), value);
+    else if (key in node) node[key] = value;
+    else node.setAttribute(key, value);
+  }
+  for (const child of children) node.append(child);
+  return node;
+}
+
+const formatMs = (ms) => (ms >= 100 ? ms.toFixed(0) : ms >= 10 ? ms.toFixed(1) : ms.toFixed(2));
+function inlineJson(value) {
+  if (Array.isArray(value)) return '[' + value.map(inlineJson).join(', ') + ']';
+  if (value !== null && typeof value === 'object') {
+    return '{' + Object.keys(value).map((k) => JSON.stringify(k) + ': ' + inlineJson(value[k])).join(', ') + '}';
+  }
+  return JSON.stringify(value);
+}
+
+/* JSON as a person would write it: containers without objects inside stay on one line
+ * when short ([0, 2, 6] rather than five lines), everything else is indented by two. */
+function formatJson(value, indent = '') {
+  const inline = inlineJson(value);
+  const isContainer = value !== null && typeof value === 'object';
+  const holdsObject = isContainer && Object.values(value).some((v) => v !== null && typeof v === 'object' && !Array.isArray(v));
+  if (!isContainer || (!holdsObject && indent.length + inline.length <= 96)) return inline;
+  const inner = indent + '  ';
+  if (Array.isArray(value)) {
+    if (value.length === 0) return '[]';
+    return '[\n' + value.map((v) => inner + formatJson(v, inner)).join(',\n') + '\n' + indent + ']';
+  }
+  const keys = Object.keys(value);
+  if (keys.length === 0) return '{}';
+  return '{\n' + keys.map((k) => inner + JSON.stringify(k) + ': ' + formatJson(value[k], inner)).join(',\n') + '\n' + indent + '}';
+}
+const sceneText = (scene) => formatJson(scene) + '\n';
+
+function storageGet() {
+  try { return window.localStorage.getItem(STORAGE_KEY); } catch { return null; }
+}
+function storageSet(text) {
+  try { window.localStorage.setItem(STORAGE_KEY, text); } catch { /* private mode: fine */ }
+}
+
+/* ------------------------------------------------------------------------------------
+ * JSON source positions: maps each JSON pointer (RFC 6901) to the character range of its
+ * value in the text, so an error's pointer can select the offending value in the editor.
+ * A small recursive-descent scanner; it gives up (returns null) on invalid JSON.
+ * ---------------------------------------------------------------------------------- */
+
+function escapePointerToken(token) {
+  return String(token).replace(/~/g, '~0').replace(/\//g, '~1');
+}
+
+function locateJsonValues(text) {
+  const ranges = new Map();
+  let i = 0;
+  const fail = () => { throw new SyntaxError('invalid JSON at ' + i); };
+  const skipSpace = () => { while (i < text.length && ' \t\r\n'.includes(text[i])) i++; };
+
+  function readString() {
+    if (text[i] !== '"') fail();
+    const start = i++;
+    while (i < text.length && text[i] !== '"') i += text[i] === '\\' ? 2 : 1;
+    if (i >= text.length) fail();
+    i++;
+    return JSON.parse(text.slice(start, i));
+  }
+
+  function readValue(pointer) {
+    skipSpace();
+    const start = i;
+    const c = text[i];
+    if (c === '{') {
+      i++;
+      skipSpace();
+      if (text[i] === '}') i++;
+      else {
+        for (;;) {
+          skipSpace();
+          const key = readString();
+          skipSpace();
+          if (text[i++] !== ':') fail();
+          readValue(pointer + '/' + escapePointerToken(key));
+          skipSpace();
+          if (text[i] === ',') { i++; continue; }
+          if (text[i++] !== '}') fail();
+          break;
+        }
+      }
+    } else if (c === '[') {
+      i++;
+      skipSpace();
+      if (text[i] === ']') i++;
+      else {
+        for (let index = 0; ; index++) {
+          readValue(pointer + '/' + index);
+          skipSpace();
+          if (text[i] === ',') { i++; continue; }
+          if (text[i++] !== ']') fail();
+          break;
+        }
+      }
+    } else if (c === '"') {
+      readString();
+    } else {
+      const match = /^(-?\d+(\.\d+)?([eE][+-]?\d+)?|true|false|null)/.exec(text.slice(i, i + 64));
+      if (!match) fail();
+      i += match[0].length;
+    }
+    ranges.set(pointer, { start, end: i });
+  }
+
+  try {
+    readValue('');
+    return ranges;
+  } catch {
+    return null;
+  }
+}
+
+/* The range for a pointer, or for its nearest existing ancestor (a missing required
+ * field is reported at a pointer that is not in the text). */
+function rangeForPointer(text, pointer) {
+  const ranges = locateJsonValues(text);
+  if (!ranges) return null;
+  let p = pointer;
+  for (;;) {
+    if (ranges.has(p)) return ranges.get(p);
+    if (p === '') return null;
+    p = p.slice(0, p.lastIndexOf('/'));
+  }
+}
+
+/* ------------------------------------------------------------------------------------
+ * Server-Timing parsing: `name;dur=12.5;desc="text", other;dur=3` (one metric per stage).
+ * ---------------------------------------------------------------------------------- */
+
+function splitOutsideQuotes(value, separator) {
+  const parts = [];
+  let current = '';
+  let quoted = false;
+  for (let k = 0; k < value.length; k++) {
+    const ch = value[k];
+    if (ch === '"' && value[k - 1] !== '\\') quoted = !quoted;
+    if (ch === separator && !quoted) { parts.push(current); current = ''; } else current += ch;
+  }
+  parts.push(current);
+  return parts.map((s) => s.trim()).filter((s) => s.length > 0);
+}
+
+function parseServerTiming(header) {
+  if (!header) return [];
+  return splitOutsideQuotes(header, ',').map((metric) => {
+    const [name, ...params] = splitOutsideQuotes(metric, ';');
+    const entry = { name, dur: null, desc: '' };
+    for (const param of params) {
+      const eq = param.indexOf('=');
+      const key = (eq < 0 ? param : param.slice(0, eq)).trim().toLowerCase();
+      let value = eq < 0 ? '' : param.slice(eq + 1).trim();
+      if (value.startsWith('"') && value.endsWith('"')) value = value.slice(1, -1).replace(/\\(.)/g, '$1');
+      if (key === 'dur') entry.dur = Number.parseFloat(value);
+      else if (key === 'desc') entry.desc = value;
+    }
+    return entry;
+  });
+}
+
+/* ------------------------------------------------------------------------------------
+ * Editor: cursor position, selecting a range, line/column to offset
+ * ---------------------------------------------------------------------------------- */
+
+const editor = $('editor');
+
+function lineColumnAt(text, offset) {
+  const before = text.slice(0, offset);
+  const line = before.split('\n').length;
+  const column = offset - before.lastIndexOf('\n');
+  return { line, column };
+}
+
+function offsetOfLineColumn(text, line, column) {
+  let offset = 0;
+  for (let l = 1; l < line; l++) {
+    const next = text.indexOf('\n', offset);
+    if (next < 0) return text.length;
+    offset = next + 1;
+  }
+  const lineEnd = text.indexOf('\n', offset);
+  const limit = lineEnd < 0 ? text.length : lineEnd;
+  return Math.min(offset + Math.max(column - 1, 0), limit);
+}
+
+function selectInEditor(start, end) {
+  editor.focus();
+  editor.setSelectionRange(start, Math.max(end, start + 1));
+  /* Scroll so the selection sits a few lines from the top: textareas do not reliably
+   * scroll a programmatic selection into view. */
+  const lineHeight = Number.parseFloat(getComputedStyle(editor).lineHeight) || 18;
+  const { line } = lineColumnAt(editor.value, start);
+  editor.scrollTop = Math.max(0, (line - 4) * lineHeight);
+  updateCursorPosition();
+}
+
+function updateCursorPosition() {
+  const { line, column } = lineColumnAt(editor.value, editor.selectionStart);
+  $('cursor-pos').textContent = `line ${line}, column ${column}`;
+}
+
+/* ------------------------------------------------------------------------------------
+ * Quick controls: read from and write to the JSON text
+ * ---------------------------------------------------------------------------------- */
+
+const controls = {
+  fieldset: $('controls'),
+  note: $('controls-note'),
+  material: $('material'),
+  preset: $('preset'),
+  g: $('g'),
+  ior: $('ior'),
+  scale: $('scale'),
+  width: $('width'),
+  height: $('height'),
+  spp: $('spp'),
+  components: Array.from(document.querySelectorAll('input[name=component]')),
+};
+
+function parseEditor() {
+  try {
+    const scene = JSON.parse(editor.value);
+    return scene && typeof scene === 'object' && !Array.isArray(scene) ? scene : null;
+  } catch {
+    return null;
+  }
+}
+
+function mediumNames(scene) {
+  const materials = scene.materials && typeof scene.materials === 'object' ? scene.materials : {};
+  return Object.keys(materials).filter((name) => materials[name] && materials[name].type === 'medium');
+}
+
+function setSlider(input, value, display) {
+  input.value = String(value);
+  const out = $(input.id + '-out');
+  out.textContent = display;
+  input.setAttribute('aria-valuetext', display);
+}
+
+const scaleFromSlider = (v) => Number((10 ** Number(v)).toPrecision(3));
+
+/* Fills every control from the text; disables them (with a reason) when the text is not a
+ * JSON object, so a half-typed edit is never overwritten. */
+function readControls() {
+  const scene = parseEditor();
+  controls.fieldset.disabled = scene === null;
+  controls.note.hidden = scene !== null;
+  editor.setAttribute('aria-invalid', scene === null ? 'true' : 'false');
+  if (scene === null) {
+    controls.note.textContent = 'The text is not valid JSON; fix it (or render to see where) to use these controls.';
+    return;
+  }
+
+  const names = mediumNames(scene);
+  const previous = controls.material.value;
+  controls.material.replaceChildren(...names.map((name) => el('option', { value: name, textContent: name })));
+  if (names.length === 0) controls.material.append(el('option', { value: '', textContent: '(no medium material)' }));
+  controls.material.value = names.includes(previous) ? previous : names[0] || '';
+  readMaterialControls(scene);
+
+  const camera = scene.camera || {};
+  controls.width.value = Number.isFinite(camera.width) ? camera.width : '';
+  controls.height.value = Number.isFinite(camera.height) ? camera.height : '';
+  const render = scene.render || {};
+  controls.spp.value = Number.isFinite(render.spp) ? render.spp : '';
+  const components = Array.isArray(render.components) ? render.components : [];
+  for (const box of controls.components) box.checked = components.includes(box.value);
+}
+
+function readMaterialControls(scene) {
+  const name = controls.material.value;
+  const material = name ? scene.materials[name] : null;
+  for (const input of [controls.preset, controls.g, controls.ior, controls.scale]) input.disabled = !material;
+  if (!material) return;
+  const preset = PRESETS[material.preset] || null;
+  controls.preset.value = preset ? material.preset : '';
+  const g = Number.isFinite(material.g) ? material.g : preset ? preset.g : 0;
+  const ior = Number.isFinite(material.ior) ? material.ior : preset ? preset.ior : 1;
+  const scale = Number.isFinite(material.scale) && material.scale > 0 ? material.scale : 1;
+  setSlider(controls.g, g, g.toFixed(2));
+  setSlider(controls.ior, ior, ior.toFixed(2));
+  setSlider(controls.scale, Math.log10(scale), String(Number(scale.toPrecision(3))));
+}
+
+/* Applies `change` to the parsed scene and writes it back formatted. */
+function editScene(change) {
+  const scene = parseEditor();
+  if (scene === null) return;
+  change(scene);
+  setEditorText(sceneText(scene), { keepControls: false });
+}
+
+function selectedMaterial(scene) {
+  const name = controls.material.value;
+  return name && scene.materials && scene.materials[name] ? scene.materials[name] : null;
+}
+
+function onPresetChange() {
+  const name = controls.preset.value;
+  editScene((scene) => {
+    const material = selectedMaterial(scene);
+    if (!material) return;
+    const previous = PRESETS[material.preset];
+    for (const field of MEDIUM_FIELDS) delete material[field];
+    if (name) {
+      material.preset = name; /* the server fills albedo, mfp, g and ior from Table 1 */
+    } else if (previous) {
+      /* "custom": spell the previous preset out so the look is kept and every field
+       * becomes editable in the text. */
+      Object.assign(material, structuredClone(previous));
+    } else {
+      Object.assign(material, structuredClone(PRESETS.candle));
+    }
+  });
+}
+
+function onSliderInput(event) {
+  const input = event.target;
+  const v = Number(input.value);
+  const display = input === controls.scale ? String(scaleFromSlider(v)) : v.toFixed(2);
+  setSlider(input, input.value, display);
+}
+
+function onSliderChange(event) {
+  const input = event.target;
+  const key = input.id;
+  const value = key === 'scale' ? scaleFromSlider(input.value) : Number(Number(input.value).toFixed(2));
+  editScene((scene) => {
+    const material = selectedMaterial(scene);
+    if (material) material[key] = value;
+  });
+}
+
+function onIntegerChange(event, write) {
+  const input = event.target;
+  const value = Number(input.value);
+  if (!Number.isInteger(value) || value < 1 || !input.checkValidity()) {
+    input.setAttribute('aria-invalid', 'true');
+    return; /* leave the text alone; the field shows it is invalid */
+  }
+  input.removeAttribute('aria-invalid');
+  editScene((scene) => write(scene, value));
+}
+
+function onComponentsChange() {
+  const chosen = COMPONENT_ORDER.filter((c) => controls.components.some((b) => b.checked && b.value === c));
+  editScene((scene) => {
+    scene.render = scene.render && typeof scene.render === 'object' ? scene.render : {};
+    scene.render.components = chosen;
+  });
+}
+
+function setEditorText(text, { keepControls = false } = {}) {
+  editor.value = text;
+  storageSet(text);
+  if (!keepControls) readControls();
+  updateCursorPosition();
+}
+
+/* ------------------------------------------------------------------------------------
+ * Status line and problem panel
+ * ---------------------------------------------------------------------------------- */
+
+let retryTimer = null;
+
+function setStatus(text, kind = '') {
+  const status = $('status');
+  status.textContent = text;
+  status.className = 'status' + (kind ? ' ' + kind : '');
+}
+
+function clearProblem() {
+  $('problem').hidden = true;
+  $('problem-errors').replaceChildren();
+  if (retryTimer) { clearInterval(retryTimer); retryTimer = null; }
+}
+
+/* A button that selects the pointer's value in the editor, for text the editor holds. */
+function pointerButton(pointer, sourceText) {
+  return el('button', {
+    type: 'button',
+    class: 'pointer',
+    textContent: pointer || '(document)',
+    title: 'Select this field in the editor',
+    onclick: () => {
+      if (editor.value !== sourceText) {
+        setStatus('The editor text changed since this render; the field is looked up in the current text.');
+      }
+      const range = rangeForPointer(editor.value, pointer);
+      if (range) selectInEditor(range.start, range.end);
+    },
+  });
+}
+
+/* "line 5, column 12" (any punctuation between) in a syntax-error detail, if present. */
+function findLineColumn(problem) {
+  if (Number.isInteger(problem.line) && Number.isInteger(problem.column)) {
+    return { line: problem.line, column: problem.column };
+  }
+  const texts = [problem.detail, ...(problem.errors || []).map((e) => e && e.detail)];
+  for (const text of texts) {
+    const match = /line\D{0,3}(\d+)\D{1,12}column\D{0,3}(\d+)/i.exec(String(text || ''));
+    if (match) return { line: Number(match[1]), column: Number(match[2]) };
+  }
+  return null;
+}
+
+function showProblem(problem, httpStatus, sourceText) {
+  clearProblem();
+  const title = problem.title || `HTTP ${httpStatus}`;
+  $('problem-title').textContent = `${title} (${httpStatus}${problem.code ? ', ' + problem.code : ''})`;
+  $('problem-detail').textContent = problem.detail || '';
+  const list = $('problem-errors');
+  const errors = Array.isArray(problem.errors) ? problem.errors : [];
+  for (const error of errors) {
+    if (!error || typeof error !== 'object') continue;
+    const pointer = typeof error.pointer === 'string' ? error.pointer : '';
+    const item = el('li');
+    if (pointer) item.append(pointerButton(pointer, sourceText), ': ');
+    item.append(String(error.detail || ''));
+    list.append(item);
+  }
+  const position = findLineColumn(problem);
+  if (position) {
+    const jump = el('button', {
+      type: 'button',
+      class: 'pointer',
+      textContent: `go to line ${position.line}, column ${position.column}`,
+      onclick: () => {
+        const offset = offsetOfLineColumn(editor.value, position.line, position.column);
+        selectInEditor(offset, offset + 1);
+      },
+    });
+    list.append(el('li', {}, jump));
+  }
+  $('problem').hidden = false;
+}
+
+function showBusy(problem, retryAfterSeconds) {
+  showProblem(problem, 503, editor.value);
+  let remaining = retryAfterSeconds;
+  const render = () => {
+    $('problem-detail').textContent = remaining > 0
+      ? `The server is busy, retry in ${remaining} s.`
+      : 'The server was busy; you can retry now.';
+  };
+  render();
+  retryTimer = setInterval(() => {
+    remaining -= 1;
+    render();
+    if (remaining <= 0) { clearInterval(retryTimer); retryTimer = null; }
+  }, 1000);
+  setStatus(`Server busy, retry in ${retryAfterSeconds} s.`, 'error');
+}
+
+async function readProblem(response) {
+  const type = response.headers.get('Content-Type') || '';
+  const body = await response.text();
+  if (type.includes('json')) {
+    try { return JSON.parse(body); } catch { /* fall through to the text */ }
+  }
+  return { title: response.statusText || 'Request failed', detail: body.slice(0, 2000) };
+}
+
+/* ------------------------------------------------------------------------------------
+ * Rendering and history
+ * ---------------------------------------------------------------------------------- */
+
+const renders = []; /* newest first */
+let shownEntry = null;
+let rendering = false;
+let nextId = 1;
+
+async function postScene(text, accept) {
+  return fetch('/v1/renders', {
+    method: 'POST',
+    headers: { 'Content-Type': 'application/json', Accept: accept },
+    body: text,
+  });
+}
+
+function describeScene(text) {
+  const parts = [];
+  try {
+    const scene = JSON.parse(text);
+    const name = mediumNames(scene)[0];
+    if (name) {
+      const m = scene.materials[name];
+      const preset = PRESETS[m.preset];
+      parts.push(m.preset ? `${name}=${m.preset}` : name);
+      const g = Number.isFinite(m.g) ? m.g : preset && preset.g;
+      const ior = Number.isFinite(m.ior) ? m.ior : preset && preset.ior;
+      if (Number.isFinite(g)) parts.push(`g ${g}`);
+      if (Number.isFinite(ior)) parts.push(`ior ${ior}`);
+      if (Number.isFinite(m.scale)) parts.push(`×${m.scale}`);
+    }
+    const render = scene.render || {};
+    if (Number.isFinite(render.spp)) parts.push(`${render.spp} spp`);
+  } catch { /* the caption just stays short */ }
+  return parts.join(' · ');
+}
+
+async function render() {
+  if (rendering) return;
+  rendering = true;
+  readControls(); /* the controls may still be waiting for the typing pause */
+  const button = $('render');
+  button.setAttribute('aria-busy', 'true');
+  button.disabled = true;
+  button.textContent = 'Rendering…';
+  setStatus('Rendering…', 'busy');
+  const text = editor.value;
+  const started = performance.now();
+  try {
+    const response = await postScene(text, 'image/png');
+    const roundTripMs = performance.now() - started;
+    if (!response.ok) {
+      const problem = await readProblem(response);
+      if (response.status === 503) {
+        const retry = Number.parseInt(response.headers.get('Retry-After') || '', 10);
+        showBusy(problem, Number.isFinite(retry) && retry >= 0 ? retry : 1);
+      } else {
+        showProblem(problem, response.status, text);
+        setStatus(`Render failed: ${problem.title || response.status}.`, 'error');
+      }
+      return;
+    }
+    const blob = await response.blob();
+    const entry = {
+      id: nextId++,
+      sceneText: text,
+      blob,
+      url: URL.createObjectURL(blob),
+      timings: parseServerTiming(response.headers.get('Server-Timing')),
+      device: response.headers.get('X-Nscatter-Device') || '(not reported)',
+      roundTripMs,
+      caption: describeScene(text),
+      when: new Date(),
+    };
+    clearProblem();
+    addToHistory(entry);
+    await showEntry(entry);
+    setStatus(`Rendered in ${formatMs(roundTripMs)} ms (round trip).`, 'ok');
+  } catch (error) {
+    showProblem({ title: 'Cannot reach the server', detail: String(error && error.message ? error.message : error) }, 0, text);
+    setStatus('Render failed: the server did not answer.', 'error');
+  } finally {
+    rendering = false;
+    button.removeAttribute('aria-busy');
+    button.disabled = false;
+    button.textContent = 'Render';
+  }
+}
+
+function addToHistory(entry) {
+  renders.unshift(entry);
+  while (renders.length > HISTORY_LIMIT) URL.revokeObjectURL(renders.pop().url);
+  renderHistory();
+}
+
+function renderHistory() {
+  const list = $('history');
+  list.replaceChildren(...renders.map((entry) => {
+    const total = entry.timings.reduce((sum, t) => sum + (Number.isFinite(t.dur) && t.name !== 'total' ? t.dur : 0), 0);
+    const button = el('button', {
+      type: 'button',
+      title: `Render #${entry.id} at ${entry.when.toLocaleTimeString()}`,
+      onclick: () => showEntry(entry),
+    },
+    el('img', { src: entry.url, alt: `Render #${entry.id}: ${entry.caption}` }),
+    el('span', { class: 'caption', textContent: `#${entry.id} ${entry.caption} · ${formatMs(total || entry.roundTripMs)} ms` }));
+    button.setAttribute('aria-current', entry === shownEntry ? 'true' : 'false');
+    return el('li', {}, button);
+  }));
+}
+
+async function showEntry(entry) {
+  shownEntry = entry;
+  const image = $('image');
+  image.alt = `Render #${entry.id}: ${entry.caption}`;
+  const loaded = new Promise((resolve) => {
+    image.onload = resolve;
+    image.onerror = resolve;
+  });
+  image.src = entry.url;
+  image.hidden = false;
+  $('placeholder').hidden = true;
+  await loaded;
+  $('image-meta').textContent = `#${entry.id} · ${image.naturalWidth}×${image.naturalHeight} · ${entry.caption}`;
+  applyZoom();
+  showTimings(entry);
+  $('device').textContent = entry.device;
+  for (const id of ['download-png', 'download-exr', 'load-scene']) $(id).disabled = false;
+  renderHistory();
+}
+
+function showTimings(entry) {
+  const body = document.querySelector('#timings tbody');
+  const foot = document.querySelector('#timings tfoot');
+  const stages = entry.timings.filter((t) => t.name !== 'total');
+  const longest = Math.max(1e-9, ...stages.map((t) => (Number.isFinite(t.dur) ? t.dur : 0)));
+  body.replaceChildren(...stages.map((t) => {
+    const width = Number.isFinite(t.dur) ? (100 * t.dur) / longest : 0;
+    const bar = el('div', { class: 'bar' });
+    bar.style.width = `${width.toFixed(1)}%`;
+    return el('tr', {},
+      el('th', { scope: 'row', textContent: t.desc ? `${t.name} (${t.desc})` : t.name }),
+      el('td', { class: 'num', textContent: Number.isFinite(t.dur) ? formatMs(t.dur) : '—' }),
+      el('td', {}, bar));
+  }));
+  const reported = entry.timings.find((t) => t.name === 'total');
+  const serverTotal = reported && Number.isFinite(reported.dur)
+    ? reported.dur
+    : stages.reduce((sum, t) => sum + (Number.isFinite(t.dur) ? t.dur : 0), 0);
+  foot.replaceChildren(
+    el('tr', {}, el('td', { textContent: 'server total' }), el('td', { class: 'num', textContent: formatMs(serverTotal) }), el('td')),
+    el('tr', {}, el('td', { textContent: 'round trip' }), el('td', { class: 'num', textContent: formatMs(entry.roundTripMs) }), el('td')));
+}
+
+function applyZoom() {
+  const wrap = $('image-wrap');
+  const image = $('image');
+  const zoom = $('zoom').value;
+  wrap.classList.toggle('fit', zoom === 'fit');
+  wrap.classList.toggle('zoomed', zoom !== 'fit');
+  image.style.width = zoom === 'fit' || !image.naturalWidth ? '' : `${image.naturalWidth * Number(zoom)}px`;
+}
+
+function downloadBlob(blob, extension) {
+  const stamp = new Date().toISOString().replace(/[:.]/g, '-').slice(0, 19);
+  const link = el('a', { href: URL.createObjectURL(blob), download: `nscatter-${stamp}.${extension}` });
+  document.body.append(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(link.href), 10000);
+}
+
+/* EXR cannot be shown in a browser, so it is rendered on demand for the scene shown. */
+async function downloadExr() {
+  if (!shownEntry) return;
+  const button = $('download-exr');
+  button.disabled = true;
+  button.setAttribute('aria-busy', 'true');
+  setStatus('Rendering EXR…', 'busy');
+  try {
+    const response = await postScene(shownEntry.sceneText, 'image/x-exr');
+    if (!response.ok) {
+      const problem = await readProblem(response);
+      if (response.status === 503) {
+        const retry = Number.parseInt(response.headers.get('Retry-After') || '', 10);
+        showBusy(problem, Number.isFinite(retry) ? retry : 1);
+      } else showProblem(problem, response.status, shownEntry.sceneText);
+      setStatus('EXR render failed.', 'error');
+      return;
+    }
+    downloadBlob(await response.blob(), 'exr');
+    setStatus('EXR downloaded.', 'ok');
+  } catch (error) {
+    showProblem({ title: 'Cannot reach the server', detail: String(error && error.message ? error.message : error) }, 0, shownEntry.sceneText);
+    setStatus('EXR render failed: the server did not answer.', 'error');
+  } finally {
+    button.disabled = false;
+    button.removeAttribute('aria-busy');
+  }
+}
+
+/* ------------------------------------------------------------------------------------
+ * Server info footer
+ * ---------------------------------------------------------------------------------- */
+
+function deviceName(device) {
+  if (typeof device === 'string') return device;
+  if (device && typeof device === 'object') return device.name || device.device_name || JSON.stringify(device);
+  return 'unknown';
+}
+
+function applyLimits(limits) {
+  if (!limits || typeof limits !== 'object') return;
+  const side = limits.max_image_side || limits.max_width;
+  if (Number.isInteger(side)) { controls.width.max = side; controls.height.max = limits.max_height || side; }
+  if (Number.isInteger(limits.max_spp)) controls.spp.max = limits.max_spp;
+}
+
+async function loadInfo() {
+  const target = $('info-text');
+  try {
+    const response = await fetch('/v1/info', { headers: { Accept: 'application/json' } });
+    if (!response.ok) throw new Error(`HTTP ${response.status}`);
+    const info = await response.json();
+    const driver = typeof info.driver === 'string' ? info.driver
+      : info.driver && typeof info.driver === 'object' ? info.driver.name || info.driver.info || '' : '';
+    target.replaceChildren(
+      `nscatter ${info.version || '?'} · device `, el('strong', { id: 'info-device', textContent: deviceName(info.device) }),
+      driver ? ` · driver ${driver}` : '');
+    applyLimits(info.limits);
+  } catch (error) {
+    target.textContent = `Server info unavailable (${error.message}).`;
+  }
+}
+
+/* ------------------------------------------------------------------------------------
+ * Wiring
+ * ---------------------------------------------------------------------------------- */
+
+function init() {
+  const saved = storageGet();
+  setEditorText(saved && saved.trim() ? saved : sceneText(DEFAULT_SCENE));
+
+  let typingTimer = null;
+  editor.addEventListener('input', () => {
+    storageSet(editor.value);
+    clearTimeout(typingTimer);
+    typingTimer = setTimeout(readControls, 250);
+  });
+  for (const type of ['keyup', 'click', 'select', 'focus']) editor.addEventListener(type, updateCursorPosition);
+
+  document.addEventListener('keydown', (event) => {
+    if ((event.ctrlKey || event.metaKey) && event.key === 'Enter') {
+      event.preventDefault();
+      render();
+    }
+  });
+  $('render').addEventListener('click', render);
+  $('reset').addEventListener('click', () => { setEditorText(sceneText(DEFAULT_SCENE)); clearProblem(); });
+  $('format').addEventListener('click', () => {
+    const scene = parseEditor();
+    if (scene) setEditorText(sceneText(scene));
+    else setStatus('Cannot format: the text is not valid JSON.', 'error');
+  });
+
+  controls.material.addEventListener('change', () => { const s = parseEditor(); if (s) readMaterialControls(s); });
+  controls.preset.addEventListener('change', onPresetChange);
+  for (const slider of [controls.g, controls.ior, controls.scale]) {
+    slider.addEventListener('input', onSliderInput);
+    slider.addEventListener('change', onSliderChange);
+  }
+  const camera = (scene) => (scene.camera = scene.camera && typeof scene.camera === 'object' ? scene.camera : {});
+  const settings = (scene) => (scene.render = scene.render && typeof scene.render === 'object' ? scene.render : {});
+  controls.width.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { camera(s).width = v; }));
+  controls.height.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { camera(s).height = v; }));
+  controls.spp.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { settings(s).spp = v; }));
+  for (const box of controls.components) box.addEventListener('change', onComponentsChange);
+
+  $('zoom').addEventListener('change', applyZoom);
+  $('download-png').addEventListener('click', () => shownEntry && downloadBlob(shownEntry.blob, 'png'));
+  $('download-exr').addEventListener('click', downloadExr);
+  $('load-scene').addEventListener('click', () => shownEntry && setEditorText(shownEntry.sceneText));
+
+  loadInfo();
+}
+
+init();
