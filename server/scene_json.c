@@ -1,0 +1,1495 @@
+/* scene_json.c — scene JSON version 1 (docs/scene.md) to ns_scene, strictly validated.
+ *
+ * The parser walks the document once, keeping the JSON pointer of the value it is looking
+ * at, and reports every problem it can find (up to SCENE_MAX_ISSUES are stored) rather than
+ * stopping at the first: a user fixing a scene should see all of its mistakes at once.
+ * Nothing is defaulted silently except the documented defaults; any unknown key is an
+ * error, so a typo ("radious") never renders a scene that differs from the one intended.
+ */
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <jansson.h>
+
+#include "gltf_shim.h"
+#include "scene_json.h"
+
+struct scene_doc {
+    ns_scene scene;
+    ns_material *materials;
+    ns_object *objects;
+    ns_triangle *triangles;
+    ns_light *lights;
+};
+
+/* =======================================================================================
+ * Parser state, JSON pointers and issues
+ * ===================================================================================== */
+
+typedef struct parser {
+    scene_issues *issues;
+    const scene_parse_options *opts;
+    char ptr[1024]; /* JSON pointer of the value being looked at */
+    size_t ptr_len;
+    int oom;
+
+    ns_camera camera;
+    ns_material *materials;
+    uint32_t material_count;
+    int materials_known; /* 0: "materials" was unusable, so references cannot be checked */
+    ns_object *objects;
+    uint32_t object_count;
+    ns_triangle *triangles;
+    uint32_t triangle_count;
+    size_t triangle_cap;
+    ns_light *lights;
+    uint32_t light_count;
+    ns_render_settings render;
+} parser;
+
+/* Appends "/key" (RFC 6901: '~' as "~0", '/' as "~1") and returns the previous length,
+ * which pop() restores. A pointer longer than the buffer is cut, never overrun. */
+static size_t push_key(parser *p, const char *key)
+{
+    size_t saved = p->ptr_len, n = p->ptr_len, cap = sizeof p->ptr - 1;
+    if (n < cap)
+        p->ptr[n++] = '/';
+    for (const char *c = key; *c && n < cap; c++) {
+        if (*c == '~' || *c == '/') {
+            if (n + 2 > cap)
+                break;
+            p->ptr[n++] = '~';
+            p->ptr[n++] = *c == '~' ? '0' : '1';
+        } else {
+            p->ptr[n++] = *c;
+        }
+    }
+    p->ptr[n] = '\0';
+    p->ptr_len = n;
+    return saved;
+}
+
+static size_t push_index(parser *p, size_t index)
+{
+    char buf[32];
+    snprintf(buf, sizeof buf, "%zu", index);
+    return push_key(p, buf);
+}
+
+static void pop(parser *p, size_t saved)
+{
+    p->ptr_len = saved;
+    p->ptr[saved] = '\0';
+}
+
+/* Copies src into dst[cap], cut to fit (pointers are built longer than an issue holds). */
+static void copy_cut(char *dst, size_t cap, const char *src)
+{
+    size_t n = strnlen(src, cap - 1);
+    memcpy(dst, src, n);
+    dst[n] = '\0';
+}
+
+static void add_issue(scene_issues *issues, const char *pointer, const char *detail)
+{
+    issues->total++;
+    if (issues->count >= SCENE_MAX_ISSUES)
+        return;
+    scene_issue *it = &issues->items[issues->count++];
+    copy_cut(it->pointer, sizeof it->pointer, pointer);
+    copy_cut(it->detail, sizeof it->detail, detail);
+}
+
+__attribute__((format(printf, 2, 3))) static void report(parser *p, const char *fmt, ...)
+{
+    char detail[sizeof p->issues->items[0].detail];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    add_issue(p->issues, p->ptr, detail);
+}
+
+/* Reports at the pointer of the child `key` of the current value. */
+__attribute__((format(printf, 3, 4))) static void report_at(parser *p, const char *key,
+                                                            const char *fmt, ...)
+{
+    char detail[sizeof p->issues->items[0].detail];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    size_t saved = push_key(p, key);
+    add_issue(p->issues, p->ptr, detail);
+    pop(p, saved);
+}
+
+static const char *json_kind(const json_t *v)
+{
+    switch (json_typeof(v)) {
+    case JSON_OBJECT: return "an object";
+    case JSON_ARRAY: return "an array";
+    case JSON_STRING: return "a string";
+    case JSON_INTEGER:
+    case JSON_REAL: return "a number";
+    case JSON_TRUE:
+    case JSON_FALSE: return "a boolean";
+    case JSON_NULL: return "null";
+    }
+    return "something else";
+}
+
+/* =======================================================================================
+ * Typed values. Each as_* checks the value at the current pointer and reports what is
+ * wrong with it; each field_* looks a key up in an object (reporting it missing when it is
+ * required) and checks its value at the key's pointer. They return 1 when *out was set.
+ * ===================================================================================== */
+
+typedef struct range {
+    double lo, hi;
+    char lo_open, hi_open; /* 1: the bound itself is excluded */
+} range;
+
+static const range R_FINITE = {-FLT_MAX, FLT_MAX, 0, 0};
+static const range R_POSITIVE = {0, FLT_MAX, 1, 0};
+static const range R_NONNEGATIVE = {0, FLT_MAX, 0, 0};
+static const range R_UNIT = {0, 1, 0, 0};
+static const range R_G = {-1, 1, 1, 1};
+static const range R_IOR = {1, FLT_MAX, 0, 0};
+static const range R_FOV = {0, 180, 1, 1};
+static const range R_EXPOSURE = {-64, 64, 0, 0};
+
+static void describe_range(range r, char *buf, size_t cap)
+{
+    if (r.lo == -FLT_MAX && r.hi == FLT_MAX)
+        snprintf(buf, cap, "a finite number");
+    else if (r.hi == FLT_MAX)
+        snprintf(buf, cap, "%s %g", r.lo_open ? ">" : ">=", r.lo);
+    else
+        snprintf(buf, cap, "in %c%g, %g%c", r.lo_open ? '(' : '[', r.lo, r.hi, r.hi_open ? ')' : ']');
+}
+
+static int in_range(double x, range r)
+{
+    return (r.lo_open ? x > r.lo : x >= r.lo) && (r.hi_open ? x < r.hi : x <= r.hi);
+}
+
+static int as_number(parser *p, const json_t *v, range r, const char *what, double *out)
+{
+    char allowed[64];
+    describe_range(r, allowed, sizeof allowed);
+    if (!json_is_number(v)) {
+        report(p, "%s must be a number (%s), got %s", what, allowed, json_kind(v));
+        return 0;
+    }
+    double x = json_number_value(v);
+    if (!isfinite(x) || fabs(x) > FLT_MAX) {
+        report(p, "%s is too large for a 32-bit float; must be %s", what, allowed);
+        return 0;
+    }
+    if (!in_range(x, r)) {
+        report(p, "%s must be %s, got %g", what, allowed, x);
+        return 0;
+    }
+    *out = x;
+    return 1;
+}
+
+static int as_vec3(parser *p, const json_t *v, range r, const char *what, float out[3])
+{
+    if (!json_is_array(v) || json_array_size(v) != 3) {
+        if (json_is_array(v))
+            report(p, "%s must be an array of 3 numbers, got %zu elements", what, json_array_size(v));
+        else
+            report(p, "%s must be an array of 3 numbers, got %s", what, json_kind(v));
+        return 0;
+    }
+    int ok = 1;
+    for (size_t i = 0; i < 3; i++) {
+        size_t saved = push_index(p, i);
+        double x;
+        if (as_number(p, json_array_get(v, i), r, what, &x))
+            out[i] = (float)x;
+        else
+            ok = 0;
+        pop(p, saved);
+    }
+    return ok;
+}
+
+/* A color is [r, g, b] or one number meaning grey (the same value in all three). */
+static int as_color(parser *p, const json_t *v, range r, const char *what, float out[3])
+{
+    if (json_is_number(v)) {
+        double x;
+        if (!as_number(p, v, r, what, &x))
+            return 0;
+        out[0] = out[1] = out[2] = (float)x;
+        return 1;
+    }
+    if (!json_is_array(v)) {
+        report(p, "%s must be [r, g, b] or one number (grey), got %s", what, json_kind(v));
+        return 0;
+    }
+    return as_vec3(p, v, r, what, out);
+}
+
+/* An integer in [lo, hi]; a number with no fractional part (256.0) counts as one. */
+static int as_uint(parser *p, const json_t *v, double lo, double hi, const char *what, uint32_t *out)
+{
+    if (!json_is_number(v)) {
+        report(p, "%s must be an integer in [%.0f, %.0f], got %s", what, lo, hi, json_kind(v));
+        return 0;
+    }
+    double x = json_number_value(v);
+    if (!isfinite(x) || floor(x) != x) {
+        report(p, "%s must be an integer in [%.0f, %.0f], got %g", what, lo, hi, x);
+        return 0;
+    }
+    if (x < lo || x > hi) {
+        report(p, "%s must be an integer in [%.0f, %.0f], got %.0f", what, lo, hi, x);
+        return 0;
+    }
+    *out = (uint32_t)x;
+    return 1;
+}
+
+/* One of `names` (count n); *out is its index. */
+static int as_enum(parser *p, const json_t *v, const char *const *names, size_t n, const char *what,
+                   int *out)
+{
+    char allowed[256] = "";
+    for (size_t i = 0; i < n; i++) {
+        size_t len = strlen(allowed);
+        snprintf(allowed + len, sizeof allowed - len, "%s\"%s\"", i ? ", " : "", names[i]);
+    }
+    if (!json_is_string(v)) {
+        report(p, "%s must be a string, one of %s; got %s", what, allowed, json_kind(v));
+        return 0;
+    }
+    for (size_t i = 0; i < n; i++)
+        if (strcmp(json_string_value(v), names[i]) == 0) {
+            *out = (int)i;
+            return 1;
+        }
+    report(p, "unknown %s \"%.64s\"; allowed: %s", what, json_string_value(v), allowed);
+    return 0;
+}
+
+static void report_missing(parser *p, const char *key, const char *what)
+{
+    report_at(p, key, "missing required field \"%s\" (%s)", key, what);
+}
+
+/* The value of `key`, or NULL (reported as missing when required). */
+static const json_t *field(parser *p, const json_t *obj, const char *key, int required, const char *what)
+{
+    const json_t *v = json_object_get(obj, key);
+    if (!v && required)
+        report_missing(p, key, what);
+    return v;
+}
+
+static int field_number(parser *p, const json_t *obj, const char *key, int required, range r,
+                        const char *what, double *out)
+{
+    const json_t *v = field(p, obj, key, required, what);
+    if (!v)
+        return 0;
+    size_t saved = push_key(p, key);
+    int ok = as_number(p, v, r, what, out);
+    pop(p, saved);
+    return ok;
+}
+
+static int field_float(parser *p, const json_t *obj, const char *key, int required, range r,
+                       const char *what, float *out)
+{
+    double x;
+    if (!field_number(p, obj, key, required, r, what, &x))
+        return 0;
+    *out = (float)x;
+    return 1;
+}
+
+static int field_vec3(parser *p, const json_t *obj, const char *key, int required, range r,
+                      const char *what, float out[3])
+{
+    const json_t *v = field(p, obj, key, required, what);
+    if (!v)
+        return 0;
+    size_t saved = push_key(p, key);
+    int ok = as_vec3(p, v, r, what, out);
+    pop(p, saved);
+    return ok;
+}
+
+static int field_color(parser *p, const json_t *obj, const char *key, int required, range r,
+                       const char *what, float out[3])
+{
+    const json_t *v = field(p, obj, key, required, what);
+    if (!v)
+        return 0;
+    size_t saved = push_key(p, key);
+    int ok = as_color(p, v, r, what, out);
+    pop(p, saved);
+    return ok;
+}
+
+static int field_uint(parser *p, const json_t *obj, const char *key, int required, double lo,
+                      double hi, const char *what, uint32_t *out)
+{
+    const json_t *v = field(p, obj, key, required, what);
+    if (!v)
+        return 0;
+    size_t saved = push_key(p, key);
+    int ok = as_uint(p, v, lo, hi, what, out);
+    pop(p, saved);
+    return ok;
+}
+
+static int field_enum(parser *p, const json_t *obj, const char *key, int required,
+                      const char *const *names, size_t n, const char *what, int *out)
+{
+    const json_t *v = field(p, obj, key, required, what);
+    if (!v)
+        return 0;
+    size_t saved = push_key(p, key);
+    int ok = as_enum(p, v, names, n, what, out);
+    pop(p, saved);
+    return ok;
+}
+
+/* Reports every key of obj not in the NULL-terminated `allowed` list. */
+static void check_keys(parser *p, const json_t *obj, const char *const *allowed)
+{
+    char list[256] = "";
+    for (size_t i = 0; allowed[i]; i++) {
+        size_t len = strlen(list);
+        snprintf(list + len, sizeof list - len, "%s%s", i ? ", " : "", allowed[i]);
+    }
+    const char *key;
+    const json_t *value;
+    json_object_foreach((json_t *)obj, key, value) {
+        int known = 0;
+        for (size_t i = 0; allowed[i] && !known; i++)
+            known = strcmp(key, allowed[i]) == 0;
+        if (!known)
+            report_at(p, key, "unknown key \"%.64s\"; allowed here: %s", key, list);
+    }
+}
+
+static int expect_object(parser *p, const json_t *v, const char *what)
+{
+    if (json_is_object(v))
+        return 1;
+    report(p, "%s must be an object, got %s", what, json_kind(v));
+    return 0;
+}
+
+static int expect_array(parser *p, const json_t *v, const char *what)
+{
+    if (json_is_array(v))
+        return 1;
+    report(p, "%s must be an array, got %s", what, json_kind(v));
+    return 0;
+}
+
+/* =======================================================================================
+ * Small vector helpers
+ * ===================================================================================== */
+
+static double length3(const double v[3])
+{
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
+/* Normalises a float vector in double precision; returns 0 when it has no direction. */
+static int normalize3f(float v[3])
+{
+    double d[3] = {v[0], v[1], v[2]};
+    double len = length3(d);
+    if (!(len > 0) || !isfinite(len))
+        return 0;
+    for (int i = 0; i < 3; i++)
+        v[i] = (float)(d[i] / len);
+    return 1;
+}
+
+/* =======================================================================================
+ * Camera
+ * ===================================================================================== */
+
+static void parse_camera(parser *p, const json_t *v)
+{
+    static const char *const keys[] = {"position", "look_at", "up", "fov", "width", "height", NULL};
+    if (!expect_object(p, v, "camera"))
+        return;
+    check_keys(p, v, keys);
+    ns_camera *c = &p->camera;
+    int have_pos = field_vec3(p, v, "position", 1, R_FINITE, "camera position, scene units", c->position);
+    int have_look = field_vec3(p, v, "look_at", 1, R_FINITE, "point the camera looks at", c->look_at);
+    int have_up = field_vec3(p, v, "up", 1, R_FINITE, "camera up vector", c->up);
+    field_float(p, v, "fov", 1, R_FOV, "fov (horizontal field of view, degrees)", &c->fov_deg);
+    int have_w = field_uint(p, v, "width", 1, 1, NS_MAX_IMAGE_SIDE, "width (pixels)", &c->width);
+    int have_h = field_uint(p, v, "height", 1, 1, NS_MAX_IMAGE_SIDE, "height (pixels)", &c->height);
+
+    if (have_w && have_h && (uint64_t)c->width * c->height > NS_MAX_PIXELS)
+        report_at(p, "height", "width x height = %llu pixels is over the limit of %u pixels",
+                  (unsigned long long)c->width * c->height, (unsigned)NS_MAX_PIXELS);
+
+    double dir[3] = {0, 0, 0};
+    int have_dir = 0;
+    if (have_pos && have_look) {
+        for (int i = 0; i < 3; i++)
+            dir[i] = (double)c->look_at[i] - (double)c->position[i];
+        have_dir = length3(dir) > 0;
+        if (!have_dir)
+            report_at(p, "look_at", "look_at equals position; the camera needs a direction to look in");
+    }
+    if (have_up) {
+        if (!normalize3f(c->up)) {
+            report_at(p, "up", "up must not be the zero vector");
+        } else if (have_dir) {
+            double len = length3(dir);
+            double d[3] = {dir[0] / len, dir[1] / len, dir[2] / len};
+            double cr[3] = {d[1] * c->up[2] - d[2] * c->up[1], d[2] * c->up[0] - d[0] * c->up[2],
+                            d[0] * c->up[1] - d[1] * c->up[0]};
+            if (length3(cr) < 1e-6)
+                report_at(p, "up", "up is parallel to the view direction (look_at - position); "
+                                   "it must point away from it");
+        }
+    }
+}
+
+/* =======================================================================================
+ * Materials
+ * ===================================================================================== */
+
+/* The paper's Table 1 (Ge et al. 2021): albedo and mean free path per channel, g, eta. */
+typedef struct preset {
+    const char *name;
+    double albedo[3], mfp[3], g, ior;
+} preset;
+
+static const preset presets[] = {
+    {"bumpy_sphere", {0.955, 0.677, 0.457}, {4.55, 3.23, 2.17}, 0.9, 1.50},
+    {"candle", {0.980, 0.962, 0.750}, {0.65, 0.63, 0.59}, 0.8, 1.45},
+    {"dragon", {0.882, 0.938, 0.980}, {0.29, 0.18, 0.33}, 0.5, 1.50},
+    {"milk", {0.999, 0.999, 0.999}, {0.84, 0.75, 0.68}, 0.7, 1.30},
+    {"oil", {0.398, 0.453, 0.032}, {9.71, 11.63, 2.74}, 0.9, 1.50},
+    {"lucy", {0.936, 0.939, 0.941}, {0.21, 0.20, 0.19}, 0.0, 1.50},
+    {"cloud", {0.909, 0.909, 0.909}, {0.909, 0.909, 0.909}, 0.0, 1.0},
+};
+#define PRESET_COUNT (sizeof presets / sizeof presets[0])
+
+static const preset *find_preset(parser *p, const json_t *m)
+{
+    const char *names[PRESET_COUNT];
+    for (size_t i = 0; i < PRESET_COUNT; i++)
+        names[i] = presets[i].name;
+    int index;
+    if (!field_enum(p, m, "preset", 0, names, PRESET_COUNT, "preset", &index))
+        return NULL;
+    return &presets[index];
+}
+
+/* Writes scale * coefficient into out, refusing results a float cannot hold. */
+static int store_coefficients(parser *p, const double sigma_s[3], const double sigma_a[3], double scale,
+                              ns_material *out)
+{
+    for (int i = 0; i < 3; i++) {
+        double s = sigma_s[i] * scale, a = sigma_a[i] * scale;
+        if (!(s <= FLT_MAX) || !(a <= FLT_MAX)) {
+            report(p, "the resolved coefficients (sigma_s, sigma_a = %g, %g per scene unit) "
+                      "overflow a 32-bit float; use a larger mfp or a smaller scale", s, a);
+            return 0;
+        }
+        out->sigma_s[i] = (float)s;
+        out->sigma_a[i] = (float)a;
+    }
+    return 1;
+}
+
+static void parse_medium(parser *p, const json_t *m, ns_material *out)
+{
+    static const char *const keys[] = {"type", "preset", "sigma_s", "sigma_a", "albedo", "mfp",
+                                       "scale", "g", "ior", NULL};
+    check_keys(p, m, keys);
+    const preset *pre = find_preset(p, m);
+    int preset_bad = json_object_get(m, "preset") && !pre;
+
+    double albedo[3] = {0, 0, 0}, mfp[3] = {1, 1, 1};
+    out->g = pre ? (float)pre->g : 0.0f;
+    out->ior = pre ? (float)pre->ior : 1.0f;
+    if (pre)
+        for (int i = 0; i < 3; i++)
+            albedo[i] = pre->albedo[i], mfp[i] = pre->mfp[i];
+
+    field_float(p, m, "g", 0, R_G, "g (Henyey-Greenstein anisotropy)", &out->g);
+    field_float(p, m, "ior", 0, R_IOR, "ior (index of refraction, 1 = index matched)", &out->ior);
+    double scale = 1;
+    int ok = 1;
+    if (json_object_get(m, "scale"))
+        ok &= field_number(p, m, "scale", 1, R_POSITIVE, "scale (multiplies the coefficients)", &scale);
+
+    const char *sigma_key = json_object_get(m, "sigma_s") ? "sigma_s"
+                            : json_object_get(m, "sigma_a") ? "sigma_a"
+                                                             : NULL;
+    const char *amfp_key = json_object_get(m, "albedo") ? "albedo"
+                           : json_object_get(m, "mfp")  ? "mfp"
+                                                        : NULL;
+    if (sigma_key && amfp_key) {
+        report_at(p, amfp_key, "\"%s\" contradicts \"%s\": a medium is given by sigma_s+sigma_a "
+                               "or by albedo+mfp, never both", amfp_key, sigma_key);
+        ok = 0;
+    }
+    if (!sigma_key && !amfp_key && !pre) {
+        if (!preset_bad)
+            report(p, "a medium needs sigma_s+sigma_a (per scene unit), albedo+mfp, or a preset");
+        return;
+    }
+
+    if (sigma_key) {
+        /* The coefficient form replaces a preset's coefficients entirely, so both are
+         * needed even with a preset. */
+        float fs[3], fa[3];
+        ok &= field_color(p, m, "sigma_s", 1, R_NONNEGATIVE, "sigma_s (scattering coefficient per scene unit)", fs);
+        ok &= field_color(p, m, "sigma_a", 1, R_NONNEGATIVE, "sigma_a (absorption coefficient per scene unit)", fa);
+        if (ok && !amfp_key) {
+            double s[3] = {fs[0], fs[1], fs[2]}, a[3] = {fa[0], fa[1], fa[2]};
+            store_coefficients(p, s, a, scale, out);
+        }
+        return;
+    }
+    /* Albedo/mfp form: each field overrides the preset's; without a preset both are needed. */
+    float fv[3];
+    if (field_color(p, m, "albedo", !pre, R_UNIT, "albedo (single-scattering albedo)", fv))
+        for (int i = 0; i < 3; i++)
+            albedo[i] = fv[i];
+    else if (json_object_get(m, "albedo") || !pre)
+        ok = 0;
+    if (field_color(p, m, "mfp", !pre, R_POSITIVE, "mfp (mean free path, scene units)", fv))
+        for (int i = 0; i < 3; i++)
+            mfp[i] = fv[i];
+    else if (json_object_get(m, "mfp") || !pre)
+        ok = 0;
+    if (!ok || preset_bad)
+        return;
+    double sigma_s[3], sigma_a[3];
+    for (int i = 0; i < 3; i++) {
+        double sigma_t = 1.0 / mfp[i];
+        sigma_s[i] = albedo[i] * sigma_t;
+        sigma_a[i] = (1.0 - albedo[i]) * sigma_t;
+    }
+    store_coefficients(p, sigma_s, sigma_a, scale, out);
+}
+
+static void parse_material(parser *p, const json_t *m, ns_material *out)
+{
+    static const char *const types[] = {"diffuse", "medium"};
+    static const char *const diffuse_keys[] = {"type", "reflectance", NULL};
+    if (!expect_object(p, m, "a material"))
+        return;
+    int type;
+    if (!field_enum(p, m, "type", 1, types, 2, "material type", &type))
+        return;
+    if (type == 0) {
+        out->type = NS_MATERIAL_DIFFUSE;
+        check_keys(p, m, diffuse_keys);
+        field_color(p, m, "reflectance", 1, R_UNIT, "reflectance (diffuse albedo)", out->reflectance);
+    } else {
+        out->type = NS_MATERIAL_MEDIUM;
+        parse_medium(p, m, out);
+    }
+}
+
+static void parse_materials(parser *p, const json_t *v)
+{
+    if (!expect_object(p, v, "materials (an object keyed by material name)"))
+        return;
+    size_t n = json_object_size(v);
+    if (n > NS_MAX_MATERIALS) {
+        report(p, "%zu materials is over the limit of %d", n, NS_MAX_MATERIALS);
+        return;
+    }
+    p->materials = calloc(n ? n : 1, sizeof *p->materials);
+    if (!p->materials) {
+        p->oom = 1;
+        return;
+    }
+    p->materials_known = 1;
+    const char *name;
+    const json_t *m;
+    json_object_foreach((json_t *)v, name, m) {
+        ns_material *out = &p->materials[p->material_count++];
+        size_t saved = push_key(p, name);
+        size_t len = strlen(name);
+        if (len == 0 || len >= NS_NAME_MAX)
+            report(p, "material names must be 1 to %d bytes long, got %zu", NS_NAME_MAX - 1, len);
+        /* Kept (cut) even when invalid, so that objects naming it are not reported too. */
+        snprintf(out->name, sizeof out->name, "%s", name);
+        parse_material(p, m, out);
+        pop(p, saved);
+    }
+}
+
+/* =======================================================================================
+ * Mesh sources: base64, data: URIs, named assets
+ * ===================================================================================== */
+
+static int base64_value(unsigned char c)
+{
+    if (c >= 'A' && c <= 'Z') return c - 'A';
+    if (c >= 'a' && c <= 'z') return c - 'a' + 26;
+    if (c >= '0' && c <= '9') return c - '0' + 52;
+    if (c == '+') return 62;
+    if (c == '/') return 63;
+    return -1;
+}
+
+/* Standard base64 (RFC 4648 section 4); padding optional, ASCII whitespace ignored so that
+ * wrapped output of base64(1) works. Returns 0 and a malloc'd buffer, or writes why not. */
+static int base64_decode(const char *s, size_t len, unsigned char **out, size_t *out_len, int *oom,
+                         char *why, size_t why_len)
+{
+    *out = NULL;
+    *out_len = 0;
+    if (len / 4 * 3 > GLTF_MAX_BYTES + 3) {
+        snprintf(why, why_len, "decodes to more than the %zu-byte limit for a mesh", GLTF_MAX_BYTES);
+        return -1;
+    }
+    unsigned char *buf = malloc(len / 4 * 3 + 3);
+    if (!buf) {
+        *oom = 1;
+        snprintf(why, why_len, "out of memory");
+        return -1;
+    }
+    uint32_t acc = 0;
+    size_t bits = 0, n = 0, pad = 0, digits = 0;
+    for (size_t i = 0; i < len; i++) {
+        unsigned char c = (unsigned char)s[i];
+        if (c == ' ' || c == '\n' || c == '\r' || c == '\t')
+            continue;
+        if (c == '=') {
+            pad++;
+            continue;
+        }
+        int val = base64_value(c);
+        if (val < 0 || pad) {
+            if (val < 0)
+                snprintf(why, why_len, "is not valid base64: character 0x%02x at offset %zu", c, i);
+            else
+                snprintf(why, why_len, "is not valid base64: data after '=' padding at offset %zu", i);
+            free(buf);
+            return -1;
+        }
+        digits++;
+        acc = (acc << 6) | (uint32_t)val;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            buf[n++] = (unsigned char)(acc >> bits);
+            acc &= (1u << bits) - 1;
+        }
+    }
+    if (digits % 4 == 1 || pad > 2 || (pad && (digits + pad) % 4 != 0)) {
+        snprintf(why, why_len, "is not valid base64: its length does not fit whole bytes");
+        free(buf);
+        return -1;
+    }
+    *out = buf;
+    *out_len = n;
+    return 0;
+}
+
+static int starts_with_nocase(const char *s, const char *prefix)
+{
+    for (; *prefix; s++, prefix++) {
+        char c = *s >= 'A' && *s <= 'Z' ? (char)(*s - 'A' + 'a') : *s;
+        if (c != *prefix)
+            return 0;
+    }
+    return 1;
+}
+
+/* data:[<mediatype>][;params];base64,<data> */
+static int decode_data_uri(const char *uri, unsigned char **out, size_t *out_len, int *oom, char *why,
+                           size_t why_len)
+{
+    *out = NULL;
+    if (!starts_with_nocase(uri, "data:")) {
+        snprintf(why, why_len, "only data: URIs are accepted (data:model/gltf-binary;base64,...); "
+                               "use \"asset\" for a file in the server's asset folder");
+        return -1;
+    }
+    const char *comma = strchr(uri, ',');
+    if (!comma) {
+        snprintf(why, why_len, "is a data: URI without the ',' before its data");
+        return -1;
+    }
+    size_t meta_len = (size_t)(comma - uri);
+    if (meta_len < 12 || !starts_with_nocase(comma - 7, ";base64")) {
+        snprintf(why, why_len, "must be a base64 data: URI (data:<type>;base64,<data>)");
+        return -1;
+    }
+    return base64_decode(comma + 1, strlen(comma + 1), out, out_len, oom, why, why_len);
+}
+
+static int asset_name_ok(const char *name, char *why, size_t why_len)
+{
+    size_t len = strlen(name);
+    if (len == 0 || len > 255 || name[0] == '.' || strchr(name, '/') || strchr(name, '\\')) {
+        snprintf(why, why_len, "\"%.64s\" is not an asset name: names are 1-255 bytes, contain no "
+                               "'/' or '\\\\', and do not start with '.'", name);
+        return 0;
+    }
+    for (const char *c = name; *c; c++)
+        if ((unsigned char)*c < 0x20 || *c == 0x7f) {
+            snprintf(why, why_len, "asset names may not contain control characters");
+            return 0;
+        }
+    return 1;
+}
+
+static int read_asset(const char *dir, const char *name, unsigned char **out, size_t *out_len, int *oom,
+                      char *why, size_t why_len)
+{
+    *out = NULL;
+    char path[4096];
+    if ((size_t)snprintf(path, sizeof path, "%s/%s", dir, name) >= sizeof path) {
+        snprintf(why, why_len, "asset path is too long");
+        return -1;
+    }
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        snprintf(why, why_len, "asset \"%.64s\" cannot be opened: %s", name, strerror(errno));
+        return -1;
+    }
+    int rc = -1;
+    unsigned char *buf = NULL;
+    long size = -1;
+    if (fseek(f, 0, SEEK_END) == 0)
+        size = ftell(f);
+    if (size < 0 || fseek(f, 0, SEEK_SET) != 0) {
+        snprintf(why, why_len, "asset \"%.64s\" is not a regular readable file", name);
+    } else if ((unsigned long)size > GLTF_MAX_BYTES) {
+        snprintf(why, why_len, "asset \"%.64s\" is %ld bytes, over the %zu-byte limit", name, size, GLTF_MAX_BYTES);
+    } else if (!(buf = malloc((size_t)size + 1))) {
+        *oom = 1;
+        snprintf(why, why_len, "out of memory");
+    } else if (fread(buf, 1, (size_t)size, f) != (size_t)size) {
+        snprintf(why, why_len, "asset \"%.64s\" could not be read", name);
+    } else {
+        *out = buf;
+        *out_len = (size_t)size;
+        buf = NULL;
+        rc = 0;
+    }
+    free(buf);
+    fclose(f);
+    return rc;
+}
+
+/* =======================================================================================
+ * Objects
+ * ===================================================================================== */
+
+/* Affine object transform p' = T + R * (S * p), R = Rz * Ry * Rx (rotate about x first). */
+typedef struct xform {
+    double m[3][4];
+} xform;
+
+static int parse_transform(parser *p, const json_t *t, xform *out)
+{
+    static const char *const keys[] = {"translate", "rotate_deg", "scale", NULL};
+    if (!expect_object(p, t, "transform"))
+        return 0;
+    check_keys(p, t, keys);
+    float tr[3] = {0, 0, 0}, rot[3] = {0, 0, 0}, sc[3] = {1, 1, 1};
+    int ok = 1;
+    if (json_object_get(t, "translate"))
+        ok &= field_vec3(p, t, "translate", 1, R_FINITE, "translate (scene units)", tr);
+    if (json_object_get(t, "rotate_deg"))
+        ok &= field_vec3(p, t, "rotate_deg", 1, R_FINITE, "rotate_deg ([x, y, z] degrees)", rot);
+    const json_t *s = json_object_get(t, "scale");
+    if (s) {
+        size_t saved = push_key(p, "scale");
+        if (json_is_number(s)) {
+            double x;
+            if (as_number(p, s, R_POSITIVE, "scale", &x))
+                sc[0] = sc[1] = sc[2] = (float)x;
+            else
+                ok = 0;
+        } else if (json_is_array(s)) {
+            ok &= as_vec3(p, s, R_POSITIVE, "scale", sc);
+        } else {
+            report(p, "scale must be a number > 0 or [sx, sy, sz], got %s", json_kind(s));
+            ok = 0;
+        }
+        pop(p, saved);
+    }
+    if (!ok)
+        return 0;
+    const double to_rad = acos(-1.0) / 180.0;
+    double cx = cos(rot[0] * to_rad), sx = sin(rot[0] * to_rad);
+    double cy = cos(rot[1] * to_rad), sy = sin(rot[1] * to_rad);
+    double cz = cos(rot[2] * to_rad), sz = sin(rot[2] * to_rad);
+    double r[3][3] = {
+        {cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx},
+        {sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx},
+        {-sy, cy * sx, cy * cx},
+    };
+    for (int row = 0; row < 3; row++) {
+        for (int col = 0; col < 3; col++)
+            out->m[row][col] = r[row][col] * sc[col];
+        out->m[row][3] = tr[row];
+    }
+    return 1;
+}
+
+static int append_triangles(parser *p, const float *pos, size_t count, const xform *x)
+{
+    if (p->triangle_count + count > p->triangle_cap) {
+        size_t cap = p->triangle_cap ? p->triangle_cap : 64;
+        while (cap < p->triangle_count + count)
+            cap *= 2;
+        ns_triangle *grown = realloc(p->triangles, cap * sizeof *grown);
+        if (!grown) {
+            p->oom = 1;
+            return 0;
+        }
+        p->triangles = grown;
+        p->triangle_cap = cap;
+    }
+    for (size_t t = 0; t < count; t++) {
+        ns_triangle *tri = &p->triangles[p->triangle_count + t];
+        for (int v = 0; v < 3; v++) {
+            const float *in = pos + t * 9 + v * 3;
+            for (int a = 0; a < 3; a++) {
+                double w = x->m[a][0] * in[0] + x->m[a][1] * in[1] + x->m[a][2] * in[2] + x->m[a][3];
+                if (!(fabs(w) <= FLT_MAX)) {
+                    report(p, "a vertex of triangle %zu is not finite after the transform", t);
+                    return 0;
+                }
+                tri->v[v][a] = (float)w;
+            }
+        }
+    }
+    p->triangle_count += (uint32_t)count;
+    return 1;
+}
+
+/* Reads the one mesh source of o (its key in *source_key) into malloc'd bytes. */
+static int mesh_bytes(parser *p, const json_t *o, const char *key, unsigned char **bytes, size_t *len)
+{
+    const json_t *v = json_object_get(o, key);
+    size_t saved = push_key(p, key);
+    char why[400] = "";
+    int rc = -1;
+    if (!json_is_string(v)) {
+        report(p, "%s must be a string, got %s", key, json_kind(v));
+        pop(p, saved);
+        return -1;
+    }
+    const char *s = json_string_value(v);
+    if (strcmp(key, "glb_base64") == 0) {
+        rc = base64_decode(s, json_string_length(v), bytes, len, &p->oom, why, sizeof why);
+        if (rc)
+            report(p, "glb_base64 %s", why);
+    } else if (strcmp(key, "uri") == 0) {
+        rc = decode_data_uri(s, bytes, len, &p->oom, why, sizeof why);
+        if (rc)
+            report(p, "uri %s", why);
+    } else if (!asset_name_ok(s, why, sizeof why)) {
+        report(p, "%s", why);
+    } else if (!p->opts || !p->opts->asset_dir) {
+        report(p, "assets are not available: this server has no asset folder; "
+                  "send the mesh as glb_base64 or a data: uri");
+    } else {
+        rc = read_asset(p->opts->asset_dir, s, bytes, len, &p->oom, why, sizeof why);
+        if (rc)
+            report(p, "%s", why);
+    }
+    pop(p, saved);
+    return rc;
+}
+
+static void parse_mesh(parser *p, const json_t *o, ns_object *out)
+{
+    static const char *const sources[] = {"glb_base64", "uri", "asset"};
+    const char *source = NULL;
+    for (size_t i = 0; i < 3; i++) {
+        if (!json_object_get(o, sources[i]))
+            continue;
+        if (source)
+            report_at(p, sources[i], "a mesh takes exactly one of glb_base64, uri, asset; "
+                                     "\"%s\" is given too", source);
+        else
+            source = sources[i];
+    }
+    if (!source) {
+        report(p, "missing mesh data: give exactly one of \"glb_base64\" (GLB bytes as base64), "
+                  "\"uri\" (a data: URI) or \"asset\" (a file name in the server's asset folder)");
+        return;
+    }
+    xform x = {{{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}}};
+    const json_t *t = json_object_get(o, "transform");
+    int transform_ok = 1;
+    if (t) {
+        size_t saved = push_key(p, "transform");
+        transform_ok = parse_transform(p, t, &x);
+        pop(p, saved);
+    }
+    unsigned char *bytes = NULL;
+    size_t len = 0;
+    if (mesh_bytes(p, o, source, &bytes, &len) != 0)
+        return;
+    float *pos = NULL;
+    size_t count = 0;
+    char err[400];
+    int rc = gltf_load(bytes, len, NS_MAX_TRIANGLES - p->triangle_count, &pos, &count, err, sizeof err);
+    free(bytes);
+    if (rc == NS_ERR_OUT_OF_HOST_MEMORY) {
+        p->oom = 1;
+    } else if (rc == NS_ERR_LIMIT) {
+        report(p, "%s; a scene holds at most %u triangles in all", err, (unsigned)NS_MAX_TRIANGLES);
+    } else if (rc != 0) {
+        report_at(p, source, "%s", err);
+    } else if (transform_ok) {
+        out->first_triangle = p->triangle_count;
+        if (append_triangles(p, pos, count, &x))
+            out->triangle_count = (uint32_t)count;
+    }
+    free(pos);
+}
+
+static uint32_t find_material(const parser *p, const char *name)
+{
+    for (uint32_t i = 0; i < p->material_count; i++)
+        if (strcmp(p->materials[i].name, name) == 0)
+            return i;
+    return UINT32_MAX;
+}
+
+static void parse_object_material(parser *p, const json_t *o, ns_object *out)
+{
+    const json_t *v = field(p, o, "material", 1, "the name of a key of \"materials\"");
+    if (!v)
+        return;
+    size_t saved = push_key(p, "material");
+    if (!json_is_string(v)) {
+        report(p, "material must be a string naming a key of \"materials\", got %s", json_kind(v));
+    } else if (p->materials_known) {
+        out->material = find_material(p, json_string_value(v));
+        if (out->material == UINT32_MAX) {
+            char list[256] = "";
+            for (uint32_t i = 0; i < p->material_count && strlen(list) < 200; i++) {
+                size_t len = strlen(list);
+                snprintf(list + len, sizeof list - len, "%s\"%s\"", i ? ", " : "", p->materials[i].name);
+            }
+            report(p, "unknown material \"%.64s\"; defined: %s", json_string_value(v),
+                   p->material_count ? list : "none");
+        }
+    }
+    pop(p, saved);
+}
+
+static void parse_object(parser *p, const json_t *o, ns_object *out)
+{
+    static const char *const shapes[] = {"sphere", "plane", "box", "mesh"};
+    static const char *const sphere_keys[] = {"shape", "material", "center", "radius", NULL};
+    static const char *const plane_keys[] = {"shape", "material", "point", "normal", NULL};
+    static const char *const box_keys[] = {"shape", "material", "min", "max", NULL};
+    static const char *const mesh_keys[] = {"shape", "material", "glb_base64", "uri", "asset", "transform", NULL};
+    static const char *const *const keys[] = {sphere_keys, plane_keys, box_keys, mesh_keys};
+    if (!expect_object(p, o, "an object"))
+        return;
+    int shape;
+    int have_shape = field_enum(p, o, "shape", 1, shapes, 4, "shape", &shape);
+    parse_object_material(p, o, out);
+    if (!have_shape)
+        return;
+    out->shape = (ns_shape)shape;
+    check_keys(p, o, keys[shape]);
+    switch (out->shape) {
+    case NS_SHAPE_SPHERE:
+        field_vec3(p, o, "center", 1, R_FINITE, "sphere center, scene units", out->center);
+        field_float(p, o, "radius", 1, R_POSITIVE, "sphere radius, scene units", &out->radius);
+        break;
+    case NS_SHAPE_PLANE:
+        field_vec3(p, o, "point", 1, R_FINITE, "a point on the plane", out->point);
+        if (field_vec3(p, o, "normal", 1, R_FINITE, "plane normal", out->normal) && !normalize3f(out->normal))
+            report_at(p, "normal", "normal must not be the zero vector");
+        break;
+    case NS_SHAPE_BOX: {
+        int have_min = field_vec3(p, o, "min", 1, R_FINITE, "box minimum corner", out->min);
+        int have_max = field_vec3(p, o, "max", 1, R_FINITE, "box maximum corner", out->max);
+        for (int a = 0; a < 3 && have_min && have_max; a++)
+            if (!(out->max[a] > out->min[a])) {
+                report_at(p, "max", "max must exceed min on every axis; on %c, max %g <= min %g",
+                          "xyz"[a], out->max[a], out->min[a]);
+                break;
+            }
+        break;
+    }
+    case NS_SHAPE_MESH:
+        parse_mesh(p, o, out);
+        break;
+    }
+}
+
+static void parse_objects(parser *p, const json_t *v)
+{
+    if (!expect_array(p, v, "objects"))
+        return;
+    size_t n = json_array_size(v);
+    if (n > NS_MAX_OBJECTS) {
+        report(p, "%zu objects is over the limit of %d", n, NS_MAX_OBJECTS);
+        return;
+    }
+    p->objects = calloc(n ? n : 1, sizeof *p->objects);
+    if (!p->objects) {
+        p->oom = 1;
+        return;
+    }
+    for (size_t i = 0; i < n && !p->oom; i++) {
+        size_t saved = push_index(p, i);
+        parse_object(p, json_array_get(v, i), &p->objects[i]);
+        pop(p, saved);
+    }
+    p->object_count = (uint32_t)n;
+}
+
+/* =======================================================================================
+ * Lights
+ * ===================================================================================== */
+
+static void parse_light(parser *p, const json_t *l, ns_light *out, size_t *environment_at, size_t index)
+{
+    static const char *const types[] = {"directional", "point", "sphere", "environment"};
+    static const char *const directional_keys[] = {"type", "direction", "irradiance", NULL};
+    static const char *const point_keys[] = {"type", "position", "intensity", NULL};
+    static const char *const sphere_keys[] = {"type", "center", "radius", "radiance", NULL};
+    static const char *const environment_keys[] = {"type", "radiance", NULL};
+    static const char *const *const keys[] = {directional_keys, point_keys, sphere_keys, environment_keys};
+    if (!expect_object(p, l, "a light"))
+        return;
+    int type;
+    if (!field_enum(p, l, "type", 1, types, 4, "light type", &type))
+        return;
+    out->type = (ns_light_type)type;
+    check_keys(p, l, keys[type]);
+    switch (out->type) {
+    case NS_LIGHT_DIRECTIONAL:
+        if (field_vec3(p, l, "direction", 1, R_FINITE, "direction the light travels", out->direction) &&
+            !normalize3f(out->direction))
+            report_at(p, "direction", "direction must not be the zero vector");
+        field_color(p, l, "irradiance", 1, R_NONNEGATIVE, "irradiance (W/m^2 facing the light)", out->color);
+        break;
+    case NS_LIGHT_POINT:
+        field_vec3(p, l, "position", 1, R_FINITE, "light position, scene units", out->position);
+        field_color(p, l, "intensity", 1, R_NONNEGATIVE, "intensity (W/sr)", out->color);
+        break;
+    case NS_LIGHT_SPHERE:
+        field_vec3(p, l, "center", 1, R_FINITE, "sphere light center, scene units", out->position);
+        field_float(p, l, "radius", 1, R_POSITIVE, "sphere light radius, scene units", &out->radius);
+        field_color(p, l, "radiance", 1, R_NONNEGATIVE, "radiance (W/(m^2 sr))", out->color);
+        break;
+    case NS_LIGHT_ENVIRONMENT:
+        if (*environment_at != SIZE_MAX)
+            report(p, "a second environment light; a scene has at most one (the first is /lights/%zu)",
+                   *environment_at);
+        else
+            *environment_at = index;
+        field_color(p, l, "radiance", 1, R_NONNEGATIVE, "radiance (W/(m^2 sr))", out->color);
+        break;
+    }
+}
+
+static void parse_lights(parser *p, const json_t *v)
+{
+    if (!expect_array(p, v, "lights"))
+        return;
+    size_t n = json_array_size(v);
+    if (n > NS_MAX_LIGHTS) {
+        report(p, "%zu lights is over the limit of %d", n, NS_MAX_LIGHTS);
+        return;
+    }
+    p->lights = calloc(n ? n : 1, sizeof *p->lights);
+    if (!p->lights) {
+        p->oom = 1;
+        return;
+    }
+    size_t environment_at = SIZE_MAX;
+    for (size_t i = 0; i < n; i++) {
+        size_t saved = push_index(p, i);
+        parse_light(p, json_array_get(v, i), &p->lights[i], &environment_at, i);
+        pop(p, saved);
+    }
+    p->light_count = (uint32_t)n;
+}
+
+/* =======================================================================================
+ * Render settings
+ * ===================================================================================== */
+
+static const char *const component_names[] = {"surface", "single", "double", "multiple"};
+static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
+
+static void list_components(uint32_t mask, char *buf, size_t cap)
+{
+    buf[0] = '\0';
+    for (int i = 0; i < 4; i++)
+        if (mask & (1u << i)) {
+            size_t len = strlen(buf);
+            snprintf(buf + len, cap - len, "%s\"%s\"", len ? ", " : "", component_names[i]);
+        }
+    if (!buf[0])
+        snprintf(buf, cap, "none");
+}
+
+/* Returns the component mask, 0 when the list is invalid (reported). */
+static uint32_t parse_components(parser *p, const json_t *v)
+{
+    if (!expect_array(p, v, "components"))
+        return 0;
+    if (json_array_size(v) == 0) {
+        report(p, "components must not be empty; list some of \"surface\", \"single\", \"double\", \"multiple\"");
+        return 0;
+    }
+    uint32_t mask = 0;
+    int ok = 1;
+    size_t i;
+    const json_t *c;
+    json_array_foreach(v, i, c) {
+        size_t saved = push_index(p, i);
+        int index;
+        if (as_enum(p, c, component_names, 4, "component", &index)) {
+            if (mask & (1u << index)) {
+                report(p, "component \"%s\" is listed twice", component_names[index]);
+                ok = 0;
+            }
+            mask |= 1u << index;
+        } else {
+            ok = 0;
+        }
+        pop(p, saved);
+    }
+    return ok ? mask : 0;
+}
+
+/* A requested component this build cannot render is an error at its pointer, never
+ * dropped: the picture would silently lack light the user asked for. */
+static void check_components_available(parser *p, const json_t *components, uint32_t mask)
+{
+    const uint32_t all = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    uint32_t missing = ns_unsupported_components(p->render.method, mask);
+    if (!missing)
+        return;
+    char available[96];
+    list_components(all & ~ns_unsupported_components(p->render.method, all), available, sizeof available);
+    const char *method = method_names[p->render.method];
+    if (!components) {
+        char names[96];
+        list_components(missing, names, sizeof names);
+        size_t saved = push_key(p, "components");
+        report(p, "components not given, so all four are requested, but %s %s not available in "
+                  "this build yet (method \"%s\"); give \"components\": [%s]",
+               names, __builtin_popcount(missing) > 1 ? "are" : "is", method, available);
+        pop(p, saved);
+        return;
+    }
+    size_t saved = push_key(p, "components");
+    size_t i;
+    const json_t *c;
+    json_array_foreach(components, i, c) {
+        for (int bit = 0; bit < 4; bit++)
+            if ((missing & (1u << bit)) && strcmp(json_string_value(c), component_names[bit]) == 0) {
+                size_t inner = push_index(p, i);
+                report(p, "component \"%s\" is not available in this build yet (method \"%s\"); "
+                          "available: %s", component_names[bit], method, available);
+                pop(p, inner);
+            }
+    }
+    pop(p, saved);
+}
+
+static void parse_render(parser *p, const json_t *v)
+{
+    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure", NULL};
+    ns_render_settings *r = &p->render;
+    *r = (ns_render_settings){
+        .method = NS_METHOD_NN,
+        .components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
+        .spp = 1,
+        .seed = 1,
+        .max_depth = 8,
+        .exposure = 0,
+    };
+    size_t saved = push_key(p, "render");
+    if (v && !expect_object(p, v, "render")) {
+        pop(p, saved);
+        return;
+    }
+    int method_ok = 1, components_ok = 1;
+    const json_t *components = NULL;
+    if (v) {
+        check_keys(p, v, keys);
+        int method;
+        if (json_object_get(v, "method")) {
+            method_ok = field_enum(p, v, "method", 1, method_names, 5, "render method", &method);
+            if (method_ok)
+                r->method = (ns_method)method;
+        }
+        components = json_object_get(v, "components");
+        if (components) {
+            size_t inner = push_key(p, "components");
+            r->components = parse_components(p, components);
+            components_ok = r->components != 0;
+            pop(p, inner);
+        }
+        field_uint(p, v, "spp", 0, 1, NS_MAX_SPP, "spp (samples per pixel)", &r->spp);
+        field_uint(p, v, "seed", 0, 0, UINT32_MAX, "seed", &r->seed);
+        field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
+        field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
+    }
+    if (method_ok && components_ok)
+        check_components_available(p, components, r->components);
+    pop(p, saved);
+}
+
+/* =======================================================================================
+ * Where jansson stopped: the JSON pointer at a byte offset
+ *
+ * jansson reports duplicate keys and numeric overflow by line and column only. To name the
+ * field as a pointer, the text up to that offset is scanned again, tracking the open
+ * containers and the key or index inside each.
+ * ===================================================================================== */
+
+typedef struct scan_frame {
+    int is_array;
+    int expect_key;   /* object: the next string is a key */
+    size_t index;     /* array: element being read */
+    size_t key_start; /* object: the last key, raw bytes between its quotes */
+    size_t key_len;
+    int have_key;
+} scan_frame;
+
+#define SCAN_MAX_DEPTH 64
+
+static void pointer_at_offset(const char *text, size_t len, size_t pos, char *out, size_t cap)
+{
+    scan_frame frames[SCAN_MAX_DEPTH];
+    size_t depth = 0; /* may exceed SCAN_MAX_DEPTH; deeper frames are not tracked */
+    if (pos > len)
+        pos = len;
+    for (size_t i = 0; i < pos; i++) {
+        char c = text[i];
+        scan_frame *top = depth && depth <= SCAN_MAX_DEPTH ? &frames[depth - 1] : NULL;
+        if (c == '{' || c == '[') {
+            if (depth < SCAN_MAX_DEPTH)
+                frames[depth] = (scan_frame){.is_array = c == '[', .expect_key = c == '{'};
+            depth++;
+        } else if (c == '}' || c == ']') {
+            if (depth)
+                depth--;
+        } else if (c == ',' && top) {
+            if (top->is_array)
+                top->index++;
+            else
+                top->expect_key = 1;
+        } else if (c == '"') {
+            size_t start = ++i;
+            while (i < len && text[i] != '"')
+                i += text[i] == '\\' ? 2 : 1;
+            if (top && !top->is_array && top->expect_key) {
+                top->key_start = start;
+                top->key_len = (i < len ? i : len) - start;
+                top->have_key = 1;
+                top->expect_key = 0;
+            }
+        }
+    }
+    /* Build the pointer through a scratch parser so keys are escaped the same way. */
+    parser scratch = {0};
+    for (size_t d = 0; d < depth && d < SCAN_MAX_DEPTH; d++) {
+        if (frames[d].is_array) {
+            push_index(&scratch, frames[d].index);
+        } else if (frames[d].have_key) {
+            char key[256];
+            size_t n = 0;
+            for (size_t k = 0; k < frames[d].key_len && n < sizeof key - 1; k++) {
+                char ch = text[frames[d].key_start + k];
+                if (ch == '\\' && k + 1 < frames[d].key_len)
+                    ch = text[frames[d].key_start + ++k];
+                key[n++] = ch;
+            }
+            key[n] = '\0';
+            push_key(&scratch, key);
+        } else {
+            break;
+        }
+    }
+    copy_cut(out, cap, scratch.ptr);
+}
+
+static void report_load_error(const char *json, size_t length, const json_error_t *e, scene_issues *issues)
+{
+    char detail[512], pointer[256];
+    issues->line = e->line > 0 ? e->line : 1;
+    issues->column = e->column > 0 ? e->column : 1;
+    switch (json_error_code(e)) {
+    case json_error_duplicate_key:
+    case json_error_numeric_overflow:
+        /* Valid JSON grammar, invalid scene: name the field (422). */
+        pointer_at_offset(json, length, (size_t)(e->position > 0 ? e->position : 0), pointer, sizeof pointer);
+        snprintf(detail, sizeof detail, "%s (line %d, column %d); %s", e->text, issues->line, issues->column,
+                 json_error_code(e) == json_error_duplicate_key ? "each key may appear once"
+                                                                : "numbers must fit a 32-bit float");
+        add_issue(issues, pointer, detail);
+        break;
+    case json_error_stack_overflow:
+        snprintf(detail, sizeof detail, "JSON nested too deeply (line %d, column %d): %s", issues->line,
+                 issues->column, e->text);
+        add_issue(issues, "", detail);
+        break;
+    default:
+        issues->syntax_error = 1;
+        snprintf(detail, sizeof detail, "JSON syntax error at line %d, column %d: %s", issues->line,
+                 issues->column, e->text);
+        add_issue(issues, "", detail);
+        break;
+    }
+}
+
+/* =======================================================================================
+ * Entry points
+ * ===================================================================================== */
+
+static void parse_root(parser *p, const json_t *root)
+{
+    static const char *const keys[] = {"version", "camera", "materials", "objects", "lights", "render", NULL};
+    if (!json_is_object(root)) {
+        report(p, "the scene must be a JSON object, got %s", json_kind(root));
+        return;
+    }
+    check_keys(p, root, keys);
+    uint32_t version;
+    if (json_object_get(root, "version"))
+        field_uint(p, root, "version", 1, 1, 1, "version (only 1 exists)", &version);
+
+    const json_t *v;
+    if ((v = field(p, root, "camera", 1, "position, look_at, up, fov, width, height"))) {
+        size_t saved = push_key(p, "camera");
+        parse_camera(p, v);
+        pop(p, saved);
+    }
+    if ((v = field(p, root, "materials", 1, "an object keyed by material name"))) {
+        size_t saved = push_key(p, "materials");
+        parse_materials(p, v);
+        pop(p, saved);
+    }
+    if (!p->oom && (v = field(p, root, "objects", 1, "an array of shapes"))) {
+        size_t saved = push_key(p, "objects");
+        parse_objects(p, v);
+        pop(p, saved);
+    }
+    if (!p->oom && (v = field(p, root, "lights", 1, "an array of lights"))) {
+        size_t saved = push_key(p, "lights");
+        parse_lights(p, v);
+        pop(p, saved);
+    }
+    parse_render(p, json_object_get(root, "render"));
+}
+
+static void free_parser_arrays(parser *p)
+{
+    free(p->materials);
+    free(p->objects);
+    free(p->triangles);
+    free(p->lights);
+}
+
+int scene_parse(const char *json, size_t length, const scene_parse_options *opts, scene_doc **out,
+                scene_issues *issues)
+{
+    scene_issues local;
+    if (!issues)
+        issues = &local;
+    memset(issues, 0, sizeof *issues);
+    if (!out)
+        return NS_ERR_INVALID_ARGUMENT;
+    *out = NULL;
+    if (!json && length) {
+        add_issue(issues, "", "no scene text");
+        return NS_ERR_INVALID_ARGUMENT;
+    }
+
+    json_error_t error;
+    /* Integers are read as reals so that any out-of-range integer gets this parser's
+     * message naming the allowed range, not a generic overflow. */
+    json_t *root = json_loadb(json ? json : "", length, JSON_REJECT_DUPLICATES | JSON_DECODE_INT_AS_REAL, &error);
+    if (!root) {
+        if (json_error_code(&error) == json_error_out_of_memory)
+            return NS_ERR_OUT_OF_HOST_MEMORY;
+        report_load_error(json ? json : "", length, &error, issues);
+        return NS_ERR_INVALID_ARGUMENT;
+    }
+
+    parser p = {.issues = issues, .opts = opts};
+    parse_root(&p, root);
+    json_decref(root);
+    if (p.oom) {
+        free_parser_arrays(&p);
+        return NS_ERR_OUT_OF_HOST_MEMORY;
+    }
+    if (issues->total) {
+        free_parser_arrays(&p);
+        return NS_ERR_INVALID_ARGUMENT;
+    }
+    scene_doc *doc = calloc(1, sizeof *doc);
+    if (!doc) {
+        free_parser_arrays(&p);
+        return NS_ERR_OUT_OF_HOST_MEMORY;
+    }
+    doc->materials = p.materials;
+    doc->objects = p.objects;
+    doc->triangles = p.triangles;
+    doc->lights = p.lights;
+    doc->scene = (ns_scene){
+        .camera = p.camera,
+        .materials = p.materials,
+        .material_count = p.material_count,
+        .objects = p.objects,
+        .object_count = p.object_count,
+        .triangles = p.triangles,
+        .triangle_count = p.triangle_count,
+        .lights = p.lights,
+        .light_count = p.light_count,
+        .render = p.render,
+    };
+    *out = doc;
+    return 0;
+}
+
+const ns_scene *scene_doc_scene(const scene_doc *doc)
+{
+    return doc ? &doc->scene : NULL;
+}
+
+void scene_doc_free(scene_doc *doc)
+{
+    if (!doc)
+        return;
+    free(doc->materials);
+    free(doc->objects);
+    free(doc->triangles);
+    free(doc->lights);
+    free(doc);
+}
