@@ -1,0 +1,93 @@
+/* context.c — ns_context: the device, every pipeline and the pipeline cache, made once
+ * and warmed at start-up so that no request ever pays for a shader compile. */
+#include <stdlib.h>
+#include <string.h>
+
+#include "internal.h"
+
+static int env_flag(const char *name)
+{
+    const char *v = getenv(name);
+    return v && *v && strcmp(v, "0") != 0;
+}
+
+static int create_pipelines(ns_context *ctx, ns_error *err)
+{
+    int status = gpu_pipeline_create(&ctx->dev, &ctx->camera,
+                                     &(gpu_pipeline_desc){.shader = "camera", .binding_count = 8}, err);
+    if (!status)
+        status = gpu_pipeline_create(&ctx->dev, &ctx->trace_test,
+                                     &(gpu_pipeline_desc){.shader = "trace_test", .binding_count = 5}, err);
+    /* lavapipe compiles inside the first dispatch (1-2 s each): do it now, once. */
+    if (!status)
+        status = gpu_pipeline_warm(&ctx->dev, &ctx->camera, err);
+    if (!status)
+        status = gpu_pipeline_warm(&ctx->dev, &ctx->trace_test, err);
+    return status;
+}
+
+int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err)
+{
+    *out = NULL;
+    ns_context_desc defaults = {0};
+    if (!desc)
+        desc = &defaults;
+    ns_context *ctx = calloc(1, sizeof *ctx);
+    if (!ctx)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
+    pthread_mutex_init(&ctx->lock, NULL);
+    if (desc->pipeline_cache_path && !(ctx->pipeline_cache_path = strdup(desc->pipeline_cache_path))) {
+        ns_context_destroy(ctx);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
+    }
+    gpu_device_desc device = {
+        .device = desc->device ? desc->device : getenv("NSCATTER_DEVICE"),
+        .validation = desc->validation || env_flag("NSCATTER_VALIDATION"),
+        .pipeline_cache_path = desc->pipeline_cache_path,
+    };
+    int status = gpu_device_create(&ctx->dev, &device, err);
+    if (!status)
+        status = create_pipelines(ctx, err);
+    /* Save right after warming so a later crash still leaves a warm cache behind. */
+    if (!status && ctx->pipeline_cache_path)
+        status = gpu_pipeline_cache_save(&ctx->dev, ctx->pipeline_cache_path, err);
+    if (!status)
+        status = gpu_validation_check(&ctx->dev, 0, err);
+    if (status) {
+        ns_context_destroy(ctx);
+        return status;
+    }
+    *out = ctx;
+    return NS_OK;
+}
+
+void ns_context_destroy(ns_context *ctx)
+{
+    if (!ctx)
+        return;
+    if (ctx->dev.device) {
+        gpu_pipeline_destroy(&ctx->dev, &ctx->camera);
+        gpu_pipeline_destroy(&ctx->dev, &ctx->trace_test);
+    }
+    gpu_device_destroy(&ctx->dev);
+    pthread_mutex_destroy(&ctx->lock);
+    free(ctx->pipeline_cache_path);
+    free(ctx);
+}
+
+void ns_context_device_info(const ns_context *ctx, ns_device_info *out)
+{
+    if (!ctx) {
+        memset(out, 0, sizeof *out);
+        return;
+    }
+    *out = ctx->dev.info;
+}
+
+void ns_image_free(ns_image *img)
+{
+    if (!img)
+        return;
+    free(img->rgb);
+    memset(img, 0, sizeof *img);
+}

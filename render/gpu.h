@@ -1,0 +1,127 @@
+/* gpu.h — the Vulkan layer (private to render/). Only gpu_*.c call vk*; the rest of the
+ * renderer sees these small objects. Every create has a destroy; every VkResult is checked
+ * in every build and an error names it (as a VkResult string) and maps it to ns_status.
+ *
+ *   gpu_device.c    instance, device, queue, debug messenger, pipeline cache, labels
+ *   gpu_buffer.c    host-visible buffers: create/destroy, upload by mapping, readback
+ *   gpu_pipeline.c  compute pipelines from the embedded SPIR-V
+ *   gpu_dispatch.c  one-shot dispatch: descriptor set, command buffer, submit, wait
+ */
+#ifndef NS_GPU_H
+#define NS_GPU_H
+
+#include <vulkan/vulkan.h>
+
+#include "nscatter.h"
+
+/* Fills err (when not NULL) with status and a printf-formatted message; returns status. */
+int ns_fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
+/* Embedded SPIR-V (generated registry, build/shaders/shader_registry.c). */
+const uint32_t *ns_shader_code(const char *name, size_t *size_bytes);
+
+
+/* ---------------------------------------------------------------------------------------
+ * Device
+ * ------------------------------------------------------------------------------------- */
+typedef struct gpu_device_desc {
+    const char *device;  /* NULL/"" = lavapipe if present, else first; index or name part */
+    int validation;      /* enable VK_LAYER_KHRONOS_validation + messenger */
+    const char *pipeline_cache_path; /* NULL = in-memory pipeline cache only */
+} gpu_device_desc;
+
+typedef struct gpu_device {
+    VkInstance instance;
+    VkDebugUtilsMessengerEXT messenger;
+    VkPhysicalDevice physical;
+    VkDevice device;
+    VkQueue queue;
+    uint32_t queue_family;
+    VkCommandPool command_pool;
+    VkPipelineCache pipeline_cache;
+    VkPhysicalDeviceProperties properties;
+    VkPhysicalDeviceMemoryProperties memory;
+    ns_device_info info;
+    PFN_vkSetDebugUtilsObjectNameEXT set_object_name; /* NULL without VK_EXT_debug_utils */
+    int validation;
+    /* Validation warnings/errors seen so far (written by the messenger callback). */
+    uint32_t validation_messages;
+    char last_validation_message[384];
+} gpu_device;
+
+int gpu_device_create(gpu_device *dev, const gpu_device_desc *desc, ns_error *err);
+void gpu_device_destroy(gpu_device *dev);
+
+/* Maps a VkResult to ns_status and fills err with "<what>: VK_ERROR_...". VK_SUCCESS is 0. */
+int gpu_check(VkResult result, const char *what, ns_error *err);
+const char *gpu_result_name(VkResult result);
+
+/* Attaches a debug label to a Vulkan object when VK_EXT_debug_utils is available. */
+void gpu_set_label(const gpu_device *dev, VkObjectType type, uint64_t handle, const char *label);
+
+/* Fails with NS_ERR_VULKAN (naming the last message) if the validation layer reported
+ * anything since `before` (a previous value of dev->validation_messages). */
+int gpu_validation_check(gpu_device *dev, uint32_t before, ns_error *err);
+uint32_t gpu_validation_count(gpu_device *dev);
+
+/* Writes the pipeline cache to path (atomically: temporary file, then rename). */
+int gpu_pipeline_cache_save(gpu_device *dev, const char *path, ns_error *err);
+
+/* ---------------------------------------------------------------------------------------
+ * Buffers: host-visible and coherent (device-local too where the device offers it), mapped
+ * for their whole life, so upload is a memcpy and readback reads the mapping.
+ * ------------------------------------------------------------------------------------- */
+typedef enum { GPU_BUFFER_STORAGE = 0, GPU_BUFFER_UNIFORM = 1 } gpu_buffer_kind;
+
+typedef struct gpu_buffer_desc {
+    VkDeviceSize size; /* bytes; 0 is rounded up to 16 so a binding is always valid */
+    gpu_buffer_kind kind;
+    const void *data;  /* copied in when not NULL (data_size bytes); the rest is zeroed */
+    VkDeviceSize data_size;
+    const char *label;
+} gpu_buffer_desc;
+
+typedef struct gpu_buffer {
+    VkBuffer buffer;
+    VkDeviceMemory memory;
+    void *mapped;
+    VkDeviceSize size;
+    gpu_buffer_kind kind;
+} gpu_buffer;
+
+int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *desc, ns_error *err);
+void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroyed: no-op */
+
+/* ---------------------------------------------------------------------------------------
+ * Compute pipelines. Binding 0 is a uniform buffer, bindings 1..binding_count-1 are
+ * storage buffers (the layout every shader in shaders/ follows).
+ * ------------------------------------------------------------------------------------- */
+#define GPU_MAX_BINDINGS 8
+
+typedef struct gpu_pipeline_desc {
+    const char *shader; /* name in the shader registry (file name without .comp) */
+    uint32_t binding_count;
+} gpu_pipeline_desc;
+
+typedef struct gpu_pipeline {
+    VkDescriptorSetLayout set_layout;
+    VkPipelineLayout layout;
+    VkPipeline pipeline;
+    uint32_t binding_count;
+    char name[32];
+} gpu_pipeline;
+
+int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc,
+                        ns_error *err);
+void gpu_pipeline_destroy(gpu_device *dev, gpu_pipeline *pipe);
+
+/* Records one dispatch of pipe over groups[0..2] with buffers bound in order, submits it and
+ * waits. Owns (and always frees) its descriptor pool, command buffer and fence. */
+int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
+                 uint32_t buffer_count, const uint32_t groups[3], ns_error *err);
+
+/* Dispatches pipe once on small dummy buffers so the driver compiles it now (lavapipe
+ * compiles on first use) rather than inside the first request. */
+int gpu_pipeline_warm(gpu_device *dev, const gpu_pipeline *pipe, ns_error *err);
+
+#endif

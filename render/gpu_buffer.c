@@ -1,0 +1,100 @@
+/* gpu_buffer.c — buffers in host-visible, coherent memory, mapped for their whole life.
+ *
+ * On lavapipe all memory is host memory, so a staging copy would only cost time. On a
+ * discrete GPU a device-local + host-visible type is preferred when offered (resizable BAR);
+ * otherwise the buffer lives in host memory the GPU reads over PCIe, which is correct but
+ * slower (a staging path is future work, see docs/rendering.md). */
+#include <string.h>
+
+#include "gpu.h"
+
+static int find_memory_type(const gpu_device *dev, uint32_t allowed, uint32_t *index)
+{
+    const VkMemoryPropertyFlags required =
+        VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    int fallback = -1;
+    for (uint32_t i = 0; i < dev->memory.memoryTypeCount; i++) {
+        VkMemoryPropertyFlags flags = dev->memory.memoryTypes[i].propertyFlags;
+        if (!(allowed & (1u << i)) || (flags & required) != required)
+            continue;
+        if (flags & VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT) {
+            *index = i;
+            return 1;
+        }
+        if (fallback < 0)
+            fallback = (int)i;
+    }
+    if (fallback < 0)
+        return 0;
+    *index = (uint32_t)fallback;
+    return 1;
+}
+
+int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *desc, ns_error *err)
+{
+    memset(buf, 0, sizeof *buf);
+    VkDeviceSize size = desc->size < 16 ? 16 : (desc->size + 15) & ~(VkDeviceSize)15;
+    VkDeviceSize limit = desc->kind == GPU_BUFFER_UNIFORM ? dev->properties.limits.maxUniformBufferRange
+                                                          : dev->properties.limits.maxStorageBufferRange;
+    if (size > limit)
+        return ns_fail(err, NS_ERR_LIMIT, "buffer '%s' needs %llu bytes; the device allows %llu",
+                       desc->label ? desc->label : "?", (unsigned long long)size,
+                       (unsigned long long)limit);
+    buf->kind = desc->kind;
+    buf->size = size;
+    VkBufferCreateInfo info = {
+        .sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO,
+        .size = size,
+        .usage = desc->kind == GPU_BUFFER_UNIFORM ? VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
+                                                  : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+        .sharingMode = VK_SHARING_MODE_EXCLUSIVE,
+    };
+    int status = gpu_check(vkCreateBuffer(dev->device, &info, NULL, &buf->buffer), "vkCreateBuffer", err);
+    if (status)
+        return status;
+    gpu_set_label(dev, VK_OBJECT_TYPE_BUFFER, (uint64_t)buf->buffer, desc->label);
+
+    VkMemoryRequirements req;
+    vkGetBufferMemoryRequirements(dev->device, buf->buffer, &req);
+    uint32_t type;
+    if (!find_memory_type(dev, req.memoryTypeBits, &type)) {
+        gpu_buffer_destroy(dev, buf);
+        return ns_fail(err, NS_ERR_VULKAN, "no host-visible coherent memory type for buffer '%s'",
+                       desc->label ? desc->label : "?");
+    }
+    VkMemoryAllocateInfo alloc = {
+        .sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO,
+        .allocationSize = req.size,
+        .memoryTypeIndex = type,
+    };
+    status = gpu_check(vkAllocateMemory(dev->device, &alloc, NULL, &buf->memory), "vkAllocateMemory", err);
+    if (!status)
+        status = gpu_check(vkBindBufferMemory(dev->device, buf->buffer, buf->memory, 0),
+                           "vkBindBufferMemory", err);
+    if (!status)
+        status = gpu_check(vkMapMemory(dev->device, buf->memory, 0, VK_WHOLE_SIZE, 0, &buf->mapped),
+                           "vkMapMemory", err);
+    if (status) {
+        gpu_buffer_destroy(dev, buf);
+        return status;
+    }
+    gpu_set_label(dev, VK_OBJECT_TYPE_DEVICE_MEMORY, (uint64_t)buf->memory, desc->label);
+    VkDeviceSize copied = 0;
+    if (desc->data && desc->data_size) {
+        copied = desc->data_size < size ? desc->data_size : size;
+        memcpy(buf->mapped, desc->data, copied);
+    }
+    memset((char *)buf->mapped + copied, 0, size - copied);
+    return NS_OK;
+}
+
+void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf)
+{
+    if (buf->mapped)
+        vkUnmapMemory(dev->device, buf->memory);
+    if (buf->buffer)
+        vkDestroyBuffer(dev->device, buf->buffer, NULL);
+    if (buf->memory)
+        vkFreeMemory(dev->device, buf->memory, NULL);
+    memset(buf, 0, sizeof *buf);
+}

@@ -1,0 +1,137 @@
+/* gpu_dispatch.c — one compute dispatch, submitted and waited for. Everything it makes
+ * (descriptor pool and set, command buffer, fence) is freed before it returns, on every
+ * path, so a failed request leaves nothing behind. */
+#include <string.h>
+
+#include "gpu.h"
+
+typedef struct dispatch_objects {
+    VkDescriptorPool pool;
+    VkCommandBuffer cmd;
+    VkFence fence;
+} dispatch_objects;
+
+static void destroy_objects(gpu_device *dev, dispatch_objects *o)
+{
+    if (o->fence)
+        vkDestroyFence(dev->device, o->fence, NULL);
+    if (o->cmd)
+        vkFreeCommandBuffers(dev->device, dev->command_pool, 1, &o->cmd);
+    if (o->pool)
+        vkDestroyDescriptorPool(dev->device, o->pool, NULL); /* frees its sets */
+}
+
+static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o,
+                             gpu_buffer *const *buffers, VkDescriptorSet *set, ns_error *err)
+{
+    VkDescriptorPoolSize sizes[2] = {
+        {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
+        {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, GPU_MAX_BINDINGS},
+    };
+    VkDescriptorPoolCreateInfo pool = {
+        .sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO,
+        .maxSets = 1,
+        .poolSizeCount = 2,
+        .pPoolSizes = sizes,
+    };
+    int status = gpu_check(vkCreateDescriptorPool(dev->device, &pool, NULL, &o->pool),
+                           "vkCreateDescriptorPool", err);
+    if (status)
+        return status;
+    VkDescriptorSetAllocateInfo alloc = {
+        .sType = VK_STRUCTURE_TYPE_DESCRIPTOR_SET_ALLOCATE_INFO,
+        .descriptorPool = o->pool,
+        .descriptorSetCount = 1,
+        .pSetLayouts = &pipe->set_layout,
+    };
+    status = gpu_check(vkAllocateDescriptorSets(dev->device, &alloc, set), "vkAllocateDescriptorSets", err);
+    if (status)
+        return status;
+    VkDescriptorBufferInfo infos[GPU_MAX_BINDINGS];
+    VkWriteDescriptorSet writes[GPU_MAX_BINDINGS];
+    for (uint32_t i = 0; i < pipe->binding_count; i++) {
+        infos[i] = (VkDescriptorBufferInfo){buffers[i]->buffer, 0, VK_WHOLE_SIZE};
+        writes[i] = (VkWriteDescriptorSet){
+            .sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET,
+            .dstSet = *set,
+            .dstBinding = i,
+            .descriptorCount = 1,
+            .descriptorType = i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+            .pBufferInfo = &infos[i],
+        };
+    }
+    vkUpdateDescriptorSets(dev->device, pipe->binding_count, writes, 0, NULL);
+    return NS_OK;
+}
+
+static int record(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o, VkDescriptorSet set,
+                  const uint32_t groups[3], ns_error *err)
+{
+    VkCommandBufferAllocateInfo alloc = {
+        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
+        .commandPool = dev->command_pool,
+        .level = VK_COMMAND_BUFFER_LEVEL_PRIMARY,
+        .commandBufferCount = 1,
+    };
+    int status = gpu_check(vkAllocateCommandBuffers(dev->device, &alloc, &o->cmd), "vkAllocateCommandBuffers", err);
+    if (status)
+        return status;
+    VkCommandBufferBeginInfo begin = {
+        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO,
+        .flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT,
+    };
+    status = gpu_check(vkBeginCommandBuffer(o->cmd, &begin), "vkBeginCommandBuffer", err);
+    if (status)
+        return status;
+    vkCmdBindPipeline(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->pipeline);
+    vkCmdBindDescriptorSets(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->layout, 0, 1, &set, 0, NULL);
+    vkCmdDispatch(o->cmd, groups[0], groups[1], groups[2]);
+    /* Make the shader's writes visible to the host reads that follow the fence. */
+    VkMemoryBarrier barrier = {
+        .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
+        .srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT,
+        .dstAccessMask = VK_ACCESS_HOST_READ_BIT,
+    };
+    vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
+                         &barrier, 0, NULL, 0, NULL);
+    return gpu_check(vkEndCommandBuffer(o->cmd), "vkEndCommandBuffer", err);
+}
+
+int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
+                 uint32_t buffer_count, const uint32_t groups[3], ns_error *err)
+{
+    if (buffer_count != pipe->binding_count)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s takes %u buffers, got %u", pipe->name,
+                       pipe->binding_count, buffer_count);
+    const uint32_t *max_groups = dev->properties.limits.maxComputeWorkGroupCount;
+    for (int i = 0; i < 3; i++)
+        if (groups[i] == 0 || groups[i] > max_groups[i])
+            return ns_fail(err, NS_ERR_LIMIT, "dispatch of %s: %u groups in dimension %d (device allows %u)",
+                           pipe->name, groups[i], i, max_groups[i]);
+    uint32_t validation_before = gpu_validation_count(dev);
+    dispatch_objects o;
+    memset(&o, 0, sizeof o);
+    VkDescriptorSet set = VK_NULL_HANDLE;
+    int status = write_descriptors(dev, pipe, &o, buffers, &set, err);
+    if (!status)
+        status = record(dev, pipe, &o, set, groups, err);
+    VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+    if (!status)
+        status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
+    if (!status) {
+        VkSubmitInfo submit = {
+            .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,
+            .commandBufferCount = 1,
+            .pCommandBuffers = &o.cmd,
+        };
+        status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o.fence), "vkQueueSubmit", err);
+        /* No timeout: the buffers may not be freed while the device could still use them. */
+        if (!status)
+            status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),
+                               "vkWaitForFences", err);
+    }
+    destroy_objects(dev, &o);
+    if (!status)
+        status = gpu_validation_check(dev, validation_before, err);
+    return status;
+}

@@ -1,0 +1,248 @@
+/* render.c — one render job: validate, build the GPU scene (BVH), upload, run the camera
+ * pass, read back. The job owns every buffer it creates and frees them on every path. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bvh.h"
+#include "internal.h"
+
+/* Segment buffer: room for two stretches per camera sample by default, within 64 MiB. */
+#define SEGMENTS_PER_SAMPLE 2u
+#define SEGMENT_BYTES_MAX (64u << 20)
+
+enum { B_PARAMS, B_NODES, B_PRIMS, B_MATERIALS, B_LIGHTS, B_PIXELS, B_SEGMENTS, B_COUNTERS, B_COUNT };
+
+typedef struct render_job {
+    gpu_buffer buffers[B_COUNT];
+    ns_gpu_scene scene;
+} render_job;
+
+static void job_free(ns_context *ctx, render_job *job)
+{
+    for (int i = 0; i < B_COUNT; i++)
+        gpu_buffer_destroy(&ctx->dev, &job->buffers[i]);
+    ns_gpu_scene_free(&job->scene);
+}
+
+static void component_names(uint32_t bits, char *out, size_t size)
+{
+    static const char *names[] = {"surface", "single", "double", "multiple"};
+    out[0] = '\0';
+    for (int i = 0; i < 4; i++)
+        if (bits & (1u << i)) {
+            size_t used = strlen(out);
+            snprintf(out + used, size - used, "%s%s", used ? ", " : "", names[i]);
+        }
+}
+
+static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene, const ns_render_debug *debug)
+{
+    if (debug && debug->segment_capacity)
+        return debug->segment_capacity;
+    uint64_t want = (uint64_t)scene->camera.width * scene->camera.height * scene->render.spp * SEGMENTS_PER_SAMPLE;
+    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
+    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
+    if (cap > device_cap)
+        cap = device_cap;
+    return (uint32_t)(want < cap ? want : cap);
+}
+
+static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *err)
+{
+    ns_gpu_scene *gs = &job->scene;
+    struct {
+        const void *data;
+        uint64_t size;
+        gpu_buffer_kind kind;
+        const char *label;
+    } plan[B_COUNT] = {
+        [B_PARAMS] = {&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.render.params"},
+        [B_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE, "ns.render.bvh_nodes"},
+        [B_PRIMS] = {gs->prims, (uint64_t)(gs->bvh_prim_count + gs->plane_count) * sizeof(GpuPrim),
+                     GPU_BUFFER_STORAGE, "ns.render.prims"},
+        [B_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial), GPU_BUFFER_STORAGE,
+                         "ns.render.materials"},
+        [B_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE, "ns.render.lights"},
+        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE, "ns.render.pixels"},
+        [B_SEGMENTS] = {NULL, (uint64_t)gs->params.counts[2] * sizeof(GpuSegment), GPU_BUFFER_STORAGE,
+                        "ns.render.segments"},
+        [B_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE, "ns.render.counters"},
+    };
+    for (int i = 0; i < B_COUNT; i++) {
+        int status = gpu_buffer_create(&ctx->dev, &job->buffers[i],
+                                       &(gpu_buffer_desc){.size = plan[i].size,
+                                                          .kind = plan[i].kind,
+                                                          .data = plan[i].data,
+                                                          .data_size = plan[i].data ? plan[i].size : 0,
+                                                          .label = plan[i].label},
+                                       err);
+        if (status)
+            return status;
+    }
+    return NS_OK;
+}
+
+static int dispatch_camera(ns_context *ctx, render_job *job, const ns_camera *cam, ns_error *err)
+{
+    gpu_buffer *bound[B_COUNT];
+    for (int i = 0; i < B_COUNT; i++)
+        bound[i] = &job->buffers[i];
+    uint32_t groups[3] = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
+                          (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1};
+    return gpu_dispatch(&ctx->dev, &ctx->camera, bound, B_COUNT, groups, err);
+}
+
+static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_render_stats *stats,
+                     ns_render_debug *debug, ns_error *err)
+{
+    size_t pixels = (size_t)cam->width * cam->height;
+    out->rgb = malloc(pixels * 3 * sizeof(float));
+    if (!out->rgb)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "image: %zu pixels", pixels);
+    out->width = cam->width;
+    out->height = cam->height;
+    const float *src = job->buffers[B_PIXELS].mapped;
+    for (size_t i = 0; i < pixels; i++)
+        memcpy(out->rgb + 3 * i, src + 4 * i, 3 * sizeof(float));
+    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+    uint32_t capacity = job->scene.params.counts[2];
+    uint64_t attempted = counters[NS_COUNTER_SEGMENTS];
+    uint64_t written = attempted < capacity ? attempted : capacity;
+    if (stats)
+        stats->camera_segments = written;
+    if (debug) {
+        debug->segments_written = written;
+        debug->segments_overflow = counters[NS_COUNTER_OVERFLOW];
+        if (debug->segments) {
+            uint64_t n = written < debug->segments_max ? written : debug->segments_max;
+            memcpy(debug->segments, job->buffers[B_SEGMENTS].mapped, n * sizeof(GpuSegment));
+        }
+    }
+    return NS_OK;
+}
+
+static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
+                         ns_render_debug *debug, ns_error *err)
+{
+    render_job job;
+    memset(&job, 0, sizeof job);
+    double t0 = ns_now_ms();
+    int status = ns_gpu_scene_build(scene, &job.scene, err);
+    if (!status) {
+        job.scene.params.counts[2] = job.scene.has_media ? segment_capacity(ctx, scene, debug) : 0;
+        if (stats) {
+            stats->bvh_nodes = job.scene.node_count;
+            stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
+        }
+    }
+    double t1 = ns_now_ms();
+    ns_stats_add_stage(stats, "bvh", t1 - t0);
+    if (!status)
+        status = upload(ctx, &job, scene->camera.width * scene->camera.height, err);
+    double t2 = ns_now_ms();
+    ns_stats_add_stage(stats, "upload", t2 - t1);
+    if (!status)
+        status = dispatch_camera(ctx, &job, &scene->camera, err);
+    double t3 = ns_now_ms();
+    ns_stats_add_stage(stats, "ray_pass", t3 - t2);
+    if (!status)
+        status = read_back(&job, &scene->camera, out, stats, debug, err);
+    ns_stats_add_stage(stats, "readback", ns_now_ms() - t3);
+    job_free(ctx, &job);
+    return status;
+}
+
+int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
+                 ns_render_debug *debug, ns_error *err)
+{
+    if (!out)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_render: out is NULL");
+    memset(out, 0, sizeof *out);
+    if (!ctx)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_render: no context");
+    int status = ns_scene_validate(scene, err);
+    if (status)
+        return status;
+    uint32_t missing = ns_unsupported_components(scene->render.method, scene->render.components);
+    if (missing) {
+        char names[64];
+        component_names(missing, names, sizeof names);
+        return ns_fail(err, NS_ERR_NOT_AVAILABLE, "render.components: %s not available in this build yet",
+                       names);
+    }
+    pthread_mutex_lock(&ctx->lock);
+    status = render_locked(ctx, scene, out, stats, debug, err);
+    pthread_mutex_unlock(&ctx->lock);
+    if (status)
+        ns_image_free(out);
+    return status;
+}
+
+int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats, ns_error *err)
+{
+    return ns_render_ex(ctx, scene, out, stats, NULL, err);
+}
+
+/* =======================================================================================
+ * BVH test path: rays against primitives through shaders/trace_test.comp.
+ * ===================================================================================== */
+int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
+                  uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits, ns_error *err)
+{
+    ns_bvh bvh;
+    int status = ns_bvh_build(prims, prim_count, &bvh, err);
+    GpuPrim *all = status ? NULL : malloc(sizeof *all * ((size_t)prim_count + plane_count + 1));
+    if (!status && !all)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "trace: primitives");
+    gpu_buffer buffers[5];
+    memset(buffers, 0, sizeof buffers);
+    if (!status) {
+        if (prim_count)
+            memcpy(all, bvh.prims, sizeof *all * prim_count);
+        if (plane_count)
+            memcpy(all + prim_count, planes, sizeof *all * plane_count);
+        GpuParams params = {0};
+        params.counts[3] = bvh.node_count;
+        params.prims[0] = prim_count;
+        params.prims[1] = plane_count;
+        params.prims[3] = ray_count;
+        const struct {
+            const void *data;
+            uint64_t size;
+        } plan[5] = {
+            {&params, sizeof params},
+            {bvh.nodes, (uint64_t)bvh.node_count * sizeof(GpuNode)},
+            {all, ((uint64_t)prim_count + plane_count) * sizeof(GpuPrim)},
+            {rays, (uint64_t)ray_count * sizeof(GpuRay)},
+            {NULL, (uint64_t)ray_count * sizeof(GpuHit)},
+        };
+        for (int i = 0; i < 5 && !status; i++)
+            status = gpu_buffer_create(&ctx->dev, &buffers[i],
+                                       &(gpu_buffer_desc){.size = plan[i].size,
+                                                          .kind = i ? GPU_BUFFER_STORAGE : GPU_BUFFER_UNIFORM,
+                                                          .data = plan[i].data,
+                                                          .data_size = plan[i].data ? plan[i].size : 0,
+                                                          .label = "ns.trace_test"},
+                                       err);
+    }
+    if (!status) {
+        gpu_buffer *bound[5] = {&buffers[0], &buffers[1], &buffers[2], &buffers[3], &buffers[4]};
+        pthread_mutex_lock(&ctx->lock);
+        status = gpu_dispatch(&ctx->dev, &ctx->trace_test, bound, 5,
+                              (uint32_t[3]){(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1}, err);
+        pthread_mutex_unlock(&ctx->lock);
+    }
+    if (!status) {
+        memcpy(hits, buffers[4].mapped, sizeof *hits * ray_count);
+        /* Back from tree order to the caller's order. */
+        for (uint32_t i = 0; i < ray_count; i++)
+            if (hits[i].prim != NS_NONE && hits[i].prim < prim_count)
+                hits[i].prim = bvh.order[hits[i].prim];
+    }
+    for (int i = 0; i < 5; i++)
+        gpu_buffer_destroy(&ctx->dev, &buffers[i]);
+    free(all);
+    ns_bvh_free(&bvh);
+    return status;
+}

@@ -1,0 +1,217 @@
+/* scene_gpu.c — a validated ns_scene in the shaders' layout (shaders/shared.h): camera
+ * frame, primitives in BVH order followed by the planes, materials, lights. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bvh.h"
+#include "internal.h"
+
+static void normalize3(float v[3])
+{
+    double n = sqrt((double)v[0] * v[0] + (double)v[1] * v[1] + (double)v[2] * v[2]);
+    for (int k = 0; k < 3; k++)
+        v[k] = (float)(v[k] / n);
+}
+
+static void cross3(const float a[3], const float b[3], float out[3])
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static void set4(float out[4], const float v[3], float w)
+{
+    out[0] = v[0];
+    out[1] = v[1];
+    out[2] = v[2];
+    out[3] = w;
+}
+
+/* Pinhole frame: fov is horizontal, so tan(vertical / 2) = tan(horizontal / 2) * h / w. */
+static void camera_params(const ns_camera *c, GpuParams *p)
+{
+    float forward[3] = {c->look_at[0] - c->position[0], c->look_at[1] - c->position[1],
+                        c->look_at[2] - c->position[2]};
+    normalize3(forward);
+    float right[3], up[3];
+    cross3(forward, c->up, right);
+    normalize3(right);
+    cross3(right, forward, up);
+    double tan_x = tan(c->fov_deg * M_PI / 360.0);
+    double tan_y = tan_x * (double)c->height / (double)c->width;
+    set4(p->cam_position, c->position, (float)tan_x);
+    set4(p->cam_right, right, (float)tan_y);
+    set4(p->cam_up, up, 0.0f);
+    set4(p->cam_forward, forward, 0.0f);
+}
+
+static GpuPrim object_prim(const ns_object *o, uint32_t index)
+{
+    GpuPrim p;
+    memset(&p, 0, sizeof p);
+    p.info[1] = o->material;
+    p.info[2] = index;
+    switch (o->shape) {
+    case NS_SHAPE_SPHERE:
+        p.info[0] = NS_PRIM_SPHERE;
+        set4(p.a, o->center, o->radius);
+        break;
+    case NS_SHAPE_BOX:
+        p.info[0] = NS_PRIM_BOX;
+        set4(p.a, o->min, 0.0f);
+        set4(p.b, o->max, 0.0f);
+        break;
+    default: /* plane; meshes are expanded by the caller */
+        p.info[0] = NS_PRIM_PLANE;
+        set4(p.a, o->point, 0.0f);
+        set4(p.b, o->normal, 0.0f);
+        normalize3(p.b);
+        break;
+    }
+    return p;
+}
+
+static int convert_geometry(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
+{
+    uint64_t bvh_count = 0, plane_count = 0;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const ns_object *o = &s->objects[i];
+        if (o->shape == NS_SHAPE_PLANE)
+            plane_count++;
+        else
+            bvh_count += o->shape == NS_SHAPE_MESH ? o->triangle_count : 1;
+        if (s->materials[o->material].type == NS_MATERIAL_MEDIUM)
+            gs->has_media = 1;
+    }
+    if (bvh_count + plane_count > (uint64_t)NS_MAX_TRIANGLES + NS_MAX_OBJECTS)
+        return ns_fail(err, NS_ERR_LIMIT, "scene: %llu primitives", (unsigned long long)(bvh_count + plane_count));
+    GpuPrim *input = malloc(sizeof *input * (bvh_count ? bvh_count : 1));
+    GpuPrim *planes = malloc(sizeof *planes * (plane_count ? plane_count : 1));
+    gs->plane_count = (uint32_t)plane_count;
+    if (!input || !planes) {
+        free(input);
+        free(planes);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: %llu primitives", (unsigned long long)bvh_count);
+    }
+    uint32_t n = 0, np = 0;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const ns_object *o = &s->objects[i];
+        if (o->shape == NS_SHAPE_PLANE) {
+            planes[np++] = object_prim(o, i);
+        } else if (o->shape == NS_SHAPE_MESH) {
+            for (uint32_t t = 0; t < o->triangle_count; t++) {
+                const ns_triangle *tri = &s->triangles[o->first_triangle + t];
+                GpuPrim *p = &input[n++];
+                memset(p, 0, sizeof *p);
+                p->info[0] = NS_PRIM_TRIANGLE;
+                p->info[1] = o->material;
+                p->info[2] = i;
+                set4(p->a, tri->v[0], 0.0f);
+                set4(p->b, tri->v[1], 0.0f);
+                set4(p->c, tri->v[2], 0.0f);
+            }
+        } else {
+            input[n++] = object_prim(o, i);
+        }
+    }
+    ns_bvh bvh;
+    int status = ns_bvh_build(input, n, &bvh, err);
+    free(input);
+    if (status) {
+        free(planes);
+        return status;
+    }
+    gs->prims = malloc(sizeof *gs->prims * ((size_t)n + np + 1));
+    if (!gs->prims) {
+        free(planes);
+        ns_bvh_free(&bvh);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: %u primitives", n + np);
+    }
+    if (n)
+        memcpy(gs->prims, bvh.prims, sizeof *gs->prims * n);
+    if (np)
+        memcpy(gs->prims + n, planes, sizeof *planes * np);
+    free(planes);
+    gs->bvh_prim_count = n;
+    gs->nodes = bvh.nodes; /* taken over from the BVH */
+    gs->node_count = bvh.node_count;
+    bvh.nodes = NULL;
+    ns_bvh_free(&bvh);
+    return NS_OK;
+}
+
+static int convert_materials_and_lights(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
+{
+    gs->materials = calloc(s->material_count + 1, sizeof *gs->materials);
+    gs->lights = calloc(s->light_count + 1, sizeof *gs->lights);
+    if (!gs->materials || !gs->lights)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: materials and lights");
+    for (uint32_t i = 0; i < s->material_count; i++) {
+        const ns_material *m = &s->materials[i];
+        GpuMaterial *g = &gs->materials[i];
+        if (m->type == NS_MATERIAL_DIFFUSE) {
+            set4(g->reflectance, m->reflectance, 0.0f);
+            continue;
+        }
+        g->reflectance[3] = 1.0f;
+        for (int k = 0; k < 3; k++) {
+            g->sigma_t[k] = m->sigma_s[k] + m->sigma_a[k];
+            g->sigma_s[k] = m->sigma_s[k];
+        }
+        g->sigma_t[3] = m->ior;
+        g->sigma_s[3] = m->g;
+    }
+    gs->material_count = s->material_count;
+    float environment[3] = {0, 0, 0};
+    for (uint32_t i = 0; i < s->light_count; i++) {
+        const ns_light *l = &s->lights[i];
+        GpuLight *g = &gs->lights[i];
+        g->info[0] = (uint32_t)l->type;
+        set4(g->position, l->position, l->type == NS_LIGHT_SPHERE ? l->radius : 0.0f);
+        set4(g->direction, l->direction, 0.0f);
+        if (l->type == NS_LIGHT_DIRECTIONAL)
+            normalize3(g->direction);
+        set4(g->color, l->color, 0.0f);
+        if (l->type == NS_LIGHT_ENVIRONMENT)
+            for (int k = 0; k < 3; k++)
+                environment[k] += l->color[k];
+    }
+    gs->light_count = s->light_count;
+    set4(gs->params.environment, environment, 0.0f);
+    return NS_OK;
+}
+
+int ns_gpu_scene_build(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
+{
+    memset(gs, 0, sizeof *gs);
+    int status = convert_geometry(s, gs, err);
+    if (!status)
+        status = convert_materials_and_lights(s, gs, err);
+    if (status)
+        return status;
+    GpuParams *p = &gs->params;
+    camera_params(&s->camera, p);
+    p->image[0] = s->camera.width;
+    p->image[1] = s->camera.height;
+    p->image[2] = s->render.spp;
+    p->image[3] = s->render.seed;
+    p->counts[0] = s->render.max_depth;
+    p->counts[1] = gs->light_count;
+    p->counts[2] = 0; /* segment capacity: set by the render job */
+    p->counts[3] = gs->node_count;
+    p->prims[0] = gs->bvh_prim_count;
+    p->prims[1] = gs->plane_count;
+    p->prims[2] = gs->material_count;
+    return NS_OK;
+}
+
+void ns_gpu_scene_free(ns_gpu_scene *gs)
+{
+    free(gs->nodes);
+    free(gs->prims);
+    free(gs->materials);
+    free(gs->lights);
+    memset(gs, 0, sizeof *gs);
+}

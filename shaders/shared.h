@@ -1,0 +1,165 @@
+/* shared.h — GPU structs and constants, included by both the C code and the GLSL shaders so
+ * that a layout or a constant cannot drift between them (niagara's config.h idea).
+ *
+ * Every struct is laid out for std430 (storage buffers) and, because it uses only 16-byte
+ * members or a vec3 followed by one 4-byte scalar, is also valid std140 (uniform buffers).
+ * The C side checks sizes and offsets with _Static_assert at the bottom of this file.
+ */
+#ifndef NS_SHADERS_SHARED_H
+#define NS_SHADERS_SHARED_H
+
+#if defined(__STDC__) || defined(__cplusplus)
+#include <stddef.h>
+#include <stdint.h>
+typedef float ns_vec3[3];
+typedef float ns_vec4[4];
+typedef uint32_t ns_uint;
+typedef uint32_t ns_uvec4[4];
+#define NS_CONST(type, name, value) enum { name = value }
+#else
+#define ns_vec3 vec3
+#define ns_vec4 vec4
+#define ns_uint uint
+#define ns_uvec4 uvec4
+#define NS_CONST(type, name, value) const type name = value
+#endif
+
+/* Workgroup shape of the camera pass (one invocation per pixel) and of the BVH test. */
+NS_CONST(uint, NS_CAMERA_GROUP_X, 8);
+NS_CONST(uint, NS_CAMERA_GROUP_Y, 8);
+NS_CONST(uint, NS_TRACE_GROUP, 64);
+
+/* Traversal stack depth; the builder stops splitting before the tree gets deeper. */
+NS_CONST(uint, NS_BVH_STACK, 64);
+NS_CONST(uint, NS_BVH_MAX_DEPTH, 60);
+NS_CONST(uint, NS_BVH_LEAF_MAX, 4);
+
+/* Deferred Fresnel branches a camera path may hold (see camera.comp: split deterministically
+ * while there is room, choose by the Fresnel probability when full). */
+NS_CONST(uint, NS_BRANCH_STACK, 6);
+
+/* Primitive kinds in GpuPrim.info.x. Planes are kept after the BVH primitives. */
+NS_CONST(uint, NS_PRIM_SPHERE, 0);
+NS_CONST(uint, NS_PRIM_BOX, 1);
+NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
+NS_CONST(uint, NS_PRIM_PLANE, 3);
+
+/* Light kinds in GpuLight.info.x (same values as ns_light_type). */
+NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);
+NS_CONST(uint, NS_GPU_LIGHT_POINT, 1);
+NS_CONST(uint, NS_GPU_LIGHT_SPHERE, 2);
+NS_CONST(uint, NS_GPU_LIGHT_ENVIRONMENT, 3);
+
+/* "No hit" primitive id and "outside every medium" (too large for a C enum constant). */
+#if defined(__STDC__) || defined(__cplusplus)
+#define NS_NONE 0xffffffffu
+#else
+const uint NS_NONE = 0xffffffffu;
+#endif
+
+/* Camera pass parameters (uniform buffer, binding 0). */
+struct GpuParams {
+    ns_vec4 cam_position; /* xyz; w = tan(horizontal fov / 2) */
+    ns_vec4 cam_right;    /* unit; w = tan(vertical fov / 2) */
+    ns_vec4 cam_up;       /* unit */
+    ns_vec4 cam_forward;  /* unit */
+    ns_vec4 environment;  /* summed environment radiance (rgb); w unused */
+    ns_uvec4 image;       /* width, height, spp, seed */
+    ns_uvec4 counts;      /* max_depth, light_count, segment_capacity, node_count */
+    ns_uvec4 prims;       /* bvh prim count, plane count, material count, ray count (tests) */
+};
+
+/* BVH node: an interior node has count 0 and children first, first + 1; a leaf has count
+ * primitives starting at first (in GpuPrim order). */
+struct GpuNode {
+    ns_vec3 bmin;
+    ns_uint first;
+    ns_vec3 bmax;
+    ns_uint count;
+};
+
+/* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
+ * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
+ * info = kind, material index, object index, unused. */
+struct GpuPrim {
+    ns_vec4 a;
+    ns_vec4 b;
+    ns_vec4 c;
+    ns_uvec4 info;
+};
+
+/* reflectance.w = 1 for a medium, 0 for diffuse; sigma_t.w = ior; sigma_s.w = g. */
+struct GpuMaterial {
+    ns_vec4 reflectance;
+    ns_vec4 sigma_t;
+    ns_vec4 sigma_s;
+};
+
+/* position.w = sphere radius; direction = unit travel direction (directional);
+ * color = irradiance / intensity / radiance; info.x = kind. */
+struct GpuLight {
+    ns_vec4 position;
+    ns_vec4 direction;
+    ns_vec4 color;
+    ns_uvec4 info;
+};
+
+/* A stretch of a camera path inside a medium, for the scattering passes: entry and exit
+ * points, unit direction, the path throughput at the entry (before Beer-Lambert along this
+ * stretch, not divided by spp), the medium's material index, and where it came from. */
+struct GpuSegment {
+    ns_vec3 entry;
+    ns_uint pixel;
+    ns_vec3 exit;
+    ns_uint material;
+    ns_vec3 direction;
+    ns_uint sample_index;
+    ns_vec3 throughput;
+    ns_uint depth;
+};
+
+/* counters[0] = segments recorded (may exceed capacity), counters[1] = overflowed. */
+NS_CONST(uint, NS_COUNTER_SEGMENTS, 0);
+NS_CONST(uint, NS_COUNTER_OVERFLOW, 1);
+NS_CONST(uint, NS_COUNTER_COUNT, 4);
+
+/* BVH test shader: one ray in, the nearest hit out. */
+struct GpuRay {
+    ns_vec4 origin; /* w = tmax */
+    ns_vec4 direction;
+};
+
+struct GpuHit {
+    float t;
+    ns_uint prim; /* index into GpuPrim order, NS_NONE for a miss */
+    ns_uint front;
+    ns_uint pad;
+};
+
+#if defined(__STDC__) || defined(__cplusplus)
+typedef struct GpuParams GpuParams;
+typedef struct GpuNode GpuNode;
+typedef struct GpuPrim GpuPrim;
+typedef struct GpuMaterial GpuMaterial;
+typedef struct GpuLight GpuLight;
+typedef struct GpuSegment GpuSegment;
+typedef struct GpuRay GpuRay;
+typedef struct GpuHit GpuHit;
+_Static_assert(sizeof(GpuParams) == 128, "GpuParams std430 size");
+_Static_assert(offsetof(GpuParams, image) == 80, "GpuParams.image offset");
+_Static_assert(offsetof(GpuParams, prims) == 112, "GpuParams.prims offset");
+_Static_assert(sizeof(GpuNode) == 32 && offsetof(GpuNode, bmax) == 16, "GpuNode layout");
+_Static_assert(offsetof(GpuNode, first) == 12 && offsetof(GpuNode, count) == 28, "GpuNode");
+_Static_assert(sizeof(GpuPrim) == 64 && offsetof(GpuPrim, info) == 48, "GpuPrim layout");
+_Static_assert(sizeof(GpuMaterial) == 48 && offsetof(GpuMaterial, sigma_s) == 32, "GpuMaterial");
+_Static_assert(sizeof(GpuLight) == 64 && offsetof(GpuLight, info) == 48, "GpuLight layout");
+_Static_assert(sizeof(GpuSegment) == 64, "GpuSegment std430 size");
+_Static_assert(offsetof(GpuSegment, pixel) == 12 && offsetof(GpuSegment, exit) == 16, "GpuSegment");
+_Static_assert(offsetof(GpuSegment, material) == 28 && offsetof(GpuSegment, direction) == 32,
+               "GpuSegment");
+_Static_assert(offsetof(GpuSegment, throughput) == 48 && offsetof(GpuSegment, depth) == 60,
+               "GpuSegment");
+_Static_assert(sizeof(GpuRay) == 32 && sizeof(GpuHit) == 16, "GpuRay/GpuHit layout");
+#endif
+
+#endif

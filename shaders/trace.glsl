@@ -1,0 +1,180 @@
+// trace.glsl — ray/primitive intersection and stack-based BVH traversal, shared by the
+// camera pass and the BVH test shader. Needs shared.h included first. Declares bindings
+// 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives).
+
+layout(std140, binding = 0) uniform ParamsBlock { GpuParams params; };
+layout(std430, binding = 1) readonly buffer NodeBlock { GpuNode nodes[]; };
+layout(std430, binding = 2) readonly buffer PrimBlock { GpuPrim prims[]; };
+
+const float NS_INF = 1.0 / 0.0;
+
+struct Hit {
+    float t;
+    uint prim;     // index into prims[]
+    vec3 normal;   // outward geometric normal at the hit (unit)
+    bool front;    // the ray arrived from the outside (against the outward normal)
+};
+
+// Nearest sphere root in (tmin, tmax), or -1. d is unit length. The discriminant is taken
+// as r^2 - |oc - b d|^2 (Ray Tracing Gems ch. 7) to avoid cancellation far from the sphere.
+float hit_sphere(vec3 o, vec3 d, vec4 s, float tmin, float tmax)
+{
+    vec3 oc = o - s.xyz;
+    float b = dot(oc, d);
+    vec3 perp = oc - b * d;
+    float disc = s.w * s.w - dot(perp, perp);
+    if (disc < 0.0)
+        return -1.0;
+    float q = sqrt(disc);
+    float t = -b - q;
+    if (t <= tmin)
+        t = -b + q;
+    return (t > tmin && t < tmax) ? t : -1.0;
+}
+
+// Slab test: entry distance clipped to tmin (so a ray starting inside reports its exit).
+float hit_box(vec3 o, vec3 inv_d, vec3 bmin, vec3 bmax, float tmin, float tmax)
+{
+    vec3 t0 = (bmin - o) * inv_d, t1 = (bmax - o) * inv_d;
+    vec3 tn = min(t0, t1), tf = max(t0, t1);
+    float near = max(max(tn.x, tn.y), tn.z), far = min(min(tf.x, tf.y), tf.z);
+    if (near > far)
+        return -1.0;
+    float t = near > tmin ? near : far;
+    return (t > tmin && t < tmax) ? t : -1.0;
+}
+
+// Does the ray overlap the node's box anywhere in [tmin, tmax]? Returns the entry distance.
+float enter_box(vec3 o, vec3 inv_d, vec3 bmin, vec3 bmax, float tmin, float tmax)
+{
+    vec3 t0 = (bmin - o) * inv_d, t1 = (bmax - o) * inv_d;
+    vec3 tn = min(t0, t1), tf = max(t0, t1);
+    float near = max(max(max(tn.x, tn.y), tn.z), tmin);
+    float far = min(min(min(tf.x, tf.y), tf.z), tmax);
+    return near <= far ? near : NS_INF;
+}
+
+// Moller-Trumbore, both faces.
+float hit_triangle(vec3 o, vec3 d, vec3 a, vec3 b, vec3 c, float tmin, float tmax)
+{
+    vec3 e1 = b - a, e2 = c - a;
+    vec3 p = cross(d, e2);
+    float det = dot(e1, p);
+    if (det == 0.0)
+        return -1.0;
+    float inv = 1.0 / det;
+    vec3 s = o - a;
+    float u = dot(s, p) * inv;
+    if (u < 0.0 || u > 1.0)
+        return -1.0;
+    vec3 q = cross(s, e1);
+    float v = dot(d, q) * inv;
+    if (v < 0.0 || u + v > 1.0)
+        return -1.0;
+    float t = dot(e2, q) * inv;
+    return (t > tmin && t < tmax) ? t : -1.0;
+}
+
+float hit_plane(vec3 o, vec3 d, vec3 p0, vec3 n, float tmin, float tmax)
+{
+    float denom = dot(d, n);
+    if (denom == 0.0)
+        return -1.0;
+    float t = dot(p0 - o, n) / denom;
+    return (t > tmin && t < tmax) ? t : -1.0;
+}
+
+float hit_prim(uint i, vec3 o, vec3 d, vec3 inv_d, float tmin, float tmax)
+{
+    GpuPrim p = prims[i];
+    uint kind = p.info.x;
+    if (kind == NS_PRIM_SPHERE)
+        return hit_sphere(o, d, p.a, tmin, tmax);
+    if (kind == NS_PRIM_BOX)
+        return hit_box(o, inv_d, p.a.xyz, p.b.xyz, tmin, tmax);
+    if (kind == NS_PRIM_TRIANGLE)
+        return hit_triangle(o, d, p.a.xyz, p.b.xyz, p.c.xyz, tmin, tmax);
+    return hit_plane(o, d, p.a.xyz, p.b.xyz, tmin, tmax);
+}
+
+vec3 outward_normal(uint i, vec3 pos)
+{
+    GpuPrim p = prims[i];
+    uint kind = p.info.x;
+    if (kind == NS_PRIM_SPHERE)
+        return normalize(pos - p.a.xyz);
+    if (kind == NS_PRIM_BOX) {
+        // The face whose slab the point is closest to, measured in half extents.
+        vec3 centre = 0.5 * (p.a.xyz + p.b.xyz);
+        vec3 half_size = max(0.5 * (p.b.xyz - p.a.xyz), vec3(1e-30));
+        vec3 q = (pos - centre) / half_size;
+        vec3 aq = abs(q);
+        if (aq.x >= aq.y && aq.x >= aq.z)
+            return vec3(sign(q.x), 0.0, 0.0);
+        if (aq.y >= aq.z)
+            return vec3(0.0, sign(q.y), 0.0);
+        return vec3(0.0, 0.0, sign(q.z));
+    }
+    if (kind == NS_PRIM_TRIANGLE)
+        return normalize(cross(p.b.xyz - p.a.xyz, p.c.xyz - p.a.xyz));
+    return p.b.xyz;
+}
+
+// Nearest hit in (tmin, tmax) over the BVH primitives and the planes.
+bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
+{
+    vec3 inv_d = 1.0 / d;
+    float best = tmax;
+    uint best_prim = NS_NONE;
+
+    uint stack[NS_BVH_STACK];
+    uint sp = 0u;
+    if (params.counts.w > 0u)
+        stack[sp++] = 0u;
+    while (sp > 0u) {
+        GpuNode node = nodes[stack[--sp]];
+        if (enter_box(o, inv_d, node.bmin, node.bmax, tmin, best) == NS_INF)
+            continue;
+        if (node.count > 0u) {
+            for (uint i = node.first; i < node.first + node.count; i++) {
+                float t = hit_prim(i, o, d, inv_d, tmin, best);
+                if (t > 0.0) {
+                    best = t;
+                    best_prim = i;
+                }
+            }
+            continue;
+        }
+        // Visit the nearer child first: push the farther one, then the nearer one.
+        uint l = node.first, r = node.first + 1u;
+        float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, best);
+        float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, best);
+        if (tl > tr) {
+            uint tmp = l; l = r; r = tmp;
+            float tt = tl; tl = tr; tr = tt;
+        }
+        if (tr != NS_INF && sp < NS_BVH_STACK)
+            stack[sp++] = r;
+        if (tl != NS_INF && sp < NS_BVH_STACK)
+            stack[sp++] = l;
+    }
+
+    uint first_plane = params.prims.x;
+    for (uint i = first_plane; i < first_plane + params.prims.y; i++) {
+        float t = hit_prim(i, o, d, inv_d, tmin, best);
+        if (t > 0.0) {
+            best = t;
+            best_prim = i;
+        }
+    }
+
+    hit.t = best;
+    hit.prim = best_prim;
+    hit.normal = vec3(0.0, 0.0, 1.0);
+    hit.front = true;
+    if (best_prim == NS_NONE)
+        return false;
+    hit.normal = outward_normal(best_prim, o + best * d);
+    hit.front = dot(d, hit.normal) < 0.0;
+    return true;
+}
