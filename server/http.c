@@ -1,9 +1,938 @@
-/* Placeholder until this command lands; replaced by its real implementation. */
+/* http.c — `nscatter serve`: the HTTP render service (libmicrohttpd).
+ *
+ * One thread per connection. The render context is made once, before the socket opens;
+ * renders run one at a time on the render queue's worker (render_queue.h), and a full queue
+ * answers 503 at once. Errors are RFC 9457 problem details (problem.h). Every request owns
+ * an http_request, made on the first callback and freed in the completion callback,
+ * whatever happened in between (client gone, body too large, render failure).
+ */
+#include <errno.h>
+#include <limits.h>
+#include <math.h>
+#include <netdb.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <sys/socket.h>
+
+#include <jansson.h>
+#include <microhttpd.h>
+
 #include "commands.h"
+#include "encode.h"
+#include "nscatter.h"
+#include "problem.h"
+#include "render_job.h"
+#include "render_queue.h"
+#include "scene_json.h"
+#include "web_assets.h"
+
+#define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
+#define HTTP_DEFAULT_QUEUE 4u
+#define HTTP_MAX_CONNECTIONS 64u
+#define HTTP_IDLE_TIMEOUT_S 60u
+#define HTTP_DEVICE_HEADER "X-Nscatter-Device"
+
+typedef struct http_server {
+    ns_context *ctx; /* NULL when the context could not be made: /readyz says 503 */
+    ns_error ctx_err;
+    ns_device_info device;
+    render_queue *queue;
+    uint64_t max_body;
+    uint32_t queue_capacity;
+    const char *asset_dir;
+} http_server;
+
+typedef enum {
+    ROUTE_NONE = 0,
+    ROUTE_LIVEZ,
+    ROUTE_READYZ,
+    ROUTE_INFO,
+    ROUTE_RENDERS,
+    ROUTE_WEB,
+} http_route;
+
+/* Per request, made on the first callback, freed in http_request_completed(). */
+typedef struct http_request {
+    http_route route;
+    const char *allow;     /* Allow header of a 405 */
+    json_t *early_problem; /* answer decided before the body was read; the body is drained */
+    int too_large;         /* the body grew past the limit (chunked or lying length) */
+    encode_format format;
+    char *body;
+    size_t size, cap;
+    uint64_t drained; /* bytes read and thrown away after an early decision */
+    double started_ms;
+} http_request;
+
+/* ---------------------------------------------------------------------------------------
+ * Responses.
+ * ------------------------------------------------------------------------------------- */
+static enum MHD_Result send_bytes(struct MHD_Connection *conn, int status, const char *type,
+                                  void *data, size_t size, enum MHD_ResponseMemoryMode mode,
+                                  const char *const *headers)
+{
+    struct MHD_Response *resp = MHD_create_response_from_buffer(size, data, mode);
+    if (!resp) {
+        if (mode == MHD_RESPMEM_MUST_FREE)
+            free(data);
+        return MHD_NO;
+    }
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, type);
+    MHD_add_response_header(resp, "X-Content-Type-Options", "nosniff");
+    for (size_t i = 0; headers && headers[i]; i += 2)
+        MHD_add_response_header(resp, headers[i], headers[i + 1]);
+    enum MHD_Result ret = MHD_queue_response(conn, (unsigned)status, resp);
+    MHD_destroy_response(resp);
+    return ret;
+}
+
+/* Sends `body` (consumed) as JSON. headers: NULL-terminated name/value pairs or NULL. */
+static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const char *type,
+                                 json_t *body, const char *const *headers)
+{
+    char *text = body ? json_dumps(body, JSON_INDENT(2) | JSON_REAL_PRECISION(6)) : NULL;
+    json_decref(body);
+    if (!text) {
+        static const char fallback[] = "{\"title\": \"Internal Server Error\", \"status\": 500, "
+                                       "\"code\": \"internal_error\"}\n";
+        return send_bytes(conn, 500, PROBLEM_CONTENT_TYPE, (void *)fallback,
+                          sizeof fallback - 1, MHD_RESPMEM_PERSISTENT, NULL);
+    }
+    size_t len = strlen(text);
+    char *with_newline = realloc(text, len + 2);
+    if (with_newline) {
+        text = with_newline;
+        text[len++] = '\n';
+        text[len] = 0;
+    }
+    return send_bytes(conn, status, type, text, len, MHD_RESPMEM_MUST_FREE, headers);
+}
+
+static enum MHD_Result send_problem_json(struct MHD_Connection *conn, json_t *problem,
+                                         const char *const *headers)
+{
+    int status = (int)json_integer_value(json_object_get(problem, "status"));
+    return send_json(conn, status ? status : 500, PROBLEM_CONTENT_TYPE, problem, headers);
+}
+
+static json_t *problemf(int status, const char *code, const char *fmt, ...)
+{
+    char detail[768];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    return problem_new(status, code, detail);
+}
+
+static enum MHD_Result send_problem(struct MHD_Connection *conn, int status, const char *code,
+                                    const char *detail, const char *const *headers)
+{
+    return send_problem_json(conn, problem_new(status, code, detail), headers);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Header parsing: media types, Accept, Content-Length.
+ * ------------------------------------------------------------------------------------- */
+static const char *skip_space(const char *s)
+{
+    while (*s == ' ' || *s == '\t')
+        s++;
+    return s;
+}
+
+/* Copies the token [s, end) trimmed and lower-cased into out. */
+static void copy_trimmed_lower(const char *s, const char *end, char *out, size_t cap)
+{
+    s = skip_space(s);
+    while (end > s && (end[-1] == ' ' || end[-1] == '\t'))
+        end--;
+    size_t n = 0;
+    for (; s < end && n + 1 < cap; s++)
+        out[n++] = (char)((*s >= 'A' && *s <= 'Z') ? *s - 'A' + 'a' : *s);
+    out[n] = 0;
+}
+
+/* One media range of a header: "type/subtype; name=value; ...". Parameters other than q,
+ * charset and format are kept out: nothing here depends on them. */
+typedef struct media_range {
+    char type[96];
+    double q;
+    char charset[32];
+    char format[16];
+} media_range;
+
+/* Parses the element [s, end) into *m; returns 0, or -1 for a malformed q. */
+static int parse_media_range(const char *s, const char *end, media_range *m)
+{
+    memset(m, 0, sizeof *m);
+    m->q = 1.0;
+    const char *semi = memchr(s, ';', (size_t)(end - s));
+    copy_trimmed_lower(s, semi ? semi : end, m->type, sizeof m->type);
+    while (semi) {
+        const char *p = semi + 1;
+        semi = memchr(p, ';', (size_t)(end - p));
+        const char *stop = semi ? semi : end;
+        const char *eq = memchr(p, '=', (size_t)(stop - p));
+        if (!eq)
+            continue;
+        char name[16], value[32];
+        copy_trimmed_lower(p, eq, name, sizeof name);
+        copy_trimmed_lower(eq + 1, stop, value, sizeof value);
+        size_t vlen = strlen(value);
+        if (vlen >= 2 && value[0] == '"' && value[vlen - 1] == '"') {
+            memmove(value, value + 1, vlen - 2);
+            value[vlen - 2] = 0;
+        }
+        if (!strcmp(name, "q")) {
+            char *q_end = NULL;
+            m->q = strtod(value, &q_end);
+            if (q_end == value || *q_end || !(m->q >= 0.0 && m->q <= 1.0))
+                return -1;
+        } else if (!strcmp(name, "charset")) {
+            snprintf(m->charset, sizeof m->charset, "%s", value);
+        } else if (!strcmp(name, "format")) {
+            snprintf(m->format, sizeof m->format, "%s", value);
+        }
+    }
+    return 0;
+}
+
+/* Content-Type of a render request: application/json, optionally charset=utf-8. */
+static int content_type_is_json(const char *header)
+{
+    if (!header)
+        return 0;
+    media_range m;
+    if (parse_media_range(header, header + strlen(header), &m))
+        return 0;
+    return !strcmp(m.type, "application/json") && (!m.charset[0] || !strcmp(m.charset, "utf-8"));
+}
+
+/* How well one media range matches `type` ("image/png"): 3 exact, 2 "image/x", 1 any. */
+static int range_specificity(const char *range, const char *type)
+{
+    if (!strcmp(range, type))
+        return 3;
+    if (!strcmp(range, "image/*"))
+        return 2;
+    if (!strcmp(range, "*/*"))
+        return 1;
+    return 0;
+}
+
+typedef struct accept_choice {
+    double q;
+    int specificity;
+    char format[16];
+} accept_choice;
+
+/* Content negotiation between PNG and EXR (RFC 9110 12.5.1): each type takes the q of the
+ * most specific range that matches it; the higher q wins, then the more specific match,
+ * then PNG. Returns 0 and the format, or -1 when neither is acceptable. */
+static int negotiate_format(const char *accept, encode_format *format, char *exr_param,
+                            size_t exr_param_cap)
+{
+    exr_param[0] = 0;
+    if (!accept || !*skip_space(accept)) {
+        *format = ENCODE_PNG;
+        return 0;
+    }
+    static const char *const types[2] = {"image/png", "image/x-exr"};
+    accept_choice best[2] = {{0.0, 0, ""}, {0.0, 0, ""}};
+    const char *s = accept;
+    while (*s) {
+        const char *comma = strchr(s, ',');
+        const char *end = comma ? comma : s + strlen(s);
+        media_range m;
+        if (end > s && parse_media_range(s, end, &m) == 0) {
+            for (int t = 0; t < 2; t++) {
+                int spec = range_specificity(m.type, types[t]);
+                if (spec > best[t].specificity) {
+                    best[t].specificity = spec;
+                    best[t].q = m.q;
+                    snprintf(best[t].format, sizeof best[t].format, "%s", m.format);
+                }
+            }
+        }
+        s = comma ? comma + 1 : end;
+    }
+    int png_ok = best[0].specificity && best[0].q > 0.0;
+    int exr_ok = best[1].specificity && best[1].q > 0.0;
+    if (!png_ok && !exr_ok)
+        return -1;
+    int exr_wins = exr_ok && (!png_ok || best[1].q > best[0].q ||
+                              (best[1].q == best[0].q && best[1].specificity > best[0].specificity));
+    *format = exr_wins ? ENCODE_EXR_FLOAT : ENCODE_PNG;
+    if (exr_wins)
+        snprintf(exr_param, exr_param_cap, "%s", best[1].format);
+    return 0;
+}
+
+/* Content-Length as a number; -1 when absent (chunked), -2 when not a plain number. */
+static long long content_length(struct MHD_Connection *conn)
+{
+    const char *v = MHD_lookup_connection_value(conn, MHD_HEADER_KIND,
+                                                MHD_HTTP_HEADER_CONTENT_LENGTH);
+    if (!v)
+        return -1;
+    v = skip_space(v);
+    if (*v < '0' || *v > '9')
+        return -2;
+    errno = 0;
+    char *end = NULL;
+    unsigned long long n = strtoull(v, &end, 10);
+    if (errno == ERANGE || n > (unsigned long long)LLONG_MAX)
+        return LLONG_MAX; /* larger than any limit */
+    if (*skip_space(end))
+        return -2;
+    return (long long)n;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * GET endpoints.
+ * ------------------------------------------------------------------------------------- */
+static json_t *methods_json(void)
+{
+    static const ns_method methods[] = {NS_METHOD_NN, NS_METHOD_TABLE, NS_METHOD_VRL,
+                                        NS_METHOD_DIPOLE, NS_METHOD_PT};
+    const uint32_t all = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE |
+                         NS_COMPONENT_MULTIPLE;
+    json_t *list = json_array();
+    for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++) {
+        uint32_t missing = ns_unsupported_components(methods[i], all);
+        json_t *available = json_array(), *unavailable = json_array();
+        render_components_append(available, all & ~missing);
+        render_components_append(unavailable, missing);
+        json_array_append_new(list, json_pack("{s:s, s:o, s:o}", "name",
+                                              render_method_name(methods[i]), "components",
+                                              available, "unavailable_components", unavailable));
+    }
+    return list;
+}
+
+static json_t *device_json(const http_server *srv)
+{
+    if (!srv->ctx)
+        return json_pack("{s:n, s:s, s:s}", "name", "status", ns_status_name(srv->ctx_err.status),
+                         "error", srv->ctx_err.message);
+    const ns_device_info *d = &srv->device;
+    char api[32];
+    snprintf(api, sizeof api, "%u.%u.%u", d->api_version >> 22, (d->api_version >> 12) & 0x3ffu,
+             d->api_version & 0xfffu);
+    return json_pack("{s:s, s:s, s:s, s:s, s:I, s:I, s:b}", "name", d->device_name, "driver",
+                     d->driver_name, "driver_info", d->driver_info, "api_version", api,
+                     "vendor_id", (json_int_t)d->vendor_id, "device_id",
+                     (json_int_t)d->device_id, "is_cpu", d->is_cpu);
+}
+
+static json_t *info_json(const http_server *srv)
+{
+    json_t *limits = json_pack(
+        "{s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I}", "max_body_bytes",
+        (json_int_t)srv->max_body, "queue_capacity", (json_int_t)srv->queue_capacity,
+        "max_image_side", (json_int_t)NS_MAX_IMAGE_SIDE, "max_pixels", (json_int_t)NS_MAX_PIXELS,
+        "max_spp", (json_int_t)NS_MAX_SPP, "max_depth", (json_int_t)NS_MAX_DEPTH,
+        "max_materials", (json_int_t)NS_MAX_MATERIALS, "max_objects",
+        (json_int_t)NS_MAX_OBJECTS, "max_lights", (json_int_t)NS_MAX_LIGHTS, "max_triangles",
+        (json_int_t)NS_MAX_TRIANGLES);
+    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I}", "version", NS_VERSION, "ready",
+                     srv->ctx != NULL, "device", device_json(srv), "limits", limits, "methods",
+                     methods_json(), "formats", "image/png", "image/x-exr", "queue_length",
+                     (json_int_t)(srv->queue ? render_queue_length(srv->queue) : 0));
+}
+
+static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_server *srv)
+{
+    if (srv->ctx)
+        return send_json(conn, 200, "application/json",
+                         json_pack("{s:s, s:s}", "status", "ready", "device",
+                                   srv->device.device_name),
+                         NULL);
+    return send_problem_json(conn,
+                             problemf(503, ns_status_name(srv->ctx_err.status),
+                                      "render context not available: %s", srv->ctx_err.message),
+                             NULL);
+}
+
+/* GET / and GET /<file>: the embedded web page. */
+static enum MHD_Result answer_web(struct MHD_Connection *conn, const char *url)
+{
+    const char *name = strcmp(url, "/") ? url + 1 : "index.html";
+    const web_asset *asset = strchr(name, '/') ? NULL : web_asset_find(name);
+    if (!asset)
+        return send_problem_json(conn, problemf(404, "not_found", "no resource at %s", url), NULL);
+    static const char *const headers[] = {"Cache-Control", "no-cache", NULL};
+    return send_bytes(conn, 200, asset->content_type, (void *)asset->data, asset->size,
+                      MHD_RESPMEM_PERSISTENT, headers);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * POST /v1/renders.
+ * ------------------------------------------------------------------------------------- */
+/* Collects the query's format=half|float into *half; unknown parameters are an error (a
+ * misspelt option must not be ignored silently). */
+typedef struct query_check {
+    int half, has_format;
+    char problem[256];
+} query_check;
+
+static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const char *key,
+                                       const char *value)
+{
+    query_check *q = cls;
+    if (!strcmp(key, "format") && value && (!strcmp(value, "half") || !strcmp(value, "float"))) {
+        q->half = !strcmp(value, "half");
+        q->has_format = 1;
+        return MHD_YES;
+    }
+    if (!q->problem[0]) {
+        if (!strcmp(key, "format"))
+            snprintf(q->problem, sizeof q->problem,
+                     "query parameter format=%.64s: use format=half or format=float",
+                     value ? value : "");
+        else
+            snprintf(q->problem, sizeof q->problem,
+                     "unknown query parameter '%.64s' (only format=half|float)", key);
+    }
+    return MHD_YES;
+}
+
+/* Decides what the headers alone can: returns a problem to answer with, or NULL and the
+ * output format in req->format. */
+static json_t *check_render_headers(struct MHD_Connection *conn, const http_server *srv,
+                                    http_request *req)
+{
+    const char *type = MHD_lookup_connection_value(conn, MHD_HEADER_KIND,
+                                                   MHD_HTTP_HEADER_CONTENT_TYPE);
+    if (!content_type_is_json(type))
+        return problemf(415, "unsupported_media_type",
+                        "Content-Type must be application/json (charset utf-8), got '%.100s'",
+                        type ? type : "(none)");
+    const char *accept = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_ACCEPT);
+    char exr_param[16];
+    if (negotiate_format(accept, &req->format, exr_param, sizeof exr_param))
+        return problemf(406, "not_acceptable",
+                        "Accept '%.200s' allows neither image/png nor image/x-exr", accept);
+    query_check query = {0};
+    MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
+    if (query.problem[0])
+        return problem_new(400, "bad_query", query.problem);
+    if (exr_param[0] && strcmp(exr_param, "half") && strcmp(exr_param, "float"))
+        return problemf(406, "not_acceptable",
+                        "Accept image/x-exr; format=%s: use format=half or format=float",
+                        exr_param);
+    int half = query.has_format ? query.half : !strcmp(exr_param, "half");
+    if ((query.has_format || exr_param[0]) && req->format == ENCODE_PNG)
+        return problem_new(400, "bad_query",
+                           "format=half|float applies to image/x-exr; the Accept header "
+                           "selected image/png");
+    if (req->format != ENCODE_PNG && half)
+        req->format = ENCODE_EXR_HALF;
+    if (!srv->ctx)
+        return problemf(503, ns_status_name(srv->ctx_err.status),
+                        "render context not available: %s", srv->ctx_err.message);
+    return NULL;
+}
+
+/* Appends upload data; past the limit the body is dropped and the rest drained. */
+static void collect_body(const http_server *srv, http_request *req, const char *data, size_t n)
+{
+    if (req->early_problem || req->too_large || req->route != ROUTE_RENDERS) {
+        req->drained += n;
+        return;
+    }
+    if ((uint64_t)req->size + n > srv->max_body) {
+        req->too_large = 1;
+        free(req->body);
+        req->body = NULL;
+        req->drained += req->size + n;
+        req->size = req->cap = 0;
+        return;
+    }
+    if (req->size + n + 1 > req->cap) {
+        size_t cap = req->cap ? req->cap : 64 * 1024;
+        while (cap < req->size + n + 1)
+            cap *= 2;
+        char *grown = realloc(req->body, cap);
+        if (!grown) {
+            req->early_problem = problem_new(503, "out_of_host_memory",
+                                             "out of memory while reading the request body");
+            free(req->body);
+            req->body = NULL;
+            req->size = req->cap = 0;
+            return;
+        }
+        req->body = grown;
+        req->cap = cap;
+    }
+    memcpy(req->body + req->size, data, n);
+    req->size += n;
+    req->body[req->size] = 0;
+}
+
+static json_t *issues_problem(const scene_issues *issues)
+{
+    if (issues->syntax_error) {
+        const char *what = issues->count ? issues->items[0].detail : "not valid JSON";
+        /* The parser's detail normally names the position already; never lose it. */
+        char detail[600];
+        if (strstr(what, "line"))
+            snprintf(detail, sizeof detail, "%s", what);
+        else
+            snprintf(detail, sizeof detail, "line %d, column %d: %s", issues->line,
+                     issues->column, what);
+        json_t *p = problem_new(400, "malformed_json", detail);
+        json_object_set_new(p, "line", json_integer(issues->line));
+        json_object_set_new(p, "column", json_integer(issues->column));
+        problem_add_error(p, issues->count ? issues->items[0].pointer : "", detail);
+        return p;
+    }
+    json_t *p;
+    if (issues->count)
+        p = problemf(422, "invalid_scene", "the scene has %u problem%s; first: %s: %s",
+                     issues->total, issues->total == 1 ? "" : "s",
+                     issues->items[0].pointer[0] ? issues->items[0].pointer : "(document)",
+                     issues->items[0].detail);
+    else
+        p = problem_new(422, "invalid_scene", "the scene is not valid");
+    for (uint32_t i = 0; i < issues->count && i < SCENE_MAX_ISSUES; i++)
+        problem_add_error(p, issues->items[i].pointer, issues->items[i].detail);
+    return p;
+}
+
+/* "parse;dur=1.234, queue;dur=0.012, ..." — metric names are HTTP tokens. */
+static void server_timing(const ns_render_stats *stats, char *out, size_t cap)
+{
+    size_t at = 0;
+    out[0] = 0;
+    for (uint32_t i = 0; i < stats->stage_count && i < NS_MAX_STAGES; i++) {
+        char name[32];
+        size_t n = 0;
+        for (const char *c = stats->stages[i].name; *c && n + 1 < sizeof name; c++)
+            name[n++] = (char)((*c >= 'a' && *c <= 'z') || (*c >= 'A' && *c <= 'Z') ||
+                                       (*c >= '0' && *c <= '9') || *c == '_' || *c == '-'
+                                   ? *c
+                                   : '_');
+        name[n] = 0;
+        if (!n)
+            continue;
+        int w = snprintf(out + at, cap - at, "%s%s;dur=%.3f", at ? ", " : "", name,
+                         stats->stages[i].ms);
+        if (w < 0 || (size_t)w >= cap - at)
+            break;
+        at += (size_t)w;
+    }
+}
+
+/* Header values must not carry control characters; a device name is plain text anyway. */
+static void header_safe(const char *in, char *out, size_t cap)
+{
+    size_t n = 0;
+    for (; in && *in && n + 1 < cap; in++)
+        out[n++] = (*in >= 32 && *in < 127) ? *in : '?';
+    out[n] = 0;
+}
+
+static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *srv,
+                                     http_request *req)
+{
+    ns_render_stats stats;
+    memset(&stats, 0, sizeof stats);
+    double t0 = ns_now_ms();
+    scene_issues *issues = calloc(1, sizeof *issues);
+    if (!issues)
+        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+    scene_doc *doc = NULL;
+    int rc = scene_parse(req->body ? req->body : "", req->size,
+                         &(scene_parse_options){.asset_dir = srv->asset_dir}, &doc, issues);
+    ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
+    if (rc) {
+        json_t *p = rc == NS_ERR_INVALID_ARGUMENT
+                        ? issues_problem(issues)
+                        : problem_new(ns_status_http(rc), ns_status_name(rc), ns_status_message(rc));
+        free(issues);
+        return send_problem_json(conn, p, NULL);
+    }
+    free(issues);
+    /* The body is not needed any more; a large one should not sit in memory while queued. */
+    free(req->body);
+    req->body = NULL;
+    req->size = req->cap = 0;
+
+    const ns_scene *scene = scene_doc_scene(doc);
+    render_request *job = calloc(1, sizeof *job);
+    if (!job) {
+        scene_doc_free(doc);
+        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+    }
+    job->scene = scene;
+    job->format = req->format;
+    job->exposure_stops = scene->render.exposure;
+    job->stats = stats;
+    uint32_t retry_after = 1;
+    if (render_queue_submit(srv->queue, job, &retry_after) != 0) {
+        scene_doc_free(doc);
+        free(job);
+        char seconds[16];
+        snprintf(seconds, sizeof seconds, "%u", retry_after);
+        const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, seconds, NULL};
+        json_t *p = problemf(503, "queue_full",
+                             "%u render%s already admitted (queue capacity); retry in %s s",
+                             srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
+        return send_problem_json(conn, p, headers);
+    }
+    render_queue_wait(srv->queue, job);
+    scene_doc_free(doc);
+
+    enum MHD_Result ret;
+    char device[256];
+    header_safe(srv->device.device_name, device, sizeof device);
+    if (job->status) {
+        json_t *p = problemf(ns_status_http(job->status), ns_status_name(job->status), "%s",
+                             job->err.message[0] ? job->err.message
+                                                 : ns_status_message(job->status));
+        const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
+        ret = send_problem_json(conn, p, headers);
+    } else {
+        char timing[1024];
+        server_timing(&job->stats, timing, sizeof timing);
+        const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device,
+                                 "Cache-Control", "no-store", NULL};
+        /* MHD frees the image with free() once sent (or when the client is gone). */
+        ret = send_bytes(conn, 200, encode_mime_type(job->format), job->image.data,
+                         job->image.size, MHD_RESPMEM_MUST_FREE, headers);
+        job->image.data = NULL;
+    }
+    encode_buffer_free(&job->image);
+    free(job);
+    return ret;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Routing and the MHD callbacks.
+ * ------------------------------------------------------------------------------------- */
+static http_route route_for(const char *url)
+{
+    if (!strcmp(url, "/livez"))
+        return ROUTE_LIVEZ;
+    if (!strcmp(url, "/readyz"))
+        return ROUTE_READYZ;
+    if (!strcmp(url, "/v1/info"))
+        return ROUTE_INFO;
+    if (!strcmp(url, "/v1/renders"))
+        return ROUTE_RENDERS;
+    if (url[0] == '/' && !strchr(url + 1, '/'))
+        return ROUTE_WEB;
+    return ROUTE_NONE;
+}
+
+static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
+                                  http_route route, const char *url)
+{
+    switch (route) {
+    case ROUTE_LIVEZ:
+        return send_json(conn, 200, "application/json", json_pack("{s:s}", "status", "alive"),
+                         NULL);
+    case ROUTE_READYZ:
+        return answer_readyz(conn, srv);
+    case ROUTE_INFO:
+        return send_json(conn, 200, "application/json", info_json(srv), NULL);
+    default:
+        return answer_web(conn, url);
+    }
+}
+
+/* Decides what the request line alone can: a problem (404, 405) with its Allow header, or
+ * NULL when the route takes this method. */
+static json_t *check_route(http_route route, const char *url, const char *method,
+                           const char **allow)
+{
+    int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
+    *allow = NULL;
+    if (route == ROUTE_NONE)
+        return problemf(404, "not_found", "no resource at %.200s", url);
+    if (route != ROUTE_RENDERS && !is_get) {
+        *allow = "GET, HEAD";
+        return problemf(405, "method_not_allowed", "%.16s is not allowed on %.200s; use GET",
+                        method, url);
+    }
+    if (route == ROUTE_RENDERS && strcmp(method, MHD_HTTP_METHOD_POST)) {
+        *allow = "POST";
+        return problemf(405, "method_not_allowed",
+                        "%.16s is not allowed on /v1/renders; use POST", method);
+    }
+    return NULL;
+}
+
+/* The first callback of a request: everything the request line and headers decide. The
+ * answer itself waits for the last callback (after any body has been read and dropped), so
+ * the connection stays usable; only a body declared too large is refused at once. */
+static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv, const char *url,
+                                  const char *method, void **con_cls)
+{
+    http_route route = route_for(url);
+    long long length = content_length(conn);
+    if (route == ROUTE_RENDERS && length > 0 && (unsigned long long)length > srv->max_body)
+        /* Without reading a byte of the body: MHD then closes the connection. */
+        return send_problem_json(conn,
+                                 problemf(413, "body_too_large",
+                                          "Content-Length %lld is over the limit of %llu bytes",
+                                          length, (unsigned long long)srv->max_body),
+                                 NULL);
+    http_request *req = calloc(1, sizeof *req);
+    if (!req)
+        return MHD_NO;
+    req->route = route;
+    req->started_ms = ns_now_ms();
+    req->early_problem = check_route(route, url, method, &req->allow);
+    if (!req->early_problem && route == ROUTE_RENDERS)
+        req->early_problem = check_render_headers(conn, srv, req);
+    *con_cls = req;
+    return MHD_YES;
+}
+
+static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, const char *url,
+                                    const char *method, const char *version,
+                                    const char *upload_data, size_t *upload_data_size,
+                                    void **con_cls)
+{
+    http_server *srv = cls;
+    http_request *req = *con_cls;
+    if (!req)
+        return first_call(conn, srv, url, method, con_cls);
+    if (*upload_data_size) {
+        collect_body(srv, req, upload_data, *upload_data_size);
+        *upload_data_size = 0;
+        /* Draining is bounded too: a client that keeps sending past twice the limit after
+         * being refused is cut off. */
+        if (req->drained > 2 * srv->max_body + (1u << 20))
+            return MHD_NO;
+        return MHD_YES;
+    }
+    /* The whole body has arrived. */
+    if (req->early_problem) {
+        json_t *p = req->early_problem;
+        req->early_problem = NULL;
+        const char *allow[] = {MHD_HTTP_HEADER_ALLOW, req->allow, NULL};
+        return send_problem_json(conn, p, req->allow ? allow : NULL);
+    }
+    if (req->route != ROUTE_RENDERS)
+        return answer_get(conn, srv, req->route, url);
+    if (req->too_large)
+        return send_problem_json(conn,
+                                 problemf(413, "body_too_large",
+                                          "the request body is over the limit of %llu bytes",
+                                          (unsigned long long)srv->max_body),
+                                 NULL);
+    return answer_render(conn, srv, req);
+}
+
+static void http_request_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
+                                   enum MHD_RequestTerminationCode toe)
+{
+    http_request *req = *con_cls;
+    if (!req)
+        return;
+    json_decref(req->early_problem);
+    free(req->body);
+    free(req);
+    *con_cls = NULL;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The command.
+ * ------------------------------------------------------------------------------------- */
+typedef struct serve_args {
+    const char *host;
+    unsigned port;
+    uint32_t queue;
+    uint64_t max_body;
+    const char *asset_dir;
+    const char *device;
+} serve_args;
+
+static void serve_usage(FILE *out)
+{
+    fprintf(out,
+            "usage: nscatter serve [options]\n"
+            "\n"
+            "  --host ADDR       address to listen on (default 127.0.0.1)\n"
+            "  --port N          TCP port (default 8080); 0 picks a free one\n"
+            "  --queue N         renders admitted at once, running one included (default 4);\n"
+            "                    more get 503 with Retry-After\n"
+            "  --max-body BYTES  largest request body (default 67108864 = 64 MiB)\n"
+            "  --assets DIR      folder of mesh assets scenes may name (\"asset\": \"x.glb\")\n"
+            "  --device D        Vulkan device: index or name substring (default: lavapipe;\n"
+            "                    also NSCATTER_DEVICE)\n"
+            "\n"
+            "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
+            "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
+}
+
+static int parse_unsigned(const char *text, unsigned long long max, unsigned long long *out)
+{
+    if (!text || *text < '0' || *text > '9')
+        return -1;
+    errno = 0;
+    char *end = NULL;
+    unsigned long long v = strtoull(text, &end, 10);
+    if (errno || *end || v > max)
+        return -1;
+    *out = v;
+    return 0;
+}
+
+static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
+{
+    *a = (serve_args){.host = "127.0.0.1", .port = 8080, .queue = HTTP_DEFAULT_QUEUE,
+                      .max_body = HTTP_DEFAULT_MAX_BODY};
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
+        unsigned long long n = 0;
+        if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
+            serve_usage(stdout);
+            *done = 1;
+            return 0;
+        }
+        if (!value) {
+            fprintf(stderr, "nscatter serve: unknown option or missing value: '%s'\n", arg);
+            serve_usage(stderr);
+            return 2;
+        }
+        i++;
+        if (!strcmp(arg, "--host")) {
+            a->host = value;
+        } else if (!strcmp(arg, "--port")) {
+            if (parse_unsigned(value, 65535, &n)) {
+                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n", value);
+                return 2;
+            }
+            a->port = (unsigned)n;
+        } else if (!strcmp(arg, "--queue")) {
+            if (parse_unsigned(value, 1024, &n) || n < 1) {
+                fprintf(stderr, "nscatter serve: --queue '%s' is not a number 1-1024\n", value);
+                return 2;
+            }
+            a->queue = (uint32_t)n;
+        } else if (!strcmp(arg, "--max-body")) {
+            if (parse_unsigned(value, 1ull << 32, &n) || n < 1) {
+                fprintf(stderr, "nscatter serve: --max-body '%s' is not a byte count "
+                                "1-4294967296\n", value);
+                return 2;
+            }
+            a->max_body = n;
+        } else if (!strcmp(arg, "--assets")) {
+            a->asset_dir = value;
+        } else if (!strcmp(arg, "--device")) {
+            a->device = value;
+        } else {
+            fprintf(stderr, "nscatter serve: unknown option '%s'\n", arg);
+            serve_usage(stderr);
+            return 2;
+        }
+    }
+    return 0;
+}
+
+/* Resolves --host to one socket address (numeric or a name such as localhost). */
+static int resolve_host(const char *host, unsigned port, struct sockaddr_storage *addr)
+{
+    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM,
+                             .ai_flags = AI_PASSIVE | AI_NUMERICSERV};
+    struct addrinfo *res = NULL;
+    char port_text[8];
+    snprintf(port_text, sizeof port_text, "%u", port);
+    int rc = getaddrinfo(host, port_text, &hints, &res);
+    if (rc) {
+        fprintf(stderr, "nscatter serve: --host '%s': %s\n", host, gai_strerror(rc));
+        return -1;
+    }
+    memset(addr, 0, sizeof *addr);
+    memcpy(addr, res->ai_addr, res->ai_addrlen);
+    freeaddrinfo(res);
+    return 0;
+}
+
+static void make_context(http_server *srv, const char *device)
+{
+    double t0 = ns_now_ms();
+    int rc = ns_context_create(&(ns_context_desc){.device = device}, &srv->ctx, &srv->ctx_err);
+    if (rc) {
+        srv->ctx = NULL;
+        srv->ctx_err.status = rc;
+        fprintf(stderr, "nscatter serve: no render context (%s: %s); /readyz answers 503\n",
+                ns_status_name(rc), srv->ctx_err.message);
+        return;
+    }
+    ns_context_device_info(srv->ctx, &srv->device);
+    fprintf(stderr, "nscatter serve: device %s (%s), ready in %.0f ms\n",
+            srv->device.device_name, srv->device.driver_name, ns_now_ms() - t0);
+}
 
 int cmd_serve(int argc, char **argv)
 {
-    fprintf(stderr, "nscatter %s: not implemented yet\n", argv[0]);
-    return 1;
+    serve_args args;
+    int done = 0;
+    int rc = parse_serve_args(argc, argv, &args, &done);
+    if (rc || done)
+        return rc;
+    struct sockaddr_storage addr;
+    if (resolve_host(args.host, args.port, &addr))
+        return 2;
+
+    /* Every thread made from here on inherits this mask, so the signals reach sigwait()
+     * below and nowhere else. A client that disconnects must not kill the process. */
+    sigset_t stop_signals;
+    sigemptyset(&stop_signals);
+    sigaddset(&stop_signals, SIGINT);
+    sigaddset(&stop_signals, SIGTERM);
+    pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    http_server srv = {.max_body = args.max_body, .queue_capacity = args.queue,
+                       .asset_dir = args.asset_dir};
+    make_context(&srv, args.device);
+    if (srv.ctx && render_queue_create(srv.ctx, args.queue, &srv.queue, &srv.ctx_err)) {
+        fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
+        ns_context_destroy(srv.ctx);
+        return 1;
+    }
+
+    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
+                     MHD_USE_ERROR_LOG;
+    if (addr.ss_family == AF_INET6)
+        flags |= MHD_USE_IPv6;
+    struct MHD_Daemon *daemon = MHD_start_daemon(
+        flags, (uint16_t)args.port, NULL, NULL, http_handler, &srv, MHD_OPTION_SOCK_ADDR,
+        (struct sockaddr *)&addr, MHD_OPTION_NOTIFY_COMPLETED, http_request_completed, &srv,
+        MHD_OPTION_CONNECTION_LIMIT, HTTP_MAX_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
+        HTTP_IDLE_TIMEOUT_S, MHD_OPTION_END);
+    if (!daemon) {
+        fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
+                strerror(errno));
+        render_queue_destroy(srv.queue);
+        ns_context_destroy(srv.ctx);
+        return 1;
+    }
+    const union MHD_DaemonInfo *bound = MHD_get_daemon_info(daemon, MHD_DAEMON_INFO_BIND_PORT);
+    unsigned port = bound && bound->port ? bound->port : args.port;
+    int v6 = addr.ss_family == AF_INET6;
+    printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", args.host, v6 ? "]" : "", port);
+    fflush(stdout);
+
+    int sig = 0;
+    sigwait(&stop_signals, &sig);
+    fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
+    /* Stops accepting, lets the connection threads finish (those waiting on a render get
+     * their answer, the queue's worker still runs), then stops the worker. */
+    MHD_stop_daemon(daemon);
+    render_queue_destroy(srv.queue);
+    ns_context_destroy(srv.ctx);
+    return 0;
 }

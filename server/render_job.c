@@ -1,0 +1,148 @@
+/* render_job.c — ns_render, then the encoder, with the metadata and timings both carry. */
+#include "render_job.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+const char *render_method_name(ns_method method)
+{
+    switch (method) {
+    case NS_METHOD_NN:
+        return "nn";
+    case NS_METHOD_TABLE:
+        return "table";
+    case NS_METHOD_VRL:
+        return "vrl";
+    case NS_METHOD_DIPOLE:
+        return "dipole";
+    case NS_METHOD_PT:
+        return "pt";
+    }
+    return "unknown";
+}
+
+void render_components_append(json_t *array, uint32_t components)
+{
+    static const struct {
+        uint32_t bit;
+        const char *name;
+    } names[] = {{NS_COMPONENT_SURFACE, "surface"},
+                 {NS_COMPONENT_SINGLE, "single"},
+                 {NS_COMPONENT_DOUBLE, "double"},
+                 {NS_COMPONENT_MULTIPLE, "multiple"}};
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
+        if (components & names[i].bit)
+            json_array_append_new(array, json_string(names[i].name));
+}
+
+json_t *render_stats_stages_json(const ns_render_stats *stats)
+{
+    json_t *stages = json_object();
+    for (uint32_t i = 0; stats && i < stats->stage_count && i < NS_MAX_STAGES; i++) {
+        const ns_stage_time *s = &stats->stages[i];
+        json_t *earlier = json_object_get(stages, s->name);
+        double ms = s->ms + (earlier ? json_real_value(earlier) : 0.0);
+        json_object_set_new(stages, s->name, json_real(ms));
+    }
+    return stages;
+}
+
+double render_stats_total_ms(const ns_render_stats *stats)
+{
+    double total = 0.0;
+    for (uint32_t i = 0; stats && i < stats->stage_count && i < NS_MAX_STAGES; i++)
+        total += stats->stages[i].ms;
+    return total;
+}
+
+json_t *render_settings_json(const ns_scene *scene, float exposure_stops)
+{
+    const ns_render_settings *r = &scene->render;
+    json_t *components = json_array();
+    render_components_append(components, r->components);
+    return json_pack("{s:s, s:o, s:I, s:I, s:I, s:f, s:I, s:I}", "method",
+                     render_method_name(r->method), "components", components, "spp",
+                     (json_int_t)r->spp, "seed", (json_int_t)r->seed, "max_depth",
+                     (json_int_t)r->max_depth, "exposure", (double)exposure_stops, "width",
+                     (json_int_t)scene->camera.width, "height", (json_int_t)scene->camera.height);
+}
+
+/* Metadata strings live here while the encoder reads them. */
+typedef struct render_meta {
+    char software[64];
+    char device[256];
+    char *settings; /* json_dumps output, freed by render_meta_free */
+    char *timings;
+    encode_text texts[4];
+    size_t count;
+} render_meta;
+
+static void render_meta_free(render_meta *meta)
+{
+    free(meta->settings);
+    free(meta->timings);
+}
+
+static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene *scene,
+                              float exposure_stops, const ns_render_stats *stats)
+{
+    memset(meta, 0, sizeof *meta);
+    ns_device_info info;
+    ns_context_device_info(ctx, &info);
+    snprintf(meta->software, sizeof meta->software, "nscatter %s", NS_VERSION);
+    snprintf(meta->device, sizeof meta->device, "%s", info.device_name);
+    json_t *settings = render_settings_json(scene, exposure_stops);
+    json_t *stages = render_stats_stages_json(stats);
+    meta->settings = json_dumps(settings, JSON_COMPACT | JSON_REAL_PRECISION(6));
+    meta->timings = json_dumps(stages, JSON_COMPACT | JSON_REAL_PRECISION(6));
+    json_decref(settings);
+    json_decref(stages);
+    meta->texts[meta->count++] = (encode_text){"Software", meta->software};
+    if (meta->device[0])
+        meta->texts[meta->count++] = (encode_text){"nscatter:device", meta->device};
+    if (meta->settings)
+        meta->texts[meta->count++] = (encode_text){"nscatter:render", meta->settings};
+    if (meta->timings)
+        meta->texts[meta->count++] = (encode_text){"nscatter:timings_ms", meta->timings};
+}
+
+int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
+                   float exposure_stops, ns_render_stats *stats, encode_buffer *out,
+                   ns_error *err)
+{
+    out->data = NULL;
+    out->size = 0;
+    ns_image image = {0};
+    /* The renderer fills its own stats (it may clear them first); merge them after the
+     * caller's stages so "parse" stays first. */
+    ns_render_stats render_stats;
+    memset(&render_stats, 0, sizeof render_stats);
+    int rc = ns_render(ctx, scene, &image, &render_stats, err);
+    for (uint32_t i = 0; i < render_stats.stage_count && i < NS_MAX_STAGES; i++)
+        ns_stats_add_stage(stats, render_stats.stages[i].name, render_stats.stages[i].ms);
+    stats->camera_segments = render_stats.camera_segments;
+    stats->bvh_nodes = render_stats.bvh_nodes;
+    stats->primitives = render_stats.primitives;
+    if (rc) {
+        ns_image_free(&image);
+        return rc;
+    }
+    if (!image.rgb || image.width != scene->camera.width || image.height != scene->camera.height) {
+        ns_image_free(&image);
+        err->status = NS_ERR_INTERNAL;
+        snprintf(err->message, sizeof err->message,
+                 "renderer returned a %ux%u image for a %ux%u camera", image.width, image.height,
+                 scene->camera.width, scene->camera.height);
+        return NS_ERR_INTERNAL;
+    }
+    double t0 = ns_now_ms();
+    render_meta meta;
+    render_meta_build(&meta, ctx, scene, exposure_stops, stats);
+    rc = encode_image(format, &image, exposure_stops, meta.texts, meta.count, out, err);
+    render_meta_free(&meta);
+    ns_image_free(&image);
+    if (rc == 0)
+        ns_stats_add_stage(stats, "encode", ns_now_ms() - t0);
+    return rc;
+}

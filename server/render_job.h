@@ -1,0 +1,36 @@
+/* render_job.h — one render from a parsed scene to encoded image bytes, shared by the CLI
+ * (`nscatter render`) and the HTTP service: ns_render, metadata, the encoder, and the
+ * stage timings both report (CLI --timings JSON, HTTP Server-Timing).
+ */
+#ifndef NS_RENDER_JOB_H
+#define NS_RENDER_JOB_H
+
+#include <jansson.h>
+
+#include "encode.h"
+#include "nscatter.h"
+
+/* Renders `scene` with `ctx` and encodes it as `format`. Stages the renderer reports are
+ * appended to *stats after whatever the caller put there (e.g. "parse"), then "encode".
+ * Metadata written into the image: software, device, render parameters, timings up to
+ * the encode. On success *out holds the bytes (free with encode_buffer_free); on failure
+ * it is empty and err names the failing step. The rendered pixels are freed on every path. */
+int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
+                   float exposure_stops, ns_render_stats *stats, encode_buffer *out,
+                   ns_error *err);
+
+/* {"stage": ms, ...} in the order the stages ran; a repeated name adds up. New reference. */
+json_t *render_stats_stages_json(const ns_render_stats *stats);
+
+/* {"method", "components", "spp", "seed", "max_depth", "exposure", "width", "height"}. */
+json_t *render_settings_json(const ns_scene *scene, float exposure_stops);
+
+/* Names used in scene JSON and /v1/info. */
+const char *render_method_name(ns_method method);
+/* Appends the names of the NS_COMPONENT_* bits set in `components` to `array`. */
+void render_components_append(json_t *array, uint32_t components);
+
+/* Sum of all stage times. */
+double render_stats_total_ms(const ns_render_stats *stats);
+
+#endif
