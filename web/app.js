@@ -83,7 +83,7 @@ function formatJson(value, indent = '') {
   const inline = inlineJson(value);
   const isContainer = value !== null && typeof value === 'object';
   const holdsObject = isContainer && Object.values(value).some((v) => v !== null && typeof v === 'object' && !Array.isArray(v));
-  if (!isContainer || (!holdsObject && indent.length + inline.length <= 96)) return inline;
+  if (!isContainer || (!holdsObject && indent.length + inline.length <= 72)) return inline;
   const inner = indent + '  ';
   if (Array.isArray(value)) {
     if (value.length === 0) return '[]';
@@ -503,6 +503,7 @@ function showProblem(problem, httpStatus, sourceText) {
     list.append(el('li', {}, jump));
   }
   $('problem').hidden = false;
+  $('viewer').classList.add('stale'); /* the image shown is not of the text that failed */
 }
 
 function showBusy(problem, retryAfterSeconds) {
@@ -645,6 +646,7 @@ function renderHistory() {
 
 async function showEntry(entry) {
   shownEntry = entry;
+  $('viewer').classList.remove('stale');
   const image = $('image');
   image.alt = `Render #${entry.id}: ${entry.caption}`;
   const loaded = new Promise((resolve) => {
@@ -739,7 +741,7 @@ async function downloadExr() {
 
 function deviceName(device) {
   if (typeof device === 'string') return device;
-  if (device && typeof device === 'object') return device.name || device.device_name || JSON.stringify(device);
+  if (device && typeof device === 'object') return device.name || device.device_name || 'none';
   return 'unknown';
 }
 
@@ -756,11 +758,15 @@ async function loadInfo() {
     const response = await fetch('/v1/info', { headers: { Accept: 'application/json' } });
     if (!response.ok) throw new Error(`HTTP ${response.status}`);
     const info = await response.json();
-    const driver = typeof info.driver === 'string' ? info.driver
-      : info.driver && typeof info.driver === 'object' ? info.driver.name || info.driver.info || '' : '';
-    target.replaceChildren(
-      `nscatter ${info.version || '?'} · device `, el('strong', { id: 'info-device', textContent: deviceName(info.device) }),
-      driver ? ` · driver ${driver}` : '');
+    /* device: {name, driver, driver_info, api_version, is_cpu, ...}; when the server has
+     * no render context, name is null and status/error say why. */
+    const device = info.device && typeof info.device === 'object' ? info.device : {};
+    const driver = [device.driver, device.driver_info].filter((s) => typeof s === 'string' && s).join(' ');
+    const parts = [`nscatter ${info.version || '?'} · device `, el('strong', { id: 'info-device', textContent: deviceName(info.device) })];
+    if (driver) parts.push(` · driver ${driver}`);
+    if (device.api_version) parts.push(` · Vulkan ${device.api_version}`);
+    if (info.ready === false) parts.push(` · not ready: ${device.error || device.status || 'no render context'}`);
+    target.replaceChildren(...parts);
     applyLimits(info.limits);
   } catch (error) {
     target.textContent = `Server info unavailable (${error.message}).`;
