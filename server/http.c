@@ -13,11 +13,14 @@
 #include <pthread.h>
 #include <signal.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
 #include <sys/socket.h>
+#include <time.h>
+#include <unistd.h>
 
 #include <jansson.h>
 #include <microhttpd.h>
@@ -45,6 +48,7 @@ typedef struct http_server {
     uint64_t max_body;
     uint32_t queue_capacity;
     const char *asset_dir;
+    atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
 } http_server;
 
 typedef enum {
@@ -66,6 +70,7 @@ typedef struct http_request {
     char *body;
     size_t size, cap;
     uint64_t drained; /* bytes read and thrown away after an early decision */
+    http_server *counted_in; /* set while this request counts in renders_in_flight */
     double started_ms;
 } http_request;
 
@@ -587,6 +592,10 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
                              srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
         return send_problem_json(conn, p, headers);
     }
+    /* Counted until the completion callback, so shutdown can wait for the answer to be
+     * sent, not only rendered. */
+    atomic_fetch_add(&srv->renders_in_flight, 1);
+    req->counted_in = srv;
     render_queue_wait(srv->queue, job);
     scene_doc_free(doc);
 
@@ -739,6 +748,8 @@ static void http_request_completed(void *cls, struct MHD_Connection *conn, void 
     http_request *req = *con_cls;
     if (!req)
         return;
+    if (req->counted_in)
+        atomic_fetch_sub(&req->counted_in->renders_in_flight, 1);
     json_decref(req->early_problem);
     free(req->body);
     free(req);
@@ -875,6 +886,26 @@ static void make_context(http_server *srv, const char *device)
             srv->device.device_name, srv->device.driver_name, ns_now_ms() - t0);
 }
 
+/* Graceful stop: no new connections, renders already admitted are finished and answered
+ * (for at most HTTP_DRAIN_S, or until a second signal), then every connection is closed.
+ * MHD_stop_daemon alone would shut the sockets of requests still waiting for a render. */
+#define HTTP_DRAIN_S 120
+static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv, const sigset_t *signals)
+{
+    MHD_socket listen_fd = MHD_quiesce_daemon(daemon);
+    if (listen_fd != MHD_INVALID_SOCKET)
+        close(listen_fd);
+    double deadline = ns_now_ms() + HTTP_DRAIN_S * 1000.0;
+    const struct timespec tick = {0, 50 * 1000 * 1000};
+    while (atomic_load(&srv->renders_in_flight) > 0 && ns_now_ms() < deadline) {
+        if (sigtimedwait(signals, NULL, &tick) >= 0) {
+            fprintf(stderr, "nscatter serve: second signal, not waiting for renders\n");
+            break;
+        }
+    }
+    MHD_stop_daemon(daemon);
+}
+
 int cmd_serve(int argc, char **argv)
 {
     serve_args args;
@@ -904,8 +935,9 @@ int cmd_serve(int argc, char **argv)
         return 1;
     }
 
+    /* ITC lets MHD_quiesce_daemon wake the polling thread at shutdown. */
     unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
-                     MHD_USE_ERROR_LOG;
+                     MHD_USE_ERROR_LOG | MHD_USE_ITC;
     if (addr.ss_family == AF_INET6)
         flags |= MHD_USE_IPv6;
     struct MHD_Daemon *daemon = MHD_start_daemon(
@@ -929,9 +961,7 @@ int cmd_serve(int argc, char **argv)
     int sig = 0;
     sigwait(&stop_signals, &sig);
     fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
-    /* Stops accepting, lets the connection threads finish (those waiting on a render get
-     * their answer, the queue's worker still runs), then stops the worker. */
-    MHD_stop_daemon(daemon);
+    drain_and_stop(daemon, &srv, &stop_signals);
     render_queue_destroy(srv.queue);
     ns_context_destroy(srv.ctx);
     return 0;
