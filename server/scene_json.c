@@ -557,10 +557,12 @@ static void parse_medium(parser *p, const json_t *m, ns_material *out)
 
     if (sigma_key) {
         /* The coefficient form replaces a preset's coefficients entirely, so both are
-         * needed even with a preset. */
+         * needed even with a preset (after a contradiction, only what is there is checked:
+         * the user has to drop one form anyway). */
         float fs[3], fa[3];
-        ok &= field_color(p, m, "sigma_s", 1, R_NONNEGATIVE, "sigma_s (scattering coefficient per scene unit)", fs);
-        ok &= field_color(p, m, "sigma_a", 1, R_NONNEGATIVE, "sigma_a (absorption coefficient per scene unit)", fa);
+        int need = !amfp_key;
+        ok &= field_color(p, m, "sigma_s", need, R_NONNEGATIVE, "sigma_s (scattering coefficient per scene unit)", fs);
+        ok &= field_color(p, m, "sigma_a", need, R_NONNEGATIVE, "sigma_a (absorption coefficient per scene unit)", fa);
         if (ok && !amfp_key) {
             double s[3] = {fs[0], fs[1], fs[2]}, a[3] = {fa[0], fa[1], fa[2]};
             store_coefficients(p, s, a, scale, out);
