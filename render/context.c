@@ -14,7 +14,8 @@ static int env_flag(const char *name)
 static int create_pipelines(ns_context *ctx, ns_error *err)
 {
     int status = gpu_pipeline_create(&ctx->dev, &ctx->camera,
-                                     &(gpu_pipeline_desc){.shader = "camera", .binding_count = 8}, err);
+                                     &(gpu_pipeline_desc){.shader = "camera", .binding_count = 8,
+                                                          .push_constant_size = sizeof(GpuSamplePush)}, err);
     if (!status)
         status = gpu_pipeline_create(&ctx->dev, &ctx->trace_test,
                                      &(gpu_pipeline_desc){.shader = "trace_test", .binding_count = 5}, err);

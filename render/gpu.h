@@ -44,9 +44,13 @@ typedef struct gpu_device {
     ns_device_info info;
     PFN_vkSetDebugUtilsObjectNameEXT set_object_name; /* NULL without VK_EXT_debug_utils */
     int validation;
+    /* lavapipe: every shader invocation stops its loops after 65535 iterations in all. */
+    int loop_limited;
     /* Validation warnings/errors seen so far (written by the messenger callback). */
     uint32_t validation_messages;
     char last_validation_message[384];
+    /* Buffers alive right now: a finished render must bring it back to where it was. */
+    uint32_t live_buffers;
 } gpu_device;
 
 int gpu_device_create(gpu_device *dev, const gpu_device_desc *desc, ns_error *err);
@@ -101,6 +105,7 @@ void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroye
 typedef struct gpu_pipeline_desc {
     const char *shader; /* name in the shader registry (file name without .comp) */
     uint32_t binding_count;
+    uint32_t push_constant_size; /* bytes, 0 = none */
 } gpu_pipeline_desc;
 
 typedef struct gpu_pipeline {
@@ -108,6 +113,7 @@ typedef struct gpu_pipeline {
     VkPipelineLayout layout;
     VkPipeline pipeline;
     uint32_t binding_count;
+    uint32_t push_constant_size;
     char name[32];
 } gpu_pipeline;
 
@@ -119,6 +125,20 @@ void gpu_pipeline_destroy(gpu_device *dev, gpu_pipeline *pipe);
  * waits. Owns (and always frees) its descriptor pool, command buffer and fence. */
 int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
                  uint32_t buffer_count, const uint32_t groups[3], ns_error *err);
+
+/* The same, but dispatch_count dispatches in one submission, each with its own block of
+ * pipe->push_constant_size bytes from push (dispatch_count blocks) and a barrier between
+ * them so each sees the previous one's writes. */
+typedef struct gpu_dispatch_desc {
+    const gpu_pipeline *pipeline;
+    gpu_buffer *const *buffers;
+    uint32_t buffer_count;
+    uint32_t groups[3];
+    const void *push;
+    uint32_t dispatch_count; /* 0 means 1 */
+} gpu_dispatch_desc;
+
+int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *err);
 
 /* Dispatches pipe once on small dummy buffers so the driver compiles it now (lavapipe
  * compiles on first use) rather than inside the first request. */

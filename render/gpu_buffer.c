@@ -52,6 +52,7 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
     int status = gpu_check(vkCreateBuffer(dev->device, &info, NULL, &buf->buffer), "vkCreateBuffer", err);
     if (status)
         return status;
+    __atomic_add_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST);
     gpu_set_label(dev, VK_OBJECT_TYPE_BUFFER, (uint64_t)buf->buffer, desc->label);
 
     VkMemoryRequirements req;
@@ -92,8 +93,10 @@ void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf)
 {
     if (buf->mapped)
         vkUnmapMemory(dev->device, buf->memory);
-    if (buf->buffer)
+    if (buf->buffer) {
         vkDestroyBuffer(dev->device, buf->buffer, NULL);
+        __atomic_sub_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST);
+    }
     if (buf->memory)
         vkFreeMemory(dev->device, buf->memory, NULL);
     memset(buf, 0, sizeof *buf);

@@ -306,6 +306,7 @@ static void fill_device_info(gpu_device *dev)
     info->vendor_id = dev->properties.vendorID;
     info->device_id = dev->properties.deviceID;
     info->is_cpu = dev->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
+    dev->loop_limited = contains_nocase(dev->properties.deviceName, "llvmpipe");
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {
         VkPhysicalDeviceDriverProperties driver = {

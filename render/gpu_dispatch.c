@@ -64,9 +64,11 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
     return NS_OK;
 }
 
-static int record(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o, VkDescriptorSet set,
-                  const uint32_t groups[3], ns_error *err)
+static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o, VkDescriptorSet set,
+                  ns_error *err)
 {
+    const gpu_pipeline *pipe = desc->pipeline;
+    uint32_t count = desc->dispatch_count ? desc->dispatch_count : 1;
     VkCommandBufferAllocateInfo alloc = {
         .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
         .commandPool = dev->command_pool,
@@ -85,7 +87,21 @@ static int record(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o
         return status;
     vkCmdBindPipeline(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->pipeline);
     vkCmdBindDescriptorSets(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->layout, 0, 1, &set, 0, NULL);
-    vkCmdDispatch(o->cmd, groups[0], groups[1], groups[2]);
+    /* Dispatches that follow one another read what the previous one wrote. */
+    VkMemoryBarrier between = {
+        .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
+        .srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT,
+        .dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT,
+    };
+    for (uint32_t i = 0; i < count; i++) {
+        if (i > 0)
+            vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                                 0, 1, &between, 0, NULL, 0, NULL);
+        if (pipe->push_constant_size)
+            vkCmdPushConstants(o->cmd, pipe->layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, pipe->push_constant_size,
+                               (const uint8_t *)desc->push + (size_t)i * pipe->push_constant_size);
+        vkCmdDispatch(o->cmd, desc->groups[0], desc->groups[1], desc->groups[2]);
+    }
     /* Make the shader's writes visible to the host reads that follow the fence. */
     VkMemoryBarrier barrier = {
         .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
@@ -100,9 +116,24 @@ static int record(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o
 int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
                  uint32_t buffer_count, const uint32_t groups[3], ns_error *err)
 {
-    if (buffer_count != pipe->binding_count)
+    return gpu_dispatch_many(dev,
+                             &(gpu_dispatch_desc){.pipeline = pipe,
+                                                  .buffers = buffers,
+                                                  .buffer_count = buffer_count,
+                                                  .groups = {groups[0], groups[1], groups[2]}},
+                             err);
+}
+
+int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *err)
+{
+    const gpu_pipeline *pipe = desc->pipeline;
+    gpu_buffer *const *buffers = desc->buffers;
+    const uint32_t *groups = desc->groups;
+    if (desc->buffer_count != pipe->binding_count)
         return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s takes %u buffers, got %u", pipe->name,
-                       pipe->binding_count, buffer_count);
+                       pipe->binding_count, desc->buffer_count);
+    if (pipe->push_constant_size && !desc->push)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s needs push constants", pipe->name);
     const uint32_t *max_groups = dev->properties.limits.maxComputeWorkGroupCount;
     for (int i = 0; i < 3; i++)
         if (groups[i] == 0 || groups[i] > max_groups[i])
@@ -114,7 +145,7 @@ int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *b
     VkDescriptorSet set = VK_NULL_HANDLE;
     int status = write_descriptors(dev, pipe, &o, buffers, &set, err);
     if (!status)
-        status = record(dev, pipe, &o, set, groups, err);
+        status = record(dev, desc, &o, set, err);
     VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     if (!status)
         status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);

@@ -27,7 +27,8 @@ static int create_set_layout(gpu_device *dev, gpu_pipeline *pipe, ns_error *err)
 int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc, ns_error *err)
 {
     memset(pipe, 0, sizeof *pipe);
-    if (desc->binding_count == 0 || desc->binding_count > GPU_MAX_BINDINGS)
+    if (desc->binding_count == 0 || desc->binding_count > GPU_MAX_BINDINGS || desc->push_constant_size > 128 ||
+        desc->push_constant_size % 4)
         return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s: %u bindings", desc->shader, desc->binding_count);
     size_t code_size = 0;
     const uint32_t *code = ns_shader_code(desc->shader, &code_size);
@@ -35,12 +36,16 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
         return ns_fail(err, NS_ERR_INTERNAL, "shader '%s' is not embedded in this build", desc->shader);
     snprintf(pipe->name, sizeof pipe->name, "%s", desc->shader);
     pipe->binding_count = desc->binding_count;
+    pipe->push_constant_size = desc->push_constant_size;
 
     int status = create_set_layout(dev, pipe, err);
+    VkPushConstantRange push = {VK_SHADER_STAGE_COMPUTE_BIT, 0, desc->push_constant_size};
     VkPipelineLayoutCreateInfo layout = {
         .sType = VK_STRUCTURE_TYPE_PIPELINE_LAYOUT_CREATE_INFO,
         .setLayoutCount = 1,
         .pSetLayouts = &pipe->set_layout,
+        .pushConstantRangeCount = desc->push_constant_size ? 1 : 0,
+        .pPushConstantRanges = &push,
     };
     if (!status)
         status = gpu_check(vkCreatePipelineLayout(dev->device, &layout, NULL, &pipe->layout),
@@ -111,8 +116,15 @@ int gpu_pipeline_warm(gpu_device *dev, const gpu_pipeline *pipe, ns_error *err)
                                    err);
         bound[i] = &buffers[i];
     }
+    uint8_t zeros[128] = {0};
     if (!status)
-        status = gpu_dispatch(dev, pipe, bound, pipe->binding_count, (uint32_t[3]){1, 1, 1}, err);
+        status = gpu_dispatch_many(dev,
+                                   &(gpu_dispatch_desc){.pipeline = pipe,
+                                                        .buffers = bound,
+                                                        .buffer_count = pipe->binding_count,
+                                                        .groups = {1, 1, 1},
+                                                        .push = zeros},
+                                   err);
     for (uint32_t i = 0; i < pipe->binding_count; i++)
         gpu_buffer_destroy(dev, &buffers[i]);
     return status;

@@ -83,14 +83,45 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
     return NS_OK;
 }
 
-static int dispatch_camera(ns_context *ctx, render_job *job, const ns_camera *cam, ns_error *err)
+/* On lavapipe every sample gets its own dispatch, so that the per-invocation loop limit
+ * (shared.h) applies to one camera sample rather than to all of them; elsewhere one
+ * dispatch takes every sample. */
+static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *scene, ns_error *err)
 {
     gpu_buffer *bound[B_COUNT];
     for (int i = 0; i < B_COUNT; i++)
         bound[i] = &job->buffers[i];
-    uint32_t groups[3] = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
-                          (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1};
-    return gpu_dispatch(&ctx->dev, &ctx->camera, bound, B_COUNT, groups, err);
+    const ns_camera *cam = &scene->camera;
+    uint32_t spp = scene->render.spp;
+    uint32_t per_dispatch = ctx->dev.loop_limited ? 1 : spp;
+    uint32_t dispatches = (spp + per_dispatch - 1) / per_dispatch;
+    GpuSamplePush *push = calloc(dispatches, sizeof *push);
+    if (!push)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u dispatches", dispatches);
+    for (uint32_t i = 0; i < dispatches; i++) {
+        push[i].first_sample = i * per_dispatch;
+        push[i].sample_count = spp - push[i].first_sample < per_dispatch ? spp - push[i].first_sample : per_dispatch;
+    }
+    int status = gpu_dispatch_many(&ctx->dev,
+                                   &(gpu_dispatch_desc){
+                                       .pipeline = &ctx->camera,
+                                       .buffers = bound,
+                                       .buffer_count = B_COUNT,
+                                       .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
+                                                  (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
+                                       .push = push,
+                                       .dispatch_count = dispatches,
+                                   },
+                                   err);
+    free(push);
+    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+    if (!status && counters[NS_COUNTER_LOOP_LIMIT])
+        status = ns_fail(err, NS_ERR_LIMIT,
+                         "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
+                         "(65535 iterations per invocation); lower render.max_depth, the light count or "
+                         "the geometry, or pick another device",
+                         counters[NS_COUNTER_LOOP_LIMIT]);
+    return status;
 }
 
 static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_render_stats *stats,
@@ -131,6 +162,7 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out, 
     int status = ns_gpu_scene_build(scene, &job.scene, err);
     if (!status) {
         job.scene.params.counts[2] = job.scene.has_media ? segment_capacity(ctx, scene, debug) : 0;
+        job.scene.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
         if (stats) {
             stats->bvh_nodes = job.scene.node_count;
             stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
@@ -143,7 +175,7 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out, 
     double t2 = ns_now_ms();
     ns_stats_add_stage(stats, "upload", t2 - t1);
     if (!status)
-        status = dispatch_camera(ctx, &job, &scene->camera, err);
+        status = dispatch_camera(ctx, &job, scene, err);
     double t3 = ns_now_ms();
     ns_stats_add_stage(stats, "ray_pass", t3 - t2);
     if (!status)

@@ -16,9 +16,10 @@ layout(local_size_x = NS_CAMERA_GROUP_X, local_size_y = NS_CAMERA_GROUP_Y) in;
 
 layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
 layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
-layout(std430, binding = 5) writeonly buffer ImageBlock { vec4 pixels[]; };
+layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
 layout(std430, binding = 6) writeonly buffer SegmentBlock { GpuSegment segments[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuSamplePush push; };
 
 const float PI = 3.14159265358979;
 
@@ -105,6 +106,8 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
     vec3 o = p + n * ray_epsilon(p);
     vec3 sum = vec3(0.0);
     for (uint i = 0u; i < params.counts.y; i++) {
+        if (out_of_budget())
+            break;
         GpuLight light = lights[i];
         uint kind = light.info.x;
         if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
@@ -224,6 +227,8 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
     uint top = 0u;
     bool alive = true;
     while (alive) {
+        if (out_of_budget())
+            break;
         Hit h;
         bool any = trace_scene(s.o, s.d, 0.0, NS_INF, h);
         uint light_index;
@@ -303,11 +308,14 @@ void main()
     if (xy.x >= width || xy.y >= height)
         return;
     uint pixel = xy.y * width + xy.x;
-    rng_state = pcg_hash(pixel ^ pcg_hash(params.image.w));
+    uint pixel_seed = pcg_hash(pcg_hash(params.image.w) + pixel);
 
     vec3 sum = vec3(0.0);
     uint spp = params.image.z;
-    for (uint i = 0u; i < spp; i++) {
+    for (uint i = push.first_sample; i < push.first_sample + push.sample_count; i++) {
+        // Each sample has its own stream, so the image does not depend on how the samples
+        // were split into dispatches.
+        rng_state = pcg_hash(pixel_seed + i);
         float u = (float(xy.x) + rnd()) / float(width);
         float v = (float(xy.y) + rnd()) / float(height);
         vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
@@ -320,5 +328,8 @@ void main()
         s.depth = 0u;
         sum += trace_path(s, pixel, i);
     }
-    pixels[pixel] = vec4(sum / float(spp), 1.0);
+    if (params.limits.x != 0u && loop_count > params.limits.x)
+        atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
+    vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
+    pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
 }

@@ -67,7 +67,23 @@ struct GpuParams {
     ns_uvec4 image;       /* width, height, spp, seed */
     ns_uvec4 counts;      /* max_depth, light_count, segment_capacity, node_count */
     ns_uvec4 prims;       /* bvh prim count, plane count, material count, ray count (tests) */
+    ns_uvec4 limits;      /* x = loop iterations an invocation may run (0 = no limit) */
 };
+
+/* Push constants of the camera pass: which samples this dispatch takes. The pass may be
+ * split into several dispatches (see render.c: lavapipe's loop limit). */
+struct GpuSamplePush {
+    ns_uint first_sample;
+    ns_uint sample_count;
+    ns_uint pad0;
+    ns_uint pad1;
+};
+
+/* lavapipe (llvmpipe) stops any loop after 65535 iterations in one shader invocation
+ * (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS), silently. The camera pass counts its own loop
+ * iterations and reports (counter NS_COUNTER_LOOP_LIMIT) rather than return a wrong image;
+ * the budget leaves room for SIMD lanes that diverge. */
+NS_CONST(uint, NS_LAVAPIPE_LOOP_BUDGET, 24000);
 
 /* BVH node: an interior node has count 0 and children first, first + 1; a leaf has count
  * primitives starting at first (in GpuPrim order). */
@@ -118,9 +134,11 @@ struct GpuSegment {
     ns_uint depth;
 };
 
-/* counters[0] = segments recorded (may exceed capacity), counters[1] = overflowed. */
+/* counters[0] = segments recorded (may exceed capacity), counters[1] = overflowed,
+ * counters[2] = invocations that ran out of loop budget. */
 NS_CONST(uint, NS_COUNTER_SEGMENTS, 0);
 NS_CONST(uint, NS_COUNTER_OVERFLOW, 1);
+NS_CONST(uint, NS_COUNTER_LOOP_LIMIT, 2);
 NS_CONST(uint, NS_COUNTER_COUNT, 4);
 
 /* BVH test shader: one ray in, the nearest hit out. */
@@ -145,7 +163,9 @@ typedef struct GpuLight GpuLight;
 typedef struct GpuSegment GpuSegment;
 typedef struct GpuRay GpuRay;
 typedef struct GpuHit GpuHit;
-_Static_assert(sizeof(GpuParams) == 128, "GpuParams std430 size");
+typedef struct GpuSamplePush GpuSamplePush;
+_Static_assert(sizeof(GpuParams) == 144, "GpuParams std430 size");
+_Static_assert(sizeof(GpuSamplePush) == 16, "GpuSamplePush size");
 _Static_assert(offsetof(GpuParams, image) == 80, "GpuParams.image offset");
 _Static_assert(offsetof(GpuParams, prims) == 112, "GpuParams.prims offset");
 _Static_assert(sizeof(GpuNode) == 32 && offsetof(GpuNode, bmax) == 16, "GpuNode layout");

@@ -8,6 +8,15 @@ layout(std430, binding = 2) readonly buffer PrimBlock { GpuPrim prims[]; };
 
 const float NS_INF = 1.0 / 0.0;
 
+// Loop iterations this invocation has run (see NS_LAVAPIPE_LOOP_BUDGET in shared.h).
+uint loop_count = 0u;
+
+bool out_of_budget()
+{
+    loop_count++;
+    return params.limits.x != 0u && loop_count > params.limits.x;
+}
+
 struct Hit {
     float t;
     uint prim;     // index into prims[]
@@ -132,6 +141,8 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     if (params.counts.w > 0u)
         stack[sp++] = 0u;
     while (sp > 0u) {
+        if (out_of_budget())
+            break;
         GpuNode node = nodes[stack[--sp]];
         if (enter_box(o, inv_d, node.bmin, node.bmax, tmin, best) == NS_INF)
             continue;

@@ -1,0 +1,195 @@
+/* gpu_plane.c — known answers for diffuse surfaces under each light type:
+ *   directional: L = rho E cos(theta) / pi at every pixel that sees the plane, the
+ *                environment radiance (or exactly 0) at every pixel that sees the sky;
+ *   point:       L = rho/pi I cos / d^2 below the light;
+ *   sphere:      L = rho Le (R / h)^2 below the light (E = pi Le sin^2 alpha);
+ *   environment: L = rho L_env on an unoccluded plane. */
+#include "gpu_util.h"
+
+static const double rho[3] = {0.2, 0.5, 0.8};
+
+/* Which pixels see the plane y = 0 for all four corners, and which see only sky. */
+static int pixel_class(const ns_camera *c, uint32_t x, uint32_t y)
+{
+    int down = 0, up = 0;
+    for (int corner = 0; corner < 4; corner++) {
+        double d[3];
+        camera_ray(c, (x + (corner & 1)) / (double)c->width, (y + (corner >> 1)) / (double)c->height, d);
+        if (d[1] < -1e-3)
+            down++;
+        else if (d[1] > 1e-3)
+            up++;
+    }
+    return down == 4 ? 1 : up == 4 ? -1 : 0;
+}
+
+static void check_directional(double theta_deg, int with_environment)
+{
+    const double E[3] = {2.0, 3.0, 4.0}, env[3] = {0.3, 0.6, 0.9};
+    ns_scene s = base_scene(48, 32, 90);
+    set3(s.camera.position, 0, 1, 0);
+    set3(s.camera.look_at, 0, 0.7, -1);
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object floor = plane(0, 0);
+    ns_light lights[2] = {light(NS_LIGHT_DIRECTIONAL, E[0], E[1], E[2]),
+                          light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2])};
+    double th = theta_deg * M_PI / 180;
+    set3(lights[0].direction, -sin(th), -cos(th), 0); /* travels down, tilted by theta */
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &floor;
+    s.object_count = 1;
+    s.lights = lights;
+    s.light_count = with_environment ? 2 : 1;
+
+    ns_image img = {0};
+    ns_render_stats stats = {0};
+    if (!render_ok(&s, &img, &stats))
+        return;
+    double cos_t = cos(th) > 0 ? cos(th) : 0;
+    int ground = 0, sky = 0, bad = 0;
+    for (uint32_t y = 0; y < img.height; y++)
+        for (uint32_t x = 0; x < img.width; x++) {
+            int cls = pixel_class(&s.camera, x, y);
+            const float *p = pixel_at(&img, x, y);
+            for (int k = 0; k < 3 && cls; k++) {
+                double L_env = with_environment ? env[k] : 0.0;
+                double want = cls > 0 ? rho[k] * (E[k] * cos_t / M_PI + L_env) : L_env;
+                if (!(fabs(p[k] - want) <= 2e-5 + 2e-5 * want)) {
+                    if (bad++ < 5)
+                        fprintf(stderr, "pixel (%u,%u)[%d] = %.7g, expected %.7g\n", x, y, k, p[k], want);
+                }
+            }
+            ground += cls > 0;
+            sky += cls < 0;
+        }
+    CHECK_INT(bad, 0);
+    CHECK(ground > 300); /* the test looked at both kinds of pixel */
+    CHECK(sky > 300);
+    CHECK_INT(stats.camera_segments, 0);
+    ns_image_free(&img);
+}
+
+static void test_directional_45(void) { check_directional(45, 0); }
+static void test_directional_70_environment(void) { check_directional(70, 1); }
+static void test_directional_from_below_is_dark(void) { check_directional(120, 0); }
+
+/* A point light of intensity I at height h above the plane, seen from the side. */
+static void test_point_light(void)
+{
+    const double I[3] = {10, 20, 5}, h = 2.0;
+    ns_scene s = base_scene(33, 33, 2);
+    set3(s.camera.position, 3, 4, 0);
+    set3(s.camera.look_at, 0, 0, 0);
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object floor = plane(0, 0);
+    ns_light l = light(NS_LIGHT_POINT, I[0], I[1], I[2]);
+    set3(l.position, 0, h, 0);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &floor;
+    s.object_count = 1;
+    s.lights = &l;
+    s.light_count = 1;
+    ns_image img = {0};
+    if (!render_ok(&s, &img, NULL))
+        return;
+    const float *p = pixel_at(&img, 16, 16);
+    for (int k = 0; k < 3; k++)
+        CHECK_REL(p[k], rho[k] / M_PI * I[k] / (h * h), 2e-3);
+    /* A pixel off centre: its own cos / d^2 from the ray through its centre. */
+    double d[3];
+    camera_ray(&s.camera, 0.5 / 33, 0.5 / 33, d);
+    double t = -s.camera.position[1] / d[1];
+    double q[3] = {s.camera.position[0] + t * d[0], 0, s.camera.position[2] + t * d[2]};
+    double d2 = q[0] * q[0] + h * h + q[2] * q[2];
+    double cos_l = h / sqrt(d2);
+    for (int k = 0; k < 3; k++)
+        CHECK_REL(pixel_at(&img, 0, 0)[k], rho[k] / M_PI * I[k] * cos_l / d2, 5e-3);
+    ns_image_free(&img);
+}
+
+/* A sphere light of radiance Le and radius R at height h; the camera also sees it. */
+static void test_sphere_light(void)
+{
+    const double Le[3] = {40, 20, 10}, h = 2.0, R = 0.5;
+    ns_scene s = base_scene(33, 33, 1);
+    set3(s.camera.position, 3, 3, 0);
+    set3(s.camera.look_at, 0, 0, 0);
+    s.render.spp = 256;
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object floor = plane(0, 0);
+    ns_light l = light(NS_LIGHT_SPHERE, Le[0], Le[1], Le[2]);
+    set3(l.position, 0, h, 0);
+    l.radius = (float)R;
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &floor;
+    s.object_count = 1;
+    s.lights = &l;
+    s.light_count = 1;
+    ns_image img = {0};
+    if (!render_ok(&s, &img, NULL))
+        return;
+    for (int k = 0; k < 3; k++)
+        CHECK_REL(pixel_at(&img, 16, 16)[k], rho[k] * Le[k] * R * R / (h * h), 5e-3);
+    ns_image_free(&img);
+
+    /* Looking straight at the light: its radiance. */
+    set3(s.camera.look_at, 0, h, 0);
+    s.render.spp = 4;
+    if (!render_ok(&s, &img, NULL))
+        return;
+    for (int k = 0; k < 3; k++)
+        CHECK_NEAR(pixel_at(&img, 16, 16)[k], Le[k], 1e-4 * Le[k]);
+    ns_image_free(&img);
+}
+
+/* Environment only, with a unit sphere resting on the plane. A sphere wholly above a
+ * point's horizon hides the cosine-weighted fraction sin^2(alpha) cos(theta_c) of its sky;
+ * for the touching sphere, at horizontal distance x from the contact, that is 1 / d^3 with
+ * d^2 = x^2 + 1, so L = rho L_env (1 - 1/d^3). */
+static void test_environment_occlusion(void)
+{
+    const double env[3] = {1, 2, 3};
+    const double distances[] = {0.4, 1.2, 3.0, 8.0};
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object objects[2] = {plane(0, 0), sphere(0, 1, 0, 1, 0)};
+    ns_light l = light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2]);
+    for (size_t i = 0; i < sizeof distances / sizeof distances[0]; i++) {
+        /* Looking at (x, 0, 0) with a tiny field of view, from the side away from the
+         * sphere, low enough (direction (1, 0.3, 0)) that the view passes beside it. */
+        double x = distances[i];
+        ns_scene s = base_scene(3, 3, 0.2);
+        set3(s.camera.position, x + 10, 3, 0);
+        set3(s.camera.look_at, x, 0, 0);
+        s.render.spp = 4096;
+        s.materials = &m;
+        s.material_count = 1;
+        s.objects = objects;
+        s.object_count = 2;
+        s.lights = &l;
+        s.light_count = 1;
+        ns_image img = {0};
+        if (!render_ok(&s, &img, NULL))
+            return;
+        double d = sqrt(x * x + 1.0), visible = 1.0 - 1.0 / (d * d * d);
+        /* Each sample sees the sky or not: binomial noise, checked at 4.5 sigma. */
+        double sigma = sqrt(visible * (1.0 - visible) / s.render.spp);
+        for (int k = 0; k < 3; k++)
+            CHECK_NEAR(pixel_at(&img, 1, 1)[k], rho[k] * env[k] * visible, rho[k] * env[k] * (4.5 * sigma + 1e-4));
+        ns_image_free(&img);
+    }
+}
+
+int main(void)
+{
+    RUN(test_directional_45);
+    RUN(test_directional_70_environment);
+    RUN(test_directional_from_below_is_dark);
+    RUN(test_point_light);
+    RUN(test_sphere_light);
+    RUN(test_environment_occlusion);
+    ns_context_destroy(test_context());
+    return harness_report();
+}

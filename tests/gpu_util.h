@@ -1,0 +1,146 @@
+/* gpu_util.h — shared helpers of the GPU known-answer tests: one context per program
+ * (validation on when ctest sets NSCATTER_VALIDATION=1), scene building in C, and an
+ * independent re-derivation of the pinhole camera's rays. */
+#ifndef NS_TEST_GPU_UTIL_H
+#define NS_TEST_GPU_UTIL_H
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "harness.h"
+#include "internal.h"
+#include "nscatter.h"
+
+static inline ns_context *test_context(void)
+{
+    static ns_context *ctx;
+    if (!ctx) {
+        ns_error err = {0};
+        int status = ns_context_create(&(ns_context_desc){0}, &ctx, &err);
+        if (status) {
+            fprintf(stderr, "ns_context_create: %s (%s)\n", err.message, ns_status_name(status));
+            exit(1);
+        }
+    }
+    return ctx;
+}
+
+static inline void set3(float v[3], double x, double y, double z)
+{
+    v[0] = (float)x;
+    v[1] = (float)y;
+    v[2] = (float)z;
+}
+
+static inline ns_scene base_scene(uint32_t width, uint32_t height, double fov)
+{
+    ns_scene s;
+    memset(&s, 0, sizeof s);
+    s.camera.fov_deg = (float)fov;
+    s.camera.width = width;
+    s.camera.height = height;
+    set3(s.camera.up, 0, 1, 0);
+    s.render.method = NS_METHOD_NN;
+    s.render.components = NS_COMPONENT_SURFACE;
+    s.render.spp = 4;
+    s.render.seed = 7;
+    s.render.max_depth = 8;
+    return s;
+}
+
+static inline ns_material diffuse(double r, double g, double b)
+{
+    ns_material m;
+    memset(&m, 0, sizeof m);
+    m.type = NS_MATERIAL_DIFFUSE;
+    set3(m.reflectance, r, g, b);
+    return m;
+}
+
+static inline ns_material medium(const double sigma_s[3], const double sigma_a[3], double ior)
+{
+    ns_material m;
+    memset(&m, 0, sizeof m);
+    m.type = NS_MATERIAL_MEDIUM;
+    set3(m.sigma_s, sigma_s[0], sigma_s[1], sigma_s[2]);
+    set3(m.sigma_a, sigma_a[0], sigma_a[1], sigma_a[2]);
+    m.ior = (float)ior;
+    return m;
+}
+
+static inline ns_object sphere(double x, double y, double z, double r, uint32_t material)
+{
+    ns_object o;
+    memset(&o, 0, sizeof o);
+    o.shape = NS_SHAPE_SPHERE;
+    set3(o.center, x, y, z);
+    o.radius = (float)r;
+    o.material = material;
+    return o;
+}
+
+static inline ns_object plane(double py, uint32_t material)
+{
+    ns_object o;
+    memset(&o, 0, sizeof o);
+    o.shape = NS_SHAPE_PLANE;
+    set3(o.point, 0, py, 0);
+    set3(o.normal, 0, 1, 0);
+    o.material = material;
+    return o;
+}
+
+static inline ns_light light(ns_light_type type, double r, double g, double b)
+{
+    ns_light l;
+    memset(&l, 0, sizeof l);
+    l.type = type;
+    set3(l.color, r, g, b);
+    return l;
+}
+
+/* The camera's ray through image position (u, v) in [0,1]^2 (u right, v down), derived
+ * here from the documented contract (horizontal fov, row 0 at the top) in double. */
+static inline void camera_ray(const ns_camera *c, double u, double v, double dir[3])
+{
+    double f[3], r[3], up[3], n;
+    for (int k = 0; k < 3; k++)
+        f[k] = c->look_at[k] - c->position[k];
+    n = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    for (int k = 0; k < 3; k++)
+        f[k] /= n;
+    r[0] = f[1] * c->up[2] - f[2] * c->up[1];
+    r[1] = f[2] * c->up[0] - f[0] * c->up[2];
+    r[2] = f[0] * c->up[1] - f[1] * c->up[0];
+    n = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+    for (int k = 0; k < 3; k++)
+        r[k] /= n;
+    up[0] = r[1] * f[2] - r[2] * f[1];
+    up[1] = r[2] * f[0] - r[0] * f[2];
+    up[2] = r[0] * f[1] - r[1] * f[0];
+    double tx = tan(c->fov_deg * M_PI / 360.0), ty = tx * c->height / c->width;
+    for (int k = 0; k < 3; k++)
+        dir[k] = f[k] + r[k] * (2 * u - 1) * tx + up[k] * (1 - 2 * v) * ty;
+    n = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int k = 0; k < 3; k++)
+        dir[k] /= n;
+}
+
+static inline int render_ok(const ns_scene *s, ns_image *img, ns_render_stats *stats)
+{
+    ns_error err = {0};
+    int status = ns_render(test_context(), s, img, stats, &err);
+    if (status)
+        fprintf(stderr, "ns_render: %s (%s)\n", err.message, ns_status_name(status));
+    CHECK_INT(status, NS_OK);
+    return status == NS_OK;
+}
+
+static inline const float *pixel_at(const ns_image *img, uint32_t x, uint32_t y)
+{
+    return img->rgb + 3 * ((size_t)y * img->width + x);
+}
+
+#endif
