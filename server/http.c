@@ -169,7 +169,7 @@ typedef struct media_range {
     char type[96];
     double q;
     char charset[32];
-    char format[16];
+    char format[32];
 } media_range;
 
 /* Parses the element [s, end) into *m; returns 0, or -1 for a malformed q. */
@@ -234,7 +234,7 @@ static int range_specificity(const char *range, const char *type)
 typedef struct accept_choice {
     double q;
     int specificity;
-    char format[16];
+    char format[32];
 } accept_choice;
 
 /* Content negotiation between PNG and EXR (RFC 9110 12.5.1): each type takes the q of the
@@ -420,7 +420,7 @@ static json_t *check_render_headers(struct MHD_Connection *conn, const http_serv
                         "Content-Type must be application/json (charset utf-8), got '%.100s'",
                         type ? type : "(none)");
     const char *accept = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_ACCEPT);
-    char exr_param[16];
+    char exr_param[32];
     if (negotiate_format(accept, &req->format, exr_param, sizeof exr_param))
         return problemf(406, "not_acceptable",
                         "Accept '%.200s' allows neither image/png nor image/x-exr", accept);

@@ -91,13 +91,15 @@ def test_sigterm_finishes_the_render_in_flight(t):
             code = srv.proc.wait(60)
         except Exception:
             code = None
-        t.equal(code, 0, "exit status after SIGTERM")
+        t.check(srv.exited_cleanly(code), f"clean exit after SIGTERM (status {code}, own "
+                f"leaks {srv.own_leaks()[:2]})")
 
 
 def test_sigint_exits_cleanly(t):
     with Server() as srv:
         t.equal(srv.request("GET", "/livez")[0], 200, "alive")
-        t.equal(srv.stop(signal.SIGINT), 0, "exit status after SIGINT")
+        code = srv.stop(signal.SIGINT)
+        t.check(srv.exited_cleanly(code), f"clean exit after SIGINT (status {code})")
 
 
 def test_no_device(t):
@@ -112,7 +114,9 @@ def test_no_device(t):
         p = problem(body)
         t.check(p.get("code") not in (None, "", "queue_full"), f"names the status: {p}")
         t.check(p.get("detail"), "explains why")
-        t.equal(srv.stop(), 0, "clean exit")
+        code = srv.stop()
+        t.check(srv.exited_cleanly(code), f"clean exit (status {code}, own leaks "
+                f"{srv.own_leaks()[:2]})")
 
 
 def main():
@@ -121,7 +125,9 @@ def main():
         t.run(test_queue_full_503, srv)
         t.current = "end"
         t.equal(srv.request("GET", "/livez")[0], 200, "/livez at the end")
-        t.equal(srv.stop(), 0, "clean exit")
+        code = srv.stop()
+        t.check(srv.exited_cleanly(code), f"clean exit (status {code}, own leaks "
+                f"{srv.own_leaks()[:2]})")
         if t.failed:
             print(srv.log_text()[-4000:], file=sys.stderr)
     t.run(test_sigterm_finishes_the_render_in_flight)
