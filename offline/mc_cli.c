@@ -1,9 +1,546 @@
-/* Placeholder until this command lands; replaced by its real implementation. */
+/* mc_cli.c — `nscatter mc`: one material's tables, the training grid, or a benchmark. */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
 #include "../server/commands.h"
+#include "mc.h"
+#include "table_io.h"
+
+/* The training grid: the paper's 12 x 13 materials, albedo extended to 0.999 (its Milk). */
+static const double grid_g_default[] = {0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6,
+                                        0.7, 0.8, 0.9, 0.95, 0.99};
+static const double grid_albedo_default[] = {0.01, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6,
+                                             0.7,  0.8, 0.9, 0.95, 0.99, 0.995, 0.999};
+#define GRID_MAX_VALUES 64
+/* Collisions traced per table in grid mode: sets the noise (docs/montecarlo.md). */
+#define GRID_DEFAULT_COLLISIONS 2.5e7
+#define PREFIX_CAP 4000
+
+static const char usage_text[] =
+    "usage: nscatter mc --order double|multiple|both --g G --albedo A --photons N\n"
+    "                   [--seed S] --out PREFIX [--threads T] [--quiet]\n"
+    "       nscatter mc --grid --out DIR [--collisions C] [--g-values LIST]\n"
+    "                   [--albedo-values LIST] [--seed S] [--threads T] [--quiet]\n"
+    "       nscatter mc --benchmark [--threads T]\n"
+    "\n"
+    "Monte Carlo J tables (DESIGN.md sections 2-3): PREFIX.npy + PREFIX.json per order\n"
+    "(--order both writes PREFIX_double.* and PREFIX_multiple.*). Grid mode writes\n"
+    "DIR/g<G>_a<A>_<order>.* for every material, skips finished tables (resumable) and\n"
+    "spends C collisions per table (default 2.5e7). LIST: comma-separated numbers.\n";
+
+typedef struct {
+    int grid, benchmark, quiet;
+    unsigned orders;
+    double g, albedo, collisions;
+    int have_g, have_albedo;
+    uint64_t photons, seed;
+    int have_photons;
+    unsigned threads;
+    const char *out;
+    double g_values[GRID_MAX_VALUES], albedo_values[GRID_MAX_VALUES];
+    int g_count, albedo_count;
+} mc_options;
+
+static int usage_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "nscatter mc: ");
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, "\n");
+    va_end(ap);
+    return 2;
+}
+
+/* =======================================================================================
+ * Argument parsing: every number is checked whole; errors name the argument.
+ * ===================================================================================== */
+
+static int parse_double(const char *name, const char *text, double *out)
+{
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (!*text || *end || errno || !isfinite(v))
+        return usage_error("%s: '%s' is not a number", name, text);
+    *out = v;
+    return 0;
+}
+
+static int parse_u64(const char *name, const char *text, double max, uint64_t *out)
+{
+    double v;
+    /* Accept 1e6-style counts; reject fractions, negatives and zero where it matters. */
+    if (parse_double(name, text, &v))
+        return 2;
+    if (v < 0 || v != floor(v) || v > max)
+        return usage_error("%s: '%s' must be a whole number in [0, %.0f]", name, text, max);
+    *out = (uint64_t)v;
+    return 0;
+}
+
+static int parse_list(const char *name, const char *text, double *values, int *count)
+{
+    char buf[1024];
+    if (snprintf(buf, sizeof buf, "%s", text) >= (int)sizeof buf)
+        return usage_error("%s: list too long", name);
+    *count = 0;
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        if (*count >= GRID_MAX_VALUES)
+            return usage_error("%s: more than %d values", name, GRID_MAX_VALUES);
+        if (parse_double(name, tok, &values[(*count)++]))
+            return 2;
+    }
+    return *count ? 0 : usage_error("%s: empty list", name);
+}
+
+static int parse_order(const char *text, unsigned *orders)
+{
+    ns_order o;
+    if (!strcmp(text, "both"))
+        *orders = NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE;
+    else if (ns_order_parse(text, &o) == 0)
+        *orders = 1u << o;
+    else
+        return usage_error("--order: '%s' is not double, multiple or both", text);
+    return 0;
+}
+
+static int parse_value_option(mc_options *o, const char *arg, const char *val)
+{
+    uint64_t u;
+    if (!strcmp(arg, "--order"))
+        return parse_order(val, &o->orders);
+    if (!strcmp(arg, "--g"))
+        return o->have_g = 1, parse_double(arg, val, &o->g);
+    if (!strcmp(arg, "--albedo"))
+        return o->have_albedo = 1, parse_double(arg, val, &o->albedo);
+    if (!strcmp(arg, "--photons")) {
+        double v;
+        if (parse_double(arg, val, &v))
+            return 2;
+        if (!(v >= 1) || v != floor(v) || v > 1e15)
+            return usage_error("--photons: '%s' must be a whole number in [1, 1e15]", val);
+        o->photons = (uint64_t)v;
+        o->have_photons = 1;
+        return 0;
+    }
+    if (!strcmp(arg, "--seed"))
+        return parse_u64(arg, val, 9007199254740992.0, &o->seed);
+    if (!strcmp(arg, "--threads")) {
+        if (parse_u64(arg, val, 256, &u))
+            return 2;
+        if (u < 1)
+            return usage_error("--threads: must be at least 1");
+        o->threads = (unsigned)u;
+        return 0;
+    }
+    if (!strcmp(arg, "--out"))
+        return o->out = val, 0;
+    if (!strcmp(arg, "--collisions")) {
+        if (parse_double(arg, val, &o->collisions))
+            return 2;
+        if (!(o->collisions >= 1e3 && o->collisions <= 1e13))
+            return usage_error("--collisions: '%s' must be in [1e3, 1e13]", val);
+        return 0;
+    }
+    if (!strcmp(arg, "--g-values"))
+        return parse_list(arg, val, o->g_values, &o->g_count);
+    if (!strcmp(arg, "--albedo-values"))
+        return parse_list(arg, val, o->albedo_values, &o->albedo_count);
+    return usage_error("unknown option '%s' (see nscatter mc --help)", arg);
+}
+
+static int parse_options(int argc, char **argv, mc_options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->orders = NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE;
+    o->seed = 1;
+    o->collisions = GRID_DEFAULT_COLLISIONS;
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
+            fputs(usage_text, stdout);
+            return -1;
+        }
+        if (!strcmp(arg, "--grid") || !strcmp(arg, "--benchmark") || !strcmp(arg, "--quiet")) {
+            *(!strcmp(arg, "--grid") ? &o->grid : !strcmp(arg, "--benchmark") ? &o->benchmark
+                                                                              : &o->quiet) = 1;
+            continue;
+        }
+        if (strncmp(arg, "--", 2) != 0)
+            return usage_error("unexpected argument '%s' (see nscatter mc --help)", arg);
+        if (i + 1 >= argc)
+            return usage_error("%s: missing value", arg);
+        int rc = parse_value_option(o, arg, argv[++i]);
+        if (rc)
+            return rc;
+    }
+    return 0;
+}
+
+/* =======================================================================================
+ * Progress: a bar with an ETA on a terminal, nothing otherwise.
+ * ===================================================================================== */
+
+typedef struct {
+    int enabled;
+    double start;            /* seconds */
+    double work_before;      /* grid: collisions finished before this table */
+    double work_this;        /* collisions this table will take */
+    double work_total;       /* collisions of everything still to do in this run */
+    const char *label;
+} progress_state;
+
+static double wall_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static void progress_print(void *user, uint64_t done, uint64_t total)
+{
+    progress_state *p = user;
+    if (!p->enabled || total == 0)
+        return;
+    double fraction = (p->work_before + p->work_this * (double)done / (double)total) /
+                      (p->work_total > 0 ? p->work_total : 1.0);
+    double elapsed = wall_seconds() - p->start;
+    double eta = fraction > 1e-6 ? elapsed * (1.0 - fraction) / fraction : 0.0;
+    char bar[31];
+    int filled = (int)(fraction * 30.0 + 0.5);
+    for (int i = 0; i < 30; i++)
+        bar[i] = i < filled ? '#' : '.';
+    bar[30] = '\0';
+    fprintf(stderr, "\r%-28s [%s] %5.1f%%  %6.0f s, ETA %6.0f s ", p->label, bar,
+            100.0 * fraction, elapsed, eta);
+    fflush(stderr);
+}
+
+static void progress_end(progress_state *p)
+{
+    if (p->enabled)
+        fprintf(stderr, "\n");
+}
+
+/* =======================================================================================
+ * One material
+ * ===================================================================================== */
+
+static int table_prefix(char *out, size_t cap, const char *base, unsigned orders, ns_order o)
+{
+    int both = orders == (NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE);
+    int len = both ? snprintf(out, cap, "%s_%s", base, ns_order_name(o))
+                   : snprintf(out, cap, "%s", base);
+    return len < 0 || (size_t)len >= cap ? usage_error("--out: path too long") : 0;
+}
+
+static void print_summary(const char *prefix, const ns_mc_result *r, ns_order o)
+{
+    const ns_table *t = &r->table[o];
+    printf("%s: %s g=%g albedo=%g photons=%llu energy captured %.6g of %.6g (%.2f%%), "
+           "%.1f s, %.3g collisions/s\n",
+           prefix, ns_order_name(o), t->g, t->albedo, (unsigned long long)t->photons,
+           t->energy_captured, t->energy_expected,
+           t->energy_expected > 0 ? 100.0 * t->energy_captured / t->energy_expected : 100.0,
+           r->total_seconds, (double)r->collisions / fmax(r->trace_seconds, 1e-9));
+}
+
+static int write_tables(const ns_mc_result *r, const char *base, unsigned orders)
+{
+    for (int o = 0; o < 2; o++) {
+        if (!(orders & (1u << o)))
+            continue;
+        char prefix[PREFIX_CAP];
+        if (table_prefix(prefix, sizeof prefix, base, orders, (ns_order)o))
+            return 2;
+        ns_error err = {0};
+        if (ns_table_write(&r->table[o], prefix, &err)) {
+            fprintf(stderr, "nscatter mc: %s\n", err.message);
+            return 1;
+        }
+        print_summary(prefix, r, (ns_order)o);
+    }
+    return 0;
+}
+
+static int run_single(const mc_options *o)
+{
+    if (!o->have_g)
+        return usage_error("--g: missing (see nscatter mc --help)");
+    if (!o->have_albedo)
+        return usage_error("--albedo: missing");
+    if (!o->have_photons)
+        return usage_error("--photons: missing");
+    if (!o->out)
+        return usage_error("--out: missing");
+    ns_mc_desc desc = {.g = o->g, .albedo = o->albedo, .photons = o->photons, .seed = o->seed,
+                       .orders = o->orders, .threads = o->threads};
+    ns_error err = {0};
+    if (ns_mc_check_desc(&desc, &err))
+        return usage_error("%s", err.message);
+    /* Fail before the simulation if the output cannot be written. */
+    for (int k = 0; k < 2; k++) {
+        char prefix[PREFIX_CAP];
+        if (!(o->orders & (1u << k)))
+            continue;
+        if (table_prefix(prefix, sizeof prefix, o->out, o->orders, (ns_order)k))
+            return 2;
+        if (ns_table_check_writable(prefix, &err))
+            return usage_error("%s", err.message);
+    }
+    progress_state prog = {.enabled = !o->quiet && isatty(STDERR_FILENO),
+                           .start = wall_seconds(), .work_this = 1.0, .work_total = 1.0,
+                           .label = "mc"};
+    desc.progress = progress_print;
+    desc.progress_user = &prog;
+    ns_mc_result r;
+    int rc = ns_mc_run(&desc, &r, &err);
+    progress_end(&prog);
+    if (rc) {
+        fprintf(stderr, "nscatter mc: %s\n", err.message);
+        return rc == NS_ERR_INVALID_ARGUMENT ? 2 : 1;
+    }
+    rc = write_tables(&r, o->out, o->orders);
+    ns_mc_result_free(&r);
+    return rc;
+}
+
+/* =======================================================================================
+ * The grid: resumable, one table at a time, overall progress by collisions.
+ * ===================================================================================== */
+
+typedef struct {
+    double g, albedo;
+    ns_order order;
+    char prefix[PREFIX_CAP];
+    uint64_t photons;
+    double cost; /* expected collisions */
+} grid_item;
+
+static uint64_t grid_photons(double collisions, ns_order order, double albedo)
+{
+    double per = ns_mc_collisions_per_photon(1u << order, albedo);
+    double n = floor(collisions / per);
+    return n < 1000 ? 1000 : (uint64_t)n;
+}
+
+static int ensure_directory(const char *dir)
+{
+    if (mkdir(dir, 0755) != 0 && errno != EEXIST)
+        return usage_error("--out: cannot create directory '%s': %s", dir, strerror(errno));
+    struct stat st;
+    if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
+        return usage_error("--out: '%s' is not a directory", dir);
+    char probe[PREFIX_CAP];
+    snprintf(probe, sizeof probe, "%s/.probe", dir);
+    ns_error err = {0};
+    if (ns_table_check_writable(probe, &err))
+        return usage_error("%s", err.message);
+    return 0;
+}
+
+static int grid_validate(const mc_options *o)
+{
+    for (int i = 0; i < o->g_count; i++)
+        if (!(o->g_values[i] > -1.0 && o->g_values[i] < 1.0))
+            return usage_error("--g-values: %g is outside (-1, 1)", o->g_values[i]);
+    for (int i = 0; i < o->albedo_count; i++)
+        if (!(o->albedo_values[i] >= 0.0 && o->albedo_values[i] < 1.0))
+            return usage_error("--albedo-values: %g is outside [0, 1)", o->albedo_values[i]);
+    return 0;
+}
+
+static int run_grid_items(const mc_options *o, grid_item *items, int count)
+{
+    double total = 0.0, done = 0.0;
+    int pending = 0;
+    for (int i = 0; i < count; i++)
+        if (!ns_table_is_complete(items[i].prefix)) {
+            total += items[i].cost;
+            pending++;
+        }
+    fprintf(stderr, "nscatter mc: grid of %d tables, %d already complete, %d to do (%.3g collisions)\n",
+            count, count - pending, pending, total);
+    progress_state prog = {.enabled = !o->quiet && isatty(STDERR_FILENO),
+                           .start = wall_seconds(), .work_total = total};
+    double *lobe = malloc((size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));
+    if (!lobe) {
+        fprintf(stderr, "nscatter mc: out of memory\n");
+        return 1;
+    }
+    double lobe_g = NAN;
+    for (int i = 0; i < count; i++) {
+        grid_item *it = &items[i];
+        if (ns_table_is_complete(it->prefix))
+            continue;
+        if (!(lobe_g == it->g)) { /* items are sorted by g: one lobe matrix per g */
+            ns_mc_lobe_matrix(it->g, 0, 0, o->threads, lobe);
+            lobe_g = it->g;
+        }
+        ns_mc_desc desc = {.g = it->g, .albedo = it->albedo, .photons = it->photons,
+                           .seed = o->seed, .orders = 1u << it->order, .threads = o->threads,
+                           .lobe = lobe, .progress = progress_print, .progress_user = &prog};
+        char label[64];
+        snprintf(label, sizeof label, "g=%g a=%g %s", it->g, it->albedo, ns_order_name(it->order));
+        prog.label = label;
+        prog.work_before = done;
+        prog.work_this = it->cost;
+        ns_mc_result r;
+        ns_error err = {0};
+        int rc = ns_mc_run(&desc, &r, &err);
+        if (!rc)
+            rc = write_tables(&r, it->prefix, desc.orders);
+        else
+            fprintf(stderr, "\nnscatter mc: %s: %s\n", it->prefix, err.message);
+        ns_mc_result_free(&r);
+        if (rc) {
+            free(lobe);
+            return rc;
+        }
+        done += it->cost;
+    }
+    progress_end(&prog);
+    free(lobe);
+    return 0;
+}
+
+static int run_grid(mc_options *o)
+{
+    if (!o->out)
+        return usage_error("--out: missing (the directory of the grid)");
+    if (o->have_g || o->have_albedo || o->have_photons)
+        return usage_error("--grid: use --g-values, --albedo-values and --collisions, "
+                           "not --g, --albedo or --photons");
+    if (!o->g_count) {
+        o->g_count = (int)(sizeof grid_g_default / sizeof grid_g_default[0]);
+        memcpy(o->g_values, grid_g_default, sizeof grid_g_default);
+    }
+    if (!o->albedo_count) {
+        o->albedo_count = (int)(sizeof grid_albedo_default / sizeof grid_albedo_default[0]);
+        memcpy(o->albedo_values, grid_albedo_default, sizeof grid_albedo_default);
+    }
+    int rc = grid_validate(o);
+    if (!rc)
+        rc = ensure_directory(o->out);
+    if (rc)
+        return rc;
+    int count = o->g_count * o->albedo_count * 2;
+    grid_item *items = calloc((size_t)count, sizeof *items);
+    if (!items)
+        return 1;
+    int n = 0;
+    for (int gi = 0; gi < o->g_count; gi++)
+        for (int ai = 0; ai < o->albedo_count; ai++)
+            for (int k = 0; k < 2; k++) {
+                grid_item *it = &items[n++];
+                it->g = o->g_values[gi];
+                it->albedo = o->albedo_values[ai];
+                it->order = (ns_order)k;
+                it->photons = grid_photons(o->collisions, it->order, it->albedo);
+                it->cost = (double)it->photons * ns_mc_collisions_per_photon(1u << k, it->albedo);
+                snprintf(it->prefix, sizeof it->prefix, "%s/g%.2f_a%.3f_%s", o->out, it->g,
+                         it->albedo, ns_order_name(it->order));
+            }
+    rc = run_grid_items(o, items, n);
+    free(items);
+    return rc;
+}
+
+/* =======================================================================================
+ * Benchmark: photons and collisions per second per core, and the grid's expected time.
+ * ===================================================================================== */
+
+static int bench_one(double g, double albedo, double collisions, unsigned threads,
+                     ns_mc_result *r)
+{
+    unsigned orders = NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE;
+    ns_mc_desc desc = {.g = g, .albedo = albedo, .seed = 7, .orders = orders,
+                       .threads = threads, .lobe_in_samples = 2, .lobe_out_samples = 8};
+    desc.photons = (uint64_t)(collisions / ns_mc_collisions_per_photon(orders, albedo));
+    ns_error err = {0};
+    if (ns_mc_run(&desc, r, &err)) {
+        fprintf(stderr, "nscatter mc: %s\n", err.message);
+        return 1;
+    }
+    return 0;
+}
+
+static int run_benchmark(const mc_options *o)
+{
+    static const double albedos[] = {0.3, 0.9, 0.99};
+    const double g = 0.5, collisions = 2e7;
+    unsigned threads = o->threads ? o->threads : ns_mc_default_threads();
+    printf("nscatter mc benchmark: g = %g, both orders, %.0e collisions per run\n", g, collisions);
+    printf("%-8s %8s %16s %20s %16s\n", "albedo", "threads", "photons/s/core",
+           "collisions/s/core", "collisions/s");
+    double rate_all = 0.0;
+    for (size_t i = 0; i < sizeof albedos / sizeof albedos[0]; i++) {
+        unsigned counts[2] = {1, threads};
+        for (int t = 0; t < (threads > 1 ? 2 : 1); t++) {
+            ns_mc_result r;
+            if (bench_one(g, albedos[i], collisions, counts[t], &r))
+                return 1;
+            double secs = fmax(r.trace_seconds, 1e-9);
+            double photons = (double)r.table[0].photons;
+            printf("%-8g %8u %16.4g %20.4g %16.4g\n", albedos[i], counts[t],
+                   photons / secs / counts[t], (double)r.collisions / secs / counts[t],
+                   (double)r.collisions / secs);
+            if (t == (threads > 1 ? 1 : 0))
+                rate_all += (double)r.collisions / secs / 3.0;
+            ns_mc_result_free(&r);
+        }
+    }
+    /* The grid's cost: collisions (budget per table) at the measured all-thread rate, plus
+     * the per-table overhead (convolution, energy, writing) and one lobe matrix per g. */
+    double t0 = wall_seconds();
+    double *lobe = malloc((size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));
+    if (!lobe)
+        return 1;
+    ns_mc_lobe_matrix(g, 0, 0, threads, lobe);
+    double lobe_s = wall_seconds() - t0;
+    ns_mc_desc desc = {.g = g, .albedo = 0.5, .photons = 1000, .orders = NS_MC_WANT_MULTIPLE,
+                       .threads = threads, .lobe = lobe};
+    ns_mc_result r;
+    ns_error err = {0};
+    if (ns_mc_run(&desc, &r, &err)) {
+        free(lobe);
+        return 1;
+    }
+    double overhead = r.total_seconds - r.trace_seconds;
+    ns_mc_result_free(&r);
+    free(lobe);
+    size_t ng = sizeof grid_g_default / sizeof grid_g_default[0];
+    size_t na = sizeof grid_albedo_default / sizeof grid_albedo_default[0];
+    double tables = 2.0 * (double)ng * (double)na;
+    double grid_s = tables * GRID_DEFAULT_COLLISIONS / rate_all + tables * overhead +
+                    (double)ng * lobe_s;
+    printf("lobe matrix (default quality) %.2f s per g; per-table overhead %.2f s (w/o write)\n",
+           lobe_s, overhead);
+    printf("expected grid time: %.0f tables x %.3g collisions at %.4g collisions/s "
+           "= %.0f s (%.2f h), extrapolated\n",
+           tables, GRID_DEFAULT_COLLISIONS, rate_all, grid_s, grid_s / 3600.0);
+    return 0;
+}
 
 int cmd_mc(int argc, char **argv)
 {
-    fprintf(stderr, "nscatter %s: not implemented yet\n", argv[0]);
-    return 1;
+    mc_options o;
+    int rc = parse_options(argc, argv, &o);
+    if (rc)
+        return rc < 0 ? 0 : rc;
+    if (o.benchmark)
+        return run_benchmark(&o);
+    if (o.grid)
+        return run_grid(&o);
+    return run_single(&o);
 }
