@@ -954,7 +954,7 @@ int cmd_serve(int argc, char **argv)
     }
     const union MHD_DaemonInfo *bound = MHD_get_daemon_info(daemon, MHD_DAEMON_INFO_BIND_PORT);
     unsigned port = bound && bound->port ? bound->port : args.port;
-    int v6 = addr.ss_family == AF_INET6;
+    int v6 = strchr(args.host, ':') != NULL; /* an IPv6 literal needs brackets in a URL */
     printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", args.host, v6 ? "]" : "", port);
     fflush(stdout);
 
