@@ -182,8 +182,21 @@ static void test_environment_occlusion(void)
     }
 }
 
+/* The default device is lavapipe, and the context says so. */
+static void test_device_info(void)
+{
+    ns_device_info info;
+    ns_context_device_info(test_context(), &info);
+    CHECK_STR_CONTAINS(info.device_name, "llvmpipe");
+    CHECK_INT(info.is_cpu, 1);
+    CHECK(info.api_version >= (1u << 22 | 1u << 12)); /* Vulkan 1.1 at least */
+    CHECK(info.driver_name[0] != '\0');
+}
+
 int main(void)
 {
+    if (!getenv("NSCATTER_DEVICE"))
+        RUN(test_device_info);
     RUN(test_directional_45);
     RUN(test_directional_70_environment);
     RUN(test_directional_from_below_is_dark);
