@@ -178,7 +178,11 @@ static int create_instance(gpu_device *dev, ns_error *err)
         .enabledExtensionCount = extension_count,
         .ppEnabledExtensionNames = extensions,
     };
-    int status = gpu_check(vkCreateInstance(&info, NULL, &dev->instance), "vkCreateInstance", err);
+    VkResult created = vkCreateInstance(&info, NULL, &dev->instance);
+    if (created == VK_ERROR_INCOMPATIBLE_DRIVER)
+        return ns_fail(err, NS_ERR_NO_DEVICE, "no Vulkan driver found (vkCreateInstance: "
+                       "VK_ERROR_INCOMPATIBLE_DRIVER); install mesa-vulkan-drivers for lavapipe");
+    int status = gpu_check(created, "vkCreateInstance", err);
     if (status)
         return status;
     if (debug_utils)

@@ -165,8 +165,59 @@ static void test_fresnel_angular(void)
     ns_image_free(&img);
 }
 
+/* The 12 triangles of the cube [-h, h]^3, counter-clockwise seen from outside. */
+static void cube_triangles(double h, ns_triangle tris[12])
+{
+    static const int faces[6][4][3] = {
+        {{1, -1, -1}, {1, 1, -1}, {1, 1, 1}, {1, -1, 1}},     {{-1, -1, -1}, {-1, -1, 1}, {-1, 1, 1}, {-1, 1, -1}},
+        {{-1, 1, -1}, {-1, 1, 1}, {1, 1, 1}, {1, 1, -1}},     {{-1, -1, -1}, {1, -1, -1}, {1, -1, 1}, {-1, -1, 1}},
+        {{-1, -1, 1}, {1, -1, 1}, {1, 1, 1}, {-1, 1, 1}},     {{-1, -1, -1}, {-1, 1, -1}, {1, 1, -1}, {1, -1, -1}},
+    };
+    for (int f = 0; f < 6; f++)
+        for (int t = 0; t < 2; t++) {
+            const int *v[3] = {faces[f][0], faces[f][1 + t], faces[f][2 + t]};
+            for (int i = 0; i < 3; i++)
+                set3(tris[2 * f + t].v[i], h * v[i][0], h * v[i][1], h * v[i][2]);
+        }
+}
+
+/* The same series through a glass box (primitive) and a glass cube mesh (closed triangles,
+ * inside known from their facing), seen face-on: chord = the box's width. */
+static void test_glass_box_and_cube_mesh(void)
+{
+    const double ior = 1.5, h = 0.8, sigma_s[3] = {0, 0, 0}, sigma_a[3] = {0.1, 0.5, 2.0};
+    ns_triangle tris[12];
+    cube_triangles(h, tris);
+    for (int mesh = 0; mesh < 2; mesh++) {
+        ns_material m = medium(sigma_s, sigma_a, ior);
+        ns_object o;
+        ns_light l;
+        ns_scene s = sphere_scene(&m, &o, &l, 33, 2.0);
+        memset(&o, 0, sizeof o);
+        if (mesh) {
+            o.shape = NS_SHAPE_MESH;
+            o.triangle_count = 12;
+            s.triangles = tris;
+            s.triangle_count = 12;
+        } else {
+            o.shape = NS_SHAPE_BOX;
+            set3(o.min, -h, -h, -h);
+            set3(o.max, h, h, h);
+        }
+        ns_image img = {0};
+        if (!render_ok(&s, &img, NULL))
+            return;
+        for (int k = 0; k < 3; k++) {
+            double R = 0.04, T = exp(-2 * h * sigma_a[k]);
+            CHECK_REL(pixel_at(&img, 16, 16)[k], env[k] * (R + (1 - R) * (1 - R) * T / (1 - R * T)), 1e-3);
+        }
+        ns_image_free(&img);
+    }
+}
+
 int main(void)
 {
+    RUN(test_glass_box_and_cube_mesh);
     RUN(test_glass_1_5);
     RUN(test_glass_2_4);
     RUN(test_depth_truncates_series);
