@@ -324,38 +324,40 @@ typedef struct {
 
 /* Sampling resolves the lobe's peak but leaves ~5-10% noise in small bins far from it,
  * where few rings cross. There the phase function is smooth, and a midpoint product rule
- * (QUAD_N points per axis in cos theta and phi, for both bins) is accurate: we use it for
- * every pair of bins over which the phase function varies by less than a factor
- * QUAD_MAX_RATIO. For g <= 0.5 that is every pair. */
-#define QUAD_N 8
+ * (n points per axis in cos theta and phi, for both bins; n = the incoming samples per
+ * axis, at most QUAD_MAX_N) is accurate: we use it for every pair of bins over which the
+ * phase function varies by less than a factor QUAD_MAX_RATIO. For g <= 0.5 that is every
+ * pair. */
+#define QUAD_MAX_N 16
 #define QUAD_MAX_RATIO 8.0
 
-static void bin_nodes(int theta_bin, double phi_offset, double nodes[QUAD_N * QUAD_N][3])
+static void bin_nodes(int theta_bin, double phi_offset, int n, double nodes[][3])
 {
     double c0 = cos(theta_bin * THETA_STEP), c1 = cos((theta_bin + 1) * THETA_STEP);
-    for (int a = 0; a < QUAD_N; a++)
-        for (int b = 0; b < QUAD_N; b++) {
-            double ct = c0 + (c1 - c0) * (a + 0.5) / QUAD_N;
+    for (int a = 0; a < n; a++)
+        for (int b = 0; b < n; b++) {
+            double ct = c0 + (c1 - c0) * (a + 0.5) / n;
             double st = sqrt(fmax(0.0, 1.0 - ct * ct));
-            double ph = phi_offset + (b + 0.5) / QUAD_N * PHI_STEP;
-            double *n = nodes[a * QUAD_N + b];
-            n[0] = st * cos(ph);
-            n[1] = st * sin(ph);
-            n[2] = ct;
+            double ph = phi_offset + (b + 0.5) / n * PHI_STEP;
+            double *node = nodes[a * n + b];
+            node[0] = st * cos(ph);
+            node[1] = st * sin(ph);
+            node[2] = ct;
         }
 }
 
-static void replace_smooth_pairs_by_quadrature(double g, int theta_in, double *out)
+static void replace_smooth_pairs_by_quadrature(double g, int n, int theta_in, double *out)
 {
-    double in[QUAD_N * QUAD_N][3], on[QUAD_N * QUAD_N][3];
-    bin_nodes(theta_in, 0.0, in);
+    double in[QUAD_MAX_N * QUAD_MAX_N][3], on[QUAD_MAX_N * QUAD_MAX_N][3];
+    n = n > QUAD_MAX_N ? QUAD_MAX_N : n;
+    bin_nodes(theta_in, 0.0, n, in);
     for (int to = 0; to < NS_MC_NTHETA; to++) {
         double solid_angle_out = (cos(to * THETA_STEP) - cos((to + 1) * THETA_STEP)) * PHI_STEP;
         for (int u = 0; u < PHI_UNFOLDED; u++) {
-            bin_nodes(to, -M_PI + u * PHI_STEP, on);
+            bin_nodes(to, -M_PI + u * PHI_STEP, n, on);
             double sum = 0.0, lo = INFINITY, hi = 0.0;
-            for (int i = 0; i < QUAD_N * QUAD_N; i++)
-                for (int o = 0; o < QUAD_N * QUAD_N; o++) {
+            for (int i = 0; i < n * n; i++)
+                for (int o = 0; o < n * n; o++) {
                     double c = in[i][0] * on[o][0] + in[i][1] * on[o][1] + in[i][2] * on[o][2];
                     double p = ns_mc_hg(g, c);
                     sum += p;
@@ -363,8 +365,7 @@ static void replace_smooth_pairs_by_quadrature(double g, int theta_in, double *o
                     hi = fmax(hi, p);
                 }
             if (hi <= QUAD_MAX_RATIO * lo)
-                out[to * PHI_UNFOLDED + u] = sum / (QUAD_N * QUAD_N * QUAD_N * QUAD_N) *
-                                             solid_angle_out;
+                out[to * PHI_UNFOLDED + u] = sum / ((double)n * n * n * n) * solid_angle_out;
         }
     }
 }
@@ -401,7 +402,7 @@ static void lobe_offsets_row(void *ctx, uint64_t theta_in)
                 }
             }
         }
-    replace_smooth_pairs_by_quadrature(job->g, (int)theta_in, out);
+    replace_smooth_pairs_by_quadrature(job->g, (int)job->n_in, (int)theta_in, out);
     double sum = 0.0;
     for (int i = 0; i < NS_MC_NTHETA * PHI_UNFOLDED; i++)
         sum += out[i];

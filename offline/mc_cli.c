@@ -29,6 +29,7 @@ static const char usage_text[] =
     "       nscatter mc --grid --out DIR [--collisions C] [--g-values LIST]\n"
     "                   [--albedo-values LIST] [--seed S] [--threads T] [--quiet]\n"
     "       nscatter mc --benchmark [--threads T]\n"
+    "       lobe matrix quality (tests): [--lobe-in N (default 8)] [--lobe-out N (default 128)]\n"
     "\n"
     "Monte Carlo J tables (DESIGN.md sections 2-3): PREFIX.npy + PREFIX.json per order\n"
     "(--order both writes PREFIX_double.* and PREFIX_multiple.*). Grid mode writes\n"
@@ -43,6 +44,7 @@ typedef struct {
     uint64_t photons, seed;
     int have_photons;
     unsigned threads;
+    unsigned lobe_in, lobe_out; /* lobe matrix quality; 0: defaults */
     const char *out;
     double g_values[GRID_MAX_VALUES], albedo_values[GRID_MAX_VALUES];
     int g_count, albedo_count;
@@ -145,6 +147,14 @@ static int parse_value_option(mc_options *o, const char *arg, const char *val)
     }
     if (!strcmp(arg, "--out"))
         return o->out = val, 0;
+    if (!strcmp(arg, "--lobe-in") || !strcmp(arg, "--lobe-out")) {
+        if (parse_u64(arg, val, 256, &u))
+            return 2;
+        if (u < 1)
+            return usage_error("%s: must be at least 1", arg);
+        *(!strcmp(arg, "--lobe-in") ? &o->lobe_in : &o->lobe_out) = (unsigned)u;
+        return 0;
+    }
     if (!strcmp(arg, "--collisions")) {
         if (parse_double(arg, val, &o->collisions))
             return 2;
@@ -284,7 +294,8 @@ static int run_single(const mc_options *o)
     if (!o->out)
         return usage_error("--out: missing");
     ns_mc_desc desc = {.g = o->g, .albedo = o->albedo, .photons = o->photons, .seed = o->seed,
-                       .orders = o->orders, .threads = o->threads};
+                       .orders = o->orders, .threads = o->threads,
+                       .lobe_in_samples = o->lobe_in, .lobe_out_samples = o->lobe_out};
     ns_error err = {0};
     if (ns_mc_check_desc(&desc, &err))
         return usage_error("%s", err.message);
@@ -384,7 +395,7 @@ static int run_grid_items(const mc_options *o, grid_item *items, int count)
         if (ns_table_is_complete(it->prefix))
             continue;
         if (!(lobe_g == it->g)) { /* items are sorted by g: one lobe matrix per g */
-            ns_mc_lobe_matrix(it->g, 0, 0, o->threads, lobe);
+            ns_mc_lobe_matrix(it->g, o->lobe_in, o->lobe_out, o->threads, lobe);
             lobe_g = it->g;
         }
         ns_mc_desc desc = {.g = it->g, .albedo = it->albedo, .photons = it->photons,
