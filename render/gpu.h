@@ -82,6 +82,7 @@ typedef struct gpu_buffer_desc {
     gpu_buffer_kind kind;
     const void *data;  /* copied in when not NULL (data_size bytes); the rest is zeroed */
     VkDeviceSize data_size;
+    int uninitialized; /* skip zeroing: the GPU writes every byte that is read back */
     const char *label;
 } gpu_buffer_desc;
 

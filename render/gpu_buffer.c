@@ -85,7 +85,8 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
         copied = desc->data_size < size ? desc->data_size : size;
         memcpy(buf->mapped, desc->data, copied);
     }
-    memset((char *)buf->mapped + copied, 0, size - copied);
+    if (!desc->uninitialized)
+        memset((char *)buf->mapped + copied, 0, size - copied);
     return NS_OK;
 }
 

@@ -56,6 +56,7 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
         uint64_t size;
         gpu_buffer_kind kind;
         const char *label;
+        int uninitialized;
     } plan[B_COUNT] = {
         [B_PARAMS] = {&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.render.params"},
         [B_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE, "ns.render.bvh_nodes"},
@@ -64,9 +65,10 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
         [B_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial), GPU_BUFFER_STORAGE,
                          "ns.render.materials"},
         [B_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE, "ns.render.lights"},
-        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE, "ns.render.pixels"},
+        /* Written whole by the first dispatch / read only up to the recorded count. */
+        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE, "ns.render.pixels", 1},
         [B_SEGMENTS] = {NULL, (uint64_t)gs->params.counts[2] * sizeof(GpuSegment), GPU_BUFFER_STORAGE,
-                        "ns.render.segments"},
+                        "ns.render.segments", 1},
         [B_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE, "ns.render.counters"},
     };
     for (int i = 0; i < B_COUNT; i++) {
@@ -75,6 +77,7 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
                                                           .kind = plan[i].kind,
                                                           .data = plan[i].data,
                                                           .data_size = plan[i].data ? plan[i].size : 0,
+                                                          .uninitialized = plan[i].uninitialized,
                                                           .label = plan[i].label},
                                        err);
         if (status)
