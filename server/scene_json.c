@@ -559,8 +559,12 @@ static void parse_medium(parser *p, const json_t *m, ns_material *out)
         /* The coefficient form replaces a preset's coefficients entirely, so both are
          * needed even with a preset (after a contradiction, only what is there is checked:
          * the user has to drop one form anyway). */
-        float fs[3], fa[3];
+        float fs[3], fa[3], unused[3];
         int need = !amfp_key;
+        if (amfp_key) {
+            field_color(p, m, "albedo", 0, R_UNIT, "albedo (single-scattering albedo)", unused);
+            field_color(p, m, "mfp", 0, R_POSITIVE, "mfp (mean free path, scene units)", unused);
+        }
         ok &= field_color(p, m, "sigma_s", need, R_NONNEGATIVE, "sigma_s (scattering coefficient per scene unit)", fs);
         ok &= field_color(p, m, "sigma_a", need, R_NONNEGATIVE, "sigma_a (absorption coefficient per scene unit)", fa);
         if (ok && !amfp_key) {

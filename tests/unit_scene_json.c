@@ -816,7 +816,9 @@ static void test_shipped_scenes_parse(void)
     if (!src)
         src = "."; /* run from the source root when not under CTest */
     static const char *const names[] = {"default.json", "milk_glass.json", "cloud.json", "presets.json",
-                                        "mesh_inline.json"};
+                                        "mesh_inline.json", "mesh_asset.json"};
+    char assets[1024];
+    snprintf(assets, sizeof assets, "%s/scenes/assets", src);
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         char path[1024];
         snprintf(path, sizeof path, "%s/scenes/%s", src, names[i]);
@@ -830,7 +832,7 @@ static void test_shipped_scenes_parse(void)
         size_t len = fread(text, 1, (1 << 20) - 1, f);
         fclose(f);
         text[len] = '\0';
-        scene_parse_options opts = {.asset_dir = NULL};
+        scene_parse_options opts = {.asset_dir = assets};
         scene_doc *doc = parse_ok(text, &opts);
         if (!doc)
             fprintf(stderr, "  in %s\n", names[i]);
