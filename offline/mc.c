@@ -26,6 +26,15 @@ static double now_seconds(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
+/* CPU time of the whole process (all threads): per-core rates that a busy shared machine
+ * does not distort as much as wall time. */
+static double cpu_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
 /* =======================================================================================
  * Random numbers: xoshiro256+ per batch, seeded through splitmix64 from (seed, batch).
  * ===================================================================================== */
@@ -180,16 +189,43 @@ typedef struct {
 typedef struct {
     const ns_mc_desc *desc;
     const ns_table *bins; /* edges only */
-    _Atomic uint64_t *counts[2];
     batch_stats *batches;
     uint64_t batch_size, batch_count;
     double inv_step;
     _Atomic uint64_t next_batch, done_batches;
+    pthread_mutex_t flush_lock;
 } trace_job;
 
-static void deposit(trace_job *job, int order, const double p[3], const double d[3],
+/* One tracing thread: its own 32-bit histograms (plain adds; an atomic add waits for each
+ * cache miss, and half the bytes keep more of the histogram in cache). They are added into
+ * the result's 64-bit histograms before any bin can wrap (after 2^32 - 1 deposits of the
+ * thread) and at the end: integer sums, so the order of threads does not matter. */
+typedef struct {
+    trace_job *job;
+    uint32_t *counts[2];
+    uint64_t *totals[2]; /* the result's histograms, shared: add under job->flush_lock */
+    uint64_t deposits;   /* since the last flush */
+} trace_worker_state;
+
+static void flush_counts(trace_worker_state *w)
+{
+    static const size_t cells = (size_t)SPATIAL_BINS * NS_MC_NDIR;
+    pthread_mutex_lock(&w->job->flush_lock);
+    for (int o = 0; o < 2; o++)
+        if (w->counts[o])
+            for (size_t c = 0; c < cells; c++)
+                w->totals[o][c] += w->counts[o][c];
+    pthread_mutex_unlock(&w->job->flush_lock);
+    for (int o = 0; o < 2; o++)
+        if (w->counts[o])
+            memset(w->counts[o], 0, cells * sizeof(uint32_t));
+    w->deposits = 0;
+}
+
+static void deposit(trace_worker_state *w, int order, const double p[3], const double d[3],
                     order_sums *sums, double g)
 {
+    const trace_job *job = w->job;
     double rho = sqrt(p[0] * p[0] + p[1] * p[1]);
     sums->events += 1.0;
     sums->z += p[2];
@@ -197,8 +233,6 @@ static void deposit(trace_job *job, int order, const double p[3], const double d
     /* The emitted direction's mean cosine given the incoming one is exactly g cos (HG):
      * its expectation has less noise than one sampled direction. */
     sums->cos_theta += g * d[2];
-    if (!job->counts[order])
-        return;
     int iz = sinh_bin(job->bins->edges[NS_AXIS_Z], NS_MC_NZ, NS_MC_NZ / 2, p[2], job->inv_step);
     int ir = sinh_bin(job->bins->edges[NS_AXIS_RHO], NS_MC_NRHO, 0, rho, job->inv_step);
     if (iz < 0 || ir < 0)
@@ -206,11 +240,14 @@ static void deposit(trace_job *job, int order, const double p[3], const double d
     sums->in_table += 1.0;
     size_t cell = ((size_t)iz * NS_MC_NRHO + (size_t)ir) * NS_MC_NDIR +
                   (size_t)local_direction_bin(p[0], p[1], rho, d);
-    atomic_fetch_add_explicit(&job->counts[order][cell], 1, memory_order_relaxed);
+    w->counts[order][cell]++;
+    if (++w->deposits == UINT32_MAX)
+        flush_counts(w);
 }
 
-static void trace_photon(trace_job *job, rng *r, batch_stats *st)
+static void trace_photon(trace_worker_state *w, rng *r, batch_stats *st)
 {
+    const trace_job *job = w->job;
     const double g = job->desc->g, a = job->desc->albedo;
     const int want_multiple = (job->desc->orders & NS_MC_WANT_MULTIPLE) != 0;
     double p[3] = {0.0, 0.0, 0.0}, d[3] = {0.0, 0.0, 1.0};
@@ -221,11 +258,11 @@ static void trace_photon(trace_job *job, rng *r, batch_stats *st)
         st->collisions++;
         if (k == 2) {
             if (job->desc->orders & NS_MC_WANT_DOUBLE)
-                deposit(job, NS_ORDER_DOUBLE, p, d, &st->sums[NS_ORDER_DOUBLE], g);
+                deposit(w, NS_ORDER_DOUBLE, p, d, &st->sums[NS_ORDER_DOUBLE], g);
             if (!want_multiple)
                 return;
         } else if (k >= 3) {
-            deposit(job, NS_ORDER_MULTIPLE, p, d, &st->sums[NS_ORDER_MULTIPLE], g);
+            deposit(w, NS_ORDER_MULTIPLE, p, d, &st->sums[NS_ORDER_MULTIPLE], g);
             if (rng_uniform(r) >= a) /* absorbed: roulette with survival probability a */
                 return;
         }
@@ -234,8 +271,9 @@ static void trace_photon(trace_job *job, rng *r, batch_stats *st)
     }
 }
 
-static void trace_batch(trace_job *job, uint64_t batch)
+static void trace_batch(trace_worker_state *w, uint64_t batch)
 {
+    trace_job *job = w->job;
     batch_stats *st = &job->batches[batch];
     memset(st, 0, sizeof *st);
     uint64_t first = batch * job->batch_size;
@@ -245,20 +283,22 @@ static void trace_batch(trace_job *job, uint64_t batch)
     rng r;
     rng_seed(&r, job->desc->seed, batch);
     for (uint64_t i = first; i < last; i++)
-        trace_photon(job, &r, st);
+        trace_photon(w, &r, st);
     st->photons = last - first;
 }
 
 static void *trace_worker(void *arg)
 {
-    trace_job *job = arg;
+    trace_worker_state *w = arg;
+    trace_job *job = w->job;
     for (;;) {
         uint64_t b = atomic_fetch_add(&job->next_batch, 1);
         if (b >= job->batch_count)
             break;
-        trace_batch(job, b);
+        trace_batch(w, b);
         atomic_fetch_add(&job->done_batches, 1);
     }
+    flush_counts(w);
     return NULL;
 }
 
@@ -597,22 +637,55 @@ void ns_mc_result_free(ns_mc_result *r)
     r->lobe = NULL;
 }
 
-static int trace_all(const ns_mc_desc *desc, trace_job *job, unsigned threads)
+static int worker_init(trace_worker_state *w, trace_job *job, uint64_t *const totals[2])
 {
+    static const size_t cells = (size_t)SPATIAL_BINS * NS_MC_NDIR;
+    memset(w, 0, sizeof *w);
+    w->job = job;
+    for (int o = 0; o < 2; o++) {
+        w->totals[o] = totals[o];
+        if (totals[o] && !(w->counts[o] = calloc(cells, sizeof(uint32_t)))) {
+            free(w->counts[0]);
+            return NS_ERR_OUT_OF_HOST_MEMORY;
+        }
+    }
+    return NS_OK;
+}
+
+/* Traces every batch on up to `threads` threads (fewer if memory or threads run out; the
+ * batches, hence the result, stay the same). */
+static int trace_all(const ns_mc_desc *desc, trace_job *job, unsigned threads,
+                     uint64_t *const totals[2])
+{
+    trace_worker_state state[MAX_THREADS];
     pthread_t tid[MAX_THREADS];
     unsigned started = 0;
-    for (; started < threads; started++)
-        if (pthread_create(&tid[started], NULL, trace_worker, job) != 0)
+    for (; started < threads; started++) {
+        if (worker_init(&state[started], job, totals) != NS_OK)
             break;
-    if (started == 0)
-        trace_worker(job); /* could not start a thread: trace on this one */
+        if (pthread_create(&tid[started], NULL, trace_worker, &state[started]) != 0) {
+            free(state[started].counts[0]);
+            free(state[started].counts[1]);
+            break;
+        }
+    }
+    if (started == 0) { /* no thread: trace on this one, or fail for lack of memory */
+        if (worker_init(&state[0], job, totals) != NS_OK)
+            return NS_ERR_OUT_OF_HOST_MEMORY;
+        trace_worker(&state[0]);
+        free(state[0].counts[0]);
+        free(state[0].counts[1]);
+    }
     while (desc->progress && atomic_load(&job->done_batches) < job->batch_count) {
         desc->progress(desc->progress_user, atomic_load(&job->done_batches), job->batch_count);
         struct timespec ts = {0, 250 * 1000 * 1000};
         nanosleep(&ts, NULL);
     }
-    for (unsigned i = 0; i < started; i++)
+    for (unsigned i = 0; i < started; i++) {
         pthread_join(tid[i], NULL);
+        free(state[i].counts[0]);
+        free(state[i].counts[1]);
+    }
     if (desc->progress)
         desc->progress(desc->progress_user, job->batch_count, job->batch_count);
     return NS_OK;
@@ -663,7 +736,7 @@ int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
     int rc = ns_mc_check_desc(desc, err);
     if (rc)
         return rc;
-    double t0 = now_seconds();
+    double t0 = now_seconds(), cpu0 = cpu_seconds();
     unsigned threads = desc->threads ? desc->threads : ns_mc_default_threads();
     rc = allocate_result(desc, out, err);
     if (rc) {
@@ -679,8 +752,6 @@ int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
     trace_job job = {.desc = desc, .bins = &out->table[0], .batch_size = batch_size,
                      .batch_count = (desc->photons + batch_size - 1) / batch_size,
                      .inv_step = 1.0 / sinh_step()};
-    for (int o = 0; o < 2; o++)
-        job.counts[o] = (_Atomic uint64_t *)out->counts[o];
     atomic_init(&job.next_batch, 0);
     atomic_init(&job.done_batches, 0);
     job.batches = calloc(job.batch_count, sizeof *job.batches);
@@ -688,8 +759,16 @@ int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
         ns_mc_result_free(out);
         return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "mc: out of memory for batch sums", 0.0);
     }
-    trace_all(desc, &job, threads);
+    pthread_mutex_init(&job.flush_lock, NULL);
+    rc = trace_all(desc, &job, threads, out->counts);
+    pthread_mutex_destroy(&job.flush_lock);
+    if (rc) {
+        free(job.batches);
+        ns_mc_result_free(out);
+        return fail(err, rc, "mc: out of memory for the histograms", 0.0);
+    }
     double t1 = now_seconds();
+    out->trace_cpu_seconds = cpu_seconds() - cpu0;
 
     if (desc->lobe)
         memcpy(out->lobe, desc->lobe, (size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));

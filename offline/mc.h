@@ -83,7 +83,8 @@ typedef struct ns_mc_result {
     uint64_t collisions;       /* all collisions traced, the unit of work */
     uint64_t batches;
     unsigned threads;
-    double trace_seconds, lobe_seconds, total_seconds;
+    double trace_seconds, lobe_seconds, total_seconds; /* wall clock */
+    double trace_cpu_seconds; /* CPU time of all threads while tracing */
 } ns_mc_result;
 
 /* Runs the simulation. On success *out owns its tables and arrays: free them with

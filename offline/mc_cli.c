@@ -20,7 +20,7 @@ static const double grid_albedo_default[] = {0.01, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6,
                                              0.7,  0.8, 0.9, 0.95, 0.99, 0.995, 0.999};
 #define GRID_MAX_VALUES 64
 /* Collisions traced per table in grid mode: sets the noise (docs/montecarlo.md). */
-#define GRID_DEFAULT_COLLISIONS 2.5e7
+#define GRID_DEFAULT_COLLISIONS 5e7
 #define PREFIX_CAP 4000
 
 static const char usage_text[] =
@@ -34,7 +34,7 @@ static const char usage_text[] =
     "Monte Carlo J tables (DESIGN.md sections 2-3): PREFIX.npy + PREFIX.json per order\n"
     "(--order both writes PREFIX_double.* and PREFIX_multiple.*). Grid mode writes\n"
     "DIR/g<G>_a<A>_<order>.* for every material, skips finished tables (resumable) and\n"
-    "spends C collisions per table (default 2.5e7). LIST: comma-separated numbers.\n";
+    "spends C collisions per table (default 5e7). LIST: comma-separated numbers.\n";
 
 typedef struct {
     int grid, benchmark, quiet;
@@ -491,55 +491,63 @@ static int run_benchmark(const mc_options *o)
     static const double albedos[] = {0.3, 0.9, 0.99};
     const double g = 0.5, collisions = 2e7;
     unsigned threads = o->threads ? o->threads : ns_mc_default_threads();
-    printf("nscatter mc benchmark: g = %g, both orders, %.0e collisions per run\n", g, collisions);
-    printf("%-8s %8s %16s %20s %16s\n", "albedo", "threads", "photons/s/core",
-           "collisions/s/core", "collisions/s");
-    double rate_all = 0.0;
+    printf("nscatter mc benchmark: g = %g, both orders, %.0e collisions per run, %u threads\n",
+           g, collisions, threads);
+    printf("per core = per second of CPU time (all threads), robust to other load; "
+           "wall = elapsed\n");
+    printf("%-7s %16s %20s %18s\n", "albedo", "photons/s/core", "collisions/s/core",
+           "collisions/s wall");
+    double cpu_rate_sum = 0.0;
     for (size_t i = 0; i < sizeof albedos / sizeof albedos[0]; i++) {
-        unsigned counts[2] = {1, threads};
-        for (int t = 0; t < (threads > 1 ? 2 : 1); t++) {
-            ns_mc_result r;
-            if (bench_one(g, albedos[i], collisions, counts[t], &r))
-                return 1;
-            double secs = fmax(r.trace_seconds, 1e-9);
-            double photons = (double)r.table[0].photons;
-            printf("%-8g %8u %16.4g %20.4g %16.4g\n", albedos[i], counts[t],
-                   photons / secs / counts[t], (double)r.collisions / secs / counts[t],
-                   (double)r.collisions / secs);
-            if (t == (threads > 1 ? 1 : 0))
-                rate_all += (double)r.collisions / secs / 3.0;
-            ns_mc_result_free(&r);
-        }
+        ns_mc_result r;
+        if (bench_one(g, albedos[i], collisions, threads, &r))
+            return 1;
+        double cpu = fmax(r.trace_cpu_seconds, 1e-9), wall = fmax(r.trace_seconds, 1e-9);
+        printf("%-7g %16.4g %20.4g %18.4g\n", albedos[i], (double)r.table[0].photons / cpu,
+               (double)r.collisions / cpu, (double)r.collisions / wall);
+        cpu_rate_sum += (double)r.collisions / cpu;
+        ns_mc_result_free(&r);
     }
-    /* The grid's cost: collisions (budget per table) at the measured all-thread rate, plus
-     * the per-table overhead (convolution, energy, writing) and one lobe matrix per g. */
+    double per_core = cpu_rate_sum / 3.0;
+    /* The grid's cost: its collisions at the per-core rate on every core, plus one lobe
+     * matrix per g and the per-table convolution and writing, measured here. */
     double t0 = wall_seconds();
     double *lobe = malloc((size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));
     if (!lobe)
         return 1;
     ns_mc_lobe_matrix(g, 0, 0, threads, lobe);
     double lobe_s = wall_seconds() - t0;
-    ns_mc_desc desc = {.g = g, .albedo = 0.5, .photons = 1000, .orders = NS_MC_WANT_MULTIPLE,
+    ns_mc_desc desc = {.g = g, .albedo = 0.9, .photons = 100000, .orders = NS_MC_WANT_MULTIPLE,
                        .threads = threads, .lobe = lobe};
     ns_mc_result r;
     ns_error err = {0};
-    if (ns_mc_run(&desc, &r, &err)) {
-        free(lobe);
-        return 1;
-    }
-    double overhead = r.total_seconds - r.trace_seconds;
-    ns_mc_result_free(&r);
+    int rc = ns_mc_run(&desc, &r, &err);
     free(lobe);
+    if (rc)
+        return 1;
+    t0 = wall_seconds();
+    char prefix[64];
+    snprintf(prefix, sizeof prefix, "/tmp/nscatter-bench-%d", (int)getpid());
+    if (ns_table_write(&r.table[NS_ORDER_MULTIPLE], prefix, &err) == 0) {
+        char path[96];
+        snprintf(path, sizeof path, "%s.npy", prefix);
+        unlink(path);
+        snprintf(path, sizeof path, "%s.json", prefix);
+        unlink(path);
+    }
+    double overhead = r.total_seconds - r.trace_seconds + (wall_seconds() - t0);
+    ns_mc_result_free(&r);
     size_t ng = sizeof grid_g_default / sizeof grid_g_default[0];
     size_t na = sizeof grid_albedo_default / sizeof grid_albedo_default[0];
     double tables = 2.0 * (double)ng * (double)na;
-    double grid_s = tables * GRID_DEFAULT_COLLISIONS / rate_all + tables * overhead +
-                    (double)ng * lobe_s;
-    printf("lobe matrix (default quality) %.2f s per g; per-table overhead %.2f s (w/o write)\n",
+    unsigned cores = ns_mc_default_threads();
+    double trace_s = tables * GRID_DEFAULT_COLLISIONS / (per_core * cores);
+    double grid_s = trace_s + tables * overhead + (double)ng * lobe_s;
+    printf("lobe matrix (default quality): %.2f s per g; per-table convolution + write: %.2f s\n",
            lobe_s, overhead);
-    printf("expected grid time: %.0f tables x %.3g collisions at %.4g collisions/s "
-           "= %.0f s (%.2f h), extrapolated\n",
-           tables, GRID_DEFAULT_COLLISIONS, rate_all, grid_s, grid_s / 3600.0);
+    printf("expected grid time (extrapolated): %.0f tables x %.3g collisions at %.4g "
+           "collisions/s/core x %u cores = %.0f s tracing, %.0f s in all (%.2f h)\n",
+           tables, GRID_DEFAULT_COLLISIONS, per_core, cores, trace_s, grid_s, grid_s / 3600.0);
     return 0;
 }
 
