@@ -1289,7 +1289,8 @@ typedef struct scan_frame {
 
 #define SCAN_MAX_DEPTH 64
 
-static void pointer_at_offset(const char *text, size_t len, size_t pos, char *out, size_t cap)
+static void pointer_at_offset(const char *text, size_t len, size_t pos, char *out, size_t cap, char *last_key,
+                              size_t last_cap)
 {
     scan_frame frames[SCAN_MAX_DEPTH];
     size_t depth = 0; /* may exceed SCAN_MAX_DEPTH; deeper frames are not tracked */
@@ -1324,6 +1325,7 @@ static void pointer_at_offset(const char *text, size_t len, size_t pos, char *ou
     }
     /* Build the pointer through a scratch parser so keys are escaped the same way. */
     parser scratch = {0};
+    last_key[0] = '\0';
     for (size_t d = 0; d < depth && d < SCAN_MAX_DEPTH; d++) {
         if (frames[d].is_array) {
             push_index(&scratch, frames[d].index);
@@ -1338,6 +1340,7 @@ static void pointer_at_offset(const char *text, size_t len, size_t pos, char *ou
             }
             key[n] = '\0';
             push_key(&scratch, key);
+            copy_cut(last_key, last_cap, key);
         } else {
             break;
         }
@@ -1347,17 +1350,21 @@ static void pointer_at_offset(const char *text, size_t len, size_t pos, char *ou
 
 static void report_load_error(const char *json, size_t length, const json_error_t *e, scene_issues *issues)
 {
-    char detail[512], pointer[256];
+    char detail[512], pointer[256], key[96];
     issues->line = e->line > 0 ? e->line : 1;
     issues->column = e->column > 0 ? e->column : 1;
     switch (json_error_code(e)) {
     case json_error_duplicate_key:
     case json_error_numeric_overflow:
         /* Valid JSON grammar, invalid scene: name the field (422). */
-        pointer_at_offset(json, length, (size_t)(e->position > 0 ? e->position : 0), pointer, sizeof pointer);
-        snprintf(detail, sizeof detail, "%s (line %d, column %d); %s", e->text, issues->line, issues->column,
-                 json_error_code(e) == json_error_duplicate_key ? "each key may appear once"
-                                                                : "numbers must fit a 32-bit float");
+        pointer_at_offset(json, length, (size_t)(e->position > 0 ? e->position : 0), pointer, sizeof pointer, key,
+                          sizeof key);
+        if (json_error_code(e) == json_error_duplicate_key)
+            snprintf(detail, sizeof detail, "key \"%s\" is given twice (line %d, column %d); each key may appear once",
+                     key, issues->line, issues->column);
+        else
+            snprintf(detail, sizeof detail, "%s (line %d, column %d); numbers must fit a 32-bit float", e->text,
+                     issues->line, issues->column);
         add_issue(issues, pointer, detail);
         break;
     case json_error_stack_overflow:

@@ -513,9 +513,13 @@ typedef struct bad_case {
 
 static const bad_case bad_cases[] = {
     /* duplicate keys, at several depths */
-    {WHOLE, "{\"camera\":{},\"camera\":{}}", "/camera", "duplicate", 1},
-    {MATERIALS, MAT("{\"type\":\"medium\",\"preset\":\"milk\",\"g\":0.1,\"g\":0.2}"), "/materials/wax/g", "duplicate", 1},
-    {OBJECTS, "[{\"shape\":\"sphere\"},{\"shape\":\"sphere\",\"radius\":1,\"radius\":2}]", "/objects/1/radius", "duplicate", 1},
+    {WHOLE, "{\"camera\":{},\"camera\":{}}", "/camera", "given twice", 1},
+    {MATERIALS, MAT("{\"type\":\"medium\",\"preset\":\"milk\",\"g\":0.1,\"g\":0.2}"), "/materials/wax/g", "key \"g\" is given twice", 1},
+    {OBJECTS, "[{\"shape\":\"sphere\"},{\"shape\":\"sphere\",\"radius\":1,\"radius\":2}]", "/objects/1/radius", "given twice", 1},
+    {MATERIALS, "{\"a/b~\":{\"type\":\"diffuse\",\"reflectance\":0.5},\"a/b~\":{}}", "/materials/a~1b~0", "given twice", 1},
+    {OBJECTS, "[{\"shape\":\"sphere\",\"center\":[0,0,0],\"radius\":1,\"material\":\"wax\"},"
+              "{\"shape\":\"sphere\",\"center\":[0,0,1e400],\"radius\":1,\"material\":\"wax\"}]",
+     "/objects/1/center/2", "real number overflow", 1},
     /* unknown keys at every level */
     {WHOLE, "{\"colour\":1}", "/colour", "unknown key \"colour\"", 0},
     {CAMERA, CAM(",\"fov2\":30"), "/camera/fov2", "unknown key", 1},
@@ -529,7 +533,7 @@ static const bad_case bad_cases[] = {
     {RENDER, "{\"components\":[\"surface\"],\"sampler\":\"sobol\"}", "/render/sampler", "unknown key", 1},
     /* wrong types */
     {CAMERA, "[1,2,3]", "/camera", "must be an object", 1},
-    {CAMERA, CAM(",\"fov\":\"30\"") , "/camera/fov", "duplicate", 1},
+    {CAMERA, CAM(",\"fov\":\"30\"") , "/camera/fov", "given twice", 1},
     {CAMERA, "{\"position\":[0,2,6],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":\"30\",\"width\":64,\"height\":48}", "/camera/fov", "must be a number", 1},
     {CAMERA, "{\"position\":{\"x\":0},\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":30,\"width\":64,\"height\":48}", "/camera/position", "array of 3 numbers", 1},
     {CAMERA, "{\"position\":[0,\"2\",6],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":30,\"width\":64,\"height\":48}", "/camera/position/1", "must be a number", 1},
@@ -537,7 +541,7 @@ static const bad_case bad_cases[] = {
     {MATERIALS, "[]", "/materials", "must be an object", 0},
     {OBJECTS, "{}", "/objects", "must be an array", 1},
     {OBJECTS, "[42]", "/objects/0", "must be an object", 1},
-    {OBJECTS, SPHERE(",\"radius\":\"1\"") , "/objects/0/radius", "duplicate", 1},
+    {OBJECTS, SPHERE(",\"radius\":\"1\"") , "/objects/0/radius", "given twice", 1},
     {LIGHTS, "{}", "/lights", "must be an array", 1},
     {RENDER, "{\"components\":[\"surface\"],\"spp\":true}", "/render/spp", "must be an integer", 1},
     {RENDER, "{\"components\":\"surface\"}", "/render/components", "must be an array", 1},
