@@ -780,6 +780,65 @@ static void test_many_issues(void)
     free(objects);
 }
 
+/* Meshes that are real GLBs but broken: cut in half, or of another primitive mode. */
+static void test_broken_glb_in_scene(void)
+{
+    size_t len;
+    unsigned char *glb = glb_mesh(tetra_positions, 4, tetra_indices, 12, 5123, 4, NULL, &len);
+    char *half = base64_encode(glb, len / 2);
+    free(glb);
+    glb = glb_mesh(tetra_positions, 4, tetra_indices, 12, 5123, 1, NULL, &len);
+    char *lines = base64_encode(glb, len);
+    free(glb);
+    const char *b64[2] = {half, lines}, *want[2] = {"GLB truncated", "only TRIANGLES (4) is supported"};
+    for (int i = 0; i < 2; i++) {
+        char objects[2048];
+        snprintf(objects, sizeof objects, "[{\"shape\":\"mesh\",\"material\":\"wax\",\"glb_base64\":\"%s\"}]", b64[i]);
+        char *text = make_scene(NULL, NULL, objects, NULL, NULL);
+        scene_doc *doc = NULL;
+        scene_issues issues;
+        CHECK_INT(parse_text(text, NULL, &doc, &issues), NS_ERR_INVALID_ARGUMENT);
+        CHECK_INT(issues.total, 1);
+        const scene_issue *it = find_issue(&issues, "/objects/0/glb_base64");
+        CHECK(it != NULL);
+        if (it)
+            CHECK_STR_CONTAINS(it->detail, want[i]);
+        free(text);
+    }
+    free(half);
+    free(lines);
+}
+
+/* One more than each NS_MAX_* count is refused at the array or object holding them. */
+static void test_count_limits(void)
+{
+    const char *item[3] = {"{\"shape\":\"sphere\",\"center\":[0,0,0],\"radius\":1,\"material\":\"wax\"}",
+                           "{\"type\":\"point\",\"position\":[0,1,0],\"intensity\":1}",
+                           "\"m%d\":{\"type\":\"diffuse\",\"reflectance\":0.5}"};
+    const int count[3] = {NS_MAX_OBJECTS + 1, NS_MAX_LIGHTS + 1, NS_MAX_MATERIALS + 1};
+    const char *pointer[3] = {"/objects", "/lights", "/materials"};
+    for (int k = 0; k < 3; k++) {
+        size_t cap = (size_t)count[k] * 96 + 16;
+        char *list = malloc(cap);
+        size_t n = (size_t)snprintf(list, cap, k == 2 ? "{" : "[");
+        for (int i = 0; i < count[k]; i++) {
+            n += (size_t)snprintf(list + n, cap - n, "%s", i ? "," : "");
+            n += (size_t)snprintf(list + n, cap - n, item[k], i);
+        }
+        snprintf(list + n, cap - n, k == 2 ? "}" : "]");
+        char *text = make_scene(NULL, k == 2 ? list : NULL, k == 0 ? list : "[]", k == 1 ? list : NULL, NULL);
+        scene_doc *doc = NULL;
+        scene_issues issues;
+        CHECK_INT(parse_text(text, NULL, &doc, &issues), NS_ERR_INVALID_ARGUMENT);
+        const scene_issue *it = find_issue(&issues, pointer[k]);
+        CHECK(it != NULL);
+        if (it)
+            CHECK_STR_CONTAINS(it->detail, "over the limit");
+        free(text);
+        free(list);
+    }
+}
+
 /* A scene asking for components this build lacks, with the components left to default
  * (all four): refused with a pointer, never rendered without them. */
 static void test_default_components_reported(void)
@@ -865,6 +924,8 @@ int main(void)
     RUN(test_syntax_errors_have_line_and_column);
     RUN(test_deep_nesting);
     RUN(test_many_issues);
+    RUN(test_broken_glb_in_scene);
+    RUN(test_count_limits);
     RUN(test_default_components_reported);
     RUN(test_shipped_scenes_parse);
 
