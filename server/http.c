@@ -529,8 +529,10 @@ static void server_timing(const ns_render_stats *stats, char *out, size_t cap)
             continue;
         int w = snprintf(out + at, cap - at, "%s%s;dur=%.3f", at ? ", " : "", name,
                          stats->stages[i].ms);
-        if (w < 0 || (size_t)w >= cap - at)
+        if (w < 0 || (size_t)w >= cap - at) {
+            out[at] = 0; /* drop a metric that did not fit whole */
             break;
+        }
         at += (size_t)w;
     }
 }
@@ -687,7 +689,8 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
 {
     http_route route = route_for(url);
     long long length = content_length(conn);
-    if (route == ROUTE_RENDERS && length > 0 && (unsigned long long)length > srv->max_body)
+    if (route == ROUTE_RENDERS && !strcmp(method, MHD_HTTP_METHOD_POST) && length > 0 &&
+        (unsigned long long)length > srv->max_body)
         /* Without reading a byte of the body: MHD then closes the connection. */
         return send_problem_json(conn,
                                  problemf(413, "body_too_large",
