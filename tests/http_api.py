@@ -263,6 +263,29 @@ def test_garbage_bodies(t, srv):
     t.check(srv.request("GET", "/livez")[0] == 200, "alive after garbage bodies")
 
 
+def test_random_headers(t, srv):
+    """Random Accept and Content-Type values: a definite 2xx/4xx answer, never a crash."""
+    rng = random.Random(11)
+    alphabet = "abcdefghijklmnopqrstuvwxyz/*;=,.-+ \t\"'0123456789qQ"
+    body = json.dumps(small_scene(4, 4)).encode()
+    seeds = ["image/png", "image/x-exr", "application/json", "*/*", ";q=", "format=half",
+             "charset=utf-8"]
+    statuses = set()
+    for i in range(150):
+        parts = [rng.choice(seeds) if rng.random() < 0.5 else
+                 "".join(rng.choice(alphabet) for _ in range(rng.randrange(1, 20)))
+                 for _ in range(rng.randrange(1, 5))]
+        value = rng.choice([",", ";", " "]).join(parts).strip()
+        headers = {"Content-Type": "application/json", "Accept": value}
+        if i % 2:
+            headers = {"Content-Type": value}
+        status, h, data = srv.request("POST", "/v1/renders", body, headers)
+        statuses.add(status)
+        t.check(status in (200, 400, 406, 415), f"status {status} for headers {headers}")
+    t.check(len(statuses) >= 3, f"random headers reach several outcomes: {sorted(statuses)}")
+    t.equal(srv.request("GET", "/livez")[0], 200, "alive after random headers")
+
+
 def test_broken_requests(t, srv):
     cases = [
         # headers promise a body that never fully arrives, then the client goes away
@@ -346,7 +369,7 @@ def main():
                      test_invalid_scene_422, test_body_too_large_413, test_content_type_415,
                      test_not_acceptable_406, test_bad_query_400,
                      test_not_found_404_and_method_405, test_web_page, test_garbage_bodies,
-                     test_broken_requests, test_many_sequential_on_one_connection,
+                     test_random_headers, test_broken_requests, test_many_sequential_on_one_connection,
                      test_a_few_concurrent):
             t.run(test, srv)
         t.current = "end"
