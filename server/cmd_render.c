@@ -99,8 +99,10 @@ static int parse_render_args(int argc, char **argv, render_args *a, int *done)
             a->asset_dir = argv[++i];
         } else if (!strcmp(arg, "--exposure") && has_value) {
             if (parse_float_arg(argv[++i], &a->exposure)) {
-                fprintf(stderr, "nscatter render: --exposure '%s' is not a number of stops in "
-                                "[-64, 64]\n", argv[i]);
+                fprintf(stderr,
+                        "nscatter render: --exposure '%s' is not a number of stops in "
+                        "[-64, 64]\n",
+                        argv[i]);
                 return 2;
             }
             a->has_exposure = 1;

@@ -69,7 +69,7 @@ typedef struct http_request {
     encode_format format;
     char *body;
     size_t size, cap;
-    uint64_t drained; /* bytes read and thrown away after an early decision */
+    uint64_t drained;        /* bytes read and thrown away after an early decision */
     http_server *counted_in; /* set while this request counts in renders_in_flight */
     double started_ms;
 } http_request;
@@ -105,8 +105,8 @@ static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const 
     if (!text) {
         static const char fallback[] = "{\"title\": \"Internal Server Error\", \"status\": 500, "
                                        "\"code\": \"internal_error\"}\n";
-        return send_bytes(conn, 500, PROBLEM_CONTENT_TYPE, (void *)fallback,
-                          sizeof fallback - 1, MHD_RESPMEM_PERSISTENT, NULL);
+        return send_bytes(conn, 500, PROBLEM_CONTENT_TYPE, (void *)fallback, sizeof fallback - 1,
+                          MHD_RESPMEM_PERSISTENT, NULL);
     }
     size_t len = strlen(text);
     char *with_newline = realloc(text, len + 2);
@@ -271,8 +271,9 @@ static int negotiate_format(const char *accept, encode_format *format, char *exr
     int exr_ok = best[1].specificity && best[1].q > 0.0;
     if (!png_ok && !exr_ok)
         return -1;
-    int exr_wins = exr_ok && (!png_ok || best[1].q > best[0].q ||
-                              (best[1].q == best[0].q && best[1].specificity > best[0].specificity));
+    int exr_wins =
+        exr_ok && (!png_ok || best[1].q > best[0].q ||
+                   (best[1].q == best[0].q && best[1].specificity > best[0].specificity));
     *format = exr_wins ? ENCODE_EXR_FLOAT : ENCODE_PNG;
     if (exr_wins)
         snprintf(exr_param, exr_param_cap, "%s", best[1].format);
@@ -282,8 +283,8 @@ static int negotiate_format(const char *accept, encode_format *format, char *exr
 /* Content-Length as a number; -1 when absent (chunked), -2 when not a plain number. */
 static long long content_length(struct MHD_Connection *conn)
 {
-    const char *v = MHD_lookup_connection_value(conn, MHD_HEADER_KIND,
-                                                MHD_HTTP_HEADER_CONTENT_LENGTH);
+    const char *v =
+        MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     if (!v)
         return -1;
     v = skip_space(v);
@@ -306,8 +307,8 @@ static json_t *methods_json(void)
 {
     static const ns_method methods[] = {NS_METHOD_NN, NS_METHOD_TABLE, NS_METHOD_VRL,
                                         NS_METHOD_DIPOLE, NS_METHOD_PT};
-    const uint32_t all = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE |
-                         NS_COMPONENT_MULTIPLE;
+    const uint32_t all =
+        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     json_t *list = json_array();
     for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++) {
         uint32_t missing = ns_unsupported_components(methods[i], all);
@@ -331,9 +332,9 @@ static json_t *device_json(const http_server *srv)
     snprintf(api, sizeof api, "%u.%u.%u", d->api_version >> 22, (d->api_version >> 12) & 0x3ffu,
              d->api_version & 0xfffu);
     return json_pack("{s:s, s:s, s:s, s:s, s:I, s:I, s:b}", "name", d->device_name, "driver",
-                     d->driver_name, "driver_info", d->driver_info, "api_version", api,
-                     "vendor_id", (json_int_t)d->vendor_id, "device_id",
-                     (json_int_t)d->device_id, "is_cpu", d->is_cpu);
+                     d->driver_name, "driver_info", d->driver_info, "api_version", api, "vendor_id",
+                     (json_int_t)d->vendor_id, "device_id", (json_int_t)d->device_id, "is_cpu",
+                     d->is_cpu);
 }
 
 static json_t *info_json(const http_server *srv)
@@ -342,10 +343,9 @@ static json_t *info_json(const http_server *srv)
         "{s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I}", "max_body_bytes",
         (json_int_t)srv->max_body, "queue_capacity", (json_int_t)srv->queue_capacity,
         "max_image_side", (json_int_t)NS_MAX_IMAGE_SIDE, "max_pixels", (json_int_t)NS_MAX_PIXELS,
-        "max_spp", (json_int_t)NS_MAX_SPP, "max_depth", (json_int_t)NS_MAX_DEPTH,
-        "max_materials", (json_int_t)NS_MAX_MATERIALS, "max_objects",
-        (json_int_t)NS_MAX_OBJECTS, "max_lights", (json_int_t)NS_MAX_LIGHTS, "max_triangles",
-        (json_int_t)NS_MAX_TRIANGLES);
+        "max_spp", (json_int_t)NS_MAX_SPP, "max_depth", (json_int_t)NS_MAX_DEPTH, "max_materials",
+        (json_int_t)NS_MAX_MATERIALS, "max_objects", (json_int_t)NS_MAX_OBJECTS, "max_lights",
+        (json_int_t)NS_MAX_LIGHTS, "max_triangles", (json_int_t)NS_MAX_TRIANGLES);
     return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I}", "version", NS_VERSION, "ready",
                      srv->ctx != NULL, "device", device_json(srv), "limits", limits, "methods",
                      methods_json(), "formats", "image/png", "image/x-exr", "queue_length",
@@ -355,10 +355,9 @@ static json_t *info_json(const http_server *srv)
 static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_server *srv)
 {
     if (srv->ctx)
-        return send_json(conn, 200, "application/json",
-                         json_pack("{s:s, s:s}", "status", "ready", "device",
-                                   srv->device.device_name),
-                         NULL);
+        return send_json(
+            conn, 200, "application/json",
+            json_pack("{s:s, s:s}", "status", "ready", "device", srv->device.device_name), NULL);
     return send_problem_json(conn,
                              problemf(503, ns_status_name(srv->ctx_err.status),
                                       "render context not available: %s", srv->ctx_err.message),
@@ -413,8 +412,8 @@ static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const
 static json_t *check_render_headers(struct MHD_Connection *conn, const http_server *srv,
                                     http_request *req)
 {
-    const char *type = MHD_lookup_connection_value(conn, MHD_HEADER_KIND,
-                                                   MHD_HTTP_HEADER_CONTENT_TYPE);
+    const char *type =
+        MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
     if (!content_type_is_json(type))
         return problemf(415, "unsupported_media_type",
                         "Content-Type must be application/json (charset utf-8), got '%.100s'",
@@ -490,8 +489,8 @@ static json_t *issues_problem(const scene_issues *issues)
         if (strstr(what, "line"))
             snprintf(detail, sizeof detail, "%s", what);
         else
-            snprintf(detail, sizeof detail, "line %d, column %d: %s", issues->line,
-                     issues->column, what);
+            snprintf(detail, sizeof detail, "line %d, column %d: %s", issues->line, issues->column,
+                     what);
         json_t *p = problem_new(400, "malformed_json", detail);
         json_object_set_new(p, "line", json_integer(issues->line));
         json_object_set_new(p, "column", json_integer(issues->column));
@@ -560,9 +559,10 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
                          &(scene_parse_options){.asset_dir = srv->asset_dir}, &doc, issues);
     ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
     if (rc) {
-        json_t *p = rc == NS_ERR_INVALID_ARGUMENT
-                        ? issues_problem(issues)
-                        : problem_new(ns_status_http(rc), ns_status_name(rc), ns_status_message(rc));
+        json_t *p =
+            rc == NS_ERR_INVALID_ARGUMENT
+                ? issues_problem(issues)
+                : problem_new(ns_status_http(rc), ns_status_name(rc), ns_status_message(rc));
         free(issues);
         return send_problem_json(conn, p, NULL);
     }
@@ -605,19 +605,19 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     char device[256];
     header_safe(srv->device.device_name, device, sizeof device);
     if (job->status) {
-        json_t *p = problemf(ns_status_http(job->status), ns_status_name(job->status), "%s",
-                             job->err.message[0] ? job->err.message
-                                                 : ns_status_message(job->status));
+        json_t *p =
+            problemf(ns_status_http(job->status), ns_status_name(job->status), "%s",
+                     job->err.message[0] ? job->err.message : ns_status_message(job->status));
         const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
         ret = send_problem_json(conn, p, headers);
     } else {
         char timing[1024];
         server_timing(&job->stats, timing, sizeof timing);
-        const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device,
-                                 "Cache-Control", "no-store", NULL};
+        const char *headers[] = {
+            "Server-Timing", timing, HTTP_DEVICE_HEADER, device, "Cache-Control", "no-store", NULL};
         /* MHD frees the image with free() once sent (or when the client is gone). */
-        ret = send_bytes(conn, 200, encode_mime_type(job->format), job->image.data,
-                         job->image.size, MHD_RESPMEM_MUST_FREE, headers);
+        ret = send_bytes(conn, 200, encode_mime_type(job->format), job->image.data, job->image.size,
+                         MHD_RESPMEM_MUST_FREE, headers);
         job->image.data = NULL;
     }
     encode_buffer_free(&job->image);
@@ -643,8 +643,8 @@ static http_route route_for(const char *url)
     return ROUTE_NONE;
 }
 
-static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
-                                  http_route route, const char *url)
+static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv, http_route route,
+                                  const char *url)
 {
     switch (route) {
     case ROUTE_LIVEZ:
@@ -675,8 +675,8 @@ static json_t *check_route(http_route route, const char *url, const char *method
     }
     if (route == ROUTE_RENDERS && strcmp(method, MHD_HTTP_METHOD_POST)) {
         *allow = "POST";
-        return problemf(405, "method_not_allowed",
-                        "%.16s is not allowed on /v1/renders; use POST", method);
+        return problemf(405, "method_not_allowed", "%.16s is not allowed on /v1/renders; use POST",
+                        method);
     }
     return NULL;
 }
@@ -804,7 +804,9 @@ static int parse_unsigned(const char *text, unsigned long long max, unsigned lon
 
 static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
 {
-    *a = (serve_args){.host = "127.0.0.1", .port = 8080, .queue = HTTP_DEFAULT_QUEUE,
+    *a = (serve_args){.host = "127.0.0.1",
+                      .port = 8080,
+                      .queue = HTTP_DEFAULT_QUEUE,
                       .max_body = HTTP_DEFAULT_MAX_BODY};
     for (int i = 1; i < argc; i++) {
         const char *arg = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
@@ -824,7 +826,8 @@ static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
             a->host = value;
         } else if (!strcmp(arg, "--port")) {
             if (parse_unsigned(value, 65535, &n)) {
-                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n", value);
+                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n",
+                        value);
                 return 2;
             }
             a->port = (unsigned)n;
@@ -836,8 +839,10 @@ static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
             a->queue = (uint32_t)n;
         } else if (!strcmp(arg, "--max-body")) {
             if (parse_unsigned(value, 1ull << 32, &n) || n < 1) {
-                fprintf(stderr, "nscatter serve: --max-body '%s' is not a byte count "
-                                "1-4294967296\n", value);
+                fprintf(stderr,
+                        "nscatter serve: --max-body '%s' is not a byte count "
+                        "1-4294967296\n",
+                        value);
                 return 2;
             }
             a->max_body = n;
@@ -857,7 +862,8 @@ static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
 /* Resolves --host to one socket address (numeric or a name such as localhost). */
 static int resolve_host(const char *host, unsigned port, struct sockaddr_storage *addr)
 {
-    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM,
+    struct addrinfo hints = {.ai_family = AF_UNSPEC,
+                             .ai_socktype = SOCK_STREAM,
                              .ai_flags = AI_PASSIVE | AI_NUMERICSERV};
     struct addrinfo *res = NULL;
     char port_text[8];
@@ -885,8 +891,8 @@ static void make_context(http_server *srv, const char *device)
         return;
     }
     ns_context_device_info(srv->ctx, &srv->device);
-    fprintf(stderr, "nscatter serve: device %s (%s), ready in %.0f ms\n",
-            srv->device.device_name, srv->device.driver_name, ns_now_ms() - t0);
+    fprintf(stderr, "nscatter serve: device %s (%s), ready in %.0f ms\n", srv->device.device_name,
+            srv->device.driver_name, ns_now_ms() - t0);
 }
 
 /* Graceful stop: no new connections, renders already admitted are finished and answered
@@ -929,8 +935,8 @@ int cmd_serve(int argc, char **argv)
     pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
     signal(SIGPIPE, SIG_IGN);
 
-    http_server srv = {.max_body = args.max_body, .queue_capacity = args.queue,
-                       .asset_dir = args.asset_dir};
+    http_server srv = {
+        .max_body = args.max_body, .queue_capacity = args.queue, .asset_dir = args.asset_dir};
     make_context(&srv, args.device);
     if (srv.ctx && render_queue_create(srv.ctx, args.queue, &srv.queue, &srv.ctx_err)) {
         fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);

@@ -108,8 +108,7 @@ static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene
 }
 
 int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
-                   float exposure_stops, ns_render_stats *stats, encode_buffer *out,
-                   ns_error *err)
+                   float exposure_stops, ns_render_stats *stats, encode_buffer *out, ns_error *err)
 {
     out->data = NULL;
     out->size = 0;

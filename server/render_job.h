@@ -16,8 +16,7 @@
  * the encode. On success *out holds the bytes (free with encode_buffer_free); on failure
  * it is empty and err names the failing step. The rendered pixels are freed on every path. */
 int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
-                   float exposure_stops, ns_render_stats *stats, encode_buffer *out,
-                   ns_error *err);
+                   float exposure_stops, ns_render_stats *stats, encode_buffer *out, ns_error *err);
 
 /* {"stage": ms, ...} in the order the stages ran; a repeated name adds up. New reference. */
 json_t *render_stats_stages_json(const ns_render_stats *stats);

@@ -26,8 +26,8 @@ static void run_one(render_queue *q, render_request *req)
 {
     double start = ns_now_ms();
     ns_stats_add_stage(&req->stats, "queue", start - req->submitted_ms);
-    req->status = render_job_run(q->ctx, req->scene, req->format, req->exposure_stops,
-                                 &req->stats, &req->image, &req->err);
+    req->status = render_job_run(q->ctx, req->scene, req->format, req->exposure_stops, &req->stats,
+                                 &req->image, &req->err);
     double took = ns_now_ms() - start;
     pthread_mutex_lock(&q->lock);
     q->average_ms = q->average_ms > 0 ? 0.7 * q->average_ms + 0.3 * took : took;

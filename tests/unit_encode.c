@@ -150,7 +150,7 @@ static void test_srgb_known_values(void)
 {
     CHECK_INT(encode_srgb8(0.0f, 1.0f), 0);
     CHECK_INT(encode_srgb8(1.0f, 1.0f), 255);
-    CHECK_INT(encode_srgb8(0.5f, 1.0f), 188); /* 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 */
+    CHECK_INT(encode_srgb8(0.5f, 1.0f), 188);      /* 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 */
     CHECK_INT(encode_srgb8(0.0031308f, 1.0f), 10); /* end of the linear toe: 0.04045 */
     CHECK_INT(encode_srgb8(0.18f, 1.0f), 118);     /* mid grey: 0.4614 */
 }
@@ -194,9 +194,8 @@ static void test_png_rejects_bad_keyword(void)
 
 static void test_png_hostile_pixels_clamped(void)
 {
-    float rgb[6 * 3] = {NAN, INFINITY, -INFINITY, -1.0f, -0.0f, 1e30f,
-                        0.5f, 2.0f, 1e-30f, -NAN, 0.25f, FLT_MAX,
-                        1.0f, 0.0f, 0.5f, 0.1f, 0.2f, 0.3f};
+    float rgb[6 * 3] = {NAN,  INFINITY, -INFINITY, -1.0f, -0.0f, 1e30f, 0.5f, 2.0f, 1e-30f,
+                        -NAN, 0.25f,    FLT_MAX,   1.0f,  0.0f,  0.5f,  0.1f, 0.2f, 0.3f};
     ns_image img = {3, 2, rgb};
     encode_buffer buf;
     ns_error err = {0};
