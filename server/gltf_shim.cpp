@@ -20,6 +20,7 @@
 #pragma GCC diagnostic pop
 #endif
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -286,10 +287,41 @@ const char *mode_name(int mode)
     }
 }
 
+// Triangles are gathered straight into malloc'd memory, the form the C caller frees, so
+// that a large mesh is not held twice (a std::vector and then a copy).
+struct FloatBuffer {
+    float *data = nullptr;
+    size_t size = 0, capacity = 0;
+    FloatBuffer() = default;
+    FloatBuffer(const FloatBuffer &) = delete;
+    FloatBuffer &operator=(const FloatBuffer &) = delete;
+    ~FloatBuffer() { std::free(data); }
+
+    void reserve_more(size_t extra)
+    {
+        if (extra <= capacity - size)
+            return;
+        size_t want = std::max(size + extra, capacity * 2);
+        void *grown = std::realloc(data, want * sizeof(float));
+        if (!grown)
+            throw std::bad_alloc();
+        data = static_cast<float *>(grown);
+        capacity = want;
+    }
+    void push(float x) { data[size++] = x; } // after reserve_more
+    float *release()
+    {
+        float *p = data;
+        data = nullptr;
+        size = capacity = 0;
+        return p;
+    }
+};
+
 struct Flattener {
     const tinygltf::Model &model;
     size_t max_triangles;
-    std::vector<float> out; // 9 floats per triangle
+    FloatBuffer out; // 9 floats per triangle
     std::vector<char> visited;
 
     void add_primitive(const tinygltf::Primitive &prim, const Mat4 &world, size_t mesh_index)
@@ -321,14 +353,14 @@ struct Flattener {
             fail(NS_ERR_INVALID_ARGUMENT, where + ": " + std::to_string(corner_count) +
                                               " corners is not a whole number of triangles");
         size_t tris = corner_count / 3;
-        size_t have = out.size() / 9;
+        size_t have = out.size / 9;
         if (tris > max_triangles || have > max_triangles - tris)
             fail(NS_ERR_LIMIT, "the mesh has more than " + std::to_string(max_triangles) +
                                    " triangles (the limit left for this scene)");
         // A mirroring transform turns counter-clockwise into clockwise; swap two corners
         // so that the outside stays outside.
         bool mirrored = det3(world) < 0;
-        out.reserve(out.size() + tris * 9);
+        out.reserve_more(tris * 9);
         for (size_t t = 0; t < tris; t++) {
             for (int c = 0; c < 3; c++) {
                 int corner = mirrored && c > 0 ? 3 - c : c;
@@ -346,7 +378,7 @@ struct Flattener {
                     if (!std::isfinite(w) || std::fabs(w) > 3.0e38)
                         fail(NS_ERR_INVALID_ARGUMENT, where + ": vertex " + std::to_string(vi) +
                                                           " is not finite after its node transform");
-                    out.push_back(float(w));
+                    out.push(float(w));
                 }
             }
         }
@@ -396,7 +428,7 @@ struct Flattener {
             for (int root : model.scenes[scene].nodes)
                 add_node(root, identity(), 0);
         }
-        if (out.empty())
+        if (out.size == 0)
             fail(NS_ERR_INVALID_ARGUMENT, "the glTF holds no triangles in its scene");
     }
 };
@@ -418,7 +450,8 @@ std::string one_line(std::string s)
     return s;
 }
 
-void load(const unsigned char *b, size_t len, size_t max_triangles, std::vector<float> *out)
+// Returns the malloc'd triangles; *count is their number.
+float *load(const unsigned char *b, size_t len, size_t max_triangles, size_t *count)
 {
     if (len > GLTF_MAX_BYTES)
         fail(NS_ERR_LIMIT, "glTF data of " + std::to_string(len) + " bytes is over the " +
@@ -446,7 +479,8 @@ void load(const unsigned char *b, size_t len, size_t max_triangles, std::vector<
              "invalid glTF: " + one_line(err.empty() ? std::string("tinygltf refused it") : err));
     Flattener f{model, max_triangles, {}, {}};
     f.run();
-    out->swap(f.out);
+    *count = f.out.size / 9;
+    return f.out.release();
 }
 
 void copy_message(char *dst, size_t cap, const std::string &msg)
@@ -470,16 +504,9 @@ extern "C" int gltf_load(const void *bytes, size_t len, size_t max_triangles,
         return NS_ERR_INVALID_ARGUMENT;
     }
     try {
-        std::vector<float> tris;
-        load(static_cast<const unsigned char *>(bytes), len, max_triangles, &tris);
-        float *copy = static_cast<float *>(std::malloc(tris.size() * sizeof(float)));
-        if (!copy) {
-            copy_message(err, errlen, "out of memory copying the triangles");
-            return NS_ERR_OUT_OF_HOST_MEMORY;
-        }
-        std::memcpy(copy, tris.data(), tris.size() * sizeof(float));
-        *positions_out = copy;
-        *triangle_count = tris.size() / 9;
+        size_t count = 0;
+        *positions_out = load(static_cast<const unsigned char *>(bytes), len, max_triangles, &count);
+        *triangle_count = count;
         copy_message(err, errlen, "");
         return 0;
     } catch (const LoadError &e) {
