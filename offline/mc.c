@@ -571,10 +571,13 @@ static void compute_moments(const ns_mc_desc *desc, const batch_stats *b, uint64
     event_mean(b, nb, order, offsetof(order_sums, z), &m->z, &m->z_se);
     event_mean(b, nb, order, offsetof(order_sums, cos_theta), &m->cos_theta, &m->cos_theta_se);
     event_mean(b, nb, order, offsetof(order_sums, r2), &m->r2, &m->r2_se);
-    double total = 0.0;
-    for (uint64_t i = 0; i < nb; i++)
+    double total = 0.0, inside = 0.0;
+    for (uint64_t i = 0; i < nb; i++) {
         total += b[i].sums[order].events;
+        inside += b[i].sums[order].in_table;
+    }
     m->events = (uint64_t)total;
+    m->events_in_table = (uint64_t)inside;
 }
 
 /* =======================================================================================
@@ -712,22 +715,37 @@ static int allocate_result(const ns_mc_desc *desc, ns_mc_result *out, ns_error *
     return NS_OK;
 }
 
-static void fill_table(const ns_mc_desc *desc, ns_mc_result *out, int order, unsigned threads)
+/* Every deposit of an order carries the same energy: a^2 (double) or a^3 (multiple). */
+static double energy_per_deposit(int order, double albedo)
+{
+    return order == NS_ORDER_DOUBLE ? albedo * albedo : albedo * albedo * albedo;
+}
+
+static void fill_table(ns_mc_result *out, int order, double albedo)
 {
     ns_table *t = &out->table[order];
     t->order = (ns_order)order;
-    t->g = desc->g;
-    t->albedo = desc->albedo;
-    t->photons = desc->photons;
-    t->seed = desc->seed;
-    t->energy_expected = ns_mc_expected_energy((ns_order)order, desc->albedo);
-    double per_count = order == NS_ORDER_DOUBLE
-                           ? desc->albedo * desc->albedo
-                           : desc->albedo * desc->albedo * desc->albedo;
+    t->albedo = albedo;
+    t->energy_expected = ns_mc_expected_energy((ns_order)order, albedo);
     convolve_job cj = {.counts = out->counts[order], .lobe = out->lobe, .table = t,
-                       .scale = per_count / (double)desc->photons};
-    parallel_for(threads - 1, SPATIAL_BINS, convolve_spatial_bin, &cj);
+                       .scale = energy_per_deposit(order, albedo) / (double)t->photons};
+    parallel_for(out->threads - 1, SPATIAL_BINS, convolve_spatial_bin, &cj);
     t->energy_captured = ns_table_energy(t);
+}
+
+int ns_mc_result_set_double_albedo(ns_mc_result *r, double albedo, ns_error *err)
+{
+    if (!r->counts[NS_ORDER_DOUBLE])
+        return fail(err, NS_ERR_INVALID_ARGUMENT, "mc: no double-scattering histogram", 0.0);
+    if (!(albedo >= 0.0 && albedo < 1.0))
+        return fail(err, NS_ERR_INVALID_ARGUMENT, "--albedo: %g is outside [0, 1)", albedo);
+    ns_mc_moments *m = &r->moments[NS_ORDER_DOUBLE];
+    double per_photon = energy_per_deposit(NS_ORDER_DOUBLE, albedo) /
+                        (double)r->table[NS_ORDER_DOUBLE].photons;
+    m->energy = per_photon * (double)m->events;
+    m->energy_in_table = per_photon * (double)m->events_in_table;
+    fill_table(r, NS_ORDER_DOUBLE, albedo);
+    return NS_OK;
 }
 
 int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
@@ -777,17 +795,20 @@ int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
                           out->lobe);
     double t2 = now_seconds();
 
+    out->threads = threads;
     for (int o = 0; o < 2; o++) {
         if (!(desc->orders & (1u << o)))
             continue;
         compute_moments(desc, job.batches, job.batch_count, o, &out->moments[o]);
-        fill_table(desc, out, o, threads);
+        out->table[o].g = desc->g;
+        out->table[o].photons = desc->photons;
+        out->table[o].seed = desc->seed;
+        fill_table(out, o, desc->albedo);
     }
     for (uint64_t b = 0; b < job.batch_count; b++)
         out->collisions += job.batches[b].collisions;
     free(job.batches);
     out->batches = job.batch_count;
-    out->threads = threads;
     out->trace_seconds = t1 - t0;
     out->lobe_seconds = t2 - t1;
     out->total_seconds = now_seconds() - t0;

@@ -73,6 +73,7 @@ typedef struct ns_mc_moments {
     double cos_theta, cos_theta_se; /* mean cosine of the emitted direction with +z */
     double r2, r2_se;               /* mean squared distance of the events */
     uint64_t events;                /* deposits traced (in and out of the table) */
+    uint64_t events_in_table;       /* those inside the table's bins */
 } ns_mc_moments;
 
 typedef struct ns_mc_result {
@@ -91,6 +92,12 @@ typedef struct ns_mc_result {
  * ns_mc_result_free. */
 int ns_mc_run(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err);
 void ns_mc_result_free(ns_mc_result *r);
+
+/* Double scattering depends on the albedo only through the factor a^2: events 1 and 2
+ * never absorb (implicit capture), so the photon paths, hence the histogram, are the same
+ * for every albedo. This recomputes the double table and its energies of *r for another
+ * albedo, so one simulation serves every albedo of a g (the grid does this). */
+int ns_mc_result_set_double_albedo(ns_mc_result *r, double albedo, ns_error *err);
 
 /* Validates the physical parameters; the message names the argument (--g, --albedo...). */
 int ns_mc_check_desc(const ns_mc_desc *desc, ns_error *err);

@@ -20,7 +20,7 @@ static const double grid_albedo_default[] = {0.01, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6,
                                              0.7,  0.8, 0.9, 0.95, 0.99, 0.995, 0.999};
 #define GRID_MAX_VALUES 64
 /* Collisions traced per table in grid mode: sets the noise (docs/montecarlo.md). */
-#define GRID_DEFAULT_COLLISIONS 5e7
+#define GRID_DEFAULT_COLLISIONS 8e7
 #define PREFIX_CAP 4000
 
 static const char usage_text[] =
@@ -34,7 +34,8 @@ static const char usage_text[] =
     "Monte Carlo J tables (DESIGN.md sections 2-3): PREFIX.npy + PREFIX.json per order\n"
     "(--order both writes PREFIX_double.* and PREFIX_multiple.*). Grid mode writes\n"
     "DIR/g<G>_a<A>_<order>.* for every material, skips finished tables (resumable) and\n"
-    "spends C collisions per table (default 5e7). LIST: comma-separated numbers.\n";
+    "spends C collisions per simulation (default 8e7): one per multiple table,\n"
+    "one per g for all the double tables (double scattering scales as a^2). LIST: comma-separated numbers.\n";
 
 typedef struct {
     int grid, benchmark, quiet;
@@ -263,6 +264,7 @@ static void print_summary(const char *prefix, const ns_mc_result *r, ns_order o)
            t->energy_captured, t->energy_expected,
            t->energy_expected > 0 ? 100.0 * t->energy_captured / t->energy_expected : 100.0,
            r->total_seconds, (double)r->collisions / fmax(r->trace_seconds, 1e-9));
+    fflush(stdout); /* a grid's log shows each table as it finishes */
 }
 
 static int write_tables(const ns_mc_result *r, const char *base, unsigned orders)
@@ -335,7 +337,9 @@ typedef struct {
     ns_order order;
     char prefix[PREFIX_CAP];
     uint64_t photons;
-    double cost; /* expected collisions */
+    double cost;     /* expected collisions of its simulation */
+    double cost_now; /* what it costs in this run (0 if finished or shared) */
+    int complete;
 } grid_item;
 
 static uint64_t grid_photons(double collisions, ns_order order, double albedo)
@@ -371,15 +375,33 @@ static int grid_validate(const mc_options *o)
     return 0;
 }
 
+/* Marks finished tables and what the rest will cost. Double scattering is traced once per
+ * g (ns_mc_result_set_double_albedo makes every albedo's table from it), so only the first
+ * unfinished double table of each g costs collisions. */
+static double plan_grid(grid_item *items, int count, int *pending)
+{
+    double total = 0.0, double_g = NAN;
+    *pending = 0;
+    for (int i = 0; i < count; i++) {
+        grid_item *it = &items[i];
+        it->complete = ns_table_is_complete(it->prefix);
+        it->cost_now = 0.0;
+        if (it->complete)
+            continue;
+        (*pending)++;
+        if (it->order == NS_ORDER_MULTIPLE || !(double_g == it->g))
+            it->cost_now = it->cost;
+        if (it->order == NS_ORDER_DOUBLE)
+            double_g = it->g;
+        total += it->cost_now;
+    }
+    return total;
+}
+
 static int run_grid_items(const mc_options *o, grid_item *items, int count)
 {
-    double total = 0.0, done = 0.0;
     int pending = 0;
-    for (int i = 0; i < count; i++)
-        if (!ns_table_is_complete(items[i].prefix)) {
-            total += items[i].cost;
-            pending++;
-        }
+    double total = plan_grid(items, count, &pending), done = 0.0;
     fprintf(stderr, "nscatter mc: grid of %d tables, %d already complete, %d to do (%.3g collisions)\n",
             count, count - pending, pending, total);
     progress_state prog = {.enabled = !o->quiet && isatty(STDERR_FILENO),
@@ -389,40 +411,54 @@ static int run_grid_items(const mc_options *o, grid_item *items, int count)
         fprintf(stderr, "nscatter mc: out of memory\n");
         return 1;
     }
-    double lobe_g = NAN;
-    for (int i = 0; i < count; i++) {
+    double lobe_g = NAN, double_g = NAN;
+    ns_mc_result doubles = {0}; /* the double-scattering simulation of g = double_g */
+    int rc = 0;
+    for (int i = 0; i < count && !rc; i++) {
         grid_item *it = &items[i];
-        if (ns_table_is_complete(it->prefix))
+        if (it->complete)
             continue;
+        ns_error err = {0};
+        if (it->order == NS_ORDER_DOUBLE && double_g == it->g) {
+            rc = ns_mc_result_set_double_albedo(&doubles, it->albedo, &err);
+            if (!rc)
+                rc = write_tables(&doubles, it->prefix, NS_MC_WANT_DOUBLE);
+            continue;
+        }
         if (!(lobe_g == it->g)) { /* items are sorted by g: one lobe matrix per g */
             ns_mc_lobe_matrix(it->g, o->lobe_in, o->lobe_out, o->threads, lobe);
             lobe_g = it->g;
         }
         ns_mc_desc desc = {.g = it->g, .albedo = it->albedo, .photons = it->photons,
                            .seed = o->seed, .orders = 1u << it->order, .threads = o->threads,
-                           .lobe = lobe, .progress = progress_print, .progress_user = &prog};
+                           .lobe = lobe, .lobe_in_samples = o->lobe_in,
+                           .lobe_out_samples = o->lobe_out, .progress = progress_print,
+                           .progress_user = &prog};
         char label[64];
         snprintf(label, sizeof label, "g=%g a=%g %s", it->g, it->albedo, ns_order_name(it->order));
         prog.label = label;
         prog.work_before = done;
-        prog.work_this = it->cost;
+        prog.work_this = it->cost_now;
         ns_mc_result r;
-        ns_error err = {0};
-        int rc = ns_mc_run(&desc, &r, &err);
-        if (!rc)
-            rc = write_tables(&r, it->prefix, desc.orders);
-        else
-            fprintf(stderr, "\nnscatter mc: %s: %s\n", it->prefix, err.message);
-        ns_mc_result_free(&r);
+        rc = ns_mc_run(&desc, &r, &err);
         if (rc) {
-            free(lobe);
-            return rc;
+            fprintf(stderr, "\nnscatter mc: %s: %s\n", it->prefix, err.message);
+            break;
         }
-        done += it->cost;
+        rc = write_tables(&r, it->prefix, desc.orders);
+        if (it->order == NS_ORDER_DOUBLE) {
+            ns_mc_result_free(&doubles);
+            doubles = r; /* kept for the other albedos of this g */
+            double_g = it->g;
+        } else {
+            ns_mc_result_free(&r);
+        }
+        done += it->cost_now;
     }
     progress_end(&prog);
+    ns_mc_result_free(&doubles);
     free(lobe);
-    return 0;
+    return rc;
 }
 
 static int run_grid(mc_options *o)
@@ -540,14 +576,17 @@ static int run_benchmark(const mc_options *o)
     size_t ng = sizeof grid_g_default / sizeof grid_g_default[0];
     size_t na = sizeof grid_albedo_default / sizeof grid_albedo_default[0];
     double tables = 2.0 * (double)ng * (double)na;
+    double simulations = (double)ng * (double)na + (double)ng; /* one double run per g */
     unsigned cores = ns_mc_default_threads();
-    double trace_s = tables * GRID_DEFAULT_COLLISIONS / (per_core * cores);
+    double trace_s = simulations * GRID_DEFAULT_COLLISIONS / (per_core * cores);
     double grid_s = trace_s + tables * overhead + (double)ng * lobe_s;
     printf("lobe matrix (default quality): %.2f s per g; per-table convolution + write: %.2f s\n",
            lobe_s, overhead);
-    printf("expected grid time (extrapolated): %.0f tables x %.3g collisions at %.4g "
-           "collisions/s/core x %u cores = %.0f s tracing, %.0f s in all (%.2f h)\n",
-           tables, GRID_DEFAULT_COLLISIONS, per_core, cores, trace_s, grid_s, grid_s / 3600.0);
+    printf("expected grid time (extrapolated): %.0f tables from %.0f simulations x %.3g "
+           "collisions at %.4g collisions/s/core x %u cores = %.0f s tracing, %.0f s in all "
+           "(%.2f h)\n",
+           tables, simulations, GRID_DEFAULT_COLLISIONS, per_core, cores, trace_s, grid_s,
+           grid_s / 3600.0);
     return 0;
 }
 

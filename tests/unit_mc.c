@@ -324,6 +324,28 @@ static void test_seed_changes_table(void)
     ns_mc_result_free(&r2);
 }
 
+/* Double scattering depends on the albedo only through a^2 (implicit capture at events 1
+ * and 2): the histogram of a double-only run is the same for every albedo, and rescaling a
+ * result to another albedo gives exactly the table a run at that albedo gives. */
+static void test_double_albedo_rescale(void)
+{
+    ns_mc_result r3, r9;
+    CHECK(run_mc(0.4, 0.3, 20000, NS_MC_WANT_DOUBLE, 2, 2, 8, &r3) == 0);
+    CHECK(run_mc(0.4, 0.9, 20000, NS_MC_WANT_DOUBLE, 2, 2, 8, &r9) == 0);
+    size_t cells = (size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR;
+    CHECK(memcmp(r3.counts[0], r9.counts[0], cells * sizeof(uint64_t)) == 0);
+    ns_error err;
+    CHECK(ns_mc_result_set_double_albedo(&r3, 0.9, &err) == 0);
+    CHECK(memcmp(r3.table[0].data, r9.table[0].data, ns_table_size(&r9.table[0]) * sizeof(float)) == 0);
+    CHECK(r3.table[0].albedo == 0.9);
+    CHECK_REL(r3.table[0].energy_expected, 0.81, 1e-12);
+    CHECK_REL(r3.table[0].energy_captured, r9.table[0].energy_captured, 1e-12);
+    CHECK_REL(r3.moments[0].energy, 0.81, 1e-12);
+    CHECK(ns_mc_result_set_double_albedo(&r3, 1.0, &err) != 0);
+    ns_mc_result_free(&r3);
+    ns_mc_result_free(&r9);
+}
+
 /* The lobe matrix conserves energy and has the HG mean cosine: for an incoming bin, the
  * emitted mean cosine with +z is g times the incoming one (addition theorem of HG). */
 static void test_lobe_matrix(void)
@@ -364,5 +386,6 @@ int main(void)
     RUN(test_double_against_beam_integral);
     RUN(test_thread_count_invariance);
     RUN(test_seed_changes_table);
+    RUN(test_double_albedo_rescale);
     return harness_report();
 }
