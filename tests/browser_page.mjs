@@ -214,13 +214,15 @@ async function run() {
         JSON.stringify(scene.materials[name]));
       check('g slider shows the preset g (milk: 0.70)', (await page.locator('#g-out').innerText()) === '0.70');
       await page.locator('#g').fill('0.3');
+      await page.locator('#exposure').fill('1.5');
       await page.locator('#width').fill('96');
       await page.locator('#width').press('Tab');
       await page.locator('#height').fill('64');
       await page.locator('#height').press('Tab');
       scene = JSON.parse(await page.locator('#editor').inputValue());
-      check('sliders and size fields write g, width, height', scene.materials[name].g === 0.3 && scene.camera.width === 96 && scene.camera.height === 64,
-        `g ${scene.materials[name].g}, size ${scene.camera.width}x${scene.camera.height}`);
+      check('sliders and size fields write g, exposure, width, height', scene.materials[name].g === 0.3 && scene.render.exposure === 1.5
+        && scene.camera.width === 96 && scene.camera.height === 64,
+        `g ${scene.materials[name].g}, exposure ${scene.render.exposure}, size ${scene.camera.width}x${scene.camera.height}`);
       await renderAndWait(page, { via: 'keyboard' });
       const problemHidden = await page.locator('#problem').isHidden();
       check('Ctrl+Enter renders the edited scene', problemHidden && (await historyCount(page)) === 2,

@@ -16,20 +16,24 @@
 /* Kept identical to scenes/default.json: tests/browser_page.mjs compares the editor's
  * initial text with that file, so edit both together. */
 const DEFAULT_SCENE = {
-  camera: { position: [0, 2, 6], look_at: [0, 0, 0], up: [0, 1, 0], fov: 30, width: 256, height: 256 },
+  version: 1,
+  camera: { position: [0, 1.6, 6], look_at: [0, -0.1, 0], up: [0, 1, 0], fov: 40, width: 256, height: 256 },
   materials: {
-    floor: { type: 'diffuse', reflectance: [0.5, 0.5, 0.5] },
-    wax: { type: 'medium', albedo: [0.98, 0.962, 0.75], mfp: [0.65, 0.63, 0.59], g: 0.8, ior: 1.45 },
+    floor: { type: 'diffuse', reflectance: [0.6, 0.6, 0.6] },
+    clay: { type: 'diffuse', reflectance: [0.7, 0.25, 0.15] },
+    wax: { type: 'medium', preset: 'candle', ior: 1.45 },
   },
   objects: [
-    { shape: 'sphere', center: [0, 0, 0], radius: 1, material: 'wax' },
     { shape: 'plane', point: [0, -1, 0], normal: [0, 1, 0], material: 'floor' },
+    { shape: 'sphere', center: [-0.6, 0, 0], radius: 1, material: 'wax' },
+    { shape: 'box', min: [1.0, -1, -0.6], max: [2.0, 0.2, 0.4], material: 'clay' },
   ],
   lights: [
-    { type: 'directional', direction: [0, -1, -1], irradiance: [2, 2, 2] },
-    { type: 'environment', radiance: [0.2, 0.2, 0.2] },
+    { type: 'directional', direction: [-0.4, -1, -0.6], irradiance: [2.5, 2.4, 2.2] },
+    { type: 'sphere', center: [2.5, 3.5, 2.5], radius: 0.3, radiance: [20, 20, 20] },
+    { type: 'environment', radiance: [0.25, 0.3, 0.4] },
   ],
-  render: { method: 'nn', components: ['surface'], spp: 1, seed: 1, max_depth: 8 },
+  render: { method: 'nn', components: ['surface'], spp: 4, seed: 1, max_depth: 8, exposure: 0 },
 };
 
 /* The paper's Table 1 (Ge et al. 2021): albedo and mean free path per RGB channel, g, ior.
@@ -282,6 +286,7 @@ const controls = {
   width: $('width'),
   height: $('height'),
   spp: $('spp'),
+  exposure: $('exposure'),
   components: Array.from(document.querySelectorAll('input[name=component]')),
 };
 
@@ -332,6 +337,8 @@ function readControls() {
   controls.height.value = Number.isFinite(camera.height) ? camera.height : '';
   const render = scene.render || {};
   controls.spp.value = Number.isFinite(render.spp) ? render.spp : '';
+  const exposure = Number.isFinite(render.exposure) ? render.exposure : 0;
+  setSlider(controls.exposure, exposure, exposure.toFixed(1));
   const components = Array.isArray(render.components) ? render.components : [];
   for (const box of controls.components) box.checked = components.includes(box.value);
 }
@@ -386,7 +393,7 @@ function onPresetChange() {
 function onSliderInput(event) {
   const input = event.target;
   const v = Number(input.value);
-  const display = input === controls.scale ? String(scaleFromSlider(v)) : v.toFixed(2);
+  const display = input === controls.scale ? String(scaleFromSlider(v)) : v.toFixed(input === controls.exposure ? 1 : 2);
   setSlider(input, input.value, display);
 }
 
@@ -397,6 +404,14 @@ function onSliderChange(event) {
   editScene((scene) => {
     const material = selectedMaterial(scene);
     if (material) material[key] = value;
+  });
+}
+
+function onExposureChange() {
+  const value = Number(Number(controls.exposure.value).toFixed(1));
+  editScene((scene) => {
+    scene.render = scene.render && typeof scene.render === 'object' ? scene.render : {};
+    scene.render.exposure = value;
   });
 }
 
@@ -672,7 +687,7 @@ function showTimings(entry) {
   const longest = Math.max(1e-9, ...stages.map((t) => (Number.isFinite(t.dur) ? t.dur : 0)));
   body.replaceChildren(...stages.map((t) => {
     const width = Number.isFinite(t.dur) ? (100 * t.dur) / longest : 0;
-    const bar = el('div', { class: 'bar' });
+    const bar = el('div', { class: 'meter' });
     bar.style.width = `${width.toFixed(1)}%`;
     return el('tr', {},
       el('th', { scope: 'row', textContent: t.desc ? `${t.name} (${t.desc})` : t.name }),
@@ -815,6 +830,8 @@ function init() {
   controls.height.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { camera(s).height = v; }));
   controls.spp.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { settings(s).spp = v; }));
   for (const box of controls.components) box.addEventListener('change', onComponentsChange);
+  controls.exposure.addEventListener('input', onSliderInput);
+  controls.exposure.addEventListener('change', onExposureChange);
 
   $('zoom').addEventListener('change', applyZoom);
   $('download-png').addEventListener('click', () => shownEntry && downloadBlob(shownEntry.blob, 'png'));
