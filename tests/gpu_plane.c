@@ -182,6 +182,65 @@ static void test_environment_occlusion(void)
     }
 }
 
+/* The point light's shadow ray crosses an index-matched absorbing sphere on its way down:
+ * the pixel below gets rho/pi I / h^2 exp(-sigma_t 2r); a glass (ior 1.5) sphere there
+ * blocks it completely (this pass does not follow caustics). */
+static void test_shadow_through_index_matched_medium(void)
+{
+    const double I[3] = {10, 20, 5}, h = 3.0, sigma_s[3] = {0.2, 0.0, 0.0}, sigma_a[3] = {0.3, 0.7, 0.0};
+    for (int glass = 0; glass < 2; glass++) {
+        ns_scene s = base_scene(33, 33, 2);
+        set3(s.camera.position, 4, 3, 0);
+        set3(s.camera.look_at, 0, 0, 0);
+        ns_material m[2] = {diffuse(rho[0], rho[1], rho[2]), medium(sigma_s, sigma_a, glass ? 1.5 : 1.0)};
+        ns_object objects[2] = {plane(0, 0), sphere(0, 1.5, 0, 0.5, 1)};
+        ns_light l = light(NS_LIGHT_POINT, I[0], I[1], I[2]);
+        set3(l.position, 0, h, 0);
+        s.materials = m;
+        s.material_count = 2;
+        s.objects = objects;
+        s.object_count = 2;
+        s.lights = &l;
+        s.light_count = 1;
+        ns_image img = {0};
+        if (!render_ok(&s, &img, NULL))
+            return;
+        for (int k = 0; k < 3; k++) {
+            double want = glass ? 0.0 : rho[k] / M_PI * I[k] / (h * h) * exp(-(sigma_s[k] + sigma_a[k]) * 1.0);
+            CHECK_NEAR(pixel_at(&img, 16, 16)[k], want, 2e-3 * rho[k] / M_PI * I[k] / (h * h));
+        }
+        ns_image_free(&img);
+    }
+}
+
+/* The same seed gives the same image bit for bit; another seed gives other noise. */
+static void test_seed_determinism(void)
+{
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object objects[2] = {plane(0, 0), sphere(0, 1, 0, 1, 0)};
+    ns_light l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
+    ns_scene s = base_scene(24, 24, 60);
+    set3(s.camera.position, 0, 4, 6);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = objects;
+    s.object_count = 2;
+    s.lights = &l;
+    s.light_count = 1;
+    ns_image a = {0}, b = {0}, c = {0};
+    if (!render_ok(&s, &a, NULL) || !render_ok(&s, &b, NULL))
+        return;
+    s.render.seed++;
+    if (!render_ok(&s, &c, NULL))
+        return;
+    size_t bytes = sizeof(float) * 3 * 24 * 24;
+    CHECK(memcmp(a.rgb, b.rgb, bytes) == 0);
+    CHECK(memcmp(a.rgb, c.rgb, bytes) != 0);
+    ns_image_free(&a);
+    ns_image_free(&b);
+    ns_image_free(&c);
+}
+
 /* The default device is lavapipe, and the context says so. */
 static void test_device_info(void)
 {
@@ -203,6 +262,8 @@ int main(void)
     RUN(test_point_light);
     RUN(test_sphere_light);
     RUN(test_environment_occlusion);
+    RUN(test_shadow_through_index_matched_medium);
+    RUN(test_seed_determinism);
     ns_context_destroy(test_context());
     return harness_report();
 }
