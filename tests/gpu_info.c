@@ -1,0 +1,68 @@
+/* gpu_info.c — `nscatter info`: the default device (lavapipe) and its driver, as text and
+ * as JSON; exit 1 with a message naming the problem when the asked-for device does not
+ * exist; exit 2 on bad usage. Runs the real binary ($NSCATTER_BIN, set by ctest). */
+#include <stdio.h>
+#include <stdlib.h>
+#include <sys/wait.h>
+
+#include "harness.h"
+
+/* Runs `$NSCATTER_BIN args 2>&1`, returns the exit status and the output in out. */
+static int run(const char *args, char *out, size_t size)
+{
+    const char *bin = getenv("NSCATTER_BIN");
+    char cmd[1024];
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", bin ? bin : "nscatter", args);
+    FILE *p = popen(cmd, "r");
+    if (!p)
+        return -1;
+    size_t n = fread(out, 1, size - 1, p);
+    out[n] = '\0';
+    int status = pclose(p);
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+}
+
+static void test_text(void)
+{
+    char out[4096];
+    CHECK_INT(run("info", out, sizeof out), 0);
+    CHECK_STR_CONTAINS(out, "device:       llvmpipe");
+    CHECK_STR_CONTAINS(out, "type:         cpu");
+    CHECK_STR_CONTAINS(out, "driver:");
+    CHECK_STR_CONTAINS(out, "api version:  1.");
+}
+
+static void test_json(void)
+{
+    char out[4096];
+    CHECK_INT(run("info --json --device llvmpipe", out, sizeof out), 0);
+    CHECK_STR_CONTAINS(out, "\"device\":\"llvmpipe");
+    CHECK_STR_CONTAINS(out, "\"is_cpu\":true");
+    CHECK_STR_CONTAINS(out, "\"api_version\":\"1.");
+}
+
+static void test_missing_device(void)
+{
+    char out[4096];
+    CHECK_INT(run("info --device no-such-gpu-anywhere", out, sizeof out), 1);
+    CHECK_STR_CONTAINS(out, "no Vulkan device named like 'no-such-gpu-anywhere'");
+    CHECK_INT(run("info --device 99", out, sizeof out), 1);
+    CHECK_STR_CONTAINS(out, "device index 99 out of range");
+}
+
+static void test_bad_usage(void)
+{
+    char out[4096];
+    CHECK_INT(run("info --frobnicate", out, sizeof out), 2);
+    CHECK_STR_CONTAINS(out, "usage: nscatter info");
+    CHECK_INT(run("info --device", out, sizeof out), 2);
+}
+
+int main(void)
+{
+    RUN(test_text);
+    RUN(test_json);
+    RUN(test_missing_device);
+    RUN(test_bad_usage);
+    return harness_report();
+}
