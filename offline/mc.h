@@ -29,10 +29,11 @@
 #include "nscatter.h"
 #include "table_io.h"
 
-/* Default binning. Spatial edges follow 0.5 sinh(c i): ~0.05 mfp wide at the source,
- * ~10% of the distance far away, reaching NS_MC_EXTENT in rho and in both directions of z.
+/* Default binning. Spatial edges follow 0.5 sinh(c i): ~0.056 mfp wide at the source,
+ * ~11% of the distance far away, reaching NS_MC_EXTENT in rho and in both directions of z
+ * (400 mfp: the light of a = 0.999, g = 0.9 reaches well beyond 200).
  * Angular bins are 10 degrees wide in theta and phi. */
-#define NS_MC_EXTENT 200.0
+#define NS_MC_EXTENT 400.0
 #define NS_MC_SINH_SCALE 0.5
 #define NS_MC_NZ 128 /* 64 below z = 0, 64 above */
 #define NS_MC_NRHO 64

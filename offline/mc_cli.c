@@ -258,12 +258,16 @@ static int table_prefix(char *out, size_t cap, const char *base, unsigned orders
 static void print_summary(const char *prefix, const ns_mc_result *r, ns_order o)
 {
     const ns_table *t = &r->table[o];
-    printf("%s: %s g=%g albedo=%g photons=%llu energy captured %.6g of %.6g (%.2f%%), "
-           "%.1f s, %.3g collisions/s\n",
+    const ns_mc_moments *m = &r->moments[o];
+    /* Inside the bins, as a share of the energy these photons emitted: the truncation of
+     * the table without the photon noise of the total. */
+    double inside = m->energy > 0 ? 100.0 * m->energy_in_table / m->energy : 100.0;
+    printf("%s: %s g=%g albedo=%g photons=%llu energy captured %.6g of %.6g (%.2f%%; "
+           "%.2f%% of the traced energy), %.1f s, %.3g collisions/s\n",
            prefix, ns_order_name(o), t->g, t->albedo, (unsigned long long)t->photons,
            t->energy_captured, t->energy_expected,
            t->energy_expected > 0 ? 100.0 * t->energy_captured / t->energy_expected : 100.0,
-           r->total_seconds, (double)r->collisions / fmax(r->trace_seconds, 1e-9));
+           inside, r->total_seconds, (double)r->collisions / fmax(r->trace_seconds, 1e-9));
     fflush(stdout); /* a grid's log shows each table as it finishes */
 }
 

@@ -86,16 +86,23 @@ double ns_table_bin_solid_angle(const ns_table *t, uint32_t itheta, uint32_t iph
 
 double ns_table_energy(const ns_table *t)
 {
+    size_t directions = (size_t)t->n[2] * t->n[3];
+    double *solid_angle = malloc(directions * sizeof *solid_angle);
+    if (!solid_angle)
+        return NAN;
+    for (uint32_t it = 0; it < t->n[2]; it++)
+        for (uint32_t ip = 0; ip < t->n[3]; ip++)
+            solid_angle[it * t->n[3] + ip] = ns_table_bin_solid_angle(t, it, ip);
     double total = 0.0;
     for (uint32_t iz = 0; iz < t->n[0]; iz++)
         for (uint32_t ir = 0; ir < t->n[1]; ir++) {
+            const float *lobe = t->data + ns_table_index(t, iz, ir, 0, 0);
             double spatial = 0.0;
-            for (uint32_t it = 0; it < t->n[2]; it++)
-                for (uint32_t ip = 0; ip < t->n[3]; ip++)
-                    spatial += t->data[ns_table_index(t, iz, ir, it, ip)] *
-                               ns_table_bin_solid_angle(t, it, ip);
+            for (size_t d = 0; d < directions; d++)
+                spatial += lobe[d] * solid_angle[d];
             total += spatial * ns_table_bin_volume(t, iz, ir);
         }
+    free(solid_angle);
     return total;
 }
 

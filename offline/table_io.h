@@ -59,7 +59,8 @@ double ns_table_bin_volume(const ns_table *t, uint32_t iz, uint32_t irho);
 /* Solid angle of angular bin (itheta, iphi), both mirror halves of phi:
  * (cos theta0 - cos theta1)(phi1 - phi0) * 2. */
 double ns_table_bin_solid_angle(const ns_table *t, uint32_t itheta, uint32_t iphi);
-/* Energy held by the table: sum of J * volume * solid angle (DESIGN.md section 3). */
+/* Energy held by the table: sum of J * volume * solid angle (DESIGN.md section 3); NaN
+ * if out of memory. */
 double ns_table_energy(const ns_table *t);
 
 const char *ns_order_name(ns_order order); /* "double" / "multiple" */

@@ -1,0 +1,640 @@
+/* train.c — `nscatter train`: samples the Monte Carlo grid, trains one network per order with
+ * Adam, checkpoints every epoch (resumable), writes weights/<order>.bin and .json. */
+#include "train.h"
+
+#include <cblas.h>
+#include <dirent.h>
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "../server/commands.h"
+#include "nn_train.h"
+#include "nn_weights.h"
+
+const double ns_train_holdout_default[][2] = {
+    {0.3, 0.8}, {0.5, 0.95}, {0.7, 0.5}, {0.9, 0.9}, {0.0, 0.3}, {0.95, 0.99}, {0.5, 0.2},
+};
+const int ns_train_holdout_default_count =
+    (int)(sizeof ns_train_holdout_default / sizeof ns_train_holdout_default[0]);
+
+static const char usage_text[] =
+    "usage: nscatter train --data DIR [--order double|multiple|both] [--out-dir weights]\n"
+    "                      [--target logrel|paper] [--epochs N (200)] [--batch B (8192)]\n"
+    "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
+    "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
+    "                      [--threads T] [--quiet]\n"
+    "\n"
+    "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
+    "`nscatter mc --grid`; the materials g/a 0.3/0.8 0.5/0.95 0.7/0.5 0.9/0.9 0.0/0.3\n"
+    "0.95/0.99 0.5/0.2 are held out as the test set. Writes OUT/<order>.bin (weights) and\n"
+    "OUT/<order>.json (how they were made). A checkpoint is written every epoch to\n"
+    "CHECKPOINT_DIR/train_<order>.ckpt (default: DIR); --resume continues from it.\n";
+
+typedef struct {
+    const char *data, *out_dir, *ckpt_dir;
+    unsigned orders;
+    ns_nn_target target;
+    int epochs, resume, quiet, threads;
+    uint32_t batch, samples_per_table;
+    double lr, time_budget;
+    uint64_t seed;
+    char command[2048];
+} train_options;
+
+static int usage_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "nscatter train: ");
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, "\n");
+    va_end(ap);
+    return 2;
+}
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* =======================================================================================
+ * Options
+ * ===================================================================================== */
+
+static int parse_number(const char *name, const char *text, double lo, double hi, double *out)
+{
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (!*text || *end || errno || !isfinite(v) || v < lo || v > hi)
+        return usage_error("%s: '%s' must be a number in [%g, %g]", name, text, lo, hi);
+    *out = v;
+    return 0;
+}
+
+static int parse_value(train_options *o, const char *arg, const char *val)
+{
+    double v = 0;
+    int rc = 0;
+    if (!strcmp(arg, "--data"))
+        o->data = val;
+    else if (!strcmp(arg, "--out-dir"))
+        o->out_dir = val;
+    else if (!strcmp(arg, "--checkpoint-dir"))
+        o->ckpt_dir = val;
+    else if (!strcmp(arg, "--order")) {
+        ns_order ord;
+        if (!strcmp(val, "both"))
+            o->orders = 3;
+        else if (!ns_order_parse(val, &ord))
+            o->orders = 1u << ord;
+        else
+            return usage_error("--order: '%s' is not double, multiple or both", val);
+    } else if (!strcmp(arg, "--target")) {
+        if (!strcmp(val, "paper"))
+            o->target = NS_NN_TARGET_PAPER;
+        else if (!strcmp(val, "logrel"))
+            o->target = NS_NN_TARGET_LOGREL;
+        else
+            return usage_error("--target: '%s' is not logrel or paper", val);
+    } else if (!strcmp(arg, "--epochs"))
+        rc = parse_number(arg, val, 1, 1e6, &v), o->epochs = (int)v;
+    else if (!strcmp(arg, "--batch"))
+        rc = parse_number(arg, val, 16, 1 << 20, &v), o->batch = (uint32_t)v;
+    else if (!strcmp(arg, "--samples-per-table"))
+        rc = parse_number(arg, val, 100, 1e7, &v), o->samples_per_table = (uint32_t)v;
+    else if (!strcmp(arg, "--lr"))
+        rc = parse_number(arg, val, 1e-7, 1, &o->lr);
+    else if (!strcmp(arg, "--time-budget"))
+        rc = parse_number(arg, val, 1, 1e7, &o->time_budget);
+    else if (!strcmp(arg, "--seed"))
+        rc = parse_number(arg, val, 0, 9007199254740992.0, &v), o->seed = (uint64_t)v;
+    else if (!strcmp(arg, "--threads"))
+        rc = parse_number(arg, val, 1, 256, &v), o->threads = (int)v;
+    else
+        return usage_error("unknown option '%s' (see nscatter train --help)", arg);
+    return rc;
+}
+
+static int parse_options(int argc, char **argv, train_options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->out_dir = "weights";
+    o->orders = 3;
+    o->target = NS_NN_TARGET_LOGREL;
+    o->epochs = 200;
+    o->batch = 8192;
+    o->samples_per_table = 24000;
+    o->lr = 0.003;
+    o->seed = 1;
+    size_t len = (size_t)snprintf(o->command, sizeof o->command, "nscatter");
+    for (int i = 0; i < argc && len < sizeof o->command; i++)
+        len += (size_t)snprintf(o->command + len, sizeof o->command - len, " %s", argv[i]);
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
+            fputs(usage_text, stdout);
+            return -1;
+        }
+        if (!strcmp(arg, "--resume") || !strcmp(arg, "--quiet")) {
+            *(!strcmp(arg, "--resume") ? &o->resume : &o->quiet) = 1;
+            continue;
+        }
+        if (strncmp(arg, "--", 2) != 0)
+            return usage_error("unexpected argument '%s' (see nscatter train --help)", arg);
+        if (i + 1 >= argc)
+            return usage_error("%s: missing value", arg);
+        int rc = parse_value(o, arg, argv[++i]);
+        if (rc)
+            return rc;
+    }
+    if (!o->data)
+        return usage_error("--data: missing (the directory written by nscatter mc --grid)");
+    if (!o->ckpt_dir)
+        o->ckpt_dir = o->data;
+    return 0;
+}
+
+/* =======================================================================================
+ * Data: a fixed sample of cells per table, half uniform over the cells (the table's shape
+ * everywhere, including its faint far field) and half in proportion to the cell's energy
+ * (where the light is, which is what the renderer integrates).
+ * ===================================================================================== */
+
+typedef struct {
+    float *x;      /* n x 6 */
+    float *t;      /* n targets (transformed, standardised later) */
+    uint32_t n, cap;
+    int materials;
+} sample_set;
+
+typedef struct {
+    sample_set train, test;
+    char names[1024]; /* summary of the materials used, for the JSON */
+} dataset;
+
+int ns_train_parse_table_name(const char *name, double *g, double *albedo, ns_order *order)
+{
+    char ord[16];
+    int consumed = 0;
+    if (sscanf(name, "g%lf_a%lf_%15[a-z].json%n", g, albedo, ord, &consumed) != 3 ||
+        name[consumed] != '\0')
+        return -1;
+    return ns_order_parse(ord, order) ? -1 : 0;
+}
+
+static int is_holdout(double g, double albedo)
+{
+    for (int i = 0; i < ns_train_holdout_default_count; i++)
+        if (fabs(g - ns_train_holdout_default[i][0]) < 1e-6 &&
+            fabs(albedo - ns_train_holdout_default[i][1]) < 1e-6)
+            return 1;
+    return 0;
+}
+
+static int set_reserve(sample_set *s, uint32_t extra)
+{
+    if (s->n + extra <= s->cap)
+        return 0;
+    uint32_t cap = s->cap ? s->cap : 1u << 20;
+    while (cap < s->n + extra)
+        cap *= 2;
+    float *x = realloc(s->x, (size_t)cap * NS_NN_INPUTS * sizeof(float));
+    if (x)
+        s->x = x;
+    float *t = realloc(s->t, (size_t)cap * sizeof(float));
+    if (t)
+        s->t = t;
+    if (!x || !t)
+        return NS_ERR_OUT_OF_HOST_MEMORY;
+    s->cap = cap;
+    return 0;
+}
+
+static double uniform01(uint64_t *s)
+{
+    uint64_t z = (*s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return (double)((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
+}
+
+static size_t upper_bound(const double *cdf, size_t n, double u)
+{
+    size_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        size_t mid = (lo + hi) / 2;
+        if (cdf[mid] > u)
+            hi = mid;
+        else
+            lo = mid + 1;
+    }
+    return lo;
+}
+
+static void add_cell(sample_set *s, const ns_nn_header *h, const ns_table *tab, size_t cell)
+{
+    uint32_t iphi = (uint32_t)(cell % tab->n[3]), itheta = (uint32_t)(cell / tab->n[3] % tab->n[2]);
+    uint32_t irho = (uint32_t)(cell / ((size_t)tab->n[3] * tab->n[2]) % tab->n[1]);
+    uint32_t iz = (uint32_t)(cell / ((size_t)tab->n[3] * tab->n[2] * tab->n[1]));
+#define MID(a, i) (0.5 * (tab->edges[a][i] + tab->edges[a][(i) + 1]))
+    ns_nn_normalise(h, MID(NS_AXIS_RHO, irho), MID(NS_AXIS_Z, iz), MID(NS_AXIS_THETA, itheta),
+                    MID(NS_AXIS_PHI, iphi), tab->g, tab->albedo, s->x + (size_t)s->n * NS_NN_INPUTS);
+#undef MID
+    s->t[s->n++] = (float)ns_nn_j_to_target(h, tab->data[cell], tab->energy_expected);
+}
+
+static int sample_table(sample_set *s, const ns_nn_header *h, const ns_table *tab, uint32_t k,
+                        uint64_t *rng, double *cdf)
+{
+    size_t cells = ns_table_size(tab);
+    int status = set_reserve(s, k);
+    if (status)
+        return status;
+    double sum = 0.0;
+    for (size_t c = 0; c < cells; c++) {
+        uint32_t iphi = (uint32_t)(c % tab->n[3]), itheta = (uint32_t)(c / tab->n[3] % tab->n[2]);
+        size_t spatial = c / ((size_t)tab->n[3] * tab->n[2]);
+        double e = tab->data[c] * ns_table_bin_volume(tab, (uint32_t)(spatial / tab->n[1]),
+                                                      (uint32_t)(spatial % tab->n[1])) *
+                   ns_table_bin_solid_angle(tab, itheta, iphi);
+        sum += e > 0 ? e : 0;
+        cdf[c] = sum;
+    }
+    for (uint32_t i = 0; i < k; i++) {
+        size_t cell = (i % 2 == 0 || !(sum > 0)) ? (size_t)(uniform01(rng) * (double)cells)
+                                                 : upper_bound(cdf, cells, uniform01(rng) * sum);
+        add_cell(s, h, tab, cell < cells ? cell : cells - 1);
+    }
+    return 0;
+}
+
+static int load_dataset(const train_options *o, ns_order order, const ns_nn_header *h,
+                        dataset *d)
+{
+    DIR *dir = opendir(o->data);
+    if (!dir)
+        return usage_error("--data: cannot open '%s': %s", o->data, strerror(errno));
+    memset(d, 0, sizeof *d);
+    double *cdf = NULL;
+    uint64_t rng = o->seed * 7919u + (uint64_t)order;
+    int status = 0;
+    struct dirent *e;
+    size_t names_len = 0;
+    while (!status && (e = readdir(dir))) {
+        double g, a;
+        ns_order ord;
+        if (ns_train_parse_table_name(e->d_name, &g, &a, &ord) || ord != order)
+            continue;
+        char prefix[4096];
+        snprintf(prefix, sizeof prefix, "%s/%.*s", o->data, (int)(strlen(e->d_name) - 5),
+                 e->d_name);
+        if (!ns_table_is_complete(prefix))
+            continue;
+        ns_table tab;
+        ns_error err = {0};
+        if (ns_table_read(prefix, &tab, &err)) {
+            fprintf(stderr, "nscatter train: skipping %s: %s\n", prefix, err.message);
+            continue;
+        }
+        if (!cdf)
+            cdf = malloc(ns_table_size(&tab) * sizeof(double));
+        int held = is_holdout(tab.g, tab.albedo);
+        status = cdf ? sample_table(held ? &d->test : &d->train, h, &tab, o->samples_per_table,
+                                    &rng, cdf)
+                     : NS_ERR_OUT_OF_HOST_MEMORY;
+        (held ? &d->test : &d->train)->materials++;
+        if (held && names_len + 32 < sizeof d->names)
+            names_len += (size_t)snprintf(d->names + names_len, sizeof d->names - names_len,
+                                          "%s[%g, %g]", names_len ? ", " : "", tab.g, tab.albedo);
+        ns_table_free(&tab);
+    }
+    closedir(dir);
+    free(cdf);
+    if (status)
+        return usage_error("out of memory while sampling the tables");
+    if (!d->train.n)
+        return usage_error("--data: no complete %s tables in '%s'", ns_order_name(order),
+                           o->data);
+    return 0;
+}
+
+static void dataset_free(dataset *d)
+{
+    free(d->train.x);
+    free(d->train.t);
+    free(d->test.x);
+    free(d->test.t);
+}
+
+/* Standardises the targets with the training set's mean and spread (kept in the header). */
+static void standardise(dataset *d, ns_nn_header *h)
+{
+    double sum = 0, sum2 = 0;
+    for (uint32_t i = 0; i < d->train.n; i++)
+        sum += d->train.t[i], sum2 += (double)d->train.t[i] * d->train.t[i];
+    double mean = sum / d->train.n, var = sum2 / d->train.n - mean * mean;
+    h->target_mean = (float)mean;
+    h->target_scale = (float)(var > 1e-12 ? sqrt(var) : 1.0);
+    sample_set *sets[2] = {&d->train, &d->test};
+    for (int s = 0; s < 2; s++)
+        for (uint32_t i = 0; i < sets[s]->n; i++)
+            sets[s]->t[i] = (sets[s]->t[i] - h->target_mean) / h->target_scale;
+}
+
+/* Re-expresses standardised targets with another mean and scale (a resumed checkpoint's). */
+static void restandardise(dataset *d, ns_nn_header *h, float mean, float scale)
+{
+    sample_set *sets[2] = {&d->train, &d->test};
+    for (int s = 0; s < 2; s++)
+        for (uint32_t i = 0; i < sets[s]->n; i++)
+            sets[s]->t[i] = (sets[s]->t[i] * h->target_scale + h->target_mean - mean) / scale;
+    h->target_mean = mean;
+    h->target_scale = scale;
+}
+
+/* =======================================================================================
+ * Checkpoints: parameters, Adam state and the epoch, with a CRC, written atomically.
+ * ===================================================================================== */
+
+typedef struct {
+    char magic[8];
+    uint32_t epoch, order, target, pad;
+    uint64_t step;
+    float target_mean, target_scale;
+    float p[NS_NN_PARAMS], m[NS_NN_PARAMS], v[NS_NN_PARAMS];
+    double seconds;
+    uint32_t crc;
+} checkpoint;
+
+static void checkpoint_path(const train_options *o, ns_order order, char *out, size_t cap)
+{
+    snprintf(out, cap, "%s/train_%s.ckpt", o->ckpt_dir, ns_order_name(order));
+}
+
+static int checkpoint_save(const char *path, checkpoint *c)
+{
+    c->crc = ns_crc32(c, offsetof(checkpoint, crc));
+    char tmp[4300];
+    if (snprintf(tmp, sizeof tmp, "%s.part", path) >= (int)sizeof tmp)
+        return -1;
+    FILE *f = fopen(tmp, "wb");
+    if (!f)
+        return -1;
+    int ok = fwrite(c, sizeof *c, 1, f) == 1;
+    ok = fclose(f) == 0 && ok;
+    return ok && rename(tmp, path) == 0 ? 0 : -1;
+}
+
+static int checkpoint_load(const char *path, checkpoint *c)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return -1;
+    int ok = fread(c, sizeof *c, 1, f) == 1;
+    fclose(f);
+    return ok && !memcmp(c->magic, "NSNNCKP1", 8) && c->crc == ns_crc32(c, offsetof(checkpoint, crc))
+               ? 0
+               : -2;
+}
+
+/* =======================================================================================
+ * Training loop
+ * ===================================================================================== */
+
+static double evaluate(ns_nn_trainer *tr, const float *p, const sample_set *s)
+{
+    double sum = 0;
+    for (uint32_t i = 0; i < s->n; i += tr->batch_cap) {
+        uint32_t n = s->n - i < tr->batch_cap ? s->n - i : tr->batch_cap;
+        sum += ns_nn_batch_forward(tr, p, s->x + (size_t)i * NS_NN_INPUTS, n, s->t + i) * n;
+    }
+    return s->n ? sum / s->n : NAN;
+}
+
+/* Learning rate: constant, then down by 10x over the last 40% of the epochs (cosine). */
+static float learning_rate(const train_options *o, int epoch)
+{
+    double f = (double)epoch / o->epochs;
+    if (f < 0.6)
+        return (float)o->lr;
+    double u = (f - 0.6) / 0.4;
+    return (float)(o->lr * (0.1 + 0.9 * 0.5 * (1 + cos(M_PI * u))));
+}
+
+typedef struct {
+    int epochs_done;
+    double train_loss, test_loss, seconds;
+    uint64_t samples_seen;
+} train_result;
+
+static void shuffle(uint32_t *idx, uint32_t n, uint64_t *rng)
+{
+    for (uint32_t i = n; i > 1; i--) {
+        uint32_t j = (uint32_t)(uniform01(rng) * i);
+        uint32_t t = idx[i - 1];
+        idx[i - 1] = idx[j < i ? j : i - 1];
+        idx[j < i ? j : i - 1] = t;
+    }
+}
+
+static int run_epochs(const train_options *o, ns_order order, ns_nn_weights *w, const dataset *d,
+                      checkpoint *ck, train_result *res)
+{
+    ns_nn_trainer tr;
+    if (ns_nn_trainer_init(&tr, o->batch))
+        return usage_error("out of memory");
+    memcpy(tr.m, ck->m, sizeof tr.m);
+    memcpy(tr.v, ck->v, sizeof tr.v);
+    tr.step = ck->step;
+    uint32_t *idx = malloc((size_t)d->train.n * sizeof *idx);
+    float *bx = malloc((size_t)o->batch * NS_NN_INPUTS * sizeof(float));
+    float *bt = malloc((size_t)o->batch * sizeof(float));
+    if (!idx || !bx || !bt) {
+        free(idx), free(bx), free(bt), ns_nn_trainer_free(&tr);
+        return usage_error("out of memory");
+    }
+    char path[4200];
+    checkpoint_path(o, order, path, sizeof path);
+    const double start_seconds = ck->seconds; /* time spent before a resume */
+    double start = now_seconds() - start_seconds;
+    int epoch = (int)ck->epoch;
+    const int first_epoch = epoch;
+    uint64_t rng = o->seed * 104729u + (uint64_t)epoch;
+    for (; epoch < o->epochs; epoch++) {
+        for (uint32_t i = 0; i < d->train.n; i++)
+            idx[i] = i;
+        shuffle(idx, d->train.n, &rng);
+        float lr = learning_rate(o, epoch);
+        double loss_sum = 0;
+        for (uint32_t b = 0; b < d->train.n; b += o->batch) {
+            uint32_t n = d->train.n - b < o->batch ? d->train.n - b : o->batch;
+            for (uint32_t i = 0; i < n; i++) {
+                memcpy(bx + (size_t)i * NS_NN_INPUTS, d->train.x + (size_t)idx[b + i] * NS_NN_INPUTS,
+                       NS_NN_INPUTS * sizeof(float));
+                bt[i] = d->train.t[idx[b + i]];
+            }
+            loss_sum += ns_nn_batch_gradient(&tr, w->p, bx, bt, n) * n;
+            ns_nn_adam_step(&tr, w->p, lr);
+        }
+        res->train_loss = loss_sum / d->train.n;
+        res->samples_seen += d->train.n;
+        double elapsed = now_seconds() - start;
+        int last = epoch + 1 == o->epochs || (o->time_budget > 0 && elapsed > o->time_budget);
+        if (last || epoch % 5 == 4 || !o->quiet)
+            res->test_loss = evaluate(&tr, w->p, &d->test);
+        double eta = (elapsed - start_seconds) / (epoch + 1 - first_epoch) * (o->epochs - epoch - 1);
+        if (!o->quiet)
+            fprintf(stderr, "%s epoch %d/%d  train %.5f  test %.5f  lr %.2g  %.0f s  ETA %.0f s\n",
+                    ns_order_name(order), epoch + 1, o->epochs, res->train_loss, res->test_loss,
+                    lr, elapsed, eta);
+        memcpy(ck->p, w->p, sizeof ck->p);
+        memcpy(ck->m, tr.m, sizeof ck->m);
+        memcpy(ck->v, tr.v, sizeof ck->v);
+        ck->step = tr.step;
+        ck->epoch = (uint32_t)epoch + 1;
+        ck->seconds = elapsed;
+        if (checkpoint_save(path, ck))
+            fprintf(stderr, "nscatter train: warning: cannot write checkpoint %s\n", path);
+        if (last) {
+            epoch++;
+            break;
+        }
+    }
+    res->epochs_done = epoch;
+    res->seconds = now_seconds() - start;
+    if (isnan(res->test_loss) || res->test_loss == 0)
+        res->test_loss = evaluate(&tr, w->p, &d->test);
+    free(idx), free(bx), free(bt), ns_nn_trainer_free(&tr);
+    return 0;
+}
+
+/* =======================================================================================
+ * Output
+ * ===================================================================================== */
+
+static int write_json(const train_options *o, ns_order order, const ns_nn_weights *w,
+                      const dataset *d, const train_result *r, const char *path)
+{
+    FILE *f = fopen(path, "w");
+    if (!f)
+        return usage_error("%s: %s", path, strerror(errno));
+    const ns_nn_header *h = &w->h;
+    fprintf(f,
+            "{\n  \"order\": \"%s\",\n  \"file\": \"%s.bin\",\n  \"bytes\": %u,\n"
+            "  \"architecture\": {\"inputs\": [\"rho\", \"z\", \"theta\", \"phi\", \"g\", "
+            "\"albedo\"], \"layers\": [6, 50, 50, 1], \"activation\": \"tanh\", "
+            "\"parameters\": %d},\n",
+            ns_order_name(order), ns_order_name(order),
+            (unsigned)(NS_NN_HEADER_SIZE + NS_NN_PARAMS * 4), NS_NN_PARAMS);
+    fprintf(f,
+            "  \"input_normalisation\": {\"rho\": \"asinh(rho/%g)/asinh(%g/%g)\", "
+            "\"z\": \"(asinh(z/%g)/asinh(%g/%g)+1)/2\", \"theta\": \"theta/pi\", "
+            "\"phi\": \"phi/pi\", \"g\": \"(g-%g)/(%g-%g)\", "
+            "\"albedo\": \"ln(1-albedo)/ln(1-%g)\", \"clamped_to\": [0, 1], "
+            "\"points\": \"bin centres (mid-edges)\"},\n",
+            h->sinh_scale, h->extent, h->sinh_scale, h->sinh_scale, h->extent, h->sinh_scale,
+            h->g_min, h->g_max, h->g_min, h->albedo_max);
+    fprintf(f,
+            "  \"target_transform\": {\"name\": \"%s\", \"formula\": \"%s\", \"eps\": %.9g, "
+            "\"mean\": %.9g, \"scale\": %.9g},\n",
+            h->target == NS_NN_TARGET_PAPER ? "paper" : "logrel",
+            h->target == NS_NN_TARGET_PAPER ? "(ln(J+1)-mean)/scale"
+                                            : "(ln(J/E_k+eps)-mean)/scale, E_k=a^2 or a^3/(1-a)",
+            h->target_eps, h->target_mean, h->target_scale);
+    fprintf(f,
+            "  \"training_set\": {\"data\": \"%s\", \"train_materials\": %d, "
+            "\"test_materials\": %d, \"held_out\": [%s], \"samples_per_table\": %u, "
+            "\"train_samples\": %u, \"test_samples\": %u, \"sampling\": \"half uniform over "
+            "cells, half proportional to cell energy\"},\n",
+            o->data, d->train.materials, d->test.materials, d->names, o->samples_per_table,
+            d->train.n, d->test.n);
+    fprintf(f,
+            "  \"optimiser\": {\"name\": \"adam\", \"lr\": %g, \"batch\": %u, \"seed\": %llu},\n"
+            "  \"epochs\": %d,\n  \"epochs_requested\": %d,\n  \"final_train_loss\": %.6g,\n"
+            "  \"final_test_loss\": %.6g,\n  \"loss\": \"mean squared error of the standardised "
+            "target\",\n  \"training_seconds\": %.1f,\n  \"command\": \"%s\"\n}\n",
+            o->lr, o->batch, (unsigned long long)o->seed, r->epochs_done, o->epochs,
+            r->train_loss, r->test_loss, r->seconds, o->command);
+    return fclose(f) ? usage_error("%s: write failed", path) : 0;
+}
+
+static int train_order(const train_options *o, ns_order order)
+{
+    ns_nn_weights w;
+    ns_nn_header_init(&w.h, (uint32_t)order, o->target);
+    dataset d;
+    double t0 = now_seconds();
+    int rc = load_dataset(o, order, &w.h, &d);
+    if (rc)
+        return rc;
+    standardise(&d, &w.h);
+    fprintf(stderr, "nscatter train: %s: %u training samples from %d materials, %u test "
+                    "samples from %d held-out materials (%.1f s to load)\n",
+            ns_order_name(order), d.train.n, d.train.materials, d.test.n, d.test.materials,
+            now_seconds() - t0);
+    checkpoint ck;
+    memset(&ck, 0, sizeof ck);
+    char path[4200];
+    checkpoint_path(o, order, path, sizeof path);
+    if (o->resume && checkpoint_load(path, &ck) == 0 && ck.order == (uint32_t)order &&
+        ck.target == (uint32_t)o->target) {
+        fprintf(stderr, "nscatter train: resuming %s from epoch %u (%s)\n", ns_order_name(order),
+                ck.epoch, path);
+        memcpy(w.p, ck.p, sizeof w.p);
+        restandardise(&d, &w.h, ck.target_mean, ck.target_scale);
+    } else {
+        if (o->resume)
+            fprintf(stderr, "nscatter train: no usable checkpoint %s, starting afresh\n", path);
+        memset(&ck, 0, sizeof ck);
+        memcpy(ck.magic, "NSNNCKP1", 8);
+        ck.order = (uint32_t)order;
+        ck.target = (uint32_t)o->target;
+        ck.target_mean = w.h.target_mean;
+        ck.target_scale = w.h.target_scale;
+        ns_nn_init_params(w.p, o->seed + (uint64_t)order);
+    }
+    train_result res = {.test_loss = NAN};
+    rc = run_epochs(o, order, &w, &d, &ck, &res);
+    if (!rc) {
+        char bin[4200], json[4200];
+        snprintf(bin, sizeof bin, "%s/%s.bin", o->out_dir, ns_order_name(order));
+        snprintf(json, sizeof json, "%s/%s.json", o->out_dir, ns_order_name(order));
+        ns_error err = {0};
+        if (ns_nn_weights_save(&w, bin, &err))
+            rc = usage_error("%s", err.message);
+        else
+            rc = write_json(o, order, &w, &d, &res, json);
+        if (!rc)
+            printf("%s: %d epochs, train loss %.5f, test loss %.5f, %.0f s -> %s\n",
+                   ns_order_name(order), res.epochs_done, res.train_loss, res.test_loss,
+                   res.seconds, bin);
+    }
+    dataset_free(&d);
+    return rc;
+}
+
+int cmd_train(int argc, char **argv)
+{
+    train_options o;
+    int rc = parse_options(argc, argv, &o);
+    if (rc)
+        return rc < 0 ? 0 : rc;
+    if (mkdir(o.out_dir, 0755) != 0 && errno != EEXIST)
+        return usage_error("--out-dir: cannot create '%s': %s", o.out_dir, strerror(errno));
+    if (o.threads)
+        openblas_set_num_threads(o.threads);
+    for (int k = 0; k < 2 && !rc; k++)
+        if (o.orders & (1u << k))
+            rc = train_order(&o, (ns_order)k);
+    return rc;
+}
