@@ -29,8 +29,10 @@ static void aabb_empty(aabb *b)
 static void aabb_grow(aabb *b, const float lo[3], const float hi[3])
 {
     for (int k = 0; k < 3; k++) {
-        if (lo[k] < b->lo[k]) b->lo[k] = lo[k];
-        if (hi[k] > b->hi[k]) b->hi[k] = hi[k];
+        if (lo[k] < b->lo[k])
+            b->lo[k] = lo[k];
+        if (hi[k] > b->hi[k])
+            b->hi[k] = hi[k];
     }
 }
 
@@ -63,9 +65,9 @@ void ns_prim_bounds(const GpuPrim *p, float lo[3], float hi[3])
 }
 
 typedef struct builder {
-    aabb *bounds;      /* per input primitive */
+    aabb *bounds; /* per input primitive */
     float (*centroid)[3];
-    uint32_t *index;   /* permutation being partitioned */
+    uint32_t *index; /* permutation being partitioned */
     GpuNode *nodes;
     uint32_t node_count;
     uint32_t depth;
@@ -93,8 +95,8 @@ static int bin_of(float c, float lo, float scale)
 
 /* Best binned split over the three axes: returns its cost, and the axis and the first bin
  * of the right side. */
-static float best_split(const builder *b, uint32_t begin, uint32_t end, const aabb *cb, int *axis_out,
-                        int *bin_out)
+static float best_split(const builder *b, uint32_t begin, uint32_t end, const aabb *cb,
+                        int *axis_out, int *bin_out)
 {
     float best = FLT_MAX;
     for (int axis = 0; axis < 3; axis++) {
@@ -148,7 +150,8 @@ static void make_leaf(builder *b, GpuNode *node, uint32_t begin, uint32_t end)
     (void)b;
 }
 
-static void build_node(builder *b, uint32_t node_index, uint32_t begin, uint32_t end, uint32_t depth)
+static void build_node(builder *b, uint32_t node_index, uint32_t begin, uint32_t end,
+                       uint32_t depth)
 {
     GpuNode *node = &b->nodes[node_index];
     aabb centroids;
@@ -220,7 +223,8 @@ int ns_bvh_build(const GpuPrim *prims, uint32_t count, ns_bvh *out, ns_error *er
         free(b.index);
         free(b.nodes);
         ns_bvh_free(out);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "BVH over %u primitives: out of memory", count);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "BVH over %u primitives: out of memory",
+                       count);
     }
     for (uint32_t i = 0; i < count; i++) {
         ns_prim_bounds(&prims[i], b.bounds[i].lo, b.bounds[i].hi);

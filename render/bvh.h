@@ -8,12 +8,12 @@
 #include "shared.h"
 
 typedef struct ns_bvh {
-    GpuNode *nodes;     /* nodes[0] is the root; children of an interior node are adjacent */
+    GpuNode *nodes; /* nodes[0] is the root; children of an interior node are adjacent */
     uint32_t node_count;
-    GpuPrim *prims;     /* the input primitives, reordered so every leaf is a range */
+    GpuPrim *prims; /* the input primitives, reordered so every leaf is a range */
     uint32_t prim_count;
-    uint32_t *order;    /* prims[i] is input primitive order[i] */
-    uint32_t depth;     /* deepest level, root = 1 */
+    uint32_t *order; /* prims[i] is input primitive order[i] */
+    uint32_t depth;  /* deepest level, root = 1 */
 } ns_bvh;
 
 /* Builds over prims[0..count) (no planes). count 0 gives an empty tree (node_count 0).

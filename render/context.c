@@ -13,12 +13,15 @@ static int env_flag(const char *name)
 
 static int create_pipelines(ns_context *ctx, ns_error *err)
 {
-    int status = gpu_pipeline_create(&ctx->dev, &ctx->camera,
-                                     &(gpu_pipeline_desc){.shader = "camera", .binding_count = 8,
-                                                          .push_constant_size = sizeof(GpuSamplePush)}, err);
+    int status = gpu_pipeline_create(
+        &ctx->dev, &ctx->camera,
+        &(gpu_pipeline_desc){
+            .shader = "camera", .binding_count = 8, .push_constant_size = sizeof(GpuSamplePush)},
+        err);
     if (!status)
-        status = gpu_pipeline_create(&ctx->dev, &ctx->trace_test,
-                                     &(gpu_pipeline_desc){.shader = "trace_test", .binding_count = 5}, err);
+        status = gpu_pipeline_create(
+            &ctx->dev, &ctx->trace_test,
+            &(gpu_pipeline_desc){.shader = "trace_test", .binding_count = 5}, err);
     /* lavapipe compiles inside the first dispatch (1-2 s each): do it now, once. */
     if (!status)
         status = gpu_pipeline_warm(&ctx->dev, &ctx->camera, err);
@@ -37,7 +40,8 @@ int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *e
     if (!ctx)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
     pthread_mutex_init(&ctx->lock, NULL);
-    if (desc->pipeline_cache_path && !(ctx->pipeline_cache_path = strdup(desc->pipeline_cache_path))) {
+    if (desc->pipeline_cache_path &&
+        !(ctx->pipeline_cache_path = strdup(desc->pipeline_cache_path))) {
         ns_context_destroy(ctx);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
     }

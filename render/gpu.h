@@ -20,13 +20,12 @@ int ns_fail(ns_error *err, int status, const char *fmt, ...) __attribute__((form
 /* Embedded SPIR-V (generated registry, build/shaders/shader_registry.c). */
 const uint32_t *ns_shader_code(const char *name, size_t *size_bytes);
 
-
 /* ---------------------------------------------------------------------------------------
  * Device
  * ------------------------------------------------------------------------------------- */
 typedef struct gpu_device_desc {
-    const char *device;  /* NULL/"" = lavapipe if present, else first; index or name part */
-    int validation;      /* enable VK_LAYER_KHRONOS_validation + messenger */
+    const char *device; /* NULL/"" = lavapipe if present, else first; index or name part */
+    int validation;     /* enable VK_LAYER_KHRONOS_validation + messenger */
     const char *pipeline_cache_path; /* NULL = in-memory pipeline cache only */
 } gpu_device_desc;
 
@@ -80,7 +79,7 @@ typedef enum { GPU_BUFFER_STORAGE = 0, GPU_BUFFER_UNIFORM = 1 } gpu_buffer_kind;
 typedef struct gpu_buffer_desc {
     VkDeviceSize size; /* bytes; 0 is rounded up to 16 so a binding is always valid */
     gpu_buffer_kind kind;
-    const void *data;  /* copied in when not NULL (data_size bytes); the rest is zeroed */
+    const void *data; /* copied in when not NULL (data_size bytes); the rest is zeroed */
     VkDeviceSize data_size;
     int uninitialized; /* skip zeroing: the GPU writes every byte that is read back */
     const char *label;

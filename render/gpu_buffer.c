@@ -34,8 +34,9 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
 {
     memset(buf, 0, sizeof *buf);
     VkDeviceSize size = desc->size < 16 ? 16 : (desc->size + 15) & ~(VkDeviceSize)15;
-    VkDeviceSize limit = desc->kind == GPU_BUFFER_UNIFORM ? dev->properties.limits.maxUniformBufferRange
-                                                          : dev->properties.limits.maxStorageBufferRange;
+    VkDeviceSize limit = desc->kind == GPU_BUFFER_UNIFORM
+                             ? dev->properties.limits.maxUniformBufferRange
+                             : dev->properties.limits.maxStorageBufferRange;
     if (size > limit)
         return ns_fail(err, NS_ERR_LIMIT, "buffer '%s' needs %llu bytes; the device allows %llu",
                        desc->label ? desc->label : "?", (unsigned long long)size,
@@ -49,7 +50,8 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
                                                   : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
         .sharingMode = VK_SHARING_MODE_EXCLUSIVE,
     };
-    int status = gpu_check(vkCreateBuffer(dev->device, &info, NULL, &buf->buffer), "vkCreateBuffer", err);
+    int status =
+        gpu_check(vkCreateBuffer(dev->device, &info, NULL, &buf->buffer), "vkCreateBuffer", err);
     if (status)
         return status;
     __atomic_add_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST);
@@ -68,7 +70,8 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
         .allocationSize = req.size,
         .memoryTypeIndex = type,
     };
-    status = gpu_check(vkAllocateMemory(dev->device, &alloc, NULL, &buf->memory), "vkAllocateMemory", err);
+    status = gpu_check(vkAllocateMemory(dev->device, &alloc, NULL, &buf->memory),
+                       "vkAllocateMemory", err);
     if (!status)
         status = gpu_check(vkBindBufferMemory(dev->device, buf->buffer, buf->memory, 0),
                            "vkBindBufferMemory", err);

@@ -16,20 +16,27 @@
 const char *gpu_result_name(VkResult result)
 {
     switch (result) {
-#define R(x) case x: return #x;
-        R(VK_SUCCESS) R(VK_NOT_READY) R(VK_TIMEOUT) R(VK_EVENT_SET) R(VK_EVENT_RESET)
-        R(VK_INCOMPLETE) R(VK_ERROR_OUT_OF_HOST_MEMORY) R(VK_ERROR_OUT_OF_DEVICE_MEMORY)
-        R(VK_ERROR_INITIALIZATION_FAILED) R(VK_ERROR_DEVICE_LOST) R(VK_ERROR_MEMORY_MAP_FAILED)
-        R(VK_ERROR_LAYER_NOT_PRESENT) R(VK_ERROR_EXTENSION_NOT_PRESENT)
-        R(VK_ERROR_FEATURE_NOT_PRESENT) R(VK_ERROR_INCOMPATIBLE_DRIVER)
-        R(VK_ERROR_TOO_MANY_OBJECTS) R(VK_ERROR_FORMAT_NOT_SUPPORTED)
-        R(VK_ERROR_FRAGMENTED_POOL) R(VK_ERROR_UNKNOWN) R(VK_ERROR_OUT_OF_POOL_MEMORY)
-        R(VK_ERROR_INVALID_EXTERNAL_HANDLE) R(VK_ERROR_FRAGMENTATION)
-        R(VK_ERROR_INVALID_OPAQUE_CAPTURE_ADDRESS) R(VK_PIPELINE_COMPILE_REQUIRED)
-        R(VK_ERROR_VALIDATION_FAILED_EXT) R(VK_ERROR_INVALID_SHADER_NV)
+#define R(x)                                                                                       \
+    case x:                                                                                        \
+        return #x;
+        R(VK_SUCCESS)
+        R(VK_NOT_READY) R(VK_TIMEOUT) R(VK_EVENT_SET) R(VK_EVENT_RESET) R(VK_INCOMPLETE)
+            R(VK_ERROR_OUT_OF_HOST_MEMORY) R(VK_ERROR_OUT_OF_DEVICE_MEMORY)
+                R(VK_ERROR_INITIALIZATION_FAILED) R(VK_ERROR_DEVICE_LOST)
+                    R(VK_ERROR_MEMORY_MAP_FAILED) R(VK_ERROR_LAYER_NOT_PRESENT)
+                        R(VK_ERROR_EXTENSION_NOT_PRESENT) R(VK_ERROR_FEATURE_NOT_PRESENT)
+                            R(VK_ERROR_INCOMPATIBLE_DRIVER) R(VK_ERROR_TOO_MANY_OBJECTS)
+                                R(VK_ERROR_FORMAT_NOT_SUPPORTED) R(VK_ERROR_FRAGMENTED_POOL)
+                                    R(VK_ERROR_UNKNOWN) R(VK_ERROR_OUT_OF_POOL_MEMORY)
+                                        R(VK_ERROR_INVALID_EXTERNAL_HANDLE)
+                                            R(VK_ERROR_FRAGMENTATION)
+                                                R(VK_ERROR_INVALID_OPAQUE_CAPTURE_ADDRESS)
+                                                    R(VK_PIPELINE_COMPILE_REQUIRED)
+                                                        R(VK_ERROR_VALIDATION_FAILED_EXT)
+                                                            R(VK_ERROR_INVALID_SHADER_NV)
 #undef R
-    default:
-        return "VK_RESULT_UNKNOWN";
+                                                                default
+            : return "VK_RESULT_UNKNOWN";
     }
 }
 
@@ -39,10 +46,18 @@ int gpu_check(VkResult result, const char *what, ns_error *err)
         return NS_OK;
     int status;
     switch (result) {
-    case VK_ERROR_OUT_OF_HOST_MEMORY: status = NS_ERR_OUT_OF_HOST_MEMORY; break;
-    case VK_ERROR_OUT_OF_DEVICE_MEMORY: status = NS_ERR_OUT_OF_DEVICE_MEMORY; break;
-    case VK_ERROR_DEVICE_LOST: status = NS_ERR_DEVICE_LOST; break;
-    default: status = NS_ERR_VULKAN; break;
+    case VK_ERROR_OUT_OF_HOST_MEMORY:
+        status = NS_ERR_OUT_OF_HOST_MEMORY;
+        break;
+    case VK_ERROR_OUT_OF_DEVICE_MEMORY:
+        status = NS_ERR_OUT_OF_DEVICE_MEMORY;
+        break;
+    case VK_ERROR_DEVICE_LOST:
+        status = NS_ERR_DEVICE_LOST;
+        break;
+    default:
+        status = NS_ERR_VULKAN;
+        break;
     }
     return ns_fail(err, status, "%s failed: %s (%d)", what, gpu_result_name(result), (int)result);
 }
@@ -148,7 +163,8 @@ static int create_instance(gpu_device *dev, ns_error *err)
         if (!has_instance_layer(VALIDATION_LAYER))
             return ns_fail(err, NS_ERR_NOT_AVAILABLE,
                            "validation requested but %s is not installed (Debian package "
-                           "vulkan-validationlayers)", VALIDATION_LAYER);
+                           "vulkan-validationlayers)",
+                           VALIDATION_LAYER);
         layers[layer_count++] = VALIDATION_LAYER;
     }
     const char *extensions[1];
@@ -180,7 +196,8 @@ static int create_instance(gpu_device *dev, ns_error *err)
     };
     VkResult created = vkCreateInstance(&info, NULL, &dev->instance);
     if (created == VK_ERROR_INCOMPATIBLE_DRIVER)
-        return ns_fail(err, NS_ERR_NO_DEVICE, "no Vulkan driver found (vkCreateInstance: "
+        return ns_fail(err, NS_ERR_NO_DEVICE,
+                       "no Vulkan driver found (vkCreateInstance: "
                        "VK_ERROR_INCOMPATIBLE_DRIVER); install mesa-vulkan-drivers for lavapipe");
     int status = gpu_check(created, "vkCreateInstance", err);
     if (status)
@@ -259,7 +276,8 @@ static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err
     if (status)
         return status;
     if (count == 0)
-        return ns_fail(err, NS_ERR_NO_DEVICE, "no Vulkan device found (is mesa-vulkan-drivers "
+        return ns_fail(err, NS_ERR_NO_DEVICE,
+                       "no Vulkan device found (is mesa-vulkan-drivers "
                        "installed? lavapipe is the default device)");
     VkPhysicalDevice devices[32];
     if (count > 32)
@@ -344,8 +362,8 @@ static int create_logical_device(gpu_device *dev, ns_error *err)
         .queueCreateInfoCount = 1,
         .pQueueCreateInfos = &queue,
     };
-    int status = gpu_check(vkCreateDevice(dev->physical, &info, NULL, &dev->device),
-                           "vkCreateDevice", err);
+    int status =
+        gpu_check(vkCreateDevice(dev->physical, &info, NULL, &dev->device), "vkCreateDevice", err);
     if (status)
         return status;
     vkGetDeviceQueue(dev->device, dev->queue_family, 0, &dev->queue);
@@ -353,13 +371,15 @@ static int create_logical_device(gpu_device *dev, ns_error *err)
 
     VkCommandPoolCreateInfo pool = {
         .sType = VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO,
-        .flags = VK_COMMAND_POOL_CREATE_TRANSIENT_BIT | VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT,
+        .flags =
+            VK_COMMAND_POOL_CREATE_TRANSIENT_BIT | VK_COMMAND_POOL_CREATE_RESET_COMMAND_BUFFER_BIT,
         .queueFamilyIndex = dev->queue_family,
     };
     status = gpu_check(vkCreateCommandPool(dev->device, &pool, NULL, &dev->command_pool),
                        "vkCreateCommandPool", err);
     if (!status)
-        gpu_set_label(dev, VK_OBJECT_TYPE_COMMAND_POOL, (uint64_t)dev->command_pool, "ns.command_pool");
+        gpu_set_label(dev, VK_OBJECT_TYPE_COMMAND_POOL, (uint64_t)dev->command_pool,
+                      "ns.command_pool");
     return status;
 }
 
@@ -407,7 +427,8 @@ static int create_pipeline_cache(gpu_device *dev, const char *path, ns_error *er
     free(data);
     int status = gpu_check(result, "vkCreatePipelineCache", err);
     if (!status)
-        gpu_set_label(dev, VK_OBJECT_TYPE_PIPELINE_CACHE, (uint64_t)dev->pipeline_cache, "ns.pipeline_cache");
+        gpu_set_label(dev, VK_OBJECT_TYPE_PIPELINE_CACHE, (uint64_t)dev->pipeline_cache,
+                      "ns.pipeline_cache");
     return status;
 }
 

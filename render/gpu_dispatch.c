@@ -44,7 +44,8 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
         .descriptorSetCount = 1,
         .pSetLayouts = &pipe->set_layout,
     };
-    status = gpu_check(vkAllocateDescriptorSets(dev->device, &alloc, set), "vkAllocateDescriptorSets", err);
+    status = gpu_check(vkAllocateDescriptorSets(dev->device, &alloc, set),
+                       "vkAllocateDescriptorSets", err);
     if (status)
         return status;
     VkDescriptorBufferInfo infos[GPU_MAX_BINDINGS];
@@ -56,7 +57,8 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
             .dstSet = *set,
             .dstBinding = i,
             .descriptorCount = 1,
-            .descriptorType = i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+            .descriptorType =
+                i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
             .pBufferInfo = &infos[i],
         };
     }
@@ -64,8 +66,8 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
     return NS_OK;
 }
 
-static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o, VkDescriptorSet set,
-                  ns_error *err)
+static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o,
+                  VkDescriptorSet set, ns_error *err)
 {
     const gpu_pipeline *pipe = desc->pipeline;
     uint32_t count = desc->dispatch_count ? desc->dispatch_count : 1;
@@ -75,7 +77,8 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
         .level = VK_COMMAND_BUFFER_LEVEL_PRIMARY,
         .commandBufferCount = 1,
     };
-    int status = gpu_check(vkAllocateCommandBuffers(dev->device, &alloc, &o->cmd), "vkAllocateCommandBuffers", err);
+    int status = gpu_check(vkAllocateCommandBuffers(dev->device, &alloc, &o->cmd),
+                           "vkAllocateCommandBuffers", err);
     if (status)
         return status;
     VkCommandBufferBeginInfo begin = {
@@ -86,7 +89,8 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
     if (status)
         return status;
     vkCmdBindPipeline(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->pipeline);
-    vkCmdBindDescriptorSets(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->layout, 0, 1, &set, 0, NULL);
+    vkCmdBindDescriptorSets(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->layout, 0, 1, &set, 0,
+                            NULL);
     /* Dispatches that follow one another read what the previous one wrote. */
     VkMemoryBarrier between = {
         .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
@@ -95,10 +99,12 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
     };
     for (uint32_t i = 0; i < count; i++) {
         if (i > 0)
-            vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
-                                 0, 1, &between, 0, NULL, 0, NULL);
+            vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                                 VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, 1, &between, 0, NULL, 0,
+                                 NULL);
         if (pipe->push_constant_size)
-            vkCmdPushConstants(o->cmd, pipe->layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, pipe->push_constant_size,
+            vkCmdPushConstants(o->cmd, pipe->layout, VK_SHADER_STAGE_COMPUTE_BIT, 0,
+                               pipe->push_constant_size,
                                (const uint8_t *)desc->push + (size_t)i * pipe->push_constant_size);
         vkCmdDispatch(o->cmd, desc->groups[0], desc->groups[1], desc->groups[2]);
     }
@@ -108,8 +114,8 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
         .srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT,
         .dstAccessMask = VK_ACCESS_HOST_READ_BIT,
     };
-    vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
-                         &barrier, 0, NULL, 0, NULL);
+    vkCmdPipelineBarrier(o->cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_HOST_BIT,
+                         0, 1, &barrier, 0, NULL, 0, NULL);
     return gpu_check(vkEndCommandBuffer(o->cmd), "vkEndCommandBuffer", err);
 }
 
@@ -137,7 +143,8 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
     const uint32_t *max_groups = dev->properties.limits.maxComputeWorkGroupCount;
     for (int i = 0; i < 3; i++)
         if (groups[i] == 0 || groups[i] > max_groups[i])
-            return ns_fail(err, NS_ERR_LIMIT, "dispatch of %s: %u groups in dimension %d (device allows %u)",
+            return ns_fail(err, NS_ERR_LIMIT,
+                           "dispatch of %s: %u groups in dimension %d (device allows %u)",
                            pipe->name, groups[i], i, max_groups[i]);
     uint32_t validation_before = gpu_validation_count(dev);
     dispatch_objects o;
@@ -148,7 +155,8 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
         status = record(dev, desc, &o, set, err);
     VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     if (!status)
-        status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
+        status =
+            gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
     if (!status) {
         VkSubmitInfo submit = {
             .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,

@@ -10,7 +10,8 @@ static int create_set_layout(gpu_device *dev, gpu_pipeline *pipe, ns_error *err)
     for (uint32_t i = 0; i < pipe->binding_count; i++) {
         bindings[i] = (VkDescriptorSetLayoutBinding){
             .binding = i,
-            .descriptorType = i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+            .descriptorType =
+                i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
             .descriptorCount = 1,
             .stageFlags = VK_SHADER_STAGE_COMPUTE_BIT,
         };
@@ -24,16 +25,19 @@ static int create_set_layout(gpu_device *dev, gpu_pipeline *pipe, ns_error *err)
                      "vkCreateDescriptorSetLayout", err);
 }
 
-int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc, ns_error *err)
+int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc,
+                        ns_error *err)
 {
     memset(pipe, 0, sizeof *pipe);
-    if (desc->binding_count == 0 || desc->binding_count > GPU_MAX_BINDINGS || desc->push_constant_size > 128 ||
-        desc->push_constant_size % 4)
-        return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s: %u bindings", desc->shader, desc->binding_count);
+    if (desc->binding_count == 0 || desc->binding_count > GPU_MAX_BINDINGS ||
+        desc->push_constant_size > 128 || desc->push_constant_size % 4)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s: %u bindings", desc->shader,
+                       desc->binding_count);
     size_t code_size = 0;
     const uint32_t *code = ns_shader_code(desc->shader, &code_size);
     if (!code)
-        return ns_fail(err, NS_ERR_INTERNAL, "shader '%s' is not embedded in this build", desc->shader);
+        return ns_fail(err, NS_ERR_INTERNAL, "shader '%s' is not embedded in this build",
+                       desc->shader);
     snprintf(pipe->name, sizeof pipe->name, "%s", desc->shader);
     pipe->binding_count = desc->binding_count;
     pipe->push_constant_size = desc->push_constant_size;
@@ -62,16 +66,17 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
     if (!status) {
         VkComputePipelineCreateInfo info = {
             .sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO,
-            .stage = {
-                .sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO,
-                .stage = VK_SHADER_STAGE_COMPUTE_BIT,
-                .module = module,
-                .pName = "main",
-            },
+            .stage =
+                {
+                    .sType = VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO,
+                    .stage = VK_SHADER_STAGE_COMPUTE_BIT,
+                    .module = module,
+                    .pName = "main",
+                },
             .layout = pipe->layout,
         };
-        status = gpu_check(vkCreateComputePipelines(dev->device, dev->pipeline_cache, 1, &info, NULL,
-                                                    &pipe->pipeline),
+        status = gpu_check(vkCreateComputePipelines(dev->device, dev->pipeline_cache, 1, &info,
+                                                    NULL, &pipe->pipeline),
                            "vkCreateComputePipelines", err);
     }
     if (module)
@@ -109,11 +114,12 @@ int gpu_pipeline_warm(gpu_device *dev, const gpu_pipeline *pipe, ns_error *err)
     memset(buffers, 0, sizeof buffers);
     int status = NS_OK;
     for (uint32_t i = 0; i < pipe->binding_count && !status; i++) {
-        status = gpu_buffer_create(dev, &buffers[i],
-                                   &(gpu_buffer_desc){.size = 256,
-                                                      .kind = i == 0 ? GPU_BUFFER_UNIFORM : GPU_BUFFER_STORAGE,
-                                                      .label = "ns.warm"},
-                                   err);
+        status = gpu_buffer_create(
+            dev, &buffers[i],
+            &(gpu_buffer_desc){.size = 256,
+                               .kind = i == 0 ? GPU_BUFFER_UNIFORM : GPU_BUFFER_STORAGE,
+                               .label = "ns.warm"},
+            err);
         bound[i] = &buffers[i];
     }
     uint8_t zeros[128] = {0};

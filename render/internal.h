@@ -47,7 +47,7 @@ typedef struct ns_render_debug {
     uint32_t segment_capacity;
     GpuSegment *segments;
     uint32_t segments_max;
-    uint64_t segments_written; /* out: recorded (at most the capacity) */
+    uint64_t segments_written;  /* out: recorded (at most the capacity) */
     uint64_t segments_overflow; /* out: dropped because the buffer was full */
 } ns_render_debug;
 

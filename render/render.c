@@ -11,7 +11,17 @@
 #define SEGMENTS_PER_SAMPLE 2u
 #define SEGMENT_BYTES_MAX (64u << 20)
 
-enum { B_PARAMS, B_NODES, B_PRIMS, B_MATERIALS, B_LIGHTS, B_PIXELS, B_SEGMENTS, B_COUNTERS, B_COUNT };
+enum {
+    B_PARAMS,
+    B_NODES,
+    B_PRIMS,
+    B_MATERIALS,
+    B_LIGHTS,
+    B_PIXELS,
+    B_SEGMENTS,
+    B_COUNTERS,
+    B_COUNT
+};
 
 typedef struct render_job {
     gpu_buffer buffers[B_COUNT];
@@ -36,11 +46,13 @@ static void component_names(uint32_t bits, char *out, size_t size)
         }
 }
 
-static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene, const ns_render_debug *debug)
+static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene,
+                                 const ns_render_debug *debug)
 {
     if (debug && debug->segment_capacity)
         return debug->segment_capacity;
-    uint64_t want = (uint64_t)scene->camera.width * scene->camera.height * scene->render.spp * SEGMENTS_PER_SAMPLE;
+    uint64_t want = (uint64_t)scene->camera.width * scene->camera.height * scene->render.spp *
+                    SEGMENTS_PER_SAMPLE;
     uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
     uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
     if (cap > device_cap)
@@ -59,27 +71,32 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
         int uninitialized;
     } plan[B_COUNT] = {
         [B_PARAMS] = {&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.render.params"},
-        [B_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE, "ns.render.bvh_nodes"},
+        [B_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE,
+                     "ns.render.bvh_nodes"},
         [B_PRIMS] = {gs->prims, (uint64_t)(gs->bvh_prim_count + gs->plane_count) * sizeof(GpuPrim),
                      GPU_BUFFER_STORAGE, "ns.render.prims"},
-        [B_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial), GPU_BUFFER_STORAGE,
-                         "ns.render.materials"},
-        [B_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE, "ns.render.lights"},
+        [B_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial),
+                         GPU_BUFFER_STORAGE, "ns.render.materials"},
+        [B_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE,
+                      "ns.render.lights"},
         /* Written whole by the first dispatch / read only up to the recorded count. */
-        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE, "ns.render.pixels", 1},
-        [B_SEGMENTS] = {NULL, (uint64_t)gs->params.counts[2] * sizeof(GpuSegment), GPU_BUFFER_STORAGE,
-                        "ns.render.segments", 1},
-        [B_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE, "ns.render.counters"},
+        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE,
+                      "ns.render.pixels", 1},
+        [B_SEGMENTS] = {NULL, (uint64_t)gs->params.counts[2] * sizeof(GpuSegment),
+                        GPU_BUFFER_STORAGE, "ns.render.segments", 1},
+        [B_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE,
+                        "ns.render.counters"},
     };
     for (int i = 0; i < B_COUNT; i++) {
-        int status = gpu_buffer_create(&ctx->dev, &job->buffers[i],
-                                       &(gpu_buffer_desc){.size = plan[i].size,
-                                                          .kind = plan[i].kind,
-                                                          .data = plan[i].data,
-                                                          .data_size = plan[i].data ? plan[i].size : 0,
-                                                          .uninitialized = plan[i].uninitialized,
-                                                          .label = plan[i].label},
-                                       err);
+        int status =
+            gpu_buffer_create(&ctx->dev, &job->buffers[i],
+                              &(gpu_buffer_desc){.size = plan[i].size,
+                                                 .kind = plan[i].kind,
+                                                 .data = plan[i].data,
+                                                 .data_size = plan[i].data ? plan[i].size : 0,
+                                                 .uninitialized = plan[i].uninitialized,
+                                                 .label = plan[i].label},
+                              err);
         if (status)
             return status;
     }
@@ -103,27 +120,30 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u dispatches", dispatches);
     for (uint32_t i = 0; i < dispatches; i++) {
         push[i].first_sample = i * per_dispatch;
-        push[i].sample_count = spp - push[i].first_sample < per_dispatch ? spp - push[i].first_sample : per_dispatch;
+        push[i].sample_count =
+            spp - push[i].first_sample < per_dispatch ? spp - push[i].first_sample : per_dispatch;
     }
-    int status = gpu_dispatch_many(&ctx->dev,
-                                   &(gpu_dispatch_desc){
-                                       .pipeline = &ctx->camera,
-                                       .buffers = bound,
-                                       .buffer_count = B_COUNT,
-                                       .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
-                                                  (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
-                                       .push = push,
-                                       .dispatch_count = dispatches,
-                                   },
-                                   err);
+    int status = gpu_dispatch_many(
+        &ctx->dev,
+        &(gpu_dispatch_desc){
+            .pipeline = &ctx->camera,
+            .buffers = bound,
+            .buffer_count = B_COUNT,
+            .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
+                       (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
+            .push = push,
+            .dispatch_count = dispatches,
+        },
+        err);
     free(push);
     const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
     if (!status && counters[NS_COUNTER_LOOP_LIMIT])
-        status = ns_fail(err, NS_ERR_LIMIT,
-                         "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
-                         "(65535 iterations per invocation); lower render.max_depth, the light count or "
-                         "the geometry, or pick another device",
-                         counters[NS_COUNTER_LOOP_LIMIT]);
+        status =
+            ns_fail(err, NS_ERR_LIMIT,
+                    "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
+                    "(65535 iterations per invocation); lower render.max_depth, the light count or "
+                    "the geometry, or pick another device",
+                    counters[NS_COUNTER_LOOP_LIMIT]);
     return status;
 }
 
@@ -156,8 +176,8 @@ static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_re
     return NS_OK;
 }
 
-static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
-                         ns_render_debug *debug, ns_error *err)
+static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
+                         ns_render_stats *stats, ns_render_debug *debug, ns_error *err)
 {
     render_job job;
     memset(&job, 0, sizeof job);
@@ -203,8 +223,8 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     if (missing) {
         char names[64];
         component_names(missing, names, sizeof names);
-        return ns_fail(err, NS_ERR_NOT_AVAILABLE, "render.components: %s not available in this build yet",
-                       names);
+        return ns_fail(err, NS_ERR_NOT_AVAILABLE,
+                       "render.components: %s not available in this build yet", names);
     }
     pthread_mutex_lock(&ctx->lock);
     status = render_locked(ctx, scene, out, stats, debug, err);
@@ -214,7 +234,8 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     return status;
 }
 
-int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats, ns_error *err)
+int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
+              ns_error *err)
 {
     return ns_render_ex(ctx, scene, out, stats, NULL, err);
 }
@@ -223,7 +244,8 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
  * BVH test path: rays against primitives through shaders/trace_test.comp.
  * ===================================================================================== */
 int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
-                  uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits, ns_error *err)
+                  uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
+                  ns_error *err)
 {
     ns_bvh bvh;
     int status = ns_bvh_build(prims, prim_count, &bvh, err);
@@ -253,19 +275,21 @@ int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, co
             {NULL, (uint64_t)ray_count * sizeof(GpuHit)},
         };
         for (int i = 0; i < 5 && !status; i++)
-            status = gpu_buffer_create(&ctx->dev, &buffers[i],
-                                       &(gpu_buffer_desc){.size = plan[i].size,
-                                                          .kind = i ? GPU_BUFFER_STORAGE : GPU_BUFFER_UNIFORM,
-                                                          .data = plan[i].data,
-                                                          .data_size = plan[i].data ? plan[i].size : 0,
-                                                          .label = "ns.trace_test"},
-                                       err);
+            status = gpu_buffer_create(
+                &ctx->dev, &buffers[i],
+                &(gpu_buffer_desc){.size = plan[i].size,
+                                   .kind = i ? GPU_BUFFER_STORAGE : GPU_BUFFER_UNIFORM,
+                                   .data = plan[i].data,
+                                   .data_size = plan[i].data ? plan[i].size : 0,
+                                   .label = "ns.trace_test"},
+                err);
     }
     if (!status) {
         gpu_buffer *bound[5] = {&buffers[0], &buffers[1], &buffers[2], &buffers[3], &buffers[4]};
         pthread_mutex_lock(&ctx->lock);
-        status = gpu_dispatch(&ctx->dev, &ctx->trace_test, bound, 5,
-                              (uint32_t[3]){(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1}, err);
+        status = gpu_dispatch(
+            &ctx->dev, &ctx->trace_test, bound, 5,
+            (uint32_t[3]){(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1}, err);
         pthread_mutex_unlock(&ctx->lock);
     }
     if (!status) {

@@ -39,8 +39,10 @@ static int check_camera(const ns_camera *c, ns_error *err)
         return BAD("camera.up: parallel to the viewing direction");
     if (!(c->fov_deg > 0.0f && c->fov_deg < 180.0f))
         return BAD("camera.fov: %g outside (0, 180)", (double)c->fov_deg);
-    if (c->width == 0 || c->height == 0 || c->width > NS_MAX_IMAGE_SIDE || c->height > NS_MAX_IMAGE_SIDE)
-        return BAD("camera.width/height: %ux%u outside 1..%d", c->width, c->height, NS_MAX_IMAGE_SIDE);
+    if (c->width == 0 || c->height == 0 || c->width > NS_MAX_IMAGE_SIDE ||
+        c->height > NS_MAX_IMAGE_SIDE)
+        return BAD("camera.width/height: %ux%u outside 1..%d", c->width, c->height,
+                   NS_MAX_IMAGE_SIDE);
     if ((uint64_t)c->width * c->height > NS_MAX_PIXELS)
         return BAD("camera: %ux%u is more than %u pixels", c->width, c->height, NS_MAX_PIXELS);
     return NS_OK;
@@ -70,7 +72,8 @@ static int check_material(const ns_material *m, uint32_t i, ns_error *err)
 static int check_object(const ns_scene *s, const ns_object *o, uint32_t i, ns_error *err)
 {
     if (o->material >= s->material_count)
-        return BAD("objects[%u].material: %u out of range (%u materials)", i, o->material, s->material_count);
+        return BAD("objects[%u].material: %u out of range (%u materials)", i, o->material,
+                   s->material_count);
     switch (o->shape) {
     case NS_SHAPE_SPHERE:
         if (!finite3(o->center))
@@ -134,8 +137,8 @@ static int check_render(const ns_render_settings *r, ns_error *err)
         return BAD("render.method: unknown method %d", (int)r->method);
     if (r->components == 0)
         return BAD("render.components: none requested");
-    if (r->components & ~(uint32_t)(NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE |
-                                    NS_COMPONENT_MULTIPLE))
+    if (r->components & ~(uint32_t)(NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE |
+                                    NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE))
         return BAD("render.components: unknown component bits 0x%x", r->components);
     return NS_OK;
 }
@@ -150,13 +153,16 @@ int ns_scene_validate(const ns_scene *s, ns_error *err)
     if (status)
         return status;
     if (s->material_count > NS_MAX_MATERIALS || (s->material_count && !s->materials))
-        return BAD("materials: %u given (at most %d, array required)", s->material_count, NS_MAX_MATERIALS);
+        return BAD("materials: %u given (at most %d, array required)", s->material_count,
+                   NS_MAX_MATERIALS);
     if (s->object_count > NS_MAX_OBJECTS || (s->object_count && !s->objects))
-        return BAD("objects: %u given (at most %d, array required)", s->object_count, NS_MAX_OBJECTS);
+        return BAD("objects: %u given (at most %d, array required)", s->object_count,
+                   NS_MAX_OBJECTS);
     if (s->light_count > NS_MAX_LIGHTS || (s->light_count && !s->lights))
         return BAD("lights: %u given (at most %d, array required)", s->light_count, NS_MAX_LIGHTS);
     if (s->triangle_count > NS_MAX_TRIANGLES || (s->triangle_count && !s->triangles))
-        return BAD("triangles: %u given (at most %u, array required)", s->triangle_count, NS_MAX_TRIANGLES);
+        return BAD("triangles: %u given (at most %u, array required)", s->triangle_count,
+                   NS_MAX_TRIANGLES);
     for (uint32_t i = 0; i < s->material_count && !status; i++)
         status = check_material(&s->materials[i], i, err);
     for (uint32_t i = 0; i < s->object_count && !status; i++)

@@ -86,14 +86,16 @@ static int convert_geometry(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
             gs->has_media = 1;
     }
     if (bvh_count + plane_count > (uint64_t)NS_MAX_TRIANGLES + NS_MAX_OBJECTS)
-        return ns_fail(err, NS_ERR_LIMIT, "scene: %llu primitives", (unsigned long long)(bvh_count + plane_count));
+        return ns_fail(err, NS_ERR_LIMIT, "scene: %llu primitives",
+                       (unsigned long long)(bvh_count + plane_count));
     GpuPrim *input = malloc(sizeof *input * (bvh_count ? bvh_count : 1));
     GpuPrim *planes = malloc(sizeof *planes * (plane_count ? plane_count : 1));
     gs->plane_count = (uint32_t)plane_count;
     if (!input || !planes) {
         free(input);
         free(planes);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: %llu primitives", (unsigned long long)bvh_count);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: %llu primitives",
+                       (unsigned long long)bvh_count);
     }
     uint32_t n = 0, np = 0;
     for (uint32_t i = 0; i < s->object_count; i++) {

@@ -30,10 +30,11 @@ static void version_string(uint32_t v, char *out, size_t size)
 
 static int print_json(const ns_device_info *info, const char *api)
 {
-    json_t *obj = json_pack("{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:s}", "device", info->device_name, "driver",
-                            info->driver_name, "driver_info", info->driver_info, "api_version", api, "is_cpu",
-                            info->is_cpu, "vendor_id", (json_int_t)info->vendor_id, "device_id",
-                            (json_int_t)info->device_id, "version", NS_VERSION);
+    json_t *obj =
+        json_pack("{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:s}", "device", info->device_name, "driver",
+                  info->driver_name, "driver_info", info->driver_info, "api_version", api, "is_cpu",
+                  info->is_cpu, "vendor_id", (json_int_t)info->vendor_id, "device_id",
+                  (json_int_t)info->device_id, "version", NS_VERSION);
     if (!obj)
         return 1;
     char *text = json_dumps(obj, JSON_COMPACT);
@@ -67,7 +68,8 @@ int cmd_info(int argc, char **argv)
     ns_error err = {0};
     int status = ns_context_create(&(ns_context_desc){.device = device}, &ctx, &err);
     if (status) {
-        fprintf(stderr, "nscatter info: no usable Vulkan device: %s (%s)\n", err.message, ns_status_name(status));
+        fprintf(stderr, "nscatter info: no usable Vulkan device: %s (%s)\n", err.message,
+                ns_status_name(status));
         return 1;
     }
     ns_device_info info;

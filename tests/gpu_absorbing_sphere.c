@@ -55,8 +55,14 @@ static void check_centre(double ior, uint32_t max_depth, double tol)
     ns_image_free(&img);
 }
 
-static void test_glass_1_5(void) { check_centre(1.5, 32, 1e-3); }
-static void test_glass_2_4(void) { check_centre(2.4, 32, 1e-3); }
+static void test_glass_1_5(void)
+{
+    check_centre(1.5, 32, 1e-3);
+}
+static void test_glass_2_4(void)
+{
+    check_centre(2.4, 32, 1e-3);
+}
 
 /* max_depth cuts the series: with depth 2 only the front reflection and the first exit
  * (entry = bounce 1, exit = bounce 2) count: L = R + (1 - R)^2 T. */
@@ -169,9 +175,12 @@ static void test_fresnel_angular(void)
 static void cube_triangles(double h, ns_triangle tris[12])
 {
     static const int faces[6][4][3] = {
-        {{1, -1, -1}, {1, 1, -1}, {1, 1, 1}, {1, -1, 1}},     {{-1, -1, -1}, {-1, -1, 1}, {-1, 1, 1}, {-1, 1, -1}},
-        {{-1, 1, -1}, {-1, 1, 1}, {1, 1, 1}, {1, 1, -1}},     {{-1, -1, -1}, {1, -1, -1}, {1, -1, 1}, {-1, -1, 1}},
-        {{-1, -1, 1}, {1, -1, 1}, {1, 1, 1}, {-1, 1, 1}},     {{-1, -1, -1}, {-1, 1, -1}, {1, 1, -1}, {1, -1, -1}},
+        {{1, -1, -1}, {1, 1, -1}, {1, 1, 1}, {1, -1, 1}},
+        {{-1, -1, -1}, {-1, -1, 1}, {-1, 1, 1}, {-1, 1, -1}},
+        {{-1, 1, -1}, {-1, 1, 1}, {1, 1, 1}, {1, 1, -1}},
+        {{-1, -1, -1}, {1, -1, -1}, {1, -1, 1}, {-1, -1, 1}},
+        {{-1, -1, 1}, {1, -1, 1}, {1, 1, 1}, {-1, 1, 1}},
+        {{-1, -1, -1}, {-1, 1, -1}, {1, 1, -1}, {1, -1, -1}},
     };
     for (int f = 0; f < 6; f++)
         for (int t = 0; t < 2; t++) {
@@ -209,7 +218,8 @@ static void test_glass_box_and_cube_mesh(void)
             return;
         for (int k = 0; k < 3; k++) {
             double R = 0.04, T = exp(-2 * h * sigma_a[k]);
-            CHECK_REL(pixel_at(&img, 16, 16)[k], env[k] * (R + (1 - R) * (1 - R) * T / (1 - R * T)), 1e-3);
+            CHECK_REL(pixel_at(&img, 16, 16)[k], env[k] * (R + (1 - R) * (1 - R) * T / (1 - R * T)),
+                      1e-3);
         }
         ns_image_free(&img);
     }

@@ -84,8 +84,8 @@ static void bench(int runs)
 {
     const char *names[] = {"bvh", "upload", "ray_pass", "readback"};
     const uint32_t sizes[] = {256, 512}, spps[] = {1, 4};
-    printf("size     spp  %10s %10s %10s %10s %10s  (median ms of %d runs)\n", names[0], names[1], names[2], names[3],
-           "total", runs);
+    printf("size     spp  %10s %10s %10s %10s %10s  (median ms of %d runs)\n", names[0], names[1],
+           names[2], names[3], "total", runs);
     for (int a = 0; a < 2; a++)
         for (int b = 0; b < 2; b++) {
             double t[5][MAX_RUNS];
@@ -117,8 +117,10 @@ int main(void)
         ns_context *ctx = NULL;
         ns_error err = {0};
         double t0 = ns_now_ms();
-        int status = ns_context_create(&(ns_context_desc){.pipeline_cache_path = cache}, &ctx, &err);
-        printf("context create (pipelines warmed): %.1f ms, status %s\n", ns_now_ms() - t0, ns_status_name(status));
+        int status =
+            ns_context_create(&(ns_context_desc){.pipeline_cache_path = cache}, &ctx, &err);
+        printf("context create (pipelines warmed): %.1f ms, status %s\n", ns_now_ms() - t0,
+               ns_status_name(status));
         ns_context_destroy(ctx);
         return status ? 1 : 0;
     }

@@ -29,11 +29,15 @@ static void random_unit(double d[3])
 }
 
 /* ---- brute force, double precision, written from the geometry not from the shader ---- */
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
 
 static double cpu_hit(const GpuPrim *p, const double o[3], const double d[3])
 {
-    double a[3] = {p->a[0], p->a[1], p->a[2]}, b[3] = {p->b[0], p->b[1], p->b[2]}, c[3] = {p->c[0], p->c[1], p->c[2]};
+    double a[3] = {p->a[0], p->a[1], p->a[2]}, b[3] = {p->b[0], p->b[1], p->b[2]},
+           c[3] = {p->c[0], p->c[1], p->c[2]};
     if (p->info[0] == NS_PRIM_SPHERE) {
         double oc[3] = {o[0] - a[0], o[1] - a[1], o[2] - a[2]};
         double half_b = dot3(oc, d), cc = dot3(oc, oc) - (double)p->a[3] * p->a[3];
@@ -61,8 +65,10 @@ static double cpu_hit(const GpuPrim *p, const double o[3], const double d[3])
     }
     if (p->info[0] == NS_PRIM_TRIANGLE) {
         /* Plane of the triangle, then inside-test with barycentric areas. */
-        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
-        double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+        double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]},
+               e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                       e1[0] * e2[1] - e1[1] * e2[0]};
         double denom = dot3(n, d);
         if (denom == 0)
             return -1;
@@ -74,8 +80,10 @@ static double cpu_hit(const GpuPrim *p, const double o[3], const double d[3])
         const double *v[3] = {a, b, c};
         for (int i = 0; i < 3; i++) {
             const double *p0 = v[i], *p1 = v[(i + 1) % 3];
-            double edge[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]}, to[3] = {q[0] - p0[0], q[1] - p0[1], q[2] - p0[2]};
-            double cr[3] = {edge[1] * to[2] - edge[2] * to[1], edge[2] * to[0] - edge[0] * to[2], edge[0] * to[1] - edge[1] * to[0]};
+            double edge[3] = {p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]},
+                   to[3] = {q[0] - p0[0], q[1] - p0[1], q[2] - p0[2]};
+            double cr[3] = {edge[1] * to[2] - edge[2] * to[1], edge[2] * to[0] - edge[0] * to[2],
+                            edge[0] * to[1] - edge[1] * to[0]};
             if (dot3(cr, n) < 0)
                 return -1;
         }
@@ -116,12 +124,21 @@ static GpuPrim random_prim(int kind, uint32_t index)
 
 static void test_bvh_matches_brute_force(void)
 {
-    enum { SPHERES = 300, BOXES = 300, TRIANGLES = 1400, PLANES = 2, PRIMS = SPHERES + BOXES + TRIANGLES };
+    enum {
+        SPHERES = 300,
+        BOXES = 300,
+        TRIANGLES = 1400,
+        PLANES = 2,
+        PRIMS = SPHERES + BOXES + TRIANGLES
+    };
     static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
     static GpuRay rays[RAYS];
     static GpuHit hits[RAYS];
     for (uint32_t i = 0; i < PRIMS; i++)
-        prims[i] = random_prim(i < SPHERES ? NS_PRIM_SPHERE : i < SPHERES + BOXES ? NS_PRIM_BOX : NS_PRIM_TRIANGLE, i);
+        prims[i] = random_prim(i < SPHERES           ? NS_PRIM_SPHERE
+                               : i < SPHERES + BOXES ? NS_PRIM_BOX
+                                                     : NS_PRIM_TRIANGLE,
+                               i);
     /* A floor below everything and a tilted plane beyond it. */
     memset(planes, 0, sizeof planes);
     planes[0].info[0] = planes[1].info[0] = NS_PRIM_PLANE;
@@ -143,7 +160,8 @@ static void test_bvh_matches_brute_force(void)
         rays[i].origin[3] = i % 10 == 0 ? 5.0f : 1e30f; /* some rays with a short tmax */
     }
     ns_error err = {0};
-    int status = ns_trace_rays(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS, hits, &err);
+    int status =
+        ns_trace_rays(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS, hits, &err);
     if (status)
         fprintf(stderr, "ns_trace_rays: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -177,13 +195,14 @@ static void test_bvh_matches_brute_force(void)
         /* Different primitive: acceptable only as a tie (both at the same distance within
          * float precision), which random scenes produce for touching primitives. */
         double t_other = h->prim == NS_NONE ? INFINITY : cpu_hit(&all[h->prim], o, d);
-        if (h->prim != NS_NONE && best_prim != NS_NONE && fabs(t_other - best) <= 1e-4 * (1 + best)) {
+        if (h->prim != NS_NONE && best_prim != NS_NONE &&
+            fabs(t_other - best) <= 1e-4 * (1 + best)) {
             ties++;
             continue;
         }
         if (mismatches++ < 5)
-            fprintf(stderr, "ray %u: gpu prim %u t %.7g, brute force prim %u t %.7g\n", i, h->prim, h->t,
-                    best_prim, best);
+            fprintf(stderr, "ray %u: gpu prim %u t %.7g, brute force prim %u t %.7g\n", i, h->prim,
+                    h->t, best_prim, best);
     }
     CHECK_INT(mismatches, 0);
     CHECK(ties <= 3);

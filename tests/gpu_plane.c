@@ -14,7 +14,8 @@ static int pixel_class(const ns_camera *c, uint32_t x, uint32_t y)
     int down = 0, up = 0;
     for (int corner = 0; corner < 4; corner++) {
         double d[3];
-        camera_ray(c, (x + (corner & 1)) / (double)c->width, (y + (corner >> 1)) / (double)c->height, d);
+        camera_ray(c, (x + (corner & 1)) / (double)c->width,
+                   (y + (corner >> 1)) / (double)c->height, d);
         if (d[1] < -1e-3)
             down++;
         else if (d[1] > 1e-3)
@@ -57,7 +58,8 @@ static void check_directional(double theta_deg, int with_environment)
                 double want = cls > 0 ? rho[k] * (E[k] * cos_t / M_PI + L_env) : L_env;
                 if (!(fabs(p[k] - want) <= 2e-5 + 2e-5 * want)) {
                     if (bad++ < 5)
-                        fprintf(stderr, "pixel (%u,%u)[%d] = %.7g, expected %.7g\n", x, y, k, p[k], want);
+                        fprintf(stderr, "pixel (%u,%u)[%d] = %.7g, expected %.7g\n", x, y, k, p[k],
+                                want);
                 }
             }
             ground += cls > 0;
@@ -70,9 +72,18 @@ static void check_directional(double theta_deg, int with_environment)
     ns_image_free(&img);
 }
 
-static void test_directional_45(void) { check_directional(45, 0); }
-static void test_directional_70_environment(void) { check_directional(70, 1); }
-static void test_directional_from_below_is_dark(void) { check_directional(120, 0); }
+static void test_directional_45(void)
+{
+    check_directional(45, 0);
+}
+static void test_directional_70_environment(void)
+{
+    check_directional(70, 1);
+}
+static void test_directional_from_below_is_dark(void)
+{
+    check_directional(120, 0);
+}
 
 /* A point light of intensity I at height h above the plane, seen from the side. */
 static void test_point_light(void)
@@ -177,7 +188,8 @@ static void test_environment_occlusion(void)
         /* Each sample sees the sky or not: binomial noise, checked at 4.5 sigma. */
         double sigma = sqrt(visible * (1.0 - visible) / s.render.spp);
         for (int k = 0; k < 3; k++)
-            CHECK_NEAR(pixel_at(&img, 1, 1)[k], rho[k] * env[k] * visible, rho[k] * env[k] * (4.5 * sigma + 1e-4));
+            CHECK_NEAR(pixel_at(&img, 1, 1)[k], rho[k] * env[k] * visible,
+                       rho[k] * env[k] * (4.5 * sigma + 1e-4));
         ns_image_free(&img);
     }
 }
@@ -187,12 +199,14 @@ static void test_environment_occlusion(void)
  * blocks it completely (this pass does not follow caustics). */
 static void test_shadow_through_index_matched_medium(void)
 {
-    const double I[3] = {10, 20, 5}, h = 3.0, sigma_s[3] = {0.2, 0.0, 0.0}, sigma_a[3] = {0.3, 0.7, 0.0};
+    const double I[3] = {10, 20, 5}, h = 3.0, sigma_s[3] = {0.2, 0.0, 0.0},
+                 sigma_a[3] = {0.3, 0.7, 0.0};
     for (int glass = 0; glass < 2; glass++) {
         ns_scene s = base_scene(33, 33, 2);
         set3(s.camera.position, 4, 3, 0);
         set3(s.camera.look_at, 0, 0, 0);
-        ns_material m[2] = {diffuse(rho[0], rho[1], rho[2]), medium(sigma_s, sigma_a, glass ? 1.5 : 1.0)};
+        ns_material m[2] = {diffuse(rho[0], rho[1], rho[2]),
+                            medium(sigma_s, sigma_a, glass ? 1.5 : 1.0)};
         ns_object objects[2] = {plane(0, 0), sphere(0, 1.5, 0, 0.5, 1)};
         ns_light l = light(NS_LIGHT_POINT, I[0], I[1], I[2]);
         set3(l.position, 0, h, 0);
@@ -206,7 +220,9 @@ static void test_shadow_through_index_matched_medium(void)
         if (!render_ok(&s, &img, NULL))
             return;
         for (int k = 0; k < 3; k++) {
-            double want = glass ? 0.0 : rho[k] / M_PI * I[k] / (h * h) * exp(-(sigma_s[k] + sigma_a[k]) * 1.0);
+            double want =
+                glass ? 0.0
+                      : rho[k] / M_PI * I[k] / (h * h) * exp(-(sigma_s[k] + sigma_a[k]) * 1.0);
             CHECK_NEAR(pixel_at(&img, 16, 16)[k], want, 2e-3 * rho[k] / M_PI * I[k] / (h * h));
         }
         ns_image_free(&img);

@@ -67,8 +67,12 @@ static void test_one_segment_per_sample(void)
         CHECK_NEAR(dist3(g->entry, g->exit), 2 * sqrt(1.5 * 1.5 - b2), 5e-4);
         if (g->pixel == 4) /* the centre pixel: within 0.02 of the axis, 2r within 5e-4 */
             CHECK_NEAR(dist3(g->entry, g->exit), 3.0, 5e-4);
-        CHECK_NEAR(sqrt(g->entry[0] * g->entry[0] + g->entry[1] * g->entry[1] + g->entry[2] * g->entry[2]), 1.5, 1e-3);
-        CHECK_NEAR(sqrt(g->exit[0] * g->exit[0] + g->exit[1] * g->exit[1] + g->exit[2] * g->exit[2]), 1.5, 1e-3);
+        CHECK_NEAR(
+            sqrt(g->entry[0] * g->entry[0] + g->entry[1] * g->entry[1] + g->entry[2] * g->entry[2]),
+            1.5, 1e-3);
+        CHECK_NEAR(
+            sqrt(g->exit[0] * g->exit[0] + g->exit[1] * g->exit[1] + g->exit[2] * g->exit[2]), 1.5,
+            1e-3);
         CHECK_NEAR(g->direction[2], -1.0, 1e-4);
         CHECK(g->entry[2] > 1.49f && g->exit[2] < -1.49f);
         CHECK_NEAR(g->throughput[0], 1.0, 1e-6);

@@ -31,7 +31,8 @@ static GpuPrim random_prim(uint32_t i, double spread)
     return p;
 }
 
-static int inside(const float lo[3], const float hi[3], const float outer_lo[3], const float outer_hi[3])
+static int inside(const float lo[3], const float hi[3], const float outer_lo[3],
+                  const float outer_hi[3])
 {
     for (int k = 0; k < 3; k++)
         if (lo[k] < outer_lo[k] || hi[k] > outer_hi[k])
@@ -94,7 +95,8 @@ static void check_tree(const GpuPrim *prims, uint32_t count)
     for (uint32_t i = 0; i < count; i++) {
         if (bvh.order[i] < count)
             hits[bvh.order[i]]++;
-        same &= memcmp(&bvh.prims[i], &prims[bvh.order[i] < count ? bvh.order[i] : 0], sizeof(GpuPrim)) == 0;
+        same &= memcmp(&bvh.prims[i], &prims[bvh.order[i] < count ? bvh.order[i] : 0],
+                       sizeof(GpuPrim)) == 0;
     }
     int permutation = 1;
     for (uint32_t i = 0; i < count; i++)
