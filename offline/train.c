@@ -278,7 +278,7 @@ static int sample_table(sample_set *s, const ns_nn_header *h, const ns_table *ta
     return 0;
 }
 
-static int load_dataset(const train_options *o, ns_order order, const ns_nn_header *h,
+static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h,
                         dataset *d)
 {
     DIR *dir = opendir(o->data);
@@ -286,6 +286,7 @@ static int load_dataset(const train_options *o, ns_order order, const ns_nn_head
         return usage_error("--data: cannot open '%s': %s", o->data, strerror(errno));
     memset(d, 0, sizeof *d);
     double *cdf = NULL;
+    size_t first_size = 0;
     uint64_t rng = o->seed * 7919u + (uint64_t)order;
     int status = 0;
     struct dirent *e;
@@ -306,8 +307,19 @@ static int load_dataset(const train_options *o, ns_order order, const ns_nn_head
             fprintf(stderr, "nscatter train: skipping %s: %s\n", prefix, err.message);
             continue;
         }
-        if (!cdf)
-            cdf = malloc(ns_table_size(&tab) * sizeof(double));
+        /* The input map's extent comes from the tables; all must share the first one's. */
+        float extent = (float)tab.edges[NS_AXIS_RHO][tab.n[NS_AXIS_RHO]];
+        if (!cdf) {
+            h->extent = extent;
+            first_size = ns_table_size(&tab);
+            cdf = malloc(first_size * sizeof(double));
+        } else if (extent != h->extent || ns_table_size(&tab) != first_size) {
+            fprintf(stderr, "nscatter train: skipping %s: extent %g mfp / %zu cells, the "
+                            "first table has %g / %zu\n",
+                    prefix, extent, ns_table_size(&tab), h->extent, first_size);
+            ns_table_free(&tab);
+            continue;
+        }
         int held = is_holdout(tab.g, tab.albedo);
         status = cdf ? sample_table(held ? &d->test : &d->train, h, &tab, o->samples_per_table,
                                     &rng, cdf)

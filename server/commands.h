@@ -8,5 +8,7 @@ int cmd_info(int argc, char **argv);   /* server/cmd_info.c: chosen device and d
 int cmd_render(int argc, char **argv); /* server/cmd_render.c: scene JSON -> PNG/EXR */
 int cmd_serve(int argc, char **argv);  /* server/http.c: the HTTP service */
 int cmd_mc(int argc, char **argv);     /* offline/mc_cli.c: Monte Carlo tables */
+int cmd_train(int argc, char **argv);  /* offline/train.c: fit the scattering networks */
+int cmd_table(int argc, char **argv);  /* server/cmd_table.c: NN/MC table, accuracy report */
 
 #endif

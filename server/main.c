@@ -16,6 +16,8 @@ static const subcommand subcommands[] = {
     {"render", cmd_render, "render a scene JSON file to PNG or EXR"},
     {"info", cmd_info, "print the chosen Vulkan device and driver"},
     {"mc", cmd_mc, "Monte Carlo scattering tables (one material, or the training grid)"},
+    {"train", cmd_train, "train the double/multiple scattering networks on the Monte Carlo grid"},
+    {"table", cmd_table, "reconstruct a table from the networks (GPU), or compare it with MC"},
 };
 
 static void usage(FILE *out)

@@ -1,0 +1,277 @@
+/* nn_reconstruct.c — packs the networks for shaders/nn_reconstruct.comp, dispatches it over a
+ * whole table (3 channels x 2 orders) and optionally renormalises to the exact energy. */
+#include "nn_reconstruct.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "nn_shared.h"
+
+_Static_assert(NS_NN_B3_OFF + 1 == NS_NN_NET_VEC4, "nn_shared.h layout");
+_Static_assert(NS_NN_W2_OFF == NS_NN_B1_OFF + NS_NN_H4, "nn_shared.h layout");
+
+static double seconds_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Scatters one network's parameters into the padded vec4 layout of nn_shared.h. */
+static void pack_network(const ns_nn_weights *w, ns_vec4 *net)
+{
+    float *f = &net[0][0];
+    memset(f, 0, NS_NN_NET_VEC4 * sizeof(ns_vec4));
+    const float *p = w->p;
+    for (int j = 0; j < NS_NN_HIDDEN; j++) {
+        for (int k = 0; k < NS_NN_INPUTS; k++)
+            f[4 * (NS_NN_W1_OFF + 2 * j) + k] = p[NS_NN_OFF_W1 + j * NS_NN_INPUTS + k];
+        f[4 * NS_NN_B1_OFF + j] = p[NS_NN_OFF_B1 + j];
+        for (int k = 0; k < NS_NN_HIDDEN; k++)
+            f[4 * (NS_NN_W2_OFF + j * NS_NN_H4) + k] = p[NS_NN_OFF_W2 + j * NS_NN_HIDDEN + k];
+        f[4 * NS_NN_B2_OFF + j] = p[NS_NN_OFF_B2 + j];
+        f[4 * NS_NN_W3_OFF + j] = p[NS_NN_OFF_W3 + j];
+    }
+    f[4 * NS_NN_B3_OFF] = p[NS_NN_OFF_B3];
+}
+
+static void pack_common(struct GpuNnParams *gp, const ns_nn_weights *const nets[2])
+{
+    for (int o = 0; o < 2; o++) {
+        pack_network(nets[o], gp->net + o * NS_NN_NET_VEC4);
+        const ns_nn_header *h = &nets[o]->h;
+        gp->target[o][0] = (float)h->target;
+        gp->target[o][1] = h->target_eps;
+        gp->target[o][2] = h->target_mean;
+        gp->target[o][3] = h->target_scale;
+    }
+}
+
+static int check_nets(const ns_nn_weights *const nets[2], ns_error *err)
+{
+    for (int o = 0; o < 2; o++) {
+        if (!nets[o] || nets[o]->h.order != (uint32_t)o)
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "weights: the %s network is missing or "
+                           "is the other order's", o ? "multiple" : "double");
+        /* Both networks must read the same inputs: one input table serves both orders. */
+        const ns_nn_header *a = &nets[0]->h, *b = &nets[o]->h;
+        if (a->extent != b->extent || a->sinh_scale != b->sinh_scale ||
+            a->albedo_max != b->albedo_max || a->g_min != b->g_min || a->g_max != b->g_max)
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "weights: double and multiple networks normalise inputs differently");
+    }
+    return 0;
+}
+
+int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err)
+{
+    memset(nn, 0, sizeof *nn);
+    int status = gpu_pipeline_create(dev, &nn->pipeline,
+                                     &(gpu_pipeline_desc){.shader = "nn_reconstruct",
+                                                          .binding_count = 3},
+                                     err);
+    if (!status)
+        status = gpu_buffer_create(dev, &nn->params,
+                                   &(gpu_buffer_desc){.size = sizeof(struct GpuNnParams),
+                                                      .kind = GPU_BUFFER_UNIFORM,
+                                                      .label = "ns.nn.params"},
+                                   err);
+    if (!status)
+        status = gpu_buffer_create(dev, &nn->dummy,
+                                   &(gpu_buffer_desc){.size = 64, .label = "ns.nn.dummy"}, err);
+    nn->created = 1;
+    /* Warm-up: a zero cell count returns at once, but the driver compiles the pipeline. The
+     * generic gpu_pipeline_warm binds a 256-byte uniform buffer, smaller than GpuNnParams. */
+    if (!status) {
+        gpu_buffer *bound[3] = {&nn->params, &nn->dummy, &nn->dummy};
+        status = gpu_dispatch(dev, &nn->pipeline, bound, 3, (uint32_t[3]){1, 1, 1}, err);
+    }
+    if (status)
+        ns_nn_gpu_destroy(dev, nn);
+    return status;
+}
+
+void ns_nn_gpu_destroy(gpu_device *dev, ns_nn_gpu *nn)
+{
+    if (!nn->created)
+        return;
+    gpu_buffer_destroy(dev, &nn->dummy);
+    gpu_buffer_destroy(dev, &nn->params);
+    gpu_pipeline_destroy(dev, &nn->pipeline);
+    memset(nn, 0, sizeof *nn);
+}
+
+static double mid(const double *edges, uint32_t i)
+{
+    return 0.5 * (edges[i] + edges[i + 1]);
+}
+
+static int check_grid(const ns_nn_grid *g, ns_error *err)
+{
+    for (int a = 0; a < 4; a++) {
+        if (g->n[a] < 1 || g->n[a] > NS_NN_MAX_AXIS || !g->edges[a])
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "table axis %d: %u bins (1 to %u)", a,
+                           g->n[a], NS_NN_MAX_AXIS);
+    }
+    uint64_t cells = (uint64_t)g->n[0] * g->n[1] * g->n[2] * g->n[3];
+    if (cells * 6 * sizeof(float) > (128u << 20)) /* lavapipe's storage buffer cap */
+        return ns_fail(err, NS_ERR_LIMIT, "table of %llu cells: 6 tables exceed 128 MiB",
+                       (unsigned long long)cells);
+    return 0;
+}
+
+double ns_nn_grid_energy(const ns_nn_grid *grid, const float *j)
+{
+    const double *ez = grid->edges[0], *er = grid->edges[1], *et = grid->edges[2],
+                 *ep = grid->edges[3];
+    double total = 0.0;
+    size_t c = 0;
+    for (uint32_t iz = 0; iz < grid->n[0]; iz++)
+        for (uint32_t ir = 0; ir < grid->n[1]; ir++) {
+            double vol = M_PI * (er[ir + 1] * er[ir + 1] - er[ir] * er[ir]) * (ez[iz + 1] - ez[iz]);
+            double spatial = 0.0;
+            for (uint32_t it = 0; it < grid->n[2]; it++) {
+                double dcos = cos(et[it]) - cos(et[it + 1]);
+                for (uint32_t ip = 0; ip < grid->n[3]; ip++, c++)
+                    spatial += j[c] * dcos * (ep[ip + 1] - ep[ip]) * 2.0;
+            }
+            total += spatial * vol;
+        }
+    return total;
+}
+
+static double exact_energy(int order, double a)
+{
+    return order == 0 ? a * a : a * a * a / (1.0 - a);
+}
+
+int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_desc *desc,
+                      ns_nn_reconstruct_stats *stats, ns_error *err)
+{
+    double t0 = seconds_now();
+    int status = check_nets(desc->nets, err);
+    if (!status)
+        status = check_grid(&desc->grid, err);
+    if (status)
+        return status;
+    if (!(desc->g >= 0 && desc->g < 1))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)",
+                       desc->g);
+    for (int c = 0; c < 3; c++)
+        if (!(desc->albedo[c] >= 0 && desc->albedo[c] < 1))
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "albedo[%d]: %g outside [0, 1)", c,
+                           desc->albedo[c]);
+    const ns_nn_grid *grid = &desc->grid;
+    uint32_t cells = grid->n[0] * grid->n[1] * grid->n[2] * grid->n[3];
+    struct GpuNnParams *gp = nn->params.mapped;
+    memset(gp, 0, sizeof *gp);
+    pack_common(gp, desc->nets);
+    const ns_nn_header *h = &desc->nets[0]->h;
+    /* Cells beyond the extent the networks were trained on get -1: the shader writes 0
+     * there rather than extrapolating. */
+    float *axis = &gp->axis[0][0];
+    for (uint32_t i = 0; i < grid->n[0]; i++) {
+        double z = mid(grid->edges[0], i);
+        axis[i] = fabs(z) <= h->extent ? ns_nn_map_z(h, z) : -1.0f;
+    }
+    for (uint32_t i = 0; i < grid->n[1]; i++) {
+        double rho = mid(grid->edges[1], i);
+        axis[NS_NN_MAX_AXIS + i] = rho <= h->extent ? ns_nn_map_rho(h, rho) : -1.0f;
+    }
+    for (uint32_t i = 0; i < grid->n[2]; i++)
+        axis[2 * NS_NN_MAX_AXIS + i] = (float)(mid(grid->edges[2], i) / M_PI);
+    for (uint32_t i = 0; i < grid->n[3]; i++)
+        axis[3 * NS_NN_MAX_AXIS + i] = (float)(mid(grid->edges[3], i) / M_PI);
+    for (int a = 0; a < 4; a++)
+        gp->counts[a] = grid->n[a];
+    gp->info[0] = cells;
+    gp->info[1] = NS_NN_MODE_TABLE;
+    for (int c = 0; c < 3; c++) {
+        gp->channel[c][0] = ns_nn_map_g(h, desc->g);
+        gp->channel[c][1] = ns_nn_map_albedo(h, desc->albedo[c]);
+        gp->channel[c][2] = (float)exact_energy(0, desc->albedo[c]);
+        gp->channel[c][3] = (float)exact_energy(1, desc->albedo[c]);
+    }
+    gpu_buffer out = {0};
+    status = gpu_buffer_create(dev, &out,
+                               &(gpu_buffer_desc){.size = (VkDeviceSize)cells * 6 * sizeof(float),
+                                                  .uninitialized = 1, .label = "ns.nn.out"},
+                               err);
+    if (status)
+        return status;
+    uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
+    double t1 = seconds_now();
+    gpu_buffer *bound[3] = {&nn->params, &out, &nn->dummy};
+    status = gpu_dispatch(dev, &nn->pipeline, bound, 3,
+                          (uint32_t[3]){(cells + per_group - 1) / per_group, 3, 2}, err);
+    double t2 = seconds_now();
+    if (!status)
+        memcpy(desc->out, out.mapped, (size_t)cells * 6 * sizeof(float));
+    gpu_buffer_destroy(dev, &out);
+    if (status)
+        return status;
+    ns_nn_reconstruct_stats s = {.gpu_seconds = t2 - t1, .evaluations = (uint64_t)cells * 6};
+    for (int o = 0; o < 2; o++)
+        for (int c = 0; c < 3; c++) {
+            float *j = desc->out + ((size_t)o * 3 + c) * cells;
+            s.energy_raw[o][c] = ns_nn_grid_energy(grid, j);
+            s.energy_exact[o][c] = exact_energy(o, desc->albedo[c]);
+            if (desc->renormalise && s.energy_raw[o][c] > 0) {
+                float k = (float)(s.energy_exact[o][c] / s.energy_raw[o][c]);
+                for (uint32_t i = 0; i < cells; i++)
+                    j[i] *= k;
+            }
+        }
+    s.total_seconds = seconds_now() - t0;
+    if (stats)
+        *stats = s;
+    return 0;
+}
+
+int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2],
+                      const float *x, const double *energy, uint32_t n, float *out,
+                      ns_error *err)
+{
+    int status = check_nets(nets, err);
+    if (status)
+        return status;
+    if (n == 0 || n > (1u << 22))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "points: %u (1 to 4M)", n);
+    struct GpuNnParams *gp = nn->params.mapped;
+    memset(gp, 0, sizeof *gp);
+    pack_common(gp, nets);
+    gp->info[0] = n;
+    gp->info[1] = NS_NN_MODE_POINTS;
+    gpu_buffer pts = {0}, res = {0};
+    status = gpu_buffer_create(dev, &pts,
+                               &(gpu_buffer_desc){.size = (VkDeviceSize)n * 2 * sizeof(ns_vec4),
+                                                  .label = "ns.nn.points"},
+                               err);
+    if (!status)
+        status = gpu_buffer_create(dev, &res,
+                                   &(gpu_buffer_desc){.size = (VkDeviceSize)n * 2 * sizeof(float),
+                                                      .label = "ns.nn.points_out"},
+                                   err);
+    if (!status) {
+        ns_vec4 *v = pts.mapped;
+        for (uint32_t i = 0; i < n; i++) {
+            const float *xi = x + (size_t)i * NS_NN_INPUTS;
+            memcpy(v[2 * i], xi, 4 * sizeof(float));
+            v[2 * i + 1][0] = xi[4];
+            v[2 * i + 1][1] = xi[5];
+            v[2 * i + 1][2] = (float)energy[i];
+            v[2 * i + 1][3] = 0.0f;
+        }
+        uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
+        gpu_buffer *bound[3] = {&nn->params, &res, &pts};
+        status = gpu_dispatch(dev, &nn->pipeline, bound, 3,
+                              (uint32_t[3]){(n + per_group - 1) / per_group, 1, 2}, err);
+    }
+    if (!status)
+        memcpy(out, res.mapped, (size_t)n * 2 * sizeof(float));
+    gpu_buffer_destroy(dev, &res);
+    gpu_buffer_destroy(dev, &pts);
+    return status;
+}

@@ -1,0 +1,548 @@
+/* cmd_table.c — `nscatter table`: a scattering table from the networks (GPU reconstruction)
+ * or from Monte Carlo, in the format `nscatter mc` writes; `--report`: accuracy of the
+ * networks against exact energies and Monte Carlo tables; `--benchmark`: reconstruction
+ * speed against a CPU evaluation of the same network (docs/network.md). */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+
+#include "../offline/mc.h"
+#include "../offline/nn_train.h"
+#include "../offline/table_io.h"
+#include "../render/nn_reconstruct.h"
+#include "commands.h"
+
+static const char usage_text[] =
+    "usage: nscatter table --source nn|mc --order double|multiple --g G --albedo A --out PREFIX\n"
+    "                      [--no-renormalise] [--photons N (mc, default 5e7 collisions)]\n"
+    "                      [--seed S] [--weights-double F] [--weights-multiple F] [--device D]\n"
+    "       nscatter table --report [--mc-dir DIR] [--materials G:A,G:A,...]\n"
+    "                      [--mc-collisions C (5e7)] [common options]\n"
+    "       nscatter table --benchmark [--runs N (5)] [common options]\n"
+    "\n"
+    "--source nn reconstructs the table on the GPU from the networks (built in, or --weights-*)\n"
+    "on the Monte Carlo table's bins and, unless --no-renormalise, rescales it to the exact\n"
+    "energy (a^2 or a^3/(1-a)). --report compares the networks with the exact energies and\n"
+    "with Monte Carlo tables of materials off the training grid (cached in --mc-dir, default\n"
+    "data/report). --benchmark times the reconstruction of both tables of an RGB material.\n";
+
+typedef struct {
+    const char *source, *out, *weights[2], *device, *mc_dir, *materials;
+    ns_order order;
+    int have_order, have_g, have_albedo, renormalise, report, benchmark, runs;
+    double g, albedo, mc_collisions;
+    uint64_t photons, seed;
+} table_options;
+
+static int usage_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "nscatter table: ");
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, "\n");
+    va_end(ap);
+    return 2;
+}
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static int parse_num(const char *name, const char *text, double lo, double hi, double *out)
+{
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (!*text || *end || errno || !isfinite(v) || v < lo || v > hi)
+        return usage_error("%s: '%s' must be a number in [%g, %g]", name, text, lo, hi);
+    *out = v;
+    return 0;
+}
+
+static int parse_value(table_options *o, const char *arg, const char *val)
+{
+    double v;
+    if (!strcmp(arg, "--source")) {
+        if (strcmp(val, "nn") && strcmp(val, "mc"))
+            return usage_error("--source: '%s' is not nn or mc", val);
+        o->source = val;
+    } else if (!strcmp(arg, "--order")) {
+        if (ns_order_parse(val, &o->order))
+            return usage_error("--order: '%s' is not double or multiple", val);
+        o->have_order = 1;
+    } else if (!strcmp(arg, "--g")) {
+        o->have_g = 1;
+        return parse_num(arg, val, 0, 0.999999, &o->g);
+    } else if (!strcmp(arg, "--albedo")) {
+        o->have_albedo = 1;
+        return parse_num(arg, val, 0, 0.999999, &o->albedo);
+    } else if (!strcmp(arg, "--out"))
+        o->out = val;
+    else if (!strcmp(arg, "--weights-double"))
+        o->weights[0] = val;
+    else if (!strcmp(arg, "--weights-multiple"))
+        o->weights[1] = val;
+    else if (!strcmp(arg, "--device"))
+        o->device = val;
+    else if (!strcmp(arg, "--mc-dir"))
+        o->mc_dir = val;
+    else if (!strcmp(arg, "--materials"))
+        o->materials = val;
+    else if (!strcmp(arg, "--photons")) {
+        if (parse_num(arg, val, 1, 1e13, &v))
+            return 2;
+        o->photons = (uint64_t)v;
+    } else if (!strcmp(arg, "--mc-collisions"))
+        return parse_num(arg, val, 1e4, 1e12, &o->mc_collisions);
+    else if (!strcmp(arg, "--seed")) {
+        if (parse_num(arg, val, 0, 9007199254740992.0, &v))
+            return 2;
+        o->seed = (uint64_t)v;
+    } else if (!strcmp(arg, "--runs")) {
+        if (parse_num(arg, val, 1, 100, &v))
+            return 2;
+        o->runs = (int)v;
+    } else
+        return usage_error("unknown option '%s' (see nscatter table --help)", arg);
+    return 0;
+}
+
+static int parse_options(int argc, char **argv, table_options *o)
+{
+    memset(o, 0, sizeof *o);
+    o->renormalise = 1;
+    o->seed = 1;
+    o->runs = 5;
+    o->mc_collisions = 5e7;
+    o->mc_dir = "data/report";
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
+            fputs(usage_text, stdout);
+            return -1;
+        }
+        if (!strcmp(arg, "--no-renormalise"))
+            o->renormalise = 0;
+        else if (!strcmp(arg, "--report"))
+            o->report = 1;
+        else if (!strcmp(arg, "--benchmark"))
+            o->benchmark = 1;
+        else if (strncmp(arg, "--", 2) != 0)
+            return usage_error("unexpected argument '%s' (see nscatter table --help)", arg);
+        else if (i + 1 >= argc)
+            return usage_error("%s: missing value", arg);
+        else if (parse_value(o, arg, argv[++i]))
+            return 2;
+    }
+    return 0;
+}
+
+/* =======================================================================================
+ * GPU and weights
+ * ===================================================================================== */
+
+typedef struct {
+    gpu_device dev;
+    ns_nn_gpu nn;
+    ns_nn_weights nets[2];
+    int have_dev;
+} nn_session;
+
+static int session_open(const table_options *o, nn_session *s)
+{
+    memset(s, 0, sizeof *s);
+    ns_error err = {0};
+    for (int k = 0; k < 2; k++) {
+        int rc = o->weights[k] ? ns_nn_weights_load(o->weights[k], &s->nets[k], &err)
+                               : ns_nn_weights_builtin((uint32_t)k, &s->nets[k], &err);
+        if (!rc && s->nets[k].h.order != (uint32_t)k)
+            rc = NS_ERR_INVALID_ARGUMENT,
+            snprintf(err.message, sizeof err.message, "%s: holds the %s network",
+                     o->weights[k], ns_order_name((ns_order)s->nets[k].h.order));
+        if (rc) {
+            fprintf(stderr, "nscatter table: %s\n", err.message);
+            return 2;
+        }
+    }
+    const char *validation = getenv("NSCATTER_VALIDATION");
+    int rc = gpu_device_create(&s->dev,
+                               &(gpu_device_desc){.device = o->device,
+                                                  .validation = validation && *validation == '1'},
+                               &err);
+    if (!rc) {
+        s->have_dev = 1;
+        rc = ns_nn_gpu_create(&s->dev, &s->nn, &err);
+    }
+    if (rc) {
+        fprintf(stderr, "nscatter table: %s\n", err.message);
+        return 1;
+    }
+    return 0;
+}
+
+static void session_close(nn_session *s)
+{
+    if (!s->have_dev)
+        return;
+    ns_nn_gpu_destroy(&s->dev, &s->nn);
+    gpu_device_destroy(&s->dev);
+    s->have_dev = 0;
+}
+
+static int default_table(ns_table *t, ns_order order, double g, double albedo)
+{
+    const uint32_t n[4] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    ns_error err = {0};
+    if (ns_table_create(t, n, &err)) {
+        fprintf(stderr, "nscatter table: %s\n", err.message);
+        return 1;
+    }
+    ns_mc_default_edges(t);
+    t->order = order;
+    t->g = g;
+    t->albedo = albedo;
+    t->energy_expected = ns_mc_expected_energy(order, albedo);
+    return 0;
+}
+
+static ns_nn_grid grid_of(const ns_table *t)
+{
+    ns_nn_grid g;
+    for (int a = 0; a < 4; a++)
+        g.n[a] = t->n[a], g.edges[a] = t->edges[a];
+    return g;
+}
+
+/* Both orders, three channels; *out is malloc'ed [2][3][cells]. */
+static int reconstruct(nn_session *s, const ns_table *shape, double g, const double albedo[3],
+                       int renormalise, float **out, ns_nn_reconstruct_stats *stats)
+{
+    size_t cells = ns_table_size(shape);
+    *out = malloc(cells * 6 * sizeof(float));
+    if (!*out)
+        return usage_error("out of memory");
+    const ns_nn_weights *nets[2] = {&s->nets[0], &s->nets[1]};
+    ns_error err = {0};
+    ns_nn_reconstruct_desc d = {.nets = {nets[0], nets[1]}, .grid = grid_of(shape), .g = g,
+                                .albedo = {albedo[0], albedo[1], albedo[2]},
+                                .renormalise = renormalise, .out = *out};
+    if (ns_nn_reconstruct(&s->dev, &s->nn, &d, stats, &err)) {
+        fprintf(stderr, "nscatter table: %s\n", err.message);
+        free(*out);
+        *out = NULL;
+        return 1;
+    }
+    return 0;
+}
+
+/* =======================================================================================
+ * One table
+ * ===================================================================================== */
+
+static int run_mc_table(const table_options *o, ns_table *t)
+{
+    uint64_t photons = o->photons ? o->photons
+                                  : (uint64_t)fmax(1000, o->mc_collisions /
+                                                             ns_mc_collisions_per_photon(
+                                                                 1u << o->order, o->albedo));
+    ns_mc_desc desc = {.g = o->g, .albedo = o->albedo, .photons = photons, .seed = o->seed,
+                       .orders = 1u << o->order};
+    ns_error err = {0};
+    ns_mc_result r;
+    if (ns_mc_run(&desc, &r, &err)) {
+        fprintf(stderr, "nscatter table: %s\n", err.message);
+        return 1;
+    }
+    *t = r.table[o->order];
+    memset(&r.table[o->order], 0, sizeof r.table[o->order]); /* ownership moves to *t */
+    ns_mc_result_free(&r);
+    return 0;
+}
+
+static int run_one(const table_options *o)
+{
+    if (!o->source)
+        return usage_error("--source: missing (nn or mc)");
+    if (!o->have_order || !o->have_g || !o->have_albedo || !o->out)
+        return usage_error("%s: missing", !o->have_order ? "--order"
+                                          : !o->have_g   ? "--g"
+                                          : !o->have_albedo ? "--albedo"
+                                                            : "--out");
+    ns_error err = {0};
+    if (ns_table_check_writable(o->out, &err))
+        return usage_error("--out: %s", err.message);
+    ns_table t;
+    int rc;
+    if (!strcmp(o->source, "mc")) {
+        rc = run_mc_table(o, &t);
+    } else {
+        nn_session s;
+        rc = session_open(o, &s);
+        if (!rc)
+            rc = default_table(&t, o->order, o->g, o->albedo);
+        float *all = NULL;
+        ns_nn_reconstruct_stats st;
+        double albedo[3] = {o->albedo, o->albedo, o->albedo};
+        if (!rc)
+            rc = reconstruct(&s, &t, o->g, albedo, o->renormalise, &all, &st);
+        if (!rc) {
+            memcpy(t.data, all + (size_t)o->order * 3 * ns_table_size(&t),
+                   ns_table_size(&t) * sizeof(float));
+            snprintf(t.source, sizeof t.source, "nn");
+            fprintf(stderr, "nscatter table: reconstructed in %.3f s (GPU %.3f s, %s), raw "
+                            "energy %.6g of %.6g\n",
+                    st.total_seconds, st.gpu_seconds, s.dev.info.device_name,
+                    st.energy_raw[o->order][0], st.energy_exact[o->order][0]);
+        } else if (t.data) {
+            ns_table_free(&t);
+        }
+        free(all);
+        session_close(&s);
+    }
+    if (rc)
+        return rc;
+    t.energy_captured = ns_table_energy(&t);
+    rc = ns_table_write(&t, o->out, &err);
+    if (rc)
+        fprintf(stderr, "nscatter table: %s\n", err.message);
+    else
+        printf("%s: %s %s g=%g albedo=%g energy %.6g of %.6g\n", o->out, t.source,
+               ns_order_name(t.order), t.g, t.albedo, t.energy_captured, t.energy_expected);
+    ns_table_free(&t);
+    return rc ? 1 : 0;
+}
+
+/* =======================================================================================
+ * Accuracy report
+ * ===================================================================================== */
+
+static const double report_default[][2] = {
+    {0.45, 0.87}, {0.75, 0.97}, {0.15, 0.5}, {0.92, 0.995}, {0.3, 0.1},
+};
+
+/* Energy-weighted L1 distance (the paper's Fig. 18): sum |J_nn - J_mc| dV dOmega over the
+ * energy of the MC table. */
+static double weighted_l1(const ns_table *mc, const float *nn)
+{
+    double diff = 0.0, ref = 0.0;
+    size_t c = 0;
+    for (uint32_t iz = 0; iz < mc->n[0]; iz++)
+        for (uint32_t ir = 0; ir < mc->n[1]; ir++) {
+            double vol = ns_table_bin_volume(mc, iz, ir);
+            for (uint32_t it = 0; it < mc->n[2]; it++)
+                for (uint32_t ip = 0; ip < mc->n[3]; ip++, c++) {
+                    double w = vol * ns_table_bin_solid_angle(mc, it, ip);
+                    diff += fabs((double)nn[c] - mc->data[c]) * w;
+                    ref += mc->data[c] * w;
+                }
+        }
+    return ref > 0 ? diff / ref : NAN;
+}
+
+static int reference_table(const table_options *o, double g, double a, ns_order order,
+                           ns_table *t)
+{
+    char prefix[4096];
+    snprintf(prefix, sizeof prefix, "%s/g%.2f_a%.3f_%s", o->mc_dir, g, a, ns_order_name(order));
+    ns_error err = {0};
+    if (ns_table_is_complete(prefix) && !ns_table_read(prefix, t, &err))
+        return 0;
+    mkdir(o->mc_dir, 0755);
+    table_options m = *o;
+    m.g = g, m.albedo = a, m.order = order, m.photons = 0, m.seed = 12345;
+    fprintf(stderr, "nscatter table: Monte Carlo reference %s (%.0e collisions)...\n", prefix,
+            o->mc_collisions);
+    if (run_mc_table(&m, t))
+        return 1;
+    if (ns_table_write(t, prefix, &err))
+        fprintf(stderr, "nscatter table: warning: cannot cache %s: %s\n", prefix, err.message);
+    return 0;
+}
+
+static int parse_materials(const char *text, double (*m)[2], int cap, int *count)
+{
+    char buf[1024];
+    snprintf(buf, sizeof buf, "%s", text);
+    *count = 0;
+    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        if (*count >= cap || sscanf(tok, "%lf:%lf", &m[*count][0], &m[*count][1]) != 2 ||
+            !(m[*count][0] >= 0 && m[*count][0] < 1 && m[*count][1] >= 0 && m[*count][1] < 1))
+            return usage_error("--materials: '%s' is not G:A with G, A in [0, 1)", tok);
+        (*count)++;
+    }
+    return *count ? 0 : usage_error("--materials: empty list");
+}
+
+static int report_material(const table_options *o, nn_session *s, double g, double a)
+{
+    for (int k = 0; k < 2; k++) {
+        ns_table mc;
+        if (reference_table(o, g, a, (ns_order)k, &mc))
+            return 1;
+        double albedo[3] = {a, a, a};
+        float *raw = NULL;
+        ns_nn_reconstruct_stats st;
+        if (reconstruct(s, &mc, g, albedo, 0, &raw, &st)) {
+            ns_table_free(&mc);
+            return 1;
+        }
+        size_t cells = ns_table_size(&mc);
+        float *j = raw + (size_t)k * 3 * cells;
+        double exact = ns_mc_expected_energy((ns_order)k, a);
+        double e_raw = st.energy_raw[k][0];
+        double l1_raw = weighted_l1(&mc, j);
+        for (size_t i = 0; i < cells; i++)
+            j[i] = (float)(j[i] * (exact / e_raw));
+        double l1_norm = weighted_l1(&mc, j);
+        double mc_energy = ns_table_energy(&mc);
+        printf("%5.2f %6.3f %-8s %+9.2f%% %+9.2f%% %9.2f%% %9.2f%%  %7.2f%%\n", g, a,
+               ns_order_name((ns_order)k), 100 * (e_raw / exact - 1),
+               100 * (e_raw / mc_energy - 1), 100 * l1_raw, 100 * l1_norm,
+               100 * mc_energy / exact);
+        fflush(stdout);
+        free(raw);
+        ns_table_free(&mc);
+    }
+    return 0;
+}
+
+static int run_report(const table_options *o)
+{
+    double mats[32][2];
+    int count = (int)(sizeof report_default / sizeof report_default[0]);
+    memcpy(mats, report_default, sizeof report_default);
+    if (o->materials && parse_materials(o->materials, mats, 32, &count))
+        return 2;
+    nn_session s;
+    int rc = session_open(o, &s);
+    if (rc)
+        return rc;
+    printf("device: %s; weights: %s, %s\n", s.dev.info.device_name,
+           o->weights[0] ? o->weights[0] : "built-in", o->weights[1] ? o->weights[1] : "built-in");
+    printf("energy error: NN table (no renormalisation) vs exact a^k and vs the MC table; L1: "
+           "energy-weighted |NN - MC| / MC energy, raw and renormalised; MC captured: MC "
+           "table energy / exact\n");
+    printf("%5s %6s %-8s %10s %10s %10s %10s %9s\n", "g", "albedo", "order", "E vs exact",
+           "E vs MC", "L1 raw", "L1 renorm", "MC capt.");
+    for (int i = 0; i < count && !rc; i++)
+        rc = report_material(o, &s, mats[i][0], mats[i][1]);
+    session_close(&s);
+    return rc;
+}
+
+/* =======================================================================================
+ * Benchmark
+ * ===================================================================================== */
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* CPU baselines on n random inputs: the plain scalar forward pass, and the batched
+ * OpenBLAS forward pass of the trainer (one thread each, as measured in DESIGN.md §6). */
+static void cpu_baselines(const ns_nn_weights *w, double *scalar_rate, double *blas_rate)
+{
+    const uint32_t n = 1u << 17, batch = 8192;
+    float *x = malloc((size_t)n * NS_NN_INPUTS * sizeof(float));
+    ns_nn_trainer tr;
+    *scalar_rate = *blas_rate = NAN;
+    if (!x || ns_nn_trainer_init(&tr, batch)) {
+        free(x);
+        return;
+    }
+    uint64_t s = 42;
+    for (size_t i = 0; i < (size_t)n * NS_NN_INPUTS; i++) {
+        s = s * 6364136223846793005ull + 1442695040888963407ull;
+        x[i] = (float)((s >> 40) * 0x1.0p-24);
+    }
+    volatile float sink = 0;
+    double t0 = now_s();
+    for (uint32_t i = 0; i < n; i++)
+        sink += ns_nn_forward(w, x + (size_t)i * NS_NN_INPUTS);
+    double t1 = now_s();
+    for (uint32_t i = 0; i < n; i += batch)
+        ns_nn_batch_forward(&tr, w->p, x + (size_t)i * NS_NN_INPUTS, batch, NULL);
+    double t2 = now_s();
+    (void)sink;
+    *scalar_rate = n / (t1 - t0);
+    *blas_rate = n / (t2 - t1);
+    ns_nn_trainer_free(&tr);
+    free(x);
+}
+
+static int run_benchmark(const table_options *o)
+{
+    nn_session s;
+    double t0 = now_s();
+    int rc = session_open(o, &s);
+    if (rc)
+        return rc;
+    double startup = now_s() - t0;
+    ns_table shape;
+    if (default_table(&shape, NS_ORDER_DOUBLE, 0.75, 0.97)) {
+        session_close(&s);
+        return 1;
+    }
+    const double albedo[3] = {0.97, 0.95, 0.9};
+    double gpu[100], total[100];
+    uint64_t evals = 0;
+    for (int r = 0; r < o->runs && !rc; r++) {
+        float *out = NULL;
+        ns_nn_reconstruct_stats st;
+        rc = reconstruct(&s, &shape, 0.75, albedo, o->renormalise, &out, &st);
+        free(out);
+        gpu[r] = st.gpu_seconds, total[r] = st.total_seconds, evals = st.evaluations;
+    }
+    if (!rc) {
+        qsort(gpu, (size_t)o->runs, sizeof(double), cmp_double);
+        qsort(total, (size_t)o->runs, sizeof(double), cmp_double);
+        double scalar, blas;
+        cpu_baselines(&s.nets[0], &scalar, &blas);
+        double flops = 2.0 * (NS_NN_PARAMS - 1 - 2 * NS_NN_HIDDEN); /* multiply-adds x 2 */
+        printf("device: %s (pipeline created and warmed in %.2f s)\n", s.dev.info.device_name,
+               startup);
+        printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells, "
+               "%llu network evaluations\n",
+               shape.n[0], shape.n[1], shape.n[2], shape.n[3], (unsigned long long)evals);
+        printf("reconstruction median of %d: %.3f s on the GPU queue, %.3f s in all "
+               "(readback, energy sums%s)\n",
+               o->runs, gpu[o->runs / 2], total[o->runs / 2],
+               o->renormalise ? ", renormalisation" : "");
+        printf("GPU: %.3g evaluations/s (%.1f GFLOP/s)\n", evals / gpu[o->runs / 2],
+               evals / gpu[o->runs / 2] * flops * 1e-9);
+        printf("CPU plain C, 1 thread: %.3g evaluations/s (%.1f GFLOP/s)\n", scalar,
+               scalar * flops * 1e-9);
+        printf("CPU OpenBLAS batched (batch 8192, OpenBLAS threading default): %.3g "
+               "evaluations/s (%.1f GFLOP/s)\n", blas, blas * flops * 1e-9);
+    }
+    ns_table_free(&shape);
+    session_close(&s);
+    return rc;
+}
+
+int cmd_table(int argc, char **argv)
+{
+    table_options o;
+    int rc = parse_options(argc, argv, &o);
+    if (rc)
+        return rc < 0 ? 0 : rc;
+    if (o.report + o.benchmark > 1)
+        return usage_error("--report and --benchmark are separate runs");
+    if (o.report)
+        return run_report(&o);
+    if (o.benchmark)
+        return run_benchmark(&o);
+    return run_one(&o);
+}

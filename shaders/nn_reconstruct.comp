@@ -1,0 +1,101 @@
+#version 450
+// nn_reconstruct.comp — evaluates the scattering networks (render/nn_weights.h) at every
+// cell of a table: gl_GlobalInvocationID.x picks 16 consecutive cells, .y the RGB channel
+// (each its own albedo), .z the order (0 double, 1 multiple). The output is J itself (the
+// inverse target transform applied), out[(order * 3 + channel) * cells + cell].
+// Points mode (tests): the inputs come from a list instead, 2 vec4 per point: (rho, z,
+// theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point].
+// Shape (DESIGN.md section 6, lavapipe): many points per invocation with the weights in a
+// uniform buffer, so each weight fetched is used 16 times; loops are not unrolled by hand.
+#extension GL_GOOGLE_include_directive : require
+#include "nn_shared.h"
+
+layout(local_size_x = NS_NN_GROUP) in;
+
+layout(std140, binding = 0) uniform NnBlock { GpuNnParams P; };
+layout(std430, binding = 1) writeonly buffer OutBlock { float outv[]; };
+layout(std430, binding = 2) readonly buffer PointBlock { vec4 points[]; };
+
+float axis_value(uint axis, uint i)
+{
+    uint k = axis * NS_NN_MAX_AXIS + i;
+    return P.axis[k >> 2][k & 3u];
+}
+
+// Normalised inputs of cell or point `index`: lo = (rho, z, theta, phi), hi = (g, a, E, 0).
+void inputs(uint index, uint channel, uint order, out vec4 lo, out vec4 hi)
+{
+    if (P.info.y == NS_NN_MODE_POINTS) {
+        lo = points[2u * index];
+        hi = points[2u * index + 1u];
+        return;
+    }
+    uint iphi = index % P.counts.w;
+    uint itheta = (index / P.counts.w) % P.counts.z;
+    uint spatial = index / (P.counts.w * P.counts.z);
+    uint irho = spatial % P.counts.y;
+    uint iz = spatial / P.counts.y;
+    lo = vec4(axis_value(1u, irho), axis_value(0u, iz), axis_value(2u, itheta),
+              axis_value(3u, iphi));
+    vec4 c = P.channel[channel];
+    hi = vec4(c.x, c.y, order == 0u ? c.z : c.w, 0.0);
+}
+
+void main()
+{
+    // From the workgroup id, not the invocation id: the compiler then knows they are the same
+    // for all lanes, so weight fetches stay scalar loads instead of per-lane gathers.
+    uint order = gl_WorkGroupID.z;
+    uint channel = gl_WorkGroupID.y;
+    uint first = gl_GlobalInvocationID.x * NS_NN_POINTS;
+    uint count = P.info.x;
+    if (first >= count)
+        return;
+    uint net = order * NS_NN_NET_VEC4;
+
+    vec4 h1[NS_NN_POINTS * NS_NN_H4];
+    float energy[NS_NN_POINTS]; // E_k, or 0 outside the trained extent (inputs < 0)
+    for (uint p = 0u; p < NS_NN_POINTS; p++) {
+        vec4 lo, hi;
+        inputs(min(first + p, count - 1u), channel, order, lo, hi);
+        energy[p] = min(lo.x, lo.y) < 0.0 ? 0.0 : hi.z;
+        for (uint j4 = 0u; j4 < NS_NN_H4; j4++) {
+            vec4 a = P.net[net + NS_NN_B1_OFF + j4];
+            for (uint c = 0u; c < 4u; c++) {
+                uint row = net + NS_NN_W1_OFF + 2u * (4u * j4 + c);
+                // hi.zw carry E and 0: the padded weights 6 and 7 are zero.
+                a[c] += dot(P.net[row], lo) + dot(P.net[row + 1u], vec4(hi.xy, 0.0, 0.0));
+            }
+            h1[j4 * NS_NN_POINTS + p] = tanh(a);
+        }
+    }
+
+    float y[NS_NN_POINTS];
+    for (uint p = 0u; p < NS_NN_POINTS; p++)
+        y[p] = P.net[net + NS_NN_B3_OFF].x;
+    for (uint j = 0u; j < 50u; j++) {
+        float bias = P.net[net + NS_NN_B2_OFF + (j >> 2)][j & 3u];
+        float acc[NS_NN_POINTS];
+        for (uint p = 0u; p < NS_NN_POINTS; p++)
+            acc[p] = bias;
+        for (uint k4 = 0u; k4 < NS_NN_H4; k4++) {
+            vec4 w = P.net[net + NS_NN_W2_OFF + j * NS_NN_H4 + k4];
+            for (uint p = 0u; p < NS_NN_POINTS; p++)
+                acc[p] += dot(w, h1[k4 * NS_NN_POINTS + p]);
+        }
+        float w3 = P.net[net + NS_NN_W3_OFF + (j >> 2)][j & 3u];
+        for (uint p = 0u; p < NS_NN_POINTS; p++)
+            y[p] += w3 * tanh(acc[p]);
+    }
+
+    // Inverse target transform: paper exp(t) - 1, logrel (exp(t) - eps) E_k; J >= 0.
+    vec4 tt = P.target[order];
+    uint base = P.info.y == NS_NN_MODE_POINTS ? order * count : (order * 3u + channel) * count;
+    for (uint p = 0u; p < NS_NN_POINTS && first + p < count; p++) {
+        float t = y[p] * tt.w + tt.z;
+        float j = tt.x < 0.5 ? exp(t) - 1.0 : (exp(t) - tt.y) * energy[p];
+        if (energy[p] == 0.0)
+            j = 0.0;
+        outv[base + first + p] = max(j, 0.0);
+    }
+}
