@@ -131,6 +131,12 @@ async function run() {
   let browser = null;
   // Whatever happens below, the server must not outlive the test.
   process.on('exit', () => stopServer(server.child));
+  for (const signal of ['SIGINT', 'SIGTERM', 'SIGHUP']) {
+    process.on(signal, () => {
+      stopServer(server.child);
+      process.exit(1);
+    });
+  }
   try {
     const base = await server.url;
     console.log(`server at ${base}`);
