@@ -1,7 +1,7 @@
 // browser_page.mjs — drives a real Chromium against a real `nscatter serve` on loopback and
 // checks the web page end to end: the info footer, the default scene, a render (image size,
 // Server-Timing table, device), the quick controls, syntax and validation errors with their
-// line/column and JSON pointers, the 503 display, PNG/EXR downloads, keyboard use and
+// line/column and JSON pointers, a real 503 and its display, PNG/EXR downloads, keyboard use and
 // layout at phone width. Saves screenshots next to the binary (browser_page*.png).
 //
 // Environment (set by ctest): NSCATTER_BIN (the binary), NSCATTER_SOURCE_DIR (the repo).
@@ -50,10 +50,11 @@ async function step(name, body) {
 }
 
 // ------------------------------------------------------------------------------------------
-// The server: started on port 0, the real port read from its first stdout line.
+// The server: started on port 0, the real port read from its first stdout line; a queue of
+// one render so that the test can fill it and see a real 503.
 // ------------------------------------------------------------------------------------------
 function startServer() {
-  const child = spawn(binary, ['serve', '--host', '127.0.0.1', '--port', '0'], {
+  const child = spawn(binary, ['serve', '--host', '127.0.0.1', '--port', '0', '--queue', '1'], {
     stdio: ['ignore', 'pipe', 'pipe'],
   });
   let stderr = '';
@@ -300,19 +301,33 @@ async function run() {
     });
 
     await step('503 shows busy with the Retry-After seconds', async () => {
-      // A full render queue cannot be produced on demand from one page, so this check answers
-      // one request in the browser with the server's 503 shape to test the page's display.
+      // A real full queue: the server runs with --queue 1, this test keeps it busy with a
+      // slower render of its own, waits until /v1/info counts it, then the page asks.
       expectedStatuses.add(503);
       await page.locator('#reset').click();
-      await page.route('**/v1/renders', (route) => route.fulfill({
-        status: 503,
-        headers: { 'Content-Type': 'application/problem+json', 'Retry-After': '7' },
-        body: JSON.stringify({ type: 'about:blank', title: 'Render queue full', status: 503, code: 'busy', detail: 'try later', errors: [] }),
-      }), { times: 1 });
+      const heavy = structuredClone(defaultScene);
+      heavy.render.spp = 32;
+      const blocker = fetch(`${base}/v1/renders`, {
+        method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(heavy),
+      });
+      const deadline = Date.now() + 30_000;
+      let queued = 0;
+      while (queued < 1 && Date.now() < deadline) {
+        queued = (await (await fetch(`${base}/v1/info`)).json()).queue_length;
+        if (queued < 1) await new Promise((r) => setTimeout(r, 20));
+      }
+      check('the blocking render is queued', queued >= 1, `queue_length ${queued}`);
+      const answer = page.waitForResponse((r) => r.url().endsWith('/v1/renders'), { timeout: RENDER_TIMEOUT_MS });
       await renderAndWait(page);
+      const response = await answer;
+      const retryAfter = response.headers()['retry-after'];
       const text = await problemText(page);
-      check('503 shows "busy, retry in 7 s"', /busy, retry in 7 s/i.test(text), text);
-      await page.unrouteAll();
+      check('the page got 503 with Retry-After', response.status() === 503 && /^\d+$/.test(retryAfter || ''),
+        `status ${response.status()}, Retry-After ${retryAfter}`);
+      check(`503 shows "busy, retry in ${retryAfter} s"`, new RegExp(`busy, retry in ${retryAfter} s`, 'i').test(text), text);
+      const blocked = await blocker;
+      check('the blocking render itself succeeded', blocked.status === 200, `status ${blocked.status}`);
+      await blocked.arrayBuffer();
     });
 
     await step('layout at phone width', async () => {

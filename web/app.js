@@ -332,6 +332,7 @@ function readControls() {
   controls.material.value = names.includes(previous) ? previous : names[0] || '';
   readMaterialControls(scene);
 
+  for (const input of [controls.width, controls.height, controls.spp]) input.removeAttribute('aria-invalid');
   const camera = scene.camera || {};
   controls.width.value = Number.isFinite(camera.width) ? camera.width : '';
   controls.height.value = Number.isFinite(camera.height) ? camera.height : '';
@@ -347,7 +348,11 @@ function readMaterialControls(scene) {
   const name = controls.material.value;
   const material = name ? scene.materials[name] : null;
   for (const input of [controls.preset, controls.g, controls.ior, controls.scale]) input.disabled = !material;
-  if (!material) return;
+  if (!material) {
+    controls.preset.value = '';
+    for (const input of [controls.g, controls.ior, controls.scale]) $(input.id + '-out').textContent = '—';
+    return;
+  }
   const preset = PRESETS[material.preset] || null;
   controls.preset.value = preset ? material.preset : '';
   const g = Number.isFinite(material.g) ? material.g : preset ? preset.g : 0;
