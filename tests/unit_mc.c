@@ -124,13 +124,15 @@ static void check_order_moments(const ns_mc_result *r, ns_order order, double g,
     CHECK_REL(t->energy_expected, want.energy, 1e-12);
     CHECK(mc->energy_in_table >= 0.999 * mc->energy);
     CHECK_NEAR(tab.energy, want.energy, SIGMAS * mc->energy_se + 1e-3 * want.energy);
-    /* Binning allowance: bin-mean positions and directions stand in for the true ones. The
-     * spatial bins are ~5-10% of the distance wide, so second-order errors stay well under
-     * 1% of <z> (+0.01 mfp) and of <r^2>; the 10-degree direction bins move the mean cosine
-     * by less than 0.01. An off-by-one order or a missing 2 pi rho is far outside these. */
+    /* Binning allowance: each bin's mean position and direction stand in for its events'.
+     * Measured as the table-minus-tracer difference over the same photons (which isolates
+     * it): +0.002..0.009 mfp on <z>, +0.7..0.8% on <r^2> (events crowd toward the beam
+     * inside a ring), up to -0.009 on <cos> (a forward lobe inside the first 10-degree
+     * bin). The allowances below are about 1.5x that. An off-by-one order (g^2 vs g^3 =
+     * 0.08 apart at g = 0.9) or a missing 2 pi rho is far outside them. */
     CHECK_NEAR(tab.z, want.z, SIGMAS * mc->z_se + 0.01 * fabs(want.z) + 0.01);
-    CHECK_NEAR(tab.r2, want.r2, SIGMAS * mc->r2_se + 0.01 * want.r2);
-    CHECK_NEAR(tab.cos_theta, want.cos_theta, SIGMAS * mc->cos_theta_se + 0.01);
+    CHECK_NEAR(tab.r2, want.r2, SIGMAS * mc->r2_se + 0.015 * want.r2);
+    CHECK_NEAR(tab.cos_theta, want.cos_theta, SIGMAS * mc->cos_theta_se + 0.015);
 }
 
 static void moments_case(double g, double a, uint64_t photons)
