@@ -330,6 +330,18 @@ async function run() {
       await blocked.arrayBuffer();
     });
 
+    await step('an edited scene survives a reload; Reset brings the default back', async () => {
+      await page.locator('#spp').fill('3');
+      await page.locator('#spp').press('Tab');
+      await page.reload();
+      let scene = JSON.parse(await page.locator('#editor').inputValue());
+      check('reload keeps the edited scene', scene.render.spp === 3, `spp ${scene.render.spp}`);
+      await page.locator('#reset').click();
+      await page.reload();
+      scene = JSON.parse(await page.locator('#editor').inputValue());
+      check('after Reset a reload shows the default scene', JSON.stringify(scene) === JSON.stringify(defaultScene));
+    });
+
     await step('layout at phone width', async () => {
       await page.setViewportSize({ width: 390, height: 844 });
       const overflow = await page.evaluate(() => document.documentElement.scrollWidth - window.innerWidth);

@@ -102,8 +102,13 @@ const sceneText = (scene) => formatJson(scene) + '\n';
 function storageGet() {
   try { return window.localStorage.getItem(STORAGE_KEY); } catch { return null; }
 }
+/* Only an edited scene is remembered: an untouched default is not pinned, so a newer
+ * build's default scene shows up after an upgrade. */
 function storageSet(text) {
-  try { window.localStorage.setItem(STORAGE_KEY, text); } catch { /* private mode: fine */ }
+  try {
+    if (text === sceneText(DEFAULT_SCENE)) window.localStorage.removeItem(STORAGE_KEY);
+    else window.localStorage.setItem(STORAGE_KEY, text);
+  } catch { /* storage disabled (private mode): nothing is remembered */ }
 }
 
 /* ------------------------------------------------------------------------------------
