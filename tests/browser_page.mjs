@@ -230,6 +230,12 @@ async function run() {
       check('sliders and size fields write g, exposure, width, height', scene.materials[name].g === 0.3 && scene.render.exposure === 1.5
         && scene.camera.width === 96 && scene.camera.height === 64,
         `g ${scene.materials[name].g}, exposure ${scene.render.exposure}, size ${scene.camera.width}x${scene.camera.height}`);
+      await page.locator('#preset').selectOption('');
+      const custom = JSON.parse(await page.locator('#editor').inputValue()).materials[name];
+      check('"custom" spells out the milk preset and keeps the g override',
+        custom.preset === undefined && JSON.stringify(custom.albedo) === '[0.999,0.999,0.999]'
+        && JSON.stringify(custom.mfp) === '[0.84,0.75,0.68]' && custom.g === 0.3 && custom.ior === 1.3,
+        JSON.stringify(custom));
       await renderAndWait(page, { via: 'keyboard' });
       const problemHidden = await page.locator('#problem').isHidden();
       check('Ctrl+Enter renders the edited scene', problemHidden && (await historyCount(page)) === 2,

@@ -386,16 +386,23 @@ function onPresetChange() {
   editScene((scene) => {
     const material = selectedMaterial(scene);
     if (!material) return;
-    const previous = PRESETS[material.preset];
+    const previous = PRESETS[material.preset] || PRESETS.candle;
+    const own = { ...material };
     for (const field of MEDIUM_FIELDS) delete material[field];
     if (name) {
-      material.preset = name; /* the server fills albedo, mfp, g and ior from Table 1 */
-    } else if (previous) {
-      /* "custom": spell the previous preset out so the look is kept and every field
-       * becomes editable in the text. */
-      Object.assign(material, structuredClone(previous));
-    } else {
-      Object.assign(material, structuredClone(PRESETS.candle));
+      /* A preset is a fresh start: the server fills albedo, mfp, g and ior from Table 1. */
+      material.preset = name;
+      return;
+    }
+    /* "custom": spell the preset out, keeping the material's own overrides, so the look
+     * stays the same and every field becomes editable in the text. */
+    Object.assign(material, structuredClone(previous));
+    if (own.sigma_s !== undefined || own.sigma_a !== undefined) {
+      delete material.albedo;
+      delete material.mfp;
+    }
+    for (const field of MEDIUM_FIELDS) {
+      if (field !== 'preset' && own[field] !== undefined) material[field] = own[field];
     }
   });
 }
