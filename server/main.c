@@ -18,6 +18,7 @@ static const subcommand subcommands[] = {
     {"mc", cmd_mc, "Monte Carlo scattering tables (one material, or the training grid)"},
     {"train", cmd_train, "train the double/multiple scattering networks on the Monte Carlo grid"},
     {"table", cmd_table, "reconstruct a table from the networks (GPU), or compare it with MC"},
+    {"compare", cmd_compare, "PSNR, RMSE and relative error of an image against a reference"},
 };
 
 static void usage(FILE *out)
