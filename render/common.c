@@ -64,7 +64,9 @@ uint32_t ns_unsupported_components(ns_method method, uint32_t components)
 {
     /* The surface pass (direct lighting, Fresnel boundaries, Beer-Lambert attenuation of
      * camera paths in media) is shared by every method. The scattering components arrive
-     * with the accumulation/VRL/gather stages (issue 5) and the path tracer (issue 6). */
-    (void)method;
+     * with the accumulation/VRL/gather stages (issue 5); the path tracer (render/pt.c)
+     * renders every component. */
+    if (method == NS_METHOD_PT)
+        return 0;
     return components & ~(uint32_t)NS_COMPONENT_SURFACE;
 }

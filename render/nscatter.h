@@ -60,6 +60,7 @@ typedef struct ns_error {
 #define NS_MAX_PIXELS (4096u * 4096u)
 #define NS_MAX_SPP 4096
 #define NS_MAX_DEPTH 64
+#define NS_MAX_SCATTER 100000 /* render.max_scatter */
 #define NS_MAX_MATERIALS 256
 #define NS_MAX_OBJECTS 4096
 #define NS_MAX_LIGHTS 256
@@ -157,6 +158,7 @@ typedef struct ns_render_settings {
     uint32_t seed;
     uint32_t max_depth; /* surface/boundary bounces of a camera path */
     float exposure;     /* stops; applied by the encoders, not by the renderer */
+    uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
 } ns_render_settings;
 
 typedef struct ns_scene {

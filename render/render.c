@@ -6,6 +6,7 @@
 
 #include "bvh.h"
 #include "internal.h"
+#include "pt.h"
 
 /* Segment buffer: room for two stretches per camera sample by default, within 64 MiB. */
 #define SEGMENTS_PER_SAMPLE 2u
@@ -227,7 +228,10 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
                        "render.components: %s not available in this build yet", names);
     }
     pthread_mutex_lock(&ctx->lock);
-    status = render_locked(ctx, scene, out, stats, debug, err);
+    if (scene->render.method == NS_METHOD_PT)
+        status = ns_pt_render(ctx, scene, out, stats, err); /* render/pt.c */
+    else
+        status = render_locked(ctx, scene, out, stats, debug, err);
     pthread_mutex_unlock(&ctx->lock);
     if (status)
         ns_image_free(out);

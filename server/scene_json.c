@@ -1228,7 +1228,8 @@ static void check_components_available(parser *p, const json_t *components, uint
 
 static void parse_render(parser *p, const json_t *v)
 {
-    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure", NULL};
+    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
+                                       "max_scatter", NULL};
     ns_render_settings *r = &p->render;
     *r = (ns_render_settings){
         .method = NS_METHOD_NN,
@@ -1264,6 +1265,19 @@ static void parse_render(parser *p, const json_t *v)
         field_uint(p, v, "seed", 0, 0, UINT32_MAX, "seed", &r->seed);
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
+        /* Only the path tracer can cut paths by their scattering events; the other methods
+         * choose orders with "components", so the key would be silently meaningless there. */
+        if (json_object_get(v, "max_scatter")) {
+            if (method_ok && r->method != NS_METHOD_PT) {
+                size_t inner = push_key(p, "max_scatter");
+                report(p, "max_scatter applies to method \"pt\" only (other methods select "
+                          "scattering orders with \"components\")");
+                pop(p, inner);
+            } else {
+                field_uint(p, v, "max_scatter", 0, 0, NS_MAX_SCATTER,
+                           "max_scatter (scattering events per path, 0 = no limit)", &r->max_scatter);
+            }
+        }
     }
     if (method_ok && components_ok)
         check_components_available(p, components, r->components);

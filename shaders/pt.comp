@@ -1,0 +1,413 @@
+#version 450
+// pt.comp — the reference volumetric path tracer (render.method "pt"), one invocation per
+// pixel, the samples of one dispatch (render/pt.c: one sample per dispatch on lavapipe).
+//
+// Light transport is the scene model every method shares (docs/rendering.md): diffuse
+// surfaces take direct light from every light and end the path (no interreflection);
+// shadow rays pass index-matched boundaries with their Beer-Lambert factor and stop at
+// refracting ones. On top of that, and unlike the camera pass, light scatters inside media:
+//   - free-flight distances with one channel picked uniformly and the one-sample balance
+//     heuristic over the three channels' pdfs (spectral MIS), so per-channel extinction
+//     costs no bias;
+//   - Henyey-Greenstein phase sampling; next-event estimation to point, directional and
+//     sphere lights from every scattering event (zero where a refracting boundary is in the
+//     way: such light reaches the medium only through phase-sampled paths that hit a sphere
+//     light or the environment, and never from delta lights: docs/reference.md);
+//   - smooth dielectric boundaries chosen stochastically (reflect with probability F,
+//     total internal reflection always reflects), weight unchanged;
+//   - Russian roulette on the throughput after the third scattering event.
+// Every contribution knows how many scattering events its path had and counts only when
+// that order was asked for (push.components), exactly as the tables count them.
+#extension GL_GOOGLE_include_directive : require
+#include "shared.h"
+#include "pt_shared.h"
+#include "trace.glsl"
+
+layout(local_size_x = NS_CAMERA_GROUP_X, local_size_y = NS_CAMERA_GROUP_Y) in;
+
+layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
+layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
+layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
+layout(std430, binding = 6) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuPtPush push; };
+
+const float PI = 3.14159265358979;
+
+// ---------------------------------------------------------------------------------------
+// Random numbers: a PCG hash chain per pixel and sample (deterministic, split-invariant).
+// ---------------------------------------------------------------------------------------
+uint rng_state;
+
+uint pcg_hash(uint v)
+{
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+float rnd()
+{
+    rng_state = pcg_hash(rng_state);
+    return float(rng_state >> 8u) * (1.0 / 16777216.0);
+}
+
+float ray_epsilon(vec3 p)
+{
+    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
+}
+
+vec3 sigma_t_of(uint material)
+{
+    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
+}
+
+// exp(-sigma_t * distance), exactly 1 for sigma_t 0 even at infinite distance.
+vec3 beer_lambert(vec3 sigma_t, float distance)
+{
+    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
+                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
+                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
+    return exp(-tau);
+}
+
+void basis(vec3 n, out vec3 t, out vec3 b)
+{
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+vec3 around(vec3 axis, float cos_t, float phi)
+{
+    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
+    vec3 tx, ty;
+    basis(axis, tx, ty);
+    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
+}
+
+bool order_counts(uint events)
+{
+    uint bit = events == 0u ? NS_PT_SURFACE
+             : events == 1u ? NS_PT_SINGLE
+             : events == 2u ? NS_PT_DOUBLE : NS_PT_MULTIPLE;
+    return (push.components & bit) != 0u && events <= push.max_events;
+}
+
+// ---------------------------------------------------------------------------------------
+// Henyey-Greenstein, cos measured between the propagation directions before and after.
+// ---------------------------------------------------------------------------------------
+float hg_phase(float cos_t, float g)
+{
+    float denom = 1.0 + g * g - 2.0 * g * cos_t;
+    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
+}
+
+vec3 hg_sample(vec3 d, float g)
+{
+    float u = rnd();
+    float cos_t;
+    if (abs(g) < 1e-3) {
+        cos_t = 1.0 - 2.0 * u;
+    } else {
+        float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
+        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
+    }
+    return around(d, cos_t, 2.0 * PI * rnd());
+}
+
+// ---------------------------------------------------------------------------------------
+// Shadow rays (as in the camera pass): blocked by diffuse surfaces and refracting
+// boundaries, attenuated by index-matched media.
+// ---------------------------------------------------------------------------------------
+vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium)
+{
+    vec3 tau = vec3(0.0);
+    float t_enter = 0.0, tmin = 0.0;
+    for (int crossing = 0; crossing < 16; crossing++) {
+        Hit h;
+        if (!trace_scene(o, d, tmin, tmax, h))
+            break;
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
+            return vec3(0.0);
+        if (!h.front && medium != NS_NONE)
+            tau += sigma_t_of(medium) * (h.t - t_enter);
+        medium = h.front ? m : NS_NONE;
+        t_enter = h.t;
+        tmin = h.t + ray_epsilon(o + h.t * d);
+    }
+    vec3 tr = exp(-tau);
+    if (medium != NS_NONE)
+        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
+    return tr;
+}
+
+// A direction towards sphere light `light` from o, uniform in the cone it subtends.
+// Returns false when o is inside it. solid_angle = the cone's (1 / pdf).
+bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float solid_angle)
+{
+    vec3 v = light.position.xyz - o;
+    float d2 = dot(v, v);
+    float r2 = light.position.w * light.position.w;
+    wi = vec3(0.0, 0.0, 1.0);
+    t_light = 0.0;
+    solid_angle = 0.0;
+    if (d2 <= r2)
+        return false;
+    float dist = sqrt(d2);
+    float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
+    wi = around(v / dist, 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+    t_light = hit_sphere(o, wi, light.position, 0.0, NS_INF);
+    if (t_light < 0.0)
+        t_light = dist; // grazing the silhouette in float
+    solid_angle = 2.0 * PI * (1.0 - cos_max);
+    return true;
+}
+
+// Radiance leaving a Lambertian surface (n faces the viewer) from every light; the path
+// ends here. The environment: one cosine-distributed ray.
+vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
+{
+    vec3 o = p + n * ray_epsilon(p);
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < params.counts.y; i++) {
+        if (out_of_budget())
+            break;
+        GpuLight light = lights[i];
+        uint kind = light.info.x;
+        if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
+            vec3 wi = -light.direction.xyz;
+            float c = dot(n, wi);
+            if (c > 0.0)
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium);
+        } else if (kind == NS_GPU_LIGHT_POINT) {
+            vec3 v = light.position.xyz - o;
+            float d2 = dot(v, v);
+            float dist = sqrt(d2);
+            vec3 wi = v / dist;
+            float c = dot(n, wi);
+            if (c > 0.0)
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium);
+        } else if (kind == NS_GPU_LIGHT_SPHERE) {
+            vec3 wi;
+            float t_light, solid_angle;
+            if (!sample_sphere_light(light, o, wi, t_light, solid_angle))
+                continue;
+            float c = dot(n, wi);
+            if (c > 0.0)
+                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium);
+        }
+    }
+    if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
+        float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
+        vec3 wi = around(n, sqrt(max(0.0, 1.0 - r * r)), phi);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium);
+    }
+    return rho * sum;
+}
+
+// Next-event estimation at a scattering event at p inside `medium` (d = the direction the
+// path arrived in): point, directional and sphere lights. The environment is left to the
+// phase-sampled continuation, which reaches it with weight 1.
+vec3 direct_light_medium(vec3 p, vec3 d, float g, uint medium)
+{
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < params.counts.y; i++) {
+        if (out_of_budget())
+            break;
+        GpuLight light = lights[i];
+        uint kind = light.info.x;
+        if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
+            vec3 wi = -light.direction.xyz;
+            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium);
+        } else if (kind == NS_GPU_LIGHT_POINT) {
+            vec3 v = light.position.xyz - p;
+            float d2 = dot(v, v);
+            float dist = sqrt(d2);
+            vec3 wi = v / dist;
+            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium);
+        } else if (kind == NS_GPU_LIGHT_SPHERE) {
+            vec3 wi;
+            float t_light, solid_angle;
+            if (sample_sphere_light(light, p, wi, t_light, solid_angle))
+                sum += light.color.rgb * hg_phase(dot(d, wi), g) * solid_angle *
+                       transmittance(p, wi, t_light, medium);
+        }
+    }
+    return sum;
+}
+
+float hit_sphere_lights(vec3 o, vec3 d, float tmax, out uint which)
+{
+    which = NS_NONE;
+    float best = tmax;
+    for (uint i = 0u; i < params.counts.y; i++) {
+        if (lights[i].info.x != NS_GPU_LIGHT_SPHERE)
+            continue;
+        float t = hit_sphere(o, d, lights[i].position, 0.0, best);
+        if (t > 0.0) {
+            best = t;
+            which = i;
+        }
+    }
+    return best;
+}
+
+float fresnel(float cos_i, float eta, out float cos_t)
+{
+    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
+    cos_t = 0.0;
+    if (sin2_t >= 1.0)
+        return 1.0;
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// ---------------------------------------------------------------------------------------
+// One path.
+// ---------------------------------------------------------------------------------------
+vec3 trace_pt(vec3 o, vec3 d)
+{
+    vec3 radiance = vec3(0.0);
+    vec3 w = vec3(1.0);
+    uint medium = NS_NONE;
+    uint events = 0u;         // scattering events so far
+    uint boundary_run = 0u;   // boundary events since the last scattering event
+    // The last scattering event's next-event estimate already covers a sphere light this
+    // path hits in a straight line (index-matched crossings only): do not count it twice.
+    bool nee_covered = false;
+    while (true) {
+        if (out_of_budget())
+            break;
+        Hit h;
+        bool any = trace_scene(o, d, 0.0, NS_INF, h);
+        uint light_index;
+        float t_light = hit_sphere_lights(o, d, any ? h.t : NS_INF, light_index);
+        bool at_light = light_index != NS_NONE;
+        float t_end = at_light ? t_light : (any ? h.t : NS_INF);
+
+        if (medium != NS_NONE) {
+            GpuMaterial mm = materials[medium];
+            vec3 st = mm.sigma_t.xyz;
+            float u_channel = rnd();
+            float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
+            float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+            if (t < t_end) {
+                // A scattering event: weight = transmittance * sigma_s / (mean of the
+                // three channels' distance pdfs).
+                vec3 tr = exp(-st * t);
+                float pdf = dot(st * tr, vec3(1.0 / 3.0));
+                w *= tr * mm.sigma_s.xyz / pdf;
+                if (!(max(w.x, max(w.y, w.z)) > 0.0))
+                    break; // absorbed in every channel
+                o += t * d;
+                if (events + 1u > push.max_events)
+                    break;
+                events++;
+                boundary_run = 0u;
+                if (events > 3u) {
+                    float q = min(1.0, max(w.x, max(w.y, w.z)));
+                    if (!(q > 0.0) || rnd() >= q)
+                        break;
+                    w /= q;
+                }
+                float g = mm.sigma_s.w;
+                if (order_counts(events))
+                    radiance += w * direct_light_medium(o, d, g, medium);
+                d = hg_sample(d, g);
+                nee_covered = true;
+                continue;
+            }
+            if (t_end == NS_INF)
+                break; // inside a medium with nothing ahead: cannot happen for closed shapes
+            vec3 tr = beer_lambert(st, t_end);
+            float survive = dot(tr, vec3(1.0 / 3.0));
+            if (!(survive > 0.0))
+                break;
+            w *= tr / survive;
+        }
+
+        if (at_light) {
+            if (!nee_covered && order_counts(events))
+                radiance += w * lights[light_index].color.rgb;
+            break;
+        }
+        if (!any) {
+            if (order_counts(events))
+                radiance += w * params.environment.rgb;
+            break;
+        }
+        vec3 p = o + h.t * d;
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
+        if (mat.reflectance.w == 0.0) {
+            if (order_counts(events))
+                radiance += w * direct_light_surface(p, n, mat.reflectance.rgb, medium);
+            break;
+        }
+        if (++boundary_run > NS_PT_MAX_BOUNDARY_RUN) {
+            atomicAdd(counters[NS_PT_COUNTER_TRUNCATED], 1u);
+            break;
+        }
+        float eps = ray_epsilon(p);
+        uint next_medium = h.front ? m : NS_NONE;
+        float ior = mat.sigma_t.w;
+        if (ior == 1.0) {
+            o = p - n * eps;
+            medium = next_medium;
+            continue;
+        }
+        float eta = h.front ? 1.0 / ior : ior;
+        float cos_i = -dot(d, n);
+        float cos_t;
+        float f = fresnel(cos_i, eta, cos_t);
+        if (f >= 1.0 || rnd() < f) {
+            o = p + n * eps;
+            d = normalize(reflect(d, n));
+        } else {
+            o = p - n * eps;
+            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+            medium = next_medium;
+        }
+        nee_covered = false;
+    }
+    return radiance;
+}
+
+void main()
+{
+    uint width = params.image.x, height = params.image.y;
+    uvec2 xy = gl_GlobalInvocationID.xy;
+    if (xy.x >= width || xy.y >= height)
+        return;
+    uint pixel = xy.y * width + xy.x;
+    // A different stream from the camera pass's for the same seed.
+    uint pixel_seed = pcg_hash(pcg_hash(params.image.w ^ 0x7f4a7c15u) + pixel);
+
+    vec3 sum = vec3(0.0);
+    uint spp = params.image.z;
+    for (uint i = push.first_sample; i < push.first_sample + push.sample_count; i++) {
+        rng_state = pcg_hash(pixel_seed + i);
+        float u = (float(xy.x) + rnd()) / float(width);
+        float v = (float(xy.y) + rnd()) / float(height);
+        vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
+                 params.cam_up.xyz * ((1.0 - 2.0 * v) * params.cam_right.w);
+        vec3 l = trace_pt(params.cam_position.xyz, normalize(d));
+        // A NaN or Inf sample would poison the pixel for good: it is dropped and counted,
+        // and the render fails rather than hide it.
+        if (any(isnan(l)) || any(isinf(l)))
+            atomicAdd(counters[NS_PT_COUNTER_NONFINITE], 1u);
+        else
+            sum += l;
+    }
+    if (params.limits.x != 0u && loop_count > params.limits.x)
+        atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
+    vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
+    pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
+}
