@@ -156,6 +156,9 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
         status = check_grid(&desc->grid, err);
     if (status)
         return status;
+    uint32_t channels = desc->channels ? desc->channels : 3;
+    if (channels > 3)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "channels: %u (1 to 3)", channels);
     if (!(desc->g >= 0 && desc->g < 1))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)",
                        desc->g);
@@ -205,16 +208,19 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     double t1 = seconds_now();
     gpu_buffer *bound[3] = {&nn->params, &out, &nn->dummy};
     status = gpu_dispatch(dev, &nn->pipeline, bound, 3,
-                          (uint32_t[3]){(cells + per_group - 1) / per_group, 3, 2}, err);
+                          (uint32_t[3]){(cells + per_group - 1) / per_group, channels, 2}, err);
     double t2 = seconds_now();
     if (!status)
-        memcpy(desc->out, out.mapped, (size_t)cells * 6 * sizeof(float));
+        for (int o = 0; o < 2; o++) /* only the channels computed: the rest is undefined */
+            memcpy(desc->out + (size_t)o * 3 * cells, (float *)out.mapped + (size_t)o * 3 * cells,
+                   (size_t)cells * channels * sizeof(float));
     gpu_buffer_destroy(dev, &out);
     if (status)
         return status;
-    ns_nn_reconstruct_stats s = {.gpu_seconds = t2 - t1, .evaluations = (uint64_t)cells * 6};
+    ns_nn_reconstruct_stats s = {.gpu_seconds = t2 - t1,
+                                 .evaluations = (uint64_t)cells * 2 * channels};
     for (int o = 0; o < 2; o++)
-        for (int c = 0; c < 3; c++) {
+        for (uint32_t c = 0; c < channels; c++) {
             float *j = desc->out + ((size_t)o * 3 + c) * cells;
             s.energy_raw[o][c] = ns_nn_grid_energy(grid, j);
             s.energy_exact[o][c] = exact_energy(o, desc->albedo[c]);
@@ -251,7 +257,7 @@ int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[
                                err);
     if (!status)
         status = gpu_buffer_create(dev, &res,
-                                   &(gpu_buffer_desc){.size = (VkDeviceSize)n * 2 * sizeof(float),
+                                   &(gpu_buffer_desc){.size = (VkDeviceSize)n * 4 * sizeof(float),
                                                       .label = "ns.nn.points_out"},
                                    err);
     if (!status) {
@@ -270,7 +276,7 @@ int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[
                               (uint32_t[3]){(n + per_group - 1) / per_group, 1, 2}, err);
     }
     if (!status)
-        memcpy(out, res.mapped, (size_t)n * 2 * sizeof(float));
+        memcpy(out, res.mapped, (size_t)n * 4 * sizeof(float));
     gpu_buffer_destroy(dev, &res);
     gpu_buffer_destroy(dev, &pts);
     return status;

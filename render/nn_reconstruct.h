@@ -36,6 +36,7 @@ typedef struct ns_nn_reconstruct_desc {
     double g;
     double albedo[3];     /* per RGB channel */
     int renormalise;      /* rescale each table to its exact energy */
+    uint32_t channels;    /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
     float *out;           /* [2][3][cells] J values: order-major, then channel */
 } ns_nn_reconstruct_desc;
 
@@ -51,7 +52,8 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
                       ns_nn_reconstruct_stats *stats, ns_error *err);
 
 /* Points mode (tests): J of both networks at n explicit normalised inputs x (n x 6); energy[n]
- * is the E_k the logrel transform scales by (the same for both orders here); out[2][n]. */
+ * is the E_k the logrel transform scales by (the same for both orders here); out[4][n]:
+ * J of double, J of multiple, then the raw network outputs y of double and multiple. */
 int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2],
                       const float *x, const double *energy, uint32_t n, float *out,
                       ns_error *err);

@@ -24,15 +24,18 @@ static const char usage_text[] =
     "       nscatter table --report [--mc-dir DIR] [--materials G:A,G:A,...]\n"
     "                      [--mc-collisions C (5e7)] [common options]\n"
     "       nscatter table --benchmark [--runs N (5)] [common options]\n"
+    "       nscatter table --compare PREFIX_A PREFIX_B\n"
     "\n"
     "--source nn reconstructs the table on the GPU from the networks (built in, or --weights-*)\n"
     "on the Monte Carlo table's bins and, unless --no-renormalise, rescales it to the exact\n"
     "energy (a^2 or a^3/(1-a)). --report compares the networks with the exact energies and\n"
     "with Monte Carlo tables of materials off the training grid (cached in --mc-dir, default\n"
-    "data/report). --benchmark times the reconstruction of both tables of an RGB material.\n";
+    "data/report). --benchmark times the reconstruction of both tables of an RGB material.\n"
+    "--compare prints the energies of two tables and their energy-weighted L1 distance\n"
+    "(relative to B), e.g. two Monte Carlo seeds: the noise floor of the report's L1.\n";
 
 typedef struct {
-    const char *source, *out, *weights[2], *device, *mc_dir, *materials;
+    const char *source, *out, *weights[2], *device, *mc_dir, *materials, *compare[2];
     ns_order order;
     int have_order, have_g, have_albedo, renormalise, report, benchmark, runs;
     double g, albedo, mc_collisions;
@@ -136,6 +139,12 @@ static int parse_options(int argc, char **argv, table_options *o)
             o->report = 1;
         else if (!strcmp(arg, "--benchmark"))
             o->benchmark = 1;
+        else if (!strcmp(arg, "--compare")) {
+            if (i + 2 >= argc)
+                return usage_error("--compare: needs two table prefixes");
+            o->compare[0] = argv[++i];
+            o->compare[1] = argv[++i];
+        }
         else if (strncmp(arg, "--", 2) != 0)
             return usage_error("unexpected argument '%s' (see nscatter table --help)", arg);
         else if (i + 1 >= argc)
@@ -175,7 +184,8 @@ static int session_open(const table_options *o, nn_session *s)
     }
     const char *validation = getenv("NSCATTER_VALIDATION");
     int rc = gpu_device_create(&s->dev,
-                               &(gpu_device_desc){.device = o->device,
+                               &(gpu_device_desc){.device = o->device ? o->device
+                                                                      : getenv("NSCATTER_DEVICE"),
                                                   .validation = validation && *validation == '1'},
                                &err);
     if (!rc) {
@@ -224,7 +234,8 @@ static ns_nn_grid grid_of(const ns_table *t)
 
 /* Both orders, three channels; *out is malloc'ed [2][3][cells]. */
 static int reconstruct(nn_session *s, const ns_table *shape, double g, const double albedo[3],
-                       int renormalise, float **out, ns_nn_reconstruct_stats *stats)
+                       uint32_t channels, int renormalise, float **out,
+                       ns_nn_reconstruct_stats *stats)
 {
     size_t cells = ns_table_size(shape);
     *out = malloc(cells * 6 * sizeof(float));
@@ -234,7 +245,8 @@ static int reconstruct(nn_session *s, const ns_table *shape, double g, const dou
     ns_error err = {0};
     ns_nn_reconstruct_desc d = {.nets = {nets[0], nets[1]}, .grid = grid_of(shape), .g = g,
                                 .albedo = {albedo[0], albedo[1], albedo[2]},
-                                .renormalise = renormalise, .out = *out};
+                                .renormalise = renormalise, .channels = channels,
+                                .out = *out};
     if (ns_nn_reconstruct(&s->dev, &s->nn, &d, stats, &err)) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
         free(*out);
@@ -293,7 +305,7 @@ static int run_one(const table_options *o)
         ns_nn_reconstruct_stats st;
         double albedo[3] = {o->albedo, o->albedo, o->albedo};
         if (!rc)
-            rc = reconstruct(&s, &t, o->g, albedo, o->renormalise, &all, &st);
+            rc = reconstruct(&s, &t, o->g, albedo, 1, o->renormalise, &all, &st);
         if (!rc) {
             memcpy(t.data, all + (size_t)o->order * 3 * ns_table_size(&t),
                    ns_table_size(&t) * sizeof(float));
@@ -385,35 +397,37 @@ static int parse_materials(const char *text, double (*m)[2], int cap, int *count
 
 static int report_material(const table_options *o, nn_session *s, double g, double a)
 {
-    for (int k = 0; k < 2; k++) {
-        ns_table mc;
-        if (reference_table(o, g, a, (ns_order)k, &mc))
-            return 1;
-        double albedo[3] = {a, a, a};
-        float *raw = NULL;
-        ns_nn_reconstruct_stats st;
-        if (reconstruct(s, &mc, g, albedo, 0, &raw, &st)) {
-            ns_table_free(&mc);
-            return 1;
-        }
-        size_t cells = ns_table_size(&mc);
+    ns_table mc[2];
+    if (reference_table(o, g, a, NS_ORDER_DOUBLE, &mc[0]))
+        return 1;
+    if (reference_table(o, g, a, NS_ORDER_MULTIPLE, &mc[1])) {
+        ns_table_free(&mc[0]);
+        return 1;
+    }
+    double albedo[3] = {a, a, a};
+    float *raw = NULL;
+    ns_nn_reconstruct_stats st;
+    int rc = reconstruct(s, &mc[0], g, albedo, 1, 0, &raw, &st);
+    for (int k = 0; k < 2 && !rc; k++) {
+        size_t cells = ns_table_size(&mc[k]);
         float *j = raw + (size_t)k * 3 * cells;
         double exact = ns_mc_expected_energy((ns_order)k, a);
         double e_raw = st.energy_raw[k][0];
-        double l1_raw = weighted_l1(&mc, j);
+        double l1_raw = weighted_l1(&mc[k], j);
         for (size_t i = 0; i < cells; i++)
             j[i] = (float)(j[i] * (exact / e_raw));
-        double l1_norm = weighted_l1(&mc, j);
-        double mc_energy = ns_table_energy(&mc);
+        double l1_norm = weighted_l1(&mc[k], j);
+        double mc_energy = ns_table_energy(&mc[k]);
         printf("%5.2f %6.3f %-8s %+9.2f%% %+9.2f%% %9.2f%% %9.2f%%  %7.2f%%\n", g, a,
                ns_order_name((ns_order)k), 100 * (e_raw / exact - 1),
                100 * (e_raw / mc_energy - 1), 100 * l1_raw, 100 * l1_norm,
                100 * mc_energy / exact);
         fflush(stdout);
-        free(raw);
-        ns_table_free(&mc);
     }
-    return 0;
+    free(raw);
+    ns_table_free(&mc[0]);
+    ns_table_free(&mc[1]);
+    return rc;
 }
 
 static int run_report(const table_options *o)
@@ -501,7 +515,7 @@ static int run_benchmark(const table_options *o)
     for (int r = 0; r < o->runs && !rc; r++) {
         float *out = NULL;
         ns_nn_reconstruct_stats st;
-        rc = reconstruct(&s, &shape, 0.75, albedo, o->renormalise, &out, &st);
+        rc = reconstruct(&s, &shape, 0.75, albedo, 3, o->renormalise, &out, &st);
         free(out);
         gpu[r] = st.gpu_seconds, total[r] = st.total_seconds, evals = st.evaluations;
     }
@@ -532,14 +546,40 @@ static int run_benchmark(const table_options *o)
     return rc;
 }
 
+static int run_compare(const table_options *o)
+{
+    ns_table t[2];
+    ns_error err = {0};
+    for (int i = 0; i < 2; i++)
+        if (ns_table_read(o->compare[i], &t[i], &err)) {
+            if (i)
+                ns_table_free(&t[0]);
+            return usage_error("--compare: %s", err.message);
+        }
+    int rc = 0;
+    for (int a = 0; a < 4 && !rc; a++)
+        if (t[0].n[a] != t[1].n[a] ||
+            memcmp(t[0].edges[a], t[1].edges[a], (t[0].n[a] + 1) * sizeof(double)))
+            rc = usage_error("--compare: the tables' bins differ (axis %d)", a);
+    if (!rc)
+        printf("energy A %.6g, B %.6g (exact %.6g); energy-weighted L1 |A - B| / B: %.2f%%\n",
+               ns_table_energy(&t[0]), ns_table_energy(&t[1]), t[1].energy_expected,
+               100 * weighted_l1(&t[1], t[0].data));
+    ns_table_free(&t[0]);
+    ns_table_free(&t[1]);
+    return rc;
+}
+
 int cmd_table(int argc, char **argv)
 {
     table_options o;
     int rc = parse_options(argc, argv, &o);
     if (rc)
         return rc < 0 ? 0 : rc;
-    if (o.report + o.benchmark > 1)
-        return usage_error("--report and --benchmark are separate runs");
+    if (o.report + o.benchmark + !!o.compare[0] > 1)
+        return usage_error("--report, --benchmark and --compare are separate runs");
+    if (o.compare[0])
+        return run_compare(&o);
     if (o.report)
         return run_report(&o);
     if (o.benchmark)

@@ -4,7 +4,8 @@
 // (each its own albedo), .z the order (0 double, 1 multiple). The output is J itself (the
 // inverse target transform applied), out[(order * 3 + channel) * cells + cell].
 // Points mode (tests): the inputs come from a list instead, 2 vec4 per point: (rho, z,
-// theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point].
+// theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point] = J and
+// out[(2 + order) * points + point] = the network output y.
 // Shape (DESIGN.md section 6, lavapipe): many points per invocation with the weights in a
 // uniform buffer, so each weight fetched is used 16 times; loops are not unrolled by hand.
 #extension GL_GOOGLE_include_directive : require
@@ -97,5 +98,7 @@ void main()
         if (energy[p] == 0.0)
             j = 0.0;
         outv[base + first + p] = max(j, 0.0);
+        if (P.info.y == NS_NN_MODE_POINTS) // the raw network output too, after both orders' J
+            outv[(2u + order) * count + first + p] = y[p];
     }
 }
