@@ -279,8 +279,10 @@ vec3 trace_pt(vec3 o, vec3 d)
     uint events = 0u;         // scattering events so far
     uint boundary_run = 0u;   // boundary events since the last scattering event
     // The last scattering event's next-event estimate already covers a sphere light this
-    // path hits in a straight line (index-matched crossings only): do not count it twice.
+    // path hits in a straight line (index-matched crossings only), unless that event lay
+    // inside the light's sphere, where it cannot be sampled: do not count it twice.
     bool nee_covered = false;
+    vec3 last_event = vec3(0.0);
     while (true) {
         if (out_of_budget())
             break;
@@ -321,6 +323,7 @@ vec3 trace_pt(vec3 o, vec3 d)
                     radiance += w * direct_light_medium(o, d, g, medium);
                 d = hg_sample(d, g);
                 nee_covered = true;
+                last_event = o;
                 continue;
             }
             if (t_end == NS_INF)
@@ -333,7 +336,10 @@ vec3 trace_pt(vec3 o, vec3 d)
         }
 
         if (at_light) {
-            if (!nee_covered && order_counts(events))
+            vec4 ball = lights[light_index].position;
+            vec3 to_light = last_event - ball.xyz;
+            bool covered = nee_covered && dot(to_light, to_light) > ball.w * ball.w;
+            if (!covered && order_counts(events))
                 radiance += w * lights[light_index].color.rgb;
             break;
         }

@@ -79,6 +79,23 @@ static void test_furnace_dielectric(void)
     test_furnace_exact(1.5, -0.5);
 }
 
+/* The furnace's environment replaced by a sphere light of radius 10 around everything:
+ * scattering events inside a light's sphere cannot sample it, so the light must count
+ * when a path hits it; every pixel is its radiance, exactly. */
+static void test_furnace_inside_sphere_light(void)
+{
+    ns_material m;
+    ns_object o;
+    ns_light l;
+    ns_scene s = furnace_scene(&m, &o, &l, (double[3]){2, 2, 2}, 1.5, 0.5);
+    l = light(NS_LIGHT_SPHERE, env[0], env[1], env[2]);
+    l.radius = 10;
+    ns_image img;
+    if (render_ok(&s, &img, NULL))
+        CHECK_NEAR(furnace_max_error(&img), 0.0, 1e-4);
+    ns_image_free(&img);
+}
+
 /* Per-channel extinction (1, 1.5, 2.5): distances are sampled with one channel, weighted by
  * the balance heuristic; the image is noisy but its mean is the environment. */
 static void test_furnace_chromatic(void)
@@ -216,6 +233,7 @@ int main(void)
     RUN(test_max_events);
     RUN(test_furnace_index_matched);
     RUN(test_furnace_dielectric);
+    RUN(test_furnace_inside_sphere_light);
     RUN(test_furnace_chromatic);
     RUN(test_orders_add_up);
     RUN(test_max_scatter);
