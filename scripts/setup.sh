@@ -76,7 +76,7 @@ case "$mode" in
     # The sanitized build runs the tests that exercise our own code paths hardest
     # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
-    (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http')
+    (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http|cli')
     ;;
   *)
     echo "usage: scripts/setup.sh run|test|deps|build" >&2
