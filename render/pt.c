@@ -79,9 +79,9 @@ static int pt_check_counters(const uint32_t *counters, ns_error *err)
 {
     if (counters[NS_COUNTER_LOOP_LIMIT])
         return ns_fail(err, NS_ERR_LIMIT,
-                       "pt: %u pixel(s) ran past lavapipe's loop limit (65535 iterations per "
-                       "invocation); the media are too thick or the scene too large for the "
-                       "reference on this device",
+                       "pt: %u pixel sample(s) ran past lavapipe's loop limit (65535 "
+                       "iterations per invocation); the media are too thick (optical size) or "
+                       "the scene too large for the reference on this device",
                        counters[NS_COUNTER_LOOP_LIMIT]);
     if (counters[NS_PT_COUNTER_TRUNCATED])
         return ns_fail(err, NS_ERR_LIMIT,

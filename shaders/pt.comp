@@ -414,6 +414,15 @@ void main()
     }
     if (params.limits.x != 0u && loop_count > params.limits.x)
         atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
+    // lavapipe's limit is counted over every loop an invocation (its SIMD group, in fact)
+    // runs, uncounted ones too (the leaf and light loops), and once spent it makes every
+    // later loop exit at once. So a loop that must run sample_count + 1 times (a bound the
+    // compiler cannot unroll) and runs fewer proves the samples above were cut short.
+    uint probe = 0u;
+    for (uint k = 0u; k <= push.sample_count; k++)
+        probe++;
+    if (probe != push.sample_count + 1u)
+        atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
     vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
     pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
 }

@@ -96,6 +96,31 @@ static void test_furnace_inside_sphere_light(void)
     ns_image_free(&img);
 }
 
+/* An optically huge furnace (radius 300 mean free paths, albedo 1): paths take thousands
+ * of events. Either the image is still exactly the environment, or (lavapipe's loop limit)
+ * the render fails with NS_ERR_LIMIT; never a darker image returned as if it were right. */
+static void test_dense_medium_is_right_or_refused(void)
+{
+    ns_material m;
+    ns_object o;
+    ns_light l;
+    ns_scene s = furnace_scene(&m, &o, &l, (double[3]){300, 300, 300}, 1.0, 0.0);
+    s.camera.width = s.camera.height = 8;
+    s.render.spp = 2;
+    ns_image img;
+    ns_error err = {0};
+    int status = ns_render(test_context(), &s, &img, NULL, &err);
+    if (status == NS_OK) {
+        CHECK_NEAR(furnace_max_error(&img), 0.0, 1e-4);
+    } else {
+        CHECK_INT(status, NS_ERR_LIMIT);
+        CHECK_STR_CONTAINS(err.message, "loop limit");
+        CHECK(img.rgb == NULL);
+    }
+    fprintf(stderr, "  dense furnace: %s %s\n", ns_status_name(status), err.message);
+    ns_image_free(&img);
+}
+
 /* Per-channel extinction (1, 1.5, 2.5): distances are sampled with one channel, weighted by
  * the balance heuristic; the image is noisy but its mean is the environment. */
 static void test_furnace_chromatic(void)
@@ -235,6 +260,7 @@ int main(void)
     RUN(test_furnace_dielectric);
     RUN(test_furnace_inside_sphere_light);
     RUN(test_furnace_chromatic);
+    RUN(test_dense_medium_is_right_or_refused);
     RUN(test_orders_add_up);
     RUN(test_max_scatter);
     RUN(test_seed_determinism);
