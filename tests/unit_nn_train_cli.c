@@ -1,0 +1,144 @@
+/* unit_nn_train_cli.c — `nscatter train` end to end on a tiny synthetic grid (weights and
+ * JSON written, a held-out material kept out, checkpoint and --resume), and the argument
+ * errors of `nscatter train` and `nscatter table`, which must name the argument. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "../offline/table_io.h"
+#include "../server/commands.h"
+#include "harness.h"
+#include "nn_weights.h"
+
+static char dir[256];
+
+/* A small table whose J falls off with distance and angle, like a real one. */
+static void write_table(double g, double a, ns_order order)
+{
+    const uint32_t n[4] = {8, 6, 3, 3};
+    ns_table t;
+    CHECK_INT(ns_table_create(&t, n, NULL), 0);
+    for (uint32_t i = 0; i <= n[0]; i++)
+        t.edges[NS_AXIS_Z][i] = -20.0 + 5.0 * i;
+    for (uint32_t i = 0; i <= n[1]; i++)
+        t.edges[NS_AXIS_RHO][i] = 20.0 * i / n[1];
+    for (uint32_t i = 0; i <= n[2]; i++)
+        t.edges[NS_AXIS_THETA][i] = M_PI * i / n[2];
+    for (uint32_t i = 0; i <= n[3]; i++)
+        t.edges[NS_AXIS_PHI][i] = M_PI * i / n[3];
+    for (uint32_t iz = 0; iz < n[0]; iz++)
+        for (uint32_t ir = 0; ir < n[1]; ir++)
+            for (uint32_t it = 0; it < n[2]; it++)
+                for (uint32_t ip = 0; ip < n[3]; ip++)
+                    t.data[ns_table_index(&t, iz, ir, it, ip)] =
+                        (float)(a * a * exp(-0.1 * (iz + ir)) * (1 + g * it) / (1 + ip));
+    t.order = order;
+    t.g = g;
+    t.albedo = a;
+    snprintf(t.source, sizeof t.source, "mc");
+    t.energy_expected = order == NS_ORDER_DOUBLE ? a * a : a * a * a / (1 - a);
+    t.energy_captured = ns_table_energy(&t);
+    char prefix[512];
+    snprintf(prefix, sizeof prefix, "%s/g%.2f_a%.3f_%s", dir, g, a, ns_order_name(order));
+    ns_error err = {0};
+    CHECK_INT(ns_table_write(&t, prefix, &err), 0);
+    ns_table_free(&t);
+}
+
+static int run(int (*cmd)(int, char **), const char *const *args)
+{
+    char *argv[32];
+    int argc = 0;
+    for (; args[argc]; argc++)
+        argv[argc] = (char *)args[argc];
+    argv[argc] = NULL;
+    return cmd(argc, argv);
+}
+
+static char *read_text(const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    static char buf[8192];
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    buf[n] = 0;
+    fclose(f);
+    return buf;
+}
+
+static void test_train_and_resume(void)
+{
+    /* g 0.3 / a 0.8 is one of the default held-out materials. */
+    write_table(0.1, 0.5, NS_ORDER_DOUBLE);
+    write_table(0.1, 0.9, NS_ORDER_DOUBLE);
+    write_table(0.3, 0.8, NS_ORDER_DOUBLE);
+    char out[300], json[320], bin[320];
+    snprintf(out, sizeof out, "%s/w", dir);
+    snprintf(json, sizeof json, "%s/double.json", out);
+    snprintf(bin, sizeof bin, "%s/double.bin", out);
+    const char *args[] = {"train", "--data", dir, "--order", "double", "--out-dir", out,
+                          "--epochs", "2", "--samples-per-table", "400", "--batch", "64",
+                          "--quiet", NULL};
+    CHECK_INT(run(cmd_train, args), 0);
+    ns_nn_weights w;
+    ns_error err = {0};
+    CHECK_INT(ns_nn_weights_load(bin, &w, &err), 0);
+    CHECK_NEAR(w.h.extent, 20.0, 1e-6); /* read from the tables */
+    const char *text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"epochs\": 2,");
+    CHECK_STR_CONTAINS(text, "\"train_materials\": 2");
+    CHECK_STR_CONTAINS(text, "\"test_materials\": 1");
+    CHECK_STR_CONTAINS(text, "\"command\": \"nscatter train --data");
+
+    const char *resume[] = {"train", "--data", dir, "--order", "double", "--out-dir", out,
+                            "--epochs", "3", "--samples-per-table", "400", "--batch", "64",
+                            "--quiet", "--resume", NULL};
+    CHECK_INT(run(cmd_train, resume), 0);
+    text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"epochs\": 3,");
+}
+
+static void test_argument_errors(void)
+{
+    const char *no_data[] = {"train", NULL};
+    CHECK_INT(run(cmd_train, no_data), 2);
+    const char *bad_epochs[] = {"train", "--data", dir, "--epochs", "-1", NULL};
+    CHECK_INT(run(cmd_train, bad_epochs), 2);
+    const char *empty[] = {"train", "--data", "/nonexistent-nscatter-dir", NULL};
+    CHECK_INT(run(cmd_train, empty), 2);
+    const char *bad_target[] = {"train", "--data", dir, "--target", "log", NULL};
+    CHECK_INT(run(cmd_train, bad_target), 2);
+    const char *bad_g[] = {"table", "--source", "nn", "--order", "double", "--g", "1.5",
+                           "--albedo", "0.5", "--out", "/tmp/x", NULL};
+    CHECK_INT(run(cmd_table, bad_g), 2);
+    const char *bad_source[] = {"table", "--source", "nerf", NULL};
+    CHECK_INT(run(cmd_table, bad_source), 2);
+    const char *no_out[] = {"table", "--source", "nn", "--order", "double", "--g", "0.5",
+                            "--albedo", "0.5", NULL};
+    CHECK_INT(run(cmd_table, no_out), 2);
+    char trunc[300];
+    snprintf(trunc, sizeof trunc, "%s/trunc.bin", dir);
+    FILE *f = fopen(trunc, "wb");
+    fputs("NSNNWTS1", f);
+    fclose(f);
+    const char *bad_weights[] = {"table", "--source", "nn", "--order", "double", "--g", "0.5",
+                                 "--albedo", "0.5", "--out", trunc, "--weights-double", trunc,
+                                 NULL};
+    CHECK_INT(run(cmd_table, bad_weights), 2);
+}
+
+int main(void)
+{
+    snprintf(dir, sizeof dir, "/tmp/unit_nn_train_cli_%d", (int)getpid());
+    mkdir(dir, 0755);
+    RUN(test_train_and_resume);
+    RUN(test_argument_errors);
+    char cmd[600];
+    snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
+    if (system(cmd) != 0)
+        fprintf(stderr, "warning: could not remove %s\n", dir);
+    return harness_report();
+}
