@@ -1,6 +1,9 @@
 #version 450
 // pt.comp — the reference volumetric path tracer (render.method "pt"), one invocation per
-// pixel, the samples of one dispatch (render/pt.c: one sample per dispatch on lavapipe).
+// pixel. Each pixel runs its spp samples one after the other; a dispatch stops after a
+// budget of loop iterations (lavapipe's limit, docs/rendering.md) with the path's state
+// saved in the path buffer, and the next dispatch resumes it (render/pt.c repeats them
+// until every pixel is done), so a path may take any number of scattering events.
 //
 // Light transport is the scene model every method shares (docs/rendering.md): diffuse
 // surfaces take direct light from every light and end the path (no interreflection);
@@ -29,6 +32,7 @@ layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial material
 layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
 layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
 layout(std430, binding = 6) buffer CounterBlock { uint counters[]; };
+layout(std430, binding = 7) buffer PathBlock { GpuPtPath paths[]; };
 layout(push_constant) uniform PushBlock { GpuPtPush push; };
 
 const float PI = 3.14159265358979;
@@ -269,121 +273,144 @@ float fresnel(float cos_i, float eta, out float cos_t)
 }
 
 // ---------------------------------------------------------------------------------------
-// One path.
+// One path, one step at a time, so that it can be suspended between dispatches.
 // ---------------------------------------------------------------------------------------
-vec3 trace_pt(vec3 o, vec3 d)
-{
-    vec3 radiance = vec3(0.0);
-    vec3 w = vec3(1.0);
-    uint medium = NS_NONE;
-    uint events = 0u;         // scattering events so far
-    uint boundary_run = 0u;   // boundary events since the last scattering event
+struct PathState {
+    vec3 o;
+    vec3 d;
+    vec3 w;            // throughput
+    vec3 radiance;     // gathered so far by this sample
+    vec3 last_event;   // position of the last scattering event
+    uint medium;       // material index, NS_NONE outside every medium
+    uint events;       // scattering events so far
+    uint boundary_run; // boundary events since the last scattering event
     // The last scattering event's next-event estimate already covers a sphere light this
     // path hits in a straight line (index-matched crossings only), unless that event lay
     // inside the light's sphere, where it cannot be sampled: do not count it twice.
-    bool nee_covered = false;
-    vec3 last_event = vec3(0.0);
-    while (true) {
-        if (out_of_budget())
-            break;
-        Hit h;
-        bool any = trace_scene(o, d, 0.0, NS_INF, h);
-        uint light_index;
-        float t_light = hit_sphere_lights(o, d, any ? h.t : NS_INF, light_index);
-        bool at_light = light_index != NS_NONE;
-        float t_end = at_light ? t_light : (any ? h.t : NS_INF);
+    bool nee_covered;
+};
 
-        if (medium != NS_NONE) {
-            GpuMaterial mm = materials[medium];
-            vec3 st = mm.sigma_t.xyz;
-            float u_channel = rnd();
-            float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
-            float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
-            if (t < t_end) {
-                // A scattering event: weight = transmittance * sigma_s / (mean of the
-                // three channels' distance pdfs).
-                vec3 tr = exp(-st * t);
-                float pdf = dot(st * tr, vec3(1.0 / 3.0));
-                w *= tr * mm.sigma_s.xyz / pdf;
-                if (!(max(w.x, max(w.y, w.z)) > 0.0))
-                    break; // absorbed in every channel
-                o += t * d;
-                if (events + 1u > push.max_events)
-                    break;
-                events++;
-                boundary_run = 0u;
-                if (events > 3u) {
-                    float q = min(1.0, max(w.x, max(w.y, w.z)));
-                    if (!(q > 0.0) || rnd() >= q)
-                        break;
-                    w /= q;
-                }
-                float g = mm.sigma_s.w;
-                if (order_counts(events))
-                    radiance += w * direct_light_medium(o, d, g, medium);
-                d = hg_sample(d, g);
-                nee_covered = true;
-                last_event = o;
-                continue;
+// Advances the path by one straight stretch and what ends it. false: the path is over.
+bool path_step(inout PathState s)
+{
+    out_of_budget(); // counts the step (pt yields between steps, never inside one)
+    Hit h;
+    bool any = trace_scene(s.o, s.d, 0.0, NS_INF, h);
+    uint light_index;
+    float t_light = hit_sphere_lights(s.o, s.d, any ? h.t : NS_INF, light_index);
+    bool at_light = light_index != NS_NONE;
+    float t_end = at_light ? t_light : (any ? h.t : NS_INF);
+
+    if (s.medium != NS_NONE) {
+        GpuMaterial mm = materials[s.medium];
+        vec3 st = mm.sigma_t.xyz;
+        float u_channel = rnd();
+        float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
+        float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+        if (t < t_end) {
+            // A scattering event: weight = transmittance * sigma_s / (mean of the three
+            // channels' distance pdfs).
+            vec3 tr = exp(-st * t);
+            float pdf = dot(st * tr, vec3(1.0 / 3.0));
+            s.w *= tr * mm.sigma_s.xyz / pdf;
+            if (!(max(s.w.x, max(s.w.y, s.w.z)) > 0.0))
+                return false; // absorbed in every channel
+            s.o += t * s.d;
+            if (s.events + 1u > push.max_events)
+                return false;
+            s.events++;
+            s.boundary_run = 0u;
+            if (s.events > 3u) {
+                float q = min(1.0, max(s.w.x, max(s.w.y, s.w.z)));
+                if (!(q > 0.0) || rnd() >= q)
+                    return false;
+                s.w /= q;
             }
-            if (t_end == NS_INF)
-                break; // inside a medium with nothing ahead: cannot happen for closed shapes
-            vec3 tr = beer_lambert(st, t_end);
-            float survive = dot(tr, vec3(1.0 / 3.0));
-            if (!(survive > 0.0))
-                break;
-            w *= tr / survive;
+            float g = mm.sigma_s.w;
+            if (order_counts(s.events))
+                s.radiance += s.w * direct_light_medium(s.o, s.d, g, s.medium);
+            s.d = hg_sample(s.d, g);
+            s.nee_covered = true;
+            s.last_event = s.o;
+            return true;
         }
-
-        if (at_light) {
-            vec4 ball = lights[light_index].position;
-            vec3 to_light = last_event - ball.xyz;
-            bool covered = nee_covered && dot(to_light, to_light) > ball.w * ball.w;
-            if (!covered && order_counts(events))
-                radiance += w * lights[light_index].color.rgb;
-            break;
-        }
-        if (!any) {
-            if (order_counts(events))
-                radiance += w * params.environment.rgb;
-            break;
-        }
-        vec3 p = o + h.t * d;
-        uint m = prims[h.prim].info.y;
-        GpuMaterial mat = materials[m];
-        vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
-        if (mat.reflectance.w == 0.0) {
-            if (order_counts(events))
-                radiance += w * direct_light_surface(p, n, mat.reflectance.rgb, medium);
-            break;
-        }
-        if (++boundary_run > NS_PT_MAX_BOUNDARY_RUN) {
-            atomicAdd(counters[NS_PT_COUNTER_TRUNCATED], 1u);
-            break;
-        }
-        float eps = ray_epsilon(p);
-        uint next_medium = h.front ? m : NS_NONE;
-        float ior = mat.sigma_t.w;
-        if (ior == 1.0) {
-            o = p - n * eps;
-            medium = next_medium;
-            continue;
-        }
-        float eta = h.front ? 1.0 / ior : ior;
-        float cos_i = -dot(d, n);
-        float cos_t;
-        float f = fresnel(cos_i, eta, cos_t);
-        if (f >= 1.0 || rnd() < f) {
-            o = p + n * eps;
-            d = normalize(reflect(d, n));
-        } else {
-            o = p - n * eps;
-            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
-            medium = next_medium;
-        }
-        nee_covered = false;
+        if (t_end == NS_INF)
+            return false; // inside a medium with nothing ahead: cannot happen for closed shapes
+        vec3 tr = beer_lambert(st, t_end);
+        float survive = dot(tr, vec3(1.0 / 3.0));
+        if (!(survive > 0.0))
+            return false;
+        s.w *= tr / survive;
     }
-    return radiance;
+
+    if (at_light) {
+        vec4 ball = lights[light_index].position;
+        vec3 to_light = s.last_event - ball.xyz;
+        bool covered = s.nee_covered && dot(to_light, to_light) > ball.w * ball.w;
+        if (!covered && order_counts(s.events))
+            s.radiance += s.w * lights[light_index].color.rgb;
+        return false;
+    }
+    if (!any) {
+        if (order_counts(s.events))
+            s.radiance += s.w * params.environment.rgb;
+        return false;
+    }
+    vec3 p = s.o + h.t * s.d;
+    uint m = prims[h.prim].info.y;
+    GpuMaterial mat = materials[m];
+    vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
+    if (mat.reflectance.w == 0.0) {
+        if (order_counts(s.events))
+            s.radiance += s.w * direct_light_surface(p, n, mat.reflectance.rgb, s.medium);
+        return false;
+    }
+    if (++s.boundary_run > NS_PT_MAX_BOUNDARY_RUN) {
+        atomicAdd(counters[NS_PT_COUNTER_TRUNCATED], 1u);
+        return false;
+    }
+    float eps = ray_epsilon(p);
+    uint next_medium = h.front ? m : NS_NONE;
+    float ior = mat.sigma_t.w;
+    if (ior == 1.0) {
+        s.o = p - n * eps;
+        s.medium = next_medium;
+        return true;
+    }
+    float eta = h.front ? 1.0 / ior : ior;
+    float cos_i = -dot(s.d, n);
+    float cos_t;
+    float f = fresnel(cos_i, eta, cos_t);
+    if (f >= 1.0 || rnd() < f) {
+        s.o = p + n * eps;
+        s.d = normalize(reflect(s.d, n));
+    } else {
+        s.o = p - n * eps;
+        s.d = normalize(eta * s.d + (eta * cos_i - cos_t) * n);
+        s.medium = next_medium;
+    }
+    s.nee_covered = false;
+    return true;
+}
+
+PathState start_sample(uvec2 xy, uint pixel_seed, uint sample_index)
+{
+    rng_state = pcg_hash(pixel_seed + sample_index);
+    float u = (float(xy.x) + rnd()) / float(params.image.x);
+    float v = (float(xy.y) + rnd()) / float(params.image.y);
+    vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
+             params.cam_up.xyz * ((1.0 - 2.0 * v) * params.cam_right.w);
+    PathState s;
+    s.o = params.cam_position.xyz;
+    s.d = normalize(d);
+    s.w = vec3(1.0);
+    s.radiance = vec3(0.0);
+    s.last_event = vec3(0.0);
+    s.medium = NS_NONE;
+    s.events = 0u;
+    s.boundary_run = 0u;
+    s.nee_covered = false;
+    return s;
 }
 
 void main()
@@ -395,34 +422,67 @@ void main()
     uint pixel = xy.y * width + xy.x;
     // A different stream from the camera pass's for the same seed.
     uint pixel_seed = pcg_hash(pcg_hash(params.image.w ^ 0x7f4a7c15u) + pixel);
-
-    vec3 sum = vec3(0.0);
     uint spp = params.image.z;
-    for (uint i = push.first_sample; i < push.first_sample + push.sample_count; i++) {
-        rng_state = pcg_hash(pixel_seed + i);
-        float u = (float(xy.x) + rnd()) / float(width);
-        float v = (float(xy.y) + rnd()) / float(height);
-        vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
-                 params.cam_up.xyz * ((1.0 - 2.0 * v) * params.cam_right.w);
-        vec3 l = trace_pt(params.cam_position.xyz, normalize(d));
-        // A NaN or Inf sample would poison the pixel for good: it is dropped and counted,
-        // and the render fails rather than hide it.
-        if (any(isnan(l)) || any(isinf(l)))
-            atomicAdd(counters[NS_PT_COUNTER_NONFINITE], 1u);
-        else
-            sum += l;
+
+    // Resume where the previous dispatch stopped (the buffer starts zeroed: no path
+    // active, sample 0 next).
+    GpuPtPath saved = paths[pixel];
+    PathState s;
+    s.o = saved.origin.xyz;
+    s.d = saved.direction.xyz;
+    s.w = saved.weight.xyz;
+    s.radiance = saved.radiance.xyz;
+    s.last_event = saved.last_event.xyz;
+    s.medium = saved.state.x;
+    s.events = saved.state.y;
+    s.boundary_run = saved.state.z;
+    s.nee_covered = saved.state.w != 0u;
+    rng_state = saved.progress.x;
+    uint next_sample = saved.progress.y;
+    bool path_active = saved.progress.z != 0u;
+    vec3 finished = vec3(0.0);
+
+    while (true) {
+        if (!path_active) {
+            if (next_sample >= spp)
+                break;
+            s = start_sample(xy, pixel_seed, next_sample);
+            next_sample++;
+            path_active = true;
+        }
+        if (!path_step(s)) {
+            path_active = false;
+            // A NaN or Inf sample would poison the pixel for good: it is dropped and
+            // counted, and the render fails rather than hide it.
+            if (any(isnan(s.radiance)) || any(isinf(s.radiance)))
+                atomicAdd(counters[NS_PT_COUNTER_NONFINITE], 1u);
+            else
+                finished += s.radiance;
+        }
+        if (loop_count >= push.yield_after)
+            break;
     }
-    if (params.limits.x != 0u && loop_count > params.limits.x)
-        atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
+
+    saved.origin.xyz = s.o;
+    saved.direction.xyz = s.d;
+    saved.weight.xyz = s.w;
+    saved.radiance.xyz = s.radiance;
+    saved.last_event.xyz = s.last_event;
+    saved.state = uvec4(s.medium, s.events, s.boundary_run, s.nee_covered ? 1u : 0u);
+    saved.progress = uvec4(rng_state, next_sample, path_active ? 1u : 0u, 0u);
+    paths[pixel] = saved;
+    if (finished != vec3(0.0))
+        pixels[pixel] += vec4(finished / float(spp), 0.0);
+    if (push.report != 0u && (path_active || next_sample < spp))
+        atomicAdd(counters[NS_PT_COUNTER_UNFINISHED], 1u);
+
     // lavapipe's limit is counted over every loop an invocation (its SIMD group, in fact)
     // runs, uncounted ones too (the leaf and light loops), and once spent it makes every
-    // later loop exit at once. So a loop that must run sample_count + 1 times (a bound the
-    // compiler cannot unroll) and runs fewer proves the samples above were cut short.
+    // later loop exit at once. So a loop that must run spp + 1 times (a bound the compiler
+    // cannot unroll) and runs fewer proves the steps above were cut short.
     uint probe = 0u;
-    for (uint k = 0u; k <= push.sample_count; k++)
+    for (uint k = 0u; k <= spp; k++)
         probe++;
-    if (probe != push.sample_count + 1u)
+    if (probe != spp + 1u)
         atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
-    vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
-    pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
 }

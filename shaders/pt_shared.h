@@ -4,16 +4,32 @@
 #ifndef NS_SHADERS_PT_SHARED_H
 #define NS_SHADERS_PT_SHARED_H
 
-/* Which samples a dispatch takes and which paths count (render/pt.c fills it):
- * components = NS_COMPONENT_* bits (surface = paths with 0 scattering events, single = 1,
- * double = 2, multiple = 3 or more); max_events = the largest event count that can still
- * contribute (render.max_scatter and the components together; NS_NONE = no limit), so a
- * path stops as soon as it could only add to orders nobody asked for. */
+/* Push block of a dispatch (render/pt.c fills it): components = NS_COMPONENT_* bits
+ * (surface = paths with 0 scattering events, single = 1, double = 2, multiple = 3 or more);
+ * max_events = the largest event count that can still contribute (render.max_scatter and
+ * the components together; NS_NONE = no limit), so a path stops as soon as it could only
+ * add to orders nobody asked for; yield_after = loop iterations after which an invocation
+ * saves its path and stops; report = 1 on the last dispatch of a batch: unfinished pixels
+ * count themselves (NS_PT_COUNTER_UNFINISHED). */
 struct GpuPtPush {
-    ns_uint first_sample;
-    ns_uint sample_count;
     ns_uint components;
     ns_uint max_events;
+    ns_uint yield_after;
+    ns_uint report;
+};
+
+/* A pixel's suspended path between dispatches (w components unused); the buffer starts
+ * zeroed, which reads as "no path active, sample 0 next".
+ * state = medium, scattering events, boundary run, nee_covered;
+ * progress = rng state, next sample index, path active, unused. */
+struct GpuPtPath {
+    ns_vec4 origin;
+    ns_vec4 direction;
+    ns_vec4 weight;
+    ns_vec4 radiance;
+    ns_vec4 last_event;
+    ns_uvec4 state;
+    ns_uvec4 progress;
 };
 
 /* Boundary (Fresnel) events a path may take between two scattering events before it is
@@ -22,10 +38,21 @@ struct GpuPtPush {
  * return a biased image. */
 NS_CONST(uint, NS_PT_MAX_BOUNDARY_RUN, 256);
 
-/* Counters of the pt pass: [NS_COUNTER_LOOP_LIMIT] as in shared.h (lavapipe's loop
- * budget), samples that came out NaN or infinite (dropped), and truncated paths. */
+/* Counters of the pt pass: [NS_COUNTER_LOOP_LIMIT] as in shared.h (lavapipe cut an
+ * invocation short: the probe loop in pt.comp), samples that came out NaN or infinite
+ * (dropped), truncated paths, and pixels still unfinished after a batch. */
 NS_CONST(uint, NS_PT_COUNTER_NONFINITE, 0);
 NS_CONST(uint, NS_PT_COUNTER_TRUNCATED, 1);
+NS_CONST(uint, NS_PT_COUNTER_UNFINISHED, 3);
+
+/* Counted loop iterations after which a dispatch yields on lavapipe. Measured: 4000 was
+ * too many (the probe caught cut invocations in a plain furnace), 1000 is not: the count
+ * misses the traversal's leaf, plane and light-hit loops, and lavapipe's limit evidently
+ * spans more than one invocation's loops (SIMD lanes, perhaps a workgroup's chunks). */
+NS_CONST(uint, NS_PT_YIELD_LAVAPIPE, 1000);
+
+/* Dispatches after which a render gives up (NS_ERR_LIMIT): bounds a pathological scene. */
+NS_CONST(uint, NS_PT_MAX_DISPATCHES, 20000);
 
 /* NS_COMPONENT_* bits of render/nscatter.h, for the shader (render/pt.c checks they match). */
 NS_CONST(uint, NS_PT_SURFACE, 1);
@@ -33,12 +60,11 @@ NS_CONST(uint, NS_PT_SINGLE, 2);
 NS_CONST(uint, NS_PT_DOUBLE, 4);
 NS_CONST(uint, NS_PT_MULTIPLE, 8);
 
-/* Samples per dispatch where the device has no loop limit (bounds one submission's time). */
-NS_CONST(uint, NS_PT_SAMPLES_PER_DISPATCH, 16);
-
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuPtPush GpuPtPush;
+typedef struct GpuPtPath GpuPtPath;
 _Static_assert(sizeof(GpuPtPush) == 16, "GpuPtPush size");
+_Static_assert(sizeof(GpuPtPath) == 112 && offsetof(GpuPtPath, state) == 80, "GpuPtPath layout");
 #endif
 
 #endif
