@@ -14,7 +14,7 @@
 #include "../offline/mc.h"
 #include "../offline/nn_train.h"
 #include "../offline/table_io.h"
-#include "../render/nn_reconstruct.h"
+#include "../render/nn.h"
 #include "commands.h"
 
 static const char usage_text[] =
@@ -160,52 +160,37 @@ static int parse_options(int argc, char **argv, table_options *o)
  * ===================================================================================== */
 
 typedef struct {
-    gpu_device dev;
-    ns_nn_gpu nn;
-    ns_nn_weights nets[2];
-    int have_dev;
+    ns_nn_session *session;
+    const ns_nn_weights *nets[2];
 } nn_session;
 
 static int session_open(const table_options *o, nn_session *s)
 {
     memset(s, 0, sizeof *s);
     ns_error err = {0};
-    for (int k = 0; k < 2; k++) {
-        int rc = o->weights[k] ? ns_nn_weights_load(o->weights[k], &s->nets[k], &err)
-                               : ns_nn_weights_builtin((uint32_t)k, &s->nets[k], &err);
-        if (!rc && s->nets[k].h.order != (uint32_t)k)
-            rc = NS_ERR_INVALID_ARGUMENT,
-            snprintf(err.message, sizeof err.message, "%s: holds the %s network",
-                     o->weights[k], ns_order_name((ns_order)s->nets[k].h.order));
-        if (rc) {
-            fprintf(stderr, "nscatter table: %s\n", err.message);
-            return 2;
-        }
-    }
     const char *validation = getenv("NSCATTER_VALIDATION");
-    int rc = gpu_device_create(&s->dev,
-                               &(gpu_device_desc){.device = o->device ? o->device
-                                                                      : getenv("NSCATTER_DEVICE"),
-                                                  .validation = validation && *validation == '1'},
-                               &err);
-    if (!rc) {
-        s->have_dev = 1;
-        rc = ns_nn_gpu_create(&s->dev, &s->nn, &err);
-    }
+    int rc = ns_nn_session_create(&(ns_nn_session_desc){.device = o->device,
+                                                        .validation = validation &&
+                                                                      *validation == '1',
+                                                        .weights = {o->weights[0],
+                                                                    o->weights[1]}},
+                                  &s->session, &err);
     if (rc) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
-        return 1;
+        /* A bad weights file is bad input (2); a device failure is a failure (1). */
+        return rc == NS_ERR_INVALID_ARGUMENT || rc == NS_ERR_IO || rc == NS_ERR_NOT_AVAILABLE
+                   ? 2
+                   : 1;
     }
+    s->nets[0] = ns_nn_session_net(s->session, 0);
+    s->nets[1] = ns_nn_session_net(s->session, 1);
     return 0;
 }
 
 static void session_close(nn_session *s)
 {
-    if (!s->have_dev)
-        return;
-    ns_nn_gpu_destroy(&s->dev, &s->nn);
-    gpu_device_destroy(&s->dev);
-    s->have_dev = 0;
+    ns_nn_session_destroy(s->session);
+    s->session = NULL;
 }
 
 static int default_table(ns_table *t, ns_order order, double g, double albedo)
@@ -241,13 +226,12 @@ static int reconstruct(nn_session *s, const ns_table *shape, double g, const dou
     *out = malloc(cells * 6 * sizeof(float));
     if (!*out)
         return usage_error("out of memory");
-    const ns_nn_weights *nets[2] = {&s->nets[0], &s->nets[1]};
     ns_error err = {0};
-    ns_nn_reconstruct_desc d = {.nets = {nets[0], nets[1]}, .grid = grid_of(shape), .g = g,
+    ns_nn_reconstruct_desc d = {.nets = {s->nets[0], s->nets[1]}, .grid = grid_of(shape), .g = g,
                                 .albedo = {albedo[0], albedo[1], albedo[2]},
                                 .renormalise = renormalise, .channels = channels,
                                 .out = *out};
-    if (ns_nn_reconstruct(&s->dev, &s->nn, &d, stats, &err)) {
+    if (ns_nn_session_reconstruct(s->session, &d, stats, &err)) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
         free(*out);
         *out = NULL;
@@ -312,7 +296,7 @@ static int run_one(const table_options *o)
             snprintf(t.source, sizeof t.source, "nn");
             fprintf(stderr, "nscatter table: reconstructed in %.3f s (GPU %.3f s, %s), raw "
                             "energy %.6g of %.6g\n",
-                    st.total_seconds, st.gpu_seconds, s.dev.info.device_name,
+                    st.total_seconds, st.gpu_seconds, ns_nn_session_device(s.session),
                     st.energy_raw[o->order][0], st.energy_exact[o->order][0]);
         } else if (t.data) {
             ns_table_free(&t);
@@ -441,7 +425,7 @@ static int run_report(const table_options *o)
     int rc = session_open(o, &s);
     if (rc)
         return rc;
-    printf("device: %s; weights: %s, %s\n", s.dev.info.device_name,
+    printf("device: %s; weights: %s, %s\n", ns_nn_session_device(s.session),
            o->weights[0] ? o->weights[0] : "built-in", o->weights[1] ? o->weights[1] : "built-in");
     printf("energy error: NN table (no renormalisation) vs exact a^k and vs the MC table; L1: "
            "energy-weighted |NN - MC| / MC energy, raw and renormalised; MC captured: MC "
@@ -523,9 +507,10 @@ static int run_benchmark(const table_options *o)
         qsort(gpu, (size_t)o->runs, sizeof(double), cmp_double);
         qsort(total, (size_t)o->runs, sizeof(double), cmp_double);
         double scalar, blas;
-        cpu_baselines(&s.nets[0], &scalar, &blas);
+        cpu_baselines(s.nets[0], &scalar, &blas);
         double flops = 2.0 * (NS_NN_PARAMS - 1 - 2 * NS_NN_HIDDEN); /* multiply-adds x 2 */
-        printf("device: %s (pipeline created and warmed in %.2f s)\n", s.dev.info.device_name,
+        printf("device: %s (pipeline created and warmed in %.2f s)\n",
+               ns_nn_session_device(s.session),
                startup);
         printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells, "
                "%llu network evaluations\n",
