@@ -277,6 +277,7 @@ static int run_one(const table_options *o)
     if (ns_table_check_writable(o->out, &err))
         return usage_error("--out: %s", err.message);
     ns_table t;
+    memset(&t, 0, sizeof t);
     int rc;
     if (!strcmp(o->source, "mc")) {
         rc = run_mc_table(o, &t);
