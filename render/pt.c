@@ -172,9 +172,45 @@ static int pt_read_back(pt_job *job, const ns_camera *cam, ns_image *out, ns_err
     return NS_OK;
 }
 
+/* Light from a point or directional light reaches a scattering medium behind a refracting
+ * boundary only along refracted paths, which next-event estimation cannot sample and a
+ * camera path hits with probability 0; light sub-paths are not implemented yet
+ * (docs/reference.md). Such a render would silently miss that light, so it is refused
+ * unless only the surface order (no scattering) is asked for. */
+static int pt_check_reachable(const ns_scene *scene, ns_error *err)
+{
+    if (!(scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE))
+        return NS_OK;
+    static const char *kinds[] = {"directional", "point"};
+    for (uint32_t l = 0; l < scene->light_count; l++) {
+        ns_light_type type = scene->lights[l].type;
+        if (type != NS_LIGHT_DIRECTIONAL && type != NS_LIGHT_POINT)
+            continue;
+        for (uint32_t m = 0; m < scene->material_count; m++) {
+            const ns_material *mat = &scene->materials[m];
+            int scatters = mat->sigma_s[0] > 0 || mat->sigma_s[1] > 0 || mat->sigma_s[2] > 0;
+            int used = 0;
+            for (uint32_t o = 0; o < scene->object_count && !used; o++)
+                used = scene->objects[o].material == m;
+            if (mat->type == NS_MATERIAL_MEDIUM && mat->ior != 1.0f && scatters && used)
+                return ns_fail(err, NS_ERR_NOT_AVAILABLE,
+                               "pt: lights[%u] (%s) cannot reach the inside of medium '%s' "
+                               "(materials[%u], ior %g) through its refracting boundary: light "
+                               "sub-paths are not implemented yet, so its scattered light would "
+                               "be missing; use sphere/environment lights, ior 1, or "
+                               "components [\"surface\"]",
+                               l, kinds[type], mat->name, m, (double)mat->ior);
+        }
+    }
+    return NS_OK;
+}
+
 int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_error *err)
 {
+    int reachable = pt_check_reachable(scene, err);
+    if (reachable)
+        return reachable;
     pt_job job;
     memset(&job, 0, sizeof job);
     double t0 = ns_now_ms();

@@ -85,6 +85,8 @@ static void test_scattering_only_inside_the_sphere(void)
     ns_object objs[3];
     ns_light lights[3];
     build(&s, mats, objs, lights);
+    s.lights = lights + 1; /* the sphere light and the environment: see the test below */
+    s.light_count = 2;
     s.render.method = NS_METHOD_PT;
     s.render.spp = 16;
     s.render.components = NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
@@ -104,10 +106,47 @@ static void test_scattering_only_inside_the_sphere(void)
     ns_image_free(&img);
 }
 
+/* A point or directional light cannot reach the inside of a refracting medium yet (no
+ * light sub-paths): scattering orders are refused, naming the light and the material,
+ * rather than rendered without that light. The surface order and index-matched media
+ * render. */
+static void test_unreachable_light_refused(void)
+{
+    ns_scene s;
+    ns_material mats[3];
+    ns_object objs[3];
+    ns_light lights[3];
+    build(&s, mats, objs, lights);
+    s.render.method = NS_METHOD_PT;
+    s.render.components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE;
+    s.render.spp = 1;
+    for (int kind = 0; kind < 2; kind++) {
+        if (kind == 1) {
+            lights[0] = light(NS_LIGHT_POINT, 10, 10, 10);
+            set3(lights[0].position, 0, 4, 2);
+        }
+        ns_image img;
+        ns_error err = {0};
+        CHECK_INT(ns_render(test_context(), &s, &img, NULL, &err), NS_ERR_NOT_AVAILABLE);
+        CHECK_STR_CONTAINS(err.message, kind ? "lights[0] (point)" : "lights[0] (directional)");
+        CHECK_STR_CONTAINS(err.message, "materials[2], ior 1.45");
+        CHECK(img.rgb == NULL);
+    }
+    ns_image img;
+    s.render.components = NS_COMPONENT_SURFACE;
+    if (render_ok(&s, &img, NULL))
+        ns_image_free(&img);
+    s.render.components = NS_COMPONENT_MULTIPLE;
+    mats[2].ior = 1.0f;
+    if (render_ok(&s, &img, NULL))
+        ns_image_free(&img);
+}
+
 int main(void)
 {
     RUN(test_surface_order_matches_camera_pass);
     RUN(test_scattering_only_inside_the_sphere);
+    RUN(test_unreachable_light_refused);
     ns_context_destroy(test_context());
     return harness_report();
 }
