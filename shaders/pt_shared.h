@@ -51,8 +51,10 @@ NS_CONST(uint, NS_PT_COUNTER_UNFINISHED, 3);
  * spans more than one invocation's loops (SIMD lanes, perhaps a workgroup's chunks). */
 NS_CONST(uint, NS_PT_YIELD_LAVAPIPE, 1000);
 
-/* Dispatches after which a render gives up (NS_ERR_LIMIT): bounds a pathological scene. */
-NS_CONST(uint, NS_PT_MAX_DISPATCHES, 20000);
+/* Dispatches after which a render gives up (NS_ERR_LIMIT). Paths always progress (each
+ * dispatch takes at least one step per unfinished pixel and paths end), so this only bounds
+ * a runaway job: at lavapipe's 15-30 ms per dispatch it is hours. */
+NS_CONST(uint, NS_PT_MAX_DISPATCHES, 1000000);
 
 /* NS_COMPONENT_* bits of render/nscatter.h, for the shader (render/pt.c checks they match). */
 NS_CONST(uint, NS_PT_SURFACE, 1);
