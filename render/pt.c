@@ -4,6 +4,7 @@
  * docs/reference.md. */
 #include "pt.h"
 
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -43,6 +44,99 @@ uint32_t ns_pt_max_events(uint32_t components, uint32_t max_scatter)
     if (max_scatter && max_scatter < highest)
         highest = max_scatter;
     return highest;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Media behind refracting boundaries and delta lights (docs/reference.md).
+ * ------------------------------------------------------------------------------------- */
+static int pt_refracting_scatterer(const ns_material *mat)
+{
+    return mat->type == NS_MATERIAL_MEDIUM && mat->ior != 1.0f &&
+           (mat->sigma_s[0] > 0 || mat->sigma_s[1] > 0 || mat->sigma_s[2] > 0);
+}
+
+static void pt_grow(float lo[3], float hi[3], const float p[3], float pad)
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = p[k] - pad < lo[k] ? p[k] - pad : lo[k];
+        hi[k] = p[k] + pad > hi[k] ? p[k] + pad : hi[k];
+    }
+}
+
+typedef struct pt_light_plan {
+    uint32_t delta_lights;     /* point + directional lights; 0 = no light sub-paths */
+    float target[4];           /* sphere around every refracting scattering medium */
+    int unbounded;             /* such a medium on a plane: no target sphere */
+    int first_delta, material; /* for the refusal message */
+} pt_light_plan;
+
+static void pt_plan_light_subpaths(const ns_scene *scene, pt_light_plan *plan)
+{
+    memset(plan, 0, sizeof *plan);
+    plan->first_delta = plan->material = -1;
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t o = 0; o < scene->object_count; o++) {
+        const ns_object *obj = &scene->objects[o];
+        if (!pt_refracting_scatterer(&scene->materials[obj->material]))
+            continue;
+        if (plan->material < 0)
+            plan->material = (int)obj->material;
+        if (obj->shape == NS_SHAPE_SPHERE) {
+            pt_grow(lo, hi, obj->center, obj->radius);
+        } else if (obj->shape == NS_SHAPE_BOX) {
+            pt_grow(lo, hi, obj->min, 0);
+            pt_grow(lo, hi, obj->max, 0);
+        } else if (obj->shape == NS_SHAPE_MESH) {
+            for (uint32_t t = 0; t < obj->triangle_count; t++)
+                for (int v = 0; v < 3; v++)
+                    pt_grow(lo, hi, scene->triangles[obj->first_triangle + t].v[v], 0);
+        } else {
+            plan->unbounded = 1;
+        }
+    }
+    for (uint32_t l = 0; l < scene->light_count; l++)
+        if (scene->lights[l].type == NS_LIGHT_DIRECTIONAL ||
+            scene->lights[l].type == NS_LIGHT_POINT) {
+            if (plan->first_delta < 0)
+                plan->first_delta = (int)l;
+            plan->delta_lights++;
+        }
+    if (plan->material < 0 || plan->unbounded || !(lo[0] <= hi[0])) {
+        plan->delta_lights = 0;
+        return;
+    }
+    float r2 = 0;
+    for (int k = 0; k < 3; k++) {
+        plan->target[k] = 0.5f * (lo[k] + hi[k]);
+        r2 += 0.25f * (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    }
+    plan->target[3] = sqrtf(r2) * 1.0001f + 1e-6f;
+}
+
+/* Light sub-paths give every order from 2 up. The single order behind a refracting boundary
+ * would need a specular connection (docs/reference.md), so a render asking for it there is
+ * refused rather than returned without that light; so is any scattering order when such a
+ * medium sits on an unbounded plane (no sphere to aim the sub-paths at). */
+static int pt_check_reachable(const ns_scene *scene, const pt_light_plan *plan, ns_error *err)
+{
+    if (plan->first_delta < 0 || plan->material < 0)
+        return NS_OK;
+    uint32_t missing = plan->unbounded ? scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE
+                                       : scene->render.components & NS_COMPONENT_SINGLE;
+    if (!missing)
+        return NS_OK;
+    static const char *kinds[] = {"directional", "point"};
+    const ns_material *mat = &scene->materials[plan->material];
+    return ns_fail(err, NS_ERR_NOT_AVAILABLE,
+                   "pt: lights[%d] (%s) reaches medium '%s' (materials[%d], ior %g) only "
+                   "through its refracting boundary; %s; leave out %s, or use "
+                   "sphere/environment lights or ior 1",
+                   plan->first_delta, kinds[scene->lights[plan->first_delta].type], mat->name,
+                   plan->material, (double)mat->ior,
+                   plan->unbounded ? "light sub-paths need a bounded medium (not a plane)"
+                                   : "its single scattering needs a specular connection, "
+                                     "which is not implemented",
+                   plan->unbounded ? "the scattering components" : "component \"single\"");
 }
 
 static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *err)
@@ -110,8 +204,8 @@ static int pt_check_counters(const uint32_t *counters, ns_error *err)
 /* Batches of dispatches (1, 2, 4, ... 16 long) until the last dispatch of a batch finds
  * every pixel done: a pixel's samples may need many dispatches when its paths are long
  * (each dispatch yields after NS_PT_YIELD_LAVAPIPE counted iterations on lavapipe). */
-static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene, uint32_t *dispatched,
-                       ns_error *err)
+static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene,
+                       const pt_light_plan *plan, uint32_t *dispatched, ns_error *err)
 {
     gpu_buffer *bound[PT_COUNT];
     for (int i = 0; i < PT_COUNT; i++)
@@ -121,6 +215,8 @@ static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene, uint
     GpuPtPush push[16];
     for (uint32_t i = 0; i < 16; i++)
         push[i] = (GpuPtPush){
+            .target = {plan->target[0], plan->target[1], plan->target[2], plan->target[3]},
+            .delta_lights = plan->delta_lights,
             .components = scene->render.components,
             .max_events = ns_pt_max_events(scene->render.components, scene->render.max_scatter),
             .yield_after = ctx->dev.loop_limited ? NS_PT_YIELD_LAVAPIPE : 1u << 24,
@@ -172,43 +268,12 @@ static int pt_read_back(pt_job *job, const ns_camera *cam, ns_image *out, ns_err
     return NS_OK;
 }
 
-/* Light from a point or directional light reaches a scattering medium behind a refracting
- * boundary only along refracted paths, which next-event estimation cannot sample and a
- * camera path hits with probability 0; light sub-paths are not implemented yet
- * (docs/reference.md). Such a render would silently miss that light, so it is refused
- * unless only the surface order (no scattering) is asked for. */
-static int pt_check_reachable(const ns_scene *scene, ns_error *err)
-{
-    if (!(scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE))
-        return NS_OK;
-    static const char *kinds[] = {"directional", "point"};
-    for (uint32_t l = 0; l < scene->light_count; l++) {
-        ns_light_type type = scene->lights[l].type;
-        if (type != NS_LIGHT_DIRECTIONAL && type != NS_LIGHT_POINT)
-            continue;
-        for (uint32_t m = 0; m < scene->material_count; m++) {
-            const ns_material *mat = &scene->materials[m];
-            int scatters = mat->sigma_s[0] > 0 || mat->sigma_s[1] > 0 || mat->sigma_s[2] > 0;
-            int used = 0;
-            for (uint32_t o = 0; o < scene->object_count && !used; o++)
-                used = scene->objects[o].material == m;
-            if (mat->type == NS_MATERIAL_MEDIUM && mat->ior != 1.0f && scatters && used)
-                return ns_fail(err, NS_ERR_NOT_AVAILABLE,
-                               "pt: lights[%u] (%s) cannot reach the inside of medium '%s' "
-                               "(materials[%u], ior %g) through its refracting boundary: light "
-                               "sub-paths are not implemented yet, so its scattered light would "
-                               "be missing; use sphere/environment lights, ior 1, or "
-                               "components [\"surface\"]",
-                               l, kinds[type], mat->name, m, (double)mat->ior);
-        }
-    }
-    return NS_OK;
-}
-
 int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_error *err)
 {
-    int reachable = pt_check_reachable(scene, err);
+    pt_light_plan plan;
+    pt_plan_light_subpaths(scene, &plan);
+    int reachable = pt_check_reachable(scene, &plan, err);
     if (reachable)
         return reachable;
     pt_job job;
@@ -239,7 +304,7 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     ns_stats_add_stage(stats, "upload", t3 - t2);
     uint32_t dispatched = 0;
     if (!status)
-        status = pt_dispatch(ctx, &job, scene, &dispatched, err);
+        status = pt_dispatch(ctx, &job, scene, &plan, &dispatched, err);
     double t4 = ns_now_ms();
     ns_stats_add_stage(stats, "pt_pass", t4 - t3);
     (void)dispatched; /* not in ns_render_stats (a shared struct); measured by the tests */

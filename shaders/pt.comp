@@ -273,6 +273,162 @@ float fresnel(float cos_i, float eta, out float cos_t)
 }
 
 // ---------------------------------------------------------------------------------------
+// Light sub-paths: point and directional light reaching a medium through a refracting
+// boundary. Next-event estimation cannot sample such light (the refracted path is a
+// specular chain) and a camera path never hits a delta light, so each camera sample traces
+// one light sub-path from a delta light up to its first scattering event z, and every
+// camera stretch inside a medium connects to z through a point on it chosen by equiangular
+// sampling (Kulla & Fajardo 2012). Only sub-paths that took a refracting boundary event
+// before z count: a straight light-to-z line is next-event estimation's case. Each full
+// path of n >= 2 events is so made exactly once (camera side n - 1 events, light side 1).
+// ---------------------------------------------------------------------------------------
+struct LightVertex {
+    vec3 z;      // position of the first scattering event
+    vec3 beta;   // flux-like throughput (emission / pdfs, Fresnel choices, free flight)
+    vec3 dir;    // the direction light travelled to reach z
+    bool valid;
+};
+
+LightVertex trace_light_subpath()
+{
+    LightVertex lv;
+    lv.z = vec3(0.0);
+    lv.beta = vec3(0.0);
+    lv.dir = vec3(0.0, 0.0, 1.0);
+    lv.valid = false;
+    uint count = push.delta_lights;
+    if (count == 0u)
+        return lv;
+    uint pick = min(uint(rnd() * float(count)), count - 1u);
+    uint index = NS_NONE;
+    for (uint i = 0u, seen = 0u; i < params.counts.y; i++) {
+        out_of_budget();
+        uint kind = lights[i].info.x;
+        if (kind == NS_GPU_LIGHT_DIRECTIONAL || kind == NS_GPU_LIGHT_POINT) {
+            if (seen == pick)
+                index = i;
+            seen++;
+        }
+    }
+    if (index == NS_NONE)
+        return lv;
+    GpuLight light = lights[index];
+    vec3 c = push.target.xyz;
+    float r = push.target.w;
+    vec3 o, d, beta;
+    if (light.info.x == NS_GPU_LIGHT_DIRECTIONAL) {
+        // A point on the disk facing the light that covers the target sphere, just
+        // outside it; the light must reach that point from infinity.
+        d = light.direction.xyz;
+        vec3 tx, ty;
+        basis(d, tx, ty);
+        float rho = r * sqrt(rnd()), phi = 2.0 * PI * rnd();
+        float back = 1.001 * r + ray_epsilon(c);
+        o = c + rho * (cos(phi) * tx + sin(phi) * ty) - back * d;
+        beta = light.color.rgb * (PI * r * r) * transmittance(o, -d, NS_INF, NS_NONE);
+    } else {
+        o = light.position.xyz;
+        vec3 v = c - o;
+        float dist2 = dot(v, v);
+        float cos_max = dist2 > r * r ? sqrt(1.0 - r * r / dist2) : -1.0;
+        d = around(dist2 > 0.0 ? normalize(v) : vec3(0.0, 0.0, 1.0), 1.0 - rnd() * (1.0 - cos_max),
+                   2.0 * PI * rnd());
+        beta = light.color.rgb * (2.0 * PI * (1.0 - cos_max));
+    }
+    beta *= float(count);
+    if (!(max(beta.x, max(beta.y, beta.z)) > 0.0))
+        return lv;
+    uint medium = NS_NONE;
+    bool refracted = false;
+    for (uint bounce = 0u; bounce <= NS_PT_MAX_LIGHT_BOUNDARIES; bounce++) {
+        Hit h;
+        bool hit = trace_scene(o, d, 0.0, NS_INF, h);
+        if (medium != NS_NONE) {
+            GpuMaterial mm = materials[medium];
+            vec3 st = mm.sigma_t.xyz;
+            float u_channel = rnd();
+            float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
+            float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+            float t_end = hit ? h.t : NS_INF;
+            if (t < t_end) {
+                vec3 tr = exp(-st * t);
+                beta *= tr * mm.sigma_s.xyz / dot(st * tr, vec3(1.0 / 3.0));
+                lv.z = o + t * d;
+                lv.dir = d;
+                lv.beta = beta;
+                lv.valid = refracted && max(beta.x, max(beta.y, beta.z)) > 0.0;
+                return lv;
+            }
+            if (!hit)
+                return lv;
+            vec3 tr = beer_lambert(st, t_end);
+            float survive = dot(tr, vec3(1.0 / 3.0));
+            if (!(survive > 0.0))
+                return lv;
+            beta *= tr / survive;
+        }
+        if (!hit)
+            return lv;
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0)
+            return lv; // diffuse: light that reaches it is the surface estimators' business
+        vec3 p = o + h.t * d;
+        vec3 n = h.front ? h.normal : -h.normal;
+        float eps = ray_epsilon(p);
+        uint next_medium = h.front ? m : NS_NONE;
+        float ior = mat.sigma_t.w;
+        if (ior == 1.0) {
+            o = p - n * eps;
+            medium = next_medium;
+            continue;
+        }
+        float eta = h.front ? 1.0 / ior : ior;
+        float cos_i = -dot(d, n);
+        float cos_t;
+        float f = fresnel(cos_i, eta, cos_t);
+        if (f >= 1.0 || rnd() < f) {
+            o = p + n * eps;
+            d = normalize(reflect(d, n));
+        } else {
+            o = p - n * eps;
+            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+            medium = next_medium;
+        }
+        refracted = true;
+    }
+    atomicAdd(counters[NS_PT_COUNTER_TRUNCATED], 1u);
+    return lv;
+}
+
+// The connection of the camera stretch from o along d (length t_end, inside `medium`,
+// throughput w before it) with the light vertex: a point x on the stretch sampled
+// equiangularly towards z, scattered towards z, z scattered along the stretch's reverse.
+vec3 connect_light_vertex(vec3 o, vec3 d, float t_end, vec3 w, uint medium, vec3 z, vec3 beta,
+                          vec3 light_dir)
+{
+    float delta = dot(z - o, d);
+    float dperp = length(z - (o + delta * d));
+    if (!(dperp > 1e-7) || !(t_end < NS_INF))
+        return vec3(0.0);
+    float theta_a = atan(-delta, dperp), theta_b = atan(t_end - delta, dperp);
+    float t = delta + dperp * tan(mix(theta_a, theta_b, rnd()));
+    t = clamp(t, 0.0, t_end);
+    float h = t - delta;
+    float pdf = dperp / ((theta_b - theta_a) * (dperp * dperp + h * h));
+    vec3 x = o + t * d;
+    vec3 to_z = z - x;
+    float dist2 = dot(to_z, to_z);
+    float dist = sqrt(dist2);
+    vec3 wi = to_z / dist;
+    GpuMaterial mm = materials[medium];
+    float g = mm.sigma_s.w;
+    vec3 f = w * exp(-mm.sigma_t.xyz * t) * mm.sigma_s.xyz * hg_phase(dot(d, wi), g) *
+             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium);
+    return f * beta / pdf;
+}
+
+// ---------------------------------------------------------------------------------------
 // One path, one step at a time, so that it can be suspended between dispatches.
 // ---------------------------------------------------------------------------------------
 struct PathState {
@@ -288,6 +444,7 @@ struct PathState {
     // path hits in a straight line (index-matched crossings only), unless that event lay
     // inside the light's sphere, where it cannot be sampled: do not count it twice.
     bool nee_covered;
+    LightVertex light; // this sample's light sub-path vertex
 };
 
 // Advances the path by one straight stretch and what ends it. false: the path is over.
@@ -302,6 +459,11 @@ bool path_step(inout PathState s)
     float t_end = at_light ? t_light : (any ? h.t : NS_INF);
 
     if (s.medium != NS_NONE) {
+        // Light sub-path connection: a point on this stretch becomes camera event
+        // events + 1, so the path has events + 2 scattering events.
+        if (s.light.valid && order_counts(s.events + 2u))
+            s.radiance += connect_light_vertex(s.o, s.d, t_end, s.w, s.medium, s.light.z,
+                                               s.light.beta, s.light.dir);
         GpuMaterial mm = materials[s.medium];
         vec3 st = mm.sigma_t.xyz;
         float u_channel = rnd();
@@ -410,6 +572,7 @@ PathState start_sample(uvec2 xy, uint pixel_seed, uint sample_index)
     s.events = 0u;
     s.boundary_run = 0u;
     s.nee_covered = false;
+    s.light = trace_light_subpath();
     return s;
 }
 
@@ -437,6 +600,10 @@ void main()
     s.events = saved.state.y;
     s.boundary_run = saved.state.z;
     s.nee_covered = saved.state.w != 0u;
+    s.light.z = saved.light_vertex.xyz;
+    s.light.valid = saved.light_vertex.w != 0.0;
+    s.light.beta = saved.light_weight.xyz;
+    s.light.dir = saved.light_dir.xyz;
     rng_state = saved.progress.x;
     uint next_sample = saved.progress.y;
     bool path_active = saved.progress.z != 0u;
@@ -470,6 +637,9 @@ void main()
     saved.last_event.xyz = s.last_event;
     saved.state = uvec4(s.medium, s.events, s.boundary_run, s.nee_covered ? 1u : 0u);
     saved.progress = uvec4(rng_state, next_sample, path_active ? 1u : 0u, 0u);
+    saved.light_vertex = vec4(s.light.z, s.light.valid ? 1.0 : 0.0);
+    saved.light_weight = vec4(s.light.beta, 0.0);
+    saved.light_dir = vec4(s.light.dir, 0.0);
     paths[pixel] = saved;
     if (finished != vec3(0.0))
         pixels[pixel] += vec4(finished / float(spp), 0.0);

@@ -10,12 +10,18 @@
  * the components together; NS_NONE = no limit), so a path stops as soon as it could only
  * add to orders nobody asked for; yield_after = loop iterations after which an invocation
  * saves its path and stops; report = 1 on the last dispatch of a batch: unfinished pixels
- * count themselves (NS_PT_COUNTER_UNFINISHED). */
+ * count themselves (NS_PT_COUNTER_UNFINISHED); target and delta_lights drive the light
+ * sub-paths that reach media behind refracting boundaries (docs/reference.md). */
 struct GpuPtPush {
+    ns_vec4 target; /* light sub-paths aim at this sphere (xyz centre, w radius) */
     ns_uint components;
     ns_uint max_events;
     ns_uint yield_after;
     ns_uint report;
+    ns_uint delta_lights; /* point + directional lights; 0: no light sub-paths */
+    ns_uint pad0;
+    ns_uint pad1;
+    ns_uint pad2;
 };
 
 /* A pixel's suspended path between dispatches (w components unused); the buffer starts
@@ -30,6 +36,9 @@ struct GpuPtPath {
     ns_vec4 last_event;
     ns_uvec4 state;
     ns_uvec4 progress;
+    ns_vec4 light_vertex; /* the sample's light sub-path vertex; w = 1 when there is one */
+    ns_vec4 light_weight; /* its throughput (flux per unit pdf) */
+    ns_vec4 light_dir;    /* the direction light travelled to reach it */
 };
 
 /* Boundary (Fresnel) events a path may take between two scattering events before it is
@@ -37,6 +46,9 @@ struct GpuPtPath {
  * reflection would otherwise never end. A render with truncated paths fails rather than
  * return a biased image. */
 NS_CONST(uint, NS_PT_MAX_BOUNDARY_RUN, 256);
+
+/* Boundary events a light sub-path may take before it reaches a scattering event. */
+NS_CONST(uint, NS_PT_MAX_LIGHT_BOUNDARIES, 64);
 
 /* Counters of the pt pass: [NS_COUNTER_LOOP_LIMIT] as in shared.h (lavapipe cut an
  * invocation short: the probe loop in pt.comp), samples that came out NaN or infinite
@@ -65,8 +77,8 @@ NS_CONST(uint, NS_PT_MULTIPLE, 8);
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuPtPush GpuPtPush;
 typedef struct GpuPtPath GpuPtPath;
-_Static_assert(sizeof(GpuPtPush) == 16, "GpuPtPush size");
-_Static_assert(sizeof(GpuPtPath) == 112 && offsetof(GpuPtPath, state) == 80, "GpuPtPath layout");
+_Static_assert(sizeof(GpuPtPush) == 48 && offsetof(GpuPtPush, components) == 16, "GpuPtPush");
+_Static_assert(sizeof(GpuPtPath) == 160 && offsetof(GpuPtPath, state) == 80, "GpuPtPath layout");
 #endif
 
 #endif
