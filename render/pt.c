@@ -163,7 +163,7 @@ static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *er
                        "ns.pt.pixels"},
         [PT_PATHS] = {NULL, (uint64_t)pixels * sizeof(GpuPtPath), GPU_BUFFER_STORAGE,
                       "ns.pt.paths"},
-        [PT_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE,
+        [PT_COUNTERS] = {NULL, NS_PT_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE,
                          "ns.pt.counters"},
     };
     for (int i = 0; i < PT_COUNT; i++) {
@@ -195,6 +195,12 @@ static int pt_check_counters(const uint32_t *counters, ns_error *err)
                        "pt: %u path(s) took more than %u boundary events in a row (trapped by "
                        "total internal reflection?)",
                        counters[NS_PT_COUNTER_TRUNCATED], (unsigned)NS_PT_MAX_BOUNDARY_RUN);
+    if (counters[NS_PT_COUNTER_LIGHT_TRUNCATED])
+        return ns_fail(err, NS_ERR_LIMIT,
+                       "pt: %u light sub-path(s) took more than %u boundary events before "
+                       "scattering",
+                       counters[NS_PT_COUNTER_LIGHT_TRUNCATED],
+                       (unsigned)NS_PT_MAX_LIGHT_BOUNDARIES);
     if (counters[NS_PT_COUNTER_NONFINITE])
         return ns_fail(err, NS_ERR_INTERNAL, "pt: %u sample(s) came out NaN or infinite",
                        counters[NS_PT_COUNTER_NONFINITE]);

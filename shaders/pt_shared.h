@@ -48,7 +48,7 @@ struct GpuPtPath {
 NS_CONST(uint, NS_PT_MAX_BOUNDARY_RUN, 256);
 
 /* Boundary events a light sub-path may take before it reaches a scattering event. */
-NS_CONST(uint, NS_PT_MAX_LIGHT_BOUNDARIES, 64);
+NS_CONST(uint, NS_PT_MAX_LIGHT_BOUNDARIES, 256);
 
 /* Counters of the pt pass: [NS_COUNTER_LOOP_LIMIT] as in shared.h (lavapipe cut an
  * invocation short: the probe loop in pt.comp), samples that came out NaN or infinite
@@ -56,6 +56,8 @@ NS_CONST(uint, NS_PT_MAX_LIGHT_BOUNDARIES, 64);
 NS_CONST(uint, NS_PT_COUNTER_NONFINITE, 0);
 NS_CONST(uint, NS_PT_COUNTER_TRUNCATED, 1);
 NS_CONST(uint, NS_PT_COUNTER_UNFINISHED, 3);
+NS_CONST(uint, NS_PT_COUNTER_LIGHT_TRUNCATED, 4); /* light sub-paths over their boundary cap */
+NS_CONST(uint, NS_PT_COUNTER_COUNT, 8);
 
 /* Counted loop iterations after which a dispatch yields on lavapipe. Measured: 4000 was
  * too many (the probe caught cut invocations in a plain furnace), 1000 is not: the count
