@@ -350,7 +350,7 @@ LightVertex trace_light_subpath()
     if (!(max(beta.x, max(beta.y, beta.z)) > 0.0))
         return lv;
     uint medium = NS_NONE;
-    bool refracted = false;
+    bool entered = false; // refracted into a scattering medium straight from the light
     for (uint bounce = 0u; bounce <= NS_PT_MAX_LIGHT_BOUNDARIES; bounce++) {
         Hit h;
         bool hit = trace_scene(o, d, 0.0, NS_INF, h);
@@ -367,7 +367,7 @@ LightVertex trace_light_subpath()
                 lv.z = o + t * d;
                 lv.dir = d;
                 lv.beta = beta;
-                lv.valid = refracted && max(beta.x, max(beta.y, beta.z)) > 0.0;
+                lv.valid = entered && max(beta.x, max(beta.y, beta.z)) > 0.0;
                 return lv;
             }
             if (!hit)
@@ -398,19 +398,28 @@ LightVertex trace_light_subpath()
             medium = next_medium;
             continue;
         }
+        // Only light that refracts straight from the light into a scattering medium, then
+        // stays in it (internal reflections), is followed: the other methods' model
+        // follows no caustics through other objects, and light reflected off the outside
+        // or leaving again reaches no light vertex this strategy may use.
+        if (h.front && (entered || mat.sigma_s.x + mat.sigma_s.y + mat.sigma_s.z <= 0.0))
+            return lv;
         float eta = h.front ? 1.0 / ior : ior;
         float cos_i = -dot(d, n);
         float cos_t;
         float f = fresnel(cos_i, eta, cos_t);
-        if (f >= 1.0 || rnd() < f) {
+        bool reflects = f >= 1.0 || rnd() < f;
+        if (h.front && !reflects) { // refracted in
+            o = p - n * eps;
+            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+            medium = m;
+            entered = true;
+        } else if (!h.front && reflects) { // reflected back in from the inside
             o = p + n * eps;
             d = normalize(reflect(d, n));
         } else {
-            o = p - n * eps;
-            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
-            medium = next_medium;
+            return lv; // reflected off the outside, or refracted out
         }
-        refracted = true;
     }
     atomicAdd(counters[NS_PT_COUNTER_LIGHT_TRUNCATED], 1u);
     return lv;
