@@ -14,8 +14,9 @@
 //     costs no bias;
 //   - Henyey-Greenstein phase sampling; next-event estimation to point, directional and
 //     sphere lights from every scattering event (zero where a refracting boundary is in the
-//     way: such light reaches the medium only through phase-sampled paths that hit a sphere
-//     light or the environment, and never from delta lights: docs/reference.md);
+//     way: there sphere lights and the environment are reached by the phase-sampled
+//     continuation, and point/directional lights by light sub-paths connected to the
+//     camera stretches, orders 2 and up; the single order is refused: docs/reference.md);
 //   - smooth dielectric boundaries chosen stochastically (reflect with probability F,
 //     total internal reflection always reflects), weight unchanged;
 //   - Russian roulette on the throughput after the third scattering event.
