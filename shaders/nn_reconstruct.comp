@@ -9,6 +9,7 @@
 // Shape (DESIGN.md section 6, lavapipe): many points per invocation with the weights in a
 // uniform buffer, so each weight fetched is used 16 times; loops are not unrolled by hand.
 #extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
 #include "nn_shared.h"
 
 layout(local_size_x = NS_NN_GROUP) in;
@@ -77,15 +78,15 @@ void main()
     for (uint j = 0u; j < 50u; j++) {
         float bias = P.net[net + NS_NN_B2_OFF + (j >> 2)][j & 3u];
         float acc[NS_NN_POINTS];
-        for (uint p = 0u; p < NS_NN_POINTS; p++)
+        [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
             acc[p] = bias;
-        for (uint k4 = 0u; k4 < NS_NN_H4; k4++) {
+        [[unroll]] for (uint k4 = 0u; k4 < NS_NN_H4; k4++) {
             vec4 w = P.net[net + NS_NN_W2_OFF + j * NS_NN_H4 + k4];
-            for (uint p = 0u; p < NS_NN_POINTS; p++)
+            [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
                 acc[p] += dot(w, h1[k4 * NS_NN_POINTS + p]);
         }
         float w3 = P.net[net + NS_NN_W3_OFF + (j >> 2)][j & 3u];
-        for (uint p = 0u; p < NS_NN_POINTS; p++)
+        [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
             y[p] += w3 * tanh(acc[p]);
     }
 
