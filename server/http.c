@@ -583,7 +583,14 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     job->exposure_stops = scene->render.exposure;
     job->stats = stats;
     uint32_t retry_after = 1;
+    /* Counted until the completion callback, so shutdown can wait for the answer to be
+     * sent, not only rendered. Counted BEFORE the job becomes visible in the queue: a
+     * signal arriving between the two must not find an admitted render uncounted. */
+    atomic_fetch_add(&srv->renders_in_flight, 1);
+    req->counted_in = srv;
     if (render_queue_submit(srv->queue, job, &retry_after) != 0) {
+        atomic_fetch_sub(&srv->renders_in_flight, 1);
+        req->counted_in = NULL;
         scene_doc_free(doc);
         free(job);
         char seconds[16];
@@ -594,10 +601,6 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
                              srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
         return send_problem_json(conn, p, headers);
     }
-    /* Counted until the completion callback, so shutdown can wait for the answer to be
-     * sent, not only rendered. */
-    atomic_fetch_add(&srv->renders_in_flight, 1);
-    req->counted_in = srv;
     render_queue_wait(srv->queue, job);
     scene_doc_free(doc);
 
