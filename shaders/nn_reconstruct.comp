@@ -57,7 +57,7 @@ void main()
 
     vec4 h1[NS_NN_POINTS * NS_NN_H4];
     float energy[NS_NN_POINTS]; // E_k, or 0 outside the trained extent (inputs < 0)
-    for (uint p = 0u; p < NS_NN_POINTS; p++) {
+    [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++) {
         vec4 lo, hi;
         inputs(min(first + p, count - 1u), channel, order, lo, hi);
         energy[p] = min(lo.x, lo.y) < 0.0 ? 0.0 : hi.z;
