@@ -7,7 +7,10 @@
 // theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point] = J and
 // out[(2 + order) * points + point] = the network output y.
 // Shape (DESIGN.md section 6, lavapipe): many points per invocation with the weights in a
-// uniform buffer, so each weight fetched is used 16 times; loops are not unrolled by hand.
+// uniform buffer, so each weight fetched is used 16 times. The loops over the 16 points and
+// over a row's 13 vec4s are unrolled so the activation array is indexed by constants
+// (3x faster on lavapipe); the loops over hidden units stay loops (compile time: ~8 s cold,
+// 32 points took 36 s). Docs: docs/network.md.
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
 #include "nn_shared.h"
