@@ -81,8 +81,8 @@ static void dense_tanh(const float *in, int k, const float *w, const float *b, f
 {
     for (uint32_t i = 0; i < n; i++)
         memcpy(out + (size_t)i * H, b, H * sizeof(float));
-    cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)n, H, k, 1.0f, in, k, w, k, 1.0f,
-                out, H);
+    cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasTrans, (int)n, H, k, 1.0f, in, k, w, k, 1.0f, out,
+                H);
     for (size_t i = 0; i < (size_t)n * H; i++)
         out[i] = fast_tanh(out[i]);
 }
@@ -94,8 +94,8 @@ double ns_nn_batch_forward(ns_nn_trainer *t, const float *p, const float *x, uin
     dense_tanh(t->h1, H, p + NS_NN_OFF_W2, p + NS_NN_OFF_B2, t->h2, n);
     for (uint32_t i = 0; i < n; i++)
         t->y[i] = p[NS_NN_OFF_B3];
-    cblas_sgemv(CblasRowMajor, CblasNoTrans, (int)n, H, 1.0f, t->h2, H, p + NS_NN_OFF_W3, 1,
-                1.0f, t->y, 1);
+    cblas_sgemv(CblasRowMajor, CblasNoTrans, (int)n, H, 1.0f, t->h2, H, p + NS_NN_OFF_W3, 1, 1.0f,
+                t->y, 1);
     if (!target)
         return 0.0;
     double sum = 0.0;
@@ -115,8 +115,8 @@ static void column_sums(const float *m, uint32_t n, float *b)
             b[j] += m[(size_t)i * H + j];
 }
 
-double ns_nn_batch_gradient(ns_nn_trainer *t, const float *p, const float *x,
-                            const float *target, uint32_t n)
+double ns_nn_batch_gradient(ns_nn_trainer *t, const float *p, const float *x, const float *target,
+                            uint32_t n)
 {
     double loss = ns_nn_batch_forward(t, p, x, n, target);
     float *g = t->grad;
@@ -144,8 +144,8 @@ double ns_nn_batch_gradient(ns_nn_trainer *t, const float *p, const float *x,
                 p + NS_NN_OFF_W2, H, 0.0f, t->d1, H);
     for (size_t i = 0; i < (size_t)n * H; i++)
         t->d1[i] *= 1.0f - t->h1[i] * t->h1[i];
-    cblas_sgemm(CblasRowMajor, CblasTrans, CblasNoTrans, H, IN, (int)n, 1.0f, t->d1, H, x, IN,
-                0.0f, g + NS_NN_OFF_W1, IN);
+    cblas_sgemm(CblasRowMajor, CblasTrans, CblasNoTrans, H, IN, (int)n, 1.0f, t->d1, H, x, IN, 0.0f,
+                g + NS_NN_OFF_W1, IN);
     column_sums(t->d1, n, g + NS_NN_OFF_B1);
     return loss;
 }

@@ -28,8 +28,8 @@ void ns_nn_init_params(float p[NS_NN_PARAMS], uint64_t seed);
 double ns_nn_batch_forward(ns_nn_trainer *t, const float *p, const float *x, uint32_t n,
                            const float *target);
 /* Forward + backward: the loss, with its gradient in t->grad. */
-double ns_nn_batch_gradient(ns_nn_trainer *t, const float *p, const float *x,
-                            const float *target, uint32_t n);
+double ns_nn_batch_gradient(ns_nn_trainer *t, const float *p, const float *x, const float *target,
+                            uint32_t n);
 /* One Adam step with learning rate lr on p from t->grad. */
 void ns_nn_adam_step(ns_nn_trainer *t, float *p, float lr);
 

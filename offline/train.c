@@ -183,8 +183,8 @@ static int parse_options(int argc, char **argv, train_options *o)
  * ===================================================================================== */
 
 typedef struct {
-    float *x;      /* n x 6 */
-    float *t;      /* n targets (transformed, standardised later) */
+    float *x; /* n x 6 */
+    float *t; /* n targets (transformed, standardised later) */
     uint32_t n, cap;
     int materials;
 } sample_set;
@@ -260,7 +260,8 @@ static void add_cell(sample_set *s, const ns_nn_header *h, const ns_table *tab, 
     uint32_t iz = (uint32_t)(cell / ((size_t)tab->n[3] * tab->n[2] * tab->n[1]));
 #define MID(a, i) (0.5 * (tab->edges[a][i] + tab->edges[a][(i) + 1]))
     ns_nn_normalise(h, MID(NS_AXIS_RHO, irho), MID(NS_AXIS_Z, iz), MID(NS_AXIS_THETA, itheta),
-                    MID(NS_AXIS_PHI, iphi), tab->g, tab->albedo, s->x + (size_t)s->n * NS_NN_INPUTS);
+                    MID(NS_AXIS_PHI, iphi), tab->g, tab->albedo,
+                    s->x + (size_t)s->n * NS_NN_INPUTS);
 #undef MID
     s->t[s->n++] = (float)ns_nn_j_to_target(h, tab->data[cell], tab->energy_expected);
 }
@@ -276,8 +277,9 @@ static int sample_table(sample_set *s, const ns_nn_header *h, const ns_table *ta
     for (size_t c = 0; c < cells; c++) {
         uint32_t iphi = (uint32_t)(c % tab->n[3]), itheta = (uint32_t)(c / tab->n[3] % tab->n[2]);
         size_t spatial = c / ((size_t)tab->n[3] * tab->n[2]);
-        double e = tab->data[c] * ns_table_bin_volume(tab, (uint32_t)(spatial / tab->n[1]),
-                                                      (uint32_t)(spatial % tab->n[1])) *
+        double e = tab->data[c] *
+                   ns_table_bin_volume(tab, (uint32_t)(spatial / tab->n[1]),
+                                       (uint32_t)(spatial % tab->n[1])) *
                    ns_table_bin_solid_angle(tab, itheta, iphi);
         sum += e > 0 ? e : 0;
         cdf[c] = sum;
@@ -290,8 +292,7 @@ static int sample_table(sample_set *s, const ns_nn_header *h, const ns_table *ta
     return 0;
 }
 
-static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h,
-                        dataset *d)
+static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h, dataset *d)
 {
     DIR *dir = opendir(o->data);
     if (!dir)
@@ -326,8 +327,9 @@ static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h,
             first_size = ns_table_size(&tab);
             cdf = malloc(first_size * sizeof(double));
         } else if (extent != h->extent || ns_table_size(&tab) != first_size) {
-            fprintf(stderr, "nscatter train: skipping %s: extent %g mfp / %zu cells, the "
-                            "first table has %g / %zu\n",
+            fprintf(stderr,
+                    "nscatter train: skipping %s: extent %g mfp / %zu cells, the "
+                    "first table has %g / %zu\n",
                     prefix, extent, ns_table_size(&tab), h->extent, first_size);
             ns_table_free(&tab);
             continue;
@@ -347,8 +349,7 @@ static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h,
     if (status)
         return usage_error("out of memory while sampling the tables");
     if (!d->train.n)
-        return usage_error("--data: no complete %s tables in '%s'", ns_order_name(order),
-                           o->data);
+        return usage_error("--data: no complete %s tables in '%s'", ns_order_name(order), o->data);
     return 0;
 }
 
@@ -426,7 +427,8 @@ static int checkpoint_load(const char *path, checkpoint *c)
         return -1;
     int ok = fread(c, sizeof *c, 1, f) == 1;
     fclose(f);
-    return ok && !memcmp(c->magic, "NSNNCKP1", 8) && c->crc == ns_crc32(c, offsetof(checkpoint, crc))
+    return ok && !memcmp(c->magic, "NSNNCKP1", 8) &&
+                   c->crc == ns_crc32(c, offsetof(checkpoint, crc))
                ? 0
                : -2;
 }
@@ -503,7 +505,8 @@ static int run_epochs(const train_options *o, ns_order order, ns_nn_weights *w, 
         for (uint32_t b = 0; b < d->train.n; b += o->batch) {
             uint32_t n = d->train.n - b < o->batch ? d->train.n - b : o->batch;
             for (uint32_t i = 0; i < n; i++) {
-                memcpy(bx + (size_t)i * NS_NN_INPUTS, d->train.x + (size_t)idx[b + i] * NS_NN_INPUTS,
+                memcpy(bx + (size_t)i * NS_NN_INPUTS,
+                       d->train.x + (size_t)idx[b + i] * NS_NN_INPUTS,
                        NS_NN_INPUTS * sizeof(float));
                 bt[i] = d->train.t[idx[b + i]];
             }
@@ -516,11 +519,12 @@ static int run_epochs(const train_options *o, ns_order order, ns_nn_weights *w, 
         int last = epoch + 1 == o->epochs || (o->time_budget > 0 && elapsed > o->time_budget);
         if (last || epoch % 5 == 4 || !o->quiet)
             res->test_loss = evaluate(&tr, w->p, &d->test);
-        double eta = (elapsed - start_seconds) / (epoch + 1 - first_epoch) * (o->epochs - epoch - 1);
+        double eta =
+            (elapsed - start_seconds) / (epoch + 1 - first_epoch) * (o->epochs - epoch - 1);
         if (!o->quiet)
             fprintf(stderr, "%s epoch %d/%d  train %.5f  test %.5f  lr %.2g  %.0f s  ETA %.0f s\n",
-                    ns_order_name(order), epoch + 1, o->epochs, res->train_loss, res->test_loss,
-                    lr, elapsed, eta);
+                    ns_order_name(order), epoch + 1, o->epochs, res->train_loss, res->test_loss, lr,
+                    elapsed, eta);
         memcpy(ck->p, w->p, sizeof ck->p);
         memcpy(ck->m, tr.m, sizeof ck->m);
         memcpy(ck->v, tr.v, sizeof ck->v);
@@ -615,8 +619,8 @@ static int write_json(const train_options *o, ns_order order, const ns_nn_weight
             "  \"epochs\": %d,\n  \"epochs_requested\": %d,\n  \"final_train_loss\": %.6g,\n"
             "  \"final_test_loss\": %.6g,\n  \"loss\": \"mean squared error of the standardised "
             "target\",\n  \"training_seconds\": %.1f,\n  \"command\": \"%s\"\n}\n",
-            o->lr, o->batch, (unsigned long long)o->seed, r->epochs_done, o->epochs,
-            r->train_loss, r->test_loss, r->seconds, o->command);
+            o->lr, o->batch, (unsigned long long)o->seed, r->epochs_done, o->epochs, r->train_loss,
+            r->test_loss, r->seconds, o->command);
     return fclose(f) ? usage_error("%s: write failed", path) : 0;
 }
 
@@ -632,8 +636,9 @@ static int train_order(const train_options *o, ns_order order)
     if (rc)
         return rc;
     standardise(&d, &w.h);
-    fprintf(stderr, "nscatter train: %s: %u training samples from %d materials, %u test "
-                    "samples from %d held-out materials (%.1f s to load)\n",
+    fprintf(stderr,
+            "nscatter train: %s: %u training samples from %d materials, %u test "
+            "samples from %d held-out materials (%.1f s to load)\n",
             ns_order_name(order), d.train.n, d.train.materials, d.test.n, d.test.materials,
             now_seconds() - t0);
     checkpoint ck;
@@ -670,8 +675,10 @@ static int train_order(const train_options *o, ns_order order)
         }
         w.h.target_mean += (float)log(calibration);
         w.h.target_eps *= (float)calibration;
-        fprintf(stderr, "nscatter train: %s: energy calibration x%.4f folded into the target "
-                        "transform\n", ns_order_name(order), calibration);
+        fprintf(stderr,
+                "nscatter train: %s: energy calibration x%.4f folded into the target "
+                "transform\n",
+                ns_order_name(order), calibration);
     }
     res.calibration = calibration;
     if (!rc) {

@@ -18,18 +18,18 @@ typedef struct ns_nn_reconstruct_desc {
     const ns_nn_weights *nets[2]; /* double, multiple */
     ns_nn_grid grid;
     double g;
-    double albedo[3];     /* per RGB channel */
-    int renormalise;      /* rescale each table to its exact energy */
-    uint32_t channels;    /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
-    float *out;           /* [2][3][cells] J values: order-major, then channel */
+    double albedo[3];  /* per RGB channel */
+    int renormalise;   /* rescale each table to its exact energy */
+    uint32_t channels; /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
+    float *out;        /* [2][3][cells] J values: order-major, then channel */
 } ns_nn_reconstruct_desc;
 
 typedef struct ns_nn_reconstruct_stats {
-    double energy_raw[2][3];  /* energy of each table as the network gave it */
-    double energy_exact[2][3];/* E_k */
-    double gpu_seconds;       /* dispatch, submit and wait */
-    double total_seconds;     /* including upload, readback and renormalisation */
-    uint64_t evaluations;     /* network evaluations (cells x 3 channels x 2 orders) */
+    double energy_raw[2][3];   /* energy of each table as the network gave it */
+    double energy_exact[2][3]; /* E_k */
+    double gpu_seconds;        /* dispatch, submit and wait */
+    double total_seconds;      /* including upload, readback and renormalisation */
+    uint64_t evaluations;      /* network evaluations (cells x 3 channels x 2 orders) */
 } ns_nn_reconstruct_stats;
 
 /* Energy of one table in this grid: sum of J * ring volume * solid angle (DESIGN.md §3). */

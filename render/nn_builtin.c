@@ -8,10 +8,10 @@
 #include "gpu.h" /* ns_fail */
 
 /* .incbin keeps the bytes out of a generated C array (no generator step, no huge source). */
-#define NN_EMBED(sym, path)                                                                    \
-    __asm__(".section .rodata\n.balign 16\n.global " #sym "\n.hidden " #sym "\n" #sym         \
-            ":\n.incbin \"" path "\"\n.global " #sym "_end\n.hidden " #sym "_end\n" #sym       \
-            "_end:\n.previous\n");                                                             \
+#define NN_EMBED(sym, path)                                                                        \
+    __asm__(".section .rodata\n.balign 16\n.global " #sym "\n.hidden " #sym "\n" #sym              \
+            ":\n.incbin \"" path "\"\n.global " #sym "_end\n.hidden " #sym "_end\n" #sym           \
+            "_end:\n.previous\n");                                                                 \
     extern const unsigned char sym[], sym##_end[];
 
 #ifdef NS_NN_WEIGHTS_DOUBLE
@@ -37,14 +37,13 @@ int ns_nn_weights_builtin(uint32_t order, ns_nn_weights *w, ns_error *err)
     if (!begin)
         return ns_fail(err, NS_ERR_NOT_AVAILABLE,
                        "this binary was built without weights/%s.bin (train them with `nscatter "
-                       "train`, or pass --weights)", order ? "multiple" : "double");
-    int status = ns_nn_weights_parse(begin, (size_t)(end - begin),
-                                     order ? "built-in weights/multiple.bin"
-                                           : "built-in weights/double.bin",
-                                     w, err);
+                       "train`, or pass --weights)",
+                       order ? "multiple" : "double");
+    int status = ns_nn_weights_parse(
+        begin, (size_t)(end - begin),
+        order ? "built-in weights/multiple.bin" : "built-in weights/double.bin", w, err);
     if (!status && w->h.order != order)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                       "built-in weights/%s.bin holds the %s network",
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "built-in weights/%s.bin holds the %s network",
                        order ? "multiple" : "double", w->h.order ? "multiple" : "double");
     return status;
 }

@@ -53,8 +53,10 @@ static int check_nets(const ns_nn_weights *const nets[2], ns_error *err)
 {
     for (int o = 0; o < 2; o++) {
         if (!nets[o] || nets[o]->h.order != (uint32_t)o)
-            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "weights: the %s network is missing or "
-                           "is the other order's", o ? "multiple" : "double");
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "weights: the %s network is missing or "
+                           "is the other order's",
+                           o ? "multiple" : "double");
         /* Both networks must read the same inputs: one input table serves both orders. */
         const ns_nn_header *a = &nets[0]->h, *b = &nets[o]->h;
         if (a->extent != b->extent || a->sinh_scale != b->sinh_scale ||
@@ -68,10 +70,9 @@ static int check_nets(const ns_nn_weights *const nets[2], ns_error *err)
 int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err)
 {
     memset(nn, 0, sizeof *nn);
-    int status = gpu_pipeline_create(dev, &nn->pipeline,
-                                     &(gpu_pipeline_desc){.shader = "nn_reconstruct",
-                                                          .binding_count = 3},
-                                     err);
+    int status = gpu_pipeline_create(
+        dev, &nn->pipeline, &(gpu_pipeline_desc){.shader = "nn_reconstruct", .binding_count = 3},
+        err);
     if (!status)
         status = gpu_buffer_create(dev, &nn->params,
                                    &(gpu_buffer_desc){.size = sizeof(struct GpuNnParams),
@@ -160,8 +161,7 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     if (channels > 3)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "channels: %u (1 to 3)", channels);
     if (!(desc->g >= 0 && desc->g < 1))
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)",
-                       desc->g);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)", desc->g);
     for (int c = 0; c < 3; c++)
         if (!(desc->albedo[c] >= 0 && desc->albedo[c] < 1))
             return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "albedo[%d]: %g outside [0, 1)", c,
@@ -200,7 +200,8 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     gpu_buffer out = {0};
     status = gpu_buffer_create(dev, &out,
                                &(gpu_buffer_desc){.size = (VkDeviceSize)cells * 6 * sizeof(float),
-                                                  .uninitialized = 1, .label = "ns.nn.out"},
+                                                  .uninitialized = 1,
+                                                  .label = "ns.nn.out"},
                                err);
     if (status)
         return status;
@@ -236,9 +237,8 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     return 0;
 }
 
-int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2],
-                      const float *x, const double *energy, uint32_t n, float *out,
-                      ns_error *err)
+int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2], const float *x,
+                      const double *energy, uint32_t n, float *out, ns_error *err)
 {
     int status = check_nets(nets, err);
     if (status)
@@ -251,10 +251,10 @@ int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[
     gp->info[0] = n;
     gp->info[1] = NS_NN_MODE_POINTS;
     gpu_buffer pts = {0}, res = {0};
-    status = gpu_buffer_create(dev, &pts,
-                               &(gpu_buffer_desc){.size = (VkDeviceSize)n * 2 * sizeof(ns_vec4),
-                                                  .label = "ns.nn.points"},
-                               err);
+    status = gpu_buffer_create(
+        dev, &pts,
+        &(gpu_buffer_desc){.size = (VkDeviceSize)n * 2 * sizeof(ns_vec4), .label = "ns.nn.points"},
+        err);
     if (!status)
         status = gpu_buffer_create(dev, &res,
                                    &(gpu_buffer_desc){.size = (VkDeviceSize)n * 4 * sizeof(float),

@@ -15,8 +15,8 @@
 
 typedef struct ns_nn_gpu {
     gpu_pipeline pipeline;
-    gpu_buffer params;  /* uniform GpuNnParams */
-    gpu_buffer dummy;   /* bound to the points slot in table mode */
+    gpu_buffer params; /* uniform GpuNnParams */
+    gpu_buffer dummy;  /* bound to the points slot in table mode */
     int created;
 } ns_nn_gpu;
 
@@ -30,9 +30,7 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
 /* Points mode (tests): J of both networks at n explicit normalised inputs x (n x 6); energy[n]
  * is the E_k the logrel transform scales by (the same for both orders here); out[4][n]:
  * J of double, J of multiple, then the raw network outputs y of double and multiple. */
-int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2],
-                      const float *x, const double *energy, uint32_t n, float *out,
-                      ns_error *err);
-
+int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[2], const float *x,
+                      const double *energy, uint32_t n, float *out, ns_error *err);
 
 #endif

@@ -37,10 +37,8 @@ int ns_nn_session_create(const ns_nn_session_desc *desc, ns_nn_session **out, ns
     int status = load_nets(s, desc, err);
     if (!status) {
         const char *device = desc->device ? desc->device : getenv("NSCATTER_DEVICE");
-        status = gpu_device_create(&s->dev,
-                                   &(gpu_device_desc){.device = device,
-                                                      .validation = desc->validation},
-                                   err);
+        status = gpu_device_create(
+            &s->dev, &(gpu_device_desc){.device = device, .validation = desc->validation}, err);
         s->have_dev = status == 0;
     }
     if (!status)

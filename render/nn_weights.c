@@ -84,11 +84,15 @@ static int check_header(const ns_nn_header *h, const char *what, ns_error *err)
                        what, h->inputs, h->hidden1, h->hidden2, h->outputs, h->activation,
                        NS_NN_INPUTS, NS_NN_HIDDEN, NS_NN_HIDDEN);
     if (h->order > 1)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: order %u is neither double (0) nor "
-                       "multiple (1)", what, h->order);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "%s: order %u is neither double (0) nor "
+                       "multiple (1)",
+                       what, h->order);
     if (h->target > NS_NN_TARGET_LOGREL || h->input_map != NS_NN_INPUT_MAP_ASINH)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: unknown target transform %u or input "
-                       "map %u", what, h->target, h->input_map);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "%s: unknown target transform %u or input "
+                       "map %u",
+                       what, h->target, h->input_map);
     if (!(h->target_eps > 0) || !(h->target_scale > 0) || !isfinite(h->target_mean) ||
         !(h->extent > 0) || !(h->sinh_scale > 0) || !(h->albedo_max > 0 && h->albedo_max < 1) ||
         !(h->g_max > h->g_min))
@@ -102,8 +106,8 @@ int ns_nn_weights_parse(const void *bytes, size_t size, const char *what, ns_nn_
     const size_t expected = NS_NN_HEADER_SIZE + (size_t)NS_NN_PARAMS * sizeof(float);
     if (size < NS_NN_HEADER_SIZE)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                       "%s: truncated weights file (%zu bytes, the header alone is %u)", what,
-                       size, NS_NN_HEADER_SIZE);
+                       "%s: truncated weights file (%zu bytes, the header alone is %u)", what, size,
+                       NS_NN_HEADER_SIZE);
     memcpy(&w->h, bytes, NS_NN_HEADER_SIZE);
     int status = check_header(&w->h, what, err);
     if (status)
@@ -223,8 +227,8 @@ float ns_nn_forward(const ns_nn_weights *w, const float x[NS_NN_INPUTS])
 double ns_nn_output_to_j(const ns_nn_header *h, double y, double energy_expected)
 {
     double t = y * h->target_scale + h->target_mean;
-    double j = h->target == NS_NN_TARGET_PAPER ? expm1(t)
-                                               : (exp(t) - h->target_eps) * energy_expected;
+    double j =
+        h->target == NS_NN_TARGET_PAPER ? expm1(t) : (exp(t) - h->target_eps) * energy_expected;
     return j > 0 ? j : 0.0;
 }
 
@@ -232,7 +236,7 @@ double ns_nn_j_to_target(const ns_nn_header *h, double j, double energy_expected
 {
     if (j < 0)
         j = 0;
-    double t = h->target == NS_NN_TARGET_PAPER ? log1p(j)
-                                               : log(j / energy_expected + h->target_eps);
+    double t =
+        h->target == NS_NN_TARGET_PAPER ? log1p(j) : log(j / energy_expected + h->target_eps);
     return (t - h->target_mean) / h->target_scale;
 }

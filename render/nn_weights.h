@@ -24,8 +24,8 @@
 #define NS_NN_VERSION 1u
 #define NS_NN_INPUTS 6
 #define NS_NN_HIDDEN 50
-#define NS_NN_PARAMS                                                                            \
-    (NS_NN_HIDDEN * NS_NN_INPUTS + NS_NN_HIDDEN + NS_NN_HIDDEN * NS_NN_HIDDEN + NS_NN_HIDDEN + \
+#define NS_NN_PARAMS                                                                               \
+    (NS_NN_HIDDEN * NS_NN_INPUTS + NS_NN_HIDDEN + NS_NN_HIDDEN * NS_NN_HIDDEN + NS_NN_HIDDEN +     \
      NS_NN_HIDDEN + 1)
 #define NS_NN_MAX_FILE_BYTES 12288 /* issue 4: each network at most 12 KB */
 
@@ -56,20 +56,20 @@ typedef enum { NS_NN_TARGET_PAPER = 0, NS_NN_TARGET_LOGREL = 1 } ns_nn_target;
 typedef struct ns_nn_header {
     char magic[8];
     uint32_t version;
-    uint32_t header_size;      /* sizeof(ns_nn_header) */
-    uint32_t order;            /* 0 double, 1 multiple (ns_order) */
+    uint32_t header_size;                       /* sizeof(ns_nn_header) */
+    uint32_t order;                             /* 0 double, 1 multiple (ns_order) */
     uint32_t inputs, hidden1, hidden2, outputs; /* 6, 50, 50, 1 */
-    uint32_t activation;       /* 1 = tanh */
-    uint32_t target;           /* ns_nn_target */
-    uint32_t input_map;        /* NS_NN_INPUT_MAP_ASINH */
-    uint32_t param_count;      /* NS_NN_PARAMS */
+    uint32_t activation;                        /* 1 = tanh */
+    uint32_t target;                            /* ns_nn_target */
+    uint32_t input_map;                         /* NS_NN_INPUT_MAP_ASINH */
+    uint32_t param_count;                       /* NS_NN_PARAMS */
     float target_eps, target_mean, target_scale;
-    float extent;              /* spatial extent (mfp) mapped to 1 */
-    float sinh_scale;          /* mfp: the asinh knee */
-    float albedo_max;          /* albedo mapped to 1 */
-    float g_min, g_max;        /* g range mapped to [0, 1] */
+    float extent;       /* spatial extent (mfp) mapped to 1 */
+    float sinh_scale;   /* mfp: the asinh knee */
+    float albedo_max;   /* albedo mapped to 1 */
+    float g_min, g_max; /* g range mapped to [0, 1] */
     uint32_t payload_crc32;
-    uint32_t header_crc32;     /* CRC of all header bytes before this field */
+    uint32_t header_crc32; /* CRC of all header bytes before this field */
 } ns_nn_header;
 
 #define NS_NN_HEADER_SIZE 92u

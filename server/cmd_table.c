@@ -144,8 +144,7 @@ static int parse_options(int argc, char **argv, table_options *o)
                 return usage_error("--compare: needs two table prefixes");
             o->compare[0] = argv[++i];
             o->compare[1] = argv[++i];
-        }
-        else if (strncmp(arg, "--", 2) != 0)
+        } else if (strncmp(arg, "--", 2) != 0)
             return usage_error("unexpected argument '%s' (see nscatter table --help)", arg);
         else if (i + 1 >= argc)
             return usage_error("%s: missing value", arg);
@@ -169,18 +168,16 @@ static int session_open(const table_options *o, nn_session *s)
     memset(s, 0, sizeof *s);
     ns_error err = {0};
     const char *validation = getenv("NSCATTER_VALIDATION");
-    int rc = ns_nn_session_create(&(ns_nn_session_desc){.device = o->device,
-                                                        .validation = validation &&
-                                                                      *validation == '1',
-                                                        .weights = {o->weights[0],
-                                                                    o->weights[1]}},
-                                  &s->session, &err);
+    int rc =
+        ns_nn_session_create(&(ns_nn_session_desc){.device = o->device,
+                                                   .validation = validation && *validation == '1',
+                                                   .weights = {o->weights[0], o->weights[1]}},
+                             &s->session, &err);
     if (rc) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
         /* A bad weights file is bad input (2); a device failure is a failure (1). */
-        return rc == NS_ERR_INVALID_ARGUMENT || rc == NS_ERR_IO || rc == NS_ERR_NOT_AVAILABLE
-                   ? 2
-                   : 1;
+        return rc == NS_ERR_INVALID_ARGUMENT || rc == NS_ERR_IO || rc == NS_ERR_NOT_AVAILABLE ? 2
+                                                                                              : 1;
     }
     s->nets[0] = ns_nn_session_net(s->session, 0);
     s->nets[1] = ns_nn_session_net(s->session, 1);
@@ -227,9 +224,12 @@ static int reconstruct(nn_session *s, const ns_table *shape, double g, const dou
     if (!*out)
         return usage_error("out of memory");
     ns_error err = {0};
-    ns_nn_reconstruct_desc d = {.nets = {s->nets[0], s->nets[1]}, .grid = grid_of(shape), .g = g,
+    ns_nn_reconstruct_desc d = {.nets = {s->nets[0], s->nets[1]},
+                                .grid = grid_of(shape),
+                                .g = g,
                                 .albedo = {albedo[0], albedo[1], albedo[2]},
-                                .renormalise = renormalise, .channels = channels,
+                                .renormalise = renormalise,
+                                .channels = channels,
                                 .out = *out};
     if (ns_nn_session_reconstruct(s->session, &d, stats, &err)) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
@@ -246,11 +246,15 @@ static int reconstruct(nn_session *s, const ns_table *shape, double g, const dou
 
 static int run_mc_table(const table_options *o, ns_table *t)
 {
-    uint64_t photons = o->photons ? o->photons
-                                  : (uint64_t)fmax(1000, o->mc_collisions /
-                                                             ns_mc_collisions_per_photon(
-                                                                 1u << o->order, o->albedo));
-    ns_mc_desc desc = {.g = o->g, .albedo = o->albedo, .photons = photons, .seed = o->seed,
+    uint64_t photons =
+        o->photons
+            ? o->photons
+            : (uint64_t)fmax(1000, o->mc_collisions /
+                                       ns_mc_collisions_per_photon(1u << o->order, o->albedo));
+    ns_mc_desc desc = {.g = o->g,
+                       .albedo = o->albedo,
+                       .photons = photons,
+                       .seed = o->seed,
                        .orders = 1u << o->order};
     ns_error err = {0};
     ns_mc_result r;
@@ -269,8 +273,8 @@ static int run_one(const table_options *o)
     if (!o->source)
         return usage_error("--source: missing (nn or mc)");
     if (!o->have_order || !o->have_g || !o->have_albedo || !o->out)
-        return usage_error("%s: missing", !o->have_order ? "--order"
-                                          : !o->have_g   ? "--g"
+        return usage_error("%s: missing", !o->have_order    ? "--order"
+                                          : !o->have_g      ? "--g"
                                           : !o->have_albedo ? "--albedo"
                                                             : "--out");
     ns_error err = {0};
@@ -295,8 +299,9 @@ static int run_one(const table_options *o)
             memcpy(t.data, all + (size_t)o->order * 3 * ns_table_size(&t),
                    ns_table_size(&t) * sizeof(float));
             snprintf(t.source, sizeof t.source, "nn");
-            fprintf(stderr, "nscatter table: reconstructed in %.3f s (GPU %.3f s, %s), raw "
-                            "energy %.6g of %.6g\n",
+            fprintf(stderr,
+                    "nscatter table: reconstructed in %.3f s (GPU %.3f s, %s), raw "
+                    "energy %.6g of %.6g\n",
                     st.total_seconds, st.gpu_seconds, ns_nn_session_device(s.session),
                     st.energy_raw[o->order][0], st.energy_exact[o->order][0]);
         } else if (t.data) {
@@ -345,8 +350,7 @@ static double weighted_l1(const ns_table *mc, const float *nn)
     return ref > 0 ? diff / ref : NAN;
 }
 
-static int reference_table(const table_options *o, double g, double a, ns_order order,
-                           ns_table *t)
+static int reference_table(const table_options *o, double g, double a, ns_order order, ns_table *t)
 {
     char prefix[4096];
     snprintf(prefix, sizeof prefix, "%s/g%.2f_a%.3f_%s", o->mc_dir, g, a, ns_order_name(order));
@@ -404,9 +408,8 @@ static int report_material(const table_options *o, nn_session *s, double g, doub
         double l1_norm = weighted_l1(&mc[k], j);
         double mc_energy = ns_table_energy(&mc[k]);
         printf("%5.2f %6.3f %-8s %+9.2f%% %+9.2f%% %9.2f%% %9.2f%%  %7.2f%%\n", g, a,
-               ns_order_name((ns_order)k), 100 * (e_raw / exact - 1),
-               100 * (e_raw / mc_energy - 1), 100 * l1_raw, 100 * l1_norm,
-               100 * mc_energy / exact);
+               ns_order_name((ns_order)k), 100 * (e_raw / exact - 1), 100 * (e_raw / mc_energy - 1),
+               100 * l1_raw, 100 * l1_norm, 100 * mc_energy / exact);
         fflush(stdout);
     }
     free(raw);
@@ -511,8 +514,7 @@ static int run_benchmark(const table_options *o)
         cpu_baselines(s.nets[0], &scalar, &blas);
         double flops = 2.0 * (NS_NN_PARAMS - 1 - 2 * NS_NN_HIDDEN); /* multiply-adds x 2 */
         printf("device: %s (pipeline created and warmed in %.2f s)\n",
-               ns_nn_session_device(s.session),
-               startup);
+               ns_nn_session_device(s.session), startup);
         printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells, "
                "%llu network evaluations\n",
                shape.n[0], shape.n[1], shape.n[2], shape.n[3], (unsigned long long)evals);
@@ -525,7 +527,8 @@ static int run_benchmark(const table_options *o)
         printf("CPU plain C, 1 thread: %.3g evaluations/s (%.1f GFLOP/s)\n", scalar,
                scalar * flops * 1e-9);
         printf("CPU OpenBLAS batched (batch 8192, OpenBLAS threading default): %.3g "
-               "evaluations/s (%.1f GFLOP/s)\n", blas, blas * flops * 1e-9);
+               "evaluations/s (%.1f GFLOP/s)\n",
+               blas, blas * flops * 1e-9);
     }
     ns_table_free(&shape);
     session_close(&s);

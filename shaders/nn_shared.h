@@ -14,30 +14,30 @@
 
 #include "shared.h"
 
-NS_CONST(uint, NS_NN_GROUP, 64);     /* invocations per workgroup */
-NS_CONST(uint, NS_NN_POINTS, 16);    /* table cells per invocation (DESIGN.md section 6) */
-NS_CONST(uint, NS_NN_H4, 13);        /* vec4s per padded hidden layer (52 units) */
+NS_CONST(uint, NS_NN_GROUP, 64);  /* invocations per workgroup */
+NS_CONST(uint, NS_NN_POINTS, 16); /* table cells per invocation (DESIGN.md section 6) */
+NS_CONST(uint, NS_NN_H4, 13);     /* vec4s per padded hidden layer (52 units) */
 NS_CONST(uint, NS_NN_W1_OFF, 0);
 NS_CONST(uint, NS_NN_B1_OFF, 104);
 NS_CONST(uint, NS_NN_W2_OFF, 117);
 NS_CONST(uint, NS_NN_B2_OFF, 767);
 NS_CONST(uint, NS_NN_W3_OFF, 780);
 NS_CONST(uint, NS_NN_B3_OFF, 793);
-NS_CONST(uint, NS_NN_NET_VEC4, 794); /* one network */
-NS_CONST(uint, NS_NN_MAX_AXIS, 256); /* bins per table axis */
-NS_CONST(uint, NS_NN_MODE_TABLE, 0); /* every cell of a table, 3 channels */
+NS_CONST(uint, NS_NN_NET_VEC4, 794);  /* one network */
+NS_CONST(uint, NS_NN_MAX_AXIS, 256);  /* bins per table axis */
+NS_CONST(uint, NS_NN_MODE_TABLE, 0);  /* every cell of a table, 3 channels */
 NS_CONST(uint, NS_NN_MODE_POINTS, 1); /* a list of input vectors (tests) */
 
 /* Uniform buffer, binding 0 (std140: vec4 members only). */
 struct GpuNnParams {
-    ns_vec4 net[2 * 794];     /* [order][NS_NN_NET_VEC4] */
-    ns_vec4 axis[256];        /* normalised bin centres: 4 axes x NS_NN_MAX_AXIS floats,
-                                 in table order z, rho, theta, phi */
-    ns_uvec4 counts;          /* bins per axis: nz, nrho, ntheta, nphi */
-    ns_uvec4 info;            /* x: cells (table) or points, y: mode */
-    ns_vec4 channel[3];       /* per RGB channel: normalised g, normalised albedo,
-                                 exact energy of double, of multiple */
-    ns_vec4 target[2];        /* per order: transform (0 paper, 1 logrel), eps, mean, scale */
+    ns_vec4 net[2 * 794]; /* [order][NS_NN_NET_VEC4] */
+    ns_vec4 axis[256];    /* normalised bin centres: 4 axes x NS_NN_MAX_AXIS floats,
+                             in table order z, rho, theta, phi */
+    ns_uvec4 counts;      /* bins per axis: nz, nrho, ntheta, nphi */
+    ns_uvec4 info;        /* x: cells (table) or points, y: mode */
+    ns_vec4 channel[3];   /* per RGB channel: normalised g, normalised albedo,
+                             exact energy of double, of multiple */
+    ns_vec4 target[2];    /* per order: transform (0 paper, 1 logrel), eps, mean, scale */
 };
 
 #if defined(__STDC__) || defined(__cplusplus)

@@ -48,8 +48,8 @@ static double compare_points(const ns_nn_weights *nets[2], uint32_t n, double *w
             double y = ns_nn_forward(nets[o], x + (size_t)i * NS_NN_INPUTS);
             worst = fmax(worst, fabs(out[(size_t)(2 + o) * n + i] - y) / fmax(fabs(y), 1.0));
             double j = ns_nn_output_to_j(h, y, energy[i]);
-            double scale = fabs(j) + (h->target == NS_NN_TARGET_LOGREL ? h->target_eps * energy[i]
-                                                                        : 1e-7);
+            double scale =
+                fabs(j) + (h->target == NS_NN_TARGET_LOGREL ? h->target_eps * energy[i] : 1e-7);
             *worst_j = fmax(*worst_j, fabs(out[(size_t)o * n + i] - j) / scale / h->target_scale);
         }
     free(x), free(energy), free(out);
@@ -69,8 +69,8 @@ static void test_shader_equals_cpu_random_weights(void)
     const ns_nn_weights *nets[2] = {&w[0], &w[1]};
     /* 5000 points: not a multiple of the 16 points per invocation, so the tail is tested. */
     double worst_j, worst = compare_points(nets, 5000, &worst_j);
-    printf("random weights: worst relative difference GPU vs CPU: y %.3g, J / scale %.3g\n",
-           worst, worst_j);
+    printf("random weights: worst relative difference GPU vs CPU: y %.3g, J / scale %.3g\n", worst,
+           worst_j);
     CHECK(worst <= 1e-5);
     CHECK(worst_j <= 1e-5);
     /* The paper's transform too. */
@@ -80,7 +80,8 @@ static void test_shader_equals_cpu_random_weights(void)
         w[o].h.target = NS_NN_TARGET_PAPER, w[o].h.target_eps = 1.0f, w[o].h.target_mean = 1.0f;
     worst = compare_points(nets, 777, &worst_j);
     printf("random weights, paper transform: worst relative difference: y %.3g, J / scale "
-           "%.3g\n", worst, worst_j);
+           "%.3g\n",
+           worst, worst_j);
     CHECK(worst <= 1e-5);
     CHECK(worst_j <= 1e-5);
 }
@@ -174,8 +175,10 @@ static void check_material(const ns_nn_weights w[2], double g, const double albe
     ns_mc_default_edges(&shape);
     size_t cells = ns_table_size(&shape);
     float *out = malloc(cells * 6 * sizeof(float));
-    ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]}, .g = g,
-                                .albedo = {albedo[0], albedo[1], albedo[2]}, .renormalise = 1,
+    ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]},
+                                .g = g,
+                                .albedo = {albedo[0], albedo[1], albedo[2]},
+                                .renormalise = 1,
                                 .out = out};
     for (int a = 0; a < 4; a++)
         d.grid.n[a] = shape.n[a], d.grid.edges[a] = shape.edges[a];
@@ -231,8 +234,8 @@ static void test_rejects_bad_material(void)
     }
     double edges[2] = {0, 1};
     float out[6];
-    ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]}, .g = 0.5, .albedo = {0.5, 1.5, 0.5},
-                                .out = out};
+    ns_nn_reconstruct_desc d = {
+        .nets = {&w[0], &w[1]}, .g = 0.5, .albedo = {0.5, 1.5, 0.5}, .out = out};
     for (int a = 0; a < 4; a++)
         d.grid.n[a] = 1, d.grid.edges[a] = edges;
     ns_error err = {0};
@@ -248,9 +251,10 @@ int main(void)
 {
     const char *v = getenv("NSCATTER_VALIDATION");
     ns_error err = {0};
-    if (gpu_device_create(&dev, &(gpu_device_desc){.device = getenv("NSCATTER_DEVICE"),
-                                                   .validation = v && *v == '1'},
-                          &err) ||
+    if (gpu_device_create(
+            &dev,
+            &(gpu_device_desc){.device = getenv("NSCATTER_DEVICE"), .validation = v && *v == '1'},
+            &err) ||
         ns_nn_gpu_create(&dev, &nn, &err)) {
         fprintf(stderr, "device: %s\n", err.message);
         return 1;

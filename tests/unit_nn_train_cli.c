@@ -79,9 +79,9 @@ static void test_train_and_resume(void)
     snprintf(out, sizeof out, "%s/w", dir);
     snprintf(json, sizeof json, "%s/double.json", out);
     snprintf(bin, sizeof bin, "%s/double.bin", out);
-    const char *args[] = {"train", "--data", dir, "--order", "double", "--out-dir", out,
-                          "--epochs", "2", "--samples-per-table", "400", "--batch", "64",
-                          "--quiet", NULL};
+    const char *args[] = {"train",     "--data",  dir,        "--order", "double",
+                          "--out-dir", out,       "--epochs", "2",       "--samples-per-table",
+                          "400",       "--batch", "64",       "--quiet", NULL};
     CHECK_INT(run(cmd_train, args), 0);
     ns_nn_weights w;
     ns_error err = {0};
@@ -93,9 +93,10 @@ static void test_train_and_resume(void)
     CHECK_STR_CONTAINS(text, "\"test_materials\": 1");
     CHECK_STR_CONTAINS(text, "\"command\": \"nscatter train --data");
 
-    const char *resume[] = {"train", "--data", dir, "--order", "double", "--out-dir", out,
-                            "--epochs", "3", "--samples-per-table", "400", "--batch", "64",
-                            "--quiet", "--resume", NULL};
+    const char *resume[] = {"train",     "--data",  dir,        "--order", "double",
+                            "--out-dir", out,       "--epochs", "3",       "--samples-per-table",
+                            "400",       "--batch", "64",       "--quiet", "--resume",
+                            NULL};
     CHECK_INT(run(cmd_train, resume), 0);
     text = read_text(json);
     CHECK_STR_CONTAINS(text, "\"epochs\": 3,");
@@ -111,22 +112,22 @@ static void test_argument_errors(void)
     CHECK_INT(run(cmd_train, empty), 2);
     const char *bad_target[] = {"train", "--data", dir, "--target", "log", NULL};
     CHECK_INT(run(cmd_train, bad_target), 2);
-    const char *bad_g[] = {"table", "--source", "nn", "--order", "double", "--g", "1.5",
-                           "--albedo", "0.5", "--out", "/tmp/x", NULL};
+    const char *bad_g[] = {"table", "--source", "nn",  "--order", "double", "--g",
+                           "1.5",   "--albedo", "0.5", "--out",   "/tmp/x", NULL};
     CHECK_INT(run(cmd_table, bad_g), 2);
     const char *bad_source[] = {"table", "--source", "nerf", NULL};
     CHECK_INT(run(cmd_table, bad_source), 2);
-    const char *no_out[] = {"table", "--source", "nn", "--order", "double", "--g", "0.5",
-                            "--albedo", "0.5", NULL};
+    const char *no_out[] = {"table", "--source", "nn",       "--order", "double",
+                            "--g",   "0.5",      "--albedo", "0.5",     NULL};
     CHECK_INT(run(cmd_table, no_out), 2);
     char trunc[300];
     snprintf(trunc, sizeof trunc, "%s/trunc.bin", dir);
     FILE *f = fopen(trunc, "wb");
     fputs("NSNNWTS1", f);
     fclose(f);
-    const char *bad_weights[] = {"table", "--source", "nn", "--order", "double", "--g", "0.5",
-                                 "--albedo", "0.5", "--out", trunc, "--weights-double", trunc,
-                                 NULL};
+    const char *bad_weights[] = {
+        "table",    "--source", "nn",    "--order", "double",           "--g", "0.5",
+        "--albedo", "0.5",      "--out", trunc,     "--weights-double", trunc, NULL};
     CHECK_INT(run(cmd_table, bad_weights), 2);
 }
 

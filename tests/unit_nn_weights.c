@@ -207,8 +207,9 @@ static void test_gradient_finite_differences(void)
     ns_nn_batch_gradient(&tr, w.p, x, t, N);
     float grad[NS_NN_PARAMS];
     memcpy(grad, tr.grad, sizeof grad);
-    const int probes[] = {0, 7, NS_NN_OFF_B1 + 3, NS_NN_OFF_W2 + 101, NS_NN_OFF_B2 + 49,
-                          NS_NN_OFF_W3 + 12, NS_NN_OFF_B3};
+    const int probes[] = {
+        0,           7, NS_NN_OFF_B1 + 3, NS_NN_OFF_W2 + 101, NS_NN_OFF_B2 + 49, NS_NN_OFF_W3 + 12,
+        NS_NN_OFF_B3};
     for (size_t k = 0; k < sizeof probes / sizeof probes[0]; k++) {
         int i = probes[k];
         float keep = w.p[i], h = 1e-2f;
