@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include "../server/commands.h"
+#include "cli_util.h"
 #include "mc.h"
 #include "table_io.h"
 
@@ -51,16 +52,7 @@ typedef struct {
     int g_count, albedo_count;
 } mc_options;
 
-static int usage_error(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "nscatter mc: ");
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, "\n");
-    va_end(ap);
-    return 2;
-}
+#define usage_error(...) cli_usage_error("nscatter mc", __VA_ARGS__)
 
 /* =======================================================================================
  * Argument parsing: every number is checked whole; errors name the argument.

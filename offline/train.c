@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include "../server/commands.h"
+#include "cli_util.h"
 #include "nn_train.h"
 #include "nn_weights.h"
 
@@ -51,22 +52,11 @@ typedef struct {
     char command[2048];
 } train_options;
 
-static int usage_error(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "nscatter train: ");
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, "\n");
-    va_end(ap);
-    return 2;
-}
+#define usage_error(...) cli_usage_error("nscatter train", __VA_ARGS__)
 
 static double now_seconds(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    return ns_now_ms() * 1e-3;
 }
 
 /* =======================================================================================
@@ -75,13 +65,7 @@ static double now_seconds(void)
 
 static int parse_number(const char *name, const char *text, double lo, double hi, double *out)
 {
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (!*text || *end || errno || !isfinite(v) || v < lo || v > hi)
-        return usage_error("%s: '%s' must be a number in [%g, %g]", name, text, lo, hi);
-    *out = v;
-    return 0;
+    return cli_parse_number("nscatter train", name, text, lo, hi, out);
 }
 
 static int parse_value(train_options *o, const char *arg, const char *val)

@@ -11,6 +11,7 @@
 #include <sys/stat.h>
 #include <time.h>
 
+#include "../offline/cli_util.h"
 #include "../offline/mc.h"
 #include "../offline/nn_train.h"
 #include "../offline/table_io.h"
@@ -42,33 +43,16 @@ typedef struct {
     uint64_t photons, seed;
 } table_options;
 
-static int usage_error(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "nscatter table: ");
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, "\n");
-    va_end(ap);
-    return 2;
-}
+#define usage_error(...) cli_usage_error("nscatter table", __VA_ARGS__)
 
 static double now_s(void)
 {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+    return ns_now_ms() * 1e-3;
 }
 
 static int parse_num(const char *name, const char *text, double lo, double hi, double *out)
 {
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (!*text || *end || errno || !isfinite(v) || v < lo || v > hi)
-        return usage_error("%s: '%s' must be a number in [%g, %g]", name, text, lo, hi);
-    *out = v;
-    return 0;
+    return cli_parse_number("nscatter table", name, text, lo, hi, out);
 }
 
 static int parse_value(table_options *o, const char *arg, const char *val)
