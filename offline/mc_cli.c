@@ -71,7 +71,7 @@ static int parse_double(const char *name, const char *text, double *out)
 
 static int parse_u64(const char *name, const char *text, double max, uint64_t *out)
 {
-    double v;
+    double v = 0; /* set by parse_double on success; initialised for -O3 -Wmaybe-uninitialized */
     /* Accept 1e6-style counts; reject fractions, negatives and zero where it matters. */
     if (parse_double(name, text, &v))
         return 2;
@@ -119,7 +119,7 @@ static int parse_value_option(mc_options *o, const char *arg, const char *val)
     if (!strcmp(arg, "--albedo"))
         return o->have_albedo = 1, parse_double(arg, val, &o->albedo);
     if (!strcmp(arg, "--photons")) {
-        double v;
+        double v = 0;
         if (parse_double(arg, val, &v))
             return 2;
         if (!(v >= 1) || v != floor(v) || v > 1e15)
