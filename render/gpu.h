@@ -95,6 +95,11 @@ typedef struct gpu_buffer {
 
 int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *desc, ns_error *err);
 void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroyed: no-op */
+/* Creates bufs[0..count) from descs, stopping at the first failure. The buffers made
+ * before it stay alive: the caller destroys all count of them on every path (a buffer that
+ * was never made is zeroed, and destroying it is a no-op). */
+int gpu_buffers_create(gpu_device *dev, gpu_buffer *bufs, const gpu_buffer_desc *descs, int count,
+                       ns_error *err);
 
 /* ---------------------------------------------------------------------------------------
  * Compute pipelines. Binding 0 is a uniform buffer, bindings 1..binding_count-1 are

@@ -105,3 +105,16 @@ void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf)
         vkFreeMemory(dev->device, buf->memory, NULL);
     memset(buf, 0, sizeof *buf);
 }
+
+int gpu_buffers_create(gpu_device *dev, gpu_buffer *bufs, const gpu_buffer_desc *descs, int count,
+                       ns_error *err)
+{
+    for (int i = 0; i < count; i++)
+        memset(&bufs[i], 0, sizeof bufs[i]);
+    for (int i = 0; i < count; i++) {
+        int status = gpu_buffer_create(dev, &bufs[i], &descs[i], err);
+        if (status)
+            return status;
+    }
+    return NS_OK;
+}

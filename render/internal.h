@@ -41,6 +41,13 @@ typedef struct ns_gpu_scene {
 int ns_gpu_scene_build(const ns_scene *scene, ns_gpu_scene *out, ns_error *err);
 void ns_gpu_scene_free(ns_gpu_scene *gs);
 
+/* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this
+ * order: params (uniform), BVH nodes, primitives, materials, lights. */
+enum { NS_SCENE_BUFFER_COUNT = 5 };
+/* Fills descs[0..NS_SCENE_BUFFER_COUNT) for gs; the descriptors point into gs, which must
+ * outlive the buffer creation. */
+void ns_gpu_scene_buffer_descs(const ns_gpu_scene *gs, gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT]);
+
 /* ns_render with access to the segment buffer (tests). segment_capacity 0 = the default
  * capacity; when segments is not NULL the first min(written, segments_max) are copied. */
 typedef struct ns_render_debug {

@@ -139,47 +139,24 @@ static int pt_check_reachable(const ns_scene *scene, const pt_light_plan *plan, 
                    plan->unbounded ? "the scattering components" : "component \"single\"");
 }
 
+_Static_assert(PT_LIGHTS + 1 == NS_SCENE_BUFFER_COUNT, "pt.comp binds the scene buffers first");
+
 static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *err)
 {
-    ns_gpu_scene *gs = &job->scene;
-    struct {
-        const void *data;
-        uint64_t size;
-        gpu_buffer_kind kind;
-        const char *label;
-        int uninitialized;
-    } plan[PT_COUNT] = {
-        [PT_PARAMS] = {&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.pt.params"},
-        [PT_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE,
-                      "ns.pt.bvh_nodes"},
-        [PT_PRIMS] = {gs->prims, (uint64_t)(gs->bvh_prim_count + gs->plane_count) * sizeof(GpuPrim),
-                      GPU_BUFFER_STORAGE, "ns.pt.prims"},
-        [PT_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial),
-                          GPU_BUFFER_STORAGE, "ns.pt.materials"},
-        [PT_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE,
-                       "ns.pt.lights"},
-        /* Both start zeroed: the sums, and paths that read as "sample 0 next". */
-        [PT_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE,
-                       "ns.pt.pixels"},
-        [PT_PATHS] = {NULL, (uint64_t)pixels * sizeof(GpuPtPath), GPU_BUFFER_STORAGE,
-                      "ns.pt.paths"},
-        [PT_COUNTERS] = {NULL, NS_PT_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE,
-                         "ns.pt.counters"},
-    };
-    for (int i = 0; i < PT_COUNT; i++) {
-        int status =
-            gpu_buffer_create(&ctx->dev, &job->buffers[i],
-                              &(gpu_buffer_desc){.size = plan[i].size,
-                                                 .kind = plan[i].kind,
-                                                 .data = plan[i].data,
-                                                 .data_size = plan[i].data ? plan[i].size : 0,
-                                                 .uninitialized = plan[i].uninitialized,
-                                                 .label = plan[i].label},
-                              err);
-        if (status)
-            return status;
-    }
-    return NS_OK;
+    gpu_buffer_desc descs[PT_COUNT];
+    ns_gpu_scene_buffer_descs(&job->scene, descs);
+    /* All three start zeroed: the sums, the counters, and paths that read as "sample 0
+     * next". */
+    descs[PT_PIXELS] = (gpu_buffer_desc){.size = (uint64_t)pixels * 4 * sizeof(float),
+                                         .kind = GPU_BUFFER_STORAGE,
+                                         .label = "ns.pt.pixels"};
+    descs[PT_PATHS] = (gpu_buffer_desc){.size = (uint64_t)pixels * sizeof(GpuPtPath),
+                                        .kind = GPU_BUFFER_STORAGE,
+                                        .label = "ns.pt.paths"};
+    descs[PT_COUNTERS] = (gpu_buffer_desc){.size = NS_PT_COUNTER_COUNT * sizeof(uint32_t),
+                                           .kind = GPU_BUFFER_STORAGE,
+                                           .label = "ns.pt.counters"};
+    return gpu_buffers_create(&ctx->dev, job->buffers, descs, PT_COUNT, err);
 }
 
 static int pt_check_counters(const uint32_t *counters, ns_error *err)

@@ -61,47 +61,26 @@ static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene,
     return (uint32_t)(want < cap ? want : cap);
 }
 
+_Static_assert(B_LIGHTS + 1 == NS_SCENE_BUFFER_COUNT, "camera.comp binds the scene buffers first");
+
 static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *err)
 {
-    ns_gpu_scene *gs = &job->scene;
-    struct {
-        const void *data;
-        uint64_t size;
-        gpu_buffer_kind kind;
-        const char *label;
-        int uninitialized;
-    } plan[B_COUNT] = {
-        [B_PARAMS] = {&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.render.params"},
-        [B_NODES] = {gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode), GPU_BUFFER_STORAGE,
-                     "ns.render.bvh_nodes"},
-        [B_PRIMS] = {gs->prims, (uint64_t)(gs->bvh_prim_count + gs->plane_count) * sizeof(GpuPrim),
-                     GPU_BUFFER_STORAGE, "ns.render.prims"},
-        [B_MATERIALS] = {gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial),
-                         GPU_BUFFER_STORAGE, "ns.render.materials"},
-        [B_LIGHTS] = {gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight), GPU_BUFFER_STORAGE,
-                      "ns.render.lights"},
-        /* Written whole by the first dispatch / read only up to the recorded count. */
-        [B_PIXELS] = {NULL, (uint64_t)pixels * 4 * sizeof(float), GPU_BUFFER_STORAGE,
-                      "ns.render.pixels", 1},
-        [B_SEGMENTS] = {NULL, (uint64_t)gs->params.counts[2] * sizeof(GpuSegment),
-                        GPU_BUFFER_STORAGE, "ns.render.segments", 1},
-        [B_COUNTERS] = {NULL, NS_COUNTER_COUNT * sizeof(uint32_t), GPU_BUFFER_STORAGE,
-                        "ns.render.counters"},
-    };
-    for (int i = 0; i < B_COUNT; i++) {
-        int status =
-            gpu_buffer_create(&ctx->dev, &job->buffers[i],
-                              &(gpu_buffer_desc){.size = plan[i].size,
-                                                 .kind = plan[i].kind,
-                                                 .data = plan[i].data,
-                                                 .data_size = plan[i].data ? plan[i].size : 0,
-                                                 .uninitialized = plan[i].uninitialized,
-                                                 .label = plan[i].label},
-                              err);
-        if (status)
-            return status;
-    }
-    return NS_OK;
+    gpu_buffer_desc descs[B_COUNT];
+    ns_gpu_scene_buffer_descs(&job->scene, descs);
+    /* Written whole by the first dispatch / read only up to the recorded count. */
+    descs[B_PIXELS] = (gpu_buffer_desc){.size = (uint64_t)pixels * 4 * sizeof(float),
+                                        .kind = GPU_BUFFER_STORAGE,
+                                        .uninitialized = 1,
+                                        .label = "ns.render.pixels"};
+    descs[B_SEGMENTS] =
+        (gpu_buffer_desc){.size = (uint64_t)job->scene.params.counts[2] * sizeof(GpuSegment),
+                          .kind = GPU_BUFFER_STORAGE,
+                          .uninitialized = 1,
+                          .label = "ns.render.segments"};
+    descs[B_COUNTERS] = (gpu_buffer_desc){.size = NS_COUNTER_COUNT * sizeof(uint32_t),
+                                          .kind = GPU_BUFFER_STORAGE,
+                                          .label = "ns.render.counters"};
+    return gpu_buffers_create(&ctx->dev, job->buffers, descs, B_COUNT, err);
 }
 
 /* On lavapipe every sample gets its own dispatch, so that the per-invocation loop limit

@@ -217,3 +217,23 @@ void ns_gpu_scene_free(ns_gpu_scene *gs)
     free(gs->lights);
     memset(gs, 0, sizeof *gs);
 }
+
+static gpu_buffer_desc scene_desc(const void *data, uint64_t size, gpu_buffer_kind kind,
+                                  const char *label)
+{
+    return (gpu_buffer_desc){
+        .size = size, .kind = kind, .data = data, .data_size = size, .label = label};
+}
+
+void ns_gpu_scene_buffer_descs(const ns_gpu_scene *gs, gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT])
+{
+    descs[0] = scene_desc(&gs->params, sizeof gs->params, GPU_BUFFER_UNIFORM, "ns.scene.params");
+    descs[1] = scene_desc(gs->nodes, (uint64_t)gs->node_count * sizeof(GpuNode),
+                          GPU_BUFFER_STORAGE, "ns.scene.bvh_nodes");
+    descs[2] = scene_desc(gs->prims, (uint64_t)(gs->bvh_prim_count + gs->plane_count) * sizeof(GpuPrim),
+                          GPU_BUFFER_STORAGE, "ns.scene.prims");
+    descs[3] = scene_desc(gs->materials, (uint64_t)gs->material_count * sizeof(GpuMaterial),
+                          GPU_BUFFER_STORAGE, "ns.scene.materials");
+    descs[4] = scene_desc(gs->lights, (uint64_t)gs->light_count * sizeof(GpuLight),
+                          GPU_BUFFER_STORAGE, "ns.scene.lights");
+}

@@ -148,7 +148,7 @@ static void test_failure_after_upload_frees_buffers(void)
     objects[0].triangle_count = (uint32_t)count;
     s.triangles = tris;
     s.triangle_count = (uint32_t)count;
-    expect_refused(&s, NS_ERR_LIMIT, "ns.render.prims");
+    expect_refused(&s, NS_ERR_LIMIT, "ns.scene.prims");
     free(tris);
 }
 
