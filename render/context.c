@@ -3,7 +3,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <stddef.h>
+
 #include "internal.h"
+#include "scatter_shared.h"
 
 static int env_flag(const char *name)
 {
@@ -11,22 +14,45 @@ static int env_flag(const char *name)
     return v && *v && strcmp(v, "0") != 0;
 }
 
+/* Every pipeline of the renderer: shader, bindings (binding 0 uniform, the rest storage),
+ * push-constant bytes. Each is created and warmed here, once. */
+typedef struct pipeline_row {
+    size_t offset; /* of the gpu_pipeline in ns_context */
+    const char *shader;
+    uint32_t bindings;
+    uint32_t push_bytes;
+} pipeline_row;
+
+static const pipeline_row pipeline_rows[] = {
+    {offsetof(ns_context, camera), "camera", 8, sizeof(GpuSamplePush)},
+    {offsetof(ns_context, trace_test), "trace_test", 5, 0},
+    {offsetof(ns_context, accumulate), "accumulate", 4, 16},
+    {offsetof(ns_context, vrl), "vrl", 8, 32},
+    {offsetof(ns_context, gather), "gather", 8, sizeof(GpuGatherPush)},
+    {offsetof(ns_context, single), "single", 8, 16},
+    {offsetof(ns_context, vrl_trace), "vrl_trace", 8, 32},
+    {offsetof(ns_context, vrl_gather), "vrl_gather", 8, 32},
+};
+
+static gpu_pipeline *pipeline_at(ns_context *ctx, const pipeline_row *row)
+{
+    return (gpu_pipeline *)((char *)ctx + row->offset);
+}
+
 static int create_pipelines(ns_context *ctx, ns_error *err)
 {
-    int status = gpu_pipeline_create(
-        &ctx->dev, &ctx->camera,
-        &(gpu_pipeline_desc){
-            .shader = "camera", .binding_count = 8, .push_constant_size = sizeof(GpuSamplePush)},
-        err);
-    if (!status)
-        status = gpu_pipeline_create(
-            &ctx->dev, &ctx->trace_test,
-            &(gpu_pipeline_desc){.shader = "trace_test", .binding_count = 5}, err);
+    int status = NS_OK;
+    size_t n = sizeof pipeline_rows / sizeof pipeline_rows[0];
+    for (size_t i = 0; i < n && !status; i++)
+        status = gpu_pipeline_create(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]),
+                                     &(gpu_pipeline_desc){.shader = pipeline_rows[i].shader,
+                                                          .binding_count = pipeline_rows[i].bindings,
+                                                          .push_constant_size =
+                                                              pipeline_rows[i].push_bytes},
+                                     err);
     /* lavapipe compiles inside the first dispatch (1-2 s each): do it now, once. */
-    if (!status)
-        status = gpu_pipeline_warm(&ctx->dev, &ctx->camera, err);
-    if (!status)
-        status = gpu_pipeline_warm(&ctx->dev, &ctx->trace_test, err);
+    for (size_t i = 0; i < n && !status; i++)
+        status = gpu_pipeline_warm(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]), err);
     return status;
 }
 
@@ -40,6 +66,9 @@ int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *e
     if (!ctx)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
     pthread_mutex_init(&ctx->lock, NULL);
+    ctx->mc_tables = desc->mc_tables;
+    ctx->mc_user = desc->mc_user;
+    ctx->table_cache_bytes = desc->table_cache_bytes ? desc->table_cache_bytes : (1ull << 30);
     if (desc->pipeline_cache_path &&
         !(ctx->pipeline_cache_path = strdup(desc->pipeline_cache_path))) {
         ns_context_destroy(ctx);
@@ -70,10 +99,9 @@ void ns_context_destroy(ns_context *ctx)
 {
     if (!ctx)
         return;
-    if (ctx->dev.device) {
-        gpu_pipeline_destroy(&ctx->dev, &ctx->camera);
-        gpu_pipeline_destroy(&ctx->dev, &ctx->trace_test);
-    }
+    if (ctx->dev.device)
+        for (size_t i = 0; i < sizeof pipeline_rows / sizeof pipeline_rows[0]; i++)
+            gpu_pipeline_destroy(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]));
     gpu_device_destroy(&ctx->dev);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);

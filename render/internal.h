@@ -10,10 +10,25 @@
 #include "shared.h"
 
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
+struct ns_table_cache; /* render/scatter_tables.c */
+struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeline */
+
 struct ns_context {
     gpu_device dev;
     gpu_pipeline camera;     /* shaders/camera.comp */
     gpu_pipeline trace_test; /* shaders/trace_test.comp */
+    /* The scattering stages (render/scatter.h); made and warmed with the others. */
+    gpu_pipeline accumulate; /* shaders/accumulate.comp */
+    gpu_pipeline vrl;        /* shaders/vrl.comp */
+    gpu_pipeline gather;     /* shaders/gather.comp */
+    gpu_pipeline single;     /* shaders/single.comp */
+    gpu_pipeline vrl_trace;  /* shaders/vrl_trace.comp (method vrl) */
+    gpu_pipeline vrl_gather; /* shaders/vrl_gather.comp (method vrl) */
+    struct ns_table_cache *tables;
+    struct ns_nn_state *nn;
+    ns_mc_tables_fn mc_tables;
+    void *mc_user;
+    uint64_t table_cache_bytes;
     pthread_mutex_t lock;
     char *pipeline_cache_path;
 };

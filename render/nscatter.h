@@ -151,6 +151,16 @@ enum {
     NS_COMPONENT_MULTIPLE = 1u << 3,
 };
 
+/* How a camera segment reads the accumulated table: exactly, A(entry) - e^{-s Lc} A(exit)
+ * (DESIGN.md section 2), or the paper's 5-mfp table with its length weight W (Eq. 5). */
+typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumulation;
+
+#define NS_DEFAULT_VRLS 10000u
+#define NS_MAX_VRLS 1000000u
+#define NS_MAX_GATHER_TILE 16u
+#define NS_DEFAULT_SINGLE_SAMPLES 100u
+#define NS_MAX_SINGLE_SAMPLES 4096u
+
 typedef struct ns_render_settings {
     ns_method method;
     uint32_t components; /* NS_COMPONENT_* bits */
@@ -159,6 +169,12 @@ typedef struct ns_render_settings {
     uint32_t max_depth; /* surface/boundary bounces of a camera path */
     float exposure;     /* stops; applied by the encoders, not by the renderer */
     uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
+    /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
+    uint32_t vrls;           /* light paths traced towards the media (VRLs stored <= this) */
+    uint32_t gather_tile;    /* one gathered camera pixel per tile x tile block, >= 1 */
+    uint32_t single_samples; /* regular samples per camera segment for single scattering */
+    ns_accumulation accumulation;
+    float cull_solid_angle; /* sr; 0 = exact (only cells beyond the table's reach are culled) */
 } ns_render_settings;
 
 typedef struct ns_scene {
@@ -180,6 +196,12 @@ typedef struct ns_scene {
  * ------------------------------------------------------------------------------------- */
 typedef struct ns_context ns_context;
 
+/* Monte Carlo tables for method "table", supplied by the caller (the render library does not
+ * link the offline tracer): fills j_double and j_multiple, NS_TABLE_CELLS floats each on the
+ * default grid (shaders/scatter_shared.h), for one channel (g, albedo). */
+typedef int (*ns_mc_tables_fn)(void *user, double g, double albedo, float *j_double,
+                               float *j_multiple, ns_error *err);
+
 typedef struct ns_context_desc {
     /* Device to use: NULL or "" picks lavapipe when present (else the first device);
      * otherwise a decimal index into the enumeration or a case-insensitive substring of
@@ -188,6 +210,9 @@ typedef struct ns_context_desc {
     int validation; /* 1: enable VK_LAYER_KHRONOS_validation; any validation message
                        then fails the call that caused it. Also NSCATTER_VALIDATION=1. */
     const char *pipeline_cache_path; /* NULL: no on-disk pipeline cache */
+    ns_mc_tables_fn mc_tables;        /* NULL: method "table" is not available */
+    void *mc_user;
+    uint64_t table_cache_bytes;       /* bound on cached tables; 0: 1 GiB */
 } ns_context_desc;
 
 int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err);
@@ -226,6 +251,15 @@ typedef struct ns_render_stats {
     uint64_t camera_segments; /* stretches of camera paths inside media */
     uint64_t bvh_nodes;
     uint64_t primitives;
+    /* Scattering stages (0 when not run). */
+    uint64_t vrl_paths;           /* light paths traced */
+    uint64_t vrl_count;           /* VRLs stored */
+    uint64_t gather_segments;     /* camera segments gathered (after tiling) */
+    uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */
+    uint64_t cells_culled;        /* grid cells skipped: beyond the table's reach */
+    uint64_t cells_represented;   /* grid cells replaced by their representative VRL */
+    uint64_t weights_bytes;       /* network weights used (nn) */
+    uint64_t table_bytes;         /* scattering tables held on the device for this render */
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Checks the scene's structural invariants

@@ -1,0 +1,108 @@
+/* scatter.h — (private to render/) the scattering stages of issue 5 and how render.c strings
+ * them together after the camera pass:
+ *
+ *   tables   scatter_tables.c + shaders/accumulate.comp   J (network or Monte Carlo) -> A
+ *   VRLs     vrl.c + shaders/vrl.comp + vrl_grid.c         light tracing -> VRLs -> grid
+ *   gather   gather.c + shaders/gather.comp                A x VRL cells x camera segments
+ *   single   single.c + shaders/single.comp                camera segments x lights
+ *   vrl      vrl_method.c + shaders/vrl_*.comp             Novak et al. 2012 brute force
+ *
+ * Every stage writes, per camera segment, the radiance arriving at the segment's entry point
+ * from inside the medium (RGB, vec4 per segment, w unused), before the segment's throughput,
+ * the 1/spp and the boundary's radiance factor: render.c composes those into pixels.
+ */
+#ifndef NS_RENDER_SCATTER_H
+#define NS_RENDER_SCATTER_H
+
+#include "internal.h"
+#include "scatter_shared.h"
+
+/* ---------------------------------------------------------------------------------------
+ * Tables (scatter_tables.c): the accumulated camera-side tables A of one material, for the
+ * three channels, cached in the context (least recently used, bounded bytes).
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_table_key {
+    ns_method source;     /* NS_METHOD_NN (network) or NS_METHOD_TABLE (Monte Carlo) */
+    float g;              /* shared by the channels */
+    float albedo[3];      /* per channel */
+    uint32_t orders;      /* NS_COMPONENT_DOUBLE and/or NS_COMPONENT_MULTIPLE (summed) */
+    ns_accumulation accumulation; /* exact: A to infinity; paper: A over 5 mfp */
+} ns_table_key;
+
+typedef struct ns_scatter_tables {
+    gpu_buffer a;      /* float [3][NS_TABLE_CELLS]: A per channel, mfp units */
+    float scale;       /* spatial edges: scale * sinh(step * i) (mfp) */
+    float inv_step;    /* 1 / step */
+    float extent;      /* outermost edge (mfp) */
+    uint64_t bytes;    /* device bytes of a */
+} ns_scatter_tables;
+
+typedef struct ns_table_stats {
+    double reconstruct_ms; /* network or Monte Carlo; 0 on a cache hit */
+    double accumulate_ms;  /* 0 on a cache hit */
+    int cache_hit;
+    uint64_t weights_bytes;
+} ns_table_stats;
+
+/* Returns the tables for key, computing and caching them when absent. The pointer stays
+ * valid until the next call (the context lock is held by the caller throughout a render).
+ * NS_METHOD_TABLE needs ctx's Monte Carlo provider (ns_context_desc.mc_tables), else
+ * NS_ERR_NOT_AVAILABLE. */
+int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
+                  ns_table_stats *stats, ns_error *err);
+
+/* ---------------------------------------------------------------------------------------
+ * Virtual Ray Lights (vrl.c, vrl_grid.c)
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_vrl_set {
+    GpuVrl *vrls; /* malloc'd */
+    uint32_t count;
+    uint64_t paths; /* light paths traced */
+} ns_vrl_set;
+
+/* Traces `paths` light paths from the scene's lights towards its media (every light kind,
+ * Fresnel-transmitted through smooth boundaries, power-correct) and keeps the first stretch
+ * of each inside a medium. scene_buffers: the five scene buffers (ns_gpu_scene_buffer_descs)
+ * already on the device. */
+int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
+                    gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
+                    ns_error *err);
+void ns_vrl_set_free(ns_vrl_set *set);
+
+/* One level of the grid hierarchy of one medium's VRLs (paper Section 4.3). */
+typedef struct ns_vrl_grid {
+    GpuVrl *vrls;            /* the medium's VRLs, sorted by cell */
+    uint32_t vrl_count;
+    GpuVrlCell *cells;       /* non-empty cells only */
+    GpuVrl *representatives; /* one per cell, same index */
+    uint32_t cell_count;
+    uint32_t level;          /* chosen level in the hierarchy, 0 = finest */
+    uint32_t level_count;    /* levels built (2 to 5) */
+    float cell_size;         /* edge of a cell of the chosen level (scene units) */
+} ns_vrl_grid;
+
+/* Builds the hierarchy over the VRLs of `material` and keeps the level chosen for a medium
+ * whose smallest mean free path is mfp_min (scene units). */
+int ns_vrl_grid_build(const ns_vrl_set *set, uint32_t material, float mfp_min, ns_vrl_grid *out,
+                      ns_error *err);
+void ns_vrl_grid_free(ns_vrl_grid *grid);
+
+/* ---------------------------------------------------------------------------------------
+ * Single scattering (single.c): `samples` regular samples along every segment, connected to
+ * every light (refracted at a smooth boundary as in Jensen et al. 2001), Beer-Lambert inside
+ * the medium, Henyey-Greenstein phase. out: vec4 per segment.
+ * ------------------------------------------------------------------------------------- */
+int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *segments,
+                      uint32_t segment_count, uint32_t samples, gpu_buffer *out, ns_error *err);
+
+/* ---------------------------------------------------------------------------------------
+ * The `vrl` method (vrl_method.c): VRLs from every light-path stretch in the media, ray-to-ray
+ * transport by sampling, no tables. out_double / out_multiple: vec4 per segment (orders 2
+ * and >= 3). stats gets vrl_paths, vrl_count, interactions.
+ * ------------------------------------------------------------------------------------- */
+int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
+                         gpu_buffer *scene_buffers, gpu_buffer *segments, uint32_t segment_count,
+                         gpu_buffer *out_double, gpu_buffer *out_multiple, ns_render_stats *stats,
+                         ns_error *err);
+
+#endif

@@ -1,0 +1,104 @@
+/* scatter_shared.h — GPU structs and constants of the scattering stages (issue 5): Virtual Ray
+ * Lights, their grid, the accumulated tables, the gather and single scattering. Shared by C
+ * and GLSL like shared.h (include that first); sizes checked at the bottom.
+ *
+ * Units: positions and lengths in scene units; power in W (RGB); the tables in mfp units
+ * (DESIGN.md section 2), scaled to the scene per channel by the medium's extinction.
+ */
+#ifndef NS_SHADERS_SCATTER_SHARED_H
+#define NS_SHADERS_SCATTER_SHARED_H
+
+/* A Virtual Ray Light: the first stretch of a light path inside a medium (for the table
+ * methods and the dipole), or any stretch of a light path between two events inside a
+ * medium (the `vrl` method). origin = where the stretch starts (on the boundary for a first
+ * stretch); direction = unit travel direction; length = distance to the next boundary along
+ * it; power = RGB flux carried by the stretch at its origin (W), already multiplied by the
+ * Fresnel transmittance and divided by the number of light samples traced;
+ * material = the medium's material index; events = scattering events before this stretch
+ * (0 for a stretch that starts on the boundary). */
+struct GpuVrl {
+    ns_vec3 origin;
+    float length;
+    ns_vec3 direction;
+    ns_uint material;
+    ns_vec3 power;
+    ns_uint events;
+};
+
+/* One cell of a VRL grid level: its VRLs are vrls[first, first + count) of the cell-sorted
+ * buffer, their origins lie in [bmin, bmax] (the bounding box of the VRLs' origins, not of
+ * the cell), and a representative VRL (power = the sum of the cell's powers, origin = the
+ * power-weighted mean origin, direction = the power-weighted mean direction, normalised) is
+ * stored at the same index in a parallel array. */
+struct GpuVrlCell {
+    ns_vec3 bmin;
+    ns_uint first;
+    ns_vec3 bmax;
+    ns_uint count;
+};
+
+/* The render tables: the default Monte Carlo grid (offline/mc.h: 128 z x 64 rho x 18 theta x
+ * 18 phi, spatial edges scale * sinh(step * i), z symmetric about 0, 10-degree angular bins).
+ * A table buffer holds the three RGB channels one after another, each in the .npy order
+ * [z][rho][theta][phi]. */
+NS_CONST(uint, NS_TABLE_NZ, 128);
+NS_CONST(uint, NS_TABLE_NRHO, 64);
+NS_CONST(uint, NS_TABLE_NTHETA, 18);
+NS_CONST(uint, NS_TABLE_NPHI, 18);
+NS_CONST(uint, NS_TABLE_CELLS, 128 * 64 * 18 * 18);
+
+/* Uniform block of the gather (binding 0). One gather dispatch serves one medium. */
+struct GpuGatherParams {
+    ns_vec4 sigma_t;   /* xyz: extinction per scene unit of each channel; w = ior */
+    ns_vec4 table_map; /* x = sinh scale (mfp), y = 1 / sinh step, z = extent (mfp), w = unused */
+    ns_uvec4 counts;   /* x = segments, y = cells, z = VRLs, w = mode (NS_GATHER_MODE_*) */
+    ns_vec4 cull;      /* x = cull distance (scene units): cells farther from a segment add
+                          nothing; y = solid-angle threshold (0 = off): a cell whose box
+                          subtends less from the segment is replaced by its representative */
+    ns_vec4 dipole_sigma_tr; /* dipole mode: xyz = sigma_tr per channel; w = unused */
+    ns_vec4 dipole_zr;       /* xyz = z_r per channel (scene units); w = unused */
+    ns_vec4 dipole_zv;       /* xyz = z_v per channel; w = unused */
+    ns_vec4 dipole_alpha;    /* xyz = reduced albedo alpha' per channel; w = unused */
+};
+
+/* Gather modes: the exact segment form A(entry) - exp(-s Lc) A(exit); the paper's 5-mfp
+ * table with its weight W; the dipole's R_d(|entry - origin|) of Jensen et al. 2001. */
+NS_CONST(uint, NS_GATHER_MODE_EXACT, 0);
+NS_CONST(uint, NS_GATHER_MODE_PAPER, 1);
+NS_CONST(uint, NS_GATHER_MODE_DIPOLE, 2);
+
+/* The paper's accumulated length (mfp) for NS_GATHER_MODE_PAPER. */
+NS_CONST(uint, NS_PAPER_ACCUMULATION_MFP, 5);
+
+/* Push block of a gather dispatch: the segments [first_segment, first_segment + groups * 64)
+ * visit the cells [first_cell, first_cell + cell_count). The C side splits cells across
+ * dispatches so that no invocation runs past lavapipe's loop limit (shared.h). */
+struct GpuGatherPush {
+    ns_uint first_cell;
+    ns_uint cell_count;
+    ns_uint first_segment;
+    ns_uint accumulate; /* 0: the first dispatch of a segment range writes, others add */
+};
+
+NS_CONST(uint, NS_GATHER_GROUP, 64);
+
+/* Gather counters (binding 7): VRL-segment interactions evaluated, cells culled by
+ * distance, cells replaced by their representative. */
+NS_CONST(uint, NS_GATHER_COUNTER_INTERACTIONS, 0);
+NS_CONST(uint, NS_GATHER_COUNTER_CULLED, 1);
+NS_CONST(uint, NS_GATHER_COUNTER_REPRESENTED, 2);
+NS_CONST(uint, NS_GATHER_COUNTER_COUNT, 4);
+
+#if defined(__STDC__) || defined(__cplusplus)
+typedef struct GpuVrl GpuVrl;
+typedef struct GpuVrlCell GpuVrlCell;
+typedef struct GpuGatherParams GpuGatherParams;
+typedef struct GpuGatherPush GpuGatherPush;
+_Static_assert(sizeof(GpuVrl) == 48 && offsetof(GpuVrl, power) == 32, "GpuVrl layout");
+_Static_assert(offsetof(GpuVrl, material) == 28 && offsetof(GpuVrl, events) == 44, "GpuVrl");
+_Static_assert(sizeof(GpuVrlCell) == 32 && offsetof(GpuVrlCell, count) == 28, "GpuVrlCell");
+_Static_assert(sizeof(GpuGatherParams) == 128, "GpuGatherParams std140 size");
+_Static_assert(sizeof(GpuGatherPush) == 16, "GpuGatherPush size");
+#endif
+
+#endif
