@@ -88,6 +88,37 @@ int ns_vrl_grid_build(const ns_vrl_set *set, uint32_t material, float mfp_min, n
 void ns_vrl_grid_free(ns_vrl_grid *grid);
 
 /* ---------------------------------------------------------------------------------------
+ * Gather (gather.c, shaders/gather.comp): one medium's segments x its VRL grid.
+ * ------------------------------------------------------------------------------------- */
+/* Fills the gather's uniform block for a medium (material m), a mode (NS_GATHER_MODE_*), the
+ * tables (NULL in dipole mode) and the solid-angle threshold (0 = exact). */
+void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
+                      const ns_scatter_tables *tables, float cull_solid_angle);
+
+typedef struct ns_gather_desc {
+    GpuGatherParams params;       /* counts.x/y/z are filled by ns_gather_run */
+    gpu_buffer *segments;         /* GpuSegment buffer; this medium's are a contiguous range */
+    uint32_t first_segment, segment_count;
+    const ns_vrl_grid *grid;
+    const gpu_buffer *table;      /* A per channel; NULL in dipole mode */
+    gpu_buffer *out;              /* vec4 per segment of the whole buffer (same indices) */
+} ns_gather_desc;
+
+typedef struct ns_gather_counts {
+    uint64_t interactions, cells_culled, cells_represented;
+    uint32_t dispatches;
+} ns_gather_counts;
+
+int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
+                  ns_error *err);
+
+/* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
+ * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. */
+void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
+                   uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
+                   float (*out)[4], ns_gather_counts *counts);
+
+/* ---------------------------------------------------------------------------------------
  * Single scattering (single.c): `samples` regular samples along every segment, connected to
  * every light (refracted at a smooth boundary as in Jensen et al. 2001), Beer-Lambert inside
  * the medium, Henyey-Greenstein phase. out: vec4 per segment.

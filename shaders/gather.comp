@@ -1,7 +1,162 @@
 #version 450
-// gather.comp — placeholder until its stage lands (render/scatter.h names the owner): a valid
-// pipeline so that the context can create and warm every pipeline from one table.
-layout(local_size_x = 64) in;
+// gather.comp — double and multiple scattering gathered from Virtual Ray Lights (the paper's
+// Algorithm 1): one invocation per camera segment visits the grid cells of one dispatch's
+// cell range, skips cells beyond the table's reach, and sums the contribution of each VRL
+// through the accumulated table A (DESIGN.md section 2):
+//     L += P s^2 [A(x_entry) - e^{-s Lc} A(x_exit)]      per channel, in the VRL's frame,
+// or the paper's 5-mfp form W A5(x_entry), or (dipole mode) P R_d(|x_entry - origin|) / pi.
+// The result is the radiance arriving at the segment's entry from inside the medium, before
+// the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
+#extension GL_GOOGLE_include_directive : require
+#include "shared.h"
+#include "scatter_shared.h"
+
+layout(local_size_x = NS_GATHER_GROUP) in;
+
+layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams params; };
+layout(std430, binding = 1) readonly buffer SegmentBlock { GpuSegment segments[]; };
+layout(std430, binding = 2) readonly buffer CellBlock { GpuVrlCell cells[]; };
+layout(std430, binding = 3) readonly buffer RepresentativeBlock { GpuVrl representatives[]; };
+layout(std430, binding = 4) readonly buffer VrlBlock { GpuVrl vrls[]; };
+layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
+layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
+layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuGatherPush push; };
+
+const float PI = 3.14159265358979;
+const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
+
+// The table's direction bin for a direction w seen from a VRL (origin, axis d) at a point
+// whose radial unit vector is e_rho: theta from d, phi from e_rho (mirror-symmetric).
+uint direction_bin(vec3 w, vec3 d, vec3 e_rho)
+{
+    float cos_theta = clamp(dot(w, d), -1.0, 1.0);
+    vec3 w_perp = w - cos_theta * d;
+    float perp = length(w_perp);
+    float cos_phi = perp > 1e-6 ? clamp(dot(w_perp, e_rho) / perp, -1.0, 1.0) : 1.0;
+    uint it = min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
+    uint ip = min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
+    return it * NS_TABLE_NPHI + ip;
+}
+
+// Spatial part of a table index for (z, rho) in mfp, or -1 beyond the table.
+int spatial_bin(float z_mfp, float rho_mfp)
+{
+    float extent = params.table_map.z;
+    if (abs(z_mfp) >= extent || rho_mfp >= extent)
+        return -1;
+    float scale = params.table_map.x, inv_step = params.table_map.y;
+    int iz = int(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
+    int ir = int(floor(asinh(rho_mfp / scale) * inv_step));
+    iz = clamp(iz, 0, int(NS_TABLE_NZ) - 1);
+    ir = clamp(ir, 0, int(NS_TABLE_NRHO) - 1);
+    return iz * int(NS_TABLE_NRHO) + ir;
+}
+
+// A at point p for light arriving along w, per channel, in mfp units.
+vec3 table_at(GpuVrl v, vec3 p, vec3 w)
+{
+    vec3 delta = p - v.origin;
+    float z = dot(delta, v.direction);
+    vec3 radial = delta - z * v.direction;
+    float rho = length(radial);
+    // On the axis any radial direction is as good: the phi bins all meet there.
+    vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
+    uint dir = direction_bin(w, v.direction, e_rho);
+    vec3 a = vec3(0.0);
+    for (int c = 0; c < 3; c++) {
+        float s = params.sigma_t[c];
+        int cell = spatial_bin(z * s, rho * s);
+        if (cell >= 0)
+            a[c] = table[uint(c) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
+    }
+    return a;
+}
+
+vec3 dipole_rd(float r)
+{
+    vec3 r2 = vec3(r * r);
+    vec3 dr = sqrt(r2 + params.dipole_zr.xyz * params.dipole_zr.xyz);
+    vec3 dv = sqrt(r2 + params.dipole_zv.xyz * params.dipole_zv.xyz);
+    vec3 str = params.dipole_sigma_tr.xyz;
+    vec3 real_source = params.dipole_zr.xyz * (str * dr + 1.0) * exp(-str * dr) / (dr * dr * dr);
+    vec3 virtual_source = params.dipole_zv.xyz * (str * dv + 1.0) * exp(-str * dv) / (dv * dv * dv);
+    return params.dipole_alpha.xyz / (4.0 * PI) * (real_source + virtual_source);
+}
+
+vec3 contribution(GpuVrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight)
+{
+    uint mode = params.counts.w;
+    if (mode == NS_GATHER_MODE_DIPOLE)
+        return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
+    vec3 s = params.sigma_t.xyz;
+    vec3 value;
+    if (mode == NS_GATHER_MODE_PAPER)
+        value = paper_weight * table_at(v, seg.entry, w);
+    else
+        value = table_at(v, seg.entry, w) - segment_attenuation * table_at(v, seg.exit, w);
+    return v.power * s * s * value;
+}
+
+// Lower bound of the distance between the segment's bounding box and a cell's box.
+float box_distance(vec3 amin, vec3 amax, vec3 bmin, vec3 bmax)
+{
+    vec3 gap = max(vec3(0.0), max(amin - bmax, bmin - amax));
+    return length(gap);
+}
+
 void main()
 {
+    uint index = push.first_segment + gl_GlobalInvocationID.x;
+    if (gl_GlobalInvocationID.x >= params.counts.x)
+        return;
+    GpuSegment seg = segments[index];
+    vec3 w = -seg.direction; // light travels towards the camera
+    float length_c = distance(seg.entry, seg.exit);
+    vec3 s = params.sigma_t.xyz;
+    vec3 segment_attenuation = exp(-s * length_c);
+    vec3 paper_weight = (1.0 - segment_attenuation) / (1.0 - exp(-float(NS_PAPER_ACCUMULATION_MFP)));
+    vec3 smin = min(seg.entry, seg.exit), smax = max(seg.entry, seg.exit);
+    // Dipole mode: only segments that enter from outside see the dipole (render.c gives
+    // the others no light), evaluated at their entry point.
+    bool dipole = params.counts.w == NS_GATHER_MODE_DIPOLE;
+    if (dipole)
+        smax = smin = seg.entry;
+
+    vec3 sum = vec3(0.0);
+    uint interactions = 0u, culled = 0u, represented = 0u;
+    uint end = min(push.first_cell + push.cell_count, params.counts.y);
+    for (uint ci = push.first_cell; ci < end; ci++) {
+        GpuVrlCell cell = cells[ci];
+        float gap = box_distance(smin, smax, cell.bmin, cell.bmax);
+        if (gap > params.cull.x) {
+            culled++;
+            continue;
+        }
+        if (params.cull.y > 0.0) {
+            // The box's solid angle seen from the segment's nearest point, bounded by the
+            // sphere around its diagonal: far, small cells count as their representative.
+            vec3 extent = cell.bmax - cell.bmin;
+            float radius2 = 0.25 * dot(extent, extent);
+            if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
+                sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight);
+                represented++;
+                interactions++;
+                continue;
+            }
+        }
+        for (uint k = cell.first; k < cell.first + cell.count; k++)
+            sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight);
+        interactions += cell.count;
+    }
+    vec4 previous = push.accumulate != 0u ? radiance[index] : vec4(0.0);
+    radiance[index] = previous + vec4(sum, 0.0);
+    // 64-bit interaction count from 32-bit atomics: carry into the high word on wrap.
+    uint before = atomicAdd(counters[NS_GATHER_COUNTER_INTERACTIONS], interactions);
+    if (before + interactions < before)
+        atomicAdd(counters[NS_GATHER_COUNTER_INTERACTIONS_HIGH], 1u);
+    if (culled > 0u)
+        atomicAdd(counters[NS_GATHER_COUNTER_CULLED], culled);
+    if (represented > 0u)
+        atomicAdd(counters[NS_GATHER_COUNTER_REPRESENTED], represented);
 }

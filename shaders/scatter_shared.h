@@ -82,12 +82,17 @@ struct GpuGatherPush {
 
 NS_CONST(uint, NS_GATHER_GROUP, 64);
 
-/* Gather counters (binding 7): VRL-segment interactions evaluated, cells culled by
- * distance, cells replaced by their representative. */
+/* Gather counters (binding 7): VRL-segment interactions evaluated (low and high words of a
+ * 64-bit count), cells culled by distance, cells replaced by their representative. */
 NS_CONST(uint, NS_GATHER_COUNTER_INTERACTIONS, 0);
 NS_CONST(uint, NS_GATHER_COUNTER_CULLED, 1);
 NS_CONST(uint, NS_GATHER_COUNTER_REPRESENTED, 2);
+NS_CONST(uint, NS_GATHER_COUNTER_INTERACTIONS_HIGH, 3);
 NS_CONST(uint, NS_GATHER_COUNTER_COUNT, 4);
+
+/* Loop iterations lavapipe counts for one VRL in the gather (the VRL loop plus the channel
+ * loops of two table reads), used to split cells across dispatches. */
+NS_CONST(uint, NS_GATHER_ITERATIONS_PER_VRL, 8);
 
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuVrl GpuVrl;

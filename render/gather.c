@@ -1,0 +1,380 @@
+/* gather.c — the gather stage's C side: its uniform block (table mapping, culling reach,
+ * dipole constants), the split of the VRL grid's cells across dispatches (lavapipe's loop
+ * limit), and the same sum on the CPU for the tests (shaders/gather.comp is the GPU one). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scatter.h"
+
+/* Jensen et al. 2001: diffuse Fresnel reflectance of a dielectric seen from inside (their
+ * polynomial fit in eta) and the dipole constants per channel. */
+static void dipole_constants(GpuGatherParams *p, const GpuMaterial *m)
+{
+    float eta = m->sigma_t[3], g = m->sigma_s[3];
+    float f_dr = -1.440f / (eta * eta) + 0.710f / eta + 0.668f + 0.0636f * eta;
+    float a = (1.0f + f_dr) / (1.0f - f_dr);
+    for (int c = 0; c < 3; c++) {
+        float sigma_a = fmaxf(m->sigma_t[c] - m->sigma_s[c], 0.0f);
+        float sigma_s_reduced = m->sigma_s[c] * (1.0f - g);
+        float sigma_t_reduced = sigma_s_reduced + sigma_a;
+        float zr = sigma_t_reduced > 0.0f ? 1.0f / sigma_t_reduced : 0.0f;
+        p->dipole_sigma_tr[c] = sqrtf(3.0f * sigma_a * sigma_t_reduced);
+        p->dipole_zr[c] = zr;
+        p->dipole_zv[c] = zr * (1.0f + 4.0f * a / 3.0f);
+        p->dipole_alpha[c] = sigma_t_reduced > 0.0f ? sigma_s_reduced / sigma_t_reduced : 0.0f;
+    }
+}
+
+void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
+                      const ns_scatter_tables *tables, float cull_solid_angle)
+{
+    memset(p, 0, sizeof *p);
+    memcpy(p->sigma_t, m->sigma_t, sizeof p->sigma_t);
+    p->counts[3] = mode;
+    p->cull[1] = cull_solid_angle;
+    float s_min = fminf(m->sigma_t[0], fminf(m->sigma_t[1], m->sigma_t[2]));
+    if (mode == NS_GATHER_MODE_DIPOLE) {
+        dipole_constants(p, m);
+        /* R_d has fallen by e^-30 at 30 / sigma_tr: beyond that a cell adds nothing. */
+        float str_min = fminf(p->dipole_sigma_tr[0], fminf(p->dipole_sigma_tr[1], p->dipole_sigma_tr[2]));
+        p->cull[0] = str_min > 0.0f ? 30.0f / str_min : INFINITY;
+    } else if (tables) {
+        p->table_map[0] = tables->scale;
+        p->table_map[1] = tables->inv_step;
+        p->table_map[2] = tables->extent;
+        /* A point farther than extent * sqrt(2) (mfp) from every origin of a cell lies outside
+         * every VRL's table (|z| and rho both below the extent): the cell adds nothing. */
+        p->cull[0] = s_min > 0.0f ? tables->extent * 1.41422f / s_min : INFINITY;
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * CPU reference: the shader's arithmetic, in the same order, in float.
+ * ------------------------------------------------------------------------------------- */
+static float dot3(const float *a, const float *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static float clampf(float v, float lo, float hi) { return v < lo ? lo : v > hi ? hi : v; }
+
+static uint32_t direction_bin(const float *w, const float *d, const float *e_rho)
+{
+    const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
+    float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
+    float w_perp[3] = {w[0] - cos_theta * d[0], w[1] - cos_theta * d[1], w[2] - cos_theta * d[2]};
+    float perp = sqrtf(dot3(w_perp, w_perp));
+    float cos_phi = perp > 1e-6f ? clampf(dot3(w_perp, e_rho) / perp, -1.0f, 1.0f) : 1.0f;
+    uint32_t it = (uint32_t)(acosf(cos_theta) * bins_per_radian);
+    uint32_t ip = (uint32_t)(acosf(cos_phi) * bins_per_radian);
+    if (it > NS_TABLE_NTHETA - 1)
+        it = NS_TABLE_NTHETA - 1;
+    if (ip > NS_TABLE_NPHI - 1)
+        ip = NS_TABLE_NPHI - 1;
+    return it * NS_TABLE_NPHI + ip;
+}
+
+static int spatial_bin(const GpuGatherParams *p, float z, float rho)
+{
+    float extent = p->table_map[2];
+    if (fabsf(z) >= extent || rho >= extent)
+        return -1;
+    int iz = (int)floorf(asinhf(z / p->table_map[0]) * p->table_map[1]) + (int)(NS_TABLE_NZ / 2);
+    int ir = (int)floorf(asinhf(rho / p->table_map[0]) * p->table_map[1]);
+    iz = iz < 0 ? 0 : iz > (int)NS_TABLE_NZ - 1 ? (int)NS_TABLE_NZ - 1 : iz;
+    ir = ir < 0 ? 0 : ir > (int)NS_TABLE_NRHO - 1 ? (int)NS_TABLE_NRHO - 1 : ir;
+    return iz * (int)NS_TABLE_NRHO + ir;
+}
+
+static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl *v,
+                     const float *point, const float *w, float a[3])
+{
+    float delta[3] = {point[0] - v->origin[0], point[1] - v->origin[1], point[2] - v->origin[2]};
+    float z = dot3(delta, v->direction);
+    float radial[3] = {delta[0] - z * v->direction[0], delta[1] - z * v->direction[1],
+                       delta[2] - z * v->direction[2]};
+    float rho = sqrtf(dot3(radial, radial));
+    float e_rho[3] = {0, 0, 0};
+    if (rho > 0.0f)
+        for (int i = 0; i < 3; i++)
+            e_rho[i] = radial[i] / rho;
+    uint32_t dir = direction_bin(w, v->direction, e_rho);
+    for (int c = 0; c < 3; c++) {
+        float s = p->sigma_t[c];
+        int cell = spatial_bin(p, z * s, rho * s);
+        a[c] = cell >= 0 ? table[(size_t)c * NS_TABLE_CELLS +
+                                 (size_t)cell * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir]
+                         : 0.0f;
+    }
+}
+
+static void dipole_rd(const GpuGatherParams *p, float r, float rd[3])
+{
+    for (int c = 0; c < 3; c++) {
+        float zr = p->dipole_zr[c], zv = p->dipole_zv[c], str = p->dipole_sigma_tr[c];
+        float dr = sqrtf(r * r + zr * zr), dv = sqrtf(r * r + zv * zv);
+        float real_source = zr * (str * dr + 1.0f) * expf(-str * dr) / (dr * dr * dr);
+        float virtual_source = zv * (str * dv + 1.0f) * expf(-str * dv) / (dv * dv * dv);
+        rd[c] = p->dipole_alpha[c] / (4.0f * 3.14159265358979f) * (real_source + virtual_source);
+    }
+}
+
+static void contribution(const GpuGatherParams *p, const float *table, const GpuVrl *v,
+                         const GpuSegment *seg, const float *w, const float *attenuation,
+                         const float *paper_weight, float *sum)
+{
+    if (p->counts[3] == NS_GATHER_MODE_DIPOLE) {
+        float d[3] = {seg->entry[0] - v->origin[0], seg->entry[1] - v->origin[1],
+                      seg->entry[2] - v->origin[2]};
+        float rd[3];
+        dipole_rd(p, sqrtf(dot3(d, d)), rd);
+        for (int c = 0; c < 3; c++)
+            sum[c] += v->power[c] * rd[c] / 3.14159265358979f;
+        return;
+    }
+    float a_entry[3], a_exit[3];
+    table_at(p, table, v, seg->entry, w, a_entry);
+    if (p->counts[3] == NS_GATHER_MODE_EXACT)
+        table_at(p, table, v, seg->exit, w, a_exit);
+    for (int c = 0; c < 3; c++) {
+        float s = p->sigma_t[c];
+        float value = p->counts[3] == NS_GATHER_MODE_PAPER ? paper_weight[c] * a_entry[c]
+                                                           : a_entry[c] - attenuation[c] * a_exit[c];
+        sum[c] += v->power[c] * s * s * value;
+    }
+}
+
+static float box_distance(const float *amin, const float *amax, const float *bmin, const float *bmax)
+{
+    float g2 = 0.0f;
+    for (int i = 0; i < 3; i++) {
+        float gap = fmaxf(0.0f, fmaxf(amin[i] - bmax[i], bmin[i] - amax[i]));
+        g2 += gap * gap;
+    }
+    return sqrtf(g2);
+}
+
+static void gather_one(const GpuGatherParams *p, const GpuSegment *seg, const ns_vrl_grid *grid,
+                       const float *table, float out[4], ns_gather_counts *counts)
+{
+    float w[3] = {-seg->direction[0], -seg->direction[1], -seg->direction[2]};
+    float d[3] = {seg->exit[0] - seg->entry[0], seg->exit[1] - seg->entry[1], seg->exit[2] - seg->entry[2]};
+    float length_c = sqrtf(dot3(d, d));
+    float attenuation[3], paper_weight[3];
+    for (int c = 0; c < 3; c++) {
+        attenuation[c] = expf(-p->sigma_t[c] * length_c);
+        paper_weight[c] = (1.0f - attenuation[c]) / (1.0f - expf(-(float)NS_PAPER_ACCUMULATION_MFP));
+    }
+    float smin[3], smax[3];
+    for (int i = 0; i < 3; i++) {
+        int dipole = p->counts[3] == NS_GATHER_MODE_DIPOLE;
+        smin[i] = dipole ? seg->entry[i] : fminf(seg->entry[i], seg->exit[i]);
+        smax[i] = dipole ? seg->entry[i] : fmaxf(seg->entry[i], seg->exit[i]);
+    }
+    float sum[3] = {0, 0, 0};
+    for (uint32_t ci = 0; ci < grid->cell_count; ci++) {
+        const GpuVrlCell *cell = &grid->cells[ci];
+        float gap = box_distance(smin, smax, cell->bmin, cell->bmax);
+        if (gap > p->cull[0]) {
+            counts->cells_culled++;
+            continue;
+        }
+        if (p->cull[1] > 0.0f) {
+            float e[3] = {cell->bmax[0] - cell->bmin[0], cell->bmax[1] - cell->bmin[1],
+                          cell->bmax[2] - cell->bmin[2]};
+            float radius2 = 0.25f * dot3(e, e);
+            if (gap * gap > radius2 && 3.14159265358979f * radius2 / (gap * gap) < p->cull[1]) {
+                contribution(p, table, &grid->representatives[ci], seg, w, attenuation, paper_weight, sum);
+                counts->cells_represented++;
+                counts->interactions++;
+                continue;
+            }
+        }
+        for (uint32_t k = cell->first; k < cell->first + cell->count; k++)
+            contribution(p, table, &grid->vrls[k], seg, w, attenuation, paper_weight, sum);
+        counts->interactions += cell->count;
+    }
+    out[0] = sum[0];
+    out[1] = sum[1];
+    out[2] = sum[2];
+    out[3] = 0.0f;
+}
+
+void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
+                   uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
+                   float (*out)[4], ns_gather_counts *counts)
+{
+    ns_gather_counts local = {0};
+    for (uint32_t i = 0; i < segment_count; i++)
+        gather_one(params, &segments[i], grid, table, out[i], &local);
+    if (counts)
+        *counts = local;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * GPU
+ * ------------------------------------------------------------------------------------- */
+enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
+
+/* A representative of vrls[0, count): total power, power-weighted mean origin and direction
+ * (the rule of render/vrl_grid.c, for the pieces of a cell split below). */
+static GpuVrl representative_of(const GpuVrl *vrls, uint32_t count)
+{
+    GpuVrl r;
+    memset(&r, 0, sizeof r);
+    double weight = 0, origin[3] = {0, 0, 0}, dir[3] = {0, 0, 0};
+    for (uint32_t k = 0; k < count; k++) {
+        double w = (vrls[k].power[0] + vrls[k].power[1] + vrls[k].power[2]) / 3.0;
+        for (int i = 0; i < 3; i++) {
+            r.power[i] += vrls[k].power[i];
+            origin[i] += w * vrls[k].origin[i];
+            dir[i] += w * vrls[k].direction[i];
+        }
+        weight += w;
+        r.length = fmaxf(r.length, vrls[k].length);
+    }
+    double norm = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int i = 0; i < 3; i++) {
+        r.origin[i] = (float)(weight > 0 ? origin[i] / weight : vrls[0].origin[i]);
+        r.direction[i] = (float)(norm > 0 ? dir[i] / norm : vrls[0].direction[i]);
+    }
+    r.material = vrls[0].material;
+    return r;
+}
+
+/* The grid's cells with every cell of more than max_vrls VRLs cut into pieces (same box, a
+ * representative each), so that one dispatch can always take at least one whole piece. */
+typedef struct gather_cells {
+    GpuVrlCell *cells;
+    GpuVrl *representatives;
+    uint32_t count;
+} gather_cells;
+
+static int split_large_cells(const ns_vrl_grid *grid, uint32_t max_vrls, gather_cells *out)
+{
+    uint32_t n = 0;
+    for (uint32_t ci = 0; ci < grid->cell_count; ci++)
+        n += grid->cells[ci].count ? (grid->cells[ci].count + max_vrls - 1) / max_vrls : 1;
+    out->count = n;
+    out->cells = malloc(sizeof *out->cells * (n ? n : 1));
+    out->representatives = malloc(sizeof *out->representatives * (n ? n : 1));
+    if (!out->cells || !out->representatives)
+        return -1;
+    uint32_t j = 0;
+    for (uint32_t ci = 0; ci < grid->cell_count; ci++) {
+        const GpuVrlCell *cell = &grid->cells[ci];
+        if (cell->count <= max_vrls) {
+            out->cells[j] = *cell;
+            out->representatives[j++] = grid->representatives[ci];
+            continue;
+        }
+        for (uint32_t first = 0; first < cell->count; first += max_vrls) {
+            out->cells[j] = *cell;
+            out->cells[j].first = cell->first + first;
+            out->cells[j].count = cell->count - first < max_vrls ? cell->count - first : max_vrls;
+            out->representatives[j] = representative_of(grid->vrls + out->cells[j].first,
+                                                        out->cells[j].count);
+            j++;
+        }
+    }
+    return 0;
+}
+
+/* Cell ranges [first, first + count) whose loop iterations stay within budget. Returns the
+ * number of ranges written to push (room for cells->count + 1). */
+static uint32_t split_ranges(const gather_cells *cells, uint32_t budget, GpuGatherPush *push)
+{
+    uint32_t ranges = 0, first = 0, cost = 0;
+    for (uint32_t ci = 0; ci < cells->count; ci++) {
+        uint32_t cell_cost = 1 + cells->cells[ci].count * NS_GATHER_ITERATIONS_PER_VRL;
+        if (budget && ci > first && cost + cell_cost > budget) {
+            push[ranges++] = (GpuGatherPush){.first_cell = first, .cell_count = ci - first};
+            first = ci;
+            cost = 0;
+        }
+        cost += cell_cost;
+    }
+    if (cells->count > first || ranges == 0)
+        push[ranges++] = (GpuGatherPush){.first_cell = first, .cell_count = cells->count - first};
+    return ranges;
+}
+
+int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
+                  ns_error *err)
+{
+    memset(counts, 0, sizeof *counts);
+    const ns_vrl_grid *grid = desc->grid;
+    if (!desc->segment_count)
+        return NS_OK;
+    /* lavapipe: a dispatch's invocations stay within the loop budget (shared.h). */
+    uint32_t budget = ctx->dev.loop_limited ? 2 * NS_LAVAPIPE_LOOP_BUDGET : 0;
+    uint32_t max_vrls = budget ? budget / NS_GATHER_ITERATIONS_PER_VRL - 1 : UINT32_MAX;
+    gather_cells split = {0};
+    GpuGatherPush *push = NULL;
+    if (split_large_cells(grid, max_vrls, &split) ||
+        !(push = calloc(split.count + 1, sizeof *push))) {
+        free(split.cells);
+        free(split.representatives);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u cells", grid->cell_count);
+    }
+    uint32_t ranges = split_ranges(&split, budget, push);
+    for (uint32_t i = 0; i < ranges; i++) {
+        push[i].first_segment = desc->first_segment;
+        push[i].accumulate = i > 0;
+    }
+    GpuGatherParams params = desc->params;
+    params.counts[0] = desc->segment_count;
+    params.counts[1] = split.count;
+    params.counts[2] = grid->vrl_count;
+
+    gpu_buffer own[G_COUNT];
+    memset(own, 0, sizeof own);
+    gpu_buffer_desc descs[] = {
+        {.size = sizeof params, .kind = GPU_BUFFER_UNIFORM, .data = &params, .data_size = sizeof params,
+         .label = "ns.gather.params"},
+        {.size = (uint64_t)split.count * sizeof(GpuVrlCell), .data = split.cells,
+         .data_size = (uint64_t)split.count * sizeof(GpuVrlCell), .label = "ns.gather.cells"},
+        {.size = (uint64_t)split.count * sizeof(GpuVrl), .data = split.representatives,
+         .data_size = (uint64_t)split.count * sizeof(GpuVrl), .label = "ns.gather.representatives"},
+        {.size = (uint64_t)grid->vrl_count * sizeof(GpuVrl), .data = grid->vrls,
+         .data_size = (uint64_t)grid->vrl_count * sizeof(GpuVrl), .label = "ns.gather.vrls"},
+        {.size = 16, .label = "ns.gather.no_table"},
+        {.size = NS_GATHER_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.gather.counters"},
+    };
+    int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
+    int status = NS_OK;
+    for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
+        if (targets[i] == G_TABLE && desc->table)
+            continue;
+        status = gpu_buffer_create(&ctx->dev, &own[targets[i]], &descs[i], err);
+    }
+    if (!status) {
+        gpu_buffer *bound[G_COUNT];
+        for (int i = 0; i < G_COUNT; i++)
+            bound[i] = &own[i];
+        bound[G_SEGMENTS] = desc->segments;
+        bound[G_OUT] = desc->out;
+        if (desc->table)
+            bound[G_TABLE] = (gpu_buffer *)desc->table;
+        status = gpu_dispatch_many(
+            &ctx->dev,
+            &(gpu_dispatch_desc){.pipeline = &ctx->gather,
+                                 .buffers = bound,
+                                 .buffer_count = G_COUNT,
+                                 .groups = {(desc->segment_count + NS_GATHER_GROUP - 1) / NS_GATHER_GROUP, 1, 1},
+                                 .push = push,
+                                 .dispatch_count = ranges},
+            err);
+    }
+    if (!status) {
+        const uint32_t *c = own[G_COUNTERS].mapped;
+        counts->interactions = (uint64_t)c[NS_GATHER_COUNTER_INTERACTIONS_HIGH] << 32 |
+                               c[NS_GATHER_COUNTER_INTERACTIONS];
+        counts->cells_culled = c[NS_GATHER_COUNTER_CULLED];
+        counts->cells_represented = c[NS_GATHER_COUNTER_REPRESENTED];
+        counts->dispatches = ranges;
+    }
+    for (int i = 0; i < G_COUNT; i++)
+        gpu_buffer_destroy(&ctx->dev, &own[i]);
+    free(push);
+    free(split.cells);
+    free(split.representatives);
+    return status;
+}
