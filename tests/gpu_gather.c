@@ -1,0 +1,246 @@
+/* gpu_gather.c — the gather shader equals the CPU implementation of the same sum
+ * (render/gather.c ns_gather_cpu): random VRLs, random camera segments and a random table,
+ * in the exact segment form, the paper's W form and the dipole; and a case large enough that
+ * lavapipe's loop limit splits the cells (and one oversized cell) across dispatches, which
+ * must not change the result. Validation layers on (NSCATTER_VALIDATION=1). */
+#include "gpu_util.h"
+#include "scatter.h"
+
+static uint32_t rng = 12345u;
+static float uniform01(void)
+{
+    rng = rng * 1664525u + 1013904223u;
+    return (float)(rng >> 8) * (1.0f / 16777216.0f);
+}
+
+static void random_unit(float v[3])
+{
+    float z = 2.0f * uniform01() - 1.0f, phi = 6.2831853f * uniform01();
+    float r = sqrtf(fmaxf(0.0f, 1.0f - z * z));
+    set3(v, r * cosf(phi), r * sinf(phi), z);
+}
+
+static float *random_table(void)
+{
+    float *t = malloc(sizeof *t * 3 * (size_t)NS_TABLE_CELLS);
+    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
+        t[i] = uniform01();
+    return t;
+}
+
+/* VRLs in a 2 x 2 box, spread over `cells` cells of consecutive VRLs (the last cell takes the
+ * rest), with boxes and representatives as render/vrl_grid.c defines them. */
+static void random_grid(ns_vrl_grid *g, uint32_t vrl_count, uint32_t cells)
+{
+    memset(g, 0, sizeof *g);
+    g->vrls = calloc(vrl_count, sizeof *g->vrls);
+    g->cells = calloc(cells, sizeof *g->cells);
+    g->representatives = calloc(cells, sizeof *g->representatives);
+    g->vrl_count = vrl_count;
+    g->cell_count = cells;
+    for (uint32_t i = 0; i < vrl_count; i++) {
+        GpuVrl *v = &g->vrls[i];
+        set3(v->origin, 2 * uniform01() - 1, 2 * uniform01() - 1, 2 * uniform01() - 1);
+        random_unit(v->direction);
+        set3(v->power, uniform01(), uniform01(), uniform01());
+        v->length = 1.0f;
+    }
+    uint32_t per = vrl_count / cells;
+    for (uint32_t c = 0; c < cells; c++) {
+        GpuVrlCell *cell = &g->cells[c];
+        cell->first = c * per;
+        cell->count = c + 1 == cells ? vrl_count - c * per : per;
+        set3(cell->bmin, 1e9, 1e9, 1e9);
+        set3(cell->bmax, -1e9, -1e9, -1e9);
+        GpuVrl *r = &g->representatives[c];
+        float weight = 0;
+        for (uint32_t k = cell->first; k < cell->first + cell->count; k++)
+            for (int i = 0; i < 3; i++) {
+                cell->bmin[i] = fminf(cell->bmin[i], g->vrls[k].origin[i]);
+                cell->bmax[i] = fmaxf(cell->bmax[i], g->vrls[k].origin[i]);
+                r->power[i] += g->vrls[k].power[i];
+            }
+        for (uint32_t k = cell->first; k < cell->first + cell->count; k++) {
+            float w = (g->vrls[k].power[0] + g->vrls[k].power[1] + g->vrls[k].power[2]) / 3;
+            weight += w;
+            for (int i = 0; i < 3; i++) {
+                r->origin[i] += w * g->vrls[k].origin[i];
+                r->direction[i] += w * g->vrls[k].direction[i];
+            }
+        }
+        float n = sqrtf(r->direction[0] * r->direction[0] + r->direction[1] * r->direction[1] +
+                        r->direction[2] * r->direction[2]);
+        for (int i = 0; i < 3; i++) {
+            r->origin[i] /= weight;
+            r->direction[i] /= n;
+        }
+    }
+}
+
+static GpuSegment *random_segments(uint32_t n)
+{
+    GpuSegment *s = calloc(n, sizeof *s);
+    for (uint32_t i = 0; i < n; i++) {
+        set3(s[i].entry, 2 * uniform01() - 1, 2 * uniform01() - 1, 2 * uniform01() - 1);
+        float d[3];
+        random_unit(d);
+        float len = 0.05f + 1.5f * uniform01();
+        for (int k = 0; k < 3; k++) {
+            s[i].direction[k] = d[k];
+            s[i].exit[k] = s[i].entry[k] + len * d[k];
+        }
+    }
+    return s;
+}
+
+static GpuMaterial test_material(void)
+{
+    GpuMaterial m;
+    memset(&m, 0, sizeof m);
+    /* Extinctions 3, 5, 8 per unit: the 2-unit box spans 6 to 16 mfp, well inside 400. */
+    set3(m.sigma_t, 3, 5, 8);
+    m.sigma_t[3] = 1.3f;
+    set3(m.sigma_s, 2.7f, 4.0f, 5.0f);
+    m.sigma_s[3] = 0.4f;
+    m.reflectance[3] = 1;
+    return m;
+}
+
+static ns_scatter_tables table_geometry(void)
+{
+    ns_scatter_tables t;
+    memset(&t, 0, sizeof t);
+    t.scale = 0.5f;
+    t.inv_step = (float)(NS_TABLE_NRHO / asinh(400.0 / 0.5));
+    t.extent = 400.0f;
+    return t;
+}
+
+/* Runs the GPU gather and the CPU one; returns the largest relative difference (relative to
+ * the larger of the CPU value and floor_fraction of the mean, so that a segment whose
+ * entry and exit terms nearly cancel cannot inflate it). */
+static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_t segment_count,
+                      double floor_fraction, ns_gather_counts *gpu_counts)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    float *table = mode == NS_GATHER_MODE_DIPOLE ? NULL : random_table();
+    ns_vrl_grid grid;
+    random_grid(&grid, vrl_count, cells);
+    GpuSegment *segments = random_segments(segment_count);
+    GpuMaterial m = test_material();
+    ns_scatter_tables tables = table_geometry();
+
+    gpu_buffer seg_buf = {0}, out_buf = {0};
+    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
+                                   &(gpu_buffer_desc){.size = sizeof *segments * segment_count,
+                                                      .data = segments,
+                                                      .data_size = sizeof *segments * segment_count,
+                                                      .label = "test.segments"},
+                                   &err);
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &out_buf,
+                                   &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "test.out"},
+                                   &err);
+    if (table && !status)
+        status = gpu_buffer_create(&ctx->dev, &tables.a,
+                                   &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                                                      .data = table,
+                                                      .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                                                      .label = "test.table"},
+                                   &err);
+    ns_gather_desc desc = {.segments = &seg_buf,
+                           .first_segment = 0,
+                           .segment_count = segment_count,
+                           .grid = &grid,
+                           .table = table ? &tables.a : NULL,
+                           .out = &out_buf};
+    ns_gather_params(&desc.params, &m, mode, table ? &tables : NULL, 0.0f);
+    if (!status)
+        status = ns_gather_run(ctx, &desc, gpu_counts, &err);
+    if (status)
+        fprintf(stderr, "gather: %s\n", err.message);
+    CHECK(status == NS_OK);
+    CHECK(gpu_validation_count(&ctx->dev) == 0);
+
+    float(*cpu)[4] = calloc(segment_count, sizeof *cpu);
+    ns_gather_counts cpu_counts;
+    desc.params.counts[0] = segment_count;
+    ns_gather_cpu(&desc.params, segments, segment_count, &grid, table, cpu, &cpu_counts);
+    CHECK(cpu_counts.interactions == gpu_counts->interactions);
+
+    double mean = 0, worst = 0;
+    for (uint32_t i = 0; i < segment_count; i++)
+        for (int c = 0; c < 3; c++)
+            mean += fabs(cpu[i][c]) / (3.0 * segment_count);
+    CHECK(mean > 0);
+    const float(*gpu)[4] = status ? cpu : out_buf.mapped;
+    for (uint32_t i = 0; i < segment_count; i++)
+        for (int c = 0; c < 3; c++) {
+            double ref = fmax(fabs(cpu[i][c]), floor_fraction * mean);
+            worst = fmax(worst, fabs(gpu[i][c] - cpu[i][c]) / ref);
+            if (getenv("DBG") && fabs(gpu[i][c] - cpu[i][c]) / ref > 1e-4)
+                printf("seg %u c %d gpu %g cpu %g len %g dir %g %g %g\n", i, c, gpu[i][c], cpu[i][c],
+                       (double)segments[i].exit[0]-segments[i].entry[0], segments[i].direction[0], segments[i].direction[1], segments[i].direction[2]);
+        }
+    gpu_buffer_destroy(&ctx->dev, &seg_buf);
+    gpu_buffer_destroy(&ctx->dev, &out_buf);
+    gpu_buffer_destroy(&ctx->dev, &tables.a);
+    free(cpu);
+    free(segments);
+    free(table);
+    free(grid.vrls);
+    free(grid.cells);
+    free(grid.representatives);
+    return worst;
+}
+
+static void test_exact_form_small(void)
+{
+    ns_gather_counts counts;
+    double worst = compare(NS_GATHER_MODE_EXACT, 7, 3, 64, 1e-3, &counts);
+    printf("exact form, 7 VRLs x 64 segments: worst relative difference %.2e\n", worst);
+    CHECK(worst <= 1e-4);
+    CHECK(counts.interactions == 7u * 64u);
+}
+
+static void test_paper_form_small(void)
+{
+    ns_gather_counts counts;
+    double worst = compare(NS_GATHER_MODE_PAPER, 9, 2, 64, 1e-3, &counts);
+    printf("paper W form: worst relative difference %.2e\n", worst);
+    CHECK(worst <= 1e-4);
+}
+
+static void test_dipole(void)
+{
+    ns_gather_counts counts;
+    double worst = compare(NS_GATHER_MODE_DIPOLE, 50, 5, 128, 1e-3, &counts);
+    printf("dipole: worst relative difference %.2e\n", worst);
+    CHECK(worst <= 1e-4);
+}
+
+/* 20,000 VRLs in 3 cells of 6,666, larger than one dispatch may take on lavapipe: the cells
+ * are cut and spread over several dispatches; the sum must not change beyond float rounding
+ * (relative to the larger of the value and a tenth of the mean). */
+static void test_split_across_dispatches(void)
+{
+    ns_gather_counts counts;
+    double worst = compare(NS_GATHER_MODE_EXACT, 20000, 3, 96, 0.1, &counts);
+    printf("20000 VRLs: %u dispatches, worst relative difference %.2e\n", counts.dispatches, worst);
+    /* Both sides add 20,000 float terms, in different groupings (one partial sum per
+     * dispatch on the GPU): rounding alone may reach N * 2^-24 = 1.2e-3 relative. */
+    CHECK(worst <= 20000 * ldexp(1.0, -24) * 1.5);
+    CHECK(counts.interactions == 20000u * 96u);
+    if (test_context()->dev.loop_limited)
+        CHECK(counts.dispatches > 1);
+}
+
+int main(void)
+{
+    RUN(test_exact_form_small);
+    RUN(test_paper_form_small);
+    RUN(test_dipole);
+    RUN(test_split_across_dispatches);
+    return harness_report();
+}
