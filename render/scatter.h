@@ -136,4 +136,22 @@ int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_sc
                          gpu_buffer *out_double, gpu_buffer *out_multiple, ns_render_stats *stats,
                          ns_error *err);
 
+/* ---------------------------------------------------------------------------------------
+ * The whole scattering part of a render (scatter_render.c), after the camera pass: single
+ * scattering at every camera segment, double and multiple gathered for one pixel per
+ * render.gather_tile block (plus every pixel that no neighbouring gathered pixel can stand
+ * for: edge-aware upsampling), composed into pixels (3 floats each, added to).
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_scatter_inputs {
+    const ns_scene *scene;
+    const ns_gpu_scene *gs;
+    gpu_buffer *scene_buffers; /* the five scene buffers on the device */
+    gpu_buffer *segments;      /* the camera pass's GpuSegment buffer */
+    uint32_t segment_count;    /* recorded in it */
+    float *pixels;             /* linear RGB, 3 floats per pixel */
+} ns_scatter_inputs;
+
+int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
+                      ns_error *err);
+
 #endif

@@ -217,6 +217,7 @@ struct PathState {
     vec3 w;      // throughput
     uint medium; // material index of the medium the ray is in, NS_NONE outside
     uint depth;  // boundary bounces so far
+    bool entered; // crossed into the medium from outside since the last recorded stretch
 };
 
 PathState branch_stack[NS_BRANCH_STACK];
@@ -238,7 +239,9 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
 
         if (s.medium != NS_NONE) {
             if (t_end < NS_INF)
-                record_segment(s.o, s.o + t_end * s.d, s.d, s.w, s.medium, pixel, sample_index, s.depth);
+                record_segment(s.o, s.o + t_end * s.d, s.d, s.w, s.medium, pixel, sample_index,
+                               s.depth | (s.entered ? NS_SEGMENT_ENTERED : 0u));
+            s.entered = false;
             s.w *= beer_lambert(sigma_t_of(s.medium), t_end);
         }
 
@@ -264,6 +267,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
                     // Index matched: no Fresnel, no bending; only the medium changes.
                     s.o = p - n * eps;
                     s.medium = next_medium;
+                    s.entered = next_medium != NS_NONE;
                 } else {
                     float eta = h.front ? 1.0 / ior : ior;
                     float cos_i = -dot(s.d, n);
@@ -272,10 +276,12 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
                     PathState reflected = s;
                     reflected.o = p + n * eps;
                     reflected.d = normalize(reflect(s.d, n));
+                    reflected.entered = false;
                     PathState refracted = s;
                     refracted.o = p - n * eps;
                     refracted.d = normalize(eta * s.d + (eta * cos_i - cos_t) * n);
                     refracted.medium = next_medium;
+                    refracted.entered = next_medium != NS_NONE;
                     if (f >= 1.0) {
                         s = reflected;
                     } else if (top < NS_BRANCH_STACK) {
@@ -326,6 +332,7 @@ void main()
         s.w = vec3(1.0);
         s.medium = NS_NONE;
         s.depth = 0u;
+        s.entered = false;
         sum += trace_path(s, pixel, i);
     }
     if (params.limits.x != 0u && loop_count > params.limits.x)

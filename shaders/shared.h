@@ -50,11 +50,14 @@ NS_CONST(uint, NS_GPU_LIGHT_POINT, 1);
 NS_CONST(uint, NS_GPU_LIGHT_SPHERE, 2);
 NS_CONST(uint, NS_GPU_LIGHT_ENVIRONMENT, 3);
 
-/* "No hit" primitive id and "outside every medium" (too large for a C enum constant). */
+/* "No hit" primitive id and "outside every medium", and the flag in GpuSegment.depth (too
+ * large for a C enum constant). */
 #if defined(__STDC__) || defined(__cplusplus)
 #define NS_NONE 0xffffffffu
+#define NS_SEGMENT_ENTERED 0x80000000u
 #else
 const uint NS_NONE = 0xffffffffu;
+const uint NS_SEGMENT_ENTERED = 0x80000000u;
 #endif
 
 /* Camera pass parameters (uniform buffer, binding 0). */
@@ -122,7 +125,9 @@ struct GpuLight {
 
 /* A stretch of a camera path inside a medium, for the scattering passes: entry and exit
  * points, unit direction, the path throughput at the entry (before Beer-Lambert along this
- * stretch, not divided by spp), the medium's material index, and where it came from. */
+ * stretch, not divided by spp), the medium's material index, and where it came from.
+ * depth = boundary bounces before the stretch, with NS_SEGMENT_ENTERED set when the path
+ * crossed into the medium from outside just before it (the dipole's exit points). */
 struct GpuSegment {
     ns_vec3 entry;
     ns_uint pixel;

@@ -78,7 +78,8 @@ static void test_one_segment_per_sample(void)
         CHECK_NEAR(g->throughput[0], 1.0, 1e-6);
         CHECK_NEAR(g->throughput[1], 1.0, 1e-6);
         CHECK_INT(g->material, 0);
-        CHECK_INT(g->depth, 1);
+        CHECK_INT(g->depth & ~NS_SEGMENT_ENTERED, 1);
+        CHECK(g->depth & NS_SEGMENT_ENTERED);
     }
     for (int p = 0; p < 9; p++) {
         CHECK_INT(per_pixel[p], SPP);
