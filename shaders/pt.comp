@@ -450,7 +450,11 @@ vec3 connect_light_vertex(vec3 o, vec3 d, float t_end, vec3 w, uint medium, vec3
     float g = mm.sigma_s.w;
     vec3 f = w * exp(-mm.sigma_t.xyz * t) * mm.sigma_s.xyz * hg_phase(dot(d, wi), g) *
              hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium);
-    return f * beta / pdf;
+    // beta is flux inside the medium, so f * beta is radiance inside it; leaving a medium
+    // of index n into vacuum divides radiance by n^2. Camera paths that enter and leave
+    // again see both factors cancel and carry neither; this connection has only the exit.
+    float ior = mm.sigma_t.w;
+    return f * beta / (pdf * ior * ior);
 }
 
 // ---------------------------------------------------------------------------------------
