@@ -140,6 +140,21 @@ static int check_render(const ns_render_settings *r, ns_error *err)
     if (r->components & ~(uint32_t)(NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE |
                                     NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE))
         return BAD("render.components: unknown component bits 0x%x", r->components);
+    if (r->method != NS_METHOD_PT) {
+        uint32_t gathered = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+        if ((r->components & gathered) && (r->vrls < 1 || r->vrls > NS_MAX_VRLS))
+            return BAD("render.vrls: %u outside 1..%u", r->vrls, NS_MAX_VRLS);
+        if ((r->components & gathered) && (r->gather_tile < 1 || r->gather_tile > NS_MAX_GATHER_TILE))
+            return BAD("render.gather_tile: %u outside 1..%u", r->gather_tile, NS_MAX_GATHER_TILE);
+        if ((r->components & NS_COMPONENT_SINGLE) &&
+            (r->single_samples < 1 || r->single_samples > NS_MAX_SINGLE_SAMPLES))
+            return BAD("render.single_samples: %u outside 1..%u", r->single_samples,
+                       NS_MAX_SINGLE_SAMPLES);
+        if ((unsigned)r->accumulation > NS_ACCUMULATION_PAPER)
+            return BAD("render.accumulation: unknown value %d", (int)r->accumulation);
+        if (!(r->cull_solid_angle >= 0.0f && r->cull_solid_angle <= 12.57f))
+            return BAD("render.cull_solid_angle: %g outside 0..4pi", (double)r->cull_solid_angle);
+    }
     return NS_OK;
 }
 

@@ -163,6 +163,7 @@ static const range R_G = {-1, 1, 1, 1};
 static const range R_IOR = {1, FLT_MAX, 0, 0};
 static const range R_FOV = {0, 180, 1, 1};
 static const range R_EXPOSURE = {-64, 64, 0, 0};
+static const range R_SOLID_ANGLE = {0, 12.57f, 0, 0};
 
 static void describe_range(range r, char *buf, size_t cap)
 {
@@ -1229,7 +1230,9 @@ static void check_components_available(parser *p, const json_t *components, uint
 static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
-                                       "max_scatter", NULL};
+                                       "max_scatter", "vrls", "gather_tile", "single_samples",
+                                       "accumulation", "cull_solid_angle", NULL};
+    static const char *const accumulation_names[] = {"exact", "paper"};
     ns_render_settings *r = &p->render;
     *r = (ns_render_settings){
         .method = NS_METHOD_NN,
@@ -1238,6 +1241,11 @@ static void parse_render(parser *p, const json_t *v)
         .seed = 1,
         .max_depth = 8,
         .exposure = 0,
+        .vrls = NS_DEFAULT_VRLS,
+        .gather_tile = 2,
+        .single_samples = NS_DEFAULT_SINGLE_SAMPLES,
+        .accumulation = NS_ACCUMULATION_EXACT,
+        .cull_solid_angle = 0,
     };
     size_t saved = push_key(p, "render");
     if (v && !expect_object(p, v, "render")) {
@@ -1265,6 +1273,17 @@ static void parse_render(parser *p, const json_t *v)
         field_uint(p, v, "seed", 0, 0, UINT32_MAX, "seed", &r->seed);
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
+        field_uint(p, v, "vrls", 0, 1, NS_MAX_VRLS, "vrls (light paths traced towards the media)", &r->vrls);
+        field_uint(p, v, "gather_tile", 0, 1, NS_MAX_GATHER_TILE,
+                   "gather_tile (one gathered pixel per tile x tile block)", &r->gather_tile);
+        field_uint(p, v, "single_samples", 0, 1, NS_MAX_SINGLE_SAMPLES,
+                   "single_samples (samples per camera segment)", &r->single_samples);
+        int accumulation;
+        if (json_object_get(v, "accumulation") &&
+            field_enum(p, v, "accumulation", 0, accumulation_names, 2, "accumulation", &accumulation))
+            r->accumulation = (ns_accumulation)accumulation;
+        field_float(p, v, "cull_solid_angle", 0, R_SOLID_ANGLE,
+                    "cull_solid_angle (sr; 0 = exact)", &r->cull_solid_angle);
         /* Only the path tracer can cut paths by their scattering events; the other methods
          * choose orders with "components", so the key would be silently meaningless there. */
         if (json_object_get(v, "max_scatter")) {

@@ -47,6 +47,9 @@ static inline ns_scene base_scene(uint32_t width, uint32_t height, double fov)
     s.render.spp = 4;
     s.render.seed = 7;
     s.render.max_depth = 8;
+    s.render.vrls = NS_DEFAULT_VRLS;
+    s.render.gather_tile = 2;
+    s.render.single_samples = NS_DEFAULT_SINGLE_SAMPLES;
     return s;
 }
 
