@@ -239,7 +239,7 @@ typedef struct ns_image {
 
 void ns_image_free(ns_image *img); /* frees rgb and zeroes the struct; NULL is allowed */
 
-#define NS_MAX_STAGES 16
+#define NS_MAX_STAGES 24
 typedef struct ns_stage_time {
     char name[32]; /* e.g. "upload", "bvh", "ray_pass", "readback" */
     double ms;

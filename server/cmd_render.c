@@ -252,6 +252,8 @@ static void print_timings(const render_args *a, ns_context *ctx, const ns_scene 
         "bvh_nodes", (json_int_t)stats->bvh_nodes, "primitives", (json_int_t)stats->primitives,
         "output", a->out_path, "format", a->format == ENCODE_PNG ? "png" : "exr", "bytes",
         (json_int_t)bytes);
+    if (timings)
+        json_object_set_new(timings, "counts", render_stats_counts_json(stats));
     if (timings) {
         json_dumpf(timings, stdout, JSON_COMPACT | JSON_REAL_PRECISION(6));
         fputc('\n', stdout);

@@ -39,6 +39,8 @@
 #define HTTP_MAX_CONNECTIONS 64u
 #define HTTP_IDLE_TIMEOUT_S 60u
 #define HTTP_DEVICE_HEADER "X-Nscatter-Device"
+/* Counts and memory of the render (VRLs, interactions, table bytes...) as compact JSON. */
+#define HTTP_STATS_HEADER "X-Nscatter-Stats"
 
 typedef struct http_server {
     ns_context *ctx; /* NULL when the context could not be made: /readyz says 503 */
@@ -616,12 +618,17 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     } else {
         char timing[1024];
         server_timing(&job->stats, timing, sizeof timing);
-        const char *headers[] = {
-            "Server-Timing", timing, HTTP_DEVICE_HEADER, device, "Cache-Control", "no-store", NULL};
+        json_t *counts_json = render_stats_counts_json(&job->stats);
+        char *counts = json_dumps(counts_json, JSON_COMPACT);
+        json_decref(counts_json);
+        const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device,
+                                 HTTP_STATS_HEADER, counts ? counts : "{}", "Cache-Control", "no-store",
+                                 NULL};
         /* MHD frees the image with free() once sent (or when the client is gone). */
         ret = send_bytes(conn, 200, encode_mime_type(job->format), job->image.data, job->image.size,
                          MHD_RESPMEM_MUST_FREE, headers);
         job->image.data = NULL;
+        free(counts);
     }
     encode_buffer_free(&job->image);
     free(job);

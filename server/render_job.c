@@ -48,6 +48,30 @@ json_t *render_stats_stages_json(const ns_render_stats *stats)
     return stages;
 }
 
+json_t *render_stats_counts_json(const ns_render_stats *stats)
+{
+    const struct {
+        const char *name;
+        uint64_t value;
+    } rows[] = {
+        {"camera_segments", stats->camera_segments},
+        {"bvh_nodes", stats->bvh_nodes},
+        {"primitives", stats->primitives},
+        {"vrl_paths", stats->vrl_paths},
+        {"vrl_count", stats->vrl_count},
+        {"gather_segments", stats->gather_segments},
+        {"interactions", stats->interactions},
+        {"cells_culled", stats->cells_culled},
+        {"cells_represented", stats->cells_represented},
+        {"weights_bytes", stats->weights_bytes},
+        {"table_bytes", stats->table_bytes},
+    };
+    json_t *counts = json_object();
+    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
+        json_object_set_new(counts, rows[i].name, json_integer((json_int_t)rows[i].value));
+    return counts;
+}
+
 double render_stats_total_ms(const ns_render_stats *stats)
 {
     double total = 0.0;
@@ -74,7 +98,8 @@ typedef struct render_meta {
     char device[256];
     char *settings; /* json_dumps output, freed by render_meta_free */
     char *timings;
-    encode_text texts[4];
+    char *counts;
+    encode_text texts[5];
     size_t count;
 } render_meta;
 
@@ -82,6 +107,7 @@ static void render_meta_free(render_meta *meta)
 {
     free(meta->settings);
     free(meta->timings);
+    free(meta->counts);
 }
 
 static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene *scene,
@@ -94,10 +120,13 @@ static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene
     snprintf(meta->device, sizeof meta->device, "%s", info.device_name);
     json_t *settings = render_settings_json(scene, exposure_stops);
     json_t *stages = render_stats_stages_json(stats);
+    json_t *counts = render_stats_counts_json(stats);
     meta->settings = json_dumps(settings, JSON_COMPACT | JSON_REAL_PRECISION(6));
     meta->timings = json_dumps(stages, JSON_COMPACT | JSON_REAL_PRECISION(6));
+    meta->counts = json_dumps(counts, JSON_COMPACT);
     json_decref(settings);
     json_decref(stages);
+    json_decref(counts);
     meta->texts[meta->count++] = (encode_text){"Software", meta->software};
     if (meta->device[0])
         meta->texts[meta->count++] = (encode_text){"nscatter:device", meta->device};
@@ -105,6 +134,8 @@ static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene
         meta->texts[meta->count++] = (encode_text){"nscatter:render", meta->settings};
     if (meta->timings)
         meta->texts[meta->count++] = (encode_text){"nscatter:timings_ms", meta->timings};
+    if (meta->counts)
+        meta->texts[meta->count++] = (encode_text){"nscatter:counts", meta->counts};
 }
 
 int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
@@ -118,11 +149,13 @@ int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
     ns_render_stats render_stats;
     memset(&render_stats, 0, sizeof render_stats);
     int rc = ns_render(ctx, scene, &image, &render_stats, err);
+    ns_render_stats callers = *stats;
+    *stats = render_stats; /* the counts */
+    stats->stage_count = 0;
+    for (uint32_t i = 0; i < callers.stage_count && i < NS_MAX_STAGES; i++)
+        ns_stats_add_stage(stats, callers.stages[i].name, callers.stages[i].ms);
     for (uint32_t i = 0; i < render_stats.stage_count && i < NS_MAX_STAGES; i++)
         ns_stats_add_stage(stats, render_stats.stages[i].name, render_stats.stages[i].ms);
-    stats->camera_segments = render_stats.camera_segments;
-    stats->bvh_nodes = render_stats.bvh_nodes;
-    stats->primitives = render_stats.primitives;
     if (rc) {
         ns_image_free(&image);
         return rc;

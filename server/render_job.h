@@ -29,6 +29,10 @@ const char *render_method_name(ns_method method);
 /* Appends the names of the NS_COMPONENT_* bits set in `components` to `array`. */
 void render_components_append(json_t *array, uint32_t components);
 
+/* {"camera_segments", "vrl_count", "interactions", "table_bytes", ...}: every count and
+ * memory figure of ns_render_stats. New reference. */
+json_t *render_stats_counts_json(const ns_render_stats *stats);
+
 /* Sum of all stage times. */
 double render_stats_total_ms(const ns_render_stats *stats);
 
