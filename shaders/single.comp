@@ -1,7 +1,349 @@
 #version 450
-// single.comp — placeholder until its stage lands (render/scatter.h names the owner): a valid
-// pipeline so that the context can create and warm every pipeline from one table.
+// single.comp — single scattering along camera segments (paper Section 4.1, step 3): one
+// invocation per segment takes the samples [first_sample, first_sample + sample_count) of
+// `samples` regular (midpoint) points along it, connects each point to every light and adds
+//     e^{-sigma_t t} sigma_s p_HG(cos) L_in(x) dt
+// to the segment's output: the radiance arriving at the segment's entry from inside the
+// medium (render/scatter.h). The C side (render/single.c) splits the samples across
+// dispatches so that no invocation runs past lavapipe's loop limit (shared.h).
+//
+// Light reaching a point x inside the medium:
+//   ior 1 (index matched): a shadow ray through the scene with Beer-Lambert (as camera.comp).
+//   ior != 1: Jensen et al. 2001. The boundary point b on the straight line from x to the
+//     light is treated as a locally planar interface: the light is refracted there (nothing
+//     on total internal reflection), Fresnel-transmitted (1 - F), its irradiance carried
+//     into the medium as E_perp (1 - F) cos_i / cos_t (flux through the plane is kept), and
+//     attenuated along the refracted direction over the exact distance from x to that plane.
+//     Outside, a shadow ray from b to the light.
+//   Environment: one in-medium direction per sample, drawn from the phase function; through
+//     a refracting boundary the radiance inside is n^2 (1 - F) L_env, nothing on TIR.
+//
+// Bindings: the five scene buffers (render/internal.h), then segments, output, counters.
+#extension GL_GOOGLE_include_directive : require
+#include "shared.h"
+#include "trace.glsl"
+
 layout(local_size_x = 64) in;
+
+layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
+layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
+layout(std430, binding = 5) readonly buffer SegmentBlock { GpuSegment segments[]; };
+layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
+// counters[0]: invocations whose loops were cut short (lavapipe's limit or the scene's loop
+// budget); counters[1]: the most loop iterations one invocation counted (out_of_budget) in
+// one dispatch, which render/single.c uses to size the next dispatches.
+layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+// Mirrors single_push in render/single.c. A dispatch with first_sample 0 writes its
+// segments' outputs, later ones add to them.
+layout(push_constant) uniform PushBlock {
+    uint first_sample;
+    uint sample_count;
+    uint samples; // all samples of a segment (sets dt)
+    uint segment_count;
+} push;
+
+const float PI = 3.14159265358979;
+
+// ---------------------------------------------------------------------------------------
+// Helpers shared in spirit with camera.comp (the same definitions, so that the two passes
+// agree on shadowing and Fresnel).
+// ---------------------------------------------------------------------------------------
+uint rng_state;
+
+uint pcg_hash(uint v)
+{
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+float rnd()
+{
+    rng_state = pcg_hash(rng_state);
+    return float(rng_state >> 8u) * (1.0 / 16777216.0);
+}
+
+float ray_epsilon(vec3 p)
+{
+    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
+}
+
+vec3 sigma_t_of(uint material)
+{
+    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
+}
+
+// exp(-sigma_t * distance) that is exactly 1 for sigma_t 0 even at infinite distance.
+vec3 beer_lambert(vec3 sigma_t, float distance)
+{
+    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
+                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
+                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
+    return exp(-tau);
+}
+
+void basis(vec3 n, out vec3 t, out vec3 b)
+{
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+// Shadow ray: diffuse surfaces and refracting boundaries block, index-matched media
+// attenuate. `medium` is the medium o lies in (NS_NONE outside).
+vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium)
+{
+    vec3 tau = vec3(0.0);
+    float t_enter = 0.0, tmin = 0.0;
+    for (int crossing = 0; crossing < 16; crossing++) {
+        if (out_of_budget())
+            break;
+        Hit h;
+        if (!trace_scene(o, d, tmin, tmax, h))
+            break;
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
+            return vec3(0.0);
+        if (!h.front && medium != NS_NONE)
+            tau += sigma_t_of(medium) * (h.t - t_enter);
+        medium = h.front ? m : NS_NONE;
+        t_enter = h.t;
+        tmin = h.t + ray_epsilon(o + h.t * d);
+    }
+    vec3 tr = exp(-tau);
+    if (medium != NS_NONE)
+        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
+    return tr;
+}
+
+// Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted, cos_i > 0. Returns 1
+// on total internal reflection, and cos_t of the refracted ray.
+float fresnel(float cos_i, float eta, out float cos_t)
+{
+    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
+    cos_t = 0.0;
+    if (sin2_t >= 1.0)
+        return 1.0;
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// Henyey-Greenstein, cos_theta between the light's travel direction and the scattered one.
+float phase_hg(float cos_theta, float g)
+{
+    float denom = 1.0 + g * g - 2.0 * g * cos_theta;
+    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
+}
+
+// A travel direction of incoming light drawn from p_HG about wo (pdf = p_HG).
+vec3 sample_hg(vec3 wo, float g)
+{
+    float u = rnd(), phi = 2.0 * PI * rnd();
+    float cos_theta;
+    if (abs(g) < 1e-3) {
+        cos_theta = 1.0 - 2.0 * u;
+    } else {
+        float q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
+        cos_theta = clamp((1.0 + g * g - q * q) / (2.0 * g), -1.0, 1.0);
+    }
+    float sin_theta = sqrt(max(0.0, 1.0 - cos_theta * cos_theta));
+    vec3 tx, ty;
+    basis(wo, tx, ty);
+    return normalize(tx * (sin_theta * cos(phi)) + ty * (sin_theta * sin(phi)) + wo * cos_theta);
+}
+
+// ---------------------------------------------------------------------------------------
+// Light seen from a point p (outside the medium, or inside an index-matched one): the
+// direction towards it, the distance to it along that direction, and its perpendicular
+// irradiance there (a sphere light: one direction of its cone, radiance / pdf).
+// ---------------------------------------------------------------------------------------
+struct LightSample {
+    vec3 toward;
+    float distance;
+    vec3 irradiance;
+    bool valid;
+};
+
+LightSample sample_light(GpuLight light, vec3 p)
+{
+    LightSample s;
+    s.valid = true;
+    uint kind = light.info.x;
+    if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
+        s.toward = -light.direction.xyz;
+        s.distance = NS_INF;
+        s.irradiance = light.color.rgb;
+    } else if (kind == NS_GPU_LIGHT_POINT) {
+        vec3 v = light.position.xyz - p;
+        float d2 = dot(v, v);
+        s.distance = sqrt(d2);
+        s.toward = v / s.distance;
+        s.irradiance = light.color.rgb / d2;
+        s.valid = d2 > 0.0;
+    } else {
+        // Sphere: uniform over the cone it subtends (pdf 1 / solid angle), as camera.comp.
+        vec3 v = light.position.xyz - p;
+        float d2 = dot(v, v);
+        float r2 = light.position.w * light.position.w;
+        s.valid = d2 > r2;
+        float dist = sqrt(d2);
+        float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
+        float cos_t = 1.0 - rnd() * (1.0 - cos_max);
+        float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
+        float phi = 2.0 * PI * rnd();
+        vec3 w = v / dist, tx, ty;
+        basis(w, tx, ty);
+        s.toward = normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + w * cos_t);
+        s.distance = hit_sphere(p, s.toward, light.position, 0.0, NS_INF);
+        if (s.distance < 0.0)
+            s.distance = dist; // grazing the silhouette in float
+        s.irradiance = light.color.rgb * (2.0 * PI * (1.0 - cos_max));
+    }
+    return s;
+}
+
+// The point the straight line from x towards the light aims at (for finding b).
+vec3 light_aim(GpuLight light, vec3 x, out float distance)
+{
+    if (light.info.x == NS_GPU_LIGHT_DIRECTIONAL) {
+        distance = NS_INF;
+        return -light.direction.xyz;
+    }
+    vec3 v = light.position.xyz - x;
+    distance = length(v);
+    return v / max(distance, 1e-30);
+}
+
+// ---------------------------------------------------------------------------------------
+// In-scattering at x (before sigma_s): sum over the lights of p_HG * irradiance arriving.
+// ---------------------------------------------------------------------------------------
+vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
+{
+    LightSample s = sample_light(light, x);
+    if (!s.valid)
+        return vec3(0.0);
+    return s.irradiance * phase_hg(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium);
+}
+
+vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial mat)
+{
+    float g = mat.sigma_s.w, ior = mat.sigma_t.w;
+    float aim_distance;
+    vec3 aim = light_aim(light, x, aim_distance);
+    Hit h;
+    if (!trace_scene(x, aim, 0.0, aim_distance, h)) {
+        // No boundary between x and the light (a light inside the medium): Beer-Lambert only.
+        LightSample s = sample_light(light, x);
+        if (!s.valid)
+            return vec3(0.0);
+        return s.irradiance * phase_hg(dot(-s.toward, wo), g) * beer_lambert(mat.sigma_t.xyz, s.distance);
+    }
+    // Anything but this medium's own boundary, left from inside, blocks the light.
+    if (prims[h.prim].info.y != medium || h.front)
+        return vec3(0.0);
+    vec3 b = x + h.t * aim;
+    vec3 n = h.normal; // outward: the light arrives against it
+    LightSample s = sample_light(light, b);
+    float cos_i = dot(s.toward, n);
+    if (!s.valid || cos_i <= 0.0)
+        return vec3(0.0); // the light is behind the tangent plane at b
+    float cos_t;
+    float f = fresnel(cos_i, 1.0 / ior, cos_t);
+    if (f >= 1.0 || cos_t <= 1e-6)
+        return vec3(0.0);
+    float eta = 1.0 / ior;
+    vec3 travel = normalize(-eta * s.toward + (eta * cos_i - cos_t) * n);
+    // Exact distance from x back to the plane through b along the refracted direction.
+    float s_inside = max(0.0, dot(b - x, n)) / cos_t;
+    vec3 e_inside = s.irradiance * ((1.0 - f) * cos_i / cos_t);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE);
+    return e_inside * outside * beer_lambert(mat.sigma_t.xyz, s_inside) * phase_hg(dot(travel, wo), g);
+}
+
+// Environment radiance arriving at x from inside the medium along -back (back points where
+// the light comes from), one phase-sampled direction: the estimator of
+// integral p_HG L_in over the sphere is L_in itself.
+vec3 environment_in(vec3 x, vec3 wo, uint medium, GpuMaterial mat)
+{
+    vec3 back = -sample_hg(wo, mat.sigma_s.w);
+    float ior = mat.sigma_t.w;
+    if (ior == 1.0)
+        return params.environment.rgb * transmittance(x, back, NS_INF, medium);
+    Hit h;
+    if (!trace_scene(x, back, 0.0, NS_INF, h))
+        return params.environment.rgb * beer_lambert(mat.sigma_t.xyz, NS_INF);
+    if (prims[h.prim].info.y != medium || h.front)
+        return vec3(0.0);
+    vec3 b = x + h.t * back;
+    vec3 n = h.normal;
+    float cos_i = dot(back, n);
+    if (cos_i <= 0.0)
+        return vec3(0.0);
+    float cos_t;
+    float f = fresnel(cos_i, ior, cos_t);
+    if (f >= 1.0)
+        return vec3(0.0); // total internal reflection: no light from outside this way
+    vec3 leaving = normalize(ior * back - (ior * cos_i - cos_t) * n);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), leaving, NS_INF, NS_NONE);
+    return params.environment.rgb * (ior * ior * (1.0 - f)) * outside *
+           beer_lambert(mat.sigma_t.xyz, h.t);
+}
+
+vec3 in_scattering(vec3 x, vec3 wo, uint medium, GpuMaterial mat)
+{
+    vec3 sum = vec3(0.0);
+    bool matched = mat.sigma_t.w == 1.0;
+    for (uint i = 0u; i < params.counts.y; i++) {
+        if (out_of_budget())
+            break;
+        GpuLight light = lights[i];
+        if (light.info.x == NS_GPU_LIGHT_ENVIRONMENT)
+            continue; // all environment lights together, below
+        sum += matched ? light_index_matched(light, x, wo, medium, mat.sigma_s.w)
+                       : light_refracted(light, x, wo, medium, mat);
+    }
+    if (params.environment.r + params.environment.g + params.environment.b > 0.0)
+        sum += environment_in(x, wo, medium, mat);
+    return sum;
+}
+
 void main()
 {
+    uint index = gl_GlobalInvocationID.x;
+    if (index >= push.segment_count || push.samples == 0u)
+        return;
+    GpuSegment seg = segments[index];
+    GpuMaterial mat = materials[seg.material];
+    vec3 wo = -seg.direction; // towards the camera
+    float dt = distance(seg.entry, seg.exit) / float(push.samples);
+    // Each sample has its own random stream, so the result does not depend on the split.
+    uint segment_seed = pcg_hash(pcg_hash(params.image.w) + index);
+
+    vec3 sum = vec3(0.0);
+    for (uint k = push.first_sample; k < push.first_sample + push.sample_count; k++) {
+        if (out_of_budget())
+            break;
+        rng_state = pcg_hash(segment_seed + k);
+        float t = (float(k) + 0.5) * dt;
+        vec3 x = seg.entry + t * seg.direction;
+        sum += beer_lambert(mat.sigma_t.xyz, t) * in_scattering(x, wo, seg.material, mat);
+    }
+    sum *= mat.sigma_s.xyz * dt;
+    // lavapipe stops loops silently once an invocation has run 65535 iterations in all
+    // (shared.h), and from then on every loop ends after its first iteration: a loop of two
+    // iterations here tells whether that happened anywhere above. Its trip count comes from
+    // the push block so that the compiler cannot unroll it away.
+    uint canary = 0u;
+    for (uint i = 0u; i < 2u + (push.segment_count >> 31); i++)
+        canary++;
+    if (canary != 2u || (params.limits.x != 0u && loop_count > params.limits.x))
+        atomicAdd(counters[0], 1u);
+    atomicMax(counters[1], loop_count);
+    vec4 previous = push.first_sample == 0u ? vec4(0.0) : radiance[index];
+    radiance[index] = previous + vec4(sum, 0.0);
 }

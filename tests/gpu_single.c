@@ -1,0 +1,596 @@
+/* gpu_single.c — single scattering (render/single.c, shaders/single.comp) against closed
+ * forms, on camera segments built directly in a wide slab (a box, top face y = 1):
+ *   - directional light, index matched: sigma_s p E e^{-sigma_t h0/c} (1 - e^{-aL}) / a;
+ *   - the same with ior 1.5: Snell, Fresnel, cos_i/cos_t and the refracted path length are
+ *     exact for the planar top face, so the same form holds with the refracted quantities;
+ *   - RGB coefficients throughout (each channel its own closed form);
+ *   - a point light (index matched: a 1D quadrature of the exact integrand in double; ior
+ *     1.5: a far point light of intensity E d^2 equals the directional closed form);
+ *   - a sphere light equals a point light of intensity L pi r^2;
+ *   - shadowing by a diffuse occluder (half-shadowed segments: the closed form up to the
+ *     shadow edge; fully shadowed: 0);
+ *   - a constant environment seen from the centre of a sphere (every direction meets the
+ *     boundary at normal incidence): sigma_s n^2 (1 - F0) L_env e^{-sigma_t R} ...;
+ *   - bad arguments give clear errors.
+ * NSCATTER_BENCH=1 also times 128x128 and 512x512 segment sets (100 samples, one light). */
+#include "gpu_util.h"
+#include "scatter.h"
+
+/* ---------------------------------------------------------------------------------------
+ * Scene on the device, as render.c uploads it (with the loop budget).
+ * ------------------------------------------------------------------------------------- */
+typedef struct device_scene {
+    ns_gpu_scene gs;
+    gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
+} device_scene;
+
+static void scene_down(device_scene *d)
+{
+    ns_context *ctx = test_context();
+    for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
+        gpu_buffer_destroy(&ctx->dev, &d->buffers[i]);
+    ns_gpu_scene_free(&d->gs);
+}
+
+static int scene_up(const ns_scene *s, device_scene *d)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    memset(d, 0, sizeof *d);
+    int status = ns_gpu_scene_build(s, &d->gs, &err);
+    if (!status) {
+        d->gs.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
+        gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
+        ns_gpu_scene_buffer_descs(&d->gs, descs);
+        status = gpu_buffers_create(&ctx->dev, d->buffers, descs, NS_SCENE_BUFFER_COUNT, &err);
+    }
+    if (status)
+        fprintf(stderr, "scene_up: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    return status;
+}
+
+/* Runs ns_single_scatter on n segments; out[i] = RGB of segment i. Returns the status. */
+static int run_single(const ns_scene *s, const GpuSegment *segments, uint32_t n, uint32_t samples,
+                      float (*out)[4], double *ms)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    device_scene d;
+    int status = scene_up(s, &d);
+    gpu_buffer seg = {0}, result = {0};
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &seg,
+                                   &(gpu_buffer_desc){.size = sizeof *segments * n,
+                                                      .data = segments,
+                                                      .data_size = sizeof *segments * n,
+                                                      .label = "test.segments"},
+                                   &err);
+    if (!status)
+        status =
+            gpu_buffer_create(&ctx->dev, &result,
+                              &(gpu_buffer_desc){.size = 16ull * n, .label = "test.single"}, &err);
+    if (!status) {
+        double t0 = ns_now_ms();
+        status = ns_single_scatter(ctx, d.buffers, &seg, n, samples, &result, &err);
+        if (ms)
+            *ms = ns_now_ms() - t0;
+    }
+    if (!status)
+        memcpy(out, result.mapped, 16ull * n);
+    else
+        fprintf(stderr, "ns_single_scatter: %s (%s)\n", err.message, ns_status_name(status));
+    gpu_buffer_destroy(&ctx->dev, &seg);
+    gpu_buffer_destroy(&ctx->dev, &result);
+    scene_down(&d);
+    return status;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The slab and its segments.
+ * ------------------------------------------------------------------------------------- */
+static const double SIGMA_S[3] = {0.3, 0.8, 1.5}, SIGMA_A[3] = {0.2, 0.1, 0.6};
+static const double G = 0.3;
+static const double TOP = 1.0;
+
+enum { MAT_MEDIUM, MAT_DIFFUSE, MAT_COUNT };
+
+typedef struct slab {
+    ns_material materials[MAT_COUNT];
+    ns_object objects[3];
+    ns_light lights[2];
+    ns_scene scene;
+} slab;
+
+static void make_slab(slab *s, double ior, ns_light light)
+{
+    memset(s, 0, sizeof *s);
+    s->materials[MAT_MEDIUM] = medium(SIGMA_S, SIGMA_A, ior);
+    s->materials[MAT_MEDIUM].g = (float)G;
+    s->materials[MAT_DIFFUSE] = diffuse(0.5, 0.5, 0.5);
+    ns_object box;
+    memset(&box, 0, sizeof box);
+    box.shape = NS_SHAPE_BOX;
+    box.material = MAT_MEDIUM;
+    set3(box.min, -50, 0, -50);
+    set3(box.max, 50, TOP, 50);
+    s->objects[0] = box;
+    s->lights[0] = light;
+    s->scene = base_scene(16, 16, 60);
+    s->scene.materials = s->materials;
+    s->scene.material_count = MAT_COUNT;
+    s->scene.objects = s->objects;
+    s->scene.object_count = 1;
+    s->scene.lights = s->lights;
+    s->scene.light_count = 1;
+}
+
+static GpuSegment segment(double ex, double ey, double ez, double dx, double dy, double dz,
+                          double length)
+{
+    GpuSegment g;
+    memset(&g, 0, sizeof g);
+    double n = sqrt(dx * dx + dy * dy + dz * dz);
+    set3(g.entry, ex, ey, ez);
+    set3(g.direction, dx / n, dy / n, dz / n);
+    set3(g.exit, ex + length * dx / n, ey + length * dy / n, ez + length * dz / n);
+    set3(g.throughput, 1, 1, 1);
+    g.material = MAT_MEDIUM;
+    return g;
+}
+
+/* Segments from the top face down to the bottom at several angles, one that starts and
+ * ends inside, and one going up. */
+enum { SLAB_SEGMENTS = 5 };
+static void slab_segments(GpuSegment *out)
+{
+    out[0] = segment(0, TOP, 0, 0, -1, 0, TOP);
+    out[1] = segment(1, TOP, -2, 0.4, -1, 0.3, TOP * sqrt(1.25));
+    out[2] = segment(-3, TOP, 2, -1.2, -1, 0.2, TOP * sqrt(1 + 1.44 + 0.04));
+    out[3] = segment(2, 0.7, 1, 0.3, -1, -0.6, 0.5);
+    out[4] = segment(-1, 0.1, -1, 0.5, 1, 0.2, 0.8);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Closed forms (double precision, derived independently of the shader).
+ * ------------------------------------------------------------------------------------- */
+static double dot3d(const double *a, const double *b)
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static double hg(double cos_theta, double g)
+{
+    double denom = 1 + g * g - 2 * g * cos_theta;
+    return (1 - g * g) / (4 * M_PI * denom * sqrt(denom));
+}
+
+/* Unpolarised Fresnel reflectance from n1 into n2 at incidence cos_i; cos_t out; 1 on TIR. */
+static double fresnel_d(double cos_i, double n1, double n2, double *cos_t)
+{
+    double sin_t = n1 / n2 * sqrt(fmax(0, 1 - cos_i * cos_i));
+    if (sin_t >= 1) {
+        *cos_t = 0;
+        return 1;
+    }
+    *cos_t = sqrt(1 - sin_t * sin_t);
+    double rs = (n1 * cos_i - n2 * *cos_t) / (n1 * cos_i + n2 * *cos_t);
+    double rp = (n2 * cos_i - n1 * *cos_t) / (n2 * cos_i + n1 * *cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+/* A directional light (unit travel direction `dir`, irradiance E) through the top face of
+ * ior `ior`: the in-medium travel direction, the factor (1 - F) cos_i / cos_t and the
+ * cosine c of that direction with the face normal (path to the face = depth / c). */
+static void refract_top(const double dir[3], double ior, double travel[3], double *factor,
+                        double *c)
+{
+    double cos_i = -dir[1];
+    if (ior == 1) {
+        memcpy(travel, dir, sizeof(double) * 3);
+        *factor = 1;
+        *c = cos_i;
+        return;
+    }
+    double cos_t;
+    double f = fresnel_d(cos_i, 1, ior, &cos_t);
+    double eta = 1 / ior;
+    double n[3] = {0, 1, 0};
+    for (int k = 0; k < 3; k++)
+        travel[k] = eta * dir[k] + (eta * cos_i - cos_t) * n[k];
+    *factor = (1 - f) * cos_i / cos_t;
+    *c = cos_t;
+}
+
+/* sigma_s p E factor int_0^len e^{-st t} e^{-st h(t)/c} dt, h(t) = h0 - t d_y. */
+static double slab_directional(const GpuSegment *seg, double len, const double dir[3], double ior,
+                               double e, int channel)
+{
+    double st = SIGMA_S[channel] + SIGMA_A[channel];
+    double d[3] = {seg->direction[0], seg->direction[1], seg->direction[2]};
+    double travel[3], factor, c;
+    refract_top(dir, ior, travel, &factor, &c);
+    double wo[3] = {-d[0], -d[1], -d[2]};
+    double h0 = TOP - seg->entry[1];
+    double a = st * (1 - d[1] / c);
+    double integral = fabs(a) < 1e-12 ? len : -expm1(-a * len) / a;
+    return SIGMA_S[channel] * hg(dot3d(travel, wo), G) * e * factor * exp(-st * h0 / c) * integral;
+}
+
+static double seg_length(const GpuSegment *s)
+{
+    double d[3] = {s->exit[0] - s->entry[0], s->exit[1] - s->entry[1], s->exit[2] - s->entry[2]};
+    return sqrt(dot3d(d, d));
+}
+
+static ns_light directional(const double dir[3], const double e[3])
+{
+    ns_light l = light(NS_LIGHT_DIRECTIONAL, e[0], e[1], e[2]);
+    set3(l.direction, dir[0], dir[1], dir[2]);
+    return l;
+}
+
+static const double E_RGB[3] = {1.0, 2.0, 3.0};
+
+static void unit(double v[3])
+{
+    double n = sqrt(dot3d(v, v));
+    for (int k = 0; k < 3; k++)
+        v[k] /= n;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Tests
+ * ------------------------------------------------------------------------------------- */
+static void check_directional(double ior)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    slab s;
+    make_slab(&s, ior, directional(dir, E_RGB));
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c],
+                      slab_directional(&segs[i], seg_length(&segs[i]), dir, ior, E_RGB[c], c),
+                      1e-3);
+}
+
+static void test_directional_index_matched(void)
+{
+    check_directional(1.0);
+}
+static void test_directional_refracted(void)
+{
+    check_directional(1.5);
+}
+
+/* Light at 60 degrees from the normal through ior 1.33: a second angle and index, and the
+ * result must differ from the index-matched one (refraction is not passing by accident). */
+static void test_directional_refracted_oblique(void)
+{
+    double dir[3] = {sin(60 * M_PI / 180), -cos(60 * M_PI / 180), 0};
+    slab s;
+    make_slab(&s, 1.33, directional(dir, E_RGB));
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    double differs = 0, total = 0;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++) {
+            double want = slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.33, E_RGB[c], c);
+            double matched =
+                slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.0, E_RGB[c], c);
+            CHECK_REL(out[i][c], want, 1e-3);
+            differs += fabs(out[i][c] - matched);
+            total += want;
+        }
+    fprintf(stderr, "  refraction changes the result by %.1f%% on average\n",
+            100 * differs / total);
+    CHECK(differs > 0.05 * total);
+}
+
+/* Index matched, point light at P above the slab: Simpson's rule on the exact integrand. */
+static double slab_point(const GpuSegment *seg, const double p[3], double intensity, int channel)
+{
+    double st = SIGMA_S[channel] + SIGMA_A[channel];
+    double len = seg_length(seg);
+    const int n = 20000; /* even */
+    double sum = 0;
+    for (int i = 0; i <= n; i++) {
+        double t = len * i / n;
+        double x[3], v[3];
+        for (int k = 0; k < 3; k++) {
+            x[k] = seg->entry[k] + t * seg->direction[k];
+            v[k] = p[k] - x[k];
+        }
+        double r = sqrt(dot3d(v, v));
+        double inside = (TOP - x[1]) * r / v[1]; /* along the line to the top face */
+        /* travel direction -v/r against wo = -d */
+        double cos_theta =
+            (v[0] * seg->direction[0] + v[1] * seg->direction[1] + v[2] * seg->direction[2]) / r;
+        double f =
+            SIGMA_S[channel] * hg(cos_theta, G) * intensity / (r * r) * exp(-st * (t + inside));
+        sum += f * (i == 0 || i == n ? 1 : i % 2 ? 4 : 2);
+    }
+    return sum * len / n / 3;
+}
+
+static void test_point_index_matched(void)
+{
+    double p[3] = {0.5, 3.0, -0.4};
+    slab s;
+    ns_light l = light(NS_LIGHT_POINT, 4, 8, 12);
+    set3(l.position, p[0], p[1], p[2]);
+    make_slab(&s, 1.0, l);
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c], slab_point(&segs[i], p, 4.0 * (c + 1), c), 1e-3);
+}
+
+/* ior 1.5, a point light 1e5 away along -dir with intensity E d^2: the directional form. */
+static void test_point_far_refracted(void)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    const double far = 1e5;
+    ns_light l =
+        light(NS_LIGHT_POINT, E_RGB[0] * far * far, E_RGB[1] * far * far, E_RGB[2] * far * far);
+    set3(l.position, -far * dir[0], TOP - far * dir[1], -far * dir[2]);
+    slab s;
+    make_slab(&s, 1.5, l);
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c],
+                      slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.5, E_RGB[c], c),
+                      1e-3);
+}
+
+/* A small sphere light equals a point light of intensity L pi r^2 (the irradiance of a
+ * fully visible sphere is exact; the cone's spread changes phase and path only slightly). */
+static void test_sphere_light(void)
+{
+    double p[3] = {0.5, 3.0, -0.4}, r = 0.05, radiance = 100;
+    ns_light l = light(NS_LIGHT_SPHERE, radiance, 2 * radiance, 3 * radiance);
+    set3(l.position, p[0], p[1], p[2]);
+    l.radius = (float)r;
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float sphere_out[SLAB_SEGMENTS][4], point_out[SLAB_SEGMENTS][4];
+    slab s;
+    make_slab(&s, 1.0, l);
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, sphere_out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(sphere_out[i][c],
+                      slab_point(&segs[i], p, radiance * (c + 1) * M_PI * r * r, c), 2e-3);
+    /* Refracting boundary: the same equivalence through the shader's planar model. */
+    make_slab(&s, 1.5, l);
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, sphere_out, NULL))
+        return;
+    ns_light pl = light(NS_LIGHT_POINT, radiance * M_PI * r * r, 2 * radiance * M_PI * r * r,
+                        3 * radiance * M_PI * r * r);
+    set3(pl.position, p[0], p[1], p[2]);
+    make_slab(&s, 1.5, pl);
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, point_out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++) {
+            CHECK_REL(sphere_out[i][c], point_out[i][c], 2e-3);
+            CHECK(point_out[i][c] > 0);
+        }
+}
+
+/* A diffuse occluder over x < 0 (y in [2, 2.5]) and light straight down: a segment from
+ * x = 0.3 to x = -0.3 is lit over its first half exactly (the edge falls between samples),
+ * one at x = -5 is dark, one at x = 5 is fully lit. */
+static void check_shadow(double ior)
+{
+    double dir[3] = {0, -1, 0};
+    slab s;
+    make_slab(&s, ior, directional(dir, E_RGB));
+    ns_object occluder;
+    memset(&occluder, 0, sizeof occluder);
+    occluder.shape = NS_SHAPE_BOX;
+    occluder.material = MAT_DIFFUSE;
+    set3(occluder.min, -50, 2, -50);
+    set3(occluder.max, 0, 2.5, 50);
+    s.objects[1] = occluder;
+    s.scene.object_count = 2;
+    GpuSegment segs[3] = {
+        segment(0.3, TOP, 0, -0.6, -TOP, 0, sqrt(0.36 + TOP * TOP)),
+        segment(-5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
+        segment(5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
+    };
+    float out[3][4];
+    if (run_single(&s.scene, segs, 3, 400, out, NULL))
+        return;
+    for (int c = 0; c < 3; c++) {
+        double half = slab_directional(&segs[0], seg_length(&segs[0]) / 2, dir, ior, E_RGB[c], c);
+        CHECK_REL(out[0][c], half, 1e-3);
+        CHECK_INT(out[1][c] == 0.0f, 1);
+        CHECK_REL(out[2][c],
+                  slab_directional(&segs[2], seg_length(&segs[2]), dir, ior, E_RGB[c], c), 1e-3);
+    }
+}
+
+static void test_shadow_index_matched(void)
+{
+    check_shadow(1.0);
+}
+static void test_shadow_refracted(void)
+{
+    check_shadow(1.5);
+}
+
+/* A short segment through the centre of a sphere (R = 1) under a constant environment: every
+ * direction from (near) the centre meets the boundary at normal incidence after R, so the
+ * in-scattered radiance is sigma_s n^2 (1 - F0) L_env e^{-sigma_t R} whatever the phase
+ * function (n^2 (1 - F0) -> 1 when index matched). Small sigma_t keeps the off-centre
+ * spread below 1e-3. */
+static void check_environment(double ior)
+{
+    const double ss[3] = {0.01, 0.02, 0.04}, sa[3] = {0.01, 0.03, 0.005};
+    ns_material m = medium(ss, sa, ior);
+    m.g = 0.6f;
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light env = light(NS_LIGHT_ENVIRONMENT, 1, 2, 3);
+    ns_scene s = base_scene(16, 16, 60);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &ball;
+    s.object_count = 1;
+    s.lights = &env;
+    s.light_count = 1;
+    GpuSegment seg = segment(-0.01, 0, 0, 1, 0, 0, 0.02);
+    seg.material = 0;
+    float out[1][4];
+    if (run_single(&s, &seg, 1, 256, out, NULL))
+        return;
+    double f0 = (ior - 1) / (ior + 1);
+    double inside = ior * ior * (1 - f0 * f0);
+    for (int c = 0; c < 3; c++) {
+        double st = ss[c] + sa[c];
+        double want = ss[c] * inside * (c + 1) * exp(-st * 1.0) * -expm1(-st * 0.02) / st;
+        CHECK_REL(out[0][c], want, 1e-3);
+    }
+}
+
+static void test_environment_index_matched(void)
+{
+    check_environment(1.0);
+}
+static void test_environment_refracted(void)
+{
+    check_environment(1.5);
+}
+
+/* More samples than one lavapipe dispatch can take (split across dispatches) give the same
+ * closed form; and the result does not depend on how many segments share the call. */
+static void test_many_samples(void)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    slab s;
+    make_slab(&s, 1.5, directional(dir, E_RGB));
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, NS_MAX_SINGLE_SAMPLES, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c],
+                      slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.5, E_RGB[c], c),
+                      1e-3);
+}
+
+static void test_bad_arguments(void)
+{
+    ns_context *ctx = test_context();
+    double dir[3] = {0, -1, 0};
+    slab s;
+    make_slab(&s, 1.0, directional(dir, E_RGB));
+    device_scene d;
+    if (scene_up(&s.scene, &d))
+        return;
+    GpuSegment seg = segment(0, TOP, 0, 0, -1, 0, TOP);
+    gpu_buffer segs = {0}, out = {0};
+    ns_error err = {0};
+    CHECK_INT(gpu_buffer_create(
+                  &ctx->dev, &segs,
+                  &(gpu_buffer_desc){.size = sizeof seg, .data = &seg, .data_size = sizeof seg},
+                  &err),
+              NS_OK);
+    CHECK_INT(gpu_buffer_create(&ctx->dev, &out, &(gpu_buffer_desc){.size = 16}, &err), NS_OK);
+    CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 0, &out, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "samples 0");
+    CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 2, 10, &out, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "segments buffer");
+    CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 10, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "out is NULL");
+    CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 0, 10, &out, &err), NS_OK);
+    CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 10, &out, &err), NS_OK);
+    CHECK(((const float *)out.mapped)[0] > 0);
+    gpu_buffer_destroy(&ctx->dev, &segs);
+    gpu_buffer_destroy(&ctx->dev, &out);
+    scene_down(&d);
+    CHECK_INT(gpu_validation_count(&ctx->dev), 0);
+}
+
+/* NSCATTER_BENCH=N: median of N runs for 128^2 and 512^2 segments, 100 samples, one light. */
+static int compare_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static void bench(int runs)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    slab s;
+    make_slab(&s, 1.5, directional(dir, E_RGB));
+    const uint32_t sizes[2] = {128, 512};
+    for (int k = 0; k < 2; k++) {
+        uint32_t n = sizes[k] * sizes[k];
+        GpuSegment *segs = malloc(sizeof *segs * n);
+        float(*out)[4] = malloc(16ull * n);
+        for (uint32_t i = 0; i < n; i++) {
+            double u = (double)(i % sizes[k]) / sizes[k] - 0.5,
+                   v = (double)(i / sizes[k]) / sizes[k] - 0.5;
+            segs[i] = segment(10 * u, TOP, 10 * v, 0.3 * u, -1, 0.3 * v,
+                              TOP * sqrt(1 + 0.09 * (u * u + v * v)));
+        }
+        double ms[16];
+        int done = 0;
+        for (int r = 0; r < runs && r < 16; r++)
+            if (!run_single(&s.scene, segs, n, 100, out, &ms[r]))
+                done++;
+        qsort(ms, (size_t)done, sizeof ms[0], compare_double);
+        if (done)
+            printf("single scattering %ux%u segments, 100 samples, 1 light: median %.1f ms of %d "
+                   "(%.1f M sample-light connections/s)\n",
+                   sizes[k], sizes[k], ms[done / 2], done, n * 100.0 / ms[done / 2] / 1e3);
+        free(segs);
+        free(out);
+    }
+}
+
+int main(void)
+{
+    RUN(test_directional_index_matched);
+    RUN(test_directional_refracted);
+    RUN(test_directional_refracted_oblique);
+    RUN(test_point_index_matched);
+    RUN(test_point_far_refracted);
+    RUN(test_sphere_light);
+    RUN(test_shadow_index_matched);
+    RUN(test_shadow_refracted);
+    RUN(test_environment_index_matched);
+    RUN(test_environment_refracted);
+    RUN(test_many_samples);
+    RUN(test_bad_arguments);
+    const char *b = getenv("NSCATTER_BENCH");
+    if (b && atoi(b) > 0)
+        bench(atoi(b));
+    ns_context_destroy(test_context());
+    return harness_report();
+}
