@@ -502,6 +502,78 @@ static void test_many_samples(void)
                       1e-3);
 }
 
+/* The single component of the path tracer (next-event estimation inside index-matched
+ * media) against this stage composed the way render.c does: every camera segment of the
+ * camera pass contributes throughput * out / spp to its pixel. A scattering sphere under a
+ * directional and a point light; the mean over the pixels of (ours - pt) must lie within 4
+ * standard errors of 0, per channel, with a standard error small enough to mean something. */
+static void test_against_path_tracer(void)
+{
+    const double ss[3] = {0.6, 1.2, 2.0}, sa[3] = {0.2, 0.1, 0.4};
+    ns_material m = medium(ss, sa, 1.0);
+    m.g = 0.4f;
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light lights[2] = {light(NS_LIGHT_DIRECTIONAL, 1, 1.5, 2), light(NS_LIGHT_POINT, 6, 4, 2)};
+    set3(lights[0].direction, 0.3, -1, 0.2);
+    set3(lights[1].position, -2, 1.5, 1.5);
+    ns_scene s = base_scene(16, 16, 40);
+    set3(s.camera.position, 0, 0.5, 4);
+    set3(s.camera.look_at, 0, 0, 0);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &ball;
+    s.object_count = 1;
+    s.lights = lights;
+    s.light_count = 2;
+    const uint32_t pixels = 16 * 16;
+
+    /* Ours: camera pass segments, then single scattering on them. */
+    s.render.spp = 8;
+    uint32_t capacity = pixels * s.render.spp * 2;
+    GpuSegment *segs = calloc(capacity, sizeof *segs);
+    ns_render_debug debug = {.segments = segs, .segments_max = capacity};
+    ns_image surface = {0};
+    ns_error err = {0};
+    int status = ns_render_ex(test_context(), &s, &surface, NULL, &debug, &err);
+    CHECK_INT(status, NS_OK);
+    uint32_t n = (uint32_t)debug.segments_written;
+    CHECK(n > pixels); /* the sphere fills a good part of the image */
+    float(*out)[4] = calloc(n ? n : 1, 16);
+    double *ours = calloc(3 * pixels, sizeof *ours);
+    if (!status && n && !run_single(&s, segs, n, 64, out, NULL))
+        for (uint32_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++)
+                ours[3 * segs[i].pixel + c] += segs[i].throughput[c] * out[i][c] / s.render.spp;
+
+    /* The path tracer's single order. */
+    s.render.method = NS_METHOD_PT;
+    s.render.components = NS_COMPONENT_SINGLE;
+    s.render.spp = 1024;
+    ns_image pt = {0};
+    if (render_ok(&s, &pt, NULL))
+        for (int c = 0; c < 3; c++) {
+            double sum = 0, sum2 = 0, level = 0;
+            for (uint32_t p = 0; p < pixels; p++) {
+                double d = ours[3 * p + c] - pt.rgb[3 * p + c];
+                sum += d;
+                sum2 += d * d;
+                level += pt.rgb[3 * p + c];
+            }
+            double mean = sum / pixels, se = sqrt((sum2 / pixels - mean * mean) / (pixels - 1));
+            level /= pixels;
+            fprintf(stderr, "  channel %d: pt mean %.5f, ours - pt %.2e (standard error %.2e)\n", c,
+                    level, mean, se);
+            CHECK(level > 0);
+            CHECK(se < 0.02 * level);
+            CHECK(fabs(mean) < 4 * se);
+        }
+    ns_image_free(&surface);
+    ns_image_free(&pt);
+    free(segs);
+    free(out);
+    free(ours);
+}
+
 static void test_bad_arguments(void)
 {
     ns_context *ctx = test_context();
@@ -587,6 +659,7 @@ int main(void)
     RUN(test_environment_index_matched);
     RUN(test_environment_refracted);
     RUN(test_many_samples);
+    RUN(test_against_path_tracer);
     RUN(test_bad_arguments);
     const char *b = getenv("NSCATTER_BENCH");
     if (b && atoi(b) > 0)
