@@ -318,6 +318,10 @@ void main()
     if (index >= push.segment_count || push.samples == 0u)
         return;
     GpuSegment seg = segments[index];
+    if (seg.material >= params.prims.z) {
+        radiance[index] = vec4(0.0); // not a material of this scene: nothing to scatter
+        return;
+    }
     GpuMaterial mat = materials[seg.material];
     vec3 wo = -seg.direction; // towards the camera
     float dt = distance(seg.entry, seg.exit) / float(push.samples);
