@@ -502,6 +502,86 @@ static void test_many_samples(void)
                       1e-3);
 }
 
+/* Planes are tested after the BVH on every ray and their loop is not in the shaders' own
+ * iteration count, so many of them make lavapipe's real count far larger than the counted
+ * one: vertical planes far to the side (parallel to the vertical light and to every shadow
+ * ray, so they block nothing). The first chunks run past lavapipe's loop limit, the shader
+ * notices, and the samples are run again in smaller chunks: the closed form still holds.
+ * With many lights one sample alone is too much: NS_ERR_LIMIT, never a wrong result. */
+enum { SIDE_PLANES = 200 };
+
+static void add_side_planes(ns_object *objects, uint32_t count)
+{
+    for (uint32_t i = 0; i < count; i++) {
+        memset(&objects[i], 0, sizeof objects[i]);
+        objects[i].shape = NS_SHAPE_PLANE;
+        objects[i].material = MAT_DIFFUSE;
+        set3(objects[i].point, 100 + i, 0, 0);
+        set3(objects[i].normal, 1, 0, 0);
+    }
+}
+
+static void test_loop_limit_retry(void)
+{
+    double dir[3] = {0, -1, 0};
+    slab s;
+    make_slab(&s, 1.5, directional(dir, E_RGB));
+    ns_object objects[1 + SIDE_PLANES];
+    objects[0] = s.objects[0];
+    add_side_planes(objects + 1, SIDE_PLANES);
+    s.scene.objects = objects;
+    s.scene.object_count = 1 + SIDE_PLANES;
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 1024, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c],
+                      slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.5, E_RGB[c], c),
+                      1e-3);
+}
+
+static void test_loop_limit_error(void)
+{
+    ns_context *ctx = test_context();
+    if (!ctx->dev.loop_limited)
+        return; /* only lavapipe has the limit */
+    double dir[3] = {0, -1, 0};
+    slab s;
+    make_slab(&s, 1.0, directional(dir, E_RGB));
+    enum { PLANES = 1000, LIGHTS = 64 };
+    ns_object *objects = calloc(1 + PLANES, sizeof *objects);
+    ns_light lights[LIGHTS];
+    objects[0] = s.objects[0];
+    add_side_planes(objects + 1, PLANES);
+    for (int i = 0; i < LIGHTS; i++)
+        lights[i] = directional(dir, E_RGB);
+    s.scene.objects = objects;
+    s.scene.object_count = 1 + PLANES;
+    s.scene.lights = lights;
+    s.scene.light_count = LIGHTS;
+    GpuSegment seg = segment(0, TOP, 0, 0, -1, 0, TOP);
+    device_scene d;
+    if (!scene_up(&s.scene, &d)) {
+        gpu_buffer segs = {0}, out = {0};
+        ns_error err = {0};
+        CHECK_INT(gpu_buffer_create(
+                      &ctx->dev, &segs,
+                      &(gpu_buffer_desc){.size = sizeof seg, .data = &seg, .data_size = sizeof seg},
+                      &err),
+                  NS_OK);
+        CHECK_INT(gpu_buffer_create(&ctx->dev, &out, &(gpu_buffer_desc){.size = 16}, &err), NS_OK);
+        CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 16, &out, &err), NS_ERR_LIMIT);
+        CHECK_STR_CONTAINS(err.message, "loop limit");
+        gpu_buffer_destroy(&ctx->dev, &segs);
+        gpu_buffer_destroy(&ctx->dev, &out);
+        scene_down(&d);
+    }
+    free(objects);
+}
+
 /* The single component of the path tracer (next-event estimation inside index-matched
  * media) against this stage composed the way render.c does: every camera segment of the
  * camera pass contributes throughput * out / spp to its pixel. A scattering sphere under a
@@ -659,6 +739,8 @@ int main(void)
     RUN(test_environment_index_matched);
     RUN(test_environment_refracted);
     RUN(test_many_samples);
+    RUN(test_loop_limit_retry);
+    RUN(test_loop_limit_error);
     RUN(test_against_path_tracer);
     RUN(test_bad_arguments);
     const char *b = getenv("NSCATTER_BENCH");
