@@ -178,10 +178,12 @@ static int plan_strata(const ns_gpu_scene *gs, const vrl_target *targets, uint32
     uint64_t pairs = (uint64_t)gs->light_count * target_count;
     double *power = malloc(sizeof *power * (pairs ? pairs : 1));
     if (!power)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata", (unsigned long long)pairs);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata",
+                       (unsigned long long)pairs);
     double total = 0;
     for (uint64_t k = 0; k < pairs; k++) {
-        double p = ns_vrl_light_power(&gs->lights[k / target_count], targets[k % target_count].sphere);
+        double p =
+            ns_vrl_light_power(&gs->lights[k / target_count], targets[k % target_count].sphere);
         power[k] = p > 0 && isfinite(p) ? p : 0;
         total += power[k];
     }
@@ -192,7 +194,8 @@ static int plan_strata(const ns_gpu_scene *gs, const vrl_target *targets, uint32
     plan->strata = calloc(pairs < paths ? pairs : paths, sizeof *plan->strata);
     if (!plan->strata) {
         free(power);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata", (unsigned long long)pairs);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata",
+                       (unsigned long long)pairs);
     }
     double xi = seed_offset(seed), cdf = 0;
     for (uint64_t k = 0; k < pairs; k++) {
@@ -243,8 +246,10 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
     gpu_buffer own[V_OWN];
     memset(own, 0, sizeof own);
     gpu_buffer_desc descs[V_OWN] = {
-        {.size = (uint64_t)plan->count * sizeof(GpuVrlStratum), .data = plan->strata,
-         .data_size = (uint64_t)plan->count * sizeof(GpuVrlStratum), .label = "ns.vrl.strata"},
+        {.size = (uint64_t)plan->count * sizeof(GpuVrlStratum),
+         .data = plan->strata,
+         .data_size = (uint64_t)plan->count * sizeof(GpuVrlStratum),
+         .label = "ns.vrl.strata"},
         {.size = (uint64_t)paths * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
         {.size = NS_VRL_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl.counters"},
     };
@@ -259,20 +264,22 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
                            .stratum_count = plan->count,
                            .seed = seed,
                            .budget = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0};
-        status = gpu_dispatch_many(&ctx->dev,
-                                   &(gpu_dispatch_desc){.pipeline = &ctx->vrl,
-                                                        .buffers = bound,
-                                                        .buffer_count = NS_SCENE_BUFFER_COUNT + V_OWN,
-                                                        .groups = {(paths + NS_VRL_GROUP - 1) / NS_VRL_GROUP, 1, 1},
-                                                        .push = &push},
-                                   err);
+        status = gpu_dispatch_many(
+            &ctx->dev,
+            &(gpu_dispatch_desc){.pipeline = &ctx->vrl,
+                                 .buffers = bound,
+                                 .buffer_count = NS_SCENE_BUFFER_COUNT + V_OWN,
+                                 .groups = {(paths + NS_VRL_GROUP - 1) / NS_VRL_GROUP, 1, 1},
+                                 .push = &push},
+            err);
     }
     if (!status) {
         const uint32_t *c = own[V_COUNTERS].mapped;
         if (c[NS_VRL_COUNTER_LOOP_LIMIT])
-            status = ns_fail(err, NS_ERR_LIMIT,
-                             "vrl: %u light path(s) ran past lavapipe's loop budget (%u iterations)",
-                             c[NS_VRL_COUNTER_LOOP_LIMIT], NS_LAVAPIPE_LOOP_BUDGET);
+            status =
+                ns_fail(err, NS_ERR_LIMIT,
+                        "vrl: %u light path(s) ran past lavapipe's loop budget (%u iterations)",
+                        c[NS_VRL_COUNTER_LOOP_LIMIT], NS_LAVAPIPE_LOOP_BUDGET);
         else
             status = compact_slots(own[V_SLOTS].mapped, paths, c[NS_VRL_COUNTER_STORED], out, err);
     }

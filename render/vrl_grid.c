@@ -47,9 +47,9 @@ static uint32_t spread_bits(uint32_t v)
 
 typedef struct grid_lattice {
     float lo[3];
-    float size0;      /* finest cell edge */
-    uint32_t r0;      /* finest cells per axis */
-    uint32_t levels;  /* 2 to 5 */
+    float size0;     /* finest cell edge */
+    uint32_t r0;     /* finest cells per axis */
+    uint32_t levels; /* 2 to 5 */
 } grid_lattice;
 
 static void lattice_for(const ns_vrl_set *set, uint32_t material, float mfp_min, grid_lattice *g)
@@ -158,8 +158,8 @@ static void fill_cells(ns_vrl_grid *g, const keyed_vrl *sorted, uint32_t level)
     }
 }
 
-int ns_vrl_grid_build_level(const ns_vrl_set *set, uint32_t material, float mfp_min,
-                            uint32_t level, ns_vrl_grid *out, ns_error *err)
+int ns_vrl_grid_build_level(const ns_vrl_set *set, uint32_t material, float mfp_min, uint32_t level,
+                            ns_vrl_grid *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     if (!(mfp_min > 0.0f))
@@ -173,8 +173,8 @@ int ns_vrl_grid_build_level(const ns_vrl_set *set, uint32_t material, float mfp_
     grid_lattice lattice;
     lattice_for(set, material, mfp_min, &lattice);
     if (level != NS_VRL_GRID_AUTO && level >= lattice.levels)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl grid: level %u, the medium has %u",
-                       level, lattice.levels);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl grid: level %u, the medium has %u", level,
+                       lattice.levels);
     keyed_vrl *sorted = malloc(sizeof *sorted * n);
     if (!sorted)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl grid: %u VRLs", n);

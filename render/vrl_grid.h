@@ -18,7 +18,7 @@
  * at the componentwise minimum `lo` of the medium's VRL origins; a VRL lies in the finest
  * cell (c_x, c_y, c_z), c_k = min((uint32_t)((origin[k] - lo[k]) / s0), R0 - 1), with
  * s0 = cell_size / 2^level and R0 the finest resolution; level i groups c >> i. */
-int ns_vrl_grid_build_level(const ns_vrl_set *set, uint32_t material, float mfp_min,
-                            uint32_t level, ns_vrl_grid *out, ns_error *err);
+int ns_vrl_grid_build_level(const ns_vrl_set *set, uint32_t material, float mfp_min, uint32_t level,
+                            ns_vrl_grid *out, ns_error *err);
 
 #endif

@@ -8,9 +8,9 @@
  * weight = 1 / (paths * probability of the stratum) (render/vrl.c: systematic sampling in
  * proportion to the power the light sends towards the sphere). */
 struct GpuVrlStratum {
-    ns_vec4 target;  /* xyz = centre, w = radius (scene units) */
-    ns_vec4 weight;  /* x = 1 / (N p), yzw unused */
-    ns_uvec4 ids;    /* x = first path, y = light index, z = target object index, w unused */
+    ns_vec4 target; /* xyz = centre, w = radius (scene units) */
+    ns_vec4 weight; /* x = 1 / (N p), yzw unused */
+    ns_uvec4 ids;   /* x = first path, y = light index, z = target object index, w unused */
 };
 
 /* Push block: path i in [0, path_count) runs in invocation i. budget = loop iterations an

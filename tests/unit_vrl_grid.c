@@ -214,10 +214,22 @@ static void test_levels(float mfp, uint32_t want_levels, uint32_t want_r0)
 
 /* Extent of the origins is just under 2: ratio extent / mfp decides the finest resolution
  * (power of two, 2..64) and the level count log2 + 1 (2..5). */
-static void test_coarse_medium(void) { test_levels(1.5f, 2, 2); }
-static void test_mid_medium(void) { test_levels(0.3f, 4, 8); }
-static void test_fine_medium(void) { test_levels(0.07f, 5, 32); }
-static void test_very_fine_medium(void) { test_levels(0.001f, 5, 64); }
+static void test_coarse_medium(void)
+{
+    test_levels(1.5f, 2, 2);
+}
+static void test_mid_medium(void)
+{
+    test_levels(0.3f, 4, 8);
+}
+static void test_fine_medium(void)
+{
+    test_levels(0.07f, 5, 32);
+}
+static void test_very_fine_medium(void)
+{
+    test_levels(0.001f, 5, 64);
+}
 
 static void test_level_follows_count(void)
 {
