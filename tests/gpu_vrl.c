@@ -68,6 +68,8 @@ typedef struct vrl_case {
     uint32_t object_count;
     ns_light lights[4];
     uint32_t light_count;
+    ns_triangle triangles[12];
+    uint32_t triangle_count;
 } vrl_case;
 
 static ns_scene scene_of(const vrl_case *c)
@@ -80,6 +82,8 @@ static ns_scene scene_of(const vrl_case *c)
     s.object_count = c->object_count;
     s.lights = c->lights;
     s.light_count = c->light_count;
+    s.triangles = c->triangles;
+    s.triangle_count = c->triangle_count;
     s.render.components = NS_COMPONENT_MULTIPLE;
     s.render.vrls = PATHS;
     return s;
@@ -252,13 +256,40 @@ static void test_directional_index_matched(void)
     ns_vrl_set_free(&set);
 }
 
+/* The 12 triangles of the box [-half, half], counter-clockwise seen from outside: the face
+ * of axis k and sign s spans axes u = k + 1 and v = k + 2 (cyclic), e_u x e_v = e_k. */
+static void box_triangles(const double half[3], ns_triangle tris[12])
+{
+    int t = 0;
+    for (int k = 0; k < 3; k++)
+        for (int s = -1; s <= 1; s += 2) {
+            int u = (k + 1) % 3, v = (k + 2) % 3;
+            double corner[4][3];
+            const double a[4] = {-1, 1, 1, -1}, b[4] = {-1, -1, 1, 1};
+            for (int i = 0; i < 4; i++) {
+                corner[i][k] = s * half[k];
+                corner[i][u] = a[i] * half[u];
+                corner[i][v] = b[i] * half[v];
+            }
+            /* (0, 1, 2) and (0, 2, 3) face +e_k; reversed for the face at -half[k]. */
+            const int order[2][2][3] = {{{0, 2, 1}, {0, 3, 2}}, {{0, 1, 2}, {0, 2, 3}}};
+            for (int h = 0; h < 2; h++, t++)
+                for (int i = 0; i < 3; i++) {
+                    const double *p = corner[order[s > 0][h][i]];
+                    set3(tris[t].v[i], p[0], p[1], p[2]);
+                }
+        }
+}
+
 static void test_directional_box(void)
 {
-    /* A box: its bounding sphere is larger than it (paths miss), and each face k lit at
-     * incidence cosine |d_k| takes E |d_k| area_k (1 - F(|d_k|)): exact, no integral. */
+    /* A box, as a primitive and as a closed mesh: its bounding sphere is larger than it (paths
+     * miss), and each face k lit at incidence cosine |d_k| takes E |d_k| area_k (1 - F(|d_k|)):
+     * exact, no integral. */
     const double half[3] = {1, 0.5, 0.25}, d[3] = {0.3, -1, 0.2};
     double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-    for (int glass = 0; glass < 2; glass++) {
+    for (int variant = 0; variant < 3; variant++) {
+        int glass = variant > 0, mesh = variant == 2;
         double ior = glass ? 1.5 : 1.0;
         vrl_case c;
         memset(&c, 0, sizeof c);
@@ -268,6 +299,12 @@ static void test_directional_box(void)
         c.objects[0].shape = NS_SHAPE_BOX;
         set3(c.objects[0].min, -half[0], -half[1], -half[2]);
         set3(c.objects[0].max, half[0], half[1], half[2]);
+        if (mesh) {
+            box_triangles(half, c.triangles);
+            c.triangle_count = 12;
+            c.objects[0].shape = NS_SHAPE_MESH;
+            c.objects[0].triangle_count = 12;
+        }
         c.object_count = 1;
         c.lights[0] = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
         set3(c.lights[0].direction, d[0], d[1], d[2]);
