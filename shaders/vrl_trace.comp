@@ -1,7 +1,381 @@
 #version 450
-// vrl_trace.comp — placeholder until its stage lands (render/scatter.h names the owner): a valid
-// pipeline so that the context can create and warm every pipeline from one table.
-layout(local_size_x = 64) in;
+// vrl_trace.comp — light paths for the `vrl` method (Novak et al. 2012), one invocation per
+// path. A path starts at a light, aimed at the bounding sphere of one scattering medium
+// object (render/vrl_method.c picks the (light, object) pair and its weight), crosses what
+// lies between (index-matched objects attenuate, anything else ends the path), enters the
+// target through its boundary with the Fresnel transmittance (1 - F) as a weight, then walks
+// inside: free flights with one channel picked uniformly and the one-sample balance heuristic
+// over the three channels' pdfs (spectral MIS: unbiased per channel), Henyey-Greenstein
+// scattering, internal reflection chosen with probability F at the boundary (total internal
+// reflection always reflects; a path that leaves ends), Russian roulette.
+//
+// Every stretch that starts inside the medium (at the entry, an event or an internal
+// reflection) is a VRL: origin, direction, length to the boundary ahead (the full ray: the
+// gather attenuates along it, so the free-flight distance that ends the stretch in the walk
+// is not its length), power = the flux at the origin, events = scattering events before it.
+//
+// Two passes with the same random numbers: write = 0 counts each path's VRLs, the C side
+// turns the counts into offsets, write = 1 stores them there. A path yields after
+// push.yield_after counted loop iterations (lavapipe's limit, docs/rendering.md) and the
+// next dispatch resumes it from its GpuVrlWalk.
+#extension GL_GOOGLE_include_directive : require
+#include "shared.h"
+#include "scatter_shared.h"
+#include "vrl_method_shared.h"
+#include "trace.glsl"
+
+layout(local_size_x = NS_VRL_METHOD_GROUP) in;
+
+layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
+layout(std430, binding = 4) readonly buffer EmitterBlock { GpuVrlEmitter emitters[]; };
+layout(std430, binding = 5) buffer WalkBlock { GpuVrlWalk walks[]; };
+layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
+layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuVrlTracePush push; };
+
+const float PI = 3.14159265358979;
+
+uint rng_state;
+
+uint pcg_hash(uint v)
+{
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+float rnd()
+{
+    rng_state = pcg_hash(rng_state);
+    return float(rng_state >> 8u) * (1.0 / 16777216.0);
+}
+
+float ray_epsilon(vec3 p)
+{
+    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
+}
+
+void basis(vec3 n, out vec3 t, out vec3 b)
+{
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+vec3 around(vec3 axis, float cos_t, float phi)
+{
+    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
+    vec3 tx, ty;
+    basis(axis, tx, ty);
+    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
+}
+
+vec3 uniform_sphere()
+{
+    float z = 1.0 - 2.0 * rnd(), phi = 2.0 * PI * rnd();
+    float r = sqrt(max(0.0, 1.0 - z * z));
+    return vec3(r * cos(phi), r * sin(phi), z);
+}
+
+// Henyey-Greenstein sampling, cos between the directions before and after.
+vec3 hg_sample(vec3 d, float g)
+{
+    float u = rnd();
+    float cos_t;
+    if (abs(g) < 1e-3) {
+        cos_t = 1.0 - 2.0 * u;
+    } else {
+        float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
+        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
+    }
+    return around(d, cos_t, 2.0 * PI * rnd());
+}
+
+float fresnel(float cos_i, float eta, out float cos_t)
+{
+    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
+    cos_t = 0.0;
+    if (sin2_t >= 1.0)
+        return 1.0;
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+bool scatters(GpuMaterial m)
+{
+    return m.reflectance.w != 0.0 && m.sigma_s.x + m.sigma_s.y + m.sigma_s.z > 0.0;
+}
+
+// Transmittance from o to infinity along d outside the media (the light's side of a
+// directional or environment sample): blocked by diffuse surfaces and refracting
+// boundaries, attenuated by index-matched media, as the camera pass's shadow rays.
+vec3 transmittance_to_infinity(vec3 o, vec3 d)
+{
+    vec3 tau = vec3(0.0);
+    float t_enter = 0.0, tmin = 0.0;
+    uint medium = NS_NONE;
+    for (int crossing = 0; crossing < 16; crossing++) {
+        Hit h;
+        if (!trace_scene(o, d, tmin, NS_INF, h))
+            return exp(-tau);
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
+            return vec3(0.0);
+        if (!h.front && medium != NS_NONE)
+            tau += materials[medium].sigma_t.xyz * (h.t - t_enter);
+        medium = h.front ? m : NS_NONE;
+        t_enter = h.t;
+        tmin = h.t + ray_epsilon(o + h.t * d);
+    }
+    return vec3(0.0);
+}
+
+// ---------------------------------------------------------------------------------------
+// Emission: a ray from the path's light through the target sphere, with its flux.
+// ---------------------------------------------------------------------------------------
+uint find_emitter(uint path)
+{
+    // The last emitter whose first path is <= path (they are sorted by first path).
+    uint lo = 0u, hi = push.emitter_count;
+    while (hi - lo > 1u) {
+        uint mid = (lo + hi) / 2u;
+        if (emitters[mid].ids.x <= path)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+// A point on the disk of the target sphere facing direction d, just before the sphere.
+vec3 disk_point(vec4 target, vec3 d)
+{
+    vec3 tx, ty;
+    basis(d, tx, ty);
+    float rho = target.w * sqrt(rnd()), phi = 2.0 * PI * rnd();
+    float back = 1.001 * target.w + ray_epsilon(target.xyz);
+    return target.xyz + rho * (cos(phi) * tx + sin(phi) * ty) - back * d;
+}
+
+// Direction from o uniform in the cone that the target sphere subtends (the whole sphere of
+// directions when o is inside it); returns the cone's solid angle (1 / pdf).
+float cone_towards(vec4 target, vec3 o, out vec3 d)
+{
+    vec3 v = target.xyz - o;
+    float dist2 = dot(v, v);
+    float r2 = target.w * target.w;
+    if (dist2 <= r2) {
+        d = uniform_sphere();
+        return 4.0 * PI;
+    }
+    float cos_max = sqrt(max(0.0, 1.0 - r2 / dist2));
+    d = around(v / sqrt(dist2), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+    return 2.0 * PI * (1.0 - cos_max);
+}
+
+// Emits the ray of `path`; flux = 0 when it carries nothing (a sphere light's back side,
+// a directional or environment light blocked upstream).
+void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_object)
+{
+    GpuVrlEmitter e = emitters[find_emitter(path)];
+    target_object = e.ids.z;
+    uint kind = e.ids.y;
+    vec3 color = e.color.rgb;
+    if (kind == NS_GPU_LIGHT_DIRECTIONAL || kind == NS_GPU_LIGHT_ENVIRONMENT) {
+        // Flux through the target's disk: E pi r^2 for a directional light; for a uniform
+        // environment L every direction (4 pi) brings L pi r^2.
+        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? e.direction.xyz : uniform_sphere();
+        o = disk_point(e.target, d);
+        float disk = PI * e.target.w * e.target.w;
+        flux = color * disk * (kind == NS_GPU_LIGHT_DIRECTIONAL ? 1.0 : 4.0 * PI) *
+               transmittance_to_infinity(o, -d);
+    } else if (kind == NS_GPU_LIGHT_POINT) {
+        o = e.position.xyz;
+        flux = color * cone_towards(e.target, o, d);
+    } else {
+        // Sphere light of radiance L: a uniform point on its surface (area A), a direction in
+        // the cone towards the target (solid angle W); flux = L cos A W, zero where the
+        // direction points into the light.
+        vec3 n = uniform_sphere();
+        float radius = e.position.w;
+        o = e.position.xyz + n * radius;
+        float solid_angle = cone_towards(e.target, o, d);
+        float cos_n = dot(n, d);
+        o += n * ray_epsilon(o);
+        flux = cos_n > 0.0 ? color * (cos_n * 4.0 * PI * radius * radius * solid_angle) : vec3(0.0);
+    }
+}
+
+// Follows the emitted ray up to the target's boundary and through it. Returns true with the
+// walk state set inside the medium, false when the path ends before (missed, blocked,
+// reflected off, or it reached another scattering object first: that object's own paths
+// carry the light that enters it).
+bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_object)
+{
+    uint medium = NS_NONE;
+    for (uint crossing = 0u; crossing < NS_VRL_MAX_BOUNDARY_RUN; crossing++) {
+        if (!(max(flux.x, max(flux.y, flux.z)) > 0.0))
+            return false;
+        Hit h;
+        if (!trace_scene(o, d, 0.0, NS_INF, h))
+            return false;
+        if (medium != NS_NONE)
+            flux *= exp(-materials[medium].sigma_t.xyz * h.t);
+        vec3 p = o + h.t * d;
+        float eps = ray_epsilon(p);
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0)
+            return false;
+        bool spurious = h.front ? medium == m : medium == NS_NONE;
+        if (spurious) {
+            o = p + d * eps;
+            continue;
+        }
+        vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
+        if (h.front && prims[h.prim].info.z == target_object && scatters(mat)) {
+            float ior = mat.sigma_t.w;
+            if (ior != 1.0) {
+                float eta = 1.0 / ior;
+                float cos_i = -dot(d, n);
+                float cos_t;
+                float f = fresnel(cos_i, eta, cos_t);
+                flux *= 1.0 - f;
+                d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+            }
+            w.origin = vec4(p - n * eps, max(flux.x, max(flux.y, flux.z)));
+            w.direction = vec4(d, 0.0);
+            w.flux = vec4(flux, 0.0);
+            w.state.y = 0u;
+            w.state.z = m;
+            return w.origin.w > 0.0;
+        }
+        // Index-matched objects that do not scatter (or are left again) are crossed;
+        // anything else (a refracting boundary, another scattering object) ends the path.
+        if (mat.sigma_t.w != 1.0 || (h.front && scatters(mat)))
+            return false;
+        medium = h.front ? m : NS_NONE;
+        o = p - n * eps;
+    }
+    return false;
+}
+
+// ---------------------------------------------------------------------------------------
+// The walk inside the medium, one stretch at a time.
+// ---------------------------------------------------------------------------------------
+void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, float len)
+{
+    if (push.write != 0u) {
+        uint slot = w.count.y + w.count.x;
+        if (slot < push.vrl_capacity) {
+            // A constructor: glslang reads `v.length` as the length() method.
+            vrls[slot] = GpuVrl(o, len, d, w.state.z, w.flux.xyz, w.state.y);
+        }
+    }
+    w.count.x++;
+}
+
+// false: the path is over.
+bool walk_step(inout GpuVrlWalk w)
+{
+    out_of_budget();
+    vec3 o = w.origin.xyz, d = w.direction.xyz;
+    Hit h;
+    if (!trace_scene(o, d, 0.0, NS_INF, h))
+        return false; // an open boundary: nothing ahead to stop the stretch
+    store_vrl(w, o, d, h.t);
+
+    GpuMaterial mm = materials[w.state.z];
+    vec3 st = mm.sigma_t.xyz;
+    float u_channel = rnd();
+    float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
+    float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+    if (t < h.t) {
+        vec3 tr = exp(-st * t);
+        w.flux.xyz *= tr * mm.sigma_s.xyz / dot(st * tr, vec3(1.0 / 3.0));
+        w.state.y++;
+        w.count.z = 0u;
+        if (w.state.y > NS_VRL_ROULETTE_AFTER) {
+            float q = min(1.0, max(w.flux.x, max(w.flux.y, w.flux.z)) / w.origin.w);
+            if (!(q > 0.0) || rnd() >= q)
+                return false;
+            w.flux.xyz /= q;
+        }
+        if (!(max(w.flux.x, max(w.flux.y, w.flux.z)) > 0.0))
+            return false;
+        w.origin.xyz = o + t * d;
+        w.direction.xyz = hg_sample(d, mm.sigma_s.w);
+        return true;
+    }
+    vec3 tr = exp(-st * h.t);
+    float survive = dot(tr, vec3(1.0 / 3.0));
+    if (!(survive > 0.0))
+        return false;
+    w.flux.xyz *= tr / survive;
+    if (++w.count.z > NS_VRL_MAX_BOUNDARY_RUN) {
+        atomicAdd(counters[NS_VRL_TRACE_TRUNCATED], 1u);
+        return false;
+    }
+    vec3 p = o + h.t * d;
+    float eps = ray_epsilon(p);
+    uint m = prims[h.prim].info.y;
+    if (h.front && m == w.state.z) {
+        w.origin.xyz = p + d * eps; // grazing its own boundary within float error
+        return true;
+    }
+    if (m != w.state.z)
+        return false; // another object inside the medium: not modelled (docs)
+    float ior = mm.sigma_t.w;
+    if (ior == 1.0)
+        return false; // leaves the medium: the path ends
+    vec3 n = -h.normal; // inside: faces the incoming ray
+    float cos_t;
+    float f = fresnel(-dot(d, n), ior, cos_t);
+    if (f < 1.0 && rnd() >= f)
+        return false; // refracted out
+    w.origin.xyz = p + n * eps;
+    w.direction.xyz = normalize(reflect(d, n));
+    return true;
+}
+
 void main()
 {
+    uint path = gl_GlobalInvocationID.x;
+    if (path >= push.path_count || push.emitter_count == 0u)
+        return;
+    GpuVrlWalk w = walks[path];
+    if (w.state.w == NS_VRL_WALK_DONE)
+        return;
+    if (w.state.w == NS_VRL_WALK_FRESH) {
+        rng_state = pcg_hash(pcg_hash(push.seed ^ 0x5bd1e995u) + path);
+        vec3 o, d, flux;
+        uint target_object;
+        emit(path, o, d, flux, target_object);
+        w.state.w = enter_target(w, o, d, flux, target_object) ? NS_VRL_WALK_INSIDE : NS_VRL_WALK_DONE;
+    } else {
+        rng_state = w.state.x;
+    }
+    while (w.state.w == NS_VRL_WALK_INSIDE) {
+        if (!walk_step(w))
+            w.state.w = NS_VRL_WALK_DONE;
+        if (push.yield_after != 0u && loop_count >= push.yield_after)
+            break;
+    }
+    w.state.x = rng_state;
+    walks[path] = w;
+    if (push.report != 0u && w.state.w != NS_VRL_WALK_DONE)
+        atomicAdd(counters[NS_VRL_TRACE_ACTIVE], 1u);
+    // Counted past the scene's budget (traversals were cut short), or cut by lavapipe
+    // itself: a loop with a bound the compiler cannot unroll that runs fewer than its
+    // iterations proves it (as in pt.comp).
+    uint probe_end = min(push.path_count, 64u), probe = 0u;
+    for (uint k = 0u; k <= probe_end; k++)
+        probe++;
+    if ((params.limits.x != 0u && loop_count > params.limits.x) || probe != probe_end + 1u)
+        atomicAdd(counters[NS_VRL_TRACE_LOOP_LIMIT], 1u);
 }

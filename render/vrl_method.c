@@ -1,0 +1,828 @@
+/* vrl_method.c — the `vrl` method: Novak et al. 2012, "Virtual Ray Lights for rendering
+ * scenes with participating media", brute force, no tables (the paper's equal-time
+ * competitor).
+ *
+ *   trace   shaders/vrl_trace.comp: render.vrls light paths towards the scattering media;
+ *           every stretch inside a medium (after the entry, a scattering event or an internal
+ *           reflection) becomes a VRL. Two passes with the same random numbers (count, then
+ *           write at prefix-summed offsets), so the VRL list is exact in size and in path
+ *           order whatever the dispatch order was.
+ *   gather  shaders/vrl_gather.comp: every camera segment against every VRL of its medium,
+ *           one sample per pair; VRLs with events = 0 give double scattering, the others
+ *           multiple.
+ *
+ * Light paths are spread over (light, medium object) pairs by systematic sampling in
+ * proportion to an estimate of the power the light sends through the object's bounding
+ * sphere: path i belongs to pair k when cdf[k-1] <= (i + xi) / N < cdf[k], and carries the
+ * weight 1 / (N p_k), which is unbiased whatever the estimate is (a pair whose share rounds
+ * to no path this time is covered by the others' weights in expectation).
+ *
+ * lavapipe's loop limit (docs/rendering.md): both shaders count their loop iterations, yield
+ * after a budget and resume in the next dispatch from saved state; a probe loop catches an
+ * invocation that lavapipe cut short anyway, and the call fails rather than return a wrong
+ * image.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "vrl_method.h"
+
+/* Counted loop iterations after which an invocation yields on lavapipe. The trace's steps
+ * run traversal loops that are not all counted (pt.comp measured 1000 as safe there); the
+ * gather's loop without shadow rays counts every iteration it runs. */
+#define TRACE_YIELD_LAVAPIPE 1000u
+#define GATHER_YIELD_LAVAPIPE 16000u
+#define GATHER_YIELD_VISIBILITY 1000u
+
+/* VRLs a render may make (48 bytes each; lavapipe caps a storage buffer at 128 MiB). */
+#define VRL_METHOD_MAX_VRLS (2u * 1024u * 1024u)
+
+/* Submissions after which a pass gives up: every dispatch advances every unfinished path or
+ * segment, so this only bounds a runaway job. */
+#define MAX_BATCHES 100000u
+
+/* =======================================================================================
+ * Emitters: (light, target object) pairs and their share of the paths.
+ * ===================================================================================== */
+static int material_scatters(const ns_material *m)
+{
+    return m->type == NS_MATERIAL_MEDIUM &&
+           (m->sigma_s[0] > 0.0f || m->sigma_s[1] > 0.0f || m->sigma_s[2] > 0.0f);
+}
+
+static void box_of(const ns_scene *scene, const ns_object *o, float lo[3], float hi[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = INFINITY;
+        hi[k] = -INFINITY;
+    }
+    if (o->shape == NS_SHAPE_SPHERE) {
+        for (int k = 0; k < 3; k++) {
+            lo[k] = o->center[k] - o->radius;
+            hi[k] = o->center[k] + o->radius;
+        }
+    } else if (o->shape == NS_SHAPE_BOX) {
+        memcpy(lo, o->min, sizeof o->min);
+        memcpy(hi, o->max, sizeof o->max);
+    } else if (o->shape == NS_SHAPE_MESH) {
+        for (uint32_t t = 0; t < o->triangle_count; t++)
+            for (int v = 0; v < 3; v++)
+                for (int k = 0; k < 3; k++) {
+                    float p = scene->triangles[o->first_triangle + t].v[v][k];
+                    lo[k] = fminf(lo[k], p);
+                    hi[k] = fmaxf(hi[k], p);
+                }
+    }
+}
+
+/* The sphere the paths aim at: the object itself for a sphere, else around its box
+ * (slightly enlarged so that rays through the corners survive rounding). */
+static void target_sphere(const ns_scene *scene, const ns_object *o, float out[4])
+{
+    if (o->shape == NS_SHAPE_SPHERE) {
+        memcpy(out, o->center, sizeof o->center);
+        out[3] = o->radius;
+        return;
+    }
+    float lo[3], hi[3];
+    box_of(scene, o, lo, hi);
+    double r2 = 0;
+    for (int k = 0; k < 3; k++) {
+        out[k] = 0.5f * (lo[k] + hi[k]);
+        r2 += 0.25 * ((double)hi[k] - lo[k]) * ((double)hi[k] - lo[k]);
+    }
+    out[3] = (float)(sqrt(r2) * 1.0001 + 1e-6);
+}
+
+static double cone_solid_angle(const float from[3], const float sphere[4])
+{
+    double d2 = 0;
+    for (int k = 0; k < 3; k++)
+        d2 += ((double)sphere[k] - from[k]) * ((double)sphere[k] - from[k]);
+    double r2 = (double)sphere[3] * sphere[3];
+    return d2 > r2 ? 2 * M_PI * (1 - sqrt(1 - r2 / d2)) : 4 * M_PI;
+}
+
+/* The power (mean of RGB) the light sends through the sphere: only steers the sampling. A
+ * Lambertian sphere light of radius R radiates like a point of intensity L pi R^2 towards
+ * a sphere outside it. */
+static double power_towards(const GpuLight *light, const float sphere[4])
+{
+    double mean = ((double)light->color[0] + light->color[1] + light->color[2]) / 3.0;
+    double disk = M_PI * (double)sphere[3] * sphere[3];
+    switch (light->info[0]) {
+    case NS_GPU_LIGHT_DIRECTIONAL:
+        return mean * disk;
+    case NS_GPU_LIGHT_POINT:
+        return mean * cone_solid_angle(light->position, sphere);
+    case NS_GPU_LIGHT_SPHERE:
+        return mean * M_PI * (double)light->position[3] * light->position[3] *
+               cone_solid_angle(light->position, sphere);
+    default:
+        return mean * 4 * M_PI * disk;
+    }
+}
+
+/* One uniform number in [0, 1) from the seed (splitmix64), the systematic offset. */
+static double seed_offset(uint32_t seed)
+{
+    uint64_t z = (uint64_t)seed + 0x9e3779b97f4a7c15ull;
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    z ^= z >> 31;
+    return (double)(z >> 11) * (1.0 / 9007199254740992.0);
+}
+
+static uint64_t first_path_at(double cdf, uint32_t paths, double xi)
+{
+    double x = ceil(cdf * paths - xi);
+    return x <= 0 ? 0 : x >= paths ? paths : (uint64_t)x;
+}
+
+typedef struct emitter_list {
+    GpuVrlEmitter *items;
+    uint32_t count;
+} emitter_list;
+
+/* The scattering medium objects (their index and target sphere). A plane of such a material
+ * is unbounded: no sphere to aim at, refused naming it. */
+static int collect_targets(const ns_scene *scene, uint32_t *objects, float (*spheres)[4],
+                           uint32_t *count, ns_error *err)
+{
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < scene->object_count; i++) {
+        const ns_object *o = &scene->objects[i];
+        if (!material_scatters(&scene->materials[o->material]))
+            continue;
+        if (o->shape == NS_SHAPE_PLANE)
+            return ns_fail(err, NS_ERR_NOT_AVAILABLE,
+                           "objects[%u]: a plane of scattering medium '%s' is unbounded; the vrl "
+                           "method needs a bounded medium (sphere, box or mesh)",
+                           i, scene->materials[o->material].name);
+        if (o->shape == NS_SHAPE_MESH && o->triangle_count == 0)
+            continue;
+        objects[n] = i;
+        target_sphere(scene, o, spheres[n]);
+        n++;
+    }
+    *count = n;
+    return NS_OK;
+}
+
+static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t paths,
+                         uint32_t seed, emitter_list *out, ns_error *err)
+{
+    memset(out, 0, sizeof *out);
+    uint32_t n_obj = scene->object_count ? scene->object_count : 1;
+    uint32_t *objects = malloc(sizeof *objects * n_obj);
+    float(*spheres)[4] = malloc(sizeof *spheres * n_obj);
+    uint64_t pairs = 0;
+    double *power = NULL;
+    uint32_t targets = 0;
+    int status = objects && spheres ? NS_OK
+                                    : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
+    if (!status)
+        status = collect_targets(scene, objects, spheres, &targets, err);
+    if (!status) {
+        pairs = (uint64_t)gs->light_count * targets;
+        power = malloc(sizeof *power * (pairs ? pairs : 1));
+        out->items = calloc(pairs ? pairs : 1, sizeof *out->items);
+        if (!power || !out->items)
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %llu emitters",
+                             (unsigned long long)pairs);
+    }
+    double total = 0;
+    for (uint64_t k = 0; !status && k < pairs; k++) {
+        double p = power_towards(&gs->lights[k / targets], spheres[k % targets]);
+        power[k] = p > 0 && isfinite(p) ? p : 0;
+        total += power[k];
+    }
+    if (!status && total > 0) {
+        double xi = seed_offset(seed), cdf = 0;
+        for (uint64_t k = 0; k < pairs; k++) {
+            if (power[k] <= 0)
+                continue;
+            double p = power[k] / total;
+            uint64_t first = first_path_at(cdf, paths, xi);
+            cdf += p;
+            if (first_path_at(cdf, paths, xi) <= first)
+                continue;
+            const GpuLight *light = &gs->lights[k / targets];
+            GpuVrlEmitter *e = &out->items[out->count++];
+            memcpy(e->target, spheres[k % targets], sizeof e->target);
+            memcpy(e->position, light->position, sizeof e->position);
+            memcpy(e->direction, light->direction, sizeof e->direction);
+            for (int c = 0; c < 3; c++)
+                e->color[c] = (float)(light->color[c] / (p * paths));
+            e->ids[0] = (uint32_t)first;
+            e->ids[1] = light->info[0];
+            e->ids[2] = objects[k % targets];
+        }
+    }
+    free(objects);
+    free(spheres);
+    free(power);
+    if (status) {
+        free(out->items);
+        memset(out, 0, sizeof *out);
+    }
+    return status;
+}
+
+/* =======================================================================================
+ * Shared plumbing: the loop budget and repeated dispatches.
+ * ===================================================================================== */
+static int check_scene_buffers(const ns_context *ctx, const gpu_buffer *scene_buffers,
+                               const char *what, ns_error *err)
+{
+    if (!scene_buffers || scene_buffers[0].size < sizeof(GpuParams) || !scene_buffers[0].mapped)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: scene_buffers[0] is not the scene's parameters",
+                       what);
+    const GpuParams *params = scene_buffers[0].mapped;
+    if (ctx->dev.loop_limited && !params->limits[0])
+        return ns_fail(err, NS_ERR_INTERNAL,
+                       "%s: the scene parameters carry no loop budget (limits.x) on a loop-limited "
+                       "device",
+                       what);
+    return NS_OK;
+}
+
+/* Runs `per_batch` dispatches of one push block per submission, the last one reporting,
+ * until counters[done_counter] reads 0 after a batch. push_report points at the push
+ * block's report field. */
+typedef struct repeat_desc {
+    const gpu_pipeline *pipeline;
+    gpu_buffer **bound;
+    uint32_t groups;
+    void *push;             /* one push block (32 bytes) */
+    uint32_t *push_report;  /* its report field */
+    gpu_buffer *counters;
+    uint32_t left_counter;  /* counter of unfinished work after a reporting dispatch */
+    uint32_t limit_counter; /* counter of invocations cut by the loop limit */
+    uint32_t per_batch;     /* dispatches in the first submission */
+    const char *what;
+} repeat_desc;
+
+static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *dispatches, ns_error *err)
+{
+    enum { BLOCK = 32, MAX_PER_BATCH = 4096 };
+    uint32_t per_batch = r->per_batch ? r->per_batch : 1;
+    if (per_batch > MAX_PER_BATCH)
+        per_batch = MAX_PER_BATCH;
+    uint8_t *blocks = malloc((size_t)BLOCK * MAX_PER_BATCH);
+    if (!blocks)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: push blocks", r->what);
+    uint32_t *c = r->counters->mapped;
+    int status = NS_OK;
+    for (uint32_t batch = 0;; batch++) {
+        if (batch >= MAX_BATCHES) {
+            status = ns_fail(err, NS_ERR_LIMIT, "%s: still unfinished after %u submissions", r->what,
+                             MAX_BATCHES);
+            break;
+        }
+        for (uint32_t i = 0; i < per_batch; i++) {
+            *r->push_report = i + 1 == per_batch;
+            memcpy(blocks + (size_t)BLOCK * i, r->push, BLOCK);
+        }
+        c[r->left_counter] = 0;
+        status = gpu_dispatch_many(&ctx->dev,
+                                   &(gpu_dispatch_desc){.pipeline = r->pipeline,
+                                                        .buffers = r->bound,
+                                                        .buffer_count = 8,
+                                                        .groups = {r->groups, 1, 1},
+                                                        .push = blocks,
+                                                        .dispatch_count = per_batch},
+                                   err);
+        *dispatches += per_batch;
+        if (!status && c[r->limit_counter])
+            status = ns_fail(err, NS_ERR_LIMIT,
+                             "%s: %u invocation(s) ran past lavapipe's loop limit (65535 iterations "
+                             "per invocation); lower the geometry or pick another device",
+                             r->what, c[r->limit_counter]);
+        if (status || c[r->left_counter] == 0)
+            break;
+        /* More than expected (shadow rays, long walks): grow the batches. */
+        if (per_batch < MAX_PER_BATCH)
+            per_batch *= 2;
+    }
+    free(blocks);
+    return status;
+}
+
+/* =======================================================================================
+ * Trace
+ * ===================================================================================== */
+enum { T_EMITTERS, T_WALKS, T_VRLS, T_COUNTERS, T_OWN };
+
+static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *own,
+                      GpuVrlTracePush *push, ns_error *err)
+{
+    gpu_buffer *bound[8];
+    for (int i = 0; i < 3; i++)
+        bound[i] = &scene_buffers[i];
+    bound[3] = &scene_buffers[3]; /* materials */
+    for (int i = 0; i < T_OWN; i++)
+        bound[4 + i] = &own[i];
+    const GpuParams *params = scene_buffers[0].mapped;
+    push->yield_after = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
+    uint32_t dispatches = 0;
+    return repeat_until_done(ctx,
+                             &(repeat_desc){.pipeline = &ctx->vrl_trace,
+                                            .bound = bound,
+                                            .groups = (push->path_count + NS_VRL_METHOD_GROUP - 1) /
+                                                      NS_VRL_METHOD_GROUP,
+                                            .push = push,
+                                            .push_report = &push->report,
+                                            .counters = &own[T_COUNTERS],
+                                            .left_counter = NS_VRL_TRACE_ACTIVE,
+                                            .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
+                                            .per_batch = params->limits[0] ? 4 : 1,
+                                            .what = "vrl method: light paths"},
+                             &dispatches, err);
+}
+
+/* After the count pass: each path's VRL count becomes its first slot; the walks restart. */
+static int offsets_from_counts(GpuVrlWalk *walks, uint32_t paths, uint32_t *total, ns_error *err)
+{
+    uint64_t sum = 0;
+    for (uint32_t i = 0; i < paths; i++) {
+        uint32_t n = walks[i].count[0];
+        memset(&walks[i], 0, sizeof walks[i]);
+        walks[i].count[1] = (uint32_t)(sum < UINT32_MAX ? sum : UINT32_MAX);
+        sum += n;
+    }
+    if (sum > VRL_METHOD_MAX_VRLS)
+        return ns_fail(err, NS_ERR_LIMIT,
+                       "render.vrls: %u light paths make %llu VRLs in these media, at most %u; "
+                       "lower render.vrls",
+                       paths, (unsigned long long)sum, VRL_METHOD_MAX_VRLS);
+    *total = (uint32_t)sum;
+    return NS_OK;
+}
+
+int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
+                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
+                        ns_error *err)
+{
+    memset(out, 0, sizeof *out);
+    if (!ctx || !scene || !gs)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
+                       !ctx ? "ctx" : !scene ? "scene" : "gs");
+    if (paths > NS_MAX_VRLS)
+        return ns_fail(err, NS_ERR_LIMIT, "render.vrls: %u light paths, at most %u", paths, NS_MAX_VRLS);
+    int status = check_scene_buffers(ctx, scene_buffers, "vrl method", err);
+    out->paths = paths;
+    emitter_list emitters = {0};
+    if (!status)
+        status = plan_emitters(scene, gs, paths, seed, &emitters, err);
+    if (status || !emitters.count || !paths) {
+        free(emitters.items);
+        return status;
+    }
+    gpu_buffer own[T_OWN];
+    memset(own, 0, sizeof own);
+    gpu_buffer_desc descs[T_OWN] = {
+        {.size = sizeof(GpuVrlEmitter) * emitters.count, .data = emitters.items,
+         .data_size = sizeof(GpuVrlEmitter) * emitters.count, .label = "ns.vrl_method.emitters"},
+        {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .label = "ns.vrl_method.walks"},
+        {.size = sizeof(GpuVrl), .label = "ns.vrl_method.vrls"},
+        {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
+    };
+    status = gpu_buffers_create(&ctx->dev, own, descs, T_OWN, err);
+    GpuVrlTracePush push = {.path_count = paths, .emitter_count = emitters.count, .seed = seed};
+    if (!status)
+        status = trace_pass(ctx, scene_buffers, own, &push, err);
+    uint32_t total = 0;
+    if (!status)
+        status = offsets_from_counts(own[T_WALKS].mapped, paths, &total, err);
+    if (!status && total) {
+        gpu_buffer_destroy(&ctx->dev, &own[T_VRLS]);
+        status = gpu_buffer_create(&ctx->dev, &own[T_VRLS],
+                                   &(gpu_buffer_desc){.size = (uint64_t)sizeof(GpuVrl) * total,
+                                                      .uninitialized = 1,
+                                                      .label = "ns.vrl_method.vrls"},
+                                   err);
+        push.write = 1;
+        push.vrl_capacity = total;
+        if (!status)
+            status = trace_pass(ctx, scene_buffers, own, &push, err);
+    }
+    /* The write pass must have made exactly the counted VRLs (same random numbers). */
+    const GpuVrlWalk *walks = own[T_WALKS].mapped;
+    for (uint32_t i = 0; !status && total && i < paths; i++) {
+        uint32_t end = i + 1 < paths ? walks[i + 1].count[1] : total;
+        if (walks[i].count[1] + walks[i].count[0] != end)
+            status = ns_fail(err, NS_ERR_INTERNAL, "vrl method: path %u made %u VRLs, counted %u", i,
+                             walks[i].count[0], end - walks[i].count[1]);
+    }
+    if (!status && total) {
+        out->vrls = malloc(sizeof *out->vrls * total);
+        if (!out->vrls)
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u VRLs", total);
+        else {
+            memcpy(out->vrls, own[T_VRLS].mapped, sizeof *out->vrls * total);
+            out->count = total;
+        }
+    }
+    for (int i = 0; i < T_OWN; i++)
+        gpu_buffer_destroy(&ctx->dev, &own[i]);
+    free(emitters.items);
+    if (status) {
+        free(out->vrls);
+        out->vrls = NULL;
+        out->count = 0;
+    }
+    return status;
+}
+
+/* =======================================================================================
+ * Gather
+ * ===================================================================================== */
+int ns_vrl_method_sort(const GpuVrl *vrls, uint32_t count, uint32_t material_count, GpuVrl **sorted,
+                       uint32_t *first)
+{
+    memset(first, 0, sizeof *first * (material_count + 1));
+    *sorted = malloc(sizeof **sorted * (count ? count : 1));
+    uint32_t *fill = calloc(material_count + 1, sizeof *fill);
+    if (!*sorted || !fill) {
+        free(*sorted);
+        *sorted = NULL;
+        free(fill);
+        return -1;
+    }
+    for (uint32_t i = 0; i < count; i++)
+        if (vrls[i].material < material_count)
+            first[vrls[i].material + 1]++;
+    for (uint32_t m = 0; m < material_count; m++)
+        first[m + 1] += first[m];
+    for (uint32_t i = 0; i < count; i++) {
+        uint32_t m = vrls[i].material;
+        if (m < material_count)
+            (*sorted)[first[m] + fill[m]++] = vrls[i];
+    }
+    free(fill);
+    return 0;
+}
+
+enum { G_VRLS, G_RESULTS, G_COUNTERS, G_OWN };
+
+static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *counters,
+                           uint32_t segment_count, uint32_t material, uint32_t first, uint32_t end,
+                           uint32_t seed, int visibility, int loop_limited, uint32_t *dispatches,
+                           ns_error *err)
+{
+    uint32_t yield = !loop_limited ? 0 : visibility ? GATHER_YIELD_VISIBILITY : GATHER_YIELD_LAVAPIPE;
+    GpuVrlGatherPush push = {.first_vrl = first,
+                             .end_vrl = end,
+                             .segment_count = segment_count,
+                             .material = material,
+                             .seed = seed,
+                             .yield_after = yield,
+                             .visibility = visibility ? 1u : 0u};
+    /* Without shadow rays every VRL costs one counted iteration: this many dispatches finish. */
+    uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
+    return repeat_until_done(ctx,
+                             &(repeat_desc){.pipeline = &ctx->vrl_gather,
+                                            .bound = bound,
+                                            .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) /
+                                                      NS_VRL_METHOD_GROUP,
+                                            .push = &push,
+                                            .push_report = &push.report,
+                                            .counters = counters,
+                                            .left_counter = NS_VRL_GATHER_UNFINISHED,
+                                            .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
+                                            .per_batch = per_batch,
+                                            .what = "vrl method: gather"},
+                             dispatches, err);
+}
+
+static int check_gather_buffers(const gpu_buffer *segments, uint32_t segment_count,
+                                const gpu_buffer *out_double, const gpu_buffer *out_multiple,
+                                ns_error *err)
+{
+    if (!segments || !out_double || !out_multiple)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
+                       !segments ? "segments" : !out_double ? "out_double" : "out_multiple");
+    if (segments->size < (uint64_t)segment_count * sizeof(GpuSegment))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "vrl method: segments buffer holds %llu bytes, %u segments need %llu",
+                       (unsigned long long)segments->size, segment_count,
+                       (unsigned long long)segment_count * sizeof(GpuSegment));
+    const gpu_buffer *outs[2] = {out_double, out_multiple};
+    for (int i = 0; i < 2; i++)
+        if (outs[i]->size < (uint64_t)segment_count * 16 || !outs[i]->mapped)
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "vrl method: %s holds %llu bytes, %u segments need %llu (mapped)",
+                           i ? "out_multiple" : "out_double", (unsigned long long)outs[i]->size,
+                           segment_count, (unsigned long long)segment_count * 16);
+    return NS_OK;
+}
+
+static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_scene *gs,
+                      gpu_buffer *segments, uint32_t segment_count, const GpuVrl *sorted,
+                      const uint32_t *first, uint32_t vrl_count, uint32_t seed,
+                      const uint8_t *visibility, gpu_buffer *own, ns_vrl_gather_counts *counts,
+                      ns_error *err)
+{
+    gpu_buffer_desc descs[G_OWN] = {
+        {.size = (uint64_t)sizeof(GpuVrl) * vrl_count, .data = sorted,
+         .data_size = (uint64_t)sizeof(GpuVrl) * vrl_count, .label = "ns.vrl_method.vrls"},
+        {.size = (uint64_t)sizeof(GpuVrlResult) * segment_count, .label = "ns.vrl_method.results"},
+        {.size = NS_VRL_GATHER_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
+    };
+    int status = gpu_buffers_create(&ctx->dev, own, descs, G_OWN, err);
+    if (status)
+        return status;
+    gpu_buffer *bound[8] = {&scene_buffers[0], &scene_buffers[1], &scene_buffers[2],
+                            &scene_buffers[3], segments,          &own[G_VRLS],
+                            &own[G_RESULTS],   &own[G_COUNTERS]};
+    /* Which materials the segments use: only those are dispatched. */
+    uint8_t *used = calloc(gs->material_count ? gs->material_count : 1, 1);
+    if (!used)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: materials");
+    const GpuSegment *segs = segments->mapped;
+    uint64_t *per_material = calloc(gs->material_count ? gs->material_count : 1, sizeof *per_material);
+    for (uint32_t i = 0; per_material && i < segment_count; i++)
+        if (segs[i].material < gs->material_count) {
+            used[segs[i].material] = 1;
+            per_material[segs[i].material]++;
+        }
+    if (!per_material)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: materials");
+    for (uint32_t m = 0; !status && m < gs->material_count; m++) {
+        if (!used[m] || first[m + 1] == first[m])
+            continue;
+        status = gather_material(ctx, bound, &own[G_COUNTERS], segment_count, m, first[m],
+                                 first[m + 1], seed, visibility && visibility[m],
+                                 ctx->dev.loop_limited, &counts->dispatches, err);
+        counts->interactions += per_material[m] * (first[m + 1] - first[m]);
+    }
+    if (!status)
+        counts->nonfinite = ((const uint32_t *)own[G_COUNTERS].mapped)[NS_VRL_GATHER_NONFINITE];
+    free(used);
+    free(per_material);
+    return status;
+}
+
+int ns_vrl_method_gather_vrls(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_scene *gs,
+                              gpu_buffer *segments, uint32_t segment_count, const GpuVrl *vrls,
+                              uint32_t vrl_count, uint32_t seed, const uint8_t *visibility,
+                              gpu_buffer *out_double, gpu_buffer *out_multiple,
+                              ns_vrl_gather_counts *counts, ns_error *err)
+{
+    memset(counts, 0, sizeof *counts);
+    if (!ctx || !gs)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL", !ctx ? "ctx" : "gs");
+    int status = check_scene_buffers(ctx, scene_buffers, "vrl method", err);
+    if (!status)
+        status = check_gather_buffers(segments, segment_count, out_double, out_multiple, err);
+    if (status)
+        return status;
+    memset(out_double->mapped, 0, (size_t)segment_count * 16);
+    memset(out_multiple->mapped, 0, (size_t)segment_count * 16);
+    if (!segment_count || !vrl_count)
+        return NS_OK;
+    GpuVrl *sorted = NULL;
+    uint32_t *first = malloc(sizeof *first * (gs->material_count + 1));
+    if (!first || ns_vrl_method_sort(vrls, vrl_count, gs->material_count, &sorted, first)) {
+        free(first);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u VRLs", vrl_count);
+    }
+    gpu_buffer own[G_OWN];
+    memset(own, 0, sizeof own);
+    status = run_gather(ctx, scene_buffers, gs, segments, segment_count, sorted, first, vrl_count,
+                        seed, visibility, own, counts, err);
+    if (!status && counts->nonfinite)
+        status = ns_fail(err, NS_ERR_INTERNAL, "vrl method: %llu pair estimate(s) were NaN or Inf",
+                         (unsigned long long)counts->nonfinite);
+    if (!status) {
+        const GpuVrlResult *res = own[G_RESULTS].mapped;
+        float(*dbl)[4] = out_double->mapped;
+        float(*mult)[4] = out_multiple->mapped;
+        for (uint32_t i = 0; i < segment_count; i++) {
+            memcpy(dbl[i], res[i].double_rgb, sizeof res[i].double_rgb);
+            memcpy(mult[i], res[i].multiple_rgb, sizeof res[i].multiple_rgb);
+        }
+    }
+    for (int i = 0; i < G_OWN; i++)
+        gpu_buffer_destroy(&ctx->dev, &own[i]);
+    free(sorted);
+    free(first);
+    return status;
+}
+
+/* =======================================================================================
+ * Visibility: a straight line between two points inside a convex object that nothing else
+ * enters stays inside it, so shadow rays are only traced for the other media.
+ * ===================================================================================== */
+static int boxes_overlap(const float alo[3], const float ahi[3], const float blo[3], const float bhi[3])
+{
+    for (int k = 0; k < 3; k++)
+        if (ahi[k] < blo[k] || bhi[k] < alo[k])
+            return 0;
+    return 1;
+}
+
+static int plane_cuts_box(const ns_object *plane, const float lo[3], const float hi[3])
+{
+    int below = 0, above = 0;
+    for (int corner = 0; corner < 8; corner++) {
+        double s = 0;
+        for (int k = 0; k < 3; k++) {
+            float p = corner & (1 << k) ? hi[k] : lo[k];
+            s += ((double)p - plane->point[k]) * plane->normal[k];
+        }
+        below |= s <= 0;
+        above |= s >= 0;
+    }
+    return below && above;
+}
+
+static int lone_convex(const ns_scene *scene, uint32_t object)
+{
+    const ns_object *o = &scene->objects[object];
+    if (o->shape != NS_SHAPE_SPHERE && o->shape != NS_SHAPE_BOX)
+        return 0;
+    float lo[3], hi[3], olo[3], ohi[3];
+    box_of(scene, o, lo, hi);
+    for (uint32_t j = 0; j < scene->object_count; j++) {
+        if (j == object)
+            continue;
+        const ns_object *other = &scene->objects[j];
+        if (other->shape == NS_SHAPE_PLANE) {
+            if (plane_cuts_box(other, lo, hi))
+                return 0;
+            continue;
+        }
+        box_of(scene, other, olo, ohi);
+        if (boxes_overlap(lo, hi, olo, ohi))
+            return 0;
+    }
+    return 1;
+}
+
+/* visibility[m] = 1 unless material m bounds exactly one object, convex and alone. */
+static void visibility_per_material(const ns_scene *scene, uint8_t *visibility)
+{
+    uint32_t *objects = calloc(scene->material_count ? scene->material_count : 1, sizeof *objects);
+    for (uint32_t m = 0; m < scene->material_count; m++)
+        visibility[m] = 1;
+    if (!objects)
+        return; /* shadow rays everywhere: slower, never wrong */
+    for (uint32_t i = 0; i < scene->object_count; i++)
+        objects[scene->objects[i].material]++;
+    for (uint32_t i = 0; i < scene->object_count; i++) {
+        uint32_t m = scene->objects[i].material;
+        if (objects[m] == 1 && lone_convex(scene, i))
+            visibility[m] = 0;
+    }
+    free(objects);
+}
+
+/* =======================================================================================
+ * The method
+ * ===================================================================================== */
+int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
+                         gpu_buffer *scene_buffers, gpu_buffer *segments, uint32_t segment_count,
+                         gpu_buffer *out_double, gpu_buffer *out_multiple, ns_render_stats *stats,
+                         ns_error *err)
+{
+    if (!ctx || !scene || !gs)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
+                       !ctx ? "ctx" : !scene ? "scene" : "gs");
+    int status = check_gather_buffers(segments, segment_count, out_double, out_multiple, err);
+    if (status)
+        return status;
+    ns_vrl_set set = {0};
+    status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls, scene->render.seed,
+                                 &set, err);
+    uint8_t visibility[NS_MAX_MATERIALS];
+    visibility_per_material(scene, visibility);
+    ns_vrl_gather_counts counts = {0};
+    if (!status)
+        status = ns_vrl_method_gather_vrls(ctx, scene_buffers, gs, segments, segment_count, set.vrls,
+                                           set.count, scene->render.seed ^ 0x9e3779b9u, visibility,
+                                           out_double, out_multiple, &counts, err);
+    if (stats) {
+        stats->vrl_paths = set.paths;
+        stats->vrl_count = set.count;
+        stats->interactions += counts.interactions;
+    }
+    free(set.vrls);
+    return status;
+}
+
+/* =======================================================================================
+ * The gather's estimator on the CPU (tests): vrl_gather.comp line by line, in float.
+ * ===================================================================================== */
+static uint32_t pcg_hash(uint32_t v)
+{
+    uint32_t state = v * 747796405u + 2891336453u;
+    uint32_t word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+static float unit_float(uint32_t h)
+{
+    return (float)(h >> 8u) * (1.0f / 16777216.0f);
+}
+
+static float dot3(const float *a, const float *b)
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static float hg_phase(float cos_t, float g)
+{
+    float denom = 1.0f + g * g - 2.0f * g * cos_t;
+    return (1.0f - g * g) / (4.0f * (float)M_PI * denom * sqrtf(denom));
+}
+
+static float clampf(float x, float lo, float hi)
+{
+    return x < lo ? lo : x > hi ? hi : x;
+}
+
+static void pair_estimate_cpu(const float e[3], const float dc[3], float lc, const GpuVrl *vrl,
+                              const GpuMaterial *m, float xi_t, float xi_u, float out[3])
+{
+    const float *w = vrl->direction;
+    float l = vrl->length, r[3], p[3], x[3], y[3], v[3];
+    for (int k = 0; k < 3; k++)
+        r[k] = e[k] - vrl->origin[k];
+    float b = dot3(dc, w);
+    float sin2 = fmaxf(0.0f, 1.0f - b * b), s = sqrtf(sin2);
+    float dd = dot3(dc, r), ee = dot3(w, r);
+    float floor_h = 1e-6f * fmaxf(lc, l);
+    float t, inv_pdf_t;
+    int parallel = s < 1e-3f;
+    if (!parallel) {
+        float t0 = (b * ee - dd) / sin2, u0 = (ee - b * dd) / sin2;
+        for (int k = 0; k < 3; k++)
+            p[k] = r[k] + t0 * dc[k] - u0 * w[k];
+        float h0 = fmaxf(sqrtf(dot3(p, p)), floor_h);
+        float kk = s / h0;
+        float a0 = asinhf(-kk * t0), a1 = asinhf(kk * (lc - t0));
+        t = clampf(t0 + sinhf(a0 + (a1 - a0) * xi_t) / kk, 0.0f, lc);
+        inv_pdf_t = (a1 - a0) / s;
+    } else {
+        t = xi_t * lc;
+        inv_pdf_t = lc;
+    }
+    for (int k = 0; k < 3; k++)
+        x[k] = e[k] + t * dc[k];
+    for (int k = 0; k < 3; k++)
+        p[k] = x[k] - vrl->origin[k];
+    float uc = dot3(p, w);
+    for (int k = 0; k < 3; k++)
+        p[k] -= uc * w[k];
+    float hx = fmaxf(sqrtf(dot3(p, p)), floor_h);
+    float th0 = atan2f(-uc, hx), th1 = atan2f(l - uc, hx);
+    float u = clampf(uc + hx * tanf(th0 + (th1 - th0) * xi_u), 0.0f, l);
+    float geometry = (th1 - th0) * inv_pdf_t / (parallel ? hx : 1.0f);
+    for (int k = 0; k < 3; k++) {
+        y[k] = vrl->origin[k] + u * w[k];
+        v[k] = x[k] - y[k];
+    }
+    float dist = sqrtf(dot3(v, v));
+    for (int k = 0; k < 3; k++)
+        out[k] = 0.0f;
+    if (!(dist > 0.0f))
+        return;
+    for (int k = 0; k < 3; k++)
+        v[k] /= dist;
+    float g = m->sigma_s[3];
+    float phases = hg_phase(dot3(w, v), g) * hg_phase(-dot3(v, dc), g);
+    for (int k = 0; k < 3; k++)
+        out[k] = m->sigma_s[k] * m->sigma_s[k] * expf(-m->sigma_t[k] * (t + u + dist)) * phases * geometry;
+}
+
+void ns_vrl_method_gather_cpu(const GpuMaterial *materials, const GpuSegment *segments,
+                              uint32_t segment_count, const GpuVrl *vrls, uint32_t vrl_count,
+                              uint32_t seed, float (*out_double)[4], float (*out_multiple)[4])
+{
+    for (uint32_t i = 0; i < segment_count; i++) {
+        const GpuSegment *seg = &segments[i];
+        float d[3];
+        for (int k = 0; k < 3; k++)
+            d[k] = seg->exit[k] - seg->entry[k];
+        float lc = sqrtf(dot3(d, d));
+        uint32_t seg_seed = pcg_hash(pcg_hash(seed ^ 0x68e31da4u) + i);
+        memset(out_double[i], 0, sizeof out_double[i]);
+        memset(out_multiple[i], 0, sizeof out_multiple[i]);
+        for (uint32_t k = 0; k < vrl_count; k++) {
+            const GpuVrl *vrl = &vrls[k];
+            if (vrl->material != seg->material)
+                continue;
+            uint32_t h1 = pcg_hash(seg_seed ^ pcg_hash(k));
+            uint32_t h2 = pcg_hash(h1);
+            float c[3];
+            pair_estimate_cpu(seg->entry, seg->direction, lc, vrl, &materials[seg->material],
+                              unit_float(h1), unit_float(h2), c);
+            float *o = vrl->events == 0 ? out_double[i] : out_multiple[i];
+            for (int ch = 0; ch < 3; ch++)
+                o[ch] += vrl->power[ch] * c[ch];
+        }
+    }
+}
