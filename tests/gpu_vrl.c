@@ -656,5 +656,6 @@ int main(void)
     RUN(test_grid_of_generated);
     RUN(test_edge_cases);
     RUN(bench);
+    ns_context_destroy(test_context());
     return harness_report();
 }
