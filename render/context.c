@@ -6,7 +6,8 @@
 #include <stddef.h>
 
 #include "internal.h"
-#include "scatter_shared.h"
+#include "scatter.h"
+#include "accumulate_shared.h"
 
 static int env_flag(const char *name)
 {
@@ -26,7 +27,7 @@ typedef struct pipeline_row {
 static const pipeline_row pipeline_rows[] = {
     {offsetof(ns_context, camera), "camera", 8, sizeof(GpuSamplePush)},
     {offsetof(ns_context, trace_test), "trace_test", 5, 0},
-    {offsetof(ns_context, accumulate), "accumulate", 4, 16},
+    {offsetof(ns_context, accumulate), "accumulate", 4, sizeof(GpuAccumulatePush)},
     {offsetof(ns_context, vrl), "vrl", 8, 32},
     {offsetof(ns_context, gather), "gather", 8, sizeof(GpuGatherPush)},
     {offsetof(ns_context, single), "single", 8, 16},
@@ -82,6 +83,9 @@ int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *e
     int status = gpu_device_create(&ctx->dev, &device, err);
     if (!status)
         status = create_pipelines(ctx, err);
+    /* The networks' pipeline (compiled now) and the table cache (render/scatter_tables.c). */
+    if (!status)
+        status = ns_tables_init(ctx, err);
     /* Save right after warming so a later crash still leaves a warm cache behind. */
     if (!status && ctx->pipeline_cache_path)
         status = gpu_pipeline_cache_save(&ctx->dev, ctx->pipeline_cache_path, err);
@@ -99,6 +103,8 @@ void ns_context_destroy(ns_context *ctx)
 {
     if (!ctx)
         return;
+    if (ctx->dev.device)
+        ns_tables_destroy(ctx);
     if (ctx->dev.device)
         for (size_t i = 0; i < sizeof pipeline_rows / sizeof pipeline_rows[0]; i++)
             gpu_pipeline_destroy(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]));

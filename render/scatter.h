@@ -51,6 +51,36 @@ typedef struct ns_table_stats {
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err);
 
+/* Context hooks (context.c): the networks (built-in weights) and their pipeline, created and
+ * warmed at start-up, and the empty cache. A build without weights still makes a context;
+ * NS_METHOD_NN then fails with NS_ERR_NOT_AVAILABLE naming the reason. */
+int ns_tables_init(ns_context *ctx, ns_error *err);
+void ns_tables_destroy(ns_context *ctx); /* frees the cache and the networks; safe twice */
+
+/* The default table grid (the Monte Carlo grid of offline/mc.c, rebuilt here because render/
+ * does not link offline/): edges in file order z, rho, theta, phi. */
+#define NS_TABLE_SINH_SCALE 0.5 /* mfp */
+#define NS_TABLE_EXTENT 400.0   /* mfp */
+typedef struct ns_table_grid {
+    double z[NS_TABLE_NZ + 1], rho[NS_TABLE_NRHO + 1];
+    double theta[NS_TABLE_NTHETA + 1], phi[NS_TABLE_NPHI + 1];
+    double scale, step, extent; /* spatial edges: scale * sinh(step * i) */
+} ns_table_grid;
+void ns_table_grid_default(ns_table_grid *g);
+
+/* Accumulation of a given J (float [3][NS_TABLE_CELLS], host memory) into A (internal; the
+ * tests feed synthetic tables). out->a is created here; free with ns_scatter_tables_free.
+ * steps (may be NULL): bins walked in all, the unit of work (one J lookup per channel). */
+int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
+                         ns_scatter_tables *out, uint64_t *steps, ns_error *err);
+void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
+
+/* What the cache holds now (tests): bytes (device + host) and entries (J and A). */
+void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *entries);
+/* The cached J of one channel (tests): order 0 double, 1 multiple; NULL when not cached. */
+const float *ns_tables_cached_j(const ns_context *ctx, ns_method source, float g, float albedo,
+                                uint32_t order);
+
 /* ---------------------------------------------------------------------------------------
  * Virtual Ray Lights (vrl.c, vrl_grid.c)
  * ------------------------------------------------------------------------------------- */

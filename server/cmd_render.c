@@ -14,6 +14,7 @@
 
 #include "commands.h"
 #include "encode.h"
+#include "mc_provider.h"
 #include "nscatter.h"
 #include "render_job.h"
 #include "scene_json.h"
@@ -268,7 +269,9 @@ static int render_scene(const render_args *a, const scene_doc *doc, ns_render_st
     ns_error err = {0};
     ns_context *ctx = NULL;
     double t0 = ns_now_ms();
-    int rc = ns_context_create(&(ns_context_desc){.device = a->device}, &ctx, &err);
+    ns_context_desc desc = {.device = a->device};
+    ns_mc_provider_attach(&desc); /* method "table": Monte Carlo tables, cached on disk */
+    int rc = ns_context_create(&desc, &ctx, &err);
     if (rc) {
         fprintf(stderr, "nscatter render: %s: %s\n", ns_status_name(rc), err.message);
         return 1;

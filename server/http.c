@@ -27,6 +27,7 @@
 
 #include "commands.h"
 #include "encode.h"
+#include "mc_provider.h"
 #include "nscatter.h"
 #include "problem.h"
 #include "render_job.h"
@@ -892,7 +893,9 @@ static int resolve_host(const char *host, unsigned port, struct sockaddr_storage
 static void make_context(http_server *srv, const char *device)
 {
     double t0 = ns_now_ms();
-    int rc = ns_context_create(&(ns_context_desc){.device = device}, &srv->ctx, &srv->ctx_err);
+    ns_context_desc desc = {.device = device};
+    ns_mc_provider_attach(&desc); /* method "table": Monte Carlo tables, cached on disk */
+    int rc = ns_context_create(&desc, &srv->ctx, &srv->ctx_err);
     if (rc) {
         srv->ctx = NULL;
         srv->ctx_err.status = rc;

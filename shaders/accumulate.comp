@@ -1,7 +1,204 @@
 #version 450
-// accumulate.comp — placeholder until its stage lands (render/scatter.h names the owner): a valid
-// pipeline so that the context can create and warm every pipeline from one table.
-layout(local_size_x = 64) in;
+// accumulate.comp — the camera-side table A of DESIGN.md section 2, per RGB channel:
+//     A(x, w) = integral_0^inf e^{-u} J(x - u w, w) du        (mfp units)
+// at the centre (rho, z, theta, phi) of every cell of the default grid. One invocation walks
+// the straight line x - u w from one cell centre through the table's bins, exactly: J is
+// constant inside a bin (it is the bin's average), so between two bin crossings the integral
+// is J_bin (e^{-u0} - e^{-u1}), and the steps are the bins themselves — fine near the source
+// where the sinh bins are fine, long far away where they are wide. The three channels share
+// the walk (the geometry is in mfp, the same for every channel of the table).
+//
+// The walk in the cell's own frame: x = (rho0, 0, z0) with e_rho = +x, and
+// w = (sin t cos p, sin t sin p, cos t). Along x - u w, theta stays t, z = z0 - u cos t, and
+// in the horizontal plane the point moves along a line: with T(u) = rho0 cos p - u sin t (its
+// coordinate along w's horizontal direction) and S = rho0 sin p (the constant distance of that
+// line from the axis), rho(u) = sqrt(T^2 + S^2) and the local phi(u) (measured from e_rho at
+// the point) satisfies cot phi = T / S: phi only grows, towards pi. So the next crossing is
+//   z-plane      z0 - u cos t = edge                   (a plane)
+//   rho-cylinder T(u)^2 + S^2 = edge^2                 (inward while T > 0, then outward)
+//   phi-plane    T(u) = S cot(edge)                    (a half-plane through the axis)
+// and the walk takes whichever comes first: at most 128 + 2 * 64 + 17 + 1 steps.
+//
+// Where to stop (exact mode). J <= J_max everywhere, so what is left after u is at most
+// e^{-u} J_max (the integral of e^{-u'} from u to infinity is e^{-u}). The walk stops when that
+// bound falls below cut.x (1e-4) times the larger of what it has gathered and a floor of
+// cut.y (1e-10) J_max: the result is then within 1e-4 relative of the whole integral, or
+// within 1e-14 J_max absolute for cells so far from the light that A is below 1e-10 of the
+// table's peak, values no render can show next to the light that made them. The bound uses
+// the table's own peak, not a fixed length: at low albedo J falls like e^{-r} away from the
+// source, so the light reaching a far cell comes from near the source, up to ~32 mfp back,
+// and a fixed short cut would lose it. The walk also stops where it leaves the table (J is 0
+// outside). Paper mode (cut.z = 5): the integral over the first 5 mfp only, no other cut.
+//
+// Binding 0 params, 1 J (float[3][cells]), 2 A out (same layout), 3 counters.
+#extension GL_GOOGLE_include_directive : require
+#include "shared.h"
+#include "scatter_shared.h"
+#include "accumulate_shared.h"
+
+layout(local_size_x = NS_ACCUMULATE_GROUP) in;
+
+layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams params; };
+layout(std430, binding = 1) readonly buffer JBlock { float j[]; };
+layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
+layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuAccumulatePush push; };
+
+const float PI = 3.14159265358979;
+const float ANGLE_STEP = PI / float(NS_TABLE_NTHETA); // theta and phi bins: 10 degrees
+const float FAR = 3.0e38;
+const int NZ = int(NS_TABLE_NZ), NRHO = int(NS_TABLE_NRHO), NPHI = int(NS_TABLE_NPHI);
+
+// The bin edges and the phi edges' cotangents, computed once per workgroup: sinh and the
+// trigonometric functions cost far more on lavapipe than a load.
+shared float z_edges[NZ + 1];
+shared float rho_edges[NRHO + 1];
+shared float phi_cot[NPHI];
+
+void fill_edges()
+{
+    for (uint i = gl_LocalInvocationID.x; i <= uint(NZ); i += NS_ACCUMULATE_GROUP)
+        z_edges[i] = params.grid.x * sinh(params.grid.y * float(int(i) - NZ / 2));
+    for (uint i = gl_LocalInvocationID.x; i <= uint(NRHO); i += NS_ACCUMULATE_GROUP)
+        rho_edges[i] = params.grid.x * sinh(params.grid.y * float(i));
+    for (uint i = gl_LocalInvocationID.x; i < uint(NPHI); i += NS_ACCUMULATE_GROUP) {
+        float edge = float(i + 1u) * ANGLE_STEP;
+        phi_cot[i] = cos(edge) / sin(edge);
+    }
+    barrier();
+}
+
+float z_edge(int i) { return z_edges[i]; }
+float rho_edge(int i) { return rho_edges[i]; }
+
+// u of the next z-plane (FAR when the walk runs parallel to them).
+float next_z(int iz, float z0, float cos_theta)
+{
+    if (cos_theta > 0.0)
+        return (z0 - z_edge(iz)) / cos_theta; // z decreases: the bin's lower plane
+    if (cos_theta < 0.0)
+        return (z_edge(iz + 1) - z0) / -cos_theta;
+    return FAR;
+}
+
+// u of the next rho-cylinder from u (where T = t0 - u sin_theta), and which way it goes:
+// inward through the bin's inner cylinder while T > 0 and the line reaches it, else outward
+// through the outer one (on the far side of the closest approach when T > 0).
+float next_rho(int ir, float u, float t0, float s2, float sin_theta, out int dir)
+{
+    float t = t0 - u * sin_theta;
+    float lo = rho_edge(ir);
+    if (t > 0.0 && ir > 0 && lo * lo > s2) {
+        dir = -1;
+        return (t0 - sqrt(lo * lo - s2)) / sin_theta;
+    }
+    float hi = rho_edge(ir + 1);
+    dir = 1;
+    return (t0 + sqrt(max(hi * hi - s2, 0.0))) / sin_theta;
+}
+
+// u of the next constant-phi half-plane (none after the last bin: phi tends to pi).
+float next_phi(int ip, float t0, float s, float sin_theta)
+{
+    if (ip >= NPHI - 1)
+        return FAR;
+    return (t0 - s * phi_cot[ip]) / sin_theta;
+}
+
+void count_steps(uint steps)
+{
+    uint before = atomicAdd(counters[NS_ACCUMULATE_COUNTER_STEPS], steps);
+    if (before + steps < before) // the low word wrapped
+        atomicAdd(counters[NS_ACCUMULATE_COUNTER_STEPS_HIGH], 1u);
+}
+
 void main()
 {
+    if (params.counts.x == 0u) // the warm-up
+        return;
+    fill_edges(); // before any invocation of the group returns: barrier() needs them all
+    uint cell = push.first_cell + gl_GlobalInvocationID.x;
+    if (gl_GlobalInvocationID.x >= push.cell_count || cell >= params.counts.x)
+        return;
+    uint rest = cell;
+    int ip = int(rest % NS_TABLE_NPHI);
+    rest /= NS_TABLE_NPHI;
+    int it = int(rest % NS_TABLE_NTHETA);
+    rest /= NS_TABLE_NTHETA;
+    int ir = int(rest % NS_TABLE_NRHO);
+    int iz = int(rest / NS_TABLE_NRHO);
+
+    float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1));
+    float rho0 = 0.5 * (rho_edge(ir) + rho_edge(ir + 1));
+    float theta = (float(it) + 0.5) * ANGLE_STEP, phi = (float(ip) + 0.5) * ANGLE_STEP;
+    float cos_theta = cos(theta), sin_theta = sin(theta); // sin_theta > 0 at every centre
+    float t0 = rho0 * cos(phi), s = rho0 * sin(phi), s2 = s * s;
+
+    bool fixed_length = params.cut.z > 0.0;
+    float u_end = fixed_length ? params.cut.z : FAR;
+    vec3 j_max = params.j_max.xyz;
+    vec3 floor_abs = params.cut.y * j_max;
+
+    int rho_dir;
+    float uz = next_z(iz, z0, cos_theta);
+    float ur = next_rho(ir, 0.0, t0, s2, sin_theta, rho_dir);
+    float up = next_phi(ip, t0, s, sin_theta);
+
+    float u = 0.0, decay = 1.0; // decay = e^{-u}
+    vec3 sum = vec3(0.0);
+    uint steps = 0u;
+    bool capped = true;
+    while (steps < params.counts.z) {
+        int event = 0;
+        float u_event = uz;
+        if (ur < u_event) {
+            event = 1;
+            u_event = ur;
+        }
+        if (up < u_event) {
+            event = 2;
+            u_event = up;
+        }
+        // Rounding can put a crossing a hair behind u: it then takes a zero-length step.
+        float u_next = max(min(u_event, u_end), u);
+        float decay_next = exp(-u_next);
+        uint index = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
+                         NS_TABLE_NPHI + uint(ip);
+        vec3 jv = vec3(j[index], j[NS_TABLE_CELLS + index], j[2u * NS_TABLE_CELLS + index]);
+        sum += jv * (decay - decay_next);
+        steps++;
+        u = u_next;
+        decay = decay_next;
+        if (u_event >= u_end) {
+            capped = false;
+            break;
+        }
+        if (!fixed_length && all(lessThanEqual(decay * j_max, params.cut.x * (sum + floor_abs)))) {
+            capped = false;
+            break;
+        }
+        if (event == 0) {
+            iz += cos_theta > 0.0 ? -1 : 1;
+            if (iz < 0 || iz >= NZ) {
+                capped = false;
+                break;
+            }
+            uz = next_z(iz, z0, cos_theta);
+        } else if (event == 1) {
+            ir += rho_dir;
+            if (ir >= NRHO) {
+                capped = false;
+                break;
+            }
+            ur = next_rho(ir, u, t0, s2, sin_theta, rho_dir);
+        } else {
+            ip++;
+            up = next_phi(ip, t0, s, sin_theta);
+        }
+    }
+    for (uint c = 0u; c < 3u; c++)
+        a[c * NS_TABLE_CELLS + cell] = sum[c];
+    count_steps(steps);
+    if (capped)
+        atomicAdd(counters[NS_ACCUMULATE_COUNTER_CAPPED], 1u);
 }

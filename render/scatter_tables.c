@@ -1,0 +1,612 @@
+/* scatter_tables.c — the accumulated camera-side tables A of a material (render/scatter.h):
+ * J from the networks (built-in weights, renormalised to the exact energy) or from the
+ * caller's Monte Carlo provider, accumulated by shaders/accumulate.comp, and a cache of both
+ * J (per source, g, albedo: one channel) and A (per whole key), least recently used first
+ * out, bounded in bytes.
+ *
+ * Buffers that live as long as the context (the network's parameter block, cached A tables)
+ * are taken out of dev.live_buffers while they live: that count measures what a request
+ * leaves behind, and a cached table is kept on purpose.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "accumulate_shared.h"
+#include "nn_reconstruct.h"
+#include "scatter.h"
+
+/* Accumulation cut (see shaders/accumulate.comp): the remainder bound e^{-u} J_max must fall
+ * below CUT_RELATIVE times max(sum so far, CUT_FLOOR J_max). */
+#define CUT_RELATIVE 1e-4f
+#define CUT_FLOOR 1e-10f
+/* Cells per dispatch: keeps each submission short on any device. */
+#define CELLS_PER_DISPATCH (NS_ACCUMULATE_GROUP * 8192u)
+
+struct ns_nn_state {
+    ns_nn_gpu gpu;
+    ns_nn_weights nets[2];
+    int nets_ok;
+    ns_error nets_error; /* why NS_METHOD_NN is not available */
+};
+
+typedef enum { ENTRY_J, ENTRY_A } entry_kind;
+
+/* One cache entry: J of one channel (both orders, host memory) or A of a whole key. */
+typedef struct cache_entry {
+    entry_kind kind;
+    ns_method source;      /* J */
+    float g, albedo;       /* J */
+    float *j[2];           /* J: double, multiple (NS_TABLE_CELLS each) */
+    ns_table_key key;      /* A */
+    ns_scatter_tables a;   /* A */
+    uint64_t bytes;
+    uint64_t last_use;
+} cache_entry;
+
+struct ns_table_cache {
+    cache_entry *entries;
+    uint32_t count, capacity;
+    uint64_t bytes;
+    uint64_t clock;
+};
+
+static double table_ms_since(double t0) { return ns_now_ms() - t0; }
+
+/* ---------------------------------------------------------------------------------------
+ * Grid
+ * ------------------------------------------------------------------------------------- */
+void ns_table_grid_default(ns_table_grid *g)
+{
+    g->scale = NS_TABLE_SINH_SCALE;
+    g->extent = NS_TABLE_EXTENT;
+    g->step = asinh(NS_TABLE_EXTENT / NS_TABLE_SINH_SCALE) / NS_TABLE_NRHO;
+    for (uint32_t i = 0; i <= NS_TABLE_NZ; i++)
+        g->z[i] = g->scale * sinh(g->step * ((double)i - NS_TABLE_NZ / 2));
+    for (uint32_t i = 0; i <= NS_TABLE_NRHO; i++)
+        g->rho[i] = g->scale * sinh(g->step * i);
+    g->z[NS_TABLE_NZ / 2] = 0.0; /* exactly, as offline/mc.c writes it */
+    g->rho[0] = 0.0;
+    for (uint32_t i = 0; i <= NS_TABLE_NTHETA; i++)
+        g->theta[i] = M_PI * i / NS_TABLE_NTHETA;
+    for (uint32_t i = 0; i <= NS_TABLE_NPHI; i++)
+        g->phi[i] = M_PI * i / NS_TABLE_NPHI;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Context-lifetime buffers (see the header comment)
+ * ------------------------------------------------------------------------------------- */
+static void keep_buffer(gpu_device *dev) { __atomic_sub_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST); }
+static void destroy_kept_buffer(gpu_device *dev, gpu_buffer *b)
+{
+    if (b->buffer)
+        __atomic_add_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST);
+    gpu_buffer_destroy(dev, b);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Accumulation
+ * ------------------------------------------------------------------------------------- */
+static void channel_max(const float *j, float j_max[3])
+{
+    for (int c = 0; c < 3; c++) {
+        const float *t = j + (size_t)c * NS_TABLE_CELLS;
+        float m = 0.0f;
+        for (size_t i = 0; i < NS_TABLE_CELLS; i++)
+            m = t[i] > m ? t[i] : m;
+        j_max[c] = m;
+    }
+}
+
+static int check_j(const float *j, ns_error *err)
+{
+    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
+        if (!(j[i] >= 0.0f) || isinf(j[i]))
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "J table: channel %zu cell %zu is %g (must be finite and >= 0)",
+                           i / NS_TABLE_CELLS, i % NS_TABLE_CELLS, (double)j[i]);
+    return NS_OK;
+}
+
+static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[3],
+                                             ns_accumulation accumulation)
+{
+    GpuAccumulateParams p;
+    memset(&p, 0, sizeof p);
+    p.grid[0] = (float)grid->scale;
+    p.grid[1] = (float)grid->step;
+    p.grid[2] = (float)grid->extent;
+    memcpy(p.j_max, j_max, 3 * sizeof(float));
+    p.cut[0] = CUT_RELATIVE;
+    p.cut[1] = CUT_FLOOR;
+    p.cut[2] = accumulation == NS_ACCUMULATION_PAPER ? (float)NS_PAPER_ACCUMULATION_MFP : 0.0f;
+    p.counts[0] = NS_TABLE_CELLS;
+    p.counts[2] = NS_ACCUMULATE_STEP_CAP;
+    return p;
+}
+
+enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_COUNT };
+
+static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_error *err)
+{
+    uint32_t dispatches = (NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH;
+    GpuAccumulatePush push[(NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH];
+    for (uint32_t i = 0; i < dispatches; i++) {
+        uint32_t first = i * CELLS_PER_DISPATCH;
+        uint32_t n = NS_TABLE_CELLS - first;
+        push[i] = (GpuAccumulatePush){.first_cell = first,
+                                      .cell_count = n < CELLS_PER_DISPATCH ? n : CELLS_PER_DISPATCH};
+    }
+    return gpu_dispatch_many(
+        &ctx->dev,
+        &(gpu_dispatch_desc){.pipeline = &ctx->accumulate,
+                             .buffers = bound,
+                             .buffer_count = B_COUNT,
+                             .groups = {CELLS_PER_DISPATCH / NS_ACCUMULATE_GROUP, 1, 1},
+                             .push = push,
+                             .dispatch_count = dispatches},
+        err);
+}
+
+int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
+                         ns_scatter_tables *out, uint64_t *steps, ns_error *err)
+{
+    memset(out, 0, sizeof *out);
+    if (accumulation != NS_ACCUMULATION_EXACT && accumulation != NS_ACCUMULATION_PAPER)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
+                       (int)accumulation);
+    int status = check_j(j, err);
+    if (status)
+        return status;
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    float j_max[3];
+    channel_max(j, j_max);
+    GpuAccumulateParams params = accumulate_params(&grid, j_max, accumulation);
+    uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
+
+    gpu_buffer own[B_COUNT];
+    memset(own, 0, sizeof own);
+    gpu_buffer_desc descs[B_COUNT] = {
+        [B_PARAMS] = {.size = sizeof params, .kind = GPU_BUFFER_UNIFORM, .data = &params,
+                      .data_size = sizeof params, .label = "ns.accumulate.params"},
+        [B_J] = {.size = table_bytes, .data = j, .data_size = table_bytes,
+                 .label = "ns.accumulate.j"},
+        [B_A] = {.size = table_bytes, .uninitialized = 1, .label = "ns.tables.a"},
+        [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
+                        .label = "ns.accumulate.counters"},
+    };
+    status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
+    if (!status) {
+        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS]};
+        status = dispatch_accumulate(ctx, bound, err);
+    }
+    if (!status) {
+        const uint32_t *c = own[B_COUNTERS].mapped;
+        if (c[NS_ACCUMULATE_COUNTER_CAPPED])
+            status = ns_fail(err, NS_ERR_INTERNAL,
+                             "accumulate: %u cells walked past %u steps (at most 274 bins lie "
+                             "on a line)",
+                             c[NS_ACCUMULATE_COUNTER_CAPPED], NS_ACCUMULATE_STEP_CAP);
+        if (steps)
+            *steps = (uint64_t)c[NS_ACCUMULATE_COUNTER_STEPS_HIGH] << 32 |
+                     c[NS_ACCUMULATE_COUNTER_STEPS];
+    }
+    if (!status) {
+        out->a = own[B_A];
+        own[B_A] = (gpu_buffer){0};
+        out->scale = (float)grid.scale;
+        out->inv_step = (float)(1.0 / grid.step);
+        out->extent = (float)grid.extent;
+        out->bytes = table_bytes;
+    }
+    for (int i = 0; i < B_COUNT; i++)
+        gpu_buffer_destroy(&ctx->dev, &own[i]);
+    return status;
+}
+
+void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t)
+{
+    gpu_buffer_destroy(&ctx->dev, &t->a);
+    memset(t, 0, sizeof *t);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Cache
+ * ------------------------------------------------------------------------------------- */
+static int same_key(const ns_table_key *a, const ns_table_key *b)
+{
+    return a->source == b->source && a->g == b->g && a->albedo[0] == b->albedo[0] &&
+           a->albedo[1] == b->albedo[1] && a->albedo[2] == b->albedo[2] &&
+           a->orders == b->orders && a->accumulation == b->accumulation;
+}
+
+static cache_entry *find_a(struct ns_table_cache *cache, const ns_table_key *key)
+{
+    for (uint32_t i = 0; i < cache->count; i++)
+        if (cache->entries[i].kind == ENTRY_A && same_key(&cache->entries[i].key, key))
+            return &cache->entries[i];
+    return NULL;
+}
+
+static cache_entry *find_j(struct ns_table_cache *cache, ns_method source, float g, float albedo)
+{
+    for (uint32_t i = 0; i < cache->count; i++) {
+        cache_entry *e = &cache->entries[i];
+        if (e->kind == ENTRY_J && e->source == source && e->g == g && e->albedo == albedo)
+            return e;
+    }
+    return NULL;
+}
+
+static void touch(struct ns_table_cache *cache, cache_entry *e) { e->last_use = ++cache->clock; }
+
+static void free_entry(ns_context *ctx, cache_entry *e)
+{
+    if (e->kind == ENTRY_A) {
+        destroy_kept_buffer(&ctx->dev, &e->a.a);
+    } else {
+        free(e->j[0]);
+        free(e->j[1]);
+    }
+    memset(e, 0, sizeof *e);
+}
+
+static uint32_t lru_index(const struct ns_table_cache *cache)
+{
+    uint32_t oldest = 0;
+    for (uint32_t i = 1; i < cache->count; i++)
+        if (cache->entries[i].last_use < cache->entries[oldest].last_use)
+            oldest = i;
+    return oldest;
+}
+
+static void remove_entry(ns_context *ctx, struct ns_table_cache *cache, uint32_t index)
+{
+    cache->bytes -= cache->entries[index].bytes;
+    free_entry(ctx, &cache->entries[index]);
+    cache->entries[index] = cache->entries[--cache->count];
+}
+
+/* Adds e (copied) and returns where it lives now; NULL when out of memory (e untouched). */
+static cache_entry *insert(struct ns_table_cache *cache, const cache_entry *e)
+{
+    if (cache->count == cache->capacity) {
+        uint32_t capacity = cache->capacity ? 2 * cache->capacity : 16;
+        cache_entry *grown = realloc(cache->entries, capacity * sizeof *grown);
+        if (!grown)
+            return NULL;
+        cache->entries = grown;
+        cache->capacity = capacity;
+    }
+    cache_entry *slot = &cache->entries[cache->count++];
+    *slot = *e;
+    cache->bytes += e->bytes;
+    touch(cache, slot);
+    return slot;
+}
+
+/* Evicts least recently used entries until the cache fits ctx->table_cache_bytes, never the
+ * A entry `keep` (the caller is about to use it: it stays even when it alone is too big).
+ * Returns keep's new address (entries move when others are removed). */
+static cache_entry *evict(ns_context *ctx, struct ns_table_cache *cache, cache_entry *keep)
+{
+    ns_table_key kept_key = keep->key;
+    while (cache->bytes > ctx->table_cache_bytes) {
+        uint32_t oldest = UINT32_MAX;
+        for (uint32_t i = 0; i < cache->count; i++) {
+            const cache_entry *e = &cache->entries[i];
+            if (e == keep)
+                continue;
+            if (oldest == UINT32_MAX || e->last_use < cache->entries[oldest].last_use)
+                oldest = i;
+        }
+        if (oldest == UINT32_MAX)
+            break;
+        remove_entry(ctx, cache, oldest);
+        keep = find_a(cache, &kept_key);
+    }
+    return keep;
+}
+
+void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *entries)
+{
+    const struct ns_table_cache *cache = ctx->tables;
+    *bytes = cache ? cache->bytes : 0;
+    *entries = cache ? cache->count : 0;
+}
+
+const float *ns_tables_cached_j(const ns_context *ctx, ns_method source, float g, float albedo,
+                                uint32_t order)
+{
+    if (!ctx->tables || order > 1)
+        return NULL;
+    const cache_entry *e = find_j((struct ns_table_cache *)ctx->tables, source, g, albedo);
+    return e ? e->j[order] : NULL;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * J: from the networks or the Monte Carlo provider, one cache entry per distinct albedo
+ * ------------------------------------------------------------------------------------- */
+static const uint64_t j_entry_bytes = 2ull * NS_TABLE_CELLS * sizeof(float);
+
+/* Channels of key whose J is missing, each distinct albedo once. */
+static uint32_t missing_albedos(struct ns_table_cache *cache, const ns_table_key *key,
+                                float albedo[3])
+{
+    uint32_t n = 0;
+    for (int c = 0; c < 3; c++) {
+        float a = key->albedo[c];
+        int listed = 0;
+        for (uint32_t k = 0; k < n; k++)
+            listed |= albedo[k] == a;
+        if (!listed && !find_j(cache, key->source, key->g, a))
+            albedo[n++] = a;
+    }
+    return n;
+}
+
+static int alloc_j_entry(cache_entry *e, const ns_table_key *key, float albedo, ns_error *err)
+{
+    memset(e, 0, sizeof *e);
+    e->kind = ENTRY_J;
+    e->source = key->source;
+    e->g = key->g;
+    e->albedo = albedo;
+    e->bytes = j_entry_bytes;
+    e->j[0] = malloc(NS_TABLE_CELLS * sizeof(float));
+    e->j[1] = malloc(NS_TABLE_CELLS * sizeof(float));
+    if (!e->j[0] || !e->j[1]) {
+        free(e->j[0]);
+        free(e->j[1]);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+    }
+    return NS_OK;
+}
+
+static int insert_j_entry(struct ns_table_cache *cache, cache_entry *e, ns_error *err)
+{
+    if (insert(cache, e))
+        return NS_OK;
+    free(e->j[0]);
+    free(e->j[1]);
+    return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
+}
+
+static int network_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
+                     ns_error *err)
+{
+    struct ns_nn_state *nn = ctx->nn;
+    if (!nn->nets_ok)
+        return ns_fail(err, NS_ERR_NOT_AVAILABLE, "method nn: %s", nn->nets_error.message);
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    size_t cells = NS_TABLE_CELLS;
+    float *out = malloc(2 * 3 * cells * sizeof(float));
+    if (!out)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+    ns_nn_reconstruct_desc desc = {
+        .nets = {&nn->nets[0], &nn->nets[1]},
+        .grid = {.n = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI},
+                 .edges = {grid.z, grid.rho, grid.theta, grid.phi}},
+        .g = key->g,
+        .renormalise = 1, /* the default of `nscatter table`: each table carries E_k exactly */
+        .channels = n,
+        .out = out,
+    };
+    for (uint32_t c = 0; c < 3; c++)
+        desc.albedo[c] = albedo[c < n ? c : 0];
+    int status = ns_nn_reconstruct(&ctx->dev, &nn->gpu, &desc, NULL, err);
+    for (uint32_t c = 0; c < n && !status; c++) {
+        cache_entry e;
+        status = alloc_j_entry(&e, key, albedo[c], err);
+        if (status)
+            break;
+        for (int o = 0; o < 2; o++)
+            memcpy(e.j[o], out + ((size_t)o * 3 + c) * cells, cells * sizeof(float));
+        status = insert_j_entry(ctx->tables, &e, err);
+    }
+    free(out);
+    return status;
+}
+
+/* A provider's tables are input from outside: finite and non-negative, or refused. */
+static int check_j_pair(float *const j[2], float albedo, ns_error *err)
+{
+    for (int o = 0; o < 2; o++)
+        for (size_t i = 0; i < NS_TABLE_CELLS; i++)
+            if (!(j[o][i] >= 0.0f) || isinf(j[o][i]))
+                return ns_fail(err, NS_ERR_INTERNAL,
+                               "method table: the Monte Carlo provider's %s table for albedo %g "
+                               "has %g at cell %zu",
+                               o ? "multiple" : "double", (double)albedo, (double)j[o][i], i);
+    return NS_OK;
+}
+
+static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *albedo,
+                         uint32_t n, ns_error *err)
+{
+    if (!ctx->mc_tables)
+        return ns_fail(err, NS_ERR_NOT_AVAILABLE,
+                       "method table: this context has no Monte Carlo table provider");
+    int status = NS_OK;
+    for (uint32_t c = 0; c < n && !status; c++) {
+        cache_entry e;
+        status = alloc_j_entry(&e, key, albedo[c], err);
+        if (status)
+            break;
+        status = ctx->mc_tables(ctx->mc_user, key->g, albedo[c], e.j[0], e.j[1], err);
+        if (!status)
+            status = check_j_pair(e.j, albedo[c], err);
+        if (status) {
+            free(e.j[0]);
+            free(e.j[1]);
+            break;
+        }
+        status = insert_j_entry(ctx->tables, &e, err);
+    }
+    return status;
+}
+
+/* J of each channel for key: the network's or the provider's, computed once per albedo. */
+static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruct_ms,
+                    ns_error *err)
+{
+    float albedo[3];
+    uint32_t n = missing_albedos(ctx->tables, key, albedo);
+    *reconstruct_ms = 0.0;
+    if (!n)
+        return NS_OK;
+    double t0 = ns_now_ms();
+    int status = key->source == NS_METHOD_NN ? network_j(ctx, key, albedo, n, err)
+                                             : monte_carlo_j(ctx, key, albedo, n, err);
+    *reconstruct_ms = table_ms_since(t0);
+    return status;
+}
+
+/* The J that key asks for, [3][cells]: the chosen orders summed, per channel. */
+static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_error *err)
+{
+    size_t cells = NS_TABLE_CELLS;
+    float *j = malloc(3 * cells * sizeof(float));
+    if (!j)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+    int want_double = (key->orders & NS_COMPONENT_DOUBLE) != 0;
+    int want_multiple = (key->orders & NS_COMPONENT_MULTIPLE) != 0;
+    for (int c = 0; c < 3; c++) {
+        cache_entry *e = find_j(ctx->tables, key->source, key->g, key->albedo[c]);
+        touch(ctx->tables, e);
+        float *dst = j + c * cells;
+        for (size_t i = 0; i < cells; i++)
+            dst[i] = (want_double ? e->j[0][i] : 0.0f) + (want_multiple ? e->j[1][i] : 0.0f);
+    }
+    *out = j;
+    return NS_OK;
+}
+
+static int check_key(const ns_table_key *key, ns_error *err)
+{
+    if (key->source != NS_METHOD_NN && key->source != NS_METHOD_TABLE)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "render.method: tables exist for nn and table only (got %d)",
+                       (int)key->source);
+    if (!(key->g > -1.0f && key->g < 1.0f))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "material g: %g outside (-1, 1)",
+                       (double)key->g);
+    for (int c = 0; c < 3; c++)
+        if (!(key->albedo[c] >= 0.0f && key->albedo[c] < 1.0f))
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "material albedo[%d]: %g outside [0, 1) (multiple scattering of a "
+                           "medium that absorbs nothing has no finite table)",
+                           c, (double)key->albedo[c]);
+    uint32_t orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    if (!key->orders || (key->orders & ~orders))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "tables: orders 0x%x (double and/or multiple only)", key->orders);
+    if (key->accumulation != NS_ACCUMULATION_EXACT && key->accumulation != NS_ACCUMULATION_PAPER)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
+                       (int)key->accumulation);
+    return NS_OK;
+}
+
+static uint64_t weights_bytes(const ns_table_key *key)
+{
+    /* Both networks, as their files hold them (header + float parameters). */
+    return key->source == NS_METHOD_NN ? 2ull * (NS_NN_HEADER_SIZE + NS_NN_PARAMS * sizeof(float))
+                                       : 0;
+}
+
+int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
+                  ns_table_stats *stats, ns_error *err)
+{
+    ns_table_stats local;
+    if (!stats)
+        stats = &local;
+    memset(stats, 0, sizeof *stats);
+    *out = NULL;
+    int status = check_key(key, err);
+    if (status)
+        return status;
+    struct ns_table_cache *cache = ctx->tables;
+    stats->weights_bytes = weights_bytes(key);
+    cache_entry *hit = find_a(cache, key);
+    if (hit) {
+        touch(cache, hit);
+        stats->cache_hit = 1;
+        *out = &hit->a;
+        return NS_OK;
+    }
+    status = ensure_j(ctx, key, &stats->reconstruct_ms, err);
+    float *j = NULL;
+    if (!status)
+        status = sum_orders(ctx, key, &j, err);
+    cache_entry e = {.kind = ENTRY_A, .key = *key};
+    double t0 = ns_now_ms();
+    if (!status)
+        status = ns_tables_accumulate(ctx, j, key->accumulation, &e.a, NULL, err);
+    stats->accumulate_ms = table_ms_since(t0);
+    free(j);
+    if (status) {
+        /* J made before the failure stays cached; keep the bound anyway. */
+        while (cache->bytes > ctx->table_cache_bytes && cache->count)
+            remove_entry(ctx, cache, lru_index(cache));
+        return status;
+    }
+    e.bytes = e.a.bytes;
+    keep_buffer(&ctx->dev);
+    cache_entry *slot = insert(cache, &e);
+    if (!slot) {
+        destroy_kept_buffer(&ctx->dev, &e.a.a);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
+    }
+    slot = evict(ctx, cache, slot);
+    *out = &slot->a;
+    return NS_OK;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Context hooks
+ * ------------------------------------------------------------------------------------- */
+static int load_networks(struct ns_nn_state *nn)
+{
+    for (uint32_t o = 0; o < 2; o++)
+        if (ns_nn_weights_builtin(o, &nn->nets[o], &nn->nets_error))
+            return 0;
+    return 1;
+}
+
+int ns_tables_init(ns_context *ctx, ns_error *err)
+{
+    ctx->tables = calloc(1, sizeof *ctx->tables);
+    ctx->nn = calloc(1, sizeof *ctx->nn);
+    if (!ctx->tables || !ctx->nn)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
+    ctx->nn->nets_ok = load_networks(ctx->nn);
+    /* Created and compiled now even without weights: lavapipe compiles at the first
+     * dispatch (seconds for this unrolled shader), which must never land in a request. */
+    int status = ns_nn_gpu_create(&ctx->dev, &ctx->nn->gpu, err);
+    if (!status) {
+        keep_buffer(&ctx->dev); /* params */
+        keep_buffer(&ctx->dev); /* dummy */
+    }
+    return status;
+}
+
+void ns_tables_destroy(ns_context *ctx)
+{
+    if (ctx->tables) {
+        while (ctx->tables->count)
+            remove_entry(ctx, ctx->tables, ctx->tables->count - 1);
+        free(ctx->tables->entries);
+        free(ctx->tables);
+        ctx->tables = NULL;
+    }
+    if (ctx->nn) {
+        if (ctx->nn->gpu.created) {
+            __atomic_add_fetch(&ctx->dev.live_buffers, 2, __ATOMIC_SEQ_CST);
+            ns_nn_gpu_destroy(&ctx->dev, &ctx->nn->gpu);
+        }
+        free(ctx->nn);
+        ctx->nn = NULL;
+    }
+}

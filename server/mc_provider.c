@@ -1,0 +1,293 @@
+/* mc_provider.c — Monte Carlo tables for method "table", computed with offline/mc.h and kept
+ * on disk (see mc_provider.h). */
+#include "mc_provider.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#include "mc.h"
+#include "table_io.h"
+
+#define DIR_CAP 3000
+#define PATH_CAP 4096
+#define CELLS ((size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR) /* = NS_TABLE_CELLS of the renderer */
+
+struct ns_mc_provider {
+    char dir[DIR_CAP];
+    double collisions;
+    unsigned threads, lobe_in, lobe_out;
+    ns_mc_provider_counts counts;
+};
+
+static int fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static int fail(ns_error *err, int status, const char *fmt, ...)
+{
+    if (err) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err->message, sizeof err->message, fmt, ap);
+        va_end(ap);
+        err->status = status;
+    }
+    return status;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The cache directory
+ * ------------------------------------------------------------------------------------- */
+static int resolve_dir(const char *given, char *dir, ns_error *err)
+{
+    const char *env = getenv("NSCATTER_CACHE_DIR");
+    const char *xdg = getenv("XDG_CACHE_HOME");
+    const char *home = getenv("HOME");
+    int n;
+    if (given && *given)
+        n = snprintf(dir, DIR_CAP, "%s", given);
+    else if (env && *env)
+        n = snprintf(dir, DIR_CAP, "%s", env);
+    else if (xdg && *xdg)
+        n = snprintf(dir, DIR_CAP, "%s/nscatter", xdg);
+    else if (home && *home)
+        n = snprintf(dir, DIR_CAP, "%s/.cache/nscatter", home);
+    else
+        return fail(err, NS_ERR_INVALID_ARGUMENT,
+                    "Monte Carlo cache: set NSCATTER_CACHE_DIR (no XDG_CACHE_HOME or HOME)");
+    if (n < 0 || n >= DIR_CAP)
+        return fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: directory name too long");
+    return NS_OK;
+}
+
+/* mkdir -p: every missing parent, then the directory itself. */
+static int make_dirs(const char *dir, ns_error *err)
+{
+    char path[DIR_CAP];
+    snprintf(path, sizeof path, "%s", dir);
+    for (char *p = path + 1;; p++) {
+        if (*p != '/' && *p != '\0')
+            continue;
+        char saved = *p;
+        *p = '\0';
+        if (mkdir(path, 0755) != 0 && errno != EEXIST)
+            return fail(err, NS_ERR_IO, "Monte Carlo cache: cannot create '%s': %s", path,
+                        strerror(errno));
+        *p = saved;
+        if (saved == '\0')
+            break;
+    }
+    struct stat st;
+    if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
+        return fail(err, NS_ERR_IO, "Monte Carlo cache: '%s' is not a directory", dir);
+    return NS_OK;
+}
+
+int ns_mc_provider_create(const ns_mc_provider_desc *desc, ns_mc_provider **out, ns_error *err)
+{
+    *out = NULL;
+    ns_mc_provider_desc defaults = {0};
+    if (!desc)
+        desc = &defaults;
+    if (!(desc->collisions >= 0) || desc->collisions > 1e15)
+        return fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: collisions %g (0 to 1e15)",
+                    desc->collisions);
+    ns_mc_provider *p = calloc(1, sizeof *p);
+    if (!p)
+        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo cache: out of memory");
+    int status = resolve_dir(desc->cache_dir, p->dir, err);
+    if (status) {
+        free(p);
+        return status;
+    }
+    p->collisions = desc->collisions > 0 ? desc->collisions : NS_MC_PROVIDER_COLLISIONS;
+    p->threads = desc->threads;
+    p->lobe_in = desc->lobe_in_samples;
+    p->lobe_out = desc->lobe_out_samples;
+    *out = p;
+    return NS_OK;
+}
+
+void ns_mc_provider_destroy(ns_mc_provider *p) { free(p); }
+
+const char *ns_mc_provider_dir(const ns_mc_provider *p) { return p->dir; }
+
+void ns_mc_provider_get_counts(const ns_mc_provider *p, ns_mc_provider_counts *out)
+{
+    *out = p->counts;
+}
+
+static ns_mc_provider *process_provider;
+
+static void free_process_provider(void)
+{
+    ns_mc_provider_destroy(process_provider);
+    process_provider = NULL;
+}
+
+void ns_mc_provider_attach(ns_context_desc *desc)
+{
+    if (!process_provider) {
+        ns_error err = {0};
+        if (ns_mc_provider_create(NULL, &process_provider, &err)) {
+            fprintf(stderr, "nscatter: method \"table\" unavailable: %s\n", err.message);
+            return;
+        }
+        atexit(free_process_provider);
+    }
+    desc->mc_tables = ns_mc_provider_tables;
+    desc->mc_user = process_provider;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * One order's table: read and check, or simulate and write
+ * ------------------------------------------------------------------------------------- */
+/* Photons of one order's simulation at the budget (as `nscatter mc --grid` plans them). */
+static uint64_t budget_photons(const ns_mc_provider *p, ns_order order, double albedo)
+{
+    double per = ns_mc_collisions_per_photon(1u << order, albedo);
+    double n = floor(p->collisions / per);
+    return n < 1000 ? 1000 : (uint64_t)n;
+}
+
+static void file_prefix(const ns_mc_provider *p, double g, double albedo, ns_order order,
+                        char *prefix)
+{
+    snprintf(prefix, PATH_CAP, "%s/mc_g%.17g_a%.17g_%s", p->dir, g, albedo, ns_order_name(order));
+}
+
+static int near(double a, double b, double rel) { return fabs(a - b) <= rel * fmax(fabs(a), fabs(b)); }
+
+/* Why the table read from disk cannot be used for (g, albedo, order), or NULL. */
+static const char *cache_file_problem(const ns_table *t, double g, double albedo, ns_order order,
+                                      uint64_t photons)
+{
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    for (int a = 0; a < NS_AXIS_COUNT; a++)
+        if (t->n[a] != n[a])
+            return "its shape is not the default grid's";
+    ns_table ref = {0};
+    if (ns_table_create(&ref, n, NULL))
+        return "out of memory while checking it";
+    ns_mc_default_edges(&ref);
+    const char *problem = NULL;
+    for (int a = 0; a < NS_AXIS_COUNT && !problem; a++)
+        for (uint32_t i = 0; i <= n[a] && !problem; i++)
+            if (!near(t->edges[a][i], ref.edges[a][i], 1e-12) && fabs(ref.edges[a][i]) > 1e-300)
+                problem = "its bin edges are not the default grid's";
+    ns_table_free(&ref);
+    if (problem)
+        return problem;
+    if (t->order != order || strcmp(t->source, "mc") != 0)
+        return "it holds another order or source";
+    if (!near(t->g, g, 1e-15) && t->g != g)
+        return "it holds another g";
+    if (!near(t->albedo, albedo, 1e-15) && t->albedo != albedo)
+        return "it holds another albedo";
+    if (t->photons != photons)
+        return "it was made with another photon budget";
+    for (size_t i = 0; i < CELLS; i++)
+        if (!(t->data[i] >= 0.0f) || isinf(t->data[i]))
+            return "it holds a negative or non-finite value";
+    /* The energy recorded at write time against the data now: a changed value shows. */
+    double energy = ns_table_energy(t);
+    if (!near(energy, t->energy_captured, 1e-6) && !(energy == 0 && t->energy_captured == 0))
+        return "its data do not match its recorded energy";
+    return NULL;
+}
+
+/* 1 and out filled when a usable cache file exists; 0 otherwise (missing or rejected). */
+static int read_cached(ns_mc_provider *p, double g, double albedo, ns_order order, float *out)
+{
+    char prefix[PATH_CAP];
+    file_prefix(p, g, albedo, order, prefix);
+    char json[PATH_CAP + 8];
+    snprintf(json, sizeof json, "%s.json", prefix);
+    struct stat st;
+    if (stat(json, &st) != 0)
+        return 0;
+    ns_table t = {0};
+    ns_error err = {0};
+    const char *problem = NULL;
+    if (ns_table_read(prefix, &t, &err))
+        problem = err.message;
+    else
+        problem = cache_file_problem(&t, g, albedo, order, budget_photons(p, order, albedo));
+    if (problem) {
+        fprintf(stderr, "nscatter: Monte Carlo cache file %s rejected (%s); recomputing\n", json,
+                problem);
+        p->counts.files_rejected++;
+    } else {
+        memcpy(out, t.data, CELLS * sizeof(float));
+        p->counts.files_read++;
+    }
+    ns_table_free(&t);
+    return problem == NULL;
+}
+
+static void write_cached(ns_mc_provider *p, const ns_table *t, double g, double albedo,
+                         ns_order order)
+{
+    char prefix[PATH_CAP];
+    file_prefix(p, g, albedo, order, prefix);
+    ns_error err = {0};
+    int status = make_dirs(p->dir, &err);
+    if (!status)
+        status = ns_table_write(t, prefix, &err);
+    if (status) {
+        /* The render still gets its table; only the next one pays again. */
+        fprintf(stderr, "nscatter: Monte Carlo cache: %s\n", err.message);
+        p->counts.write_failures++;
+    }
+}
+
+static int simulate(ns_mc_provider *p, double g, double albedo, ns_order order,
+                    const double *lobe, float *out, ns_error *err)
+{
+    ns_mc_desc desc = {.g = g,
+                       .albedo = albedo,
+                       .photons = budget_photons(p, order, albedo),
+                       .seed = NS_MC_PROVIDER_SEED,
+                       .orders = 1u << order,
+                       .threads = p->threads,
+                       .lobe_in_samples = p->lobe_in,
+                       .lobe_out_samples = p->lobe_out,
+                       .lobe = lobe};
+    ns_mc_result r;
+    int status = ns_mc_run(&desc, &r, err);
+    if (status)
+        return status;
+    p->counts.simulations++;
+    memcpy(out, r.table[order].data, CELLS * sizeof(float));
+    write_cached(p, &r.table[order], g, albedo, order);
+    ns_mc_result_free(&r);
+    return NS_OK;
+}
+
+int ns_mc_provider_tables(void *user, double g, double albedo, float *j_double, float *j_multiple,
+                          ns_error *err)
+{
+    ns_mc_provider *p = user;
+    ns_mc_desc check = {.g = g, .albedo = albedo, .photons = 1, .orders = NS_MC_WANT_DOUBLE};
+    int status = ns_mc_check_desc(&check, err);
+    if (status)
+        return status;
+    float *out[2] = {j_double, j_multiple};
+    int have[2];
+    for (int o = 0; o < 2; o++)
+        have[o] = read_cached(p, g, albedo, (ns_order)o, out[o]);
+    if (have[0] && have[1])
+        return NS_OK;
+    /* The lobe matrix depends on g only: one for both orders. */
+    double *lobe = malloc((size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));
+    if (!lobe)
+        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo: out of memory");
+    ns_mc_lobe_matrix(g, p->lobe_in, p->lobe_out, p->threads, lobe);
+    for (int o = 0; o < 2 && !status; o++)
+        if (!have[o])
+            status = simulate(p, g, albedo, (ns_order)o, lobe, out[o], err);
+    free(lobe);
+    return status;
+}

@@ -1,0 +1,54 @@
+/* accumulate_shared.h — the accumulation stage's GPU blocks (shaders/accumulate.comp and
+ * render/scatter_tables.c), shared by C and GLSL like shared.h (include that and
+ * scatter_shared.h, included here); sizes checked at the bottom.
+ *
+ * The stage turns J (float [3][NS_TABLE_CELLS], one table per RGB channel, on the default
+ * grid) into A(x, w) = integral_0^inf e^{-u} J(x - u w, w) du at every cell centre
+ * (DESIGN.md section 2), walking the straight line x - u w through the table's bins.
+ */
+#ifndef NS_SHADERS_ACCUMULATE_SHARED_H
+#define NS_SHADERS_ACCUMULATE_SHARED_H
+
+#include "shared.h"
+#include "scatter_shared.h"
+
+/* Uniform block (binding 0). Kept under 256 bytes so the generic warm-up buffer covers it. */
+struct GpuAccumulateParams {
+    ns_vec4 grid;    /* x = sinh scale (mfp), y = sinh step, z = extent (mfp), w = unused */
+    ns_vec4 j_max;   /* xyz: the largest J of each channel's table (bounds the remainder) */
+    ns_vec4 cut;     /* x = relative error allowed for the remainder, y = floor relative to
+                        j_max (see accumulate.comp), z = fixed length (mfp, paper mode) or 0 */
+    ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = unused,
+                        z = step cap per cell, w = unused */
+};
+
+/* Push block of one dispatch: cells [first_cell, first_cell + groups * NS_ACCUMULATE_GROUP). */
+struct GpuAccumulatePush {
+    ns_uint first_cell;
+    ns_uint cell_count; /* cells of this dispatch (the last one may hold fewer) */
+    ns_uint pad0, pad1;
+};
+
+NS_CONST(uint, NS_ACCUMULATE_GROUP, 64);
+
+/* The walk crosses at most NZ z-planes, 2 NRHO cylinders (in, then out) and NPHI - 1
+ * half-planes of constant phi, plus the last stretch: 128 + 128 + 17 + 1 = 274 steps. The
+ * cap is far above that and far below lavapipe's 65,535 loop iterations per invocation; a
+ * cell that reaches it is counted (NS_ACCUMULATE_COUNTER_CAPPED), which the C side treats
+ * as a bug (NS_ERR_INTERNAL). */
+NS_CONST(uint, NS_ACCUMULATE_STEP_CAP, 1024);
+
+/* Counters (binding 3): steps walked (64-bit: low, high word) and cells that hit the cap. */
+NS_CONST(uint, NS_ACCUMULATE_COUNTER_STEPS, 0);
+NS_CONST(uint, NS_ACCUMULATE_COUNTER_STEPS_HIGH, 1);
+NS_CONST(uint, NS_ACCUMULATE_COUNTER_CAPPED, 2);
+NS_CONST(uint, NS_ACCUMULATE_COUNTER_COUNT, 4);
+
+#if defined(__STDC__) || defined(__cplusplus)
+typedef struct GpuAccumulateParams GpuAccumulateParams;
+typedef struct GpuAccumulatePush GpuAccumulatePush;
+_Static_assert(sizeof(GpuAccumulateParams) == 64, "GpuAccumulateParams std140 size");
+_Static_assert(sizeof(GpuAccumulatePush) == 16, "GpuAccumulatePush size");
+#endif
+
+#endif

@@ -1,0 +1,599 @@
+/* gpu_accumulate.c — the accumulation stage (render/scatter_tables.c, shaders/accumulate.comp)
+ * against closed forms and a brute-force integration, and the table cache:
+ *   (a) J(z) = e^{-kz} on z >= 0 (bin averages): A = e^{-kz} [e^{-(1-kc)u0} - e^{-(1-kc)u1}] /
+ *       (1 - kc), c = cos theta, [u0, u1] the part of the line inside the support and the table;
+ *       per-cell tolerance from the bin discretisation (bounded below), one k per channel;
+ *   (b) the network's tables of one material: A at a cell centre equals a brute-force
+ *       integral of the same nearest-bin J along the line, and the exact segment form
+ *       A(entry) - e^{-L} A(exit) equals the brute-force integral over the segment;
+ *   (c) paper mode: the 5-mfp integral (closed form of (a), brute force of (b));
+ *   (d) the cache: a second call is a hit with no reconstruction, other components reuse J,
+ *       eviction keeps the byte bound; bad keys are refused naming the field.
+ * Validation layers on (NSCATTER_VALIDATION=1). */
+#include "gpu_util.h"
+#include "scatter.h"
+
+static ns_table_grid grid;
+static const size_t cells = NS_TABLE_CELLS;
+
+static uint32_t rng = 2024u;
+static uint32_t next_random(void)
+{
+    rng = rng * 1664525u + 1013904223u;
+    return rng >> 8;
+}
+static double uniform01(void) { return next_random() * (1.0 / 16777216.0); }
+
+/* A cell's centre in its own frame: position (rho, 0, z), direction w from (theta, phi). */
+typedef struct centre {
+    int iz, ir, it, ip;
+    double p[3], w[3];
+} centre;
+
+static centre cell_centre(size_t cell)
+{
+    centre c;
+    c.ip = (int)(cell % NS_TABLE_NPHI);
+    cell /= NS_TABLE_NPHI;
+    c.it = (int)(cell % NS_TABLE_NTHETA);
+    cell /= NS_TABLE_NTHETA;
+    c.ir = (int)(cell % NS_TABLE_NRHO);
+    c.iz = (int)(cell / NS_TABLE_NRHO);
+    double z = 0.5 * (grid.z[c.iz] + grid.z[c.iz + 1]);
+    double rho = 0.5 * (grid.rho[c.ir] + grid.rho[c.ir + 1]);
+    double theta = 0.5 * (grid.theta[c.it] + grid.theta[c.it + 1]);
+    double phi = 0.5 * (grid.phi[c.ip] + grid.phi[c.ip + 1]);
+    c.p[0] = rho;
+    c.p[1] = 0.0;
+    c.p[2] = z;
+    c.w[0] = sin(theta) * cos(phi);
+    c.w[1] = sin(theta) * sin(phi);
+    c.w[2] = cos(theta);
+    return c;
+}
+
+/* Bin of v among n bins with these edges (sinh-spaced, found by search), or -1 outside. */
+static int edge_bin(const double *edges, int n, double v)
+{
+    if (v < edges[0] || v >= edges[n])
+        return -1;
+    int lo = 0, hi = n; /* edges[lo] <= v < edges[hi] */
+    while (hi - lo > 1) {
+        int mid = (lo + hi) / 2;
+        if (v >= edges[mid])
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+static int angle_bin(double angle)
+{
+    int i = (int)(angle / (M_PI / NS_TABLE_NTHETA));
+    return i < 0 ? 0 : i >= (int)NS_TABLE_NTHETA ? (int)NS_TABLE_NTHETA - 1 : i;
+}
+
+/* The table cell holding point p for light travelling along w (nearest bin, the gather's
+ * rule written independently), or -1 outside the table. */
+static long table_cell(const double p[3], const double w[3])
+{
+    double rho = hypot(p[0], p[1]);
+    int iz = edge_bin(grid.z, NS_TABLE_NZ, p[2]);
+    int ir = edge_bin(grid.rho, NS_TABLE_NRHO, rho);
+    if (iz < 0 || ir < 0)
+        return -1;
+    int it = angle_bin(acos(fmax(-1.0, fmin(1.0, w[2]))));
+    double wh = hypot(w[0], w[1]);
+    double cos_phi = rho > 0 && wh > 0 ? (w[0] * p[0] + w[1] * p[1]) / (wh * rho) : 1.0;
+    int ip = angle_bin(acos(fmax(-1.0, fmin(1.0, cos_phi))));
+    return (((long)iz * NS_TABLE_NRHO + ir) * NS_TABLE_NTHETA + it) * NS_TABLE_NPHI + ip;
+}
+
+/* Brute force: integral over [0, length] of e^{-u} J(p - u w, w) du, J one channel, by the
+ * midpoint rule on steps far finer than the finest bin (0.058 mfp). */
+static double brute_force(const float *j, const double p[3], const double w[3], double length)
+{
+    double sum = 0.0, u = 0.0;
+    while (u < length) {
+        double du = u < 8.0 ? 1e-3 : 1e-2;
+        if (u + du > length)
+            du = length - u;
+        double um = u + 0.5 * du;
+        double q[3] = {p[0] - um * w[0], p[1] - um * w[1], p[2] - um * w[2]};
+        long cell = table_cell(q, w);
+        if (cell >= 0)
+            sum += exp(-um) * j[cell] * du;
+        u += du;
+    }
+    return sum;
+}
+
+/* u where the line p - u w leaves the table (|z| or rho reaches the extent). */
+static double table_exit(const double p[3], const double w[3])
+{
+    double e = grid.extent;
+    double uz = w[2] > 0 ? (p[2] + e) / w[2] : w[2] < 0 ? (e - p[2]) / -w[2] : INFINITY;
+    double a = w[0] * w[0] + w[1] * w[1], b = p[0] * w[0] + p[1] * w[1];
+    double c = p[0] * p[0] + p[1] * p[1] - e * e; /* |p_h - u w_h|^2 = e^2 */
+    double ur = a > 0 ? (b + sqrt(b * b - a * c)) / a : INFINITY;
+    return fmin(uz, ur);
+}
+
+static int accumulate(const float *j, ns_accumulation mode, float **a_out, uint64_t *steps)
+{
+    ns_scatter_tables t;
+    ns_error err = {0};
+    int status = ns_tables_accumulate(test_context(), j, mode, &t, steps, &err);
+    if (status) {
+        fprintf(stderr, "ns_tables_accumulate: %s\n", err.message);
+        return status;
+    }
+    *a_out = malloc(3 * cells * sizeof(float));
+    memcpy(*a_out, t.a.mapped, 3 * cells * sizeof(float));
+    CHECK_REL(t.scale, 0.5, 1e-7);
+    CHECK_REL(t.extent, 400.0, 1e-6);
+    CHECK_REL(1.0 / t.inv_step, grid.step, 1e-6);
+    CHECK_INT(t.bytes, 3 * cells * sizeof(float));
+    ns_scatter_tables_free(test_context(), &t);
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * (a), (c): J(z) = e^{-kz} on z >= 0
+ * ------------------------------------------------------------------------------------- */
+static const double ks[3] = {0.01, 0.04, 0.1};
+
+static double bin_width_at(double z)
+{
+    int i = edge_bin(grid.z, NS_TABLE_NZ, z);
+    return i < 0 ? 0.0 : grid.z[i + 1] - grid.z[i];
+}
+
+/* The bin average of e^{-kz} over z-bin i (0 below z = 0): the synthetic J. */
+static double bin_average(int i, double k)
+{
+    double z0 = grid.z[i], z1 = grid.z[i + 1];
+    return z0 >= 0 ? (exp(-k * z0) - exp(-k * z1)) / (k * (z1 - z0)) : 0.0;
+}
+
+/* The part [u0, u1] of [0, length] where the line stays in the table and in z >= 0. */
+static void support(const centre *c, double length, double *u0, double *u1)
+{
+    double cz = c->w[2], z0 = c->p[2];
+    *u0 = 0.0;
+    *u1 = fmin(length, table_exit(c->p, c->w));
+    if (cz > 0) /* z falls to 0 at u = z0 / cz */
+        *u1 = fmin(*u1, z0 > 0 ? z0 / cz : 0.0);
+    else if (z0 < 0) /* z rises through 0 (cz < 0), or never reaches it */
+        *u0 = cz < 0 ? z0 / cz : INFINITY;
+}
+
+/* Closed form for the smooth J = e^{-kz} over the support, and the bound on what bin
+ * averaging changes: inside a bin of width d the average of e^{-kz} lies within a factor
+ * e^{kd} of e^{-kz}, so |A_bins - A| <= integral e^{-u} e^{-kz(u)} (e^{k d(z(u))} - 1) du. */
+static void smooth_case(const centre *c, double k, double length, double *a, double *bound)
+{
+    double u0, u1, cz = c->w[2], z0 = c->p[2];
+    support(c, length, &u0, &u1);
+    *a = *bound = 0.0;
+    if (!(u1 > u0))
+        return;
+    double m = 1.0 - k * cz;
+    *a = exp(-k * z0) * (exp(-m * u0) - exp(-m * u1)) / m;
+    double du = 1e-3, top = fmin(u1, u0 + 40.0);
+    for (double u = u0; u < top; u += du) {
+        double um = u + 0.5 * du, z = z0 - um * cz;
+        *bound += exp(-um - k * z) * (exp(k * bin_width_at(z)) - 1.0) * du;
+    }
+}
+
+/* Closed form for the bin averages themselves (J constant on each z-bin, whatever rho and
+ * phi do): the sum over the z-bins the line crosses of J_i (e^{-u_in} - e^{-u_out}). */
+static double stepwise_case(const centre *c, double k, double length)
+{
+    double u0, u1, cz = c->w[2], z0 = c->p[2];
+    support(c, length, &u0, &u1);
+    if (!(u1 > u0) || cz == 0)
+        return 0.0;
+    double sum = 0.0;
+    int step = cz > 0 ? -1 : 1;
+    for (int i = c->iz; i >= 0 && i < (int)NS_TABLE_NZ; i += step) {
+        double a = (z0 - grid.z[cz > 0 ? i + 1 : i]) / cz, b = (z0 - grid.z[cz > 0 ? i : i + 1]) / cz;
+        a = fmax(a, u0);
+        b = fmin(b, u1);
+        if (b > a)
+            sum += bin_average(i, k) * (exp(-a) - exp(-b));
+    }
+    return sum;
+}
+
+static float *exponential_j(void)
+{
+    float *j = malloc(3 * cells * sizeof(float));
+    for (size_t cell = 0; cell < cells; cell++) {
+        int iz = (int)(cell / (NS_TABLE_NRHO * NS_TABLE_NTHETA * NS_TABLE_NPHI));
+        for (int ch = 0; ch < 3; ch++)
+            j[ch * cells + cell] = (float)bin_average(iz, ks[ch]);
+    }
+    return j;
+}
+
+static void check_exponential(const float *a, double length, const char *what)
+{
+    int step_failures = 0, smooth_failures = 0, tested = 0;
+    double worst_step = 0.0, sum_error = 0.0, sum_bound = 0.0, worst_smooth = 0.0;
+    for (int n = 0; n < 800; n++) {
+        /* Every other cell within 20 mfp of the source, where the bins are fine enough for
+         * the smooth closed form to say something; the others anywhere (stepwise only). */
+        size_t cell = next_random() % cells;
+        centre c = cell_centre(cell);
+        int near = fabs(c.p[2]) < 20 && c.p[0] < 20;
+        if (n % 2 && !near) {
+            n--;
+            continue;
+        }
+        for (int ch = 0; ch < 3; ch++) {
+            double got = a[ch * cells + cell];
+            /* The cut leaves at most 1e-4 of A or 1e-14 J_max (J_max <= 1); float sums. */
+            double stepwise = stepwise_case(&c, ks[ch], length);
+            double tol = 2e-4 * stepwise + 1e-13;
+            if (stepwise > 1e-10) /* below the cut's floor only the absolute error counts */
+                worst_step = fmax(worst_step, fabs(got - stepwise) / stepwise);
+            if (fabs(got - stepwise) > tol && step_failures++ < 5)
+                fprintf(stderr, "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, stepwise "
+                        "closed form %.7g\n", what, cell, ch, c.p[2], c.p[0], c.w[2], got,
+                        stepwise);
+            if (!near)
+                continue;
+            double smooth, bound;
+            smooth_case(&c, ks[ch], length, &smooth, &bound);
+            tol = bound + 2e-4 * smooth + 1e-13;
+            tested++;
+            if (smooth > 1e-10) {
+                sum_error += fabs(got - smooth) / smooth;
+                sum_bound += bound / smooth;
+                worst_smooth = fmax(worst_smooth, fabs(got - smooth) / smooth);
+            }
+            if (fabs(got - smooth) > tol && smooth_failures++ < 5)
+                fprintf(stderr, "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, closed "
+                        "form %.7g, tolerance %.3g\n", what, cell, ch, c.p[2], c.p[0], c.w[2],
+                        got, smooth, tol);
+        }
+    }
+    CHECK_INT(step_failures, 0);
+    CHECK_INT(smooth_failures, 0);
+    printf("%s: stepwise J worst relative error %.2e (tolerance 2e-4); smooth e^{-kz} at %d "
+           "values within 20 mfp (relative figures above 1e-10): mean relative error %.2e, mean tolerance %.2e, worst %.2e\n",
+           what, worst_step, tested, sum_error / tested, sum_bound / tested, worst_smooth);
+}
+
+static void test_closed_form_exponential(void)
+{
+    float *j = exponential_j(), *a = NULL, *a5 = NULL;
+    uint64_t steps = 0;
+    double t0 = ns_now_ms();
+    if (accumulate(j, NS_ACCUMULATION_EXACT, &a, &steps) == 0) {
+        double ms = ns_now_ms() - t0;
+        printf("accumulate (exact): %.0f ms, %.3g steps (%.3g per cell), %.3g lookups/s "
+               "(3 channels per step)\n",
+               ms, (double)steps, (double)steps / cells, 3.0 * steps / (ms * 1e-3));
+        CHECK(steps >= cells);
+        check_exponential(a, INFINITY, "exact");
+    }
+    /* (c) paper mode: only the first 5 mfp. */
+    if (accumulate(j, NS_ACCUMULATION_PAPER, &a5, &steps) == 0)
+        check_exponential(a5, NS_PAPER_ACCUMULATION_MFP, "paper");
+    free(a);
+    free(a5);
+    free(j);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * (b), (c): the network's tables of one material
+ * ------------------------------------------------------------------------------------- */
+static const ns_table_key nn_key = {.source = NS_METHOD_NN,
+                                    .g = 0.5f,
+                                    .albedo = {0.3f, 0.8f, 0.95f},
+                                    .orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
+                                    .accumulation = NS_ACCUMULATION_EXACT};
+
+/* J of key's channel ch, both orders summed (from the cache the call filled). */
+static float *summed_j(const ns_table_key *key, int ch)
+{
+    const float *jd = ns_tables_cached_j(test_context(), key->source, key->g, key->albedo[ch], 0);
+    const float *jm = ns_tables_cached_j(test_context(), key->source, key->g, key->albedo[ch], 1);
+    CHECK(jd && jm);
+    if (!jd || !jm)
+        return NULL;
+    float *j = malloc(cells * sizeof(float));
+    for (size_t i = 0; i < cells; i++)
+        j[i] = jd[i] + jm[i];
+    return j;
+}
+
+static const float *get_tables(const ns_table_key *key, ns_table_stats *stats)
+{
+    const ns_scatter_tables *t = NULL;
+    ns_error err = {0};
+    int status = ns_tables_get(test_context(), key, &t, stats, &err);
+    if (status)
+        fprintf(stderr, "ns_tables_get: %s (%s)\n", err.message, ns_status_name(status));
+    CHECK_INT(status, NS_OK);
+    return t ? t->a.mapped : NULL;
+}
+
+/* A cell near the source (|z|, rho < 8 mfp), where the light is. */
+static size_t random_near_cell(void)
+{
+    for (;;) {
+        size_t cell = next_random() % cells;
+        centre c = cell_centre(cell);
+        if (fabs(c.p[2]) < 8 && c.p[0] < 8)
+            return cell;
+    }
+}
+
+/* The A table's value at point p (nearest bin) and the spread of its neighbours in z, rho
+ * and phi: where between cell centres the continuous A lies is only known to that spread. */
+static double table_value(const float *a, const double p[3], const double w[3], double *spread)
+{
+    long cell = table_cell(p, w);
+    *spread = 0.0;
+    if (cell < 0)
+        return 0.0;
+    long ip = cell % NS_TABLE_NPHI, ir = cell / (NS_TABLE_NPHI * NS_TABLE_NTHETA) % NS_TABLE_NRHO;
+    long iz = cell / ((long)NS_TABLE_NPHI * NS_TABLE_NTHETA * NS_TABLE_NRHO);
+    long strides[3] = {(long)NS_TABLE_NPHI * NS_TABLE_NTHETA * NS_TABLE_NRHO,
+                       (long)NS_TABLE_NPHI * NS_TABLE_NTHETA, 1};
+    long index[3] = {iz, ir, ip}, count[3] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NPHI};
+    double lo = a[cell], hi = a[cell];
+    for (int axis = 0; axis < 3; axis++)
+        for (int d = -1; d <= 1; d += 2) {
+            long i = index[axis] + d;
+            if (i < 0 || i >= count[axis])
+                continue;
+            double v = a[cell + d * strides[axis]];
+            lo = fmin(lo, v);
+            hi = fmax(hi, v);
+        }
+    *spread = hi - lo;
+    return a[cell];
+}
+
+static void test_network_tables_brute_force(void)
+{
+    ns_table_stats stats;
+    double t0 = ns_now_ms();
+    const float *a = get_tables(&nn_key, &stats);
+    if (!a)
+        return;
+    printf("nn tables (g 0.5, albedo 0.3/0.8/0.95): reconstruct %.0f ms, accumulate %.0f ms, "
+           "total %.0f ms, weights %llu bytes\n",
+           stats.reconstruct_ms, stats.accumulate_ms, ns_now_ms() - t0,
+           (unsigned long long)stats.weights_bytes);
+    CHECK(stats.reconstruct_ms > 0 && stats.accumulate_ms > 0 && !stats.cache_hit);
+    CHECK(stats.weights_bytes > 20000 && stats.weights_bytes < 2 * 12288);
+    float *copy = malloc(3 * cells * sizeof(float)); /* the cache may evict it later */
+    memcpy(copy, a, 3 * cells * sizeof(float));
+    int point_failures = 0, segment_failures = 0;
+    double worst_point = 0, worst_segment = 0;
+    for (int ch = 0; ch < 3; ch++) {
+        float *j = summed_j(&nn_key, ch);
+        if (!j)
+            continue;
+        const float *ac = copy + ch * cells;
+        float j_max = 0;
+        for (size_t i = 0; i < cells; i++)
+            j_max = fmaxf(j_max, j[i]);
+        for (int n = 0; n < 40; n++) {
+            centre c = cell_centre(random_near_cell());
+            size_t cell = (((size_t)c.iz * NS_TABLE_NRHO + c.ir) * NS_TABLE_NTHETA + c.it) *
+                              NS_TABLE_NPHI + c.ip;
+            /* A at the centre: the whole line (40 mfp leaves e^-40 of J_max behind). */
+            double want = brute_force(j, c.p, c.w, 40.0);
+            double tol = 3e-3 * want + 1e-13 * j_max;
+            worst_point = fmax(worst_point, fabs(ac[cell] - want) / want);
+            if (fabs(ac[cell] - want) > tol && point_failures++ < 5)
+                fprintf(stderr, "channel %d cell %zu: A %.7g, brute force %.7g\n", ch, cell,
+                        ac[cell], want);
+            /* A segment of random length from the centre: the exact segment form. */
+            double length = 0.2 + 4.0 * uniform01();
+            double exit[3] = {c.p[0] - length * c.w[0], c.p[1] - length * c.w[1],
+                              c.p[2] - length * c.w[2]};
+            double spread;
+            double a_exit = table_value(ac, exit, c.w, &spread);
+            double segment = ac[cell] - exp(-length) * a_exit;
+            double direct = brute_force(j, c.p, c.w, length);
+            double seg_tol = exp(-length) * spread + 3e-3 * want + 1e-13 * j_max;
+            worst_segment = fmax(worst_segment, fabs(segment - direct) / want);
+            if (fabs(segment - direct) > seg_tol && segment_failures++ < 5)
+                fprintf(stderr, "channel %d cell %zu L %.3f: segment form %.7g, brute force "
+                        "%.7g, tolerance %.3g\n", ch, cell, length, segment, direct, seg_tol);
+        }
+        free(j);
+    }
+    CHECK_INT(point_failures, 0);
+    CHECK_INT(segment_failures, 0);
+    printf("nn tables: A vs brute force worst %.2e relative; segment form worst error %.2e "
+           "of A(entry)\n",
+           worst_point, worst_segment);
+    free(copy);
+}
+
+static void test_network_tables_paper(void)
+{
+    ns_table_key key = nn_key;
+    key.accumulation = NS_ACCUMULATION_PAPER;
+    ns_table_stats stats;
+    const float *a = get_tables(&key, &stats);
+    if (!a)
+        return;
+    CHECK(stats.reconstruct_ms == 0.0); /* J came from the cache */
+    int failures = 0;
+    for (int ch = 0; ch < 3; ch++) {
+        float *j = summed_j(&key, ch);
+        if (!j)
+            continue;
+        for (int n = 0; n < 30; n++) {
+            size_t cell = random_near_cell();
+            centre c = cell_centre(cell);
+            double want = brute_force(j, c.p, c.w, NS_PAPER_ACCUMULATION_MFP);
+            double got = a[ch * cells + cell];
+            if (fabs(got - want) > 3e-3 * want && failures++ < 5)
+                fprintf(stderr, "paper channel %d cell %zu: %.7g, 5-mfp brute force %.7g\n", ch,
+                        cell, got, want);
+        }
+        free(j);
+    }
+    CHECK_INT(failures, 0);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * (d) the cache
+ * ------------------------------------------------------------------------------------- */
+static void test_cache_hit_and_eviction(void)
+{
+    ns_context *ctx = test_context();
+    ns_table_stats stats;
+    const ns_scatter_tables *first = NULL, *second = NULL;
+    ns_error err = {0};
+    CHECK_INT(ns_tables_get(ctx, &nn_key, &first, &stats, &err), NS_OK);
+    CHECK_INT(ns_tables_get(ctx, &nn_key, &second, &stats, &err), NS_OK);
+    CHECK(first == second && stats.cache_hit == 1);
+    CHECK(stats.reconstruct_ms == 0.0 && stats.accumulate_ms == 0.0);
+    CHECK(stats.weights_bytes > 0);
+
+    /* Room for the three channels' J and two A tables: a third A evicts the oldest. */
+    uint64_t j_bytes = 3 * 2 * cells * sizeof(float), a_bytes = 3 * cells * sizeof(float);
+    uint64_t saved = ctx->table_cache_bytes;
+    ctx->table_cache_bytes = j_bytes + 2 * a_bytes;
+    ns_table_key keys[4] = {nn_key, nn_key, nn_key, nn_key};
+    keys[1].orders = NS_COMPONENT_DOUBLE;
+    keys[2].orders = NS_COMPONENT_MULTIPLE;
+    for (int i = 0; i < 4; i++) {
+        const ns_scatter_tables *t = NULL;
+        int status = ns_tables_get(ctx, &keys[i], &t, &stats, &err);
+        CHECK_INT(status, NS_OK);
+        CHECK(stats.reconstruct_ms == 0.0); /* components change, J does not */
+        uint64_t bytes;
+        uint32_t entries;
+        ns_tables_cache_usage(ctx, &bytes, &entries);
+        CHECK(bytes <= ctx->table_cache_bytes);
+        CHECK_INT(entries, 5); /* 3 J + 2 A */
+        if (i == 3)            /* the first key was evicted by the third and came back */
+            CHECK(stats.cache_hit == 0 && stats.accumulate_ms > 0);
+    }
+    /* A double-only table plus a multiple-only table is the summed one. */
+    const ns_scatter_tables *td = NULL, *tm = NULL, *ts = NULL;
+    ctx->table_cache_bytes = saved;
+    CHECK_INT(ns_tables_get(ctx, &keys[1], &td, &stats, &err), NS_OK);
+    float *dbl = malloc(3 * cells * sizeof(float));
+    memcpy(dbl, td->a.mapped, 3 * cells * sizeof(float));
+    CHECK_INT(ns_tables_get(ctx, &keys[2], &tm, &stats, &err), NS_OK);
+    float *mul = malloc(3 * cells * sizeof(float));
+    memcpy(mul, tm->a.mapped, 3 * cells * sizeof(float));
+    CHECK_INT(ns_tables_get(ctx, &nn_key, &ts, &stats, &err), NS_OK);
+    const float *sum = ts->a.mapped;
+    int bad = 0;
+    for (size_t i = 0; i < 3 * cells; i += 997)
+        bad += fabsf(dbl[i] + mul[i] - sum[i]) > 2e-4f * sum[i] + 1e-30f;
+    CHECK_INT(bad, 0);
+    free(dbl);
+    free(mul);
+    CHECK_INT(ctx->dev.live_buffers, 0); /* cached tables are the context's, not a leak */
+}
+
+static void test_bad_keys(void)
+{
+    ns_context *ctx = test_context();
+    const ns_scatter_tables *t = (const ns_scatter_tables *)&t;
+    ns_error err = {0};
+    ns_table_key key = nn_key;
+    key.albedo[1] = 1.0f;
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "albedo[1]");
+    CHECK(t == NULL);
+    key = nn_key;
+    key.g = NAN;
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "g");
+    key = nn_key;
+    key.orders = NS_COMPONENT_SINGLE;
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    key = nn_key;
+    key.source = NS_METHOD_TABLE; /* test_context has no Monte Carlo provider */
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_NOT_AVAILABLE);
+    CHECK_STR_CONTAINS(err.message, "provider");
+    key = nn_key;
+    key.g = -0.3f; /* the network covers g in [0, 1) */
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Measurement (not a test): NSCATTER_BENCH_ACCUMULATE=N runs N RGB materials (distinct
+ * albedos, so every one misses the cache) and N accumulations of the synthetic J, and prints
+ * the medians.
+ * ------------------------------------------------------------------------------------- */
+static int compare_doubles(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, compare_doubles);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+static void bench(int n)
+{
+    double recon[64], acc[64], synth[64], rate[64];
+    n = n > 64 ? 64 : n;
+    for (int i = 0; i < n; i++) {
+        ns_table_key key = nn_key;
+        for (int c = 0; c < 3; c++)
+            key.albedo[c] = 0.5f + 0.1f * c + 0.01f * i;
+        ns_table_stats stats;
+        get_tables(&key, &stats);
+        recon[i] = stats.reconstruct_ms;
+        acc[i] = stats.accumulate_ms;
+    }
+    float *j = exponential_j(), *a = NULL;
+    for (int i = 0; i < n; i++) {
+        uint64_t steps = 0;
+        double t0 = ns_now_ms();
+        if (accumulate(j, NS_ACCUMULATION_EXACT, &a, &steps))
+            break;
+        synth[i] = ns_now_ms() - t0;
+        rate[i] = 3.0 * steps / (synth[i] * 1e-3);
+        free(a);
+    }
+    free(j);
+    ns_device_info info;
+    ns_context_device_info(test_context(), &info);
+    printf("device %s; %d runs, medians: nn RGB material reconstruct %.0f ms, accumulate %.0f ms; "
+           "synthetic J accumulate %.0f ms, %.3g lookups/s\n",
+           info.device_name, n, median(recon, n), median(acc, n), median(synth, n),
+           median(rate, n));
+}
+
+int main(void)
+{
+    ns_table_grid_default(&grid);
+    test_context();
+    const char *bench_runs = getenv("NSCATTER_BENCH_ACCUMULATE");
+    if (bench_runs && atoi(bench_runs) > 0) {
+        bench(atoi(bench_runs));
+        ns_context_destroy(test_context());
+        return 0;
+    }
+    RUN(test_closed_form_exponential);
+    RUN(test_network_tables_brute_force);
+    RUN(test_network_tables_paper);
+    RUN(test_cache_hit_and_eviction);
+    RUN(test_bad_keys);
+    ns_context_destroy(test_context());
+    return harness_report();
+}
