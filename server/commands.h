@@ -11,5 +11,6 @@ int cmd_mc(int argc, char **argv);     /* offline/mc_cli.c: Monte Carlo tables *
 int cmd_train(int argc, char **argv);  /* offline/train.c: fit the scattering networks */
 int cmd_table(int argc, char **argv);  /* server/cmd_table.c: NN/MC table, accuracy report */
 int cmd_compare(int argc, char **argv); /* server/cmd_compare.c: PSNR/RMSE of two images */
+int cmd_bench(int argc, char **argv);   /* server/cmd_bench.c: benchmark, report.md */
 
 #endif

@@ -19,6 +19,7 @@ static const subcommand subcommands[] = {
     {"train", cmd_train, "train the double/multiple scattering networks on the Monte Carlo grid"},
     {"table", cmd_table, "reconstruct a table from the networks (GPU), or compare it with MC"},
     {"compare", cmd_compare, "PSNR, RMSE and relative error of an image against a reference"},
+    {"bench", cmd_bench, "the paper's experiments on built-in scenes against pt references"},
 };
 
 static void usage(FILE *out)

@@ -1,0 +1,120 @@
+/* bench.h — `nscatter bench` (docs/bench.md): the paper's experiments (Ge et al. 2021,
+ * Tables 2-4) on built-in scenes, against path-traced references cached outside git.
+ * cmd_bench.c runs the renders and keeps the results in the structs below; bench_report.c
+ * turns them into report.md and contact_sheet.png. Everything here is private to the bench.
+ */
+#ifndef NS_BENCH_H
+#define NS_BENCH_H
+
+#include <stdint.h>
+
+#include <jansson.h>
+
+#include "image_metrics.h"
+#include "nscatter.h"
+
+/* The rows of a scene, in the order they run (vrl after nn_full: it matches its time). */
+typedef enum {
+    BENCH_NN_SURFACE = 0, /* the camera pass alone: a check of the bench against pt's order 0 */
+    BENCH_NN_MULTIPLE,
+    BENCH_NN_DOUBLE, /* double + multiple */
+    BENCH_NN_FULL,   /* surface + single + double + multiple */
+    BENCH_TABLE,
+    BENCH_DIPOLE,
+    BENCH_VRL,
+    BENCH_PT, /* a few short pt renders: the cost of pt's quality */
+    BENCH_METHOD_COUNT
+} bench_method_id;
+
+typedef struct bench_method_info {
+    const char *name;    /* --methods name and report label */
+    ns_method method;
+    uint32_t components; /* NS_COMPONENT_* */
+    const char *vrls_key; /* key of the manifest's "vrls" object; NULL: none */
+    const char *label;
+} bench_method_info;
+
+extern const bench_method_info bench_methods[BENCH_METHOD_COUNT];
+
+/* Reference component sets: one pt image per distinct set that a method compares with. */
+#define BENCH_REF_SETS 4
+extern const uint32_t bench_ref_components[BENCH_REF_SETS];
+int bench_ref_index(uint32_t components); /* index into bench_ref_components, or -1 */
+const char *bench_components_name(uint32_t components); /* "full", "multiple", ... */
+
+typedef struct bench_reference {
+    int wanted, ok, generated;
+    char error[512];
+    char path[4096];
+    uint32_t spp;
+    double ms; /* render time when it was made (from its .json when cached) */
+    char device[256];
+    ns_image image;
+} bench_reference;
+
+typedef struct bench_result {
+    int ran, ok;
+    char error[512];
+    uint32_t vrls;      /* render.vrls used */
+    uint32_t spp;       /* camera samples per pixel */
+    double ms;          /* median wall time of the warm renders (all renders if --repeat 1) */
+    double cold_ms;     /* the first render: includes table reconstruction and accumulation */
+    ns_render_stats stats;      /* of the last render */
+    ns_render_stats cold_stats; /* of the first render */
+    image_metrics metrics;      /* against the reference with the same components */
+    double equal_time_ratio;    /* vrl: ms / nn_full's ms; 0 when there was none to match */
+    ns_image image;             /* the last render */
+} bench_result;
+
+#define BENCH_MAX_LADDER 8
+typedef struct bench_pt_point {
+    uint32_t spp;
+    double ms, pass_ms, mse, psnr;
+    int ok;
+} bench_pt_point;
+
+/* pt's cost of quality, from renders at a few spp against the long reference (docs/bench.md):
+ * MSE(spp) = variance * (1/spp + 1/ref_spp) (independent seeds), time = pass_ms_per_spp * spp. */
+typedef struct bench_pt_estimate {
+    int ok;
+    double variance;        /* per-sample variance, mean over pixels and channels */
+    double pass_ms_per_spp; /* pt_pass time per sample per pixel */
+    double nn_mse_true;     /* nn full's MSE with the reference's own noise taken out */
+    double pt_ms_equal;     /* pt time to reach nn full's error against the truth */
+    double speedup;         /* pt_ms_equal / nn full's time */
+    int lower_bound;        /* nn full is within the reference's noise: speedup is at least */
+} bench_pt_estimate;
+
+typedef struct bench_scene {
+    char name[64], figure[128], paper_row[32];
+    json_t *scene;    /* the scene JSON with the bench's size applied */
+    json_t *manifest; /* its manifest entry (borrowed from the manifest) */
+    int skipped;
+    char skip_reason[512];
+    uint32_t width, height, ref_spp;
+    float exposure;
+    bench_reference refs[BENCH_REF_SETS];
+    bench_result results[BENCH_METHOD_COUNT];
+    bench_pt_point ladder[BENCH_MAX_LADDER];
+    uint32_t ladder_count;
+    bench_pt_estimate pt;
+} bench_scene;
+
+typedef struct bench_run {
+    int methods[BENCH_METHOD_COUNT]; /* selected */
+    bench_scene *scenes;
+    uint32_t scene_count;
+    int diff_method; /* the method shown in the contact sheet's difference column */
+    char command[2048], date[64], device[256], driver[256];
+    double total_s;
+    uint32_t repeat;
+    double mc_collisions;
+} bench_run;
+
+/* Writes DIR/report.md and DIR/contact_sheet.png. 0 or 1 after printing why. */
+int bench_write_report(const bench_run *run, const char *dir);
+
+/* Paper value at manifest path paper.<method>.<field>, NaN when absent. */
+double bench_paper_value(const bench_scene *s, const char *method, const char *field);
+
+#endif

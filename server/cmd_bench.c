@@ -1,0 +1,1150 @@
+/* cmd_bench.c — `nscatter bench`: the paper's experiments (Ge et al. 2021, Tables 2-4) on the
+ * built-in scenes of scenes/bench/, each method against a path-traced reference with the
+ * same scattering components. References are cached outside git, keyed by a hash of the
+ * reference's scene JSON and its meshes. docs/bench.md says what every number means.
+ *
+ * This file: arguments, scenes and meshes, the renders, the reference cache, pt's cost of
+ * quality, and the Monte Carlo table provider of method "table". bench_report.c writes the
+ * report and the contact sheet.
+ */
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <jansson.h>
+
+#include "bench.h"
+#include "bench_mesh.h"
+#include "commands.h"
+#include "encode.h"
+#include "image_metrics.h"
+#include "mc.h"
+#include "nscatter.h"
+#include "scene_json.h"
+
+#ifndef NS_SOURCE_DIR
+#define NS_SOURCE_DIR "."
+#endif
+
+#define BENCH_ALL (NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)
+#define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
+#define BENCH_REF_SEED 1u
+#define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
+#define BENCH_MC_CELLS ((size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NTHETA * NS_MC_NPHI)
+
+const bench_method_info bench_methods[BENCH_METHOD_COUNT] = {
+    [BENCH_NN_SURFACE] = {"nn_surface", NS_METHOD_NN, NS_COMPONENT_SURFACE, NULL, "nn, surface only"},
+    [BENCH_NN_MULTIPLE] = {"nn_multiple", NS_METHOD_NN, NS_COMPONENT_MULTIPLE, "multiple",
+                           "nn, multiple only"},
+    [BENCH_NN_DOUBLE] = {"nn_double", NS_METHOD_NN, NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
+                         "double", "nn, double + multiple"},
+    [BENCH_NN_FULL] = {"nn_full", NS_METHOD_NN, BENCH_ALL, "full", "nn, full solution"},
+    [BENCH_TABLE] = {"table", NS_METHOD_TABLE, BENCH_ALL, "full", "table (Monte Carlo, [WH17])"},
+    [BENCH_DIPOLE] = {"dipole", NS_METHOD_DIPOLE, BENCH_ALL, "full", "dipole"},
+    [BENCH_VRL] = {"vrl", NS_METHOD_VRL, BENCH_ALL, "full", "vrl at equal time"},
+    [BENCH_PT] = {"pt", NS_METHOD_PT, BENCH_ALL, NULL, "pt, short renders"},
+};
+
+const uint32_t bench_ref_components[BENCH_REF_SETS] = {
+    BENCH_ALL, NS_COMPONENT_MULTIPLE, NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE, NS_COMPONENT_SURFACE};
+
+int bench_ref_index(uint32_t components)
+{
+    for (int i = 0; i < BENCH_REF_SETS; i++)
+        if (bench_ref_components[i] == components)
+            return i;
+    return -1;
+}
+
+const char *bench_components_name(uint32_t components)
+{
+    switch (components) {
+    case BENCH_ALL: return "full";
+    case NS_COMPONENT_MULTIPLE: return "multiple";
+    case NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE: return "double+multiple";
+    case NS_COMPONENT_SURFACE: return "surface";
+    default: return "other";
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Arguments.
+ * ------------------------------------------------------------------------------------- */
+typedef struct bench_args {
+    const char *scenes, *methods, *out_dir, *cache_dir, *device, *scene_dir, *bunny, *diff;
+    const char *ladder;
+    uint32_t width, height, spp, ref_spp, repeat;
+    double vrl_scale, mc_collisions;
+    int references_only;
+} bench_args;
+
+static void bench_usage(FILE *out)
+{
+    fprintf(out,
+            "usage: nscatter bench [options]\n"
+            "\n"
+            "Renders the built-in scenes (scenes/bench) with nn, table, vrl (equal time) and dipole,\n"
+            "compares each with a path-traced reference of the same components, and writes\n"
+            "OUT/report.md (the paper's Tables 2-4) and OUT/contact_sheet.png.\n"
+            "\n"
+            "  --scenes A,B       scenes to run (default: all): bumpy_sphere, candle, bunny, milk,\n"
+            "                     oil, cloud\n"
+            "  --methods A,B      nn_surface, nn_multiple, nn_double, nn_full, table, dipole, vrl,\n"
+            "                     pt (default: all)\n"
+            "  --width N, --height N   image size (default: each scene's, 128x128)\n"
+            "  --spp N            camera samples per pixel of the fast methods (default: scene's, 4)\n"
+            "  --ref-spp N        samples per pixel of the references (default: bench.json's, 256)\n"
+            "  --pt-spp A,B,..    spp of the short pt renders (default 1,4,16)\n"
+            "  --repeat N         renders per method; the time is the median after the first (2)\n"
+            "  --vrl-scale F      multiplies the scenes' VRL counts (default 1)\n"
+            "  --mc-collisions N  Monte Carlo collisions per table channel, method table (2e7)\n"
+            "  --out DIR          where the report goes (default: bench-out)\n"
+            "  --cache DIR        reference cache (default: $NSCATTER_CACHE_DIR, else\n"
+            "                     ~/.cache/nscatter/bench)\n"
+            "  --references       (re)render the references of the chosen scenes, report the\n"
+            "                     time, and stop\n"
+            "  --diff METHOD      method in the contact sheet's difference column (nn_full)\n"
+            "  --device D         Vulkan device: index or name substring (also NSCATTER_DEVICE)\n"
+            "  --scene-dir DIR    folder holding bench.json and the scenes (default: the source's)\n"
+            "  --bunny OBJ        the Stanford bunny (default: glmark2-data's " BENCH_DEFAULT_BUNNY ")\n"
+            "\n"
+            "exit status: 0 report written (methods that cannot render are listed in it),\n"
+            "1 a reference, the device or the report failed, 2 bad arguments or scene files\n");
+}
+
+static int bench_bad(const char *arg, const char *value, const char *why)
+{
+    fprintf(stderr, "nscatter bench: %s '%s': %s\n", arg, value, why);
+    return 2;
+}
+
+static int parse_u32(const char *arg, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (errno || end == text || *end || !(v >= lo && v <= hi) || v != floor(v)) {
+        char why[128];
+        snprintf(why, sizeof why, "must be an integer in [%u, %u]", lo, hi);
+        return bench_bad(arg, text, why);
+    }
+    *out = (uint32_t)v;
+    return 0;
+}
+
+static int parse_real(const char *arg, const char *text, double lo, double hi, double *out)
+{
+    char *end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (errno || end == text || *end || !(v >= lo && v <= hi)) {
+        char why[128];
+        snprintf(why, sizeof why, "must be a number in [%g, %g]", lo, hi);
+        return bench_bad(arg, text, why);
+    }
+    *out = v;
+    return 0;
+}
+
+static int bench_method_by_name(const char *name, size_t len)
+{
+    for (int m = 0; m < BENCH_METHOD_COUNT; m++)
+        if (strlen(bench_methods[m].name) == len && !strncmp(bench_methods[m].name, name, len))
+            return m;
+    return -1;
+}
+
+static int parse_methods(const char *list, int selected[BENCH_METHOD_COUNT])
+{
+    memset(selected, 0, sizeof(int) * BENCH_METHOD_COUNT);
+    for (const char *p = list; *p;) {
+        size_t len = strcspn(p, ",");
+        int m = bench_method_by_name(p, len);
+        if (m < 0) {
+            fprintf(stderr,
+                    "nscatter bench: --methods: unknown method '%.*s' (nn_surface, nn_multiple, "
+                    "nn_double, nn_full, table, dipole, vrl, pt)\n",
+                    (int)len, p);
+            return 2;
+        }
+        selected[m] = 1;
+        p += len + (p[len] == ',');
+    }
+    return 0;
+}
+
+static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
+{
+    memset(a, 0, sizeof *a);
+    a->repeat = 2;
+    a->vrl_scale = 1.0;
+    a->mc_collisions = 2e7;
+    a->out_dir = "bench-out";
+    a->diff = "nn_full";
+    a->ladder = "1,4,16";
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        const char *val = i + 1 < argc ? argv[i + 1] : NULL;
+        int rc = 0;
+#define TAKES(name) (!strcmp(arg, name) && val && (++i, 1))
+        if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
+            bench_usage(stdout);
+            *done = 1;
+            return 0;
+        } else if (!strcmp(arg, "--references")) {
+            a->references_only = 1;
+        } else if (TAKES("--scenes")) {
+            a->scenes = val;
+        } else if (TAKES("--methods")) {
+            a->methods = val;
+        } else if (TAKES("--width")) {
+            rc = parse_u32(arg, val, 1, 4096, &a->width);
+        } else if (TAKES("--height")) {
+            rc = parse_u32(arg, val, 1, 4096, &a->height);
+        } else if (TAKES("--spp")) {
+            rc = parse_u32(arg, val, 1, NS_MAX_SPP, &a->spp);
+        } else if (TAKES("--ref-spp")) {
+            rc = parse_u32(arg, val, 1, NS_MAX_SPP, &a->ref_spp);
+        } else if (TAKES("--repeat")) {
+            rc = parse_u32(arg, val, 1, 50, &a->repeat);
+        } else if (TAKES("--vrl-scale")) {
+            rc = parse_real(arg, val, 1e-4, 1e3, &a->vrl_scale);
+        } else if (TAKES("--mc-collisions")) {
+            rc = parse_real(arg, val, 1e4, 1e12, &a->mc_collisions);
+        } else if (TAKES("--pt-spp")) {
+            a->ladder = val;
+        } else if (TAKES("--out")) {
+            a->out_dir = val;
+        } else if (TAKES("--cache")) {
+            a->cache_dir = val;
+        } else if (TAKES("--device")) {
+            a->device = val;
+        } else if (TAKES("--scene-dir")) {
+            a->scene_dir = val;
+        } else if (TAKES("--bunny")) {
+            a->bunny = val;
+        } else if (TAKES("--diff")) {
+            a->diff = val;
+        } else {
+            fprintf(stderr, "nscatter bench: unknown option or missing value: '%s'\n\n", arg);
+            bench_usage(stderr);
+            return 2;
+        }
+#undef TAKES
+        if (rc)
+            return rc;
+    }
+    if (bench_method_by_name(a->diff, strlen(a->diff)) < 0)
+        return bench_bad("--diff", a->diff, "not a method name (see --methods)");
+    return 0;
+}
+
+/* "1,4,16" -> ladder spp values. */
+static int parse_ladder(const char *text, uint32_t *spp, uint32_t *count)
+{
+    *count = 0;
+    for (const char *p = text; *p;) {
+        char item[32];
+        size_t len = strcspn(p, ",");
+        if (len == 0 || len >= sizeof item || *count == BENCH_MAX_LADDER)
+            return bench_bad("--pt-spp", text, "a comma-separated list of at most 8 spp values");
+        memcpy(item, p, len);
+        item[len] = 0;
+        if (parse_u32("--pt-spp", item, 1, NS_MAX_SPP, &spp[(*count)++]))
+            return 2;
+        p += len + (p[len] == ',');
+    }
+    return *count ? 0 : bench_bad("--pt-spp", text, "no spp values");
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Small file helpers.
+ * ------------------------------------------------------------------------------------- */
+static int mkdir_p(const char *path)
+{
+    char buf[4096];
+    if (snprintf(buf, sizeof buf, "%s", path) >= (int)sizeof buf)
+        return -1;
+    for (char *p = buf + 1; *p; p++)
+        if (*p == '/') {
+            *p = 0;
+            if (mkdir(buf, 0755) && errno != EEXIST)
+                return -1;
+            *p = '/';
+        }
+    return mkdir(buf, 0755) && errno != EEXIST ? -1 : 0;
+}
+
+static unsigned char *read_all(const char *path, size_t *size)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return NULL;
+    unsigned char *data = NULL;
+    long n = -1;
+    if (!fseek(f, 0, SEEK_END) && (n = ftell(f)) >= 0 && !fseek(f, 0, SEEK_SET)) {
+        data = malloc((size_t)n + 1);
+        if (data && fread(data, 1, (size_t)n, f) != (size_t)n) {
+            free(data);
+            data = NULL;
+        }
+    }
+    fclose(f);
+    if (data) {
+        data[n] = 0;
+        *size = (size_t)n;
+    }
+    return data;
+}
+
+/* Temporary file beside path, then rename: a cache never holds half a file. */
+static int write_atomically(const char *path, const void *data, size_t size)
+{
+    char tmp[4200];
+    snprintf(tmp, sizeof tmp, "%s.tmp.XXXXXX", path);
+    int fd = mkstemp(tmp);
+    if (fd < 0)
+        return -1;
+    FILE *f = fdopen(fd, "wb");
+    if (!f) {
+        close(fd);
+        unlink(tmp);
+        return -1;
+    }
+    int ok = fwrite(data, 1, size, f) == size;
+    ok = fclose(f) == 0 && ok;
+    if (ok)
+        chmod(tmp, 0644);
+    if (!ok || rename(tmp, path)) {
+        unlink(tmp);
+        return -1;
+    }
+    return 0;
+}
+
+static uint64_t fnv1a(uint64_t h, const void *data, size_t size)
+{
+    const unsigned char *p = data;
+    for (size_t i = 0; i < size; i++) {
+        h ^= p[i];
+        h *= 0x100000001b3ull;
+    }
+    return h;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * State of one bench run.
+ * ------------------------------------------------------------------------------------- */
+typedef struct bench {
+    bench_args args;
+    bench_run run;
+    ns_context *ctx;
+    json_t *manifest;
+    char scene_dir[4096], cache_dir[4096], asset_dir[4200], mc_dir[4200];
+    uint32_t ladder[BENCH_MAX_LADDER], ladder_count;
+    uint32_t mc_tables_made, mc_tables_cached;
+} bench;
+
+/* ---------------------------------------------------------------------------------------
+ * Monte Carlo tables for method "table" (ns_context_desc.mc_tables): traced with the
+ * offline tracer, cached in CACHE/mc so a second run costs nothing.
+ * ------------------------------------------------------------------------------------- */
+#define BENCH_MC_MAGIC "NSBENCHMC1\0\0\0\0\0"
+
+static int bench_mc_tables(void *user, double g, double albedo, float *j_double, float *j_multiple,
+                           ns_error *err)
+{
+    bench *b = user;
+    char path[4400];
+    snprintf(path, sizeof path, "%s/g%.5f_a%.6f_c%.3g.bin", b->mc_dir, g, albedo, b->args.mc_collisions);
+    size_t size = 0;
+    unsigned char *data = read_all(path, &size);
+    size_t table_bytes = BENCH_MC_CELLS * sizeof(float);
+    if (data && size == 16 + 2 * table_bytes && !memcmp(data, BENCH_MC_MAGIC, 16)) {
+        memcpy(j_double, data + 16, table_bytes);
+        memcpy(j_multiple, data + 16 + table_bytes, table_bytes);
+        free(data);
+        b->mc_tables_cached++;
+        return NS_OK;
+    }
+    free(data);
+    unsigned orders = NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE;
+    double per_photon = ns_mc_collisions_per_photon(orders, albedo);
+    ns_mc_desc desc = {.g = g,
+                       .albedo = albedo,
+                       .photons = (uint64_t)fmax(1000.0, b->args.mc_collisions / per_photon),
+                       .seed = 12345,
+                       .orders = orders};
+    ns_mc_result r;
+    fprintf(stderr, "bench: Monte Carlo tables g %.3f albedo %.4f (%llu photons)...\n", g, albedo,
+            (unsigned long long)desc.photons);
+    int status = ns_mc_run(&desc, &r, err);
+    if (status)
+        return status;
+    if (ns_table_size(&r.table[NS_ORDER_DOUBLE]) != BENCH_MC_CELLS ||
+        ns_table_size(&r.table[NS_ORDER_MULTIPLE]) != BENCH_MC_CELLS) {
+        ns_mc_result_free(&r);
+        err->status = NS_ERR_INTERNAL;
+        snprintf(err->message, sizeof err->message, "Monte Carlo table is not on the default grid");
+        return NS_ERR_INTERNAL;
+    }
+    memcpy(j_double, r.table[NS_ORDER_DOUBLE].data, table_bytes);
+    memcpy(j_multiple, r.table[NS_ORDER_MULTIPLE].data, table_bytes);
+    ns_mc_result_free(&r);
+    b->mc_tables_made++;
+    unsigned char *file = malloc(16 + 2 * table_bytes);
+    if (file) { /* a cache that cannot be written only costs time next run */
+        memcpy(file, BENCH_MC_MAGIC, 16);
+        memcpy(file + 16, j_double, table_bytes);
+        memcpy(file + 16 + table_bytes, j_multiple, table_bytes);
+        if (write_atomically(path, file, 16 + 2 * table_bytes))
+            fprintf(stderr, "bench: cannot cache '%s': %s\n", path, strerror(errno));
+        free(file);
+    }
+    return NS_OK;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Meshes: written into CACHE/assets when missing or different.
+ * ------------------------------------------------------------------------------------- */
+static int write_asset(bench *b, const char *name, const bench_mesh *mesh)
+{
+    ns_error err = {0};
+    unsigned char *glb;
+    size_t size, old_size = 0;
+    if (bench_mesh_to_glb(mesh, &glb, &size, &err)) {
+        fprintf(stderr, "nscatter bench: %s: %s\n", name, err.message);
+        return 1;
+    }
+    char path[4400];
+    snprintf(path, sizeof path, "%.4200s/%.100s", b->asset_dir, name);
+    unsigned char *old = read_all(path, &old_size);
+    int same = old && old_size == size && !memcmp(old, glb, size);
+    free(old);
+    int rc = 0;
+    if (!same && write_atomically(path, glb, size)) {
+        fprintf(stderr, "nscatter bench: cannot write '%s': %s\n", path, strerror(errno));
+        rc = 1;
+    }
+    free(glb);
+    return rc;
+}
+
+static int prepare_generated_assets(bench *b)
+{
+    ns_error err = {0};
+    bench_mesh m;
+    int rc = 0;
+    if (bench_mesh_bumpy_sphere(5, 0.08f, &m, &err) == 0) {
+        rc |= write_asset(b, "bench_bumpy_sphere.glb", &m);
+        bench_mesh_free(&m);
+    } else {
+        rc = 1;
+    }
+    if (bench_mesh_cylinder(64, &m, &err) == 0) {
+        rc |= write_asset(b, "bench_cylinder.glb", &m);
+        bench_mesh_free(&m);
+    } else {
+        rc = 1;
+    }
+    if (rc && err.message[0])
+        fprintf(stderr, "nscatter bench: meshes: %s\n", err.message);
+    return rc;
+}
+
+/* The bunny, converted once; a missing glmark2-data skips the scene (reason returned). */
+static int prepare_bunny(bench *b, char *why, size_t why_len)
+{
+    const char *obj = b->args.bunny ? b->args.bunny : getenv("NSCATTER_BUNNY_OBJ");
+    if (!obj || !*obj)
+        obj = BENCH_DEFAULT_BUNNY;
+    ns_error err = {0};
+    bench_mesh m;
+    if (bench_mesh_load_obj(obj, &m, &err)) {
+        snprintf(why, why_len, "%.300s (the bunny comes from Debian's glmark2-data: apt-get install "
+                 "glmark2-data, or give --bunny OBJ)", err.message);
+        return 1;
+    }
+    int rc = write_asset(b, "bench_bunny.glb", &m);
+    bench_mesh_free(&m);
+    if (rc)
+        snprintf(why, why_len, "cannot write the bunny's GLB into %.400s", b->asset_dir);
+    return rc;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Scenes.
+ * ------------------------------------------------------------------------------------- */
+static json_t *load_json(const char *path, const char *what)
+{
+    json_error_t e;
+    json_t *j = json_load_file(path, JSON_REJECT_DUPLICATES, &e);
+    if (!j)
+        fprintf(stderr, "nscatter bench: %s '%s':%d:%d: %s\n", what, path, e.line, e.column, e.text);
+    return j;
+}
+
+static uint32_t manifest_vrls(const bench_scene *s, const char *key, double scale)
+{
+    json_t *v = json_object_get(json_object_get(s->manifest, "vrls"), key);
+    double n = json_is_number(v) ? json_number_value(v) : (double)NS_DEFAULT_VRLS;
+    n = round(n * scale);
+    return (uint32_t)fmin(fmax(n, 1.0), (double)NS_MAX_VRLS);
+}
+
+double bench_paper_value(const bench_scene *s, const char *method, const char *field)
+{
+    json_t *v = json_object_get(json_object_get(json_object_get(s->manifest, "paper"), method), field);
+    return json_is_number(v) ? json_number_value(v) : NAN;
+}
+
+/* Reads SCENE_DIR/<file>, applies --width/--height and checks that it parses. */
+static int load_scene(bench *b, json_t *entry, bench_scene *s)
+{
+    const char *name = json_string_value(json_object_get(entry, "name"));
+    const char *file = json_string_value(json_object_get(entry, "scene"));
+    const char *figure = json_string_value(json_object_get(entry, "figure"));
+    const char *row = json_string_value(json_object_get(json_object_get(entry, "paper"), "row"));
+    if (!name || !file || strchr(file, '/')) {
+        fprintf(stderr, "nscatter bench: %s/bench.json: a scene needs \"name\" and \"scene\" (a file "
+                        "name in the same folder)\n", b->scene_dir);
+        return 2;
+    }
+    snprintf(s->name, sizeof s->name, "%s", name);
+    snprintf(s->figure, sizeof s->figure, "%s", figure ? figure : "");
+    snprintf(s->paper_row, sizeof s->paper_row, "%s", row ? row : "");
+    s->manifest = entry;
+    char path[8300];
+    snprintf(path, sizeof path, "%s/%s", b->scene_dir, file);
+    s->scene = load_json(path, "scene");
+    if (!s->scene)
+        return 2;
+    json_t *camera = json_object_get(s->scene, "camera");
+    if (b->args.width)
+        json_object_set_new(camera, "width", json_integer(b->args.width));
+    if (b->args.height)
+        json_object_set_new(camera, "height", json_integer(b->args.height));
+    s->width = (uint32_t)json_integer_value(json_object_get(camera, "width"));
+    s->height = (uint32_t)json_integer_value(json_object_get(camera, "height"));
+    json_t *ref_spp = json_object_get(b->manifest, "reference_spp");
+    s->ref_spp = b->args.ref_spp ? b->args.ref_spp
+                                 : json_is_integer(ref_spp) ? (uint32_t)json_integer_value(ref_spp) : 256;
+    json_t *exposure = json_object_get(json_object_get(s->scene, "render"), "exposure");
+    s->exposure = json_is_number(exposure) ? (float)json_number_value(exposure) : 0.0f;
+    return 0;
+}
+
+/* The scene with the render settings of one run. vrls 0: the scene's own. */
+static json_t *scene_for(const bench_scene *s, ns_method method, uint32_t components, uint32_t spp,
+                         uint32_t seed, uint32_t vrls)
+{
+    static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
+    json_t *copy = json_deep_copy(s->scene);
+    json_t *render = json_object_get(copy, "render");
+    if (!render) {
+        render = json_object();
+        json_object_set_new(copy, "render", render);
+    }
+    json_object_set_new(render, "method", json_string(method_names[method]));
+    json_t *list = json_array();
+    static const char *const component_names[] = {"surface", "single", "double", "multiple"};
+    for (int c = 0; c < 4; c++)
+        if (components & (1u << c))
+            json_array_append_new(list, json_string(component_names[c]));
+    json_object_set_new(render, "components", list);
+    if (spp)
+        json_object_set_new(render, "spp", json_integer(spp));
+    if (seed)
+        json_object_set_new(render, "seed", json_integer(seed));
+    if (vrls)
+        json_object_set_new(render, "vrls", json_integer(vrls));
+    return copy;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * One render: JSON -> parse -> ns_render, timed. error gets the first problem.
+ * ------------------------------------------------------------------------------------- */
+static int bench_render(bench *b, const json_t *scene_json, ns_image *img, ns_render_stats *stats,
+                        double *ms, char *error, size_t error_len)
+{
+    memset(img, 0, sizeof *img);
+    memset(stats, 0, sizeof *stats);
+    char *text = json_dumps(scene_json, JSON_COMPACT | JSON_SORT_KEYS);
+    scene_issues *issues = calloc(1, sizeof *issues);
+    if (!text || !issues) {
+        free(text);
+        free(issues);
+        snprintf(error, error_len, "out of host memory");
+        return NS_ERR_OUT_OF_HOST_MEMORY;
+    }
+    scene_doc *doc = NULL;
+    int rc = scene_parse(text, strlen(text), &(scene_parse_options){.asset_dir = b->asset_dir}, &doc,
+                         issues);
+    free(text);
+    if (rc) {
+        if (issues->count)
+            snprintf(error, error_len, "%.120s: %.360s%s", issues->items[0].pointer, issues->items[0].detail,
+                     issues->total > 1 ? " (and more)" : "");
+        else
+            snprintf(error, error_len, "%s", ns_status_message(rc));
+        free(issues);
+        return rc;
+    }
+    free(issues);
+    ns_error err = {0};
+    double t0 = ns_now_ms();
+    rc = ns_render(b->ctx, scene_doc_scene(doc), img, stats, &err);
+    *ms = ns_now_ms() - t0;
+    scene_doc_free(doc);
+    if (rc) {
+        snprintf(error, error_len, "%.40s: %.440s", ns_status_name(rc), err.message);
+        ns_image_free(img);
+    }
+    return rc;
+}
+
+static double stage_ms(const ns_render_stats *st, const char *name)
+{
+    double ms = 0;
+    for (uint32_t i = 0; i < st->stage_count; i++)
+        if (!strcmp(st->stages[i].name, name))
+            ms += st->stages[i].ms;
+    return ms;
+}
+
+static int compare_doubles(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * References: pt with the components of the methods compared with them.
+ * ------------------------------------------------------------------------------------- */
+static uint64_t reference_key(bench *b, const json_t *scene_json)
+{
+    char *text = json_dumps(scene_json, JSON_COMPACT | JSON_SORT_KEYS);
+    uint64_t h = fnv1a(0xcbf29ce484222325ull, text ? text : "", text ? strlen(text) : 0);
+    free(text);
+    /* Meshes are named, not inlined: their bytes are part of the key. */
+    size_t i;
+    json_t *o;
+    json_array_foreach(json_object_get(scene_json, "objects"), i, o)
+    {
+        const char *asset = json_string_value(json_object_get(o, "asset"));
+        if (!asset)
+            continue;
+        char path[4500];
+        size_t size = 0;
+        snprintf(path, sizeof path, "%s/%s", b->asset_dir, asset);
+        unsigned char *data = read_all(path, &size);
+        if (data)
+            h = fnv1a(h, data, size);
+        free(data);
+    }
+    return h;
+}
+
+static int write_reference(const char *path, const ns_image *img, const bench_reference *r,
+                           const char *scene, uint32_t components)
+{
+    encode_buffer exr = {0};
+    ns_error err = {0};
+    if (encode_exr(img, 0, NULL, 0, &exr, &err))
+        return -1;
+    int rc = write_atomically(path, exr.data, exr.size);
+    encode_buffer_free(&exr);
+    if (rc)
+        return -1;
+    char meta_path[4200];
+    snprintf(meta_path, sizeof meta_path, "%.4190s.json", path);
+    json_t *meta = json_pack("{s:s, s:s, s:I, s:I, s:f, s:s}", "scene", scene, "components",
+                             bench_components_name(components), "spp", (json_int_t)r->spp, "seed",
+                             (json_int_t)BENCH_REF_SEED, "ms", r->ms, "device", r->device);
+    char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
+    json_decref(meta);
+    rc = text ? write_atomically(meta_path, text, strlen(text)) : -1;
+    free(text);
+    return rc;
+}
+
+static void read_reference_meta(const char *path, bench_reference *r)
+{
+    char meta_path[4200];
+    snprintf(meta_path, sizeof meta_path, "%.4190s.json", path);
+    json_t *meta = json_load_file(meta_path, 0, NULL);
+    json_t *ms = json_object_get(meta, "ms");
+    r->ms = json_is_number(ms) ? json_number_value(ms) : NAN;
+    const char *dev = json_string_value(json_object_get(meta, "device"));
+    snprintf(r->device, sizeof r->device, "%s", dev ? dev : "?");
+    json_decref(meta);
+}
+
+static int ensure_reference(bench *b, bench_scene *s, int set, int force)
+{
+    bench_reference *r = &s->refs[set];
+    uint32_t components = bench_ref_components[set];
+    json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
+    /* pt takes no vrls and ignores max_depth; drop what the key should not depend on. */
+    json_object_del(json_object_get(scene_json, "render"), "vrls");
+    uint64_t key = reference_key(b, scene_json);
+    char name[sizeof s->name];
+    memcpy(name, s->name, sizeof name);
+    snprintf(r->path, sizeof r->path, "%.3900s/%.63s-%s-%ux%u-%uspp-%016llx.exr", b->cache_dir, name,
+             bench_components_name(components), s->width, s->height, s->ref_spp, (unsigned long long)key);
+    for (char *p = strrchr(r->path, '/'); p && *p; p++)
+        if (*p == '+')
+            *p = '_';
+    r->spp = s->ref_spp;
+    ns_error err = {0};
+    if (!force && access(r->path, R_OK) == 0 && image_load(r->path, &r->image, &err) == 0 &&
+        r->image.width == s->width && r->image.height == s->height) {
+        read_reference_meta(r->path, r);
+        r->ok = 1;
+        json_decref(scene_json);
+        fprintf(stderr, "bench: %s reference (%s): cached %s\n", s->name, bench_components_name(components),
+                r->path);
+        return 0;
+    }
+    ns_image_free(&r->image);
+    fprintf(stderr, "bench: %s reference (%s): pt %u spp at %ux%u...\n", s->name,
+            bench_components_name(components), s->ref_spp, s->width, s->height);
+    ns_render_stats stats;
+    int rc = bench_render(b, scene_json, &r->image, &stats, &r->ms, r->error, sizeof r->error);
+    json_decref(scene_json);
+    if (rc) {
+        fprintf(stderr, "nscatter bench: %s reference (%s): %s\n", s->name,
+                bench_components_name(components), r->error);
+        return 1;
+    }
+    snprintf(r->device, sizeof r->device, "%s", b->run.device);
+    r->ok = r->generated = 1;
+    if (write_reference(r->path, &r->image, r, s->name, components))
+        fprintf(stderr, "nscatter bench: cannot cache the reference '%s': %s\n", r->path, strerror(errno));
+    fprintf(stderr, "bench: %s reference (%s): %.1f s, %s\n", s->name, bench_components_name(components),
+            r->ms / 1000.0, r->path);
+    return 0;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Methods.
+ * ------------------------------------------------------------------------------------- */
+static uint32_t scene_spp(const bench *b, const bench_scene *s)
+{
+    if (b->args.spp)
+        return b->args.spp;
+    json_t *spp = json_object_get(json_object_get(s->scene, "render"), "spp");
+    return json_is_integer(spp) ? (uint32_t)json_integer_value(spp) : 1;
+}
+
+/* Renders method m `repeat` times at `vrls`; the result keeps the last image. */
+static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls)
+{
+    const bench_method_info *info = &bench_methods[m];
+    bench_result *r = &s->results[m];
+    ns_image_free(&r->image);
+    memset(r, 0, sizeof *r);
+    r->ran = 1;
+    r->vrls = info->vrls_key ? vrls : 0;
+    r->spp = scene_spp(b, s);
+    json_t *scene_json = scene_for(s, info->method, info->components, r->spp, 0, r->vrls);
+    double times[64];
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < b->run.repeat && i < 64; i++) {
+        ns_image img;
+        ns_render_stats stats;
+        double ms;
+        if (bench_render(b, scene_json, &img, &stats, &ms, r->error, sizeof r->error)) {
+            r->ok = 0;
+            ns_image_free(&r->image);
+            json_decref(scene_json);
+            return;
+        }
+        if (i == 0) {
+            r->cold_ms = ms;
+            r->cold_stats = stats;
+        }
+        times[n++] = ms;
+        r->stats = stats;
+        ns_image_free(&r->image);
+        r->image = img;
+    }
+    json_decref(scene_json);
+    /* The first render pays for table reconstruction; the warm ones are the frame time. */
+    double *warm = n > 1 ? times + 1 : times;
+    uint32_t warm_n = n > 1 ? n - 1 : n;
+    qsort(warm, warm_n, sizeof *warm, compare_doubles);
+    r->ms = warm_n % 2 ? warm[warm_n / 2] : 0.5 * (warm[warm_n / 2 - 1] + warm[warm_n / 2]);
+    r->ok = 1;
+}
+
+static void compare_with_reference(bench_scene *s, int m)
+{
+    bench_result *r = &s->results[m];
+    int set = bench_ref_index(bench_methods[m].components);
+    if (!r->ok || set < 0 || !s->refs[set].ok)
+        return;
+    image_compare(&r->image, &s->refs[set].image, NULL, &r->metrics);
+}
+
+/* vrl at equal time: its cost grows linearly with render.vrls above a fixed part (the stages
+ * that do not depend on it), so two renders find the count whose time matches nn full's. */
+static void run_vrl_equal_time(bench *b, bench_scene *s)
+{
+    const bench_result *nn = &s->results[BENCH_NN_FULL];
+    uint32_t vrls = manifest_vrls(s, "full", b->args.vrl_scale);
+    if (!nn->ok) {
+        run_method_at(b, s, BENCH_VRL, vrls);
+        return; /* nothing to match: rendered at the scene's count, ratio left 0 */
+    }
+    double target = nn->ms;
+    for (int attempt = 0; attempt < 3; attempt++) {
+        run_method_at(b, s, BENCH_VRL, vrls);
+        bench_result *r = &s->results[BENCH_VRL];
+        if (!r->ok)
+            return;
+        r->equal_time_ratio = r->ms / target;
+        if (fabs(r->equal_time_ratio - 1.0) < 0.2)
+            return;
+        double variable = stage_ms(&r->stats, "vrl") + stage_ms(&r->stats, "grid") +
+                          stage_ms(&r->stats, "gather");
+        double fixed = r->ms - variable;
+        double per_vrl = variable / vrls;
+        if (!(per_vrl > 0) || target <= fixed) {
+            if (target <= fixed && vrls > 1) {
+                vrls = vrls / 10 > 0 ? vrls / 10 : 1; /* fixed part alone exceeds the target */
+                continue;
+            }
+            return;
+        }
+        double next = (target - fixed) / per_vrl;
+        vrls = (uint32_t)fmin(fmax(round(next), 1.0), (double)NS_MAX_VRLS);
+    }
+}
+
+/* pt at a few spp, seeds apart from the reference, and the cost-of-quality estimate. */
+static void run_pt_ladder(bench *b, bench_scene *s)
+{
+    bench_result *res = &s->results[BENCH_PT];
+    memset(res, 0, sizeof *res);
+    res->ran = 1;
+    const bench_reference *ref = &s->refs[bench_ref_index(BENCH_ALL)];
+    s->ladder_count = 0;
+    for (uint32_t i = 0; i < b->ladder_count; i++) {
+        bench_pt_point *p = &s->ladder[s->ladder_count++];
+        memset(p, 0, sizeof *p);
+        p->spp = b->ladder[i];
+        json_t *scene_json = scene_for(s, NS_METHOD_PT, BENCH_ALL, p->spp, BENCH_LADDER_SEED + i, 0);
+        ns_image img;
+        ns_render_stats stats;
+        int rc = bench_render(b, scene_json, &img, &stats, &p->ms, res->error, sizeof res->error);
+        json_decref(scene_json);
+        if (rc)
+            return;
+        p->pass_ms = stage_ms(&stats, "pt_pass");
+        if (ref->ok) {
+            image_metrics m;
+            image_compare(&img, &ref->image, NULL, &m);
+            p->mse = m.rmse[3] * m.rmse[3];
+            p->psnr = m.psnr[3];
+            res->metrics = m;
+        }
+        p->ok = 1;
+        ns_image_free(&res->image);
+        res->image = img; /* the contact sheet shows the longest */
+        res->ms = p->ms;
+        res->spp = p->spp;
+        res->stats = stats;
+        res->ok = 1;
+    }
+    /* variance: least squares through the origin of MSE against 1/spp + 1/ref_spp;
+     * time per spp: least squares of pt_pass against spp through the origin. */
+    double sxy = 0, sxx = 0, tsy = 0, tss = 0;
+    for (uint32_t i = 0; i < s->ladder_count; i++) {
+        const bench_pt_point *p = &s->ladder[i];
+        double x = 1.0 / p->spp + 1.0 / s->ref_spp;
+        sxy += x * p->mse, sxx += x * x;
+        tsy += p->spp * p->pass_ms, tss += (double)p->spp * p->spp;
+    }
+    bench_pt_estimate *e = &s->pt;
+    memset(e, 0, sizeof *e);
+    const bench_result *nn = &s->results[BENCH_NN_FULL];
+    if (!ref->ok || !res->ok || sxx <= 0 || tss <= 0)
+        return;
+    e->variance = sxy / sxx;
+    e->pass_ms_per_spp = tsy / tss;
+    if (!nn->ok || !(nn->metrics.pixels > 0))
+        return;
+    double nn_mse = nn->metrics.rmse[3] * nn->metrics.rmse[3];
+    e->nn_mse_true = nn_mse - e->variance / s->ref_spp;
+    /* Within the reference's own noise nn's true error cannot be told from zero: the bound
+     * uses the measured error, which only flatters pt. */
+    e->lower_bound = !(e->nn_mse_true > 0.1 * nn_mse);
+    double mse = e->lower_bound ? nn_mse : e->nn_mse_true;
+    e->pt_ms_equal = e->pass_ms_per_spp * e->variance / mse;
+    e->speedup = e->pt_ms_equal / nn->ms;
+    e->ok = isfinite(e->speedup);
+}
+
+static void run_scene(bench *b, bench_scene *s)
+{
+    const int *sel = b->run.methods;
+    for (int m = 0; m < BENCH_METHOD_COUNT; m++) {
+        if (!sel[m] || m == BENCH_PT)
+            continue;
+        double t0 = ns_now_ms();
+        if (m == BENCH_VRL)
+            run_vrl_equal_time(b, s);
+        else
+            run_method_at(b, s, m,
+                          bench_methods[m].vrls_key
+                              ? manifest_vrls(s, bench_methods[m].vrls_key, b->args.vrl_scale)
+                              : 0);
+        compare_with_reference(s, m);
+        const bench_result *r = &s->results[m];
+        if (r->ok)
+            fprintf(stderr, "bench: %s %s: %.1f ms, PSNR %.2f dB (%.1f s)\n", s->name, bench_methods[m].name,
+                    r->ms, r->metrics.psnr[3], (ns_now_ms() - t0) / 1000.0);
+        else
+            fprintf(stderr, "bench: %s %s: not rendered: %s\n", s->name, bench_methods[m].name, r->error);
+    }
+    if (sel[BENCH_PT]) {
+        run_pt_ladder(b, s);
+        if (!s->results[BENCH_PT].ok)
+            fprintf(stderr, "bench: %s pt: %s\n", s->name, s->results[BENCH_PT].error);
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Set-up: folders, manifest, scenes, device.
+ * ------------------------------------------------------------------------------------- */
+static int setup_dirs(bench *b)
+{
+    const char *dir = b->args.scene_dir ? b->args.scene_dir : NS_SOURCE_DIR "/scenes/bench";
+    snprintf(b->scene_dir, sizeof b->scene_dir, "%s", dir);
+    const char *cache = b->args.cache_dir ? b->args.cache_dir : getenv("NSCATTER_CACHE_DIR");
+    if (cache && *cache) {
+        snprintf(b->cache_dir, sizeof b->cache_dir, "%s", cache);
+    } else {
+        const char *home = getenv("HOME");
+        snprintf(b->cache_dir, sizeof b->cache_dir, "%s/.cache/nscatter/bench", home && *home ? home : ".");
+    }
+    snprintf(b->asset_dir, sizeof b->asset_dir, "%s/assets", b->cache_dir);
+    snprintf(b->mc_dir, sizeof b->mc_dir, "%s/mc", b->cache_dir);
+    if (mkdir_p(b->asset_dir) || mkdir_p(b->mc_dir)) {
+        fprintf(stderr, "nscatter bench: --cache '%s': cannot create it: %s\n", b->cache_dir, strerror(errno));
+        return 1;
+    }
+    if (!b->args.references_only && mkdir_p(b->args.out_dir)) {
+        fprintf(stderr, "nscatter bench: --out '%s': cannot create it: %s\n", b->args.out_dir, strerror(errno));
+        return 1;
+    }
+    return 0;
+}
+
+static int name_in_list(const char *list, const char *name)
+{
+    size_t n = strlen(name);
+    for (const char *p = list; *p;) {
+        size_t len = strcspn(p, ",");
+        if (len == n && !strncmp(p, name, n))
+            return 1;
+        p += len + (p[len] == ',');
+    }
+    return 0;
+}
+
+static int load_scenes(bench *b)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/bench.json", b->scene_dir);
+    b->manifest = load_json(path, "manifest");
+    json_t *list = json_object_get(b->manifest, "scenes");
+    if (!json_is_array(list) || !json_array_size(list)) {
+        if (b->manifest)
+            fprintf(stderr, "nscatter bench: '%s' has no \"scenes\" array\n", path);
+        return 2;
+    }
+    if (b->args.scenes) /* every name asked for must exist */
+        for (const char *p = b->args.scenes; *p;) {
+            size_t len = strcspn(p, ","), i, found = 0;
+            json_t *e;
+            json_array_foreach(list, i, e)
+            {
+                const char *n = json_string_value(json_object_get(e, "name"));
+                found |= n && strlen(n) == len && !strncmp(n, p, len);
+            }
+            if (!found) {
+                fprintf(stderr, "nscatter bench: --scenes: unknown scene '%.*s' (see %s)\n", (int)len, p, path);
+                return 2;
+            }
+            p += len + (p[len] == ',');
+        }
+    b->run.scenes = calloc(json_array_size(list), sizeof *b->run.scenes);
+    if (!b->run.scenes)
+        return 1;
+    size_t i;
+    json_t *e;
+    json_array_foreach(list, i, e)
+    {
+        const char *n = json_string_value(json_object_get(e, "name"));
+        if (b->args.scenes && (!n || !name_in_list(b->args.scenes, n)))
+            continue;
+        bench_scene *s = &b->run.scenes[b->run.scene_count++];
+        if (load_scene(b, e, s))
+            return 2;
+    }
+    return 0;
+}
+
+static int scene_uses_asset(const bench_scene *s, const char *asset)
+{
+    size_t i;
+    json_t *o;
+    json_array_foreach(json_object_get(s->scene, "objects"), i, o)
+    {
+        const char *a = json_string_value(json_object_get(o, "asset"));
+        if (a && !strcmp(a, asset))
+            return 1;
+    }
+    return 0;
+}
+
+static void note_command_and_date(bench *b, int argc, char **argv)
+{
+    size_t at = (size_t)snprintf(b->run.command, sizeof b->run.command, "nscatter bench");
+    for (int i = 1; i < argc && at < sizeof b->run.command; i++)
+        at += (size_t)snprintf(b->run.command + at, sizeof b->run.command - at, " %s", argv[i]);
+    time_t now = time(NULL);
+    struct tm tm;
+    gmtime_r(&now, &tm);
+    strftime(b->run.date, sizeof b->run.date, "%Y-%m-%d %H:%M UTC", &tm);
+}
+
+static int create_context(bench *b)
+{
+    ns_error err = {0};
+    int rc = ns_context_create(&(ns_context_desc){.device = b->args.device,
+                                                  .mc_tables = bench_mc_tables,
+                                                  .mc_user = b},
+                               &b->ctx, &err);
+    if (rc) {
+        fprintf(stderr, "nscatter bench: %s: %s\n", ns_status_name(rc), err.message);
+        return 1;
+    }
+    ns_device_info info;
+    ns_context_device_info(b->ctx, &info);
+    snprintf(b->run.device, sizeof b->run.device, "%s", info.device_name);
+    snprintf(b->run.driver, sizeof b->run.driver, "%.120s %.120s", info.driver_name, info.driver_info);
+    return 0;
+}
+
+static void bench_free(bench *b)
+{
+    for (uint32_t i = 0; i < b->run.scene_count; i++) {
+        bench_scene *s = &b->run.scenes[i];
+        for (int r = 0; r < BENCH_REF_SETS; r++)
+            ns_image_free(&s->refs[r].image);
+        for (int m = 0; m < BENCH_METHOD_COUNT; m++)
+            ns_image_free(&s->results[m].image);
+        json_decref(s->scene);
+    }
+    free(b->run.scenes);
+    json_decref(b->manifest);
+    ns_context_destroy(b->ctx);
+}
+
+/* Which reference sets the selected methods compare with. */
+static void mark_wanted_references(bench *b, bench_scene *s)
+{
+    for (int m = 0; m < BENCH_METHOD_COUNT; m++)
+        if (b->run.methods[m] || b->args.references_only) {
+            int set = bench_ref_index(bench_methods[m].components);
+            if (set >= 0)
+                s->refs[set].wanted = 1;
+        }
+}
+
+static int make_references(bench *b, int force)
+{
+    int failed = 0;
+    double t0 = ns_now_ms();
+    uint32_t made = 0;
+    for (uint32_t i = 0; i < b->run.scene_count; i++) {
+        bench_scene *s = &b->run.scenes[i];
+        if (s->skipped)
+            continue;
+        mark_wanted_references(b, s);
+        for (int set = 0; set < BENCH_REF_SETS; set++)
+            if (s->refs[set].wanted) {
+                failed |= ensure_reference(b, s, set, force);
+                made += s->refs[set].generated;
+            }
+    }
+    fprintf(stderr, "bench: references: %u rendered in %.1f s (cache %s)\n", made,
+            (ns_now_ms() - t0) / 1000.0, b->cache_dir);
+    return failed;
+}
+
+int cmd_bench(int argc, char **argv)
+{
+    bench *b = calloc(1, sizeof *b);
+    if (!b)
+        return 1;
+    int done = 0;
+    int rc = parse_bench_args(argc, argv, &b->args, &done);
+    if (!rc && !done && b->args.methods)
+        rc = parse_methods(b->args.methods, b->run.methods);
+    else if (!rc && !done)
+        for (int m = 0; m < BENCH_METHOD_COUNT; m++)
+            b->run.methods[m] = 1;
+    if (!rc && !done)
+        rc = parse_ladder(b->args.ladder, b->ladder, &b->ladder_count);
+    if (rc || done) {
+        free(b);
+        return rc;
+    }
+    double t0 = ns_now_ms();
+    b->run.repeat = b->args.repeat;
+    b->run.mc_collisions = b->args.mc_collisions;
+    b->run.diff_method = bench_method_by_name(b->args.diff, strlen(b->args.diff));
+    note_command_and_date(b, argc, argv);
+    rc = setup_dirs(b);
+    if (!rc)
+        rc = load_scenes(b);
+    if (!rc && prepare_generated_assets(b))
+        rc = 1;
+    for (uint32_t i = 0; !rc && i < b->run.scene_count; i++) {
+        bench_scene *s = &b->run.scenes[i];
+        if (scene_uses_asset(s, "bench_bunny.glb") && prepare_bunny(b, s->skip_reason, sizeof s->skip_reason)) {
+            s->skipped = 1;
+            fprintf(stderr, "bench: %s skipped: %s\n", s->name, s->skip_reason);
+        }
+    }
+    if (!rc)
+        rc = create_context(b);
+    /* A reference that cannot be made fails the run (exit 1) but not the other scenes: the
+     * report says which comparisons are missing. */
+    int references_failed = !rc && make_references(b, b->args.references_only);
+    if (!rc && !b->args.references_only) {
+        for (uint32_t i = 0; i < b->run.scene_count; i++)
+            if (!b->run.scenes[i].skipped)
+                run_scene(b, &b->run.scenes[i]);
+        b->run.total_s = (ns_now_ms() - t0) / 1000.0;
+        rc = bench_write_report(&b->run, b->args.out_dir);
+        if (!rc)
+            fprintf(stderr, "bench: wrote %s/report.md and %s/contact_sheet.png in %.1f s\n",
+                    b->args.out_dir, b->args.out_dir, b->run.total_s);
+    }
+    if (!rc && references_failed)
+        rc = 1;
+    bench_free(b);
+    free(b);
+    return rc;
+}
