@@ -238,7 +238,7 @@ static void write_cached(ns_mc_provider *p, const ns_table *t, double g, double 
         status = ns_table_write(t, prefix, &err);
     if (status) {
         /* The render still gets its table; only the next one pays again. */
-        fprintf(stderr, "nscatter: Monte Carlo cache: %s\n", err.message);
+        fprintf(stderr, "nscatter: %s\n", err.message);
         p->counts.write_failures++;
     }
 }
