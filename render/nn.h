@@ -14,6 +14,21 @@ typedef struct ns_nn_grid {
     const double *edges[4];
 } ns_nn_grid;
 
+/* Where the networks are evaluated: every stride[a]-th bin along each axis (z, rho, theta,
+ * phi; always the first and last bin too), and every z and rho bin whose centre lies within
+ * full_radius mfp of the source. The cells between are interpolated linearly in the
+ * network's output (log space) over its normalised inputs: the networks are smooth there,
+ * and this is what brings an RGB material under 1 s on lavapipe (docs/network.md measures
+ * the time and the error it adds). */
+typedef struct ns_nn_sampling {
+    uint32_t stride[4]; /* 1 to 16; 1 everywhere: every cell evaluated */
+    double full_radius; /* mfp, >= 0 */
+} ns_nn_sampling;
+
+/* The default (measured in docs/network.md) and the exact one, every cell evaluated. */
+ns_nn_sampling ns_nn_sampling_default(void);
+ns_nn_sampling ns_nn_sampling_every_cell(void);
+
 typedef struct ns_nn_reconstruct_desc {
     const ns_nn_weights *nets[2]; /* double, multiple */
     ns_nn_grid grid;
@@ -22,6 +37,7 @@ typedef struct ns_nn_reconstruct_desc {
     int renormalise;   /* rescale each table to its exact energy */
     uint32_t channels; /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
     float *out;        /* [2][3][cells] J values: order-major, then channel */
+    const ns_nn_sampling *sampling; /* NULL: ns_nn_sampling_default() */
 } ns_nn_reconstruct_desc;
 
 typedef struct ns_nn_reconstruct_stats {
@@ -29,7 +45,8 @@ typedef struct ns_nn_reconstruct_stats {
     double energy_exact[2][3]; /* E_k */
     double gpu_seconds;        /* dispatch, submit and wait */
     double total_seconds;      /* including upload, readback and renormalisation */
-    uint64_t evaluations;      /* network evaluations (cells x 3 channels x 2 orders) */
+    uint64_t evaluations;      /* network evaluations (nodes x channels x 2 orders) */
+    uint64_t cells;            /* table cells filled (cells x channels x 2 orders) */
 } ns_nn_reconstruct_stats;
 
 /* Energy of one table in this grid: sum of J * ring volume * solid angle (DESIGN.md §3). */

@@ -74,6 +74,10 @@ int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err)
         dev, &nn->pipeline, &(gpu_pipeline_desc){.shader = "nn_reconstruct", .binding_count = 3},
         err);
     if (!status)
+        status = gpu_pipeline_create(
+            dev, &nn->interpolate,
+            &(gpu_pipeline_desc){.shader = "nn_interpolate", .binding_count = 3}, err);
+    if (!status)
         status = gpu_buffer_create(dev, &nn->params,
                                    &(gpu_buffer_desc){.size = sizeof(struct GpuNnParams),
                                                       .kind = GPU_BUFFER_UNIFORM,
@@ -88,6 +92,8 @@ int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err)
     if (!status) {
         gpu_buffer *bound[3] = {&nn->params, &nn->dummy, &nn->dummy};
         status = gpu_dispatch(dev, &nn->pipeline, bound, 3, (uint32_t[3]){1, 1, 1}, err);
+        if (!status)
+            status = gpu_dispatch(dev, &nn->interpolate, bound, 3, (uint32_t[3]){1, 1, 1}, err);
     }
     if (status)
         ns_nn_gpu_destroy(dev, nn);
@@ -100,6 +106,7 @@ void ns_nn_gpu_destroy(gpu_device *dev, ns_nn_gpu *nn)
         return;
     gpu_buffer_destroy(dev, &nn->dummy);
     gpu_buffer_destroy(dev, &nn->params);
+    gpu_pipeline_destroy(dev, &nn->interpolate);
     gpu_pipeline_destroy(dev, &nn->pipeline);
     memset(nn, 0, sizeof *nn);
 }
@@ -148,32 +155,72 @@ static double exact_energy(int order, double a)
     return order == 0 ? a * a : a * a * a / (1.0 - a);
 }
 
-int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_desc *desc,
-                      ns_nn_reconstruct_stats *stats, ns_error *err)
+ns_nn_sampling ns_nn_sampling_default(void)
 {
-    double t0 = seconds_now();
-    int status = check_nets(desc->nets, err);
-    if (!status)
-        status = check_grid(&desc->grid, err);
-    if (status)
-        return status;
-    uint32_t channels = desc->channels ? desc->channels : 3;
-    if (channels > 3)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "channels: %u (1 to 3)", channels);
-    if (!(desc->g >= 0 && desc->g < 1))
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)", desc->g);
-    for (int c = 0; c < 3; c++)
-        if (!(desc->albedo[c] >= 0 && desc->albedo[c] < 1))
-            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "albedo[%d]: %g outside [0, 1)", c,
-                           desc->albedo[c]);
-    const ns_nn_grid *grid = &desc->grid;
-    uint32_t cells = grid->n[0] * grid->n[1] * grid->n[2] * grid->n[3];
-    struct GpuNnParams *gp = nn->params.mapped;
-    memset(gp, 0, sizeof *gp);
-    pack_common(gp, desc->nets);
-    const ns_nn_header *h = &desc->nets[0]->h;
-    /* Cells beyond the extent the networks were trained on get -1: the shader writes 0
-     * there rather than extrapolating. */
+    return (ns_nn_sampling){.stride = {3, 3, 1, 2}, .full_radius = 3.0};
+}
+
+ns_nn_sampling ns_nn_sampling_every_cell(void)
+{
+    return (ns_nn_sampling){.stride = {1, 1, 1, 1}, .full_radius = 0.0};
+}
+
+static int check_sampling(const ns_nn_sampling *s, ns_error *err)
+{
+    for (int a = 0; a < 4; a++)
+        if (s->stride[a] < 1 || s->stride[a] > 16)
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "sampling stride[%d]: %u (1 to 16)", a,
+                           s->stride[a]);
+    if (!(s->full_radius >= 0))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "sampling full_radius: %g (>= 0 mfp)",
+                       s->full_radius);
+    return 0;
+}
+
+/* Is bin i of a spatial axis near the source (every such bin is evaluated)? */
+static int near_source(const ns_nn_grid *g, int axis, uint32_t i, double radius)
+{
+    return axis < 2 && fabs(mid(g->edges[axis], i)) <= radius;
+}
+
+/* The nodes of one axis (bins where the networks are evaluated) and, for every bin, its
+ * lower node and the next node's weight. The weight is linear in the bins' centres (mfp,
+ * radians), not in the network's asinh-mapped input: beyond full_radius log J falls about
+ * linearly with distance, which the asinh map bends (measured in docs/network.md). A
+ * neighbour node outside the trained extent (input x < 0) gets no weight. Returns the
+ * node count. */
+static uint32_t sample_axis(const ns_nn_grid *g, int axis, const ns_nn_sampling *s,
+                            const float *x, ns_vec4 *sample)
+{
+    uint32_t n = g->n[axis], nodes = 0, stride = s->stride[axis];
+    for (uint32_t i = 0; i < n; i++)
+        if (i % stride == 0 || i == n - 1 || near_source(g, axis, i, s->full_radius))
+            sample[nodes++][0] = (float)i;
+    uint32_t k = 0;
+    const double *e = g->edges[axis];
+    for (uint32_t i = 0; i < n; i++) {
+        while (k + 1 < nodes && (uint32_t)sample[k + 1][0] <= i)
+            k++;
+        uint32_t b0 = (uint32_t)sample[k][0];
+        float w = 0.0f;
+        if (b0 != i) { /* then k + 1 < nodes: the last bin is a node */
+            uint32_t b1 = (uint32_t)sample[k + 1][0];
+            w = x[b1] < 0   ? 0.0f
+                : x[b0] < 0 ? 1.0f
+                            : (float)((mid(e, i) - mid(e, b0)) / (mid(e, b1) - mid(e, b0)));
+        }
+        sample[i][1] = (float)k;
+        sample[i][2] = w;
+    }
+    return nodes;
+}
+
+/* Fills the uniform block's per-axis inputs, node lists and interpolation weights. Cells
+ * beyond the extent the networks were trained on get input -1: J is 0 there rather than
+ * extrapolated. Returns the node count of the whole table. */
+static uint32_t setup_axes(struct GpuNnParams *gp, const ns_nn_grid *grid, const ns_nn_header *h,
+                           const ns_nn_sampling *s)
+{
     float *axis = &gp->axis[0][0];
     for (uint32_t i = 0; i < grid->n[0]; i++) {
         double z = mid(grid->edges[0], i);
@@ -187,10 +234,115 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
         axis[2 * NS_NN_MAX_AXIS + i] = (float)(mid(grid->edges[2], i) / M_PI);
     for (uint32_t i = 0; i < grid->n[3]; i++)
         axis[3 * NS_NN_MAX_AXIS + i] = (float)(mid(grid->edges[3], i) / M_PI);
-    for (int a = 0; a < 4; a++)
+    uint32_t nodes = 1;
+    for (int a = 0; a < 4; a++) {
         gp->counts[a] = grid->n[a];
-    gp->info[0] = cells;
+        gp->nodes[a] = sample_axis(grid, a, s, axis + a * NS_NN_MAX_AXIS,
+                                   gp->interp + a * NS_NN_MAX_AXIS);
+        nodes *= gp->nodes[a];
+    }
+    return nodes;
+}
+
+static int dispatch_table(gpu_device *dev, ns_nn_gpu *nn, const gpu_pipeline *pipe,
+                          gpu_buffer *out, gpu_buffer *in, uint32_t items, uint32_t channels,
+                          ns_error *err)
+{
+    uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
+    gpu_buffer *bound[3] = {&nn->params, out, in ? in : &nn->dummy};
+    return gpu_dispatch(dev, pipe, bound, 3,
+                        (uint32_t[3]){(items + per_group - 1) / per_group, channels, 2}, err);
+}
+
+/* Evaluates the networks at the nodes and fills every cell of out: directly when every cell
+ * is a node, else through t at the nodes and the interpolation pass. */
+static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint32_t cells,
+                    uint32_t nodes, uint32_t channels, gpu_buffer *out, ns_error *err)
+{
     gp->info[1] = NS_NN_MODE_TABLE;
+    gp->info[3] = nodes;
+    if (nodes == cells) {
+        gp->info[0] = cells;
+        gp->info[2] = 0;
+        return dispatch_table(dev, nn, &nn->pipeline, out, NULL, cells, channels, err);
+    }
+    gpu_buffer t = {0};
+    int status = gpu_buffer_create(
+        dev, &t,
+        &(gpu_buffer_desc){.size = (VkDeviceSize)nodes * 6 * sizeof(float),
+                           .uninitialized = 1,
+                           .label = "ns.nn.nodes"},
+        err);
+    if (!status) {
+        gp->info[0] = nodes;
+        gp->info[2] = 1; /* t, not J */
+        status = dispatch_table(dev, nn, &nn->pipeline, &t, NULL, nodes, channels, err);
+    }
+    if (!status) {
+        /* nn_interpolate.comp: one invocation per row of cells along phi. */
+        gp->info[0] = cells;
+        uint32_t rows = cells / gp->counts[3];
+        gpu_buffer *bound[3] = {&nn->params, out, &t};
+        status = gpu_dispatch(dev, &nn->interpolate, bound, 3,
+                              (uint32_t[3]){(rows + NS_NN_GROUP - 1) / NS_NN_GROUP, channels, 2},
+                              err);
+    }
+    gpu_buffer_destroy(dev, &t);
+    return status;
+}
+
+static int check_material(const ns_nn_reconstruct_desc *desc, uint32_t channels, ns_error *err)
+{
+    if (channels > 3)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "channels: %u (1 to 3)", channels);
+    if (!(desc->g >= 0 && desc->g < 1))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)", desc->g);
+    for (int c = 0; c < 3; c++)
+        if (!(desc->albedo[c] >= 0 && desc->albedo[c] < 1))
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "albedo[%d]: %g outside [0, 1)", c,
+                           desc->albedo[c]);
+    return 0;
+}
+
+/* Energy of each table and, if asked, the rescaling to the exact E_k. */
+static void finish_tables(const ns_nn_reconstruct_desc *desc, uint32_t cells, uint32_t channels,
+                          ns_nn_reconstruct_stats *s)
+{
+    for (int o = 0; o < 2; o++)
+        for (uint32_t c = 0; c < channels; c++) {
+            float *j = desc->out + ((size_t)o * 3 + c) * cells;
+            s->energy_raw[o][c] = ns_nn_grid_energy(&desc->grid, j);
+            s->energy_exact[o][c] = exact_energy(o, desc->albedo[c]);
+            if (desc->renormalise && s->energy_raw[o][c] > 0) {
+                float k = (float)(s->energy_exact[o][c] / s->energy_raw[o][c]);
+                for (uint32_t i = 0; i < cells; i++)
+                    j[i] *= k;
+            }
+        }
+}
+
+int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_desc *desc,
+                      ns_nn_reconstruct_stats *stats, ns_error *err)
+{
+    double t0 = seconds_now();
+    uint32_t channels = desc->channels ? desc->channels : 3;
+    ns_nn_sampling sampling = desc->sampling ? *desc->sampling : ns_nn_sampling_default();
+    int status = check_nets(desc->nets, err);
+    if (!status)
+        status = check_grid(&desc->grid, err);
+    if (!status)
+        status = check_material(desc, channels, err);
+    if (!status)
+        status = check_sampling(&sampling, err);
+    if (status)
+        return status;
+    const ns_nn_grid *grid = &desc->grid;
+    uint32_t cells = grid->n[0] * grid->n[1] * grid->n[2] * grid->n[3];
+    struct GpuNnParams *gp = nn->params.mapped;
+    memset(gp, 0, sizeof *gp);
+    pack_common(gp, desc->nets);
+    const ns_nn_header *h = &desc->nets[0]->h;
+    uint32_t nodes = setup_axes(gp, grid, h, &sampling);
     for (int c = 0; c < 3; c++) {
         gp->channel[c][0] = ns_nn_map_g(h, desc->g);
         gp->channel[c][1] = ns_nn_map_albedo(h, desc->albedo[c]);
@@ -205,11 +357,8 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
                                err);
     if (status)
         return status;
-    uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
     double t1 = seconds_now();
-    gpu_buffer *bound[3] = {&nn->params, &out, &nn->dummy};
-    status = gpu_dispatch(dev, &nn->pipeline, bound, 3,
-                          (uint32_t[3]){(cells + per_group - 1) / per_group, channels, 2}, err);
+    status = evaluate(dev, nn, gp, cells, nodes, channels, &out, err);
     double t2 = seconds_now();
     if (!status)
         for (int o = 0; o < 2; o++) /* only the channels computed: the rest is undefined */
@@ -219,18 +368,9 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     if (status)
         return status;
     ns_nn_reconstruct_stats s = {.gpu_seconds = t2 - t1,
-                                 .evaluations = (uint64_t)cells * 2 * channels};
-    for (int o = 0; o < 2; o++)
-        for (uint32_t c = 0; c < channels; c++) {
-            float *j = desc->out + ((size_t)o * 3 + c) * cells;
-            s.energy_raw[o][c] = ns_nn_grid_energy(grid, j);
-            s.energy_exact[o][c] = exact_energy(o, desc->albedo[c]);
-            if (desc->renormalise && s.energy_raw[o][c] > 0) {
-                float k = (float)(s.energy_exact[o][c] / s.energy_raw[o][c]);
-                for (uint32_t i = 0; i < cells; i++)
-                    j[i] *= k;
-            }
-        }
+                                 .evaluations = (uint64_t)nodes * 2 * channels,
+                                 .cells = (uint64_t)cells * 2 * channels};
+    finish_tables(desc, cells, channels, &s);
     s.total_seconds = seconds_now() - t0;
     if (stats)
         *stats = s;

@@ -14,13 +14,14 @@
 #include "nn.h"
 
 typedef struct ns_nn_gpu {
-    gpu_pipeline pipeline;
+    gpu_pipeline pipeline;        /* nn_reconstruct.comp: the networks at nodes or points */
+    gpu_pipeline interpolate;     /* nn_interpolate.comp: every cell from the nodes */
     gpu_buffer params; /* uniform GpuNnParams */
     gpu_buffer dummy;  /* bound to the points slot in table mode */
     int created;
 } ns_nn_gpu;
 
-/* Creates the pipeline and compiles it now (lavapipe compiles at the first dispatch). */
+/* Creates the pipelines and compiles them now (lavapipe compiles at the first dispatch). */
 int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err);
 void ns_nn_gpu_destroy(gpu_device *dev, ns_nn_gpu *nn);
 

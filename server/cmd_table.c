@@ -2,7 +2,9 @@
  * or from Monte Carlo, in the format `nscatter mc` writes; `--report`: accuracy of the
  * networks against exact energies and Monte Carlo tables; `--benchmark`: reconstruction
  * speed against a CPU evaluation of the same network (docs/network.md). */
+#include <cblas.h>
 #include <errno.h>
+#include <pthread.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -26,12 +28,17 @@ static const char usage_text[] =
     "                      [--mc-collisions C (5e7)] [common options]\n"
     "       nscatter table --benchmark [--runs N (5)] [common options]\n"
     "       nscatter table --compare PREFIX_A PREFIX_B\n"
+    "common: [--stride Z,R,T,P (2,2,2,2)] [--full-radius MFP (0)] [--every-cell]\n"
     "\n"
     "--source nn reconstructs the table on the GPU from the networks (built in, or --weights-*)\n"
     "on the Monte Carlo table's bins and, unless --no-renormalise, rescales it to the exact\n"
-    "energy (a^2 or a^3/(1-a)). --report compares the networks with the exact energies and\n"
+    "energy (a^2 or a^3/(1-a)). The networks are evaluated at every --stride-th bin of each\n"
+    "axis (and every z and rho bin within --full-radius of the source), the cells between\n"
+    "interpolated; --every-cell evaluates them at every cell. --report compares the networks with the exact energies and\n"
     "with Monte Carlo tables of materials off the training grid (cached in --mc-dir, default\n"
-    "data/report). --benchmark times the reconstruction of both tables of an RGB material.\n"
+    "data/report) and, unless --every-cell, with the every-cell evaluation. --benchmark\n"
+    "times the reconstruction of both tables of an RGB material, sampled and every cell, and\n"
+    "a plain C OpenBLAS evaluation of the same network on 2 threads.\n"
     "--compare prints the energies of two tables and their energy-weighted L1 distance\n"
     "(relative to B), e.g. two Monte Carlo seeds: the noise floor of the report's L1.\n";
 
@@ -41,6 +48,7 @@ typedef struct {
     int have_order, have_g, have_albedo, renormalise, report, benchmark, runs;
     double g, albedo, mc_collisions;
     uint64_t photons, seed;
+    ns_nn_sampling sampling;
 } table_options;
 
 #define usage_error(...) cli_usage_error("nscatter table", __VA_ARGS__)
@@ -53,6 +61,20 @@ static double now_s(void)
 static int parse_num(const char *name, const char *text, double lo, double hi, double *out)
 {
     return cli_parse_number("nscatter table", name, text, lo, hi, out);
+}
+
+static int parse_stride(const char *text, ns_nn_sampling *s)
+{
+    unsigned v[4];
+    char tail;
+    if (sscanf(text, "%u,%u,%u,%u%c", &v[0], &v[1], &v[2], &v[3], &tail) != 4)
+        return usage_error("--stride: '%s' is not Z,R,T,P (four integers, 1 to 16)", text);
+    for (int a = 0; a < 4; a++) {
+        if (v[a] < 1 || v[a] > 16)
+            return usage_error("--stride: %u is outside 1 to 16", v[a]);
+        s->stride[a] = v[a];
+    }
+    return 0;
 }
 
 static int parse_value(table_options *o, const char *arg, const char *val)
@@ -94,7 +116,11 @@ static int parse_value(table_options *o, const char *arg, const char *val)
         if (parse_num(arg, val, 0, 9007199254740992.0, &v))
             return 2;
         o->seed = (uint64_t)v;
-    } else if (!strcmp(arg, "--runs")) {
+    } else if (!strcmp(arg, "--stride")) {
+        return parse_stride(val, &o->sampling);
+    } else if (!strcmp(arg, "--full-radius"))
+        return parse_num(arg, val, 0, 1e6, &o->sampling.full_radius);
+    else if (!strcmp(arg, "--runs")) {
         if (parse_num(arg, val, 1, 100, &v))
             return 2;
         o->runs = (int)v;
@@ -111,6 +137,7 @@ static int parse_options(int argc, char **argv, table_options *o)
     o->runs = 5;
     o->mc_collisions = 5e7;
     o->mc_dir = "data/report";
+    o->sampling = ns_nn_sampling_default();
     for (int i = 1; i < argc; i++) {
         const char *arg = argv[i];
         if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
@@ -119,6 +146,8 @@ static int parse_options(int argc, char **argv, table_options *o)
         }
         if (!strcmp(arg, "--no-renormalise"))
             o->renormalise = 0;
+        else if (!strcmp(arg, "--every-cell"))
+            o->sampling = ns_nn_sampling_every_cell();
         else if (!strcmp(arg, "--report"))
             o->report = 1;
         else if (!strcmp(arg, "--benchmark"))
@@ -200,8 +229,8 @@ static ns_nn_grid grid_of(const ns_table *t)
 
 /* Both orders, three channels; *out is malloc'ed [2][3][cells]. */
 static int reconstruct(nn_session *s, const ns_table *shape, double g, const double albedo[3],
-                       uint32_t channels, int renormalise, float **out,
-                       ns_nn_reconstruct_stats *stats)
+                       uint32_t channels, int renormalise, const ns_nn_sampling *sampling,
+                       float **out, ns_nn_reconstruct_stats *stats)
 {
     size_t cells = ns_table_size(shape);
     *out = malloc(cells * 6 * sizeof(float));
@@ -214,7 +243,8 @@ static int reconstruct(nn_session *s, const ns_table *shape, double g, const dou
                                 .albedo = {albedo[0], albedo[1], albedo[2]},
                                 .renormalise = renormalise,
                                 .channels = channels,
-                                .out = *out};
+                                .out = *out,
+                                .sampling = sampling};
     if (ns_nn_session_reconstruct(s->session, &d, stats, &err)) {
         fprintf(stderr, "nscatter table: %s\n", err.message);
         free(*out);
@@ -278,7 +308,7 @@ static int run_one(const table_options *o)
         ns_nn_reconstruct_stats st;
         double albedo[3] = {o->albedo, o->albedo, o->albedo};
         if (!rc)
-            rc = reconstruct(&s, &t, o->g, albedo, 1, o->renormalise, &all, &st);
+            rc = reconstruct(&s, &t, o->g, albedo, 1, o->renormalise, &o->sampling, &all, &st);
         if (!rc) {
             memcpy(t.data, all + (size_t)o->order * 3 * ns_table_size(&t),
                    ns_table_size(&t) * sizeof(float));
@@ -317,21 +347,31 @@ static const double report_default[][2] = {
 
 /* Energy-weighted L1 distance (the paper's Fig. 18): sum |J_nn - J_mc| dV dOmega over the
  * energy of the MC table. */
-static double weighted_l1(const ns_table *mc, const float *nn)
+static double weighted_l1_to(const ns_table *shape, const float *ref_j, const float *j)
 {
     double diff = 0.0, ref = 0.0;
     size_t c = 0;
-    for (uint32_t iz = 0; iz < mc->n[0]; iz++)
-        for (uint32_t ir = 0; ir < mc->n[1]; ir++) {
-            double vol = ns_table_bin_volume(mc, iz, ir);
-            for (uint32_t it = 0; it < mc->n[2]; it++)
-                for (uint32_t ip = 0; ip < mc->n[3]; ip++, c++) {
-                    double w = vol * ns_table_bin_solid_angle(mc, it, ip);
-                    diff += fabs((double)nn[c] - mc->data[c]) * w;
-                    ref += mc->data[c] * w;
+    for (uint32_t iz = 0; iz < shape->n[0]; iz++)
+        for (uint32_t ir = 0; ir < shape->n[1]; ir++) {
+            double vol = ns_table_bin_volume(shape, iz, ir);
+            for (uint32_t it = 0; it < shape->n[2]; it++)
+                for (uint32_t ip = 0; ip < shape->n[3]; ip++, c++) {
+                    double w = vol * ns_table_bin_solid_angle(shape, it, ip);
+                    diff += fabs((double)j[c] - ref_j[c]) * w;
+                    ref += ref_j[c] * w;
                 }
         }
     return ref > 0 ? diff / ref : NAN;
+}
+
+static double weighted_l1(const ns_table *mc, const float *nn)
+{
+    return weighted_l1_to(mc, mc->data, nn);
+}
+
+static int samples_every_cell(const ns_nn_sampling *s)
+{
+    return s->stride[0] == 1 && s->stride[1] == 1 && s->stride[2] == 1 && s->stride[3] == 1;
 }
 
 static int reference_table(const table_options *o, double g, double a, ns_order order, ns_table *t)
@@ -378,12 +418,17 @@ static int report_material(const table_options *o, nn_session *s, double g, doub
         return 1;
     }
     double albedo[3] = {a, a, a};
-    float *raw = NULL;
-    ns_nn_reconstruct_stats st;
-    int rc = reconstruct(s, &mc[0], g, albedo, 1, 0, &raw, &st);
+    float *raw = NULL, *every = NULL;
+    ns_nn_reconstruct_stats st, st_every;
+    int rc = reconstruct(s, &mc[0], g, albedo, 1, 0, &o->sampling, &raw, &st);
+    ns_nn_sampling all = ns_nn_sampling_every_cell();
+    if (!rc && !samples_every_cell(&o->sampling))
+        rc = reconstruct(s, &mc[0], g, albedo, 1, 0, &all, &every, &st_every);
     for (int k = 0; k < 2 && !rc; k++) {
         size_t cells = ns_table_size(&mc[k]);
         float *j = raw + (size_t)k * 3 * cells;
+        /* The interpolation's own error: sampled against every cell, both raw. */
+        double l1_every = every ? weighted_l1_to(&mc[k], every + (size_t)k * 3 * cells, j) : 0.0;
         double exact = ns_mc_expected_energy((ns_order)k, a);
         double e_raw = st.energy_raw[k][0];
         double l1_raw = weighted_l1(&mc[k], j);
@@ -391,12 +436,13 @@ static int report_material(const table_options *o, nn_session *s, double g, doub
             j[i] = (float)(j[i] * (exact / e_raw));
         double l1_norm = weighted_l1(&mc[k], j);
         double mc_energy = ns_table_energy(&mc[k]);
-        printf("%5.2f %6.3f %-8s %+9.2f%% %+9.2f%% %9.2f%% %9.2f%%  %7.2f%%\n", g, a,
+        printf("%5.2f %6.3f %-8s %+9.2f%% %+9.2f%% %9.2f%% %9.2f%%  %7.2f%% %9.3f%%\n", g, a,
                ns_order_name((ns_order)k), 100 * (e_raw / exact - 1), 100 * (e_raw / mc_energy - 1),
-               100 * l1_raw, 100 * l1_norm, 100 * mc_energy / exact);
+               100 * l1_raw, 100 * l1_norm, 100 * mc_energy / exact, 100 * l1_every);
         fflush(stdout);
     }
     free(raw);
+    free(every);
     ns_table_free(&mc[0]);
     ns_table_free(&mc[1]);
     return rc;
@@ -417,9 +463,13 @@ static int run_report(const table_options *o)
            o->weights[0] ? o->weights[0] : "built-in", o->weights[1] ? o->weights[1] : "built-in");
     printf("energy error: NN table (no renormalisation) vs exact a^k and vs the MC table; L1: "
            "energy-weighted |NN - MC| / MC energy, raw and renormalised; MC captured: MC "
-           "table energy / exact\n");
-    printf("%5s %6s %-8s %10s %10s %10s %10s %9s\n", "g", "albedo", "order", "E vs exact",
-           "E vs MC", "L1 raw", "L1 renorm", "MC capt.");
+           "table energy / exact; L1 sampled: L1 of the sampled NN table against the NN evaluated "
+           "at every cell (raw)\n");
+    printf("sampling: stride %u,%u,%u,%u, every z and rho bin within %g mfp\n",
+           o->sampling.stride[0], o->sampling.stride[1], o->sampling.stride[2],
+           o->sampling.stride[3], o->sampling.full_radius);
+    printf("%5s %6s %-8s %10s %10s %10s %10s %9s %10s\n", "g", "albedo", "order", "E vs exact",
+           "E vs MC", "L1 raw", "L1 renorm", "MC capt.", "L1 sampled");
     for (int i = 0; i < count && !rc; i++)
         rc = report_material(o, &s, mats[i][0], mats[i][1]);
     session_close(&s);
@@ -436,36 +486,112 @@ static int cmp_double(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* CPU baselines on n random inputs: the plain scalar forward pass, and the batched
- * OpenBLAS forward pass of the trainer (one thread each, as measured in DESIGN.md §6). */
-static void cpu_baselines(const ns_nn_weights *w, double *scalar_rate, double *blas_rate)
+/* Random normalised inputs in [0, 1). */
+static void random_inputs(float *x, size_t n)
 {
-    const uint32_t n = 1u << 17, batch = 8192;
-    float *x = malloc((size_t)n * NS_NN_INPUTS * sizeof(float));
-    ns_nn_trainer tr;
-    *scalar_rate = *blas_rate = NAN;
-    if (!x || ns_nn_trainer_init(&tr, batch)) {
-        free(x);
-        return;
-    }
     uint64_t s = 42;
-    for (size_t i = 0; i < (size_t)n * NS_NN_INPUTS; i++) {
+    for (size_t i = 0; i < n * NS_NN_INPUTS; i++) {
         s = s * 6364136223846793005ull + 1442695040888963407ull;
         x[i] = (float)((s >> 40) * 0x1.0p-24);
     }
+}
+
+/* Plain scalar forward pass, one thread: evaluations per second. */
+static double cpu_scalar_rate(const ns_nn_weights *w, const float *x, uint32_t n)
+{
     volatile float sink = 0;
     double t0 = now_s();
     for (uint32_t i = 0; i < n; i++)
         sink += ns_nn_forward(w, x + (size_t)i * NS_NN_INPUTS);
-    double t1 = now_s();
-    for (uint32_t i = 0; i < n; i += batch)
-        ns_nn_batch_forward(&tr, w->p, x + (size_t)i * NS_NN_INPUTS, batch, NULL);
-    double t2 = now_s();
     (void)sink;
-    *scalar_rate = n / (t1 - t0);
-    *blas_rate = n / (t2 - t1);
+    return n / (now_s() - t0);
+}
+
+typedef struct {
+    const ns_nn_weights *w;
+    const float *x;
+    uint32_t n;
+    int status;
+} blas_chunk;
+
+enum { BLAS_BATCH = 8192, BLAS_THREADS = 2 };
+
+/* One thread's chunk through the trainer's OpenBLAS forward pass (single-threaded BLAS). */
+static void *blas_chunk_run(void *arg)
+{
+    blas_chunk *c = arg;
+    ns_nn_trainer tr;
+    c->status = ns_nn_trainer_init(&tr, BLAS_BATCH);
+    if (c->status)
+        return NULL;
+    for (uint32_t i = 0; i < c->n; i += BLAS_BATCH)
+        ns_nn_batch_forward(&tr, c->w->p, c->x + (size_t)i * NS_NN_INPUTS,
+                            c->n - i < BLAS_BATCH ? c->n - i : BLAS_BATCH, NULL);
     ns_nn_trainer_free(&tr);
-    free(x);
+    return NULL;
+}
+
+/* OpenBLAS forward on BLAS_THREADS threads, each its own chunk with single-threaded BLAS
+ * (DESIGN.md section 6: faster than letting OpenBLAS thread each call). NAN on failure. */
+static double cpu_blas_rate(const ns_nn_weights *w, const float *x, uint32_t n)
+{
+    openblas_set_num_threads(1);
+    blas_chunk chunk[BLAS_THREADS];
+    pthread_t thread[BLAS_THREADS];
+    uint32_t per = n / BLAS_THREADS;
+    int started = 0;
+    double t0 = now_s();
+    for (int t = 0; t < BLAS_THREADS; t++) {
+        chunk[t] = (blas_chunk){.w = w, .x = x + (size_t)t * per * NS_NN_INPUTS, .n = per};
+        if (pthread_create(&thread[t], NULL, blas_chunk_run, &chunk[t]) == 0)
+            started++;
+        else
+            break;
+    }
+    int ok = started == BLAS_THREADS;
+    for (int t = 0; t < started; t++) {
+        pthread_join(thread[t], NULL);
+        ok = ok && !chunk[t].status;
+    }
+    return ok ? per * (double)BLAS_THREADS / (now_s() - t0) : NAN;
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof(double), cmp_double);
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+typedef struct {
+    double gpu, total; /* medians, s */
+    ns_nn_reconstruct_stats last;
+} timing;
+
+static int time_reconstruction(nn_session *s, const ns_table *shape, const table_options *o,
+                               const ns_nn_sampling *sampling, timing *t)
+{
+    const double albedo[3] = {0.97, 0.95, 0.9};
+    double gpu[100], total[100];
+    for (int r = 0; r < o->runs; r++) {
+        float *out = NULL;
+        int rc = reconstruct(s, shape, 0.75, albedo, 3, o->renormalise, sampling, &out, &t->last);
+        free(out);
+        if (rc)
+            return rc;
+        gpu[r] = t->last.gpu_seconds, total[r] = t->last.total_seconds;
+    }
+    t->gpu = median(gpu, o->runs);
+    t->total = median(total, o->runs);
+    return 0;
+}
+
+static void print_timing(const char *label, const timing *t, double flops)
+{
+    double rate = t->last.evaluations / t->gpu;
+    printf("%s: %llu network evaluations for %llu cells; median %.3f s on the GPU queue, "
+           "%.3f s in all; %.3g evaluations/s (%.1f GFLOP/s), %.3g cells/s\n",
+           label, (unsigned long long)t->last.evaluations, (unsigned long long)t->last.cells,
+           t->gpu, t->total, rate, rate * flops * 1e-9, t->last.cells / t->total);
 }
 
 static int run_benchmark(const table_options *o)
@@ -481,39 +607,45 @@ static int run_benchmark(const table_options *o)
         session_close(&s);
         return 1;
     }
-    const double albedo[3] = {0.97, 0.95, 0.9};
-    double gpu[100], total[100];
-    uint64_t evals = 0;
-    for (int r = 0; r < o->runs && !rc; r++) {
-        float *out = NULL;
-        ns_nn_reconstruct_stats st;
-        rc = reconstruct(&s, &shape, 0.75, albedo, 3, o->renormalise, &out, &st);
-        free(out);
-        gpu[r] = st.gpu_seconds, total[r] = st.total_seconds, evals = st.evaluations;
-    }
+    ns_nn_sampling every = ns_nn_sampling_every_cell();
+    timing sampled = {0}, full = {0};
+    rc = time_reconstruction(&s, &shape, o, &o->sampling, &sampled);
+    if (!rc && !samples_every_cell(&o->sampling))
+        rc = time_reconstruction(&s, &shape, o, &every, &full);
+    const uint32_t n = 1u << 18;
+    float *x = rc ? NULL : malloc((size_t)n * NS_NN_INPUTS * sizeof(float));
+    if (!rc && !x)
+        rc = usage_error("out of memory");
     if (!rc) {
-        qsort(gpu, (size_t)o->runs, sizeof(double), cmp_double);
-        qsort(total, (size_t)o->runs, sizeof(double), cmp_double);
-        double scalar, blas;
-        cpu_baselines(s.nets[0], &scalar, &blas);
+        random_inputs(x, n);
+        double scalar = cpu_scalar_rate(s.nets[0], x, n / 4);
+        double blas_runs[3];
+        for (int r = 0; r < 3; r++)
+            blas_runs[r] = cpu_blas_rate(s.nets[0], x, n);
+        double blas = median(blas_runs, 3);
         double flops = 2.0 * (NS_NN_PARAMS - 1 - 2 * NS_NN_HIDDEN); /* multiply-adds x 2 */
         printf("device: %s (pipeline created and warmed in %.2f s)\n",
                ns_nn_session_device(s.session), startup);
-        printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells, "
-               "%llu network evaluations\n",
-               shape.n[0], shape.n[1], shape.n[2], shape.n[3], (unsigned long long)evals);
-        printf("reconstruction median of %d: %.3f s on the GPU queue, %.3f s in all "
-               "(readback, energy sums%s)\n",
-               o->runs, gpu[o->runs / 2], total[o->runs / 2],
+        printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells "
+               "x 3 channels x 2 orders; times include readback, energy sums%s\n",
+               shape.n[0], shape.n[1], shape.n[2], shape.n[3],
                o->renormalise ? ", renormalisation" : "");
-        printf("GPU: %.3g evaluations/s (%.1f GFLOP/s)\n", evals / gpu[o->runs / 2],
-               evals / gpu[o->runs / 2] * flops * 1e-9);
+        char label[160];
+        snprintf(label, sizeof label, "sampled (stride %u,%u,%u,%u, full radius %g mfp)",
+                 o->sampling.stride[0], o->sampling.stride[1], o->sampling.stride[2],
+                 o->sampling.stride[3], o->sampling.full_radius);
+        print_timing(label, &sampled, flops);
+        if (full.last.cells)
+            print_timing("every cell", &full, flops);
         printf("CPU plain C, 1 thread: %.3g evaluations/s (%.1f GFLOP/s)\n", scalar,
                scalar * flops * 1e-9);
-        printf("CPU OpenBLAS batched (batch 8192, OpenBLAS threading default): %.3g "
-               "evaluations/s (%.1f GFLOP/s)\n",
-               blas, blas * flops * 1e-9);
+        printf("CPU OpenBLAS, %d threads each its own chunk, single-threaded BLAS, batch %d "
+               "(median of 3): %.3g evaluations/s (%.1f GFLOP/s); the sampled table's "
+               "evaluations would take %.2f s\n",
+               BLAS_THREADS, BLAS_BATCH, blas, blas * flops * 1e-9,
+               sampled.last.evaluations / blas);
     }
+    free(x);
     ns_table_free(&shape);
     session_close(&s);
     return rc;

@@ -27,7 +27,12 @@ float axis_value(uint axis, uint i)
     return P.axis[k >> 2][k & 3u];
 }
 
-// Normalised inputs of cell or point `index`: lo = (rho, z, theta, phi), hi = (g, a, E, 0).
+uint node_bin(uint axis, uint k)
+{
+    return uint(P.interp[axis * NS_NN_MAX_AXIS + k].x);
+}
+
+// Normalised inputs of node or point `index`: lo = (rho, z, theta, phi), hi = (g, a, E, 0).
 void inputs(uint index, uint channel, uint order, out vec4 lo, out vec4 hi)
 {
     if (P.info.y == NS_NN_MODE_POINTS) {
@@ -35,11 +40,12 @@ void inputs(uint index, uint channel, uint order, out vec4 lo, out vec4 hi)
         hi = points[2u * index + 1u];
         return;
     }
-    uint iphi = index % P.counts.w;
-    uint itheta = (index / P.counts.w) % P.counts.z;
-    uint spatial = index / (P.counts.w * P.counts.z);
-    uint irho = spatial % P.counts.y;
-    uint iz = spatial / P.counts.y;
+    // index runs over the nodes (the evaluated bins) of each axis.
+    uint iphi = node_bin(3u, index % P.nodes.w);
+    uint itheta = node_bin(2u, (index / P.nodes.w) % P.nodes.z);
+    uint spatial = index / (P.nodes.w * P.nodes.z);
+    uint irho = node_bin(1u, spatial % P.nodes.y);
+    uint iz = node_bin(0u, spatial / P.nodes.y);
     lo = vec4(axis_value(1u, irho), axis_value(0u, iz), axis_value(2u, itheta),
               axis_value(3u, iphi));
     vec4 c = P.channel[channel];
@@ -56,6 +62,7 @@ void main()
     uint count = P.info.x;
     if (first >= count)
         return;
+
     uint net = order * NS_NN_NET_VEC4;
 
     vec4 h1[NS_NN_POINTS * NS_NN_H4];
@@ -93,15 +100,11 @@ void main()
             y[p] += w3 * tanh(acc[p]);
     }
 
-    // Inverse target transform: paper exp(t) - 1, logrel (exp(t) - eps) E_k; J >= 0.
     vec4 tt = P.target[order];
     uint base = P.info.y == NS_NN_MODE_POINTS ? order * count : (order * 3u + channel) * count;
     for (uint p = 0u; p < NS_NN_POINTS && first + p < count; p++) {
         float t = y[p] * tt.w + tt.z;
-        float j = tt.x < 0.5 ? exp(t) - 1.0 : (exp(t) - tt.y) * energy[p];
-        if (energy[p] == 0.0)
-            j = 0.0;
-        outv[base + first + p] = max(j, 0.0);
+        outv[base + first + p] = P.info.z != 0u ? t : nn_target_to_j(tt, t, energy[p]);
         if (P.info.y == NS_NN_MODE_POINTS) // the raw network output too, after both orders' J
             outv[(2u + order) * count + first + p] = y[p];
     }

@@ -34,14 +34,31 @@ struct GpuNnParams {
     ns_vec4 axis[256];    /* normalised bin centres: 4 axes x NS_NN_MAX_AXIS floats,
                              in table order z, rho, theta, phi */
     ns_uvec4 counts;      /* bins per axis: nz, nrho, ntheta, nphi */
-    ns_uvec4 info;        /* x: cells (table) or points, y: mode */
+    ns_uvec4 info;        /* x: items of this dispatch (nodes, cells or points), y: mode,
+                             z: table mode writes t (the transformed target, for
+                             interpolation) instead of J, w: nodes in all */
     ns_vec4 channel[3];   /* per RGB channel: normalised g, normalised albedo,
                              exact energy of double, of multiple */
     ns_vec4 target[2];    /* per order: transform (0 paper, 1 logrel), eps, mean, scale */
+    ns_uvec4 nodes;       /* evaluated bins (nodes) per axis, table order */
+    ns_vec4 interp[1024]; /* [axis][NS_NN_MAX_AXIS]: for node k of the axis .x = its bin;
+                             for bin i .y = its lower node, .z = the weight of the next
+                             node (interpolation in normalised input) */
 };
 
+#if !defined(__STDC__) && !defined(__cplusplus)
+/* Inverse target transform (tt = GpuNnParams.target[order]): paper exp(t) - 1, logrel
+ * (exp(t) - eps) E_k; J >= 0, and 0 where energy is 0 (outside the trained extent). */
+float nn_target_to_j(vec4 tt, float t, float energy)
+{
+    float j = tt.x < 0.5 ? exp(t) - 1.0 : (exp(t) - tt.y) * energy;
+    return energy == 0.0 ? 0.0 : max(j, 0.0);
+}
+#endif
+
 #if defined(__STDC__) || defined(__cplusplus)
-_Static_assert(sizeof(struct GpuNnParams) == (2 * 794 + 256 + 2 + 3 + 2) * 16, "GpuNnParams");
+_Static_assert(sizeof(struct GpuNnParams) == (2 * 794 + 256 + 2 + 3 + 2 + 1 + 1024) * 16,
+               "GpuNnParams");
 _Static_assert(offsetof(struct GpuNnParams, counts) == (2 * 794 + 256) * 16, "GpuNnParams");
 #endif
 
