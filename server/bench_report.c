@@ -11,6 +11,7 @@
 #include "bench.h"
 #include "encode.h"
 #include "image_metrics.h"
+#include "mc_provider.h"
 
 /* ---------------------------------------------------------------------------------------
  * Formatting: one cell at a time; "n/a" for what was not measured.
@@ -209,7 +210,7 @@ static void write_targets(FILE *f, const bench_run *run)
         const bench_pt_estimate *e = &s->pt;
         char speed[64];
         if (e->ok)
-            snprintf(speed, sizeof speed, "%s%.0f", e->lower_bound ? "≥ " : "", e->speedup);
+            snprintf(speed, sizeof speed, "%s%.3g", e->lower_bound ? "≥ " : "", e->speedup);
         else
             snprintf(speed, sizeof speed, "n/a");
         fprintf(f, "| %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", s->name, num(d1, 2).text,
@@ -451,9 +452,9 @@ int bench_write_report(const bench_run *run, const char *dir)
     }
     fprintf(f, "# nscatter bench\n\n"
                "- command: `%s`\n- date: %s\n- device: %s (%s)\n- renders per method: %u (time = "
-               "median after the first)\n- Monte Carlo collisions per table channel (method "
+               "median after the first)\n- Monte Carlo collisions per order and channel (method "
                "table): %.3g\n- whole run: %.1f s\n\n",
-            run->command, run->date, run->device, run->driver, run->repeat, run->mc_collisions, run->total_s);
+            run->command, run->date, run->device, run->driver, run->repeat, run->mc_collisions > 0 ? run->mc_collisions : NS_MC_PROVIDER_COLLISIONS, run->total_s);
     write_results(f, run);
     write_table2(f, run);
     write_stages(f, run);

@@ -24,7 +24,7 @@
 #include "commands.h"
 #include "encode.h"
 #include "image_metrics.h"
-#include "mc.h"
+#include "mc_provider.h"
 #include "nscatter.h"
 #include "scene_json.h"
 
@@ -36,7 +36,6 @@
 #define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
-#define BENCH_MC_CELLS ((size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NTHETA * NS_MC_NPHI)
 
 const bench_method_info bench_methods[BENCH_METHOD_COUNT] = {
     [BENCH_NN_SURFACE] = {"nn_surface", NS_METHOD_NN, NS_COMPONENT_SURFACE, NULL, "nn, surface only"},
@@ -103,7 +102,8 @@ static void bench_usage(FILE *out)
             "  --pt-spp A,B,..    spp of the short pt renders (default 1,4,16)\n"
             "  --repeat N         renders per method; the time is the median after the first (2)\n"
             "  --vrl-scale F      multiplies the scenes' VRL counts (default 1)\n"
-            "  --mc-collisions N  Monte Carlo collisions per table channel, method table (2e7)\n"
+            "  --mc-collisions N  Monte Carlo collisions per order and channel, method table\n"
+            "                     (default: the provider's, 8e7; tables cached per machine)\n"
             "  --out DIR          where the report goes (default: bench-out)\n"
             "  --cache DIR        reference cache (default: $NSCATTER_CACHE_DIR, else\n"
             "                     ~/.cache/nscatter/bench)\n"
@@ -184,7 +184,6 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
     memset(a, 0, sizeof *a);
     a->repeat = 2;
     a->vrl_scale = 1.0;
-    a->mc_collisions = 2e7;
     a->out_dir = "bench-out";
     a->diff = "nn_full";
     a->ladder = "1,4,16";
@@ -346,69 +345,10 @@ typedef struct bench {
     bench_run run;
     ns_context *ctx;
     json_t *manifest;
-    char scene_dir[4096], cache_dir[4096], asset_dir[4200], mc_dir[4200];
+    char scene_dir[4096], cache_dir[4096], asset_dir[4200];
     uint32_t ladder[BENCH_MAX_LADDER], ladder_count;
-    uint32_t mc_tables_made, mc_tables_cached;
+    ns_mc_provider *mc; /* method "table": the server's Monte Carlo provider (mc_provider.h) */
 } bench;
-
-/* ---------------------------------------------------------------------------------------
- * Monte Carlo tables for method "table" (ns_context_desc.mc_tables): traced with the
- * offline tracer, cached in CACHE/mc so a second run costs nothing.
- * ------------------------------------------------------------------------------------- */
-#define BENCH_MC_MAGIC "NSBENCHMC1\0\0\0\0\0"
-
-static int bench_mc_tables(void *user, double g, double albedo, float *j_double, float *j_multiple,
-                           ns_error *err)
-{
-    bench *b = user;
-    char path[4400];
-    snprintf(path, sizeof path, "%s/g%.5f_a%.6f_c%.3g.bin", b->mc_dir, g, albedo, b->args.mc_collisions);
-    size_t size = 0;
-    unsigned char *data = read_all(path, &size);
-    size_t table_bytes = BENCH_MC_CELLS * sizeof(float);
-    if (data && size == 16 + 2 * table_bytes && !memcmp(data, BENCH_MC_MAGIC, 16)) {
-        memcpy(j_double, data + 16, table_bytes);
-        memcpy(j_multiple, data + 16 + table_bytes, table_bytes);
-        free(data);
-        b->mc_tables_cached++;
-        return NS_OK;
-    }
-    free(data);
-    unsigned orders = NS_MC_WANT_DOUBLE | NS_MC_WANT_MULTIPLE;
-    double per_photon = ns_mc_collisions_per_photon(orders, albedo);
-    ns_mc_desc desc = {.g = g,
-                       .albedo = albedo,
-                       .photons = (uint64_t)fmax(1000.0, b->args.mc_collisions / per_photon),
-                       .seed = 12345,
-                       .orders = orders};
-    ns_mc_result r;
-    fprintf(stderr, "bench: Monte Carlo tables g %.3f albedo %.4f (%llu photons)...\n", g, albedo,
-            (unsigned long long)desc.photons);
-    int status = ns_mc_run(&desc, &r, err);
-    if (status)
-        return status;
-    if (ns_table_size(&r.table[NS_ORDER_DOUBLE]) != BENCH_MC_CELLS ||
-        ns_table_size(&r.table[NS_ORDER_MULTIPLE]) != BENCH_MC_CELLS) {
-        ns_mc_result_free(&r);
-        err->status = NS_ERR_INTERNAL;
-        snprintf(err->message, sizeof err->message, "Monte Carlo table is not on the default grid");
-        return NS_ERR_INTERNAL;
-    }
-    memcpy(j_double, r.table[NS_ORDER_DOUBLE].data, table_bytes);
-    memcpy(j_multiple, r.table[NS_ORDER_MULTIPLE].data, table_bytes);
-    ns_mc_result_free(&r);
-    b->mc_tables_made++;
-    unsigned char *file = malloc(16 + 2 * table_bytes);
-    if (file) { /* a cache that cannot be written only costs time next run */
-        memcpy(file, BENCH_MC_MAGIC, 16);
-        memcpy(file + 16, j_double, table_bytes);
-        memcpy(file + 16 + table_bytes, j_multiple, table_bytes);
-        if (write_atomically(path, file, 16 + 2 * table_bytes))
-            fprintf(stderr, "bench: cannot cache '%s': %s\n", path, strerror(errno));
-        free(file);
-    }
-    return NS_OK;
-}
 
 /* ---------------------------------------------------------------------------------------
  * Meshes: written into CACHE/assets when missing or different.
@@ -441,7 +381,9 @@ static int prepare_generated_assets(bench *b)
     ns_error err = {0};
     bench_mesh m;
     int rc = 0;
-    if (bench_mesh_bumpy_sphere(5, 0.08f, &m, &err) == 0) {
+    /* 5120 triangles: bumps a tenth of the radius across, and a mesh the single-scattering
+     * stage's shadow rays cross quickly on lavapipe. */
+    if (bench_mesh_bumpy_sphere(4, 0.08f, &m, &err) == 0) {
         rc |= write_asset(b, "bench_bumpy_sphere.glb", &m);
         bench_mesh_free(&m);
     } else {
@@ -926,8 +868,6 @@ static void run_scene(bench *b, bench_scene *s)
  * ------------------------------------------------------------------------------------- */
 static int setup_dirs(bench *b)
 {
-    const char *dir = b->args.scene_dir ? b->args.scene_dir : NS_SOURCE_DIR "/scenes/bench";
-    snprintf(b->scene_dir, sizeof b->scene_dir, "%s", dir);
     const char *cache = b->args.cache_dir ? b->args.cache_dir : getenv("NSCATTER_CACHE_DIR");
     if (cache && *cache) {
         snprintf(b->cache_dir, sizeof b->cache_dir, "%s", cache);
@@ -936,8 +876,7 @@ static int setup_dirs(bench *b)
         snprintf(b->cache_dir, sizeof b->cache_dir, "%s/.cache/nscatter/bench", home && *home ? home : ".");
     }
     snprintf(b->asset_dir, sizeof b->asset_dir, "%s/assets", b->cache_dir);
-    snprintf(b->mc_dir, sizeof b->mc_dir, "%s/mc", b->cache_dir);
-    if (mkdir_p(b->asset_dir) || mkdir_p(b->mc_dir)) {
+    if (mkdir_p(b->asset_dir)) {
         fprintf(stderr, "nscatter bench: --cache '%s': cannot create it: %s\n", b->cache_dir, strerror(errno));
         return 1;
     }
@@ -1030,10 +969,15 @@ static void note_command_and_date(bench *b, int argc, char **argv)
 static int create_context(bench *b)
 {
     ns_error err = {0};
-    int rc = ns_context_create(&(ns_context_desc){.device = b->args.device,
-                                                  .mc_tables = bench_mc_tables,
-                                                  .mc_user = b},
-                               &b->ctx, &err);
+    /* The provider's own cache (shared with `render` and `serve`): a material's tables are
+     * simulated once per machine, whichever command asks first. */
+    int rc = ns_mc_provider_create(&(ns_mc_provider_desc){.collisions = b->args.mc_collisions}, &b->mc, &err);
+    if (rc)
+        fprintf(stderr, "bench: method table will be unavailable: %s\n", err.message);
+    rc = ns_context_create(&(ns_context_desc){.device = b->args.device,
+                                              .mc_tables = b->mc ? ns_mc_provider_tables : NULL,
+                                              .mc_user = b->mc},
+                           &b->ctx, &err);
     if (rc) {
         fprintf(stderr, "nscatter bench: %s: %s\n", ns_status_name(rc), err.message);
         return 1;
@@ -1058,13 +1002,14 @@ static void bench_free(bench *b)
     free(b->run.scenes);
     json_decref(b->manifest);
     ns_context_destroy(b->ctx);
+    ns_mc_provider_destroy(b->mc);
 }
 
 /* Which reference sets the selected methods compare with. */
 static void mark_wanted_references(bench *b, bench_scene *s)
 {
     for (int m = 0; m < BENCH_METHOD_COUNT; m++)
-        if (b->run.methods[m] || b->args.references_only) {
+        if (b->run.methods[m]) {
             int set = bench_ref_index(bench_methods[m].components);
             if (set >= 0)
                 s->refs[set].wanted = 1;
@@ -1115,9 +1060,11 @@ int cmd_bench(int argc, char **argv)
     b->run.mc_collisions = b->args.mc_collisions;
     b->run.diff_method = bench_method_by_name(b->args.diff, strlen(b->args.diff));
     note_command_and_date(b, argc, argv);
-    rc = setup_dirs(b);
+    snprintf(b->scene_dir, sizeof b->scene_dir, "%s",
+             b->args.scene_dir ? b->args.scene_dir : NS_SOURCE_DIR "/scenes/bench");
+    rc = load_scenes(b); /* bad scene names exit 2 before anything is created */
     if (!rc)
-        rc = load_scenes(b);
+        rc = setup_dirs(b);
     if (!rc && prepare_generated_assets(b))
         rc = 1;
     for (uint32_t i = 0; !rc && i < b->run.scene_count; i++) {
