@@ -19,6 +19,7 @@ BUILD_PACKAGES=(
   libmicrohttpd-dev libjansson-dev zlib1g-dev
   libstb-dev libtinyexr-dev libtinygltf-dev nlohmann-json3-dev
   libopenblas-dev
+  glmark2-data # the Stanford bunny of `nscatter bench` (read from /usr/share/glmark2/models)
 )
 # What only the tests need: validation layers, python3 for the HTTP tests, Chromium and
 # Node.js for the browser test.
