@@ -180,8 +180,8 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
     uint64_t pairs = 0;
     double *power = NULL;
     uint32_t targets = 0;
-    int status = objects && spheres ? NS_OK
-                                    : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
+    int status =
+        objects && spheres ? NS_OK : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
     if (!status)
         status = collect_targets(scene, objects, spheres, &targets, err);
     if (!status) {
@@ -237,8 +237,8 @@ static int check_scene_buffers(const ns_context *ctx, const gpu_buffer *scene_bu
                                const char *what, ns_error *err)
 {
     if (!scene_buffers || scene_buffers[0].size < sizeof(GpuParams) || !scene_buffers[0].mapped)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: scene_buffers[0] is not the scene's parameters",
-                       what);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "%s: scene_buffers[0] is not the scene's parameters", what);
     const GpuParams *params = scene_buffers[0].mapped;
     if (ctx->dev.loop_limited && !params->limits[0])
         return ns_fail(err, NS_ERR_INTERNAL,
@@ -255,8 +255,8 @@ typedef struct repeat_desc {
     const gpu_pipeline *pipeline;
     gpu_buffer **bound;
     uint32_t groups;
-    void *push;             /* one push block (32 bytes) */
-    uint32_t *push_report;  /* its report field */
+    void *push;            /* one push block (32 bytes) */
+    uint32_t *push_report; /* its report field */
     gpu_buffer *counters;
     uint32_t left_counter;  /* counter of unfinished work after a reporting dispatch */
     uint32_t limit_counter; /* counter of invocations cut by the loop limit */
@@ -264,7 +264,8 @@ typedef struct repeat_desc {
     const char *what;
 } repeat_desc;
 
-static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *dispatches, ns_error *err)
+static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *dispatches,
+                             ns_error *err)
 {
     enum { BLOCK = 32, MAX_PER_BATCH = 4096 };
     uint32_t per_batch = r->per_batch ? r->per_batch : 1;
@@ -277,8 +278,8 @@ static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *di
     int status = NS_OK;
     for (uint32_t batch = 0;; batch++) {
         if (batch >= MAX_BATCHES) {
-            status = ns_fail(err, NS_ERR_LIMIT, "%s: still unfinished after %u submissions", r->what,
-                             MAX_BATCHES);
+            status = ns_fail(err, NS_ERR_LIMIT, "%s: still unfinished after %u submissions",
+                             r->what, MAX_BATCHES);
             break;
         }
         for (uint32_t i = 0; i < per_batch; i++) {
@@ -296,10 +297,11 @@ static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *di
                                    err);
         *dispatches += per_batch;
         if (!status && c[r->limit_counter])
-            status = ns_fail(err, NS_ERR_LIMIT,
-                             "%s: %u invocation(s) ran past lavapipe's loop limit (65535 iterations "
-                             "per invocation); lower the geometry or pick another device",
-                             r->what, c[r->limit_counter]);
+            status =
+                ns_fail(err, NS_ERR_LIMIT,
+                        "%s: %u invocation(s) ran past lavapipe's loop limit (65535 iterations "
+                        "per invocation); lower the geometry or pick another device",
+                        r->what, c[r->limit_counter]);
         if (status || c[r->left_counter] == 0)
             break;
         /* More than expected (shadow rays, long walks): grow the batches. */
@@ -327,19 +329,19 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
     const GpuParams *params = scene_buffers[0].mapped;
     push->yield_after = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
     uint32_t dispatches = 0;
-    return repeat_until_done(ctx,
-                             &(repeat_desc){.pipeline = &ctx->vrl_trace,
-                                            .bound = bound,
-                                            .groups = (push->path_count + NS_VRL_METHOD_GROUP - 1) /
-                                                      NS_VRL_METHOD_GROUP,
-                                            .push = push,
-                                            .push_report = &push->report,
-                                            .counters = &own[T_COUNTERS],
-                                            .left_counter = NS_VRL_TRACE_ACTIVE,
-                                            .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
-                                            .per_batch = params->limits[0] ? 4 : 1,
-                                            .what = "vrl method: light paths"},
-                             &dispatches, err);
+    return repeat_until_done(
+        ctx,
+        &(repeat_desc){.pipeline = &ctx->vrl_trace,
+                       .bound = bound,
+                       .groups = (push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
+                       .push = push,
+                       .push_report = &push->report,
+                       .counters = &own[T_COUNTERS],
+                       .left_counter = NS_VRL_TRACE_ACTIVE,
+                       .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
+                       .per_batch = params->limits[0] ? 4 : 1,
+                       .what = "vrl method: light paths"},
+        &dispatches, err);
 }
 
 /* After the count pass: each path's VRL count becomes its first slot; the walks restart. */
@@ -368,9 +370,12 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     memset(out, 0, sizeof *out);
     if (!ctx || !scene || !gs)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
-                       !ctx ? "ctx" : !scene ? "scene" : "gs");
+                       !ctx     ? "ctx"
+                       : !scene ? "scene"
+                                : "gs");
     if (paths > NS_MAX_VRLS)
-        return ns_fail(err, NS_ERR_LIMIT, "render.vrls: %u light paths, at most %u", paths, NS_MAX_VRLS);
+        return ns_fail(err, NS_ERR_LIMIT, "render.vrls: %u light paths, at most %u", paths,
+                       NS_MAX_VRLS);
     int status = check_scene_buffers(ctx, scene_buffers, "vrl method", err);
     out->paths = paths;
     emitter_list emitters = {0};
@@ -383,8 +388,10 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     gpu_buffer own[T_OWN];
     memset(own, 0, sizeof own);
     gpu_buffer_desc descs[T_OWN] = {
-        {.size = sizeof(GpuVrlEmitter) * emitters.count, .data = emitters.items,
-         .data_size = sizeof(GpuVrlEmitter) * emitters.count, .label = "ns.vrl_method.emitters"},
+        {.size = sizeof(GpuVrlEmitter) * emitters.count,
+         .data = emitters.items,
+         .data_size = sizeof(GpuVrlEmitter) * emitters.count,
+         .label = "ns.vrl_method.emitters"},
         {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .label = "ns.vrl_method.walks"},
         {.size = sizeof(GpuVrl), .label = "ns.vrl_method.vrls"},
         {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
@@ -393,6 +400,13 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     GpuVrlTracePush push = {.path_count = paths, .emitter_count = emitters.count, .seed = seed};
     if (!status)
         status = trace_pass(ctx, scene_buffers, own, &push, err);
+    /* The reference path tracer refuses the same (pt.c): a trapped path's flux is lost. */
+    const uint32_t *counters = own[T_COUNTERS].mapped;
+    if (!status && counters[NS_VRL_TRACE_TRUNCATED])
+        status = ns_fail(err, NS_ERR_LIMIT,
+                         "vrl method: %u light path(s) took more than %u boundary events in a row "
+                         "(trapped by total internal reflection?)",
+                         counters[NS_VRL_TRACE_TRUNCATED], (unsigned)NS_VRL_MAX_BOUNDARY_RUN);
     uint32_t total = 0;
     if (!status)
         status = offsets_from_counts(own[T_WALKS].mapped, paths, &total, err);
@@ -413,8 +427,8 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     for (uint32_t i = 0; !status && total && i < paths; i++) {
         uint32_t end = i + 1 < paths ? walks[i + 1].count[1] : total;
         if (walks[i].count[1] + walks[i].count[0] != end)
-            status = ns_fail(err, NS_ERR_INTERNAL, "vrl method: path %u made %u VRLs, counted %u", i,
-                             walks[i].count[0], end - walks[i].count[1]);
+            status = ns_fail(err, NS_ERR_INTERNAL, "vrl method: path %u made %u VRLs, counted %u",
+                             i, walks[i].count[0], end - walks[i].count[1]);
     }
     if (!status && total) {
         out->vrls = malloc(sizeof *out->vrls * total);
@@ -472,7 +486,9 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                            uint32_t seed, int visibility, int loop_limited, uint32_t *dispatches,
                            ns_error *err)
 {
-    uint32_t yield = !loop_limited ? 0 : visibility ? GATHER_YIELD_VISIBILITY : GATHER_YIELD_LAVAPIPE;
+    uint32_t yield = !loop_limited ? 0
+                     : visibility  ? GATHER_YIELD_VISIBILITY
+                                   : GATHER_YIELD_LAVAPIPE;
     GpuVrlGatherPush push = {.first_vrl = first,
                              .end_vrl = end,
                              .segment_count = segment_count,
@@ -482,19 +498,19 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                              .visibility = visibility ? 1u : 0u};
     /* Without shadow rays every VRL costs one counted iteration: this many dispatches finish. */
     uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
-    return repeat_until_done(ctx,
-                             &(repeat_desc){.pipeline = &ctx->vrl_gather,
-                                            .bound = bound,
-                                            .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) /
-                                                      NS_VRL_METHOD_GROUP,
-                                            .push = &push,
-                                            .push_report = &push.report,
-                                            .counters = counters,
-                                            .left_counter = NS_VRL_GATHER_UNFINISHED,
-                                            .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
-                                            .per_batch = per_batch,
-                                            .what = "vrl method: gather"},
-                             dispatches, err);
+    return repeat_until_done(
+        ctx,
+        &(repeat_desc){.pipeline = &ctx->vrl_gather,
+                       .bound = bound,
+                       .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
+                       .push = &push,
+                       .push_report = &push.report,
+                       .counters = counters,
+                       .left_counter = NS_VRL_GATHER_UNFINISHED,
+                       .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
+                       .per_batch = per_batch,
+                       .what = "vrl method: gather"},
+        dispatches, err);
 }
 
 static int check_gather_buffers(const gpu_buffer *segments, uint32_t segment_count,
@@ -503,7 +519,9 @@ static int check_gather_buffers(const gpu_buffer *segments, uint32_t segment_cou
 {
     if (!segments || !out_double || !out_multiple)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
-                       !segments ? "segments" : !out_double ? "out_double" : "out_multiple");
+                       !segments     ? "segments"
+                       : !out_double ? "out_double"
+                                     : "out_multiple");
     if (segments->size < (uint64_t)segment_count * sizeof(GpuSegment))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                        "vrl method: segments buffer holds %llu bytes, %u segments need %llu",
@@ -526,8 +544,10 @@ static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_s
                       ns_error *err)
 {
     gpu_buffer_desc descs[G_OWN] = {
-        {.size = (uint64_t)sizeof(GpuVrl) * vrl_count, .data = sorted,
-         .data_size = (uint64_t)sizeof(GpuVrl) * vrl_count, .label = "ns.vrl_method.vrls"},
+        {.size = (uint64_t)sizeof(GpuVrl) * vrl_count,
+         .data = sorted,
+         .data_size = (uint64_t)sizeof(GpuVrl) * vrl_count,
+         .label = "ns.vrl_method.vrls"},
         {.size = (uint64_t)sizeof(GpuVrlResult) * segment_count, .label = "ns.vrl_method.results"},
         {.size = NS_VRL_GATHER_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
     };
@@ -542,7 +562,8 @@ static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_s
     if (!used)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: materials");
     const GpuSegment *segs = segments->mapped;
-    uint64_t *per_material = calloc(gs->material_count ? gs->material_count : 1, sizeof *per_material);
+    uint64_t *per_material =
+        calloc(gs->material_count ? gs->material_count : 1, sizeof *per_material);
     for (uint32_t i = 0; per_material && i < segment_count; i++)
         if (segs[i].material < gs->material_count) {
             used[segs[i].material] = 1;
@@ -616,7 +637,8 @@ int ns_vrl_method_gather_vrls(ns_context *ctx, gpu_buffer *scene_buffers, const 
  * Visibility: a straight line between two points inside a convex object that nothing else
  * enters stays inside it, so shadow rays are only traced for the other media.
  * ===================================================================================== */
-static int boxes_overlap(const float alo[3], const float ahi[3], const float blo[3], const float bhi[3])
+static int boxes_overlap(const float alo[3], const float ahi[3], const float blo[3],
+                         const float bhi[3])
 {
     for (int k = 0; k < 3; k++)
         if (ahi[k] < blo[k] || bhi[k] < alo[k])
@@ -690,20 +712,22 @@ int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_sc
 {
     if (!ctx || !scene || !gs)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
-                       !ctx ? "ctx" : !scene ? "scene" : "gs");
+                       !ctx     ? "ctx"
+                       : !scene ? "scene"
+                                : "gs");
     int status = check_gather_buffers(segments, segment_count, out_double, out_multiple, err);
     if (status)
         return status;
     ns_vrl_set set = {0};
-    status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls, scene->render.seed,
-                                 &set, err);
+    status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls,
+                                 scene->render.seed, &set, err);
     uint8_t visibility[NS_MAX_MATERIALS];
     visibility_per_material(scene, visibility);
     ns_vrl_gather_counts counts = {0};
     if (!status)
-        status = ns_vrl_method_gather_vrls(ctx, scene_buffers, gs, segments, segment_count, set.vrls,
-                                           set.count, scene->render.seed ^ 0x9e3779b9u, visibility,
-                                           out_double, out_multiple, &counts, err);
+        status = ns_vrl_method_gather_vrls(ctx, scene_buffers, gs, segments, segment_count,
+                                           set.vrls, set.count, scene->render.seed ^ 0x9e3779b9u,
+                                           visibility, out_double, out_multiple, &counts, err);
     if (stats) {
         stats->vrl_paths = set.paths;
         stats->vrl_count = set.count;
@@ -795,7 +819,8 @@ static void pair_estimate_cpu(const float e[3], const float dc[3], float lc, con
     float g = m->sigma_s[3];
     float phases = hg_phase(dot3(w, v), g) * hg_phase(-dot3(v, dc), g);
     for (int k = 0; k < 3; k++)
-        out[k] = m->sigma_s[k] * m->sigma_s[k] * expf(-m->sigma_t[k] * (t + u + dist)) * phases * geometry;
+        out[k] = m->sigma_s[k] * m->sigma_s[k] * expf(-m->sigma_t[k] * (t + u + dist)) * phases *
+                 geometry;
 }
 
 void ns_vrl_method_gather_cpu(const GpuMaterial *materials, const GpuSegment *segments,

@@ -21,12 +21,12 @@ struct GpuVrlEmitter {
  * budget of loop iterations and resumes in the next dispatch). The buffer starts zeroed
  * except count.y (the path's first VRL in the write pass). */
 struct GpuVrlWalk {
-    ns_vec4 origin;    /* w = the flux's largest channel at the medium entry (roulette) */
+    ns_vec4 origin; /* w = the flux's largest channel at the medium entry (roulette) */
     ns_vec4 direction;
-    ns_vec4 flux;      /* RGB flux carried now (W) */
-    ns_uvec4 state;    /* x = rng, y = scattering events, z = medium, w = phase (NS_VRL_WALK_*) */
-    ns_uvec4 count;    /* x = VRLs made so far, y = first VRL slot (write pass), z = boundary
-                          events since the last scattering event, w unused */
+    ns_vec4 flux;   /* RGB flux carried now (W) */
+    ns_uvec4 state; /* x = rng, y = scattering events, z = medium, w = phase (NS_VRL_WALK_*) */
+    ns_uvec4 count; /* x = VRLs made so far, y = first VRL slot (write pass), z = boundary
+                       events since the last scattering event, w unused */
 };
 
 NS_CONST(uint, NS_VRL_WALK_FRESH, 0);
@@ -88,7 +88,7 @@ struct GpuVrlGatherPush {
 NS_CONST(uint, NS_VRL_METHOD_GROUP, 64);
 
 /* Gather counters (binding 7). */
-NS_CONST(uint, NS_VRL_GATHER_UNFINISHED, 0); /* segments with VRLs left after a reporting dispatch */
+NS_CONST(uint, NS_VRL_GATHER_UNFINISHED, 0); /* segments with VRLs left (reporting dispatch) */
 NS_CONST(uint, NS_VRL_GATHER_LOOP_LIMIT, 1); /* invocations cut by lavapipe's limit */
 NS_CONST(uint, NS_VRL_GATHER_NONFINITE, 2);  /* pair estimates dropped as NaN/Inf */
 NS_CONST(uint, NS_VRL_GATHER_COUNTER_COUNT, 4);
@@ -102,7 +102,8 @@ typedef struct GpuVrlGatherPush GpuVrlGatherPush;
 _Static_assert(sizeof(GpuVrlEmitter) == 80 && offsetof(GpuVrlEmitter, ids) == 64, "GpuVrlEmitter");
 _Static_assert(sizeof(GpuVrlWalk) == 80 && offsetof(GpuVrlWalk, count) == 64, "GpuVrlWalk");
 _Static_assert(sizeof(GpuVrlTracePush) == 32, "GpuVrlTracePush");
-_Static_assert(sizeof(GpuVrlResult) == 32 && offsetof(GpuVrlResult, multiple_rgb) == 16, "GpuVrlResult");
+_Static_assert(sizeof(GpuVrlResult) == 32 && offsetof(GpuVrlResult, multiple_rgb) == 16,
+               "GpuVrlResult");
 _Static_assert(sizeof(GpuVrlGatherPush) == 32, "GpuVrlGatherPush");
 #endif
 

@@ -8,6 +8,8 @@
  *   - double and multiple scattering of an index-matched sphere under a directional light,
  *     composed into pixels, agree with the path tracer's components within the noise of both.
  * Validation layers on (NSCATTER_VALIDATION=1). */
+#include <stdlib.h>
+
 #include "gpu_util.h"
 #include "vrl_method.h"
 
@@ -144,15 +146,17 @@ static void test_gather_matches_cpu(void)
     ns_error err = {0};
     gpu_buffer seg_buf = {0}, out[2] = {{0}};
     int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS, .data = segs,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS,
+                                                      .data = segs,
                                                       .data_size = sizeof *segs * SEGMENTS},
                                    &err);
     for (int i = 0; i < 2 && !status; i++)
-        status = gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16 * SEGMENTS}, &err);
+        status =
+            gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16 * SEGMENTS}, &err);
     ns_vrl_gather_counts counts;
     if (!status)
-        status = ns_vrl_method_gather_vrls(ctx, d.buffers, &d.gs, &seg_buf, SEGMENTS, vrls, VRLS, 99u,
-                                           NULL, &out[0], &out[1], &counts, &err);
+        status = ns_vrl_method_gather_vrls(ctx, d.buffers, &d.gs, &seg_buf, SEGMENTS, vrls, VRLS,
+                                           99u, NULL, &out[0], &out[1], &counts, &err);
     if (status)
         fprintf(stderr, "gather: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -160,7 +164,8 @@ static void test_gather_matches_cpu(void)
     if (ctx->dev.loop_limited)
         CHECK(counts.dispatches > 1); /* the split across dispatches was exercised */
 
-    float(*cpu_d)[4] = calloc(SEGMENTS, sizeof *cpu_d), (*cpu_m)[4] = calloc(SEGMENTS, sizeof *cpu_m);
+    float(*cpu_d)[4] = calloc(SEGMENTS, sizeof *cpu_d),
+    (*cpu_m)[4] = calloc(SEGMENTS, sizeof *cpu_m);
     ns_vrl_method_gather_cpu(d.gs.materials, segs, SEGMENTS, vrls, VRLS, 99u, cpu_d, cpu_m);
     const float(*gpu_d)[4] = out[0].mapped, (*gpu_m)[4] = out[1].mapped;
     double worst = 0;
@@ -174,7 +179,8 @@ static void test_gather_matches_cpu(void)
                 nonzero += pairs[o][1] > 0;
             }
         }
-    fprintf(stderr, "  gather GPU vs CPU: worst relative difference %.2e over %d sums (%u dispatches)\n",
+    fprintf(stderr,
+            "  gather GPU vs CPU: worst relative difference %.2e over %d sums (%u dispatches)\n",
             worst, nonzero, counts.dispatches);
     CHECK(nonzero == SEGMENTS * 6);
     CHECK(worst < 1e-3);
@@ -198,7 +204,8 @@ static double hg(double c, double g)
 }
 
 /* Midpoint rule on an n x n grid, in double, channel 0. */
-static double transport_integral(const GpuSegment *seg, const GpuVrl *v, const GpuMaterial *m, int n)
+static double transport_integral(const GpuSegment *seg, const GpuVrl *v, const GpuMaterial *m,
+                                 int n)
 {
     double lc = 0, sum = 0;
     for (int k = 0; k < 3; k++)
@@ -210,7 +217,8 @@ static double transport_integral(const GpuSegment *seg, const GpuVrl *v, const G
         for (int j = 0; j < n; j++) {
             double u = (j + 0.5) * v->length / n, w[3], d2 = 0;
             for (int k = 0; k < 3; k++) {
-                w[k] = (seg->entry[k] + t * seg->direction[k]) - (v->origin[k] + u * v->direction[k]);
+                w[k] =
+                    (seg->entry[k] + t * seg->direction[k]) - (v->origin[k] + u * v->direction[k]);
                 d2 += w[k] * w[k];
             }
             double dist = sqrt(d2), cw = 0, cc = 0;
@@ -325,8 +333,8 @@ static void check_flux(const char *name, const flux_sum *f, const double want[3]
         /* Standard error of the sum of N per-path fluxes (paths that missed give 0). */
         double mean = f->total[c] / paths;
         double se = sqrt(fmax(0, f->sq[c] / paths - mean * mean) * paths);
-        fprintf(stderr, "  %s channel %d: flux %.6g (+- %.2g), expected %.6g\n", name, c, f->total[c],
-                se, want[c]);
+        fprintf(stderr, "  %s channel %d: flux %.6g (+- %.2g), expected %.6g\n", name, c,
+                f->total[c], se, want[c]);
         CHECK(fabs(f->total[c] - want[c]) <= 4 * se + rel_floor * want[c]);
     }
 }
@@ -417,7 +425,8 @@ static int vrl_image_means(ns_scene s, uint32_t seed, double dbl[3], double mult
     /* Internal reflections make several stretches per sample behind a refracting boundary. */
     uint32_t max_segments = pixels * s.render.spp * 16;
     GpuSegment *segs = calloc(max_segments, sizeof *segs);
-    ns_render_debug debug = {.segment_capacity = max_segments, .segments = segs, .segments_max = max_segments};
+    ns_render_debug debug = {
+        .segment_capacity = max_segments, .segments = segs, .segments_max = max_segments};
     ns_image img = {0};
     ns_error err = {0};
     int status = ns_render_ex(ctx, &s, &img, NULL, &debug, &err);
@@ -431,11 +440,13 @@ static int vrl_image_means(ns_scene s, uint32_t seed, double dbl[3], double mult
     gpu_buffer seg_buf = {0}, out[2] = {{0}};
     if (!status) {
         status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * n, .data = segs,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * n,
+                                                      .data = segs,
                                                       .data_size = sizeof *segs * n},
                                    &err);
         for (int i = 0; i < 2 && !status; i++)
-            status = gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16ull * n}, &err);
+            status =
+                gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16ull * n}, &err);
         ns_render_stats stats = {0};
         if (!status)
             status = ns_vrl_method_gather(ctx, &s, &d.gs, d.buffers, &seg_buf, n, &out[0], &out[1],
@@ -528,8 +539,9 @@ static void compare_with_path_tracer(double ior, uint32_t vrl_spp, uint32_t vrls
         mean_and_se(pt_runs[o], pmean, pse);
         for (int c = 0; c < 3; c++) {
             double se = sqrt(vse[c] * vse[c] + pse[c] * pse[c]);
-            fprintf(stderr, "  %s channel %d: vrl %.5g +- %.2g, pt %.5g +- %.2g (%.1f se)\n", names[o], c,
-                    vmean[c], vse[c], pmean[c], pse[c], fabs(vmean[c] - pmean[c]) / se);
+            fprintf(stderr, "  %s channel %d: vrl %.5g +- %.2g, pt %.5g +- %.2g (%.1f se)\n",
+                    names[o], c, vmean[c], vse[c], pmean[c], pse[c],
+                    fabs(vmean[c] - pmean[c]) / se);
             CHECK(pmean[c] > 0);
             CHECK(fabs(vmean[c] - pmean[c]) < 4 * se);
         }
@@ -563,7 +575,8 @@ static void test_bad_input(void)
     ns_error err = {0};
     gpu_buffer small = {0};
     CHECK_INT(gpu_buffer_create(&ctx->dev, &small, &(gpu_buffer_desc){.size = 16}, &err), NS_OK);
-    int status = ns_vrl_method_gather(ctx, &s, &d.gs, d.buffers, &small, 4, &small, &small, NULL, &err);
+    int status =
+        ns_vrl_method_gather(ctx, &s, &d.gs, d.buffers, &small, 4, &small, &small, NULL, &err);
     CHECK_INT(status, NS_ERR_INVALID_ARGUMENT);
     CHECK_STR_CONTAINS(err.message, "segments buffer");
     status = ns_vrl_method_gather(ctx, &s, &d.gs, d.buffers, &small, 0, NULL, &small, NULL, &err);
@@ -584,8 +597,99 @@ static void test_bad_input(void)
     CHECK_INT(ctx->dev.live_buffers, 0);
 }
 
+/* ---------------------------------------------------------------------------------------
+ * NSCATTER_BENCH=N: medians of N runs at 128 x 128, spp 1, every segment gathered (no
+ * tiling), render.vrls light paths (NSCATTER_BENCH_VRLS, default 10000).
+ * ------------------------------------------------------------------------------------- */
+static int compare_doubles(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+static void bench(int runs)
+{
+    enum { MAX_RUNS = 32 };
+    ns_context *ctx = test_context();
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1.0, 1.0, 1.0);
+    set3(sun.direction, -0.6, -0.7, -0.4);
+    ns_scene s = sphere_scene(&sun, 1, 1.0);
+    s.camera.width = s.camera.height = 128;
+    s.camera.fov_deg = 35;
+    s.render.spp = 1;
+    const char *v = getenv("NSCATTER_BENCH_VRLS");
+    s.render.vrls = v && atoi(v) > 0 ? (uint32_t)atoi(v) : NS_DEFAULT_VRLS;
+    uint32_t cap = 128 * 128 * 4;
+    GpuSegment *segs = calloc(cap, sizeof *segs);
+    ns_render_debug debug = {.segment_capacity = cap, .segments = segs, .segments_max = cap};
+    ns_image img = {0};
+    ns_error err = {0};
+    device_scene d;
+    memset(&d, 0, sizeof d);
+    int status = ns_render_ex(ctx, &s, &img, NULL, &debug, &err);
+    ns_image_free(&img);
+    if (!status)
+        status = device_scene_make(&s, &d);
+    uint32_t n = (uint32_t)debug.segments_written;
+    gpu_buffer seg_buf = {0}, out[2] = {{0}};
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &seg_buf,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * n,
+                                                      .data = segs,
+                                                      .data_size = sizeof *segs * n},
+                                   &err);
+    for (int i = 0; i < 2 && !status; i++)
+        status = gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16ull * n}, &err);
+    double trace_ms[MAX_RUNS], gather_ms[MAX_RUNS];
+    uint64_t interactions = 0, vrl_count = 0;
+    if (runs > MAX_RUNS)
+        runs = MAX_RUNS;
+    for (int r = 0; r < runs && !status; r++) {
+        ns_vrl_set set;
+        double t0 = ns_now_ms();
+        status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, s.render.vrls, 1u + (uint32_t)r,
+                                     &set, &err);
+        double t1 = ns_now_ms();
+        ns_vrl_gather_counts counts;
+        if (!status)
+            status =
+                ns_vrl_method_gather_vrls(ctx, d.buffers, &d.gs, &seg_buf, n, set.vrls, set.count,
+                                          7u, NULL, &out[0], &out[1], &counts, &err);
+        trace_ms[r] = t1 - t0;
+        gather_ms[r] = ns_now_ms() - t1;
+        interactions = counts.interactions;
+        vrl_count = set.count;
+        free(set.vrls);
+    }
+    CHECK_INT(status, NS_OK);
+    if (!status) {
+        qsort(trace_ms, (size_t)runs, sizeof *trace_ms, compare_doubles);
+        qsort(gather_ms, (size_t)runs, sizeof *gather_ms, compare_doubles);
+        double g = gather_ms[runs / 2];
+        printf("vrl method bench (%s): 128x128 spp 1, %u segments, %u paths -> %llu VRLs, "
+               "%llu interactions; median of %d: trace %.1f ms, gather %.1f ms (%.1f M "
+               "interactions/s)\n",
+               ctx->dev.info.device_name, n, s.render.vrls, (unsigned long long)vrl_count,
+               (unsigned long long)interactions, runs, trace_ms[runs / 2], g,
+               interactions / (g * 1e3));
+    } else {
+        fprintf(stderr, "bench: %s\n", err.message);
+    }
+    gpu_buffer_destroy(&ctx->dev, &seg_buf);
+    gpu_buffer_destroy(&ctx->dev, &out[0]);
+    gpu_buffer_destroy(&ctx->dev, &out[1]);
+    if (d.gs.materials)
+        device_scene_free(&d);
+    free(segs);
+}
+
 int main(void)
 {
+    const char *bench_runs = getenv("NSCATTER_BENCH");
+    if (bench_runs && atoi(bench_runs) > 0) {
+        bench(atoi(bench_runs));
+        return harness_report();
+    }
     RUN(test_estimator_mean);
     RUN(test_gather_matches_cpu);
     RUN(test_first_stretch_flux);
