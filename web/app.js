@@ -13,8 +13,10 @@
  * Constants
  * ---------------------------------------------------------------------------------- */
 
-/* Kept identical to scenes/default.json: tests/browser_page.mjs compares the editor's
- * initial text with that file, so edit both together. */
+/* The layout (camera, materials, objects, lights) is kept identical to scenes/default.json:
+ * tests/browser_page.mjs compares the editor's initial text with that file, so edit both
+ * together. Only "render" differs: the page starts with the full solution (every component,
+ * the paper's method) at one sample per pixel, which lavapipe renders in about a second. */
 const DEFAULT_SCENE = {
   version: 1,
   camera: { position: [0, 1.6, 6], look_at: [0, -0.1, 0], up: [0, 1, 0], fov: 40, width: 256, height: 256 },
@@ -33,7 +35,7 @@ const DEFAULT_SCENE = {
     { type: 'sphere', center: [2.5, 3.5, 2.5], radius: 0.3, radiance: [20, 20, 20] },
     { type: 'environment', radiance: [0.25, 0.3, 0.4] },
   ],
-  render: { method: 'nn', components: ['surface'], spp: 4, seed: 1, max_depth: 8, exposure: 0 },
+  render: { method: 'nn', components: ['surface', 'single', 'double', 'multiple'], spp: 1, seed: 1, max_depth: 8, exposure: 0 },
 };
 
 /* The paper's Table 1 (Ge et al. 2021): albedo and mean free path per RGB channel, g, ior.
@@ -50,6 +52,41 @@ const PRESETS = {
 };
 
 const COMPONENT_ORDER = ['surface', 'single', 'double', 'multiple'];
+
+/* render.method: what each one is, for the selector. Which components each can render
+ * comes from GET /v1/info "methods" (this build may not have them all yet). */
+const METHOD_SUMMARIES = {
+  nn: 'network tables',
+  table: 'Monte Carlo tables',
+  vrl: 'brute-force VRLs',
+  dipole: 'Jensen dipole',
+  pt: 'path tracer',
+};
+const DEFAULT_METHOD = 'nn';
+
+/* The scattering settings without a control of their own kind: JSON key under "render",
+ * whether it is an integer, and the input's id. An empty input means the key is absent
+ * (the server's default, shown as the placeholder). */
+const SCATTER_NUMBERS = [
+  { key: 'vrls', id: 'vrls', integer: true },
+  { key: 'gather_tile', id: 'gather-tile', integer: true },
+  { key: 'single_samples', id: 'single-samples', integer: true },
+  { key: 'cull_solid_angle', id: 'cull-solid-angle', integer: false },
+];
+const DEFAULT_ACCUMULATION = 'exact';
+
+/* X-Nscatter-Stats keys shown under the timings, in this order. */
+const COUNT_ROWS = [
+  { key: 'vrl_count', label: 'VRLs' },
+  { key: 'vrl_paths', label: 'light paths traced' },
+  { key: 'camera_segments', label: 'camera segments in media' },
+  { key: 'gather_segments', label: 'segments gathered' },
+  { key: 'interactions', label: 'VRL–segment interactions' },
+  { key: 'cells_culled', label: 'grid cells culled' },
+  { key: 'cells_represented', label: 'grid cells by representative' },
+  { key: 'table_bytes', label: 'table memory', bytes: true },
+  { key: 'weights_bytes', label: 'network weights', bytes: true },
+];
 const MEDIUM_FIELDS = ['albedo', 'mfp', 'sigma_s', 'sigma_a', 'g', 'ior', 'scale', 'preset'];
 const HISTORY_LIMIT = 24;
 const STORAGE_KEY = 'nscatter.scene.v1';
@@ -293,7 +330,15 @@ const controls = {
   spp: $('spp'),
   exposure: $('exposure'),
   components: Array.from(document.querySelectorAll('input[name=component]')),
+  method: $('method'),
+  methodNote: $('method-note'),
+  accumulation: $('accumulation'),
+  scatterNumbers: SCATTER_NUMBERS.map((field) => ({ ...field, input: $(field.id) })),
 };
+
+/* GET /v1/info "methods": [{name, components, unavailable_components}], or null until it
+ * has answered (then every method is offered without a component note). */
+let serverMethods = null;
 
 function parseEditor() {
   try {
@@ -347,6 +392,57 @@ function readControls() {
   setSlider(controls.exposure, exposure, exposure.toFixed(1));
   const components = Array.isArray(render.components) ? render.components : [];
   for (const box of controls.components) box.checked = components.includes(box.value);
+  readRenderSettings(render);
+}
+
+/* Method, accumulation and the scattering numbers. A value the page does not know (a typo
+ * the server will reject with its pointer) is shown as it is rather than replaced. */
+function readRenderSettings(render) {
+  const method = typeof render.method === 'string' ? render.method : DEFAULT_METHOD;
+  setSelectValue(controls.method, method);
+  showMethodComponents(method);
+  setSelectValue(controls.accumulation, typeof render.accumulation === 'string' ? render.accumulation : DEFAULT_ACCUMULATION);
+  for (const field of controls.scatterNumbers) {
+    field.input.removeAttribute('aria-invalid');
+    const value = render[field.key];
+    field.input.value = typeof value === 'number' && Number.isFinite(value) ? String(value) : '';
+  }
+}
+
+/* Selects value, adding a marked option for a value outside the list so the control never
+ * shows something other than what the text says. */
+function setSelectValue(select, value) {
+  for (const option of Array.from(select.options)) if (option.dataset.unknown) option.remove();
+  if (!Array.from(select.options).some((o) => o.value === value)) {
+    select.append(el('option', { value, textContent: `${value} (unknown)`, 'data-unknown': 'true' }));
+  }
+  select.value = value;
+}
+
+/* Marks the components the chosen method cannot render in this build (from /v1/info). */
+function showMethodComponents(method) {
+  const entry = serverMethods && serverMethods.find((m) => m.name === method);
+  const missing = entry && Array.isArray(entry.unavailable_components) ? entry.unavailable_components : [];
+  for (const box of controls.components) box.parentElement.classList.toggle('unavailable', missing.includes(box.value));
+  const summary = METHOD_SUMMARIES[method] || '';
+  if (!entry) {
+    controls.methodNote.textContent = serverMethods ? `${method} is not a method of this server` : summary;
+    return;
+  }
+  const renders = Array.isArray(entry.components) && entry.components.length ? entry.components.join(', ') : 'nothing';
+  controls.methodNote.textContent = `renders ${renders}` + (missing.length ? `; not yet ${missing.join(', ')}` : '');
+}
+
+/* Rebuilds the method options from /v1/info, keeping the one the text names. */
+function applyMethods(methods) {
+  if (!Array.isArray(methods)) return;
+  serverMethods = methods.filter((m) => m && typeof m.name === 'string');
+  if (serverMethods.length === 0) { serverMethods = null; return; }
+  controls.method.replaceChildren(...serverMethods.map((m) => el('option', {
+    value: m.name,
+    textContent: METHOD_SUMMARIES[m.name] ? `${m.name} — ${METHOD_SUMMARIES[m.name]}` : m.name,
+  })));
+  readControls();
 }
 
 function readMaterialControls(scene) {
@@ -449,6 +545,39 @@ function onComponentsChange() {
     scene.render = scene.render && typeof scene.render === 'object' ? scene.render : {};
     scene.render.components = chosen;
   });
+}
+
+const renderSettings = (scene) => (scene.render = scene.render && typeof scene.render === 'object' ? scene.render : {});
+
+function onMethodChange() {
+  const method = controls.method.value;
+  showMethodComponents(method);
+  editScene((scene) => { renderSettings(scene).method = method; });
+}
+
+function onAccumulationChange() {
+  const value = controls.accumulation.value;
+  editScene((scene) => { renderSettings(scene).accumulation = value; });
+}
+
+/* A scattering number: empty removes the key (the server's default applies); a value
+ * outside the input's range or of the wrong kind marks the field and leaves the text alone. */
+function onScatterNumberChange(field) {
+  const input = field.input;
+  const raw = input.value.trim();
+  if (raw === '' && !input.validity.badInput) {
+    input.removeAttribute('aria-invalid');
+    editScene((scene) => { delete renderSettings(scene)[field.key]; });
+    return;
+  }
+  const value = Number(raw);
+  const kindOk = field.integer ? Number.isInteger(value) : Number.isFinite(value);
+  if (!kindOk || !input.checkValidity()) {
+    input.setAttribute('aria-invalid', 'true');
+    return;
+  }
+  input.removeAttribute('aria-invalid');
+  editScene((scene) => { renderSettings(scene)[field.key] = value; });
 }
 
 function setEditorText(text, { keepControls = false } = {}) {
@@ -597,6 +726,7 @@ function describeScene(text) {
       if (Number.isFinite(m.scale)) parts.push(`×${m.scale}`);
     }
     const render = scene.render || {};
+    if (typeof render.method === 'string') parts.push(render.method);
     if (Number.isFinite(render.spp)) parts.push(`${render.spp} spp`);
   } catch { /* the caption just stays short */ }
   return parts.join(' · ');
@@ -635,6 +765,7 @@ async function render() {
       url: URL.createObjectURL(blob),
       timings: parseServerTiming(response.headers.get('Server-Timing')),
       device: response.headers.get('X-Nscatter-Device') || '(not reported)',
+      counts: parseCounts(response.headers.get('X-Nscatter-Stats')),
       roundTripMs,
       caption: describeScene(text),
       when: new Date(),
@@ -692,6 +823,7 @@ async function showEntry(entry) {
   $('image-meta').textContent = `#${entry.id} · ${image.naturalWidth}×${image.naturalHeight} · ${entry.caption}`;
   applyZoom();
   showTimings(entry);
+  showCounts(entry);
   $('device').textContent = entry.device;
   for (const id of ['download-png', 'download-exr', 'load-scene']) $(id).disabled = false;
   renderHistory();
@@ -718,6 +850,59 @@ function showTimings(entry) {
   foot.replaceChildren(
     el('tr', {}, el('td', { textContent: 'server total' }), el('td', { class: 'num', textContent: formatMs(serverTotal) }), el('td')),
     el('tr', {}, el('td', { textContent: 'round trip' }), el('td', { class: 'num', textContent: formatMs(entry.roundTripMs) }), el('td')));
+}
+
+/* X-Nscatter-Stats: one compact JSON object of counts; anything else is ignored. */
+function parseCounts(header) {
+  if (!header) return null;
+  try {
+    const counts = JSON.parse(header);
+    return counts && typeof counts === 'object' && !Array.isArray(counts) ? counts : null;
+  } catch {
+    return null;
+  }
+}
+
+const formatCount = (n) => Math.round(n).toLocaleString('en-US');
+const formatMegabytes = (bytes) => `${(bytes / 1e6).toFixed(bytes >= 1e8 ? 0 : 2)} MB`;
+function formatRate(perSecond) {
+  const units = [[1e9, 'G'], [1e6, 'M'], [1e3, 'k']];
+  for (const [scale, prefix] of units) if (perSecond >= scale) return `${(perSecond / scale).toPrecision(3)} ${prefix}/s`;
+  return `${perSecond.toPrecision(3)} /s`;
+}
+
+/* The counts of the shown render, and the gather's rate: interactions evaluated per second
+ * of its Server-Timing stage (the paper's figure of merit for Algorithm 1). */
+function showCounts(entry) {
+  const body = document.querySelector('#counts tbody');
+  const note = $('counts-note');
+  const counts = entry.counts;
+  if (!counts) {
+    body.replaceChildren();
+    note.textContent = 'This render reported no counts.';
+    note.hidden = false;
+    return;
+  }
+  const row = (key, label, text, value) => {
+    const tr = el('tr', {}, el('th', { scope: 'row', textContent: label }), el('td', { class: 'num', textContent: text }));
+    tr.dataset.key = key;
+    tr.dataset.value = String(value);
+    return tr;
+  };
+  const rows = [];
+  for (const { key, label, bytes } of COUNT_ROWS) {
+    const value = counts[key];
+    if (typeof value !== 'number' || !Number.isFinite(value)) continue;
+    rows.push(row(key, label, bytes ? formatMegabytes(value) : formatCount(value), value));
+  }
+  const gather = entry.timings.find((t) => t.name === 'gather');
+  if (gather && Number.isFinite(gather.dur) && gather.dur > 0 && counts.interactions > 0) {
+    const rate = counts.interactions / (gather.dur / 1000);
+    rows.push(row('interactions_per_second', 'gather interactions per second', formatRate(rate), rate));
+  }
+  body.replaceChildren(...rows);
+  note.hidden = rows.length > 0;
+  note.textContent = rows.length ? '' : 'This render reported no counts.';
 }
 
 function applyZoom() {
@@ -800,6 +985,7 @@ async function loadInfo() {
     if (info.ready === false) parts.push(` · not ready: ${device.error || device.status || 'no render context'}`);
     target.replaceChildren(...parts);
     applyLimits(info.limits);
+    applyMethods(info.methods);
   } catch (error) {
     target.textContent = `Server info unavailable (${error.message}).`;
   }
@@ -847,6 +1033,9 @@ function init() {
   controls.height.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { camera(s).height = v; }));
   controls.spp.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { settings(s).spp = v; }));
   for (const box of controls.components) box.addEventListener('change', onComponentsChange);
+  controls.method.addEventListener('change', onMethodChange);
+  controls.accumulation.addEventListener('change', onAccumulationChange);
+  for (const field of controls.scatterNumbers) field.input.addEventListener('change', () => onScatterNumberChange(field));
   controls.exposure.addEventListener('input', onSliderInput);
   controls.exposure.addEventListener('change', onExposureChange);
 
