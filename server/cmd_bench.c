@@ -1016,24 +1016,16 @@ static void mark_wanted_references(bench *b, bench_scene *s)
         }
 }
 
-static int make_references(bench *b, int force)
+/* The references scene s's methods compare with; made counts those rendered now. */
+static int scene_references(bench *b, bench_scene *s, int force, uint32_t *made)
 {
     int failed = 0;
-    double t0 = ns_now_ms();
-    uint32_t made = 0;
-    for (uint32_t i = 0; i < b->run.scene_count; i++) {
-        bench_scene *s = &b->run.scenes[i];
-        if (s->skipped)
-            continue;
-        mark_wanted_references(b, s);
-        for (int set = 0; set < BENCH_REF_SETS; set++)
-            if (s->refs[set].wanted) {
-                failed |= ensure_reference(b, s, set, force);
-                made += s->refs[set].generated;
-            }
-    }
-    fprintf(stderr, "bench: references: %u rendered in %.1f s (cache %s)\n", made,
-            (ns_now_ms() - t0) / 1000.0, b->cache_dir);
+    mark_wanted_references(b, s);
+    for (int set = 0; set < BENCH_REF_SETS; set++)
+        if (s->refs[set].wanted) {
+            failed |= ensure_reference(b, s, set, force);
+            *made += s->refs[set].generated;
+        }
     return failed;
 }
 
@@ -1076,19 +1068,34 @@ int cmd_bench(int argc, char **argv)
     }
     if (!rc)
         rc = create_context(b);
-    /* A reference that cannot be made fails the run (exit 1) but not the other scenes: the
-     * report says which comparisons are missing. */
-    int references_failed = !rc && make_references(b, b->args.references_only);
-    if (!rc && !b->args.references_only) {
-        for (uint32_t i = 0; i < b->run.scene_count; i++)
-            if (!b->run.scenes[i].skipped)
-                run_scene(b, &b->run.scenes[i]);
+    /* Scene by scene: references, methods, then the report again, so a long run can be read
+     * as it goes and an interrupted one keeps what it measured. A reference that cannot be
+     * made fails the run (exit 1) but not the other scenes: the report says what is missing. */
+    int references_failed = 0, wrote = 0;
+    uint32_t made = 0;
+    double ref_ms = 0;
+    for (uint32_t i = 0; !rc && i < b->run.scene_count; i++) {
+        bench_scene *s = &b->run.scenes[i];
+        if (s->skipped)
+            continue;
+        double t1 = ns_now_ms();
+        references_failed |= scene_references(b, s, b->args.references_only, &made);
+        ref_ms += ns_now_ms() - t1;
+        if (b->args.references_only)
+            continue;
+        run_scene(b, s);
         b->run.total_s = (ns_now_ms() - t0) / 1000.0;
         rc = bench_write_report(&b->run, b->args.out_dir);
-        if (!rc)
-            fprintf(stderr, "bench: wrote %s/report.md and %s/contact_sheet.png in %.1f s\n",
-                    b->args.out_dir, b->args.out_dir, b->run.total_s);
+        wrote = 1;
     }
+    if (!rc && !wrote && !b->args.references_only) /* every scene skipped: say so */
+        rc = bench_write_report(&b->run, b->args.out_dir);
+    if (b->ctx)
+        fprintf(stderr, "bench: references: %u rendered in %.1f s (cache %s)\n", made, ref_ms / 1000.0,
+                b->cache_dir);
+    if (!rc && !b->args.references_only)
+        fprintf(stderr, "bench: wrote %s/report.md and %s/contact_sheet.png in %.1f s\n", b->args.out_dir,
+                b->args.out_dir, b->run.total_s);
     if (!rc && references_failed)
         rc = 1;
     bench_free(b);
