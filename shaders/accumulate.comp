@@ -72,37 +72,38 @@ float z_edge(int i) { return z_edges[i]; }
 float rho_edge(int i) { return rho_edges[i]; }
 
 // u of the next z-plane (FAR when the walk runs parallel to them).
-float next_z(int iz, float z0, float cos_theta)
+float next_z(int iz, float z0, float cos_theta, float inv_cos)
 {
     if (cos_theta > 0.0)
-        return (z0 - z_edge(iz)) / cos_theta; // z decreases: the bin's lower plane
+        return (z0 - z_edge(iz)) * inv_cos; // z decreases: the bin's lower plane
     if (cos_theta < 0.0)
-        return (z_edge(iz + 1) - z0) / -cos_theta;
+        return (z0 - z_edge(iz + 1)) * inv_cos;
     return FAR;
 }
 
 // u of the next rho-cylinder from u (where T = t0 - u sin_theta), and which way it goes:
 // inward through the bin's inner cylinder while T > 0 and the line reaches it, else outward
 // through the outer one (on the far side of the closest approach when T > 0).
-float next_rho(int ir, float u, float t0, float s2, float sin_theta, out int dir)
+float next_rho(int ir, float u, float t0, float s2, float sin_theta, float inv_sin,
+               out int dir)
 {
     float t = t0 - u * sin_theta;
     float lo = rho_edge(ir);
     if (t > 0.0 && ir > 0 && lo * lo > s2) {
         dir = -1;
-        return (t0 - sqrt(lo * lo - s2)) / sin_theta;
+        return (t0 - sqrt(lo * lo - s2)) * inv_sin;
     }
     float hi = rho_edge(ir + 1);
     dir = 1;
-    return (t0 + sqrt(max(hi * hi - s2, 0.0))) / sin_theta;
+    return (t0 + sqrt(max(hi * hi - s2, 0.0))) * inv_sin;
 }
 
 // u of the next constant-phi half-plane (none after the last bin: phi tends to pi).
-float next_phi(int ip, float t0, float s, float sin_theta)
+float next_phi(int ip, float t0, float s, float inv_sin)
 {
     if (ip >= NPHI - 1)
         return FAR;
-    return (t0 - s * phi_cot[ip]) / sin_theta;
+    return (t0 - s * phi_cot[ip]) * inv_sin;
 }
 
 void count_steps(uint steps)
@@ -132,6 +133,7 @@ void main()
     float rho0 = 0.5 * (rho_edge(ir) + rho_edge(ir + 1));
     float theta = (float(it) + 0.5) * ANGLE_STEP, phi = (float(ip) + 0.5) * ANGLE_STEP;
     float cos_theta = cos(theta), sin_theta = sin(theta); // sin_theta > 0 at every centre
+    float inv_cos = 1.0 / cos_theta, inv_sin = 1.0 / sin_theta; // |cos_theta| >= cos(85 deg)
     float t0 = rho0 * cos(phi), s = rho0 * sin(phi), s2 = s * s;
 
     bool fixed_length = params.cut.z > 0.0;
@@ -140,9 +142,9 @@ void main()
     vec3 floor_abs = params.cut.y * j_max;
 
     int rho_dir;
-    float uz = next_z(iz, z0, cos_theta);
-    float ur = next_rho(ir, 0.0, t0, s2, sin_theta, rho_dir);
-    float up = next_phi(ip, t0, s, sin_theta);
+    float uz = next_z(iz, z0, cos_theta, inv_cos);
+    float ur = next_rho(ir, 0.0, t0, s2, sin_theta, inv_sin, rho_dir);
+    float up = next_phi(ip, t0, s, inv_sin);
 
     float u = 0.0, decay = 1.0; // decay = e^{-u}
     vec3 sum = vec3(0.0);
@@ -183,17 +185,17 @@ void main()
                 capped = false;
                 break;
             }
-            uz = next_z(iz, z0, cos_theta);
+            uz = next_z(iz, z0, cos_theta, inv_cos);
         } else if (event == 1) {
             ir += rho_dir;
             if (ir >= NRHO) {
                 capped = false;
                 break;
             }
-            ur = next_rho(ir, u, t0, s2, sin_theta, rho_dir);
+            ur = next_rho(ir, u, t0, s2, sin_theta, inv_sin, rho_dir);
         } else {
             ip++;
-            up = next_phi(ip, t0, s, sin_theta);
+            up = next_phi(ip, t0, s, inv_sin);
         }
     }
     for (uint c = 0u; c < 3u; c++)
