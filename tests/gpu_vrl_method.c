@@ -194,6 +194,107 @@ static void test_gather_matches_cpu(void)
     device_scene_free(&d);
 }
 
+/* With shadow rays (two spheres of one material, 4 apart): a segment in the VRLs' sphere
+ * gets what the CPU copy (no shadow rays) gives, since a chord of a sphere stays inside it;
+ * a segment in the other sphere gets exactly 0. Shadow rays cost several counted
+ * iterations per VRL, so the first batch of dispatches leaves work and the C side repeats. */
+static float dot3f(const float *a, const float *b)
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+static float distance3f(const float *a, const float *b)
+{
+    float d[3] = {a[0] - b[0], a[1] - b[1], a[2] - b[2]};
+    return sqrtf(dot3f(d, d));
+}
+
+static void test_gather_visibility(void)
+{
+    ns_context *ctx = test_context();
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0, -1, 0);
+    ns_scene s = sphere_scene(&sun, 1, 1.0);
+    ns_object pair[2] = {sphere(0, 0, 0, 1, 0), sphere(4, 0, 0, 1, 0)};
+    s.objects = pair;
+    s.object_count = 2;
+    device_scene d;
+    if (device_scene_make(&s, &d))
+        return;
+    enum { SEGMENTS = 64, VRLS = 3000 };
+    GpuSegment *segs = calloc(SEGMENTS, sizeof *segs);
+    GpuVrl *vrls = calloc(VRLS, sizeof *vrls);
+    for (uint32_t i = 0; i < SEGMENTS; i++) {
+        segs[i] = random_segment(i);
+        /* Clip to the sphere of radius 0.99: a chord stays inside. */
+        const float *p = segs[i].entry, *dir = segs[i].direction;
+        float b = dot3f(p, dir), c = dot3f(p, p) - 0.99f * 0.99f;
+        float len = fminf(distance3f(segs[i].exit, p), -b + sqrtf(b * b - c));
+        for (int k = 0; k < 3; k++)
+            segs[i].exit[k] = p[k] + len * dir[k];
+        if (i % 2) /* into the other sphere */
+            for (int k = 0; k < 3; k++) {
+                segs[i].entry[k] += k == 0 ? 4.0f : 0.0f;
+                segs[i].exit[k] += k == 0 ? 4.0f : 0.0f;
+            }
+    }
+    for (uint32_t k = 0; k < VRLS; k++) {
+        vrls[k] = random_vrl(k % 2);
+        /* Shorten the VRL so that it stays inside the unit sphere. */
+        vrls[k].length = fminf(vrls[k].length, 0.08f);
+    }
+    ns_error err = {0};
+    gpu_buffer seg_buf = {0}, out[2] = {{0}};
+    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS,
+                                                      .data = segs,
+                                                      .data_size = sizeof *segs * SEGMENTS},
+                                   &err);
+    for (int i = 0; i < 2 && !status; i++)
+        status =
+            gpu_buffer_create(&ctx->dev, &out[i], &(gpu_buffer_desc){.size = 16 * SEGMENTS}, &err);
+    const uint8_t visibility[1] = {1};
+    ns_vrl_gather_counts counts = {0};
+    if (!status)
+        status = ns_vrl_method_gather_vrls(ctx, d.buffers, &d.gs, &seg_buf, SEGMENTS, vrls, VRLS,
+                                           3u, visibility, &out[0], &out[1], &counts, &err);
+    if (status)
+        fprintf(stderr, "gather: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    float(*cpu_d)[4] = calloc(SEGMENTS, sizeof *cpu_d),
+    (*cpu_m)[4] = calloc(SEGMENTS, sizeof *cpu_m);
+    ns_vrl_method_gather_cpu(d.gs.materials, segs, SEGMENTS, vrls, VRLS, 3u, cpu_d, cpu_m);
+    const float(*gpu_d)[4] = out[0].mapped, (*gpu_m)[4] = out[1].mapped;
+    double worst = 0;
+    int zeros = 0, same_sphere = 0;
+    for (uint32_t i = 0; !status && i < SEGMENTS; i++)
+        for (int c = 0; c < 3; c++) {
+            if (i % 2) {
+                zeros += gpu_d[i][c] == 0.0f && gpu_m[i][c] == 0.0f;
+                continue;
+            }
+            same_sphere += cpu_d[i][c] > 0 && cpu_m[i][c] > 0;
+            worst = fmax(worst, fabs(gpu_d[i][c] - cpu_d[i][c]) / cpu_d[i][c]);
+            worst = fmax(worst, fabs(gpu_m[i][c] - cpu_m[i][c]) / cpu_m[i][c]);
+        }
+    fprintf(stderr,
+            "  shadow rays: %u dispatches, worst relative difference %.2e in the same sphere\n",
+            counts.dispatches, worst);
+    CHECK(zeros == SEGMENTS / 2 * 3);
+    CHECK(same_sphere == SEGMENTS / 2 * 3);
+    CHECK(worst < 1e-3);
+    if (ctx->dev.loop_limited)
+        CHECK(counts.dispatches > 3); /* more than VRLS / 1000: the repeat loop ran */
+    free(cpu_d);
+    free(cpu_m);
+    gpu_buffer_destroy(&ctx->dev, &seg_buf);
+    gpu_buffer_destroy(&ctx->dev, &out[0]);
+    gpu_buffer_destroy(&ctx->dev, &out[1]);
+    free(segs);
+    free(vrls);
+    device_scene_free(&d);
+}
+
 /* ---------------------------------------------------------------------------------------
  * The estimator's mean against a numerical integral of the same transport.
  * ------------------------------------------------------------------------------------- */
@@ -692,6 +793,7 @@ int main(void)
     }
     RUN(test_estimator_mean);
     RUN(test_gather_matches_cpu);
+    RUN(test_gather_visibility);
     RUN(test_first_stretch_flux);
     RUN(test_bad_input);
     RUN(test_against_path_tracer);
