@@ -62,11 +62,10 @@ double ns_now_ms(void)
 
 uint32_t ns_unsupported_components(ns_method method, uint32_t components)
 {
-    /* The surface pass (direct lighting, Fresnel boundaries, Beer-Lambert attenuation of
-     * camera paths in media) is shared by every method. The scattering components arrive
-     * with the accumulation/VRL/gather stages (issue 5); the path tracer (render/pt.c)
-     * renders every component. */
-    if (method == NS_METHOD_PT)
-        return 0;
-    return components & ~(uint32_t)NS_COMPONENT_SURFACE;
+    /* Every method renders every component, except the dipole: its diffusion profile holds
+     * double and multiple scattering together and cannot give one without the other. */
+    uint32_t gathered = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    if (method == NS_METHOD_DIPOLE && (components & gathered) && (components & gathered) != gathered)
+        return components & gathered;
+    return 0;
 }

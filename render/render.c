@@ -7,10 +7,12 @@
 #include "bvh.h"
 #include "internal.h"
 #include "pt.h"
+#include "scatter.h"
 
-/* Segment buffer: room for two stretches per camera sample by default, within 64 MiB. */
+/* Segment buffer: room for two stretches per camera sample by default, within 120 MiB
+ * (lavapipe caps a storage buffer at 128 MiB). */
 #define SEGMENTS_PER_SAMPLE 2u
-#define SEGMENT_BYTES_MAX (64u << 20)
+#define SEGMENT_BYTES_MAX (120u << 20)
 
 enum {
     B_PARAMS,
@@ -156,6 +158,51 @@ static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_re
     return NS_OK;
 }
 
+/* The scattering stages need every camera segment: when the buffer was too small, make it
+ * as large as the count the pass attempted (within the device's limit) and run it again. */
+static int redo_if_overflowed(ns_context *ctx, render_job *job, const ns_scene *scene, ns_error *err)
+{
+    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+    if (!counters[NS_COUNTER_OVERFLOW])
+        return NS_OK;
+    uint64_t wanted = counters[NS_COUNTER_SEGMENTS];
+    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
+    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
+    if (wanted > cap || wanted > device_cap)
+        return NS_OK; /* render_scattering reports the overflow */
+    gpu_buffer_destroy(&ctx->dev, &job->buffers[B_SEGMENTS]);
+    job->scene.params.counts[2] = (uint32_t)wanted;
+    memcpy(job->buffers[B_PARAMS].mapped, &job->scene.params, sizeof job->scene.params);
+    memset(job->buffers[B_COUNTERS].mapped, 0, NS_COUNTER_COUNT * sizeof(uint32_t));
+    int status = gpu_buffer_create(&ctx->dev, &job->buffers[B_SEGMENTS],
+                                   &(gpu_buffer_desc){.size = wanted * sizeof(GpuSegment),
+                                                      .kind = GPU_BUFFER_STORAGE,
+                                                      .uninitialized = 1,
+                                                      .label = "ns.render.segments"},
+                                   err);
+    return status ? status : dispatch_camera(ctx, job, scene, err);
+}
+
+/* The scattering components (render/scatter_render.c), added to the pixels read back. */
+static int render_scattering(ns_context *ctx, render_job *job, const ns_scene *scene, ns_image *out,
+                             ns_render_stats *stats, ns_error *err)
+{
+    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+    if (counters[NS_COUNTER_OVERFLOW])
+        return ns_fail(err, NS_ERR_LIMIT,
+                       "camera segments: %u stretches inside media did not fit the segment buffer "
+                       "(%u); lower render.spp, the image size or render.max_depth",
+                       counters[NS_COUNTER_OVERFLOW], job->scene.params.counts[2]);
+    uint32_t written = counters[NS_COUNTER_SEGMENTS];
+    ns_scatter_inputs in = {.scene = scene,
+                            .gs = &job->scene,
+                            .scene_buffers = job->buffers,
+                            .segments = &job->buffers[B_SEGMENTS],
+                            .segment_count = written,
+                            .pixels = out->rgb};
+    return ns_scatter_render(ctx, &in, stats, err);
+}
+
 static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
                          ns_render_stats *stats, ns_render_debug *debug, ns_error *err)
 {
@@ -179,11 +226,18 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     ns_stats_add_stage(stats, "upload", t2 - t1);
     if (!status)
         status = dispatch_camera(ctx, &job, scene, err);
+    if (!status && (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE) && !debug)
+        status = redo_if_overflowed(ctx, &job, scene, err);
     double t3 = ns_now_ms();
     ns_stats_add_stage(stats, "ray_pass", t3 - t2);
     if (!status)
         status = read_back(&job, &scene->camera, out, stats, debug, err);
     ns_stats_add_stage(stats, "readback", ns_now_ms() - t3);
+    /* The camera pass always shades surfaces; a render without them starts from black. */
+    if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
+        memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);
+    if (!status && job.scene.has_media && (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE))
+        status = render_scattering(ctx, &job, scene, out, stats, err);
     job_free(ctx, &job);
     return status;
 }

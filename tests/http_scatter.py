@@ -1,0 +1,96 @@
+"""The scattering components over HTTP, as a user scripting a material sweep sees them: a
+full render (surface + single + double + multiple) reports every scattering stage in
+Server-Timing and its counts and memory in X-Nscatter-Stats; sweeping the albedo and coming
+back to the first material reuses its cached tables (no reconstruct/accumulate stage the
+second time); bad scattering settings get a 422 naming the field."""
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from nstest_http import Checks, Server, problem, server_timing, small_scene  # noqa: E402
+
+SCATTER_STAGES = ("reconstruct", "accumulate", "vrl", "grid", "gather", "single", "composite")
+
+
+def scatter_scene(albedo=(0.98, 0.962, 0.75), components=("surface", "single", "double", "multiple"),
+                  method="nn", **render):
+    scene = small_scene(40, 32)
+    scene["materials"]["wax"]["albedo"] = list(albedo)
+    scene["render"].update({"method": method, "components": list(components), "vrls": 2000})
+    scene["render"].update(render)
+    return scene
+
+
+def stats_of(headers):
+    return json.loads(headers.get("x-nscatter-stats", "{}"))
+
+
+def test_full_render_reports_stages_and_counts(t, srv):
+    status, headers, body = srv.render(scatter_scene())
+    t.equal(status, 200, f"full render ({body[:300]!r})")
+    if status != 200:
+        return
+    timing = server_timing(headers.get("server-timing", ""))
+    for stage in SCATTER_STAGES:
+        t.check(stage in timing, f"Server-Timing has {stage}: {headers.get('server-timing')}")
+    stats = stats_of(headers)
+    t.check(stats.get("vrl_count", 0) > 0, f"VRLs stored: {stats}")
+    t.check(stats.get("vrl_paths") == 2000, f"render.vrls light paths traced: {stats}")
+    t.check(stats.get("interactions", 0) > 0, "VRL-segment interactions counted")
+    t.check(0 < stats.get("gather_segments", 0) <= stats.get("camera_segments", 0),
+            "gathered segments are a subset of the camera segments")
+    t.check(stats.get("table_bytes", 0) > 0, "table memory reported")
+    t.check(0 < stats.get("weights_bytes", 0) <= 2 * 12 * 1024, "weights memory reported, <= 2 x 12 KB")
+
+
+def test_sweep_returns_to_cached_material(t, srv):
+    first = (0.9, 0.8, 0.7)
+    renders = []
+    for albedo in (first, (0.95, 0.85, 0.6), first):
+        status, headers, body = srv.render(scatter_scene(albedo, components=("multiple",)))
+        t.equal(status, 200, f"sweep render {albedo} ({body[:200]!r})")
+        renders.append(server_timing(headers.get("server-timing", "")))
+    if len(renders) == 3:
+        t.check("reconstruct" in renders[0] and "accumulate" in renders[0],
+                f"a new material is reconstructed and accumulated: {renders[0]}")
+        t.check("reconstruct" not in renders[2] and "accumulate" not in renders[2],
+                f"coming back to it costs nothing: {renders[2]}")
+
+
+def expect_422(t, srv, scene, pointer, what):
+    status, headers, body = srv.render(scene)
+    t.equal(status, 422, f"{what}: status ({body[:300]!r})")
+    if status != 422:
+        return
+    pointers = [e.get("pointer") for e in problem(body).get("errors", [])]
+    t.check(any(p and p.startswith(pointer) for p in pointers), f"{what}: names {pointer}, got {pointers}")
+
+
+def test_bad_settings_422(t, srv):
+    expect_422(t, srv, scatter_scene(vrls=0), "/render/vrls", "zero VRLs")
+    expect_422(t, srv, scatter_scene(gather_tile=99), "/render/gather_tile", "tile too large")
+    expect_422(t, srv, scatter_scene(accumulation="sideways"), "/render/accumulation",
+               "unknown accumulation")
+    expect_422(t, srv, scatter_scene(cull_solid_angle=-1), "/render/cull_solid_angle",
+               "negative solid angle")
+    expect_422(t, srv, scatter_scene(single_samples=0), "/render/single_samples", "zero samples")
+    expect_422(t, srv, scatter_scene(method="dipole", components=("double",)), "/render/components",
+               "dipole cannot give double alone")
+
+
+def main():
+    t = Checks()
+    with Server() as srv:
+        for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
+                     test_bad_settings_422):
+            t.run(test, srv)
+        code = srv.stop()
+        t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")
+        if t.failed:
+            print(srv.log_text()[-4000:], file=sys.stderr)
+    return t.report()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
