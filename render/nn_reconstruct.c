@@ -189,8 +189,8 @@ static int near_source(const ns_nn_grid *g, int axis, uint32_t i, double radius)
  * linearly with distance, which the asinh map bends (measured in docs/network.md). A
  * neighbour node outside the trained extent (input x < 0) gets no weight. Returns the
  * node count. */
-static uint32_t sample_axis(const ns_nn_grid *g, int axis, const ns_nn_sampling *s,
-                            const float *x, ns_vec4 *sample)
+static uint32_t sample_axis(const ns_nn_grid *g, int axis, const ns_nn_sampling *s, const float *x,
+                            ns_vec4 *sample)
 {
     uint32_t n = g->n[axis], nodes = 0, stride = s->stride[axis];
     for (uint32_t i = 0; i < n; i++)
@@ -237,16 +237,15 @@ static uint32_t setup_axes(struct GpuNnParams *gp, const ns_nn_grid *grid, const
     uint32_t nodes = 1;
     for (int a = 0; a < 4; a++) {
         gp->counts[a] = grid->n[a];
-        gp->nodes[a] = sample_axis(grid, a, s, axis + a * NS_NN_MAX_AXIS,
-                                   gp->interp + a * NS_NN_MAX_AXIS);
+        gp->nodes[a] =
+            sample_axis(grid, a, s, axis + a * NS_NN_MAX_AXIS, gp->interp + a * NS_NN_MAX_AXIS);
         nodes *= gp->nodes[a];
     }
     return nodes;
 }
 
-static int dispatch_table(gpu_device *dev, ns_nn_gpu *nn, const gpu_pipeline *pipe,
-                          gpu_buffer *out, gpu_buffer *in, uint32_t items, uint32_t channels,
-                          ns_error *err)
+static int dispatch_table(gpu_device *dev, ns_nn_gpu *nn, const gpu_pipeline *pipe, gpu_buffer *out,
+                          gpu_buffer *in, uint32_t items, uint32_t channels, ns_error *err)
 {
     uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
     gpu_buffer *bound[3] = {&nn->params, out, in ? in : &nn->dummy};
@@ -267,12 +266,12 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
         return dispatch_table(dev, nn, &nn->pipeline, out, NULL, cells, channels, err);
     }
     gpu_buffer t = {0};
-    int status = gpu_buffer_create(
-        dev, &t,
-        &(gpu_buffer_desc){.size = (VkDeviceSize)nodes * 6 * sizeof(float),
-                           .uninitialized = 1,
-                           .label = "ns.nn.nodes"},
-        err);
+    int status =
+        gpu_buffer_create(dev, &t,
+                          &(gpu_buffer_desc){.size = (VkDeviceSize)nodes * 6 * sizeof(float),
+                                             .uninitialized = 1,
+                                             .label = "ns.nn.nodes"},
+                          err);
     if (!status) {
         gp->info[0] = nodes;
         gp->info[2] = 1; /* t, not J */
@@ -283,9 +282,9 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
         gp->info[0] = cells;
         uint32_t rows = cells / gp->counts[3];
         gpu_buffer *bound[3] = {&nn->params, out, &t};
-        status = gpu_dispatch(dev, &nn->interpolate, bound, 3,
-                              (uint32_t[3]){(rows + NS_NN_GROUP - 1) / NS_NN_GROUP, channels, 2},
-                              err);
+        status =
+            gpu_dispatch(dev, &nn->interpolate, bound, 3,
+                         (uint32_t[3]){(rows + NS_NN_GROUP - 1) / NS_NN_GROUP, channels, 2}, err);
     }
     gpu_buffer_destroy(dev, &t);
     return status;

@@ -14,10 +14,10 @@
 #include "nn.h"
 
 typedef struct ns_nn_gpu {
-    gpu_pipeline pipeline;        /* nn_reconstruct.comp: the networks at nodes or points */
-    gpu_pipeline interpolate;     /* nn_interpolate.comp: every cell from the nodes */
-    gpu_buffer params; /* uniform GpuNnParams */
-    gpu_buffer dummy;  /* bound to the points slot in table mode */
+    gpu_pipeline pipeline;    /* nn_reconstruct.comp: the networks at nodes or points */
+    gpu_pipeline interpolate; /* nn_interpolate.comp: every cell from the nodes */
+    gpu_buffer params;        /* uniform GpuNnParams */
+    gpu_buffer dummy;         /* bound to the points slot in table mode */
     int created;
 } ns_nn_gpu;
 

@@ -1,8 +1,11 @@
 #version 450
-// nn_reconstruct.comp — evaluates the scattering networks (render/nn_weights.h) at every
-// cell of a table: gl_GlobalInvocationID.x picks 16 consecutive cells, .y the RGB channel
-// (each its own albedo), .z the order (0 double, 1 multiple). The output is J itself (the
-// inverse target transform applied), out[(order * 3 + channel) * cells + cell].
+// nn_reconstruct.comp — evaluates the scattering networks (render/nn_weights.h) at the
+// nodes of a table (the bins GpuNnParams.interp lists per axis: every cell, or every
+// stride-th bin for nn_interpolate.comp to fill in): gl_GlobalInvocationID.x picks 16
+// consecutive nodes, .y the RGB channel (each its own albedo), .z the order (0 double, 1
+// multiple). The output, out[(order * 3 + channel) * nodes + node], is J itself (the inverse
+// target transform applied) when every cell is a node, else t (info.z: the network output
+// in the target's log space, which nn_interpolate.comp interpolates).
 // Points mode (tests): the inputs come from a list instead, 2 vec4 per point: (rho, z,
 // theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point] = J and
 // out[(2 + order) * points + point] = the network output y.

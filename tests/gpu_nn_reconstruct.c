@@ -252,8 +252,7 @@ static void test_rejects_bad_material(void)
 static int is_node(const ns_nn_grid *g, int a, uint32_t i, const ns_nn_sampling *s)
 {
     double centre = 0.5 * (g->edges[a][i] + g->edges[a][i + 1]);
-    return i % s->stride[a] == 0 || i == g->n[a] - 1 ||
-           (a < 2 && fabs(centre) <= s->full_radius);
+    return i % s->stride[a] == 0 || i == g->n[a] - 1 || (a < 2 && fabs(centre) <= s->full_radius);
 }
 
 /* The default sampled reconstruction against every cell evaluated, committed weights, one
@@ -316,8 +315,8 @@ static void test_sampled_matches_every_cell(void)
             }
         printf("g 0.75 a 0.97 %s: %llu of %zu evaluations; at the %zu node cells worst relative "
                "difference %.3g; L1 sampled vs every cell %.3f%%\n",
-               o ? "multiple" : "double", (unsigned long long)st[0].evaluations / 2,
-               cells, node_cells, worst_node, 100 * diff / ref);
+               o ? "multiple" : "double", (unsigned long long)st[0].evaluations / 2, cells,
+               node_cells, worst_node, 100 * diff / ref);
         CHECK(node_cells * 2 == st[0].evaluations);
         CHECK(worst_node <= 1e-5);
         CHECK(diff / ref <= 0.03);

@@ -120,6 +120,17 @@ static void test_argument_errors(void)
     const char *no_out[] = {"table", "--source", "nn",       "--order", "double",
                             "--g",   "0.5",      "--albedo", "0.5",     NULL};
     CHECK_INT(run(cmd_table, no_out), 2);
+    /* --stride: four integers 1 to 16; --full-radius >= 0 (parsed before any device). */
+    const char *bad_strides[][2] = {{"--stride", "2,2,2"},
+                                    {"--stride", "0,1,1,1"},
+                                    {"--stride", "1,1,1,17"},
+                                    {"--stride", "1,1,1,1,1"},
+                                    {"--full-radius", "-1"}};
+    for (int i = 0; i < 5; i++) {
+        const char *bad_sampling[] = {"table", "--benchmark", bad_strides[i][0], bad_strides[i][1],
+                                      NULL};
+        CHECK_INT(run(cmd_table, bad_sampling), 2);
+    }
     char trunc[300];
     snprintf(trunc, sizeof trunc, "%s/trunc.bin", dir);
     FILE *f = fopen(trunc, "wb");
