@@ -318,8 +318,9 @@ void main()
     if (index >= push.segment_count || push.samples == 0u)
         return;
     GpuSegment seg = segments[index];
-    if (seg.material >= params.prims.z) {
-        radiance[index] = vec4(0.0); // not a material of this scene: nothing to scatter
+    // Not a material of this scene, or not a medium (its ior would be 0): nothing scatters.
+    if (seg.material >= params.prims.z || materials[seg.material].reflectance.w == 0.0) {
+        radiance[index] = vec4(0.0);
         return;
     }
     GpuMaterial mat = materials[seg.material];

@@ -681,6 +681,15 @@ static void test_bad_arguments(void)
     CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 0, 10, &out, &err), NS_OK);
     CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 10, &out, &err), NS_OK);
     CHECK(((const float *)out.mapped)[0] > 0);
+    /* A segment that names a diffuse material or no material at all scatters nothing. */
+    GpuSegment *mapped = segs.mapped;
+    const uint32_t not_media[2] = {MAT_DIFFUSE, 99};
+    for (int i = 0; i < 2; i++) {
+        mapped->material = not_media[i];
+        CHECK_INT(ns_single_scatter(ctx, d.buffers, &segs, 1, 10, &out, &err), NS_OK);
+        for (int c = 0; c < 4; c++)
+            CHECK_INT(((const float *)out.mapped)[c] == 0.0f, 1);
+    }
     gpu_buffer_destroy(&ctx->dev, &segs);
     gpu_buffer_destroy(&ctx->dev, &out);
     scene_down(&d);
