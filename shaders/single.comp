@@ -312,6 +312,21 @@ vec3 in_scattering(vec3 x, vec3 wo, uint medium, GpuMaterial mat)
     return sum;
 }
 
+// The random stream of a segment comes from what it is (the camera sample it belongs to and
+// where it starts), not from its index: the camera pass records segments in whatever order
+// its invocations finish, and the same seed must still give the same image. Each sample
+// then has its own stream, so the result does not depend on the split into dispatches.
+uint segment_stream(GpuSegment seg)
+{
+    uint h = pcg_hash(params.image.w);
+    h = pcg_hash(h + seg.pixel);
+    h = pcg_hash(h + seg.sample_index);
+    h = pcg_hash(h + seg.depth);
+    h = pcg_hash(h ^ floatBitsToUint(seg.entry.x));
+    h = pcg_hash(h ^ floatBitsToUint(seg.entry.y));
+    return pcg_hash(h ^ floatBitsToUint(seg.entry.z));
+}
+
 void main()
 {
     uint index = gl_GlobalInvocationID.x;
@@ -326,8 +341,7 @@ void main()
     GpuMaterial mat = materials[seg.material];
     vec3 wo = -seg.direction; // towards the camera
     float dt = distance(seg.entry, seg.exit) / float(push.samples);
-    // Each sample has its own random stream, so the result does not depend on the split.
-    uint segment_seed = pcg_hash(pcg_hash(params.image.w) + index);
+    uint segment_seed = segment_stream(seg);
 
     vec3 sum = vec3(0.0);
     for (uint k = push.first_sample; k < push.first_sample + push.sample_count; k++) {

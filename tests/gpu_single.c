@@ -502,6 +502,42 @@ static void test_many_samples(void)
                       1e-3);
 }
 
+/* The random numbers (a sphere light's cone, the environment's directions) follow each
+ * segment, not its position in the buffer: the camera pass records segments in whatever
+ * order its invocations finish. Reversing the buffer gives the same values bit for bit. */
+static void test_order_independent(void)
+{
+    const double ss[3] = {0.5, 0.5, 0.5}, sa[3] = {0.1, 0.1, 0.1};
+    ns_material m = medium(ss, sa, 1.5);
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light lights[2] = {light(NS_LIGHT_SPHERE, 5, 5, 5), light(NS_LIGHT_ENVIRONMENT, 1, 1, 1)};
+    set3(lights[0].position, 0, 3, 0);
+    lights[0].radius = 0.5f;
+    ns_scene s = base_scene(16, 16, 60);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &ball;
+    s.object_count = 1;
+    s.lights = lights;
+    s.light_count = 2;
+    enum { N = 8 };
+    GpuSegment segs[N], reversed[N];
+    for (int i = 0; i < N; i++) {
+        segs[i] = segment(-0.9 + 0.2 * i, -0.3, 0.1, 0.1, 1, 0.05, 0.5);
+        segs[i].material = 0;
+        segs[i].pixel = (uint32_t)i;
+        reversed[N - 1 - i] = segs[i];
+    }
+    float out[N][4], out_reversed[N][4];
+    if (run_single(&s, segs, N, 16, out, NULL) ||
+        run_single(&s, reversed, N, 16, out_reversed, NULL))
+        return;
+    for (int i = 0; i < N; i++) {
+        CHECK(out[i][0] > 0);
+        CHECK_INT(memcmp(out[i], out_reversed[N - 1 - i], sizeof out[i]), 0);
+    }
+}
+
 /* Planes are tested after the BVH on every ray and their loop is not in the shaders' own
  * iteration count, so many of them make lavapipe's real count far larger than the counted
  * one: vertical planes far to the side (parallel to the vertical light and to every shadow
@@ -755,6 +791,7 @@ int main(void)
     RUN(test_environment_index_matched);
     RUN(test_environment_refracted);
     RUN(test_many_samples);
+    RUN(test_order_independent);
     RUN(test_loop_limit_retry);
     RUN(test_loop_limit_error);
     RUN(test_against_path_tracer);
