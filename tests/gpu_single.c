@@ -690,6 +690,55 @@ static void test_against_path_tracer(void)
     free(ours);
 }
 
+/* Real camera segments in a refracting sphere (entries 1e-4 inside the boundary, internal
+ * reflections, total internal reflection, grazing rays at the rim) under every light kind:
+ * no closed form, but every value must be finite and non-negative, and light must arrive. */
+static void test_camera_segments_refracting(void)
+{
+    const double ss[3] = {0.8, 1.0, 1.2}, sa[3] = {0.05, 0.1, 0.2};
+    ns_material m = medium(ss, sa, 1.5);
+    m.g = -0.3f;
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light lights[4] = {light(NS_LIGHT_DIRECTIONAL, 1, 1, 1), light(NS_LIGHT_POINT, 5, 5, 5),
+                          light(NS_LIGHT_SPHERE, 3, 3, 3),
+                          light(NS_LIGHT_ENVIRONMENT, 0.2, 0.2, 0.2)};
+    set3(lights[0].direction, 0.2, -1, -0.4);
+    set3(lights[1].position, 2, 1, 2);
+    set3(lights[2].position, -2, 2, 1);
+    lights[2].radius = 0.4f;
+    ns_scene s = base_scene(24, 24, 45);
+    set3(s.camera.position, 0, 0.3, 3.5);
+    s.materials = &m;
+    s.material_count = 1;
+    s.objects = &ball;
+    s.object_count = 1;
+    s.lights = lights;
+    s.light_count = 4;
+    s.render.spp = 2;
+    uint32_t capacity = 24 * 24 * s.render.spp * 2;
+    GpuSegment *segs = calloc(capacity, sizeof *segs);
+    ns_render_debug debug = {.segments = segs, .segments_max = capacity};
+    ns_image surface = {0};
+    ns_error err = {0};
+    CHECK_INT(ns_render_ex(test_context(), &s, &surface, NULL, &debug, &err), NS_OK);
+    uint32_t n = (uint32_t)debug.segments_written;
+    CHECK(n > 24 * 24);
+    float(*out)[4] = calloc(n ? n : 1, 16);
+    if (n && !run_single(&s, segs, n, 32, out, NULL)) {
+        uint32_t bad = 0, lit = 0;
+        for (uint32_t i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++) {
+                bad += !(isfinite(out[i][c]) && out[i][c] >= 0.0f);
+                lit += out[i][c] > 0.0f;
+            }
+        CHECK_INT(bad, 0);
+        CHECK(lit > 3 * n / 2);
+    }
+    ns_image_free(&surface);
+    free(segs);
+    free(out);
+}
+
 static void test_bad_arguments(void)
 {
     ns_context *ctx = test_context();
@@ -795,6 +844,7 @@ int main(void)
     RUN(test_loop_limit_retry);
     RUN(test_loop_limit_error);
     RUN(test_against_path_tracer);
+    RUN(test_camera_segments_refracting);
     RUN(test_bad_arguments);
     const char *b = getenv("NSCATTER_BENCH");
     if (b && atoi(b) > 0)
