@@ -216,16 +216,24 @@ async function run() {
         shown !== null && JSON.stringify(withoutRender(shown)) === JSON.stringify(withoutRender(defaultScene)),
         `editor: ${text.slice(0, 200)}…`);
       const settings = (shown && shown.render) || {};
-      check('the default scene renders the full solution with nn at 1 spp',
+      check('the default scene renders the full solution with nn at 1 spp (preview VRLs, tile, single samples)',
         settings.method === 'nn' && JSON.stringify(settings.components) === JSON.stringify(['surface', 'single', 'double', 'multiple'])
-        && settings.spp === 1,
+        && settings.spp === 1 && settings.vrls === 4000 && settings.gather_tile === 4 && settings.single_samples === 16,
         JSON.stringify(settings));
-      check('controls show the default: method nn, all four components, accumulation exact, empty VRLs (server default)',
-        (await page.locator('#method').inputValue()) === 'nn'
-        && (await page.locator('input[name=component]:checked').count()) === 4
-        && (await page.locator('#accumulation').inputValue()) === 'exact'
-        && (await page.locator('#vrls').inputValue()) === ''
-        && (await page.locator('#vrls').getAttribute('placeholder')) === '10000');
+      const shownControls = {
+        method: await page.locator('#method').inputValue(),
+        components: await page.locator('input[name=component]:checked').count(),
+        vrls: await page.locator('#vrls').inputValue(),
+        tile: await page.locator('#gather-tile').inputValue(),
+        single: await page.locator('#single-samples').inputValue(),
+        accumulation: await page.locator('#accumulation').inputValue(),
+        cull: await page.locator('#cull-solid-angle').inputValue(),
+        cullPlaceholder: await page.locator('#cull-solid-angle').getAttribute('placeholder'),
+      };
+      check('controls show it: nn, four components, 4000 VRLs, tile 4, 16 samples; absent keys as defaults (exact, empty cull with placeholder 0)',
+        JSON.stringify(shownControls) === JSON.stringify({
+          method: 'nn', components: 4, vrls: '4000', tile: '4', single: '16', accumulation: 'exact', cull: '', cullPlaceholder: '0',
+        }), JSON.stringify(shownControls));
     });
 
     await step('method selector follows /v1/info', async () => {
@@ -306,14 +314,14 @@ async function run() {
       check('method selector writes render.method', scene.render.method === 'pt', `method ${scene.render.method}`);
       await page.locator('#method').selectOption('nn');
       await typeNumber(page, '#vrls', '2000');
-      await typeNumber(page, '#gather-tile', '4');
+      await typeNumber(page, '#gather-tile', '8');
       await typeNumber(page, '#single-samples', '20');
       await page.locator('#accumulation').selectOption('paper');
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
       check('scattering controls write vrls, gather_tile, single_samples, accumulation, cull_solid_angle',
-        r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 4 && r.single_samples === 20
+        r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 8 && r.single_samples === 20
         && r.accumulation === 'paper' && r.cull_solid_angle === 0.05, JSON.stringify(r));
       await typeNumber(page, '#vrls', '0');
       scene = await editorScene(page);
