@@ -29,11 +29,19 @@
 #include "vrl_method.h"
 
 /* Counted loop iterations after which an invocation yields on lavapipe. The trace's steps
- * run traversal loops that are not all counted (pt.comp measured 1000 as safe there); the
- * gather's loop without shadow rays counts every iteration it runs. */
+ * run traversal loops that are not all counted (pt.comp measured 1000 as safe there; the
+ * single stage measured 6.5-8.7 real iterations per counted one in a one-box scene); the
+ * gather's loop without shadow rays has no inner loop, so it counts every iteration. When
+ * the probe still finds a cut invocation (many planes: each traversal runs a loop over all
+ * of them), the pass starts again from scratch with a quarter of the budget, down to
+ * MIN_YIELD; the random numbers do not depend on the split, so the result is the same. */
 #define TRACE_YIELD_LAVAPIPE 1000u
 #define GATHER_YIELD_LAVAPIPE 16000u
 #define GATHER_YIELD_VISIBILITY 1000u
+#define MIN_YIELD 4u
+
+/* repeat_until_done's answer when lavapipe cut an invocation (not an ns_status). */
+#define REPEAT_CUT 1
 
 /* VRLs a render may make (48 bytes each; lavapipe caps a storage buffer at 128 MiB). */
 #define VRL_METHOD_MAX_VRLS (2u * 1024u * 1024u)
@@ -249,8 +257,9 @@ static int check_scene_buffers(const ns_context *ctx, const gpu_buffer *scene_bu
 }
 
 /* Runs `per_batch` dispatches of one push block per submission, the last one reporting,
- * until counters[done_counter] reads 0 after a batch. push_report points at the push
- * block's report field. */
+ * until counters[left_counter] reads 0 after a batch. push_report points at the push
+ * block's report field. Returns REPEAT_CUT (err untouched) as soon as an invocation was cut
+ * by the loop limit: the work done so far is wrong and the caller starts again. */
 typedef struct repeat_desc {
     const gpu_pipeline *pipeline;
     gpu_buffer **bound;
@@ -275,6 +284,7 @@ static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *di
     if (!blocks)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: push blocks", r->what);
     uint32_t *c = r->counters->mapped;
+    c[r->limit_counter] = 0;
     int status = NS_OK;
     for (uint32_t batch = 0;; batch++) {
         if (batch >= MAX_BATCHES) {
@@ -297,11 +307,7 @@ static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *di
                                    err);
         *dispatches += per_batch;
         if (!status && c[r->limit_counter])
-            status =
-                ns_fail(err, NS_ERR_LIMIT,
-                        "%s: %u invocation(s) ran past lavapipe's loop limit (65535 iterations "
-                        "per invocation); lower the geometry or pick another device",
-                        r->what, c[r->limit_counter]);
+            status = REPEAT_CUT;
         if (status || c[r->left_counter] == 0)
             break;
         /* More than expected (shadow rays, long walks): grow the batches. */
@@ -317,8 +323,19 @@ static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *di
  * ===================================================================================== */
 enum { T_EMITTERS, T_WALKS, T_VRLS, T_COUNTERS, T_OWN };
 
+static int loop_limit_error(const char *what, uint32_t yield, ns_error *err)
+{
+    return ns_fail(err, NS_ERR_LIMIT,
+                   "%s: invocations ran past lavapipe's loop limit (65535 iterations per "
+                   "invocation) even when yielding after %u counted iterations; lower the "
+                   "geometry (planes, meshes) or pick another device",
+                   what, yield);
+}
+
+/* offsets: NULL in the count pass; each path's first VRL slot in the write pass. */
 static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *own,
-                      GpuVrlTracePush *push, ns_error *err)
+                      GpuVrlTracePush *push, const uint32_t *offsets, uint32_t *restarts,
+                      ns_error *err)
 {
     gpu_buffer *bound[8];
     for (int i = 0; i < 3; i++)
@@ -327,32 +344,46 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
     for (int i = 0; i < T_OWN; i++)
         bound[4 + i] = &own[i];
     const GpuParams *params = scene_buffers[0].mapped;
-    push->yield_after = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
-    uint32_t dispatches = 0;
-    return repeat_until_done(
-        ctx,
-        &(repeat_desc){.pipeline = &ctx->vrl_trace,
-                       .bound = bound,
-                       .groups = (push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
-                       .push = push,
-                       .push_report = &push->report,
-                       .counters = &own[T_COUNTERS],
-                       .left_counter = NS_VRL_TRACE_ACTIVE,
-                       .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
-                       .per_batch = params->limits[0] ? 4 : 1,
-                       .what = "vrl method: light paths"},
-        &dispatches, err);
+    GpuVrlWalk *walks = own[T_WALKS].mapped;
+    uint32_t yield = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
+    for (;;) {
+        memset(walks, 0, sizeof *walks * push->path_count);
+        for (uint32_t i = 0; offsets && i < push->path_count; i++)
+            walks[i].count[1] = offsets[i];
+        ((uint32_t *)own[T_COUNTERS].mapped)[NS_VRL_TRACE_TRUNCATED] = 0;
+        push->yield_after = yield;
+        uint32_t dispatches = 0;
+        int status = repeat_until_done(
+            ctx,
+            &(repeat_desc){.pipeline = &ctx->vrl_trace,
+                           .bound = bound,
+                           .groups =
+                               (push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
+                           .push = push,
+                           .push_report = &push->report,
+                           .counters = &own[T_COUNTERS],
+                           .left_counter = NS_VRL_TRACE_ACTIVE,
+                           .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
+                           .per_batch = yield ? 4 : 1,
+                           .what = "vrl method: light paths"},
+            &dispatches, err);
+        if (status != REPEAT_CUT)
+            return status;
+        if (!yield || yield <= MIN_YIELD)
+            return loop_limit_error("vrl method: light paths", yield, err);
+        yield /= 4;
+        ++*restarts;
+    }
 }
 
-/* After the count pass: each path's VRL count becomes its first slot; the walks restart. */
-static int offsets_from_counts(GpuVrlWalk *walks, uint32_t paths, uint32_t *total, ns_error *err)
+/* After the count pass: each path's VRL count becomes its first slot. */
+static int offsets_from_counts(const GpuVrlWalk *walks, uint32_t paths, uint32_t *offsets,
+                               uint32_t *total, ns_error *err)
 {
     uint64_t sum = 0;
     for (uint32_t i = 0; i < paths; i++) {
-        uint32_t n = walks[i].count[0];
-        memset(&walks[i], 0, sizeof walks[i]);
-        walks[i].count[1] = (uint32_t)(sum < UINT32_MAX ? sum : UINT32_MAX);
-        sum += n;
+        offsets[i] = (uint32_t)(sum < UINT32_MAX ? sum : UINT32_MAX);
+        sum += walks[i].count[0];
     }
     if (sum > VRL_METHOD_MAX_VRLS)
         return ns_fail(err, NS_ERR_LIMIT,
@@ -365,9 +396,13 @@ static int offsets_from_counts(GpuVrlWalk *walks, uint32_t paths, uint32_t *tota
 
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
                         gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
-                        ns_error *err)
+                        uint32_t *restarts, ns_error *err)
 {
     memset(out, 0, sizeof *out);
+    uint32_t restarts_here = 0;
+    if (!restarts)
+        restarts = &restarts_here;
+    *restarts = 0;
     if (!ctx || !scene || !gs)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "vrl method: %s is NULL",
                        !ctx     ? "ctx"
@@ -398,8 +433,11 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, T_OWN, err);
     GpuVrlTracePush push = {.path_count = paths, .emitter_count = emitters.count, .seed = seed};
+    uint32_t *offsets = status ? NULL : malloc(sizeof *offsets * paths);
+    if (!status && !offsets)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u paths", paths);
     if (!status)
-        status = trace_pass(ctx, scene_buffers, own, &push, err);
+        status = trace_pass(ctx, scene_buffers, own, &push, NULL, restarts, err);
     /* The reference path tracer refuses the same (pt.c): a trapped path's flux is lost. */
     const uint32_t *counters = own[T_COUNTERS].mapped;
     if (!status && counters[NS_VRL_TRACE_TRUNCATED])
@@ -409,7 +447,7 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
                          counters[NS_VRL_TRACE_TRUNCATED], (unsigned)NS_VRL_MAX_BOUNDARY_RUN);
     uint32_t total = 0;
     if (!status)
-        status = offsets_from_counts(own[T_WALKS].mapped, paths, &total, err);
+        status = offsets_from_counts(own[T_WALKS].mapped, paths, offsets, &total, err);
     if (!status && total) {
         gpu_buffer_destroy(&ctx->dev, &own[T_VRLS]);
         status = gpu_buffer_create(&ctx->dev, &own[T_VRLS],
@@ -420,7 +458,7 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
         push.write = 1;
         push.vrl_capacity = total;
         if (!status)
-            status = trace_pass(ctx, scene_buffers, own, &push, err);
+            status = trace_pass(ctx, scene_buffers, own, &push, offsets, restarts, err);
     }
     /* The write pass must have made exactly the counted VRLs (same random numbers). */
     const GpuVrlWalk *walks = own[T_WALKS].mapped;
@@ -441,6 +479,7 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     }
     for (int i = 0; i < T_OWN; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
+    free(offsets);
     free(emitters.items);
     if (status) {
         free(out->vrls);
@@ -484,33 +523,48 @@ enum { G_VRLS, G_RESULTS, G_COUNTERS, G_OWN };
 static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *counters,
                            uint32_t segment_count, uint32_t material, uint32_t first, uint32_t end,
                            uint32_t seed, int visibility, int loop_limited, uint32_t *dispatches,
-                           ns_error *err)
+                           uint32_t *restarts, ns_error *err)
 {
     uint32_t yield = !loop_limited ? 0
                      : visibility  ? GATHER_YIELD_VISIBILITY
                                    : GATHER_YIELD_LAVAPIPE;
-    GpuVrlGatherPush push = {.first_vrl = first,
-                             .end_vrl = end,
-                             .segment_count = segment_count,
-                             .material = material,
-                             .seed = seed,
-                             .yield_after = yield,
-                             .visibility = visibility ? 1u : 0u};
-    /* Without shadow rays every VRL costs one counted iteration: this many dispatches finish. */
-    uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
-    return repeat_until_done(
-        ctx,
-        &(repeat_desc){.pipeline = &ctx->vrl_gather,
-                       .bound = bound,
-                       .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
-                       .push = &push,
-                       .push_report = &push.report,
-                       .counters = counters,
-                       .left_counter = NS_VRL_GATHER_UNFINISHED,
-                       .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
-                       .per_batch = per_batch,
-                       .what = "vrl method: gather"},
-        dispatches, err);
+    const GpuSegment *segs = bound[4]->mapped;
+    GpuVrlResult *results = bound[6]->mapped;
+    for (;;) {
+        /* This material's segments start (again) from nothing. */
+        for (uint32_t i = 0; i < segment_count; i++)
+            if (segs[i].material == material)
+                memset(&results[i], 0, sizeof results[i]);
+        GpuVrlGatherPush push = {.first_vrl = first,
+                                 .end_vrl = end,
+                                 .segment_count = segment_count,
+                                 .material = material,
+                                 .seed = seed,
+                                 .yield_after = yield,
+                                 .visibility = visibility ? 1u : 0u};
+        /* Without shadow rays a VRL costs one counted iteration: this many dispatches finish. */
+        uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
+        int status =
+            repeat_until_done(ctx,
+                              &(repeat_desc){.pipeline = &ctx->vrl_gather,
+                                             .bound = bound,
+                                             .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) /
+                                                       NS_VRL_METHOD_GROUP,
+                                             .push = &push,
+                                             .push_report = &push.report,
+                                             .counters = counters,
+                                             .left_counter = NS_VRL_GATHER_UNFINISHED,
+                                             .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
+                                             .per_batch = per_batch,
+                                             .what = "vrl method: gather"},
+                              dispatches, err);
+        if (status != REPEAT_CUT)
+            return status;
+        if (!yield || yield <= MIN_YIELD)
+            return loop_limit_error("vrl method: gather", yield, err);
+        yield /= 4;
+        ++*restarts;
+    }
 }
 
 static int check_gather_buffers(const gpu_buffer *segments, uint32_t segment_count,
@@ -574,9 +628,10 @@ static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_s
     for (uint32_t m = 0; !status && m < gs->material_count; m++) {
         if (!used[m] || first[m + 1] == first[m])
             continue;
-        status = gather_material(ctx, bound, &own[G_COUNTERS], segment_count, m, first[m],
-                                 first[m + 1], seed, visibility && visibility[m],
-                                 ctx->dev.loop_limited, &counts->dispatches, err);
+        status =
+            gather_material(ctx, bound, &own[G_COUNTERS], segment_count, m, first[m], first[m + 1],
+                            seed, visibility && visibility[m], ctx->dev.loop_limited,
+                            &counts->dispatches, &counts->restarts, err);
         counts->interactions += per_material[m] * (first[m + 1] - first[m]);
     }
     if (!status)
@@ -720,7 +775,7 @@ int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_sc
         return status;
     ns_vrl_set set = {0};
     status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls,
-                                 scene->render.seed, &set, err);
+                                 scene->render.seed, &set, NULL, err);
     uint8_t visibility[NS_MAX_MATERIALS];
     visibility_per_material(scene, visibility);
     ns_vrl_gather_counts counts = {0};

@@ -8,15 +8,17 @@
 #include "vrl_method_shared.h"
 
 /* Traces `paths` light paths towards the scene's scattering media and returns every stretch
- * inside a medium as a VRL (out->vrls malloc'd, in path order; free(out->vrls)). */
+ * inside a medium as a VRL (out->vrls malloc'd, in path order; free(out->vrls)). restarts
+ * (may be NULL): passes started again after lavapipe cut an invocation (tests). */
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
                         gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
-                        ns_error *err);
+                        uint32_t *restarts, ns_error *err);
 
 typedef struct ns_vrl_gather_counts {
     uint64_t interactions; /* (segment, VRL) pairs evaluated */
     uint64_t nonfinite;    /* pair estimates dropped as NaN/Inf (0 when healthy) */
     uint32_t dispatches;
+    uint32_t restarts; /* material gathers started again after lavapipe cut an invocation */
 } ns_vrl_gather_counts;
 
 /* Gathers vrls[0, vrl_count) (any materials, any order) into out_double / out_multiple (vec4
