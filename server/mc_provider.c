@@ -22,6 +22,10 @@ struct ns_mc_provider {
     double collisions;
     unsigned threads, lobe_in, lobe_out;
     ns_mc_provider_counts counts;
+    /* The last double table seen, divided by its a^2: the double table of any albedo of
+     * unit_g is this times a^2 (see mc_provider.h). */
+    float *unit_double;
+    double unit_g;
 };
 
 static int fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
@@ -110,7 +114,12 @@ int ns_mc_provider_create(const ns_mc_provider_desc *desc, ns_mc_provider **out,
     return NS_OK;
 }
 
-void ns_mc_provider_destroy(ns_mc_provider *p) { free(p); }
+void ns_mc_provider_destroy(ns_mc_provider *p)
+{
+    if (p)
+        free(p->unit_double);
+    free(p);
+}
 
 const char *ns_mc_provider_dir(const ns_mc_provider *p) { return p->dir; }
 
@@ -198,6 +207,40 @@ static const char *cache_file_problem(const ns_table *t, double g, double albedo
     return NULL;
 }
 
+/* Keeps the double table of (g, albedo) per unit a^2 for the other albedos of g. */
+static void remember_double(ns_mc_provider *p, double g, double albedo, const float *j)
+{
+    if (!(albedo > 0.0))
+        return;
+    if (!p->unit_double && !(p->unit_double = malloc(CELLS * sizeof(float))))
+        return; /* only an optimisation */
+    float k = (float)(1.0 / (albedo * albedo));
+    for (size_t i = 0; i < CELLS; i++)
+        p->unit_double[i] = j[i] * k;
+    p->unit_g = g;
+}
+
+/* The double table of (g, albedo) from the remembered one, as a table to write and serve;
+ * 0 when there is none for this g. */
+static int rescale_double(ns_mc_provider *p, double g, double albedo, ns_table *t)
+{
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    if (!p->unit_double || p->unit_g != g || ns_table_create(t, n, NULL))
+        return 0;
+    ns_mc_default_edges(t);
+    t->order = NS_ORDER_DOUBLE;
+    t->g = g;
+    t->albedo = albedo;
+    t->photons = budget_photons(p, NS_ORDER_DOUBLE, albedo);
+    t->seed = NS_MC_PROVIDER_SEED;
+    float k = (float)(albedo * albedo);
+    for (size_t i = 0; i < CELLS; i++)
+        t->data[i] = p->unit_double[i] * k;
+    t->energy_expected = ns_mc_expected_energy(NS_ORDER_DOUBLE, albedo);
+    t->energy_captured = ns_table_energy(t);
+    return 1;
+}
+
 /* 1 and out filled when a usable cache file exists; 0 otherwise (missing or rejected). */
 static int read_cached(ns_mc_provider *p, double g, double albedo, ns_order order, float *out)
 {
@@ -261,6 +304,8 @@ static int simulate(ns_mc_provider *p, double g, double albedo, ns_order order,
         return status;
     p->counts.simulations++;
     memcpy(out, r.table[order].data, CELLS * sizeof(float));
+    if (order == NS_ORDER_DOUBLE)
+        remember_double(p, g, albedo, out);
     write_cached(p, &r.table[order], g, albedo, order);
     ns_mc_result_free(&r);
     return NS_OK;
@@ -278,6 +323,16 @@ int ns_mc_provider_tables(void *user, double g, double albedo, float *j_double, 
     int have[2];
     for (int o = 0; o < 2; o++)
         have[o] = read_cached(p, g, albedo, (ns_order)o, out[o]);
+    if (have[0])
+        remember_double(p, g, albedo, j_double);
+    ns_table rescaled;
+    if (!have[0] && rescale_double(p, g, albedo, &rescaled)) {
+        memcpy(j_double, rescaled.data, CELLS * sizeof(float));
+        write_cached(p, &rescaled, g, albedo, NS_ORDER_DOUBLE);
+        ns_table_free(&rescaled);
+        p->counts.doubles_rescaled++;
+        have[0] = 1;
+    }
     if (have[0] && have[1])
         return NS_OK;
     /* The lobe matrix depends on g only: one for both orders. */

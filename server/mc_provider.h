@@ -6,6 +6,11 @@
  * for the same material on any machine) and keeps the two tables (double, multiple) on disk
  * in the table_io .npy + .json format, so a material costs its simulation once per machine.
  *
+ * Double scattering depends on the albedo only through the factor a^2 (events 1 and 2 never
+ * absorb in the tracer, and the budget gives every albedo the same photons), so once a g has
+ * one double table the others of that g are that table times (a / a0)^2: an RGB material
+ * pays one double simulation, not three.
+ *
  * Cache directory: desc.cache_dir, else $NSCATTER_CACHE_DIR, else $XDG_CACHE_HOME/nscatter,
  * else $HOME/.cache/nscatter (created on first write). Files: mc_g<G>_a<A>_<order>.npy/.json
  * with G and A printed exactly (%.17g). Writes are atomic (table_io). A cache file is never
@@ -52,6 +57,7 @@ void ns_mc_provider_attach(ns_context_desc *desc);
 /* What the provider did so far (tests, logs). */
 typedef struct ns_mc_provider_counts {
     uint32_t simulations; /* ns_mc_run calls (one per order computed) */
+    uint32_t doubles_rescaled; /* double tables made from another albedo's of the same g */
     uint32_t files_read;  /* tables served from the cache directory */
     uint32_t files_rejected; /* cache files that failed a check and were recomputed */
     uint32_t write_failures; /* tables computed but not saved (the render still got them) */
