@@ -409,16 +409,18 @@ async function run() {
 
     await step('invalid scattering settings list their JSON pointers', async () => {
       const scene = structuredClone(defaultScene);
-      Object.assign(scene.render, { vrls: 0, gather_tile: 17, accumulation: 'fast', cull_solid_angle: -1 });
+      Object.assign(scene.render, { vrls: 0, gather_tile: 17, single_samples: 'many', accumulation: 'fast', cull_solid_angle: -1 });
       await setEditor(page, JSON.stringify(scene, null, 2));
       // The controls follow typing after a short pause.
       const followed = await page.waitForFunction(() => document.getElementById('accumulation').value === 'fast', null, { timeout: 5000 })
         .then(() => true, () => false);
       check('an unknown accumulation is shown as it is', followed, await page.locator('#accumulation').inputValue());
+      check('a non-number single_samples marks its field (not shown as the default)',
+        (await page.locator('#single-samples').getAttribute('aria-invalid')) === 'true');
       await renderAndWait(page);
       const text = await problemText(page);
       check('error panel names status 422', /\b422\b/.test(text), text);
-      for (const key of ['vrls', 'gather_tile', 'accumulation', 'cull_solid_angle']) {
+      for (const key of ['vrls', 'gather_tile', 'single_samples', 'accumulation', 'cull_solid_angle']) {
         const pointer = `/render/${key}`;
         check(`pointer ${pointer} is listed`, (await page.locator('#problem-errors button.pointer', { hasText: pointer }).count()) === 1, text);
       }

@@ -404,14 +404,18 @@ function readControls() {
 /* Method, accumulation and the scattering numbers. A value the page does not know (a typo
  * the server will reject with its pointer) is shown as it is rather than replaced. */
 function readRenderSettings(render) {
-  const method = typeof render.method === 'string' ? render.method : DEFAULT_METHOD;
+  const method = render.method === undefined ? DEFAULT_METHOD : String(render.method);
   setSelectValue(controls.method, method);
   showMethodComponents(method);
-  setSelectValue(controls.accumulation, typeof render.accumulation === 'string' ? render.accumulation : DEFAULT_ACCUMULATION);
+  setSelectValue(controls.accumulation, render.accumulation === undefined ? DEFAULT_ACCUMULATION : String(render.accumulation));
   for (const field of controls.scatterNumbers) {
-    field.input.removeAttribute('aria-invalid');
     const value = render[field.key];
-    field.input.value = typeof value === 'number' && Number.isFinite(value) ? String(value) : '';
+    const isNumber = typeof value === 'number' && Number.isFinite(value);
+    field.input.value = isNumber ? String(value) : '';
+    /* A non-number in the text cannot be shown in a number field: mark it instead of
+     * letting the empty field pass for the default. */
+    if (value !== undefined && !isNumber) field.input.setAttribute('aria-invalid', 'true');
+    else field.input.removeAttribute('aria-invalid');
   }
 }
 
