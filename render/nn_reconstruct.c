@@ -265,6 +265,12 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
         gp->info[2] = 0;
         return dispatch_table(dev, nn, &nn->pipeline, out, NULL, cells, channels, err);
     }
+    uint32_t rows = cells / gp->counts[3], row_groups = (rows + NS_NN_GROUP - 1) / NS_NN_GROUP;
+    if (row_groups > 65535) /* Vulkan's guaranteed workgroup count per dimension */
+        return ns_fail(err, NS_ERR_LIMIT,
+                       "table of %u rows along phi: interpolation needs at most %u (use fewer "
+                       "cells or more phi bins)",
+                       rows, 65535 * NS_NN_GROUP);
     gpu_buffer t = {0};
     int status =
         gpu_buffer_create(dev, &t,
@@ -280,11 +286,9 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
     if (!status) {
         /* nn_interpolate.comp: one invocation per row of cells along phi. */
         gp->info[0] = cells;
-        uint32_t rows = cells / gp->counts[3];
         gpu_buffer *bound[3] = {&nn->params, out, &t};
-        status =
-            gpu_dispatch(dev, &nn->interpolate, bound, 3,
-                         (uint32_t[3]){(rows + NS_NN_GROUP - 1) / NS_NN_GROUP, channels, 2}, err);
+        status = gpu_dispatch(dev, &nn->interpolate, bound, 3,
+                              (uint32_t[3]){row_groups, channels, 2}, err);
     }
     gpu_buffer_destroy(dev, &t);
     return status;
