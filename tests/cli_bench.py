@@ -18,7 +18,7 @@ SIZE = 16
 # The cheapest scene (a sphere primitive, index matched) and methods that need no tables.
 TINY = ["--scenes", "cloud", "--methods", "nn_surface,pt", "--width", str(SIZE), "--height",
         str(SIZE), "--ref-spp", "4", "--pt-spp", "1,2", "--repeat", "1"]
-NUMERIC_COLUMNS = ["VRLs", "spp", "time ms", "first ms", "PSNR dB", "RMSE", "rel. err",
+NUMERIC_COLUMNS = ["render.vrls", "VRLs", "spp", "time ms", "first ms", "PSNR dB", "RMSE", "rel. err",
                    "interactions", "table MB", "weights KB"]
 
 
