@@ -316,7 +316,9 @@ async function run() {
       await typeNumber(page, '#vrls', '2000');
       await typeNumber(page, '#gather-tile', '8');
       await typeNumber(page, '#single-samples', '20');
-      await page.locator('#accumulation').selectOption('paper');
+      // By keyboard, as a user without a mouse would: focus and arrow down to "paper".
+      await page.locator('#accumulation').focus();
+      await page.keyboard.press('ArrowDown');
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
