@@ -26,17 +26,20 @@ layout(push_constant) uniform PushBlock { GpuGatherPush push; };
 const float PI = 3.14159265358979;
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
 
-// The table's direction bin for a direction w seen from a VRL (origin, axis d) at a point
-// whose radial unit vector is e_rho: theta from d, phi from e_rho (mirror-symmetric).
-uint direction_bin(vec3 w, vec3 d, vec3 e_rho)
+// The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
+uint theta_bin(vec3 w, vec3 d)
 {
     float cos_theta = clamp(dot(w, d), -1.0, 1.0);
-    vec3 w_perp = w - cos_theta * d;
+    return min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
+}
+
+// The phi bin at a point whose radial unit vector is e_rho (mirror-symmetric about it).
+uint phi_bin(vec3 w, vec3 d, vec3 e_rho)
+{
+    vec3 w_perp = w - dot(w, d) * d;
     float perp = length(w_perp);
     float cos_phi = perp > 1e-6 ? clamp(dot(w_perp, e_rho) / perp, -1.0, 1.0) : 1.0;
-    uint it = min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
-    uint ip = min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
-    return it * NS_TABLE_NPHI + ip;
+    return min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
 }
 
 // Spatial part of a table index for (z, rho) in mfp, or -1 beyond the table.
@@ -53,8 +56,9 @@ int spatial_bin(float z_mfp, float rho_mfp)
     return iz * int(NS_TABLE_NRHO) + ir;
 }
 
-// A at point p for light arriving along w, per channel, in mfp units.
-vec3 table_at(GpuVrl v, vec3 p, vec3 w)
+// A at point p for light arriving along w, per channel, in mfp units; theta_row = the
+// theta bin times the phi bin count.
+vec3 table_at(GpuVrl v, vec3 p, vec3 w, uint theta_row)
 {
     vec3 delta = p - v.origin;
     float z = dot(delta, v.direction);
@@ -62,7 +66,7 @@ vec3 table_at(GpuVrl v, vec3 p, vec3 w)
     float rho = length(radial);
     // On the axis any radial direction is as good: the phi bins all meet there.
     vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
-    uint dir = direction_bin(w, v.direction, e_rho);
+    uint dir = theta_row + phi_bin(w, v.direction, e_rho);
     vec3 a = vec3(0.0);
     for (int c = 0; c < 3; c++) {
         float s = params.sigma_t[c];
@@ -84,17 +88,23 @@ vec3 dipole_rd(float r)
     return params.dipole_alpha.xyz / (4.0 * PI) * (real_source + virtual_source);
 }
 
-vec3 contribution(GpuVrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight)
+// exit_matters: e^{-s Lc} is above float resolution in some channel, so A(exit) counts.
+vec3 contribution(GpuVrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
+                  bool exit_matters)
 {
     uint mode = params.counts.w;
     if (mode == NS_GATHER_MODE_DIPOLE)
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
     vec3 s = params.sigma_t.xyz;
+    uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
     vec3 value;
-    if (mode == NS_GATHER_MODE_PAPER)
-        value = paper_weight * table_at(v, seg.entry, w);
-    else
-        value = table_at(v, seg.entry, w) - segment_attenuation * table_at(v, seg.exit, w);
+    if (mode == NS_GATHER_MODE_PAPER) {
+        value = paper_weight * table_at(v, seg.entry, w, theta_row);
+    } else {
+        value = table_at(v, seg.entry, w, theta_row);
+        if (exit_matters)
+            value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+    }
     return v.power * s * s * value;
 }
 
@@ -116,6 +126,10 @@ void main()
     vec3 s = params.sigma_t.xyz;
     vec3 segment_attenuation = exp(-s * length_c);
     vec3 paper_weight = (1.0 - segment_attenuation) / (1.0 - exp(-float(NS_PAPER_ACCUMULATION_MFP)));
+    // A(entry) integrates through the exit, so e^{-s Lc} A(exit) <= A(entry) always; past
+    // ~17 mfp in every channel that term is a 6e-8 fraction of A(exit), far below what the
+    // other VRLs add, and it is not read (half the work on long segments).
+    bool exit_matters = max(segment_attenuation.x, max(segment_attenuation.y, segment_attenuation.z)) > 6e-8;
     vec3 smin = min(seg.entry, seg.exit), smax = max(seg.entry, seg.exit);
     // Dipole mode: only segments that enter from outside see the dipole (render.c gives
     // the others no light), evaluated at their entry point.
@@ -139,14 +153,14 @@ void main()
             vec3 extent = cell.bmax - cell.bmin;
             float radius2 = 0.25 * dot(extent, extent);
             if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
-                sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight);
+                sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight, exit_matters);
                 represented++;
                 interactions++;
                 continue;
             }
         }
         for (uint k = cell.first; k < cell.first + cell.count; k++)
-            sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight);
+            sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
         interactions += cell.count;
     }
     vec4 previous = push.accumulate != 0u ? radiance[index] : vec4(0.0);
