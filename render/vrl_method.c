@@ -823,6 +823,12 @@ static float clampf(float x, float lo, float hi)
     return x < lo ? lo : x > hi ? hi : x;
 }
 
+static float asinh_exp(float x)
+{
+    float root = sqrtf(1.0f + x * x);
+    return x >= 0.0f ? x + root : 1.0f / (root - x);
+}
+
 static void pair_estimate_cpu(const float e[3], const float dc[3], float lc, const GpuVrl *vrl,
                               const GpuMaterial *m, float xi_t, float xi_u, float out[3])
 {
@@ -842,9 +848,14 @@ static void pair_estimate_cpu(const float e[3], const float dc[3], float lc, con
             p[k] = r[k] + t0 * dc[k] - u0 * w[k];
         float h0 = fmaxf(sqrtf(dot3(p, p)), floor_h);
         float kk = s / h0;
-        float a0 = asinhf(-kk * t0), a1 = asinhf(kk * (lc - t0));
-        t = clampf(t0 + sinhf(a0 + (a1 - a0) * xi_t) / kk, 0.0f, lc);
-        inv_pdf_t = (a1 - a0) / s;
+        float span = logf(asinh_exp(kk * (lc - t0)) / asinh_exp(-kk * t0));
+        float big_e = expf(xi_t * span);
+        float q = sqrtf(1.0f / (kk * kk) + t0 * t0);
+        float sinh_part = 0.5f * (big_e - 1.0f / big_e);
+        t = t0 <= 0.0f ? -t0 * (big_e - 1.0f) * (big_e - 1.0f) / (2.0f * big_e) + q * sinh_part
+                       : t0 * (big_e - 1.0f) / big_e + sinh_part / (kk * kk * (q + t0));
+        t = clampf(t, 0.0f, lc);
+        inv_pdf_t = span / s;
     } else {
         t = xi_t * lc;
         inv_pdf_t = lc;

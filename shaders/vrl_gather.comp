@@ -78,6 +78,13 @@ const float PARALLEL_SIN = 1e-3;
 // Distances below this fraction of the segment's length count as touching.
 const float MIN_DISTANCE = 1e-6;
 
+// e^{asinh(x)} = x + sqrt(1 + x^2), without cancellation for negative x.
+float asinh_exp(float x)
+{
+    float root = sqrt(1.0 + x * x);
+    return x >= 0.0 ? x + root : 1.0 / (root - x);
+}
+
 // One sample of the pair's transport per unit Phi (RGB), before the VRL's power.
 vec3 pair_estimate(vec3 e, vec3 dc, float lc, Vrl vrl, GpuMaterial m, float xi_t, float xi_u)
 {
@@ -96,10 +103,20 @@ vec3 pair_estimate(vec3 e, vec3 dc, float lc, Vrl vrl, GpuMaterial m, float xi_t
         float u0 = (ee - b * dd) / sin2;
         float h0 = max(length(r + t0 * dc - u0 * w), floor_h);
         float k = s / h0;
-        float a0 = asinh(-k * t0), a1 = asinh(k * (lc - t0));
-        t = clamp(t0 + sinh(mix(a0, a1, xi_t)) / k, 0.0, lc);
+        // The inverse CDF t = t0 + sinh(a0 + xi (a1 - a0)) / k with a = asinh(k (t - t0)) at
+        // the ends, rearranged so that nothing cancels when t0 lies far outside the segment:
+        // with E = e^{xi (a1 - a0)} and q = sqrt(1/k^2 + t0^2),
+        //   t0 <= 0: t = -t0 (E - 1)^2 / (2E) + q (E - 1/E) / 2
+        //   t0 >  0: t = t0 (E - 1) / E + (E - 1/E) / (2 k^2 (q + t0)).
+        float span = log(asinh_exp(k * (lc - t0)) / asinh_exp(-k * t0)); // a1 - a0
+        float big_e = exp(xi_t * span);
+        float q = sqrt(1.0 / (k * k) + t0 * t0);
+        float sinh_part = 0.5 * (big_e - 1.0 / big_e);
+        t = t0 <= 0.0 ? -t0 * (big_e - 1.0) * (big_e - 1.0) / (2.0 * big_e) + q * sinh_part
+                      : t0 * (big_e - 1.0) / big_e + sinh_part / (k * k * (q + t0));
+        t = clamp(t, 0.0, lc);
         // 1 / pdf(t) = (a1 - a0) h(t) / s; h(t) cancels against equiangular 1 / h below.
-        inv_pdf_t = (a1 - a0) / s;
+        inv_pdf_t = span / s;
     } else {
         t = xi_t * lc;
         inv_pdf_t = lc;

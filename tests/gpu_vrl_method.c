@@ -504,6 +504,12 @@ static void test_estimator_mean(void)
     set3(v.origin, 0.7, -0.6, 0.02);
     set3(v.direction, 0, 1, 0);
     check_estimator_mean("nearly crossing", &seg, &v, &m);
+    /* Nearly parallel (sin 0.005, above the parallel threshold), 0.2 apart: the lines' closest
+     * points lie about 40 away, far outside both (the sampling must not cancel there). */
+    set3(v.origin, 0.1, 0.2, 0.0);
+    set3(v.direction, cos(0.005), sin(0.005), 0);
+    v.length = 1.2f;
+    check_estimator_mean("nearly parallel", &seg, &v, &m);
     /* Parallel, 0.25 apart, opposite directions. */
     set3(v.origin, 1.2, 0.25, 0);
     set3(v.direction, -1, 0, 0);
