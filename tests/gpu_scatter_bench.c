@@ -1,0 +1,271 @@
+/* gpu_scatter_bench.c — timings of the scattering stages on a candle-like scene (a block of
+ * the paper's candle wax lit by a flame-like point light and a dim environment), and the
+ * gather's VRL-segment interactions per second against a plain C loop of the same arithmetic
+ * (render/gather.c ns_gather_cpu) on 2 threads, on the same VRLs, segments and table.
+ *
+ * As a test (default) it renders once, small, and checks that every scattering stage and
+ * count is reported. With NSCATTER_BENCH=N it prints the medians of N runs: 256x256 and
+ * 512x512, multiple only and the full solution, with render.vrls = 40000 (the issue's
+ * target scene), then the interaction rates (docs/scattering.md quotes them). */
+#include <pthread.h>
+#include <stdlib.h>
+
+#include "gpu_util.h"
+#include "scatter.h"
+
+static ns_material materials[2];
+static ns_object objects[2];
+static ns_light lights[2];
+
+static ns_scene candle_scene(uint32_t size, uint32_t components, uint32_t vrls)
+{
+    ns_scene s = base_scene(size, size, 30);
+    set3(s.camera.position, 0, 2.5, 9);
+    set3(s.camera.look_at, 0, 1.2, 0);
+    s.render.spp = 1;
+    s.render.components = components;
+    s.render.vrls = vrls;
+    materials[0] = diffuse(0.5, 0.45, 0.4);
+    /* The paper's Table 1 candle: albedo 0.98 0.962 0.75, mfp 0.65 0.63 0.59, g 0.8. */
+    const double albedo[3] = {0.98, 0.962, 0.75}, mfp[3] = {0.65, 0.63, 0.59};
+    double sigma_s[3], sigma_a[3];
+    for (int c = 0; c < 3; c++) {
+        sigma_s[c] = albedo[c] / mfp[c];
+        sigma_a[c] = (1 - albedo[c]) / mfp[c];
+    }
+    materials[1] = medium(sigma_s, sigma_a, 1.45);
+    materials[1].g = 0.8f;
+    objects[0] = plane(-0.001, 0);
+    memset(&objects[1], 0, sizeof objects[1]);
+    objects[1].shape = NS_SHAPE_BOX;
+    objects[1].material = 1;
+    set3(objects[1].min, -1, 0, -1);
+    set3(objects[1].max, 1, 3, 1);
+    lights[0] = light(NS_LIGHT_POINT, 6, 4.5, 2.5);
+    set3(lights[0].position, 0.3, 3.6, 0.2);
+    lights[1] = light(NS_LIGHT_ENVIRONMENT, 0.05, 0.06, 0.08);
+    s.materials = materials;
+    s.material_count = 2;
+    s.objects = objects;
+    s.object_count = 2;
+    s.lights = lights;
+    s.light_count = 2;
+    return s;
+}
+
+static double stage_ms(const ns_render_stats *stats, const char *name)
+{
+    double ms = -1;
+    for (uint32_t i = 0; i < stats->stage_count; i++)
+        if (!strcmp(stats->stages[i].name, name))
+            ms = (ms < 0 ? 0 : ms) + stats->stages[i].ms;
+    return ms;
+}
+
+static void test_stages_reported(void)
+{
+    ns_scene s = candle_scene(48, NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE |
+                                      NS_COMPONENT_MULTIPLE,
+                              2000);
+    ns_image img = {0};
+    ns_render_stats stats = {0};
+    if (!render_ok(&s, &img, &stats))
+        return;
+    const char *names[] = {"ray_pass", "single", "vrl", "grid", "gather", "composite"};
+    for (int i = 0; i < 6; i++)
+        CHECK(stage_ms(&stats, names[i]) >= 0);
+    CHECK(stats.vrl_paths == 2000);
+    CHECK(stats.vrl_count > 500 && stats.vrl_count <= 2000);
+    CHECK(stats.gather_segments > 0 && stats.gather_segments <= stats.camera_segments);
+    CHECK(stats.interactions >= stats.gather_segments);
+    CHECK(stats.table_bytes == 3ull * NS_TABLE_CELLS * sizeof(float));
+    ns_image_free(&img);
+}
+
+static int compare_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, compare_double);
+    return v[n / 2];
+}
+
+#define MAX_RUNS 32
+static void bench_renders(int runs)
+{
+    const char *names[] = {"ray_pass", "reconstruct", "accumulate", "vrl", "grid", "gather", "single", "composite"};
+    enum { NAMES = 8 };
+    const uint32_t sizes[] = {256, 512};
+    const uint32_t sets[] = {NS_COMPONENT_MULTIPLE, NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE |
+                                                        NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE};
+    printf("candle-like scene, 40000 VRL paths, tables cached (warm), median ms of %d runs\n", runs);
+    printf("%-8s %-9s", "size", "solution");
+    for (int k = 0; k < NAMES; k++)
+        printf(" %10s", names[k]);
+    printf(" %10s %8s %12s\n", "total", "VRLs", "interactions");
+    /* One untimed render first: reconstruction and accumulation of the material (cached). */
+    ns_scene warm = candle_scene(32, NS_COMPONENT_MULTIPLE, 1000);
+    ns_image img = {0};
+    if (!render_ok(&warm, &img, NULL))
+        return;
+    ns_image_free(&img);
+    for (int a = 0; a < 2; a++)
+        for (int b = 0; b < 2; b++) {
+            double t[NAMES + 1][MAX_RUNS];
+            ns_render_stats stats = {0};
+            for (int r = 0; r < runs; r++) {
+                ns_scene s = candle_scene(sizes[a], sets[b], 40000);
+                memset(&stats, 0, sizeof stats);
+                double t0 = ns_now_ms();
+                if (!render_ok(&s, &img, &stats))
+                    return;
+                t[NAMES][r] = ns_now_ms() - t0;
+                for (int k = 0; k < NAMES; k++)
+                    t[k][r] = stage_ms(&stats, names[k]);
+                ns_image_free(&img);
+            }
+            printf("%3ux%-4u %-9s", sizes[a], sizes[a], b ? "full" : "multiple");
+            for (int k = 0; k <= NAMES; k++)
+                printf(" %10.1f", median(t[k], runs));
+            printf(" %8llu %12llu\n", (unsigned long long)stats.vrl_count,
+                   (unsigned long long)stats.interactions);
+        }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The gather alone: GPU against ns_gather_cpu on 2 threads, same inputs.
+ * ------------------------------------------------------------------------------------- */
+typedef struct cpu_job {
+    const GpuGatherParams *params;
+    const GpuSegment *segments;
+    uint32_t count;
+    const ns_vrl_grid *grid;
+    const float *table;
+    float (*out)[4];
+} cpu_job;
+
+static void *cpu_worker(void *arg)
+{
+    cpu_job *j = arg;
+    ns_gather_cpu(j->params, j->segments, j->count, j->grid, j->table, j->out, NULL);
+    return NULL;
+}
+
+static uint32_t rng_state = 99u;
+static float uniform01(void)
+{
+    rng_state = rng_state * 1664525u + 1013904223u;
+    return (float)(rng_state >> 8) * (1.0f / 16777216.0f);
+}
+
+static void bench_gather(int runs)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    const GpuMaterial *unused = NULL;
+    (void)unused;
+    /* The candle material's tables (exact accumulation, double + multiple). */
+    ns_table_key key = {.source = NS_METHOD_NN, .g = 0.8f, .albedo = {0.98f, 0.962f, 0.75f},
+                        .orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE};
+    const ns_scatter_tables *tables = NULL;
+    if (ns_tables_get(ctx, &key, &tables, NULL, &err)) {
+        fprintf(stderr, "tables: %s\n", err.message);
+        return;
+    }
+    const uint32_t vrl_count = 40000, cells = 64, segment_count = 4096;
+    ns_vrl_grid grid = {0};
+    grid.vrls = calloc(vrl_count, sizeof *grid.vrls);
+    grid.cells = calloc(cells, sizeof *grid.cells);
+    grid.representatives = calloc(cells, sizeof *grid.representatives);
+    grid.vrl_count = vrl_count;
+    grid.cell_count = cells;
+    for (uint32_t i = 0; i < vrl_count; i++) {
+        GpuVrl *v = &grid.vrls[i];
+        set3(v->origin, 2 * uniform01() - 1, 3 * uniform01(), 2 * uniform01() - 1);
+        float z = -uniform01(), phi = 6.2831853f * uniform01(), r = sqrtf(1 - z * z);
+        set3(v->direction, r * cosf(phi), z, r * sinf(phi));
+        set3(v->power, 1e-4, 1e-4, 1e-4);
+    }
+    for (uint32_t c = 0; c < cells; c++) {
+        grid.cells[c].first = c * (vrl_count / cells);
+        grid.cells[c].count = vrl_count / cells;
+        set3(grid.cells[c].bmin, -1, 0, -1);
+        set3(grid.cells[c].bmax, 1, 3, 1);
+    }
+    GpuSegment *segments = calloc(segment_count, sizeof *segments);
+    for (uint32_t i = 0; i < segment_count; i++) {
+        set3(segments[i].entry, 2 * uniform01() - 1, 3 * uniform01(), 1);
+        set3(segments[i].direction, 0, 0, -1);
+        set3(segments[i].exit, segments[i].entry[0], segments[i].entry[1], -1);
+    }
+    GpuMaterial m = {0};
+    for (int c = 0; c < 3; c++)
+        m.sigma_t[c] = 1.0f / (float)(c == 0 ? 0.65 : c == 1 ? 0.63 : 0.59);
+    m.sigma_t[3] = 1.45f;
+    gpu_buffer seg_buf = {0}, out = {0};
+    gpu_buffer_create(&ctx->dev, &seg_buf,
+                      &(gpu_buffer_desc){.size = sizeof *segments * segment_count, .data = segments,
+                                         .data_size = sizeof *segments * segment_count, .label = "bench"},
+                      &err);
+    gpu_buffer_create(&ctx->dev, &out, &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "bench"}, &err);
+    ns_gather_desc desc = {.segments = &seg_buf, .segment_count = segment_count, .grid = &grid,
+                           .table = &tables->a, .out = &out};
+    ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, tables, 0.0f);
+    double gpu[MAX_RUNS], cpu[MAX_RUNS];
+    for (int r = 0; r < runs; r++) {
+        ns_gather_counts counts;
+        double t0 = ns_now_ms();
+        if (ns_gather_run(ctx, &desc, &counts, &err)) {
+            fprintf(stderr, "gather: %s\n", err.message);
+            break;
+        }
+        gpu[r] = ns_now_ms() - t0;
+    }
+    float(*host)[4] = calloc(segment_count, sizeof *host);
+    GpuGatherParams params = desc.params;
+    params.counts[0] = segment_count;
+    for (int r = 0; r < runs; r++) {
+        pthread_t threads[2];
+        cpu_job jobs[2];
+        double t0 = ns_now_ms();
+        for (int k = 0; k < 2; k++) {
+            uint32_t half = segment_count / 2;
+            jobs[k] = (cpu_job){&params, segments + k * half, half, &grid, tables->a.mapped, host + k * half};
+            pthread_create(&threads[k], NULL, cpu_worker, &jobs[k]);
+        }
+        for (int k = 0; k < 2; k++)
+            pthread_join(threads[k], NULL);
+        cpu[r] = ns_now_ms() - t0;
+    }
+    double pairs = (double)vrl_count * segment_count;
+    double g = median(gpu, runs), c = median(cpu, runs);
+    printf("gather, %u VRLs x %u segments (%.0f M interactions), median of %d:\n", vrl_count,
+           segment_count, pairs / 1e6, runs);
+    printf("  GPU (%s): %8.1f ms  %7.1f M interactions/s\n", ctx->dev.info.device_name, g, pairs / g / 1e3);
+    printf("  C, 2 threads:              %8.1f ms  %7.1f M interactions/s  (GPU / C = %.2f)\n", c,
+           pairs / c / 1e3, c / g);
+    gpu_buffer_destroy(&ctx->dev, &seg_buf);
+    gpu_buffer_destroy(&ctx->dev, &out);
+    free(host);
+    free(segments);
+    free(grid.vrls);
+    free(grid.cells);
+    free(grid.representatives);
+}
+
+int main(void)
+{
+    RUN(test_stages_reported);
+    const char *runs = getenv("NSCATTER_BENCH");
+    if (runs && atoi(runs) > 0) {
+        int n = atoi(runs) < MAX_RUNS ? atoi(runs) : MAX_RUNS;
+        bench_renders(n);
+        bench_gather(n);
+    }
+    ns_context_destroy(test_context());
+    return harness_report();
+}
