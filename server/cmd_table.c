@@ -10,8 +10,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "../offline/cli_util.h"
 #include "../offline/mc.h"
@@ -487,6 +489,17 @@ static int cmp_double(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* CPU seconds of this process, all threads. On a shared machine wall time stretches with
+ * the other processes' load, CPU time much less: CPU time / cores estimates the wall time
+ * on the idle machine. */
+static double process_cpu_seconds(void)
+{
+    struct rusage u;
+    getrusage(RUSAGE_SELF, &u);
+    return (double)u.ru_utime.tv_sec + 1e-6 * (double)u.ru_utime.tv_usec +
+           (double)u.ru_stime.tv_sec + 1e-6 * (double)u.ru_stime.tv_usec;
+}
+
 /* Random normalised inputs in [0, 1). */
 static void random_inputs(float *x, size_t n)
 {
@@ -534,14 +547,14 @@ static void *blas_chunk_run(void *arg)
 
 /* OpenBLAS forward on BLAS_THREADS threads, each its own chunk with single-threaded BLAS
  * (DESIGN.md section 6: faster than letting OpenBLAS thread each call). NAN on failure. */
-static double cpu_blas_rate(const ns_nn_weights *w, const float *x, uint32_t n)
+static double cpu_blas_rate(const ns_nn_weights *w, const float *x, uint32_t n, double *cpu_rate)
 {
     openblas_set_num_threads(1);
     blas_chunk chunk[BLAS_THREADS];
     pthread_t thread[BLAS_THREADS];
     uint32_t per = n / BLAS_THREADS;
     int started = 0;
-    double t0 = now_s();
+    double t0 = now_s(), c0 = process_cpu_seconds();
     for (int t = 0; t < BLAS_THREADS; t++) {
         chunk[t] = (blas_chunk){.w = w, .x = x + (size_t)t * per * NS_NN_INPUTS, .n = per};
         if (pthread_create(&thread[t], NULL, blas_chunk_run, &chunk[t]) == 0)
@@ -554,7 +567,9 @@ static double cpu_blas_rate(const ns_nn_weights *w, const float *x, uint32_t n)
         pthread_join(thread[t], NULL);
         ok = ok && !chunk[t].status;
     }
-    return ok ? per * (double)BLAS_THREADS / (now_s() - t0) : NAN;
+    double evals = per * (double)BLAS_THREADS;
+    *cpu_rate = ok ? evals / (process_cpu_seconds() - c0) : NAN;
+    return ok ? evals / (now_s() - t0) : NAN;
 }
 
 static double median(double *v, int n)
@@ -565,6 +580,7 @@ static double median(double *v, int n)
 
 typedef struct {
     double gpu, total; /* medians, s */
+    double cpu;        /* process CPU time per reconstruction (all threads, lavapipe's too) */
     ns_nn_reconstruct_stats last;
 } timing;
 
@@ -572,7 +588,7 @@ static int time_reconstruction(nn_session *s, const ns_table *shape, const table
                                const ns_nn_sampling *sampling, timing *t)
 {
     const double albedo[3] = {0.97, 0.95, 0.9};
-    double gpu[100], total[100];
+    double gpu[100], total[100], cpu0 = process_cpu_seconds();
     for (int r = 0; r < o->runs; r++) {
         float *out = NULL;
         int rc = reconstruct(s, shape, 0.75, albedo, 3, o->renormalise, sampling, &out, &t->last);
@@ -581,6 +597,7 @@ static int time_reconstruction(nn_session *s, const ns_table *shape, const table
             return rc;
         gpu[r] = t->last.gpu_seconds, total[r] = t->last.total_seconds;
     }
+    t->cpu = (process_cpu_seconds() - cpu0) / o->runs;
     t->gpu = median(gpu, o->runs);
     t->total = median(total, o->runs);
     return 0;
@@ -590,9 +607,11 @@ static void print_timing(const char *label, const timing *t, double flops)
 {
     double rate = t->last.evaluations / t->gpu;
     printf("%s: %llu network evaluations for %llu cells; median %.3f s on the GPU queue, "
-           "%.3f s in all; %.3g evaluations/s (%.1f GFLOP/s), %.3g cells/s\n",
+           "%.3f s in all; %.3g evaluations/s (%.1f GFLOP/s), %.3g cells/s; process CPU "
+           "time %.3f s per reconstruction (/ %ld cores = %.3f s)\n",
            label, (unsigned long long)t->last.evaluations, (unsigned long long)t->last.cells,
-           t->gpu, t->total, rate, rate * flops * 1e-9, t->last.cells / t->total);
+           t->gpu, t->total, rate, rate * flops * 1e-9, t->last.cells / t->total, t->cpu,
+           sysconf(_SC_NPROCESSORS_ONLN), t->cpu / (double)sysconf(_SC_NPROCESSORS_ONLN));
 }
 
 static int run_benchmark(const table_options *o)
@@ -610,6 +629,8 @@ static int run_benchmark(const table_options *o)
     }
     ns_nn_sampling every = ns_nn_sampling_every_cell();
     timing sampled = {0}, full = {0};
+    double load[2][3] = {{0}};
+    getloadavg(load[0], 3);
     rc = time_reconstruction(&s, &shape, o, &o->sampling, &sampled);
     if (!rc && !samples_every_cell(&o->sampling))
         rc = time_reconstruction(&s, &shape, o, &every, &full);
@@ -620,13 +641,16 @@ static int run_benchmark(const table_options *o)
     if (!rc) {
         random_inputs(x, n);
         double scalar = cpu_scalar_rate(s.nets[0], x, n / 4);
-        double blas_runs[3];
+        double blas_runs[3], blas_cpu_runs[3];
         for (int r = 0; r < 3; r++)
-            blas_runs[r] = cpu_blas_rate(s.nets[0], x, n);
+            blas_runs[r] = cpu_blas_rate(s.nets[0], x, n, &blas_cpu_runs[r]);
         double blas = median(blas_runs, 3);
+        double blas_idle = median(blas_cpu_runs, 3) * BLAS_THREADS; /* per CPU s x threads */
         double flops = 2.0 * (NS_NN_PARAMS - 1 - 2 * NS_NN_HIDDEN); /* multiply-adds x 2 */
-        printf("device: %s (pipeline created and warmed in %.2f s)\n",
-               ns_nn_session_device(s.session), startup);
+        getloadavg(load[1], 3);
+        printf("device: %s (pipeline created and warmed in %.2f s); load average %.2f at the "
+               "start, %.2f at the end (1 min)\n",
+               ns_nn_session_device(s.session), startup, load[0][0], load[1][0]);
         printf("RGB material g 0.75, albedo 0.97/0.95/0.9: both orders, %u x %u x %u x %u cells "
                "x 3 channels x 2 orders; times include readback, energy sums%s\n",
                shape.n[0], shape.n[1], shape.n[2], shape.n[3],
@@ -641,10 +665,12 @@ static int run_benchmark(const table_options *o)
         printf("CPU plain C, 1 thread: %.3g evaluations/s (%.1f GFLOP/s)\n", scalar,
                scalar * flops * 1e-9);
         printf("CPU OpenBLAS, %d threads each its own chunk, single-threaded BLAS, batch %d "
-               "(median of 3): %.3g evaluations/s (%.1f GFLOP/s); the sampled table's "
-               "evaluations would take %.2f s\n",
-               BLAS_THREADS, BLAS_BATCH, blas, blas * flops * 1e-9,
-               sampled.last.evaluations / blas);
+               "(median of 3): %.3g evaluations/s (%.1f GFLOP/s); from its CPU time, on %d idle "
+               "cores: %.3g evaluations/s (%.1f GFLOP/s); the sampled table's evaluations "
+               "would take %.2f s, every cell %.2f s\n",
+               BLAS_THREADS, BLAS_BATCH, blas, blas * flops * 1e-9, BLAS_THREADS, blas_idle,
+               blas_idle * flops * 1e-9, sampled.last.evaluations / blas_idle,
+               sampled.last.cells / blas_idle);
     }
     free(x);
     ns_table_free(&shape);
