@@ -163,6 +163,7 @@ int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumu
     float j_max[3];
     channel_max(j, j_max);
     GpuAccumulateParams params = accumulate_params(&grid, j_max, accumulation);
+    int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
 
     gpu_buffer own[B_COUNT];
@@ -172,12 +173,13 @@ int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumu
                       .data_size = sizeof params, .label = "ns.accumulate.params"},
         [B_J] = {.size = table_bytes, .data = j, .data_size = table_bytes,
                  .label = "ns.accumulate.j"},
-        [B_A] = {.size = table_bytes, .uninitialized = 1, .label = "ns.tables.a"},
+        /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
+        [B_A] = {.size = table_bytes, .uninitialized = !all_zero, .label = "ns.tables.a"},
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
-    if (!status) {
+    if (!status && !all_zero) {
         gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS]};
         status = dispatch_accumulate(ctx, bound, err);
     }
@@ -455,6 +457,22 @@ static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruc
     float albedo[3];
     uint32_t n = missing_albedos(ctx->tables, key, albedo);
     *reconstruct_ms = 0.0;
+    /* Albedo 0 (clear glass, a pure absorber) emits nothing after the first event: J is 0
+     * exactly, with no network or simulation to run. */
+    for (uint32_t c = 0; c < n; c++) {
+        if (albedo[c] != 0.0f)
+            continue;
+        cache_entry e;
+        int status = alloc_j_entry(&e, key, 0.0f, err);
+        if (!status) {
+            memset(e.j[0], 0, NS_TABLE_CELLS * sizeof(float));
+            memset(e.j[1], 0, NS_TABLE_CELLS * sizeof(float));
+            status = insert_j_entry(ctx->tables, &e, err);
+        }
+        if (status)
+            return status;
+        albedo[c--] = albedo[--n];
+    }
     if (!n)
         return NS_OK;
     double t0 = ns_now_ms();

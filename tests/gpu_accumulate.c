@@ -484,6 +484,24 @@ static void test_cache_hit_and_eviction(void)
     CHECK_INT(ctx->dev.live_buffers, 0); /* cached tables are the context's, not a leak */
 }
 
+/* Albedo 0 (clear glass): J and A are 0 exactly, without the network or a walk. */
+static void test_zero_albedo_costs_nothing(void)
+{
+    ns_table_key key = nn_key;
+    key.albedo[0] = key.albedo[1] = key.albedo[2] = 0.0f;
+    ns_table_stats stats;
+    const float *a = get_tables(&key, &stats);
+    if (!a)
+        return;
+    CHECK(stats.reconstruct_ms == 0.0 && !stats.cache_hit);
+    int nonzero = 0;
+    for (size_t i = 0; i < 3 * cells; i++)
+        nonzero += a[i] != 0.0f;
+    CHECK_INT(nonzero, 0);
+    const float *j = ns_tables_cached_j(test_context(), NS_METHOD_NN, 0.5f, 0.0f, 1);
+    CHECK(j && j[0] == 0.0f && j[cells - 1] == 0.0f);
+}
+
 static void test_bad_keys(void)
 {
     ns_context *ctx = test_context();
@@ -583,6 +601,7 @@ int main(void)
     RUN(test_closed_form_exponential);
     RUN(test_network_tables_brute_force);
     RUN(test_cache_hit_and_eviction);
+    RUN(test_zero_albedo_costs_nothing);
     RUN(test_bad_keys);
     ns_context_destroy(test_context());
     return harness_report();
