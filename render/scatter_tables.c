@@ -35,11 +35,11 @@ typedef enum { ENTRY_J, ENTRY_A } entry_kind;
 /* One cache entry: J of one channel (both orders, host memory) or A of a whole key. */
 typedef struct cache_entry {
     entry_kind kind;
-    ns_method source;      /* J */
-    float g, albedo;       /* J */
-    float *j[2];           /* J: double, multiple (NS_TABLE_CELLS each) */
-    ns_table_key key;      /* A */
-    ns_scatter_tables a;   /* A */
+    ns_method source;    /* J */
+    float g, albedo;     /* J */
+    float *j[2];         /* J: double, multiple (NS_TABLE_CELLS each) */
+    ns_table_key key;    /* A */
+    ns_scatter_tables a; /* A */
     uint64_t bytes;
     uint64_t last_use;
 } cache_entry;
@@ -51,7 +51,10 @@ struct ns_table_cache {
     uint64_t clock;
 };
 
-static double table_ms_since(double t0) { return ns_now_ms() - t0; }
+static double table_ms_since(double t0)
+{
+    return ns_now_ms() - t0;
+}
 
 /* ---------------------------------------------------------------------------------------
  * Grid
@@ -76,7 +79,10 @@ void ns_table_grid_default(ns_table_grid *g)
 /* ---------------------------------------------------------------------------------------
  * Context-lifetime buffers (see the header comment)
  * ------------------------------------------------------------------------------------- */
-static void keep_buffer(gpu_device *dev) { __atomic_sub_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST); }
+static void keep_buffer(gpu_device *dev)
+{
+    __atomic_sub_fetch(&dev->live_buffers, 1, __ATOMIC_SEQ_CST);
+}
 static void destroy_kept_buffer(gpu_device *dev, gpu_buffer *b)
 {
     if (b->buffer)
@@ -134,8 +140,8 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
     for (uint32_t i = 0; i < dispatches; i++) {
         uint32_t first = i * CELLS_PER_DISPATCH;
         uint32_t n = NS_TABLE_CELLS - first;
-        push[i] = (GpuAccumulatePush){.first_cell = first,
-                                      .cell_count = n < CELLS_PER_DISPATCH ? n : CELLS_PER_DISPATCH};
+        push[i] = (GpuAccumulatePush){
+            .first_cell = first, .cell_count = n < CELLS_PER_DISPATCH ? n : CELLS_PER_DISPATCH};
     }
     return gpu_dispatch_many(
         &ctx->dev,
@@ -169,9 +175,14 @@ int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumu
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
     gpu_buffer_desc descs[B_COUNT] = {
-        [B_PARAMS] = {.size = sizeof params, .kind = GPU_BUFFER_UNIFORM, .data = &params,
-                      .data_size = sizeof params, .label = "ns.accumulate.params"},
-        [B_J] = {.size = table_bytes, .data = j, .data_size = table_bytes,
+        [B_PARAMS] = {.size = sizeof params,
+                      .kind = GPU_BUFFER_UNIFORM,
+                      .data = &params,
+                      .data_size = sizeof params,
+                      .label = "ns.accumulate.params"},
+        [B_J] = {.size = table_bytes,
+                 .data = j,
+                 .data_size = table_bytes,
                  .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
         [B_A] = {.size = table_bytes, .uninitialized = !all_zero, .label = "ns.tables.a"},
@@ -219,8 +230,8 @@ void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t)
 static int same_key(const ns_table_key *a, const ns_table_key *b)
 {
     return a->source == b->source && a->g == b->g && a->albedo[0] == b->albedo[0] &&
-           a->albedo[1] == b->albedo[1] && a->albedo[2] == b->albedo[2] &&
-           a->orders == b->orders && a->accumulation == b->accumulation;
+           a->albedo[1] == b->albedo[1] && a->albedo[2] == b->albedo[2] && a->orders == b->orders &&
+           a->accumulation == b->accumulation;
 }
 
 static cache_entry *find_a(struct ns_table_cache *cache, const ns_table_key *key)
@@ -241,7 +252,10 @@ static cache_entry *find_j(struct ns_table_cache *cache, ns_method source, float
     return NULL;
 }
 
-static void touch(struct ns_table_cache *cache, cache_entry *e) { e->last_use = ++cache->clock; }
+static void touch(struct ns_table_cache *cache, cache_entry *e)
+{
+    e->last_use = ++cache->clock;
+}
 
 static void free_entry(ns_context *ctx, cache_entry *e)
 {
@@ -425,8 +439,8 @@ static int check_j_pair(float *const j[2], float albedo, ns_error *err)
     return NS_OK;
 }
 
-static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *albedo,
-                         uint32_t n, ns_error *err)
+static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
+                         ns_error *err)
 {
     if (!ctx->mc_tables)
         return ns_fail(err, NS_ERR_NOT_AVAILABLE,
@@ -451,8 +465,7 @@ static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *
 }
 
 /* J of each channel for key: the network's or the provider's, computed once per albedo. */
-static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruct_ms,
-                    ns_error *err)
+static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruct_ms, ns_error *err)
 {
     float albedo[3];
     uint32_t n = missing_albedos(ctx->tables, key, albedo);
@@ -493,6 +506,11 @@ static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_
     int want_multiple = (key->orders & NS_COMPONENT_MULTIPLE) != 0;
     for (int c = 0; c < 3; c++) {
         cache_entry *e = find_j(ctx->tables, key->source, key->g, key->albedo[c]);
+        if (!e) { /* ensure_j put every channel there just before */
+            free(j);
+            return ns_fail(err, NS_ERR_INTERNAL, "tables: J of albedo %g vanished from the cache",
+                           (double)key->albedo[c]);
+        }
         touch(ctx->tables, e);
         float *dst = j + c * cells;
         for (size_t i = 0; i < cells; i++)

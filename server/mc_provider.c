@@ -28,7 +28,8 @@ struct ns_mc_provider {
     double unit_g;
 };
 
-static int fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static int fail(ns_error *err, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 static int fail(ns_error *err, int status, const char *fmt, ...)
 {
     if (err) {
@@ -121,7 +122,10 @@ void ns_mc_provider_destroy(ns_mc_provider *p)
     free(p);
 }
 
-const char *ns_mc_provider_dir(const ns_mc_provider *p) { return p->dir; }
+const char *ns_mc_provider_dir(const ns_mc_provider *p)
+{
+    return p->dir;
+}
 
 void ns_mc_provider_get_counts(const ns_mc_provider *p, ns_mc_provider_counts *out)
 {
@@ -167,7 +171,10 @@ static void file_prefix(const ns_mc_provider *p, double g, double albedo, ns_ord
     snprintf(prefix, PATH_CAP, "%s/mc_g%.17g_a%.17g_%s", p->dir, g, albedo, ns_order_name(order));
 }
 
-static int near(double a, double b, double rel) { return fabs(a - b) <= rel * fmax(fabs(a), fabs(b)); }
+static int near(double a, double b, double rel)
+{
+    return fabs(a - b) <= rel * fmax(fabs(a), fabs(b));
+}
 
 /* Why the table read from disk cannot be used for (g, albedo, order), or NULL. */
 static const char *cache_file_problem(const ns_table *t, double g, double albedo, ns_order order,
@@ -286,8 +293,8 @@ static void write_cached(ns_mc_provider *p, const ns_table *t, double g, double 
     }
 }
 
-static int simulate(ns_mc_provider *p, double g, double albedo, ns_order order,
-                    const double *lobe, float *out, ns_error *err)
+static int simulate(ns_mc_provider *p, double g, double albedo, ns_order order, const double *lobe,
+                    float *out, ns_error *err)
 {
     ns_mc_desc desc = {.g = g,
                        .albedo = albedo,

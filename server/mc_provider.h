@@ -30,9 +30,9 @@
 #define NS_MC_PROVIDER_SEED 1u
 
 typedef struct ns_mc_provider_desc {
-    const char *cache_dir;  /* NULL: the environment's (see above) */
-    double collisions;      /* per order's simulation; 0: NS_MC_PROVIDER_COLLISIONS */
-    unsigned threads;       /* 0: all online cores */
+    const char *cache_dir; /* NULL: the environment's (see above) */
+    double collisions;     /* per order's simulation; 0: NS_MC_PROVIDER_COLLISIONS */
+    unsigned threads;      /* 0: all online cores */
     unsigned lobe_in_samples, lobe_out_samples; /* lobe matrix quality; 0: defaults (tests lower) */
 } ns_mc_provider_desc;
 
@@ -56,11 +56,11 @@ void ns_mc_provider_attach(ns_context_desc *desc);
 
 /* What the provider did so far (tests, logs). */
 typedef struct ns_mc_provider_counts {
-    uint32_t simulations; /* ns_mc_run calls (one per order computed) */
+    uint32_t simulations;      /* ns_mc_run calls (one per order computed) */
     uint32_t doubles_rescaled; /* double tables made from another albedo's of the same g */
-    uint32_t files_read;  /* tables served from the cache directory */
-    uint32_t files_rejected; /* cache files that failed a check and were recomputed */
-    uint32_t write_failures; /* tables computed but not saved (the render still got them) */
+    uint32_t files_read;       /* tables served from the cache directory */
+    uint32_t files_rejected;   /* cache files that failed a check and were recomputed */
+    uint32_t write_failures;   /* tables computed but not saved (the render still got them) */
 } ns_mc_provider_counts;
 void ns_mc_provider_get_counts(const ns_mc_provider *p, ns_mc_provider_counts *out);
 

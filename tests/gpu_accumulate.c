@@ -22,7 +22,10 @@ static uint32_t next_random(void)
     rng = rng * 1664525u + 1013904223u;
     return rng >> 8;
 }
-static double uniform01(void) { return next_random() * (1.0 / 16777216.0); }
+static double uniform01(void)
+{
+    return next_random() * (1.0 / 16777216.0);
+}
 
 /* A cell's centre in its own frame: position (rho, 0, z), direction w from (theta, phi). */
 typedef struct centre {
@@ -199,7 +202,8 @@ static double stepwise_case(const centre *c, double k, double length)
     double sum = 0.0;
     int step = cz > 0 ? -1 : 1;
     for (int i = c->iz; i >= 0 && i < (int)NS_TABLE_NZ; i += step) {
-        double a = (z0 - grid.z[cz > 0 ? i + 1 : i]) / cz, b = (z0 - grid.z[cz > 0 ? i : i + 1]) / cz;
+        double a = (z0 - grid.z[cz > 0 ? i + 1 : i]) / cz,
+               b = (z0 - grid.z[cz > 0 ? i : i + 1]) / cz;
         a = fmax(a, u0);
         b = fmin(b, u1);
         if (b > a)
@@ -241,9 +245,10 @@ static void check_exponential(const float *a, double length, const char *what)
             if (stepwise > 1e-10) /* below the cut's floor only the absolute error counts */
                 worst_step = fmax(worst_step, fabs(got - stepwise) / stepwise);
             if (fabs(got - stepwise) > tol && step_failures++ < 5)
-                fprintf(stderr, "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, stepwise "
-                        "closed form %.7g\n", what, cell, ch, c.p[2], c.p[0], c.w[2], got,
-                        stepwise);
+                fprintf(stderr,
+                        "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, stepwise "
+                        "closed form %.7g\n",
+                        what, cell, ch, c.p[2], c.p[0], c.w[2], got, stepwise);
             if (!near)
                 continue;
             double smooth, bound;
@@ -256,15 +261,17 @@ static void check_exponential(const float *a, double length, const char *what)
                 worst_smooth = fmax(worst_smooth, fabs(got - smooth) / smooth);
             }
             if (fabs(got - smooth) > tol && smooth_failures++ < 5)
-                fprintf(stderr, "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, closed "
-                        "form %.7g, tolerance %.3g\n", what, cell, ch, c.p[2], c.p[0], c.w[2],
-                        got, smooth, tol);
+                fprintf(stderr,
+                        "%s: cell %zu ch %d (z %.4g rho %.4g cos %.3f): A %.7g, closed "
+                        "form %.7g, tolerance %.3g\n",
+                        what, cell, ch, c.p[2], c.p[0], c.w[2], got, smooth, tol);
         }
     }
     CHECK_INT(step_failures, 0);
     CHECK_INT(smooth_failures, 0);
     printf("%s: stepwise J worst relative error %.2e (tolerance 2e-4); smooth e^{-kz} at %d "
-           "values within 20 mfp (relative figures above 1e-10): mean relative error %.2e, mean tolerance %.2e, worst %.2e\n",
+           "values within 20 mfp (relative figures above 1e-10): mean relative error %.2e, mean "
+           "tolerance %.2e, worst %.2e\n",
            what, worst_step, tested, sum_error / tested, sum_bound / tested, worst_smooth);
 }
 
@@ -388,8 +395,9 @@ static void test_network_tables_brute_force(void)
             j_max = fmaxf(j_max, j[i]);
         for (int n = 0; n < 40; n++) {
             centre c = cell_centre(random_near_cell());
-            size_t cell = (((size_t)c.iz * NS_TABLE_NRHO + c.ir) * NS_TABLE_NTHETA + c.it) *
-                              NS_TABLE_NPHI + c.ip;
+            size_t cell =
+                (((size_t)c.iz * NS_TABLE_NRHO + c.ir) * NS_TABLE_NTHETA + c.it) * NS_TABLE_NPHI +
+                c.ip;
             /* A at the centre: the whole line (40 mfp leaves e^-40 of J_max behind). */
             double want = brute_force(j, c.p, c.w, 40.0);
             double tol = 3e-3 * want + 1e-13 * j_max;
@@ -408,8 +416,10 @@ static void test_network_tables_brute_force(void)
             double seg_tol = exp(-length) * spread + 3e-3 * want + 1e-13 * j_max;
             worst_segment = fmax(worst_segment, fabs(segment - direct) / want);
             if (fabs(segment - direct) > seg_tol && segment_failures++ < 5)
-                fprintf(stderr, "channel %d cell %zu L %.3f: segment form %.7g, brute force "
-                        "%.7g, tolerance %.3g\n", ch, cell, length, segment, direct, seg_tol);
+                fprintf(stderr,
+                        "channel %d cell %zu L %.3f: segment form %.7g, brute force "
+                        "%.7g, tolerance %.3g\n",
+                        ch, cell, length, segment, direct, seg_tol);
         }
         free(j);
     }

@@ -22,8 +22,8 @@ static ns_mc_provider *tiny_provider(const char *dir)
 {
     ns_mc_provider *p = NULL;
     ns_error err = {0};
-    ns_mc_provider_desc desc = {.cache_dir = dir, .collisions = 4e4, .lobe_in_samples = 1,
-                                .lobe_out_samples = 4};
+    ns_mc_provider_desc desc = {
+        .cache_dir = dir, .collisions = 4e4, .lobe_in_samples = 1, .lobe_out_samples = 4};
     int status = ns_mc_provider_create(&desc, &p, &err);
     if (status)
         fprintf(stderr, "ns_mc_provider_create: %s\n", err.message);
@@ -149,7 +149,8 @@ static void test_compute_cache_and_distrust(void)
     ns_mc_provider_get_counts(p, &n);
     CHECK_INT(n.simulations, 2);
     CHECK_INT(n.files_read, 2);
-    CHECK(memcmp(jd, jd2, cells * sizeof(float)) == 0 && memcmp(jm, jm2, cells * sizeof(float)) == 0);
+    CHECK(memcmp(jd, jd2, cells * sizeof(float)) == 0 &&
+          memcmp(jm, jm2, cells * sizeof(float)) == 0);
 
     char path[1024];
     snprintf(path, sizeof path, "%s/mc_g0.29999999999999999_a0.59999999999999998_double.npy", dir);
@@ -167,7 +168,8 @@ static void test_compute_cache_and_distrust(void)
     CHECK_INT(n.simulations, 1);
     CHECK(memcmp(jd, jd2, cells * sizeof(float)) == 0); /* fixed seed: the same table */
 
-    snprintf(path, sizeof path, "%s/mc_g0.29999999999999999_a0.59999999999999998_multiple.json", dir);
+    snprintf(path, sizeof path, "%s/mc_g0.29999999999999999_a0.59999999999999998_multiple.json",
+             dir);
     FILE *f = fopen(path, "w");
     if (f) {
         fputs("{\"quantity\": \"J\", \"order\": \"mul", f); /* cut short */
