@@ -157,7 +157,7 @@ static double exact_energy(int order, double a)
 
 ns_nn_sampling ns_nn_sampling_default(void)
 {
-    return (ns_nn_sampling){.stride = {3, 3, 1, 2}, .full_radius = 3.0};
+    return (ns_nn_sampling){.stride = {4, 4, 1, 2}, .full_radius = 2.0};
 }
 
 ns_nn_sampling ns_nn_sampling_every_cell(void)
