@@ -242,11 +242,23 @@ static cache_entry *find_a(struct ns_table_cache *cache, const ns_table_key *key
     return NULL;
 }
 
+/* Two channel albedos share one J when their tables differ by less than 1e-4 in energy:
+ * |a - b| <= 1e-4 min(a, 1 - a) bounds the change of a^2 (near 0) and of a^3 / (1 - a)
+ * (near 1) to ~3e-4 relative, far below the network's or the Monte Carlo's own error. It
+ * matters because an RGB medium with one albedo often arrives with three that differ in the
+ * last bits of sigma_s / sigma_t. */
+static int same_albedo(float a, float b)
+{
+    float hi = fmaxf(a, b);
+    return a == b || fabsf(a - b) <= 1e-4f * fminf(hi, 1.0f - hi);
+}
+
 static cache_entry *find_j(struct ns_table_cache *cache, ns_method source, float g, float albedo)
 {
     for (uint32_t i = 0; i < cache->count; i++) {
         cache_entry *e = &cache->entries[i];
-        if (e->kind == ENTRY_J && e->source == source && e->g == g && e->albedo == albedo)
+        if (e->kind == ENTRY_J && e->source == source && e->g == g &&
+            same_albedo(e->albedo, albedo))
             return e;
     }
     return NULL;
@@ -355,7 +367,7 @@ static uint32_t missing_albedos(struct ns_table_cache *cache, const ns_table_key
         float a = key->albedo[c];
         int listed = 0;
         for (uint32_t k = 0; k < n; k++)
-            listed |= albedo[k] == a;
+            listed |= same_albedo(albedo[k], a);
         if (!listed && !find_j(cache, key->source, key->g, a))
             albedo[n++] = a;
     }

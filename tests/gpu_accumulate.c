@@ -512,6 +512,54 @@ static void test_zero_albedo_costs_nothing(void)
     CHECK(j && j[0] == 0.0f && j[cells - 1] == 0.0f);
 }
 
+/* Method table through a stand-in provider (tables of zeros, so no walk is needed): channel
+ * albedos equal up to float rounding are one call, a provider's failure reaches the caller
+ * with its message, and a table with a NaN is refused. */
+static int provider_calls;
+static int stand_in_provider(void *user, double g, double albedo, float *jd, float *jm,
+                             ns_error *err)
+{
+    provider_calls++;
+    memset(jd, 0, cells * sizeof(float));
+    memset(jm, 0, cells * sizeof(float));
+    if (user && !strcmp(user, "nan"))
+        jm[cells / 2] = NAN;
+    if (user && !strcmp(user, "fail"))
+        return ns_fail(err, NS_ERR_IO, "stand-in provider: disk full");
+    return 0;
+}
+
+static void test_table_source_through_provider(void)
+{
+    ns_context *ctx = test_context();
+    ns_mc_tables_fn saved_fn = ctx->mc_tables;
+    void *saved_user = ctx->mc_user;
+    ctx->mc_tables = stand_in_provider;
+    ctx->mc_user = NULL;
+    ns_table_key key = {.source = NS_METHOD_TABLE,
+                        .g = -0.2f,
+                        .albedo = {0.6f, 0.6f + 2e-6f, 0.7f},
+                        .orders = NS_COMPONENT_MULTIPLE};
+    ns_table_stats stats;
+    provider_calls = 0;
+    CHECK(get_tables(&key, &stats) != NULL);
+    CHECK_INT(provider_calls, 2);
+    CHECK_INT(stats.weights_bytes, 0);
+
+    const ns_scatter_tables *t = NULL;
+    ns_error err = {0};
+    key.albedo[0] = key.albedo[1] = key.albedo[2] = 0.3f;
+    ctx->mc_user = "nan";
+    CHECK_INT(ns_tables_get(ctx, &key, &t, &stats, &err), NS_ERR_INTERNAL);
+    CHECK_STR_CONTAINS(err.message, "provider");
+    key.albedo[0] = key.albedo[1] = key.albedo[2] = 0.4f;
+    ctx->mc_user = "fail";
+    CHECK_INT(ns_tables_get(ctx, &key, &t, &stats, &err), NS_ERR_IO);
+    CHECK_STR_CONTAINS(err.message, "disk full");
+    ctx->mc_tables = saved_fn;
+    ctx->mc_user = saved_user;
+}
+
 static void test_bad_keys(void)
 {
     ns_context *ctx = test_context();
@@ -612,6 +660,7 @@ int main(void)
     RUN(test_network_tables_brute_force);
     RUN(test_cache_hit_and_eviction);
     RUN(test_zero_albedo_costs_nothing);
+    RUN(test_table_source_through_provider);
     RUN(test_bad_keys);
     ns_context_destroy(test_context());
     return harness_report();
