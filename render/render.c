@@ -258,7 +258,9 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
         char names[64];
         component_names(missing, names, sizeof names);
         return ns_fail(err, NS_ERR_NOT_AVAILABLE,
-                       "render.components: %s not available in this build yet", names);
+                       "render.components: %s cannot be rendered alone with this method (the "
+                       "dipole gives double and multiple scattering together)",
+                       names);
     }
     pthread_mutex_lock(&ctx->lock);
     if (scene->render.method == NS_METHOD_PT)

@@ -1149,18 +1149,6 @@ static void parse_lights(parser *p, const json_t *v)
 static const char *const component_names[] = {"surface", "single", "double", "multiple"};
 static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
 
-static void list_components(uint32_t mask, char *buf, size_t cap)
-{
-    buf[0] = '\0';
-    for (int i = 0; i < 4; i++)
-        if (mask & (1u << i)) {
-            size_t len = strlen(buf);
-            snprintf(buf + len, cap - len, "%s\"%s\"", len ? ", " : "", component_names[i]);
-        }
-    if (!buf[0])
-        snprintf(buf, cap, "none");
-}
-
 /* Returns the component mask, 0 when the list is invalid (reported). */
 static uint32_t parse_components(parser *p, const json_t *v)
 {
@@ -1191,27 +1179,15 @@ static uint32_t parse_components(parser *p, const json_t *v)
     return ok ? mask : 0;
 }
 
-/* A requested component this build cannot render is an error at its pointer, never
- * dropped: the picture would silently lack light the user asked for. */
+/* A requested component the method cannot render is an error at its pointer, never
+ * dropped: the picture would silently lack light the user asked for. Today that is the
+ * dipole asked for double or multiple scattering alone (ns_unsupported_components). */
 static void check_components_available(parser *p, const json_t *components, uint32_t mask)
 {
-    const uint32_t all = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     uint32_t missing = ns_unsupported_components(p->render.method, mask);
-    if (!missing)
+    if (!missing || !components)
         return;
-    char available[96];
-    list_components(all & ~ns_unsupported_components(p->render.method, all), available, sizeof available);
     const char *method = method_names[p->render.method];
-    if (!components) {
-        char names[96];
-        list_components(missing, names, sizeof names);
-        size_t saved = push_key(p, "components");
-        report(p, "components not given, so all four are requested, but %s %s not available in "
-                  "this build yet (method \"%s\"); give \"components\": [%s]",
-               names, __builtin_popcount(missing) > 1 ? "are" : "is", method, available);
-        pop(p, saved);
-        return;
-    }
     size_t saved = push_key(p, "components");
     size_t i;
     const json_t *c;
@@ -1219,8 +1195,9 @@ static void check_components_available(parser *p, const json_t *components, uint
         for (int bit = 0; bit < 4; bit++)
             if ((missing & (1u << bit)) && strcmp(json_string_value(c), component_names[bit]) == 0) {
                 size_t inner = push_index(p, i);
-                report(p, "component \"%s\" is not available in this build yet (method \"%s\"); "
-                          "available: %s", component_names[bit], method, available);
+                report(p, "component \"%s\" cannot be rendered alone with method \"%s\": its "
+                          "diffusion profile holds double and multiple scattering together; ask "
+                          "for both", component_names[bit], method);
                 pop(p, inner);
             }
     }

@@ -42,18 +42,23 @@ uint phi_bin(vec3 w, vec3 d, vec3 e_rho)
     return min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
 }
 
-// Spatial part of a table index for (z, rho) in mfp, or -1 beyond the table.
-int spatial_bin(float z_mfp, float rho_mfp)
+// Spatial part of the table index of each channel for (z, rho) in mfp per channel, or -1
+// beyond the table. Vector arithmetic, no loop over channels (lavapipe counts loops).
+ivec3 spatial_bins(vec3 z_mfp, vec3 rho_mfp)
 {
-    float extent = params.table_map.z;
-    if (abs(z_mfp) >= extent || rho_mfp >= extent)
-        return -1;
-    float scale = params.table_map.x, inv_step = params.table_map.y;
-    int iz = int(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
-    int ir = int(floor(asinh(rho_mfp / scale) * inv_step));
+    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
+    ivec3 iz = ivec3(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
+    ivec3 ir = ivec3(floor(asinh(rho_mfp / scale) * inv_step));
     iz = clamp(iz, 0, int(NS_TABLE_NZ) - 1);
     ir = clamp(ir, 0, int(NS_TABLE_NRHO) - 1);
-    return iz * int(NS_TABLE_NRHO) + ir;
+    bvec3 inside = lessThan(max(abs(z_mfp), rho_mfp), vec3(extent));
+    return mix(ivec3(-1), iz * int(NS_TABLE_NRHO) + ir, inside);
+}
+
+float table_read(int channel, int cell, uint dir)
+{
+    return cell < 0 ? 0.0
+                    : table[uint(channel) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
 }
 
 // A at point p for light arriving along w, per channel, in mfp units; theta_row = the
@@ -67,14 +72,9 @@ vec3 table_at(GpuVrl v, vec3 p, vec3 w, uint theta_row)
     // On the axis any radial direction is as good: the phi bins all meet there.
     vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
     uint dir = theta_row + phi_bin(w, v.direction, e_rho);
-    vec3 a = vec3(0.0);
-    for (int c = 0; c < 3; c++) {
-        float s = params.sigma_t[c];
-        int cell = spatial_bin(z * s, rho * s);
-        if (cell >= 0)
-            a[c] = table[uint(c) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
-    }
-    return a;
+    vec3 s = params.sigma_t.xyz;
+    ivec3 cell = spatial_bins(z * s, rho * s);
+    return vec3(table_read(0, cell.x, dir), table_read(1, cell.y, dir), table_read(2, cell.z, dir));
 }
 
 vec3 dipole_rd(float r)
