@@ -746,6 +746,9 @@ static void run_vrl_equal_time(bench *b, bench_scene *s)
         return; /* nothing to match: rendered at the scene's count, ratio left 0 */
     }
     double target = nn->ms;
+    /* The first probe is cheap (a twentieth of nn's count): brute-force VRLs cost far more
+     * each than nn's, and the probe only measures the cost per VRL. */
+    vrls = vrls / 20 > 500 ? vrls / 20 : (vrls < 500 ? vrls : 500);
     /* vrl keeps no tables between renders, so a single render measures a probe's time; the
      * count that lands within 20% is rendered again with --repeat. */
     for (int attempt = 0; attempt < 4; attempt++) {
