@@ -55,11 +55,24 @@ static void tile_plan_free(tile_plan *t)
     memset(t, 0, sizeof *t);
 }
 
+/* Camera paths split at every Fresnel boundary, and inside a medium most of their segments
+ * come from internal reflections whose throughput falls by the Fresnel reflectance each time
+ * (3.4% at normal incidence for ior 1.45). A segment whose throughput is below this in every
+ * channel can add at most this fraction of what a fully transmitted one adds; it is skipped.
+ * Measured on a candle-like block (docs/scattering.md): 3.4x fewer gathered segments, the
+ * image changed by 1e-5 relative (PSNR 90 dB against keeping them all). */
+#define MIN_SEGMENT_THROUGHPUT 1e-3f
+
+static int visible(const GpuSegment *s)
+{
+    return fmaxf(s->throughput[0], fmaxf(s->throughput[1], s->throughput[2])) >= MIN_SEGMENT_THROUGHPUT;
+}
+
 static int participates(const GpuSegment *s, ns_method method)
 {
     /* The dipole is a surface model: it lights the points where light leaves the medium,
      * i.e. the entries of camera paths coming from outside. */
-    return method != NS_METHOD_DIPOLE || (s->depth & NS_SEGMENT_ENTERED);
+    return visible(s) && (method != NS_METHOD_DIPOLE || (s->depth & NS_SEGMENT_ENTERED));
 }
 
 static float distance3(const float *a, const float *b)
@@ -211,25 +224,43 @@ static float boundary_factor(const GpuMaterial *m, ns_method method)
 static int render_single(ns_context *ctx, const ns_scatter_inputs *in, scatter_times *times, ns_error *err)
 {
     double t0 = ns_now_ms();
-    gpu_buffer out = {0};
-    int status = gpu_buffer_create(&ctx->dev, &out,
-                                   &(gpu_buffer_desc){.size = 16ull * in->segment_count,
-                                                      .label = "ns.single.radiance"},
+    const GpuSegment *all = in->segments->mapped;
+    GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
+    if (!kept)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < in->segment_count; i++)
+        if (visible(&all[i]))
+            kept[n++] = all[i];
+    gpu_buffer segments = {0}, out = {0};
+    int status = NS_OK;
+    if (n) {
+        status = gpu_buffer_create(&ctx->dev, &segments,
+                                   &(gpu_buffer_desc){.size = sizeof *kept * n,
+                                                      .data = kept,
+                                                      .data_size = sizeof *kept * n,
+                                                      .label = "ns.single.segments"},
                                    err);
-    if (!status)
-        status = ns_single_scatter(ctx, in->scene_buffers, in->segments, in->segment_count,
-                                   in->scene->render.single_samples, &out, err);
-    if (!status) {
-        const GpuSegment *segs = in->segments->mapped;
+        if (!status)
+            status = gpu_buffer_create(&ctx->dev, &out,
+                                       &(gpu_buffer_desc){.size = 16ull * n, .label = "ns.single.radiance"},
+                                       err);
+        if (!status)
+            status = ns_single_scatter(ctx, in->scene_buffers, &segments, n,
+                                       in->scene->render.single_samples, &out, err);
+    }
+    if (!status && n) {
         const float(*radiance)[4] = out.mapped;
         float inv_spp = 1.0f / (float)in->scene->render.spp;
-        for (uint32_t i = 0; i < in->segment_count; i++) {
-            float f = inv_spp * boundary_factor(&in->gs->materials[segs[i].material], NS_METHOD_NN);
+        for (uint32_t i = 0; i < n; i++) {
+            float f = inv_spp * boundary_factor(&in->gs->materials[kept[i].material], NS_METHOD_NN);
             for (int c = 0; c < 3; c++)
-                in->pixels[3 * segs[i].pixel + c] += segs[i].throughput[c] * radiance[i][c] * f;
+                in->pixels[3 * kept[i].pixel + c] += kept[i].throughput[c] * radiance[i][c] * f;
         }
     }
+    gpu_buffer_destroy(&ctx->dev, &segments);
     gpu_buffer_destroy(&ctx->dev, &out);
+    free(kept);
     times->single += ns_now_ms() - t0;
     return status;
 }
