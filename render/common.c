@@ -46,7 +46,15 @@ int ns_status_http(int status)
 
 void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms)
 {
-    if (!stats || stats->stage_count >= NS_MAX_STAGES)
+    if (!stats)
+        return;
+    /* A stage that runs more than once (per sample batch, per medium) adds up. */
+    for (uint32_t i = 0; i < stats->stage_count; i++)
+        if (strncmp(stats->stages[i].name, name, sizeof stats->stages[i].name) == 0) {
+            stats->stages[i].ms += ms;
+            return;
+        }
+    if (stats->stage_count >= NS_MAX_STAGES)
         return;
     ns_stage_time *stage = &stats->stages[stats->stage_count++];
     snprintf(stage->name, sizeof stage->name, "%s", name);

@@ -274,8 +274,9 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
  * a request early with a pointer to the component, never to ignore one silently. */
 uint32_t ns_unsupported_components(ns_method method, uint32_t components);
 
-/* Adds a named stage time to stats (ignored when full). Also used by the server to report
- * parse and encode stages in the same list. */
+/* Adds a named stage time to stats: to the stage of that name when there is one (a stage
+ * that runs several times adds up), else as a new stage (ignored when full). Also used by
+ * the server to report parse and encode stages in the same list. */
 void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms);
 
 /* Monotonic clock in milliseconds, for stage timings. */

@@ -85,26 +85,28 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
     return gpu_buffers_create(&ctx->dev, job->buffers, descs, B_COUNT, err);
 }
 
-/* On lavapipe every sample gets its own dispatch, so that the per-invocation loop limit
- * (shared.h) applies to one camera sample rather than to all of them; elsewhere one
- * dispatch takes every sample. */
-static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *scene, ns_error *err)
+/* Camera samples [first, first + count). On lavapipe every sample gets its own dispatch, so
+ * that the per-invocation loop limit (shared.h) applies to one camera sample rather than to
+ * all of them; elsewhere one dispatch takes them all. The pixels of a range that does not
+ * start at sample 0 add to what is there. */
+static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *scene, uint32_t first,
+                           uint32_t count, ns_error *err)
 {
     gpu_buffer *bound[B_COUNT];
     for (int i = 0; i < B_COUNT; i++)
         bound[i] = &job->buffers[i];
     const ns_camera *cam = &scene->camera;
-    uint32_t spp = scene->render.spp;
-    uint32_t per_dispatch = ctx->dev.loop_limited ? 1 : spp;
-    uint32_t dispatches = (spp + per_dispatch - 1) / per_dispatch;
+    uint32_t per_dispatch = ctx->dev.loop_limited ? 1 : count;
+    uint32_t dispatches = (count + per_dispatch - 1) / per_dispatch;
     GpuSamplePush *push = calloc(dispatches, sizeof *push);
     if (!push)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u dispatches", dispatches);
     for (uint32_t i = 0; i < dispatches; i++) {
-        push[i].first_sample = i * per_dispatch;
-        push[i].sample_count =
-            spp - push[i].first_sample < per_dispatch ? spp - push[i].first_sample : per_dispatch;
+        uint32_t done = i * per_dispatch;
+        push[i].first_sample = first + done;
+        push[i].sample_count = count - done < per_dispatch ? count - done : per_dispatch;
     }
+    memset(job->buffers[B_COUNTERS].mapped, 0, NS_COUNTER_COUNT * sizeof(uint32_t));
     int status = gpu_dispatch_many(
         &ctx->dev,
         &(gpu_dispatch_desc){
@@ -145,7 +147,7 @@ static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_re
     uint32_t capacity = job->scene.params.counts[2];
     uint64_t attempted = counters[NS_COUNTER_SEGMENTS];
     uint64_t written = attempted < capacity ? attempted : capacity;
-    if (stats)
+    if (stats && !stats->camera_segments) /* the batched scattering path counted them */
         stats->camera_segments = written;
     if (debug) {
         debug->segments_written = written;
@@ -158,49 +160,81 @@ static int read_back(render_job *job, const ns_camera *cam, ns_image *out, ns_re
     return NS_OK;
 }
 
-/* The scattering stages need every camera segment: when the buffer was too small, make it
- * as large as the count the pass attempted (within the device's limit) and run it again. */
-static int redo_if_overflowed(ns_context *ctx, render_job *job, const ns_scene *scene, ns_error *err)
+/* Replaces the segment buffer by one of `capacity` segments. */
+static int resize_segments(ns_context *ctx, render_job *job, uint64_t capacity, ns_error *err)
 {
-    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
-    if (!counters[NS_COUNTER_OVERFLOW])
-        return NS_OK;
-    uint64_t wanted = counters[NS_COUNTER_SEGMENTS];
-    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
-    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
-    if (wanted > cap || wanted > device_cap)
-        return NS_OK; /* render_scattering reports the overflow */
     gpu_buffer_destroy(&ctx->dev, &job->buffers[B_SEGMENTS]);
-    job->scene.params.counts[2] = (uint32_t)wanted;
+    job->scene.params.counts[2] = (uint32_t)capacity;
     memcpy(job->buffers[B_PARAMS].mapped, &job->scene.params, sizeof job->scene.params);
-    memset(job->buffers[B_COUNTERS].mapped, 0, NS_COUNTER_COUNT * sizeof(uint32_t));
-    int status = gpu_buffer_create(&ctx->dev, &job->buffers[B_SEGMENTS],
-                                   &(gpu_buffer_desc){.size = wanted * sizeof(GpuSegment),
-                                                      .kind = GPU_BUFFER_STORAGE,
-                                                      .uninitialized = 1,
-                                                      .label = "ns.render.segments"},
-                                   err);
-    return status ? status : dispatch_camera(ctx, job, scene, err);
+    return gpu_buffer_create(&ctx->dev, &job->buffers[B_SEGMENTS],
+                             &(gpu_buffer_desc){.size = capacity * sizeof(GpuSegment),
+                                                .kind = GPU_BUFFER_STORAGE,
+                                                .uninitialized = 1,
+                                                .label = "ns.render.segments"},
+                             err);
 }
 
-/* The scattering components (render/scatter_render.c), added to the pixels read back. */
-static int render_scattering(ns_context *ctx, render_job *job, const ns_scene *scene, ns_image *out,
-                             ns_render_stats *stats, ns_error *err)
+/* Camera pass and scattering stages together. The scattering stages need every segment of
+ * the samples they are given, so the samples go in batches whose segments fit the buffer:
+ * all of them at first; when a batch overflows, its surface light is taken back (the pixels
+ * are restored) and it is run again smaller, or with the buffer grown to what one sample
+ * needs, up to the device's limit. Each batch's scattering adds into `scattered`. */
+static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scene *scene,
+                                 float *scattered, ns_render_stats *stats, ns_error *err)
 {
-    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
-    if (counters[NS_COUNTER_OVERFLOW])
-        return ns_fail(err, NS_ERR_LIMIT,
-                       "camera segments: %u stretches inside media did not fit the segment buffer "
-                       "(%u); lower render.spp, the image size or render.max_depth",
-                       counters[NS_COUNTER_OVERFLOW], job->scene.params.counts[2]);
-    uint32_t written = counters[NS_COUNTER_SEGMENTS];
-    ns_scatter_inputs in = {.scene = scene,
-                            .gs = &job->scene,
-                            .scene_buffers = job->buffers,
-                            .segments = &job->buffers[B_SEGMENTS],
-                            .segment_count = written,
-                            .pixels = out->rgb};
-    return ns_scatter_render(ctx, &in, stats, err);
+    uint32_t spp = scene->render.spp, pixels = scene->camera.width * scene->camera.height;
+    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
+    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
+    if (cap > device_cap)
+        cap = device_cap;
+    size_t pixel_bytes = (size_t)pixels * 4 * sizeof(float);
+    float *saved = malloc(pixel_bytes);
+    if (!saved)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u pixels", pixels);
+    int status = NS_OK;
+    uint32_t first = 0, batch = spp;
+    while (!status && first < spp) {
+        uint32_t count = spp - first < batch ? spp - first : batch;
+        if (first > 0)
+            memcpy(saved, job->buffers[B_PIXELS].mapped, pixel_bytes);
+        double t0 = ns_now_ms();
+        status = dispatch_camera(ctx, job, scene, first, count, err);
+        ns_stats_add_stage(stats, "ray_pass", ns_now_ms() - t0);
+        if (status)
+            break;
+        const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+        uint64_t attempted = counters[NS_COUNTER_SEGMENTS];
+        if (counters[NS_COUNTER_OVERFLOW]) {
+            if (first > 0)
+                memcpy(job->buffers[B_PIXELS].mapped, saved, pixel_bytes);
+            if (count > 1) {
+                /* Room for the batch's share, with a margin: samples differ. */
+                uint64_t fit = (uint64_t)((double)count * job->scene.params.counts[2] / attempted * 0.8);
+                batch = fit >= 1 ? (uint32_t)fit : 1;
+            } else if (attempted <= cap) {
+                status = resize_segments(ctx, job, attempted, err);
+            } else {
+                status = ns_fail(err, NS_ERR_LIMIT,
+                                 "camera segments: one sample of this image records %llu stretches "
+                                 "inside media, more than this device's buffer holds (%llu); lower "
+                                 "the image size or render.max_depth",
+                                 (unsigned long long)attempted, (unsigned long long)cap);
+            }
+            continue;
+        }
+        if (stats)
+            stats->camera_segments += attempted;
+        ns_scatter_inputs in = {.scene = scene,
+                                .gs = &job->scene,
+                                .scene_buffers = job->buffers,
+                                .segments = &job->buffers[B_SEGMENTS],
+                                .segment_count = (uint32_t)attempted,
+                                .pixels = scattered};
+        status = ns_scatter_render(ctx, &in, stats, err);
+        first += count;
+    }
+    free(saved);
+    return status;
 }
 
 static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
@@ -224,20 +258,30 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
         status = upload(ctx, &job, scene->camera.width * scene->camera.height, err);
     double t2 = ns_now_ms();
     ns_stats_add_stage(stats, "upload", t2 - t1);
-    if (!status)
-        status = dispatch_camera(ctx, &job, scene, err);
-    if (!status && (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE) && !debug)
-        status = redo_if_overflowed(ctx, &job, scene, err);
+    /* A debug caller that reads the segments back gets the camera pass alone. */
+    int scattering = job.scene.has_media && !(debug && debug->segments) &&
+                     (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE);
+    float *scattered = NULL;
+    if (!status && scattering &&
+        !(scattered = calloc((size_t)scene->camera.width * scene->camera.height * 3, sizeof(float))))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scattering image");
+    if (!status && scattering) {
+        status = camera_and_scattering(ctx, &job, scene, scattered, stats, err);
+    } else if (!status) {
+        status = dispatch_camera(ctx, &job, scene, 0, scene->render.spp, err);
+        ns_stats_add_stage(stats, "ray_pass", ns_now_ms() - t2);
+    }
     double t3 = ns_now_ms();
-    ns_stats_add_stage(stats, "ray_pass", t3 - t2);
     if (!status)
         status = read_back(&job, &scene->camera, out, stats, debug, err);
     ns_stats_add_stage(stats, "readback", ns_now_ms() - t3);
     /* The camera pass always shades surfaces; a render without them starts from black. */
     if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
         memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);
-    if (!status && job.scene.has_media && (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE))
-        status = render_scattering(ctx, &job, scene, out, stats, err);
+    if (!status && scattered)
+        for (size_t i = 0; i < (size_t)out->width * out->height * 3; i++)
+            out->rgb[i] += scattered[i];
+    free(scattered);
     job_free(ctx, &job);
     return status;
 }

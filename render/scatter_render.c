@@ -55,17 +55,11 @@ static void tile_plan_free(tile_plan *t)
     memset(t, 0, sizeof *t);
 }
 
-/* Camera paths split at every Fresnel boundary, and inside a medium most of their segments
- * come from internal reflections whose throughput falls by the Fresnel reflectance each time
- * (3.4% at normal incidence for ior 1.45). A segment whose throughput is below this in every
- * channel can add at most this fraction of what a fully transmitted one adds; it is skipped.
- * Measured on a candle-like block (docs/scattering.md): 3.4x fewer gathered segments, the
- * image changed by 1e-5 relative (PSNR 90 dB against keeping them all). */
-#define MIN_SEGMENT_THROUGHPUT 1e-3f
-
+/* The camera pass records no segment dimmer than this (shared.h); segments handed in by
+ * other callers are held to the same rule. */
 static int visible(const GpuSegment *s)
 {
-    return fmaxf(s->throughput[0], fmaxf(s->throughput[1], s->throughput[2])) >= MIN_SEGMENT_THROUGHPUT;
+    return fmaxf(s->throughput[0], fmaxf(s->throughput[1], s->throughput[2])) >= NS_MIN_SEGMENT_THROUGHPUT;
 }
 
 static int participates(const GpuSegment *s, ns_method method)
@@ -330,6 +324,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
     ns_method method = scene->render.method;
     uint32_t orders = scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
     ns_vrl_set set = {0};
+    uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
     double t0 = ns_now_ms();
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  scene->render.seed, &set, err);
@@ -359,7 +354,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
             times->accumulate += ts.accumulate_ms;
             if (!status && stats) {
                 stats->weights_bytes = ts.weights_bytes;
-                stats->table_bytes += tables->bytes;
+                table_bytes += tables->bytes;
             }
             mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                       : NS_GATHER_MODE_EXACT;
@@ -385,6 +380,8 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
         ns_vrl_grid_free(&grid);
     }
     ns_vrl_set_free(&set);
+    if (stats && table_bytes > stats->table_bytes)
+        stats->table_bytes = table_bytes;
     return status;
 }
 
@@ -446,7 +443,7 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
     times->composite += ns_now_ms() - t0;
     if (stats)
-        stats->gather_segments = list.count;
+        stats->gather_segments += list.count;
 
     gpu_buffer seg_buf = {0}, out[2] = {{0}};
     if (!status && list.count) {

@@ -238,7 +238,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
         float t_end = ends_at_light ? t_light : (any ? h.t : NS_INF);
 
         if (s.medium != NS_NONE) {
-            if (t_end < NS_INF)
+            if (t_end < NS_INF && max(s.w.x, max(s.w.y, s.w.z)) >= NS_MIN_SEGMENT_THROUGHPUT)
                 record_segment(s.o, s.o + t_end * s.d, s.d, s.w, s.medium, pixel, sample_index,
                                s.depth | (s.entered ? NS_SEGMENT_ENTERED : 0u));
             s.entered = false;

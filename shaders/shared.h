@@ -55,10 +55,19 @@ NS_CONST(uint, NS_GPU_LIGHT_ENVIRONMENT, 3);
 #if defined(__STDC__) || defined(__cplusplus)
 #define NS_NONE 0xffffffffu
 #define NS_SEGMENT_ENTERED 0x80000000u
+#define NS_MIN_SEGMENT_THROUGHPUT 1e-3f
 #else
 const uint NS_NONE = 0xffffffffu;
 const uint NS_SEGMENT_ENTERED = 0x80000000u;
+const float NS_MIN_SEGMENT_THROUGHPUT = 1e-3;
 #endif
+
+/* Camera paths split at every Fresnel boundary, and inside a medium most of their stretches
+ * come from internal reflections whose throughput falls by the Fresnel reflectance each time
+ * (3.4% at normal incidence for ior 1.45). A stretch whose throughput is below
+ * NS_MIN_SEGMENT_THROUGHPUT in every channel can add at most that fraction of what a fully
+ * transmitted one adds to the scattering components: it is not recorded (its Beer-Lambert
+ * surface light is still followed). docs/scattering.md measures the effect. */
 
 /* Camera pass parameters (uniform buffer, binding 0). */
 struct GpuParams {

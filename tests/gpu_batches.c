@@ -1,0 +1,78 @@
+/* gpu_batches.c — when the camera segments of all samples do not fit the segment buffer,
+ * the render runs the samples in batches (render.c camera_and_scattering): the image must be
+ * the one rendered in a single batch, for the surface and for every scattering component.
+ * The buffer is made small on purpose (ns_render_debug.segment_capacity); with a gather tile
+ * of 1 every segment is gathered either way, so only float summation order differs. */
+#include "gpu_util.h"
+
+#define W 24
+#define H 20
+
+static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light lights[2])
+{
+    *s = base_scene(W, H, 35);
+    s->render.components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE |
+                           NS_COMPONENT_MULTIPLE;
+    s->render.spp = 8;
+    s->render.vrls = 1500;
+    s->render.gather_tile = 1;
+    s->render.single_samples = 16;
+    set3(s->camera.position, 0, 1, 5);
+    set3(s->camera.look_at, 0, 0, 0);
+    mats[0] = diffuse(0.5, 0.5, 0.5);
+    mats[1] = medium((double[3]){4, 3, 2}, (double[3]){0.1, 0.2, 0.3}, 1.4);
+    mats[1].g = 0.5f;
+    objs[0] = plane(-1, 0);
+    objs[1] = sphere(0, 0, 0, 1, 1);
+    lights[0] = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
+    set3(lights[0].direction, 0, -0.8, -0.6);
+    lights[1] = light(NS_LIGHT_ENVIRONMENT, 0.2, 0.2, 0.25);
+    s->materials = mats;
+    s->material_count = 2;
+    s->objects = objs;
+    s->object_count = 2;
+    s->lights = lights;
+    s->light_count = 2;
+}
+
+static void test_batches_equal_one_pass(void)
+{
+    ns_scene s;
+    ns_material mats[2];
+    ns_object objs[2];
+    ns_light lights[2];
+    build(&s, mats, objs, lights);
+    ns_image one = {0}, batched = {0};
+    ns_render_stats st1 = {0}, st2 = {0};
+    ns_error err = {0};
+    if (!render_ok(&s, &one, &st1))
+        return;
+    /* Room for about a sample and a half: the eight samples need several batches. */
+    ns_render_debug debug = {.segment_capacity = (uint32_t)(st1.camera_segments * 3 / 16)};
+    int status = ns_render_ex(test_context(), &s, &batched, &st2, &debug, &err);
+    if (status)
+        fprintf(stderr, "batched: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    if (status)
+        return;
+    CHECK(st1.camera_segments > 100);
+    CHECK_INT(st2.camera_segments, st1.camera_segments);
+    CHECK_INT(st2.gather_segments, st1.gather_segments);
+    double sum = 0, worst = 0;
+    for (size_t i = 0; i < (size_t)W * H * 3; i++)
+        sum += one.rgb[i];
+    double mean = sum / (W * H * 3);
+    for (size_t i = 0; i < (size_t)W * H * 3; i++)
+        worst = fmax(worst, fabs(one.rgb[i] - batched.rgb[i]) / fmax(fabs(one.rgb[i]), 0.01 * mean));
+    printf("%llu camera segments, capacity %u: worst relative difference %.2e\n",
+           (unsigned long long)st1.camera_segments, debug.segment_capacity, worst);
+    CHECK(worst < 1e-4);
+    ns_image_free(&one);
+    ns_image_free(&batched);
+}
+
+int main(void)
+{
+    RUN(test_batches_equal_one_pass);
+    return harness_report();
+}
