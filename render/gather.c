@@ -213,32 +213,6 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
  * ------------------------------------------------------------------------------------- */
 enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
 
-/* A representative of vrls[0, count): total power, power-weighted mean origin and direction
- * (the rule of render/vrl_grid.c, for the pieces of a cell split below). */
-static GpuVrl representative_of(const GpuVrl *vrls, uint32_t count)
-{
-    GpuVrl r;
-    memset(&r, 0, sizeof r);
-    double weight = 0, origin[3] = {0, 0, 0}, dir[3] = {0, 0, 0};
-    for (uint32_t k = 0; k < count; k++) {
-        double w = (vrls[k].power[0] + vrls[k].power[1] + vrls[k].power[2]) / 3.0;
-        for (int i = 0; i < 3; i++) {
-            r.power[i] += vrls[k].power[i];
-            origin[i] += w * vrls[k].origin[i];
-            dir[i] += w * vrls[k].direction[i];
-        }
-        weight += w;
-        r.length = fmaxf(r.length, vrls[k].length);
-    }
-    double norm = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
-    for (int i = 0; i < 3; i++) {
-        r.origin[i] = (float)(weight > 0 ? origin[i] / weight : vrls[0].origin[i]);
-        r.direction[i] = (float)(norm > 0 ? dir[i] / norm : vrls[0].direction[i]);
-    }
-    r.material = vrls[0].material;
-    return r;
-}
-
 /* The grid's cells with every cell of more than max_vrls VRLs cut into pieces (same box, a
  * representative each), so that one dispatch can always take at least one whole piece. */
 typedef struct gather_cells {
@@ -269,7 +243,7 @@ static int split_large_cells(const ns_vrl_grid *grid, uint32_t max_vrls, gather_
             out->cells[j] = *cell;
             out->cells[j].first = cell->first + first;
             out->cells[j].count = cell->count - first < max_vrls ? cell->count - first : max_vrls;
-            out->representatives[j] = representative_of(grid->vrls + out->cells[j].first,
+            out->representatives[j] = ns_vrl_representative(grid->vrls + out->cells[j].first,
                                                         out->cells[j].count);
             j++;
         }

@@ -117,6 +117,11 @@ int ns_vrl_grid_build(const ns_vrl_set *set, uint32_t material, float mfp_min, n
                       ns_error *err);
 void ns_vrl_grid_free(ns_vrl_grid *grid);
 
+/* The representative of vrls[0, count) (count >= 1): total power, power-weighted (mean of
+ * RGB) mean origin and direction, the longest length. Used for grid cells and for the
+ * pieces the gather cuts large cells into. */
+GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count);
+
 /* ---------------------------------------------------------------------------------------
  * Gather (gather.c, shaders/gather.comp): one medium's segments x its VRL grid.
  * ------------------------------------------------------------------------------------- */

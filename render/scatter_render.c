@@ -264,7 +264,6 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, scatter_t
  * ------------------------------------------------------------------------------------- */
 typedef struct gather_list {
     GpuSegment *segments;   /* gathered segments, grouped by material */
-    uint32_t *source;       /* index of each in the camera pass's buffer */
     uint32_t count;
     uint32_t material_first[NS_MAX_MATERIALS + 1]; /* material m: [first[m], first[m + 1]) */
 } gather_list;
@@ -284,9 +283,8 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
         g->material_first[m + 1] += g->material_first[m];
     g->count = n;
     g->segments = malloc(sizeof *g->segments * (n ? n : 1));
-    g->source = malloc(sizeof *g->source * (n ? n : 1));
     uint32_t *fill = calloc(NS_MAX_MATERIALS, sizeof *fill);
-    if (!g->segments || !g->source || !fill) {
+    if (!g->segments || !fill) {
         free(fill);
         return -1;
     }
@@ -298,7 +296,6 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
                     continue;
                 uint32_t at = g->material_first[segs[i].material] + fill[segs[i].material]++;
                 g->segments[at] = segs[i];
-                g->source[at] = i;
             }
     free(fill);
     return 0;
@@ -488,7 +485,6 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     gpu_buffer_destroy(&ctx->dev, &out[0]);
     gpu_buffer_destroy(&ctx->dev, &out[1]);
     free(list.segments);
-    free(list.source);
     tile_plan_free(&plan);
     return status;
 }

@@ -108,9 +108,7 @@ static uint32_t choose_level(const keyed_vrl *sorted, uint32_t n, uint32_t level
     return levels - 1;
 }
 
-/* Total power, power-weighted (mean of RGB) mean origin and direction, the longest length:
- * the rule render/gather.c repeats for the pieces it splits cells into. */
-static GpuVrl representative_of(const GpuVrl *vrls, uint32_t count)
+GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count)
 {
     GpuVrl r;
     memset(&r, 0, sizeof r);
@@ -154,7 +152,7 @@ static void fill_cells(ns_vrl_grid *g, const keyed_vrl *sorted, uint32_t level)
                 cell->bmin[a] = fminf(cell->bmin[a], v[k].origin[a]);
                 cell->bmax[a] = fmaxf(cell->bmax[a], v[k].origin[a]);
             }
-        g->representatives[c] = representative_of(v, cell->count);
+        g->representatives[c] = ns_vrl_representative(v, cell->count);
     }
 }
 
