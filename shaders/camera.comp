@@ -335,7 +335,15 @@ void main()
         s.entered = false;
         sum += trace_path(s, pixel, i);
     }
-    if (params.limits.x != 0u && loop_count > params.limits.x)
+    // lavapipe stops loops silently once an invocation has run 65535 iterations in all
+    // (shared.h), and from then on every loop ends after its first iteration; its count
+    // includes iterations loop_count does not see (a leaf's primitives, the planes), so a loop
+    // of two iterations here tells whether that happened anywhere above. Its trip count comes
+    // from the push block so that the compiler cannot unroll it away.
+    uint canary = 0u;
+    for (uint i = 0u; i < 2u + (push.pad0 >> 31); i++)
+        canary++;
+    if (canary != 2u || (params.limits.x != 0u && loop_count > params.limits.x))
         atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
     vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
     pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
