@@ -99,6 +99,10 @@ int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *
                     ns_error *err);
 void ns_vrl_set_free(ns_vrl_set *set);
 
+/* Power (mean of RGB) a scene light sends through a sphere (xyz centre, w radius): how both
+ * VRL generators share their light paths out among lights and media. */
+double ns_vrl_light_power(const GpuLight *light, const float sphere[4]);
+
 /* One level of the grid hierarchy of one medium's VRLs (paper Section 4.3). */
 typedef struct ns_vrl_grid {
     GpuVrl *vrls;            /* the medium's VRLs, sorted by cell */

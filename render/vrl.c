@@ -129,8 +129,8 @@ static double solid_angle_of(const float *from, const float sphere[4])
 
 /* Estimates only steer the sampling; the shader's weights make the result unbiased for any
  * positive estimate. A sphere light counts as a point of intensity L pi R^2 (exact for a
- * Lambertian sphere seen from outside). */
-static double ns_vrl_light_power(const GpuLight *light, const float sphere[4])
+ * Lambertian sphere seen from outside). Also steers render/vrl_method.c. */
+double ns_vrl_light_power(const GpuLight *light, const float sphere[4])
 {
     double mean = ((double)light->color[0] + light->color[1] + light->color[2]) / 3.0;
     double disk = M_PI * (double)sphere[3] * sphere[3];

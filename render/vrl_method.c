@@ -103,35 +103,6 @@ static void target_sphere(const ns_scene *scene, const ns_object *o, float out[4
     out[3] = (float)(sqrt(r2) * 1.0001 + 1e-6);
 }
 
-static double cone_solid_angle(const float from[3], const float sphere[4])
-{
-    double d2 = 0;
-    for (int k = 0; k < 3; k++)
-        d2 += ((double)sphere[k] - from[k]) * ((double)sphere[k] - from[k]);
-    double r2 = (double)sphere[3] * sphere[3];
-    return d2 > r2 ? 2 * M_PI * (1 - sqrt(1 - r2 / d2)) : 4 * M_PI;
-}
-
-/* The power (mean of RGB) the light sends through the sphere: only steers the sampling. A
- * Lambertian sphere light of radius R radiates like a point of intensity L pi R^2 towards
- * a sphere outside it. */
-static double power_towards(const GpuLight *light, const float sphere[4])
-{
-    double mean = ((double)light->color[0] + light->color[1] + light->color[2]) / 3.0;
-    double disk = M_PI * (double)sphere[3] * sphere[3];
-    switch (light->info[0]) {
-    case NS_GPU_LIGHT_DIRECTIONAL:
-        return mean * disk;
-    case NS_GPU_LIGHT_POINT:
-        return mean * cone_solid_angle(light->position, sphere);
-    case NS_GPU_LIGHT_SPHERE:
-        return mean * M_PI * (double)light->position[3] * light->position[3] *
-               cone_solid_angle(light->position, sphere);
-    default:
-        return mean * 4 * M_PI * disk;
-    }
-}
-
 /* One uniform number in [0, 1) from the seed (splitmix64), the systematic offset. */
 static double seed_offset(uint32_t seed)
 {
@@ -202,7 +173,7 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
     }
     double total = 0;
     for (uint64_t k = 0; !status && k < pairs; k++) {
-        double p = power_towards(&gs->lights[k / targets], spheres[k % targets]);
+        double p = ns_vrl_light_power(&gs->lights[k / targets], spheres[k % targets]);
         power[k] = p > 0 && isfinite(p) ? p : 0;
         total += power[k];
     }
