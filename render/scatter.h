@@ -103,6 +103,16 @@ void ns_vrl_set_free(ns_vrl_set *set);
  * VRL generators share their light paths out among lights and media. */
 double ns_vrl_light_power(const GpuLight *light, const float sphere[4]);
 
+/* The sphere light paths aim at for a medium object (xyz centre, w radius): a sphere
+ * itself, else the sphere around its box, slightly enlarged. Not for planes. */
+void ns_vrl_target_sphere(const ns_scene *scene, const ns_object *o, float out[4]);
+
+/* Systematic sampling of light paths over strata: one offset xi in [0, 1) per seed
+ * (splitmix64), and the first path of the stratum whose cumulative probability starts at
+ * cdf: the smallest i with (i + xi) / paths >= cdf. */
+double ns_vrl_seed_offset(uint32_t seed);
+uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi);
+
 /* One level of the grid hierarchy of one medium's VRLs (paper Section 4.3). */
 typedef struct ns_vrl_grid {
     GpuVrl *vrls;            /* the medium's VRLs, sorted by cell */

@@ -54,7 +54,7 @@ static void box_sphere(const float lo[3], const float hi[3], float out[4])
 
 /* A sphere is its own target, exactly: the disk and cone estimators are then exact for
  * index-matched spheres (every sample hits). */
-static void object_sphere(const ns_scene *scene, const ns_object *o, float out[4])
+void ns_vrl_target_sphere(const ns_scene *scene, const ns_object *o, float out[4])
 {
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     switch (o->shape) {
@@ -107,7 +107,7 @@ static int collect_targets(const ns_scene *scene, vrl_target **out, uint32_t *co
         if (!material_scatters(&scene->materials[o->material]) ||
             (o->shape == NS_SHAPE_MESH && o->triangle_count == 0))
             continue;
-        object_sphere(scene, o, t[n].sphere);
+        ns_vrl_target_sphere(scene, o, t[n].sphere);
         t[n++].object = i;
     }
     *out = t;
@@ -153,7 +153,7 @@ typedef struct vrl_plan {
     uint32_t count;
 } vrl_plan;
 
-static double seed_offset(uint32_t seed)
+double ns_vrl_seed_offset(uint32_t seed)
 {
     /* splitmix64 of the seed: one uniform number in [0, 1) for the systematic offset. */
     uint64_t z = (uint64_t)seed + 0x9e3779b97f4a7c15ull;
@@ -163,9 +163,7 @@ static double seed_offset(uint32_t seed)
     return (double)(z >> 11) * (1.0 / 9007199254740992.0);
 }
 
-/* First path of the stratum whose cumulative probability starts at cdf: the smallest i with
- * (i + xi) / N >= cdf. */
-static uint64_t first_path_at(double cdf, uint32_t paths, double xi)
+uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi)
 {
     double x = ceil(cdf * paths - xi);
     return x <= 0 ? 0 : x >= paths ? paths : (uint64_t)x;
@@ -197,14 +195,14 @@ static int plan_strata(const ns_gpu_scene *gs, const vrl_target *targets, uint32
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata",
                        (unsigned long long)pairs);
     }
-    double xi = seed_offset(seed), cdf = 0;
+    double xi = ns_vrl_seed_offset(seed), cdf = 0;
     for (uint64_t k = 0; k < pairs; k++) {
         if (power[k] <= 0)
             continue;
         double p = power[k] / total;
-        uint64_t first = first_path_at(cdf, paths, xi);
+        uint64_t first = ns_vrl_first_path_at(cdf, paths, xi);
         cdf += p;
-        uint64_t end = first_path_at(cdf, paths, xi);
+        uint64_t end = ns_vrl_first_path_at(cdf, paths, xi);
         if (end <= first)
             continue; /* no path this time: expected N p < 1, weight 1 / (N p) covers it */
         const vrl_target *t = &targets[k % target_count];

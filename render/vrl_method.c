@@ -84,41 +84,6 @@ static void box_of(const ns_scene *scene, const ns_object *o, float lo[3], float
     }
 }
 
-/* The sphere the paths aim at: the object itself for a sphere, else around its box
- * (slightly enlarged so that rays through the corners survive rounding). */
-static void target_sphere(const ns_scene *scene, const ns_object *o, float out[4])
-{
-    if (o->shape == NS_SHAPE_SPHERE) {
-        memcpy(out, o->center, sizeof o->center);
-        out[3] = o->radius;
-        return;
-    }
-    float lo[3], hi[3];
-    box_of(scene, o, lo, hi);
-    double r2 = 0;
-    for (int k = 0; k < 3; k++) {
-        out[k] = 0.5f * (lo[k] + hi[k]);
-        r2 += 0.25 * ((double)hi[k] - lo[k]) * ((double)hi[k] - lo[k]);
-    }
-    out[3] = (float)(sqrt(r2) * 1.0001 + 1e-6);
-}
-
-/* One uniform number in [0, 1) from the seed (splitmix64), the systematic offset. */
-static double seed_offset(uint32_t seed)
-{
-    uint64_t z = (uint64_t)seed + 0x9e3779b97f4a7c15ull;
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    z ^= z >> 31;
-    return (double)(z >> 11) * (1.0 / 9007199254740992.0);
-}
-
-static uint64_t first_path_at(double cdf, uint32_t paths, double xi)
-{
-    double x = ceil(cdf * paths - xi);
-    return x <= 0 ? 0 : x >= paths ? paths : (uint64_t)x;
-}
-
 typedef struct emitter_list {
     GpuVrlEmitter *items;
     uint32_t count;
@@ -142,7 +107,7 @@ static int collect_targets(const ns_scene *scene, uint32_t *objects, float (*sph
         if (o->shape == NS_SHAPE_MESH && o->triangle_count == 0)
             continue;
         objects[n] = i;
-        target_sphere(scene, o, spheres[n]);
+        ns_vrl_target_sphere(scene, o, spheres[n]);
         n++;
     }
     *count = n;
@@ -178,14 +143,14 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
         total += power[k];
     }
     if (!status && total > 0) {
-        double xi = seed_offset(seed), cdf = 0;
+        double xi = ns_vrl_seed_offset(seed), cdf = 0;
         for (uint64_t k = 0; k < pairs; k++) {
             if (power[k] <= 0)
                 continue;
             double p = power[k] / total;
-            uint64_t first = first_path_at(cdf, paths, xi);
+            uint64_t first = ns_vrl_first_path_at(cdf, paths, xi);
             cdf += p;
-            if (first_path_at(cdf, paths, xi) <= first)
+            if (ns_vrl_first_path_at(cdf, paths, xi) <= first)
                 continue;
             const GpuLight *light = &gs->lights[k / targets];
             GpuVrlEmitter *e = &out->items[out->count++];
