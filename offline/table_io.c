@@ -17,18 +17,6 @@
 
 static const char *const axis_names[NS_AXIS_COUNT] = {"z", "rho", "theta", "phi"};
 
-static int fail(ns_error *err, int status, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->message, sizeof err->message, fmt, ap);
-        va_end(ap);
-        err->status = status;
-    }
-    return status;
-}
-
 /* =======================================================================================
  * The table in memory
  * ===================================================================================== */
@@ -38,7 +26,7 @@ int ns_table_create(ns_table *t, const uint32_t n[NS_AXIS_COUNT], ns_error *err)
     memset(t, 0, sizeof *t);
     for (int a = 0; a < NS_AXIS_COUNT; a++) {
         if (n[a] < 1 || n[a] > TABLE_MAX_BINS_PER_AXIS)
-            return fail(err, NS_ERR_INVALID_ARGUMENT, "table axis %s: %u bins, expected 1..%u",
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "table axis %s: %u bins, expected 1..%u",
                         axis_names[a], n[a], TABLE_MAX_BINS_PER_AXIS);
         t->n[a] = n[a];
     }
@@ -46,13 +34,13 @@ int ns_table_create(ns_table *t, const uint32_t n[NS_AXIS_COUNT], ns_error *err)
         t->edges[a] = calloc(n[a] + 1, sizeof(double));
         if (!t->edges[a]) {
             ns_table_free(t);
-            return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: out of memory for edges");
+            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: out of memory for edges");
         }
     }
     t->data = calloc(ns_table_size(t), sizeof(float));
     if (!t->data) {
         ns_table_free(t);
-        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: out of memory for %zu values",
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: out of memory for %zu values",
                     (size_t)n[0] * n[1] * n[2] * n[3]);
     }
     snprintf(t->source, sizeof t->source, "mc");
@@ -130,7 +118,7 @@ static int make_path(char *out, const char *prefix, const char *suffix, ns_error
 {
     int len = snprintf(out, PATH_CAP, "%s%s", prefix, suffix);
     if (len < 0 || len >= PATH_CAP)
-        return fail(err, NS_ERR_INVALID_ARGUMENT, "--out: path too long (%d bytes)", len);
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "--out: path too long (%d bytes)", len);
     return NS_OK;
 }
 
@@ -162,7 +150,7 @@ static int write_atomically(const char *path, const void *const *parts, const si
         return rc;
     int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (fd < 0)
-        return fail(err, NS_ERR_IO, "--out: cannot create '%s': %s", tmp, strerror(errno));
+        return ns_fail(err, NS_ERR_IO, "--out: cannot create '%s': %s", tmp, strerror(errno));
     for (int i = 0; i < count; i++) {
         const char *p = parts[i];
         size_t left = lengths[i];
@@ -174,7 +162,7 @@ static int write_atomically(const char *path, const void *const *parts, const si
                 int e = errno;
                 close(fd);
                 unlink(tmp);
-                return fail(err, NS_ERR_IO, "--out: writing '%s' failed: %s", tmp, strerror(e));
+                return ns_fail(err, NS_ERR_IO, "--out: writing '%s' failed: %s", tmp, strerror(e));
             }
             p += wrote;
             left -= (size_t)wrote;
@@ -183,12 +171,12 @@ static int write_atomically(const char *path, const void *const *parts, const si
     if (fsync(fd) != 0 || close(fd) != 0) {
         int e = errno;
         unlink(tmp);
-        return fail(err, NS_ERR_IO, "--out: flushing '%s' failed: %s", tmp, strerror(e));
+        return ns_fail(err, NS_ERR_IO, "--out: flushing '%s' failed: %s", tmp, strerror(e));
     }
     if (rename(tmp, path) != 0) {
         int e = errno;
         unlink(tmp);
-        return fail(err, NS_ERR_IO, "--out: renaming to '%s' failed: %s", path, strerror(e));
+        return ns_fail(err, NS_ERR_IO, "--out: renaming to '%s' failed: %s", path, strerror(e));
     }
     fsync_parent_dir(path);
     return NS_OK;
@@ -204,7 +192,7 @@ int ns_table_check_writable(const char *prefix, ns_error *err)
             return rc;
         int fd = open(path, O_WRONLY | O_CREAT | O_TRUNC, 0644);
         if (fd < 0)
-            return fail(err, NS_ERR_IO, "--out: cannot create '%s': %s", path, strerror(errno));
+            return ns_fail(err, NS_ERR_IO, "--out: cannot create '%s': %s", path, strerror(errno));
         close(fd);
         unlink(path);
     }
@@ -241,19 +229,19 @@ static int parse_npy_header(FILE *f, const char *path, uint32_t shape[NS_AXIS_CO
 {
     unsigned char head[10];
     if (fread(head, 1, 10, f) != 10 || memcmp(head, "\x93NUMPY", 6) != 0 || head[6] != 1)
-        return fail(err, NS_ERR_IO, "'%s': not a version 1 .npy file", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': not a version 1 .npy file", path);
     size_t header_len = head[8] | ((size_t)head[9] << 8);
     char dict[1024];
     if (header_len >= sizeof dict || fread(dict, 1, header_len, f) != header_len)
-        return fail(err, NS_ERR_IO, "'%s': truncated .npy header", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': truncated .npy header", path);
     dict[header_len] = '\0';
     if (!strstr(dict, "'descr': '<f4'") || !strstr(dict, "'fortran_order': False"))
-        return fail(err, NS_ERR_IO, "'%s': expected little-endian float32 in C order", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': expected little-endian float32 in C order", path);
     const char *shape_at = strstr(dict, "'shape': (");
     if (!shape_at ||
         sscanf(shape_at, "'shape': (%u, %u, %u, %u)", &shape[0], &shape[1], &shape[2],
                &shape[3]) != 4)
-        return fail(err, NS_ERR_IO, "'%s': expected a 4-dimensional array", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': expected a 4-dimensional array", path);
     *data_offset = (long)(10 + header_len);
     return NS_OK;
 }
@@ -301,7 +289,7 @@ int ns_table_write(const ns_table *t, const char *prefix, ns_error *err)
         return rc;
     /* Unpublish an older table of the same name before its data changes underneath. */
     if (unlink(json_path) != 0 && errno != ENOENT)
-        return fail(err, NS_ERR_IO, "--out: cannot replace '%s': %s", json_path, strerror(errno));
+        return ns_fail(err, NS_ERR_IO, "--out: cannot replace '%s': %s", json_path, strerror(errno));
 
     char header[256];
     size_t header_len = npy_header(header, sizeof header, t->n);
@@ -313,7 +301,7 @@ int ns_table_write(const ns_table *t, const char *prefix, ns_error *err)
 
     char *text = table_json_text(t);
     if (!text)
-        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: cannot serialise the JSON sidecar");
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: cannot serialise the JSON sidecar");
     const void *json_parts[2] = {text, "\n"};
     size_t json_lengths[2] = {strlen(text), 1};
     rc = write_atomically(json_path, json_parts, json_lengths, 2, err);
@@ -325,16 +313,16 @@ static int read_edges(json_t *axes, int axis, ns_table *t, const char *path, ns_
 {
     json_t *arr = json_object_get(axes, axis_names[axis]);
     if (!json_is_array(arr) || json_array_size(arr) != (size_t)t->n[axis] + 1)
-        return fail(err, NS_ERR_IO, "'%s': axes.%s must hold %u edges", path, axis_names[axis],
+        return ns_fail(err, NS_ERR_IO, "'%s': axes.%s must hold %u edges", path, axis_names[axis],
                     t->n[axis] + 1);
     for (uint32_t i = 0; i <= t->n[axis]; i++) {
         json_t *v = json_array_get(arr, i);
         if (!json_is_number(v))
-            return fail(err, NS_ERR_IO, "'%s': axes.%s[%u] is not a number", path,
+            return ns_fail(err, NS_ERR_IO, "'%s': axes.%s[%u] is not a number", path,
                         axis_names[axis], i);
         t->edges[axis][i] = json_number_value(v);
         if (i > 0 && !(t->edges[axis][i] > t->edges[axis][i - 1]))
-            return fail(err, NS_ERR_IO, "'%s': axes.%s edges are not increasing", path,
+            return ns_fail(err, NS_ERR_IO, "'%s': axes.%s edges are not increasing", path,
                         axis_names[axis]);
     }
     return NS_OK;
@@ -345,7 +333,7 @@ static int read_json_number(json_t *root, const char *key, double *out, const ch
 {
     json_t *v = json_object_get(root, key);
     if (!json_is_number(v))
-        return fail(err, NS_ERR_IO, "'%s': \"%s\" must be a number", path, key);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"%s\" must be a number", path, key);
     *out = json_number_value(v);
     return NS_OK;
 }
@@ -358,16 +346,16 @@ static int read_metadata(json_t *root, ns_table *t, const char *path, ns_error *
     json_t *photons = json_object_get(root, "photons");
     json_t *seed = json_object_get(root, "seed");
     if (!json_is_string(quantity) || strcmp(json_string_value(quantity), "J") != 0)
-        return fail(err, NS_ERR_IO, "'%s': \"quantity\" must be \"J\"", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"quantity\" must be \"J\"", path);
     if (!json_is_string(order) || ns_order_parse(json_string_value(order), &t->order) != 0)
-        return fail(err, NS_ERR_IO, "'%s': \"order\" must be \"double\" or \"multiple\"", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"order\" must be \"double\" or \"multiple\"", path);
     if (!json_is_string(source) || (strcmp(json_string_value(source), "mc") != 0 &&
                                     strcmp(json_string_value(source), "nn") != 0))
-        return fail(err, NS_ERR_IO, "'%s': \"source\" must be \"mc\" or \"nn\"", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"source\" must be \"mc\" or \"nn\"", path);
     snprintf(t->source, sizeof t->source, "%s", json_string_value(source));
     if (!json_is_integer(photons) || json_integer_value(photons) < 0 || !json_is_integer(seed) ||
         json_integer_value(seed) < 0)
-        return fail(err, NS_ERR_IO, "'%s': \"photons\" and \"seed\" must be integers >= 0", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"photons\" and \"seed\" must be integers >= 0", path);
     t->photons = (uint64_t)json_integer_value(photons);
     t->seed = (uint64_t)json_integer_value(seed);
     int rc = read_json_number(root, "g", &t->g, path, err);
@@ -384,12 +372,12 @@ static int read_axis_counts(json_t *axes, uint32_t n[NS_AXIS_COUNT], const char 
                             ns_error *err)
 {
     if (!json_is_object(axes))
-        return fail(err, NS_ERR_IO, "'%s': \"axes\" must be an object", path);
+        return ns_fail(err, NS_ERR_IO, "'%s': \"axes\" must be an object", path);
     for (int a = 0; a < NS_AXIS_COUNT; a++) {
         json_t *arr = json_object_get(axes, axis_names[a]);
         if (!json_is_array(arr) || json_array_size(arr) < 2 ||
             json_array_size(arr) > TABLE_MAX_BINS_PER_AXIS + 1)
-            return fail(err, NS_ERR_IO, "'%s': axes.%s must be an array of 2..%u edges", path,
+            return ns_fail(err, NS_ERR_IO, "'%s': axes.%s must be an array of 2..%u edges", path,
                         axis_names[a], TABLE_MAX_BINS_PER_AXIS + 1);
         n[a] = (uint32_t)json_array_size(arr) - 1;
     }
@@ -400,18 +388,18 @@ static int read_npy_data(const char *path, ns_table *t, ns_error *err)
 {
     FILE *f = fopen(path, "rb");
     if (!f)
-        return fail(err, NS_ERR_IO, "cannot open '%s': %s", path, strerror(errno));
+        return ns_fail(err, NS_ERR_IO, "cannot open '%s': %s", path, strerror(errno));
     uint32_t shape[NS_AXIS_COUNT];
     long offset = 0;
     int rc = parse_npy_header(f, path, shape, &offset, err);
     if (!rc && memcmp(shape, t->n, sizeof shape) != 0)
-        rc = fail(err, NS_ERR_IO, "'%s': shape (%u, %u, %u, %u) disagrees with the JSON axes", path,
+        rc = ns_fail(err, NS_ERR_IO, "'%s': shape (%u, %u, %u, %u) disagrees with the JSON axes", path,
                   shape[0], shape[1], shape[2], shape[3]);
     size_t count = ns_table_size(t);
     if (!rc && fread(t->data, sizeof(float), count, f) != count)
-        rc = fail(err, NS_ERR_IO, "'%s': truncated data (expected %zu values)", path, count);
+        rc = ns_fail(err, NS_ERR_IO, "'%s': truncated data (expected %zu values)", path, count);
     if (!rc && fgetc(f) != EOF)
-        rc = fail(err, NS_ERR_IO, "'%s': trailing bytes after the data", path);
+        rc = ns_fail(err, NS_ERR_IO, "'%s': trailing bytes after the data", path);
     fclose(f);
     return rc;
 }
@@ -428,7 +416,7 @@ int ns_table_read(const char *prefix, ns_table *t, ns_error *err)
     json_error_t jerr;
     json_t *root = json_load_file(json_path, 0, &jerr);
     if (!root)
-        return fail(err, NS_ERR_IO, "'%s': %s (line %d)", json_path, jerr.text, jerr.line);
+        return ns_fail(err, NS_ERR_IO, "'%s': %s (line %d)", json_path, jerr.text, jerr.line);
     uint32_t n[NS_AXIS_COUNT];
     json_t *axes = json_object_get(root, "axes");
     rc = read_axis_counts(axes, n, json_path, err);

@@ -14,8 +14,6 @@
 
 #include "nscatter.h"
 
-/* Fills err (when not NULL) with status and a printf-formatted message; returns status. */
-int ns_fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
 /* Embedded SPIR-V (generated registry, build/shaders/shader_registry.c). */
 const uint32_t *ns_shader_code(const char *name, size_t *size_bytes);

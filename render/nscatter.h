@@ -53,6 +53,10 @@ typedef struct ns_error {
     char message[512];
 } ns_error;
 
+/* Fills err (when not NULL) with status and a printf-formatted message; returns status.
+ * Shared by render/, the offline tools and the server. */
+int ns_fail(ns_error *err, int status, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
 /* ---------------------------------------------------------------------------------------
  * Limits the parser enforces and the renderer relies on.
  * ------------------------------------------------------------------------------------- */

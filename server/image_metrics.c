@@ -33,18 +33,6 @@
  * (NS_MAX_PIXELS, 32-bit float RGB, uncompressed) is 192 MiB. */
 #define IMAGE_MAX_FILE_BYTES (512u << 20)
 
-static int image_fail(ns_error *err, int status, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->message, sizeof err->message, fmt, ap);
-        va_end(ap);
-        err->status = status;
-    }
-    return status;
-}
-
 /* ---------------------------------------------------------------------------------------
  * Loading.
  * ------------------------------------------------------------------------------------- */
@@ -54,23 +42,23 @@ static int image_read_file(const char *path, unsigned char **data, size_t *size,
     *size = 0;
     FILE *f = fopen(path, "rb");
     if (!f)
-        return image_fail(err, NS_ERR_IO, "cannot open '%s': %s", path, strerror(errno));
+        return ns_fail(err, NS_ERR_IO, "cannot open '%s': %s", path, strerror(errno));
     int status = NS_OK;
     struct stat st;
     long length = -1;
     if (fstat(fileno(f), &st) == 0 && S_ISREG(st.st_mode) && fseek(f, 0, SEEK_END) == 0)
         length = ftell(f);
     if (length < 0 || fseek(f, 0, SEEK_SET) != 0) {
-        status = image_fail(err, NS_ERR_IO, "cannot read '%s': not a regular file", path);
+        status = ns_fail(err, NS_ERR_IO, "cannot read '%s': not a regular file", path);
     } else if ((unsigned long)length > IMAGE_MAX_FILE_BYTES) {
-        status = image_fail(err, NS_ERR_LIMIT, "'%s' is %ld bytes, more than the %u MiB limit",
+        status = ns_fail(err, NS_ERR_LIMIT, "'%s' is %ld bytes, more than the %u MiB limit",
                             path, length, IMAGE_MAX_FILE_BYTES >> 20);
     } else {
         *data = malloc(length > 0 ? (size_t)length : 1);
         if (!*data)
-            status = image_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory to read '%s'", path);
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory to read '%s'", path);
         else if (fread(*data, 1, (size_t)length, f) != (size_t)length)
-            status = image_fail(err, NS_ERR_IO, "cannot read '%s': %s", path, strerror(errno));
+            status = ns_fail(err, NS_ERR_IO, "cannot read '%s': %s", path, strerror(errno));
         else
             *size = (size_t)length;
     }
@@ -98,7 +86,7 @@ static int image_alloc(ns_image *out, uint32_t width, uint32_t height, ns_error 
     out->rgb = malloc((size_t)width * height * 3 * sizeof(float));
     if (!out->rgb) {
         memset(out, 0, sizeof *out);
-        return image_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory for '%s'", path);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory for '%s'", path);
     }
     return NS_OK;
 }
@@ -111,7 +99,7 @@ static int image_decode_exr(const char *path, const unsigned char *data, size_t 
     const char *exr_err = NULL;
     int rc = LoadEXRFromMemory(&rgba, &width, &height, data, size, &exr_err);
     if (rc != TINYEXR_SUCCESS || width <= 0 || height <= 0) {
-        image_fail(err, NS_ERR_INVALID_ARGUMENT, "'%s' is not a readable EXR image: %s", path,
+        ns_fail(err, NS_ERR_INVALID_ARGUMENT, "'%s' is not a readable EXR image: %s", path,
                    exr_err ? exr_err : "unknown tinyexr error");
         if (exr_err)
             FreeEXRErrorMessage(exr_err);
@@ -133,13 +121,13 @@ static int image_decode_png(const char *path, const unsigned char *data, size_t 
                             ns_error *err)
 {
     if (size > INT32_MAX)
-        return image_fail(err, NS_ERR_LIMIT, "'%s' is too large", path);
+        return ns_fail(err, NS_ERR_LIMIT, "'%s' is too large", path);
     int width = 0, height = 0, channels = 0;
     /* 16-bit decoding serves both depths: 8-bit values come back as v * 257, exactly
      * v / 255 after the division below. */
     stbi_us *px = stbi_load_16_from_memory(data, (int)size, &width, &height, &channels, 3);
     if (!px)
-        return image_fail(err, NS_ERR_INVALID_ARGUMENT, "'%s' is not a readable PNG image: %s",
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "'%s' is not a readable PNG image: %s",
                           path, stbi_failure_reason());
     int status = image_alloc(out, (uint32_t)width, (uint32_t)height, err, path);
     if (status == NS_OK) {
@@ -165,7 +153,7 @@ int image_load(const char *path, ns_image *out, ns_error *err)
              !memcmp(data, image_png_magic, sizeof image_png_magic))
         status = image_decode_png(path, data, size, out, err);
     else
-        status = image_fail(err, NS_ERR_INVALID_ARGUMENT,
+        status = ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                             "'%s' is neither an EXR nor a PNG image (unknown magic bytes)", path);
     free(data);
     return status;
@@ -183,7 +171,7 @@ int image_load_mask(const char *path, uint8_t **mask, uint32_t *width, uint32_t 
     *mask = malloc(n ? n : 1);
     if (!*mask) {
         ns_image_free(&img);
-        return image_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory for mask '%s'", path);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "no memory for mask '%s'", path);
     }
     for (size_t i = 0; i < n; i++) {
         const float *p = img.rgb + 3 * i;

@@ -28,20 +28,6 @@ struct ns_mc_provider {
     double unit_g;
 };
 
-static int fail(ns_error *err, int status, const char *fmt, ...)
-    __attribute__((format(printf, 3, 4)));
-static int fail(ns_error *err, int status, const char *fmt, ...)
-{
-    if (err) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err->message, sizeof err->message, fmt, ap);
-        va_end(ap);
-        err->status = status;
-    }
-    return status;
-}
-
 /* ---------------------------------------------------------------------------------------
  * The cache directory
  * ------------------------------------------------------------------------------------- */
@@ -60,10 +46,10 @@ static int resolve_dir(const char *given, char *dir, ns_error *err)
     else if (home && *home)
         n = snprintf(dir, DIR_CAP, "%s/.cache/nscatter", home);
     else
-        return fail(err, NS_ERR_INVALID_ARGUMENT,
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                     "Monte Carlo cache: set NSCATTER_CACHE_DIR (no XDG_CACHE_HOME or HOME)");
     if (n < 0 || n >= DIR_CAP)
-        return fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: directory name too long");
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: directory name too long");
     return NS_OK;
 }
 
@@ -78,7 +64,7 @@ static int make_dirs(const char *dir, ns_error *err)
         char saved = *p;
         *p = '\0';
         if (mkdir(path, 0755) != 0 && errno != EEXIST)
-            return fail(err, NS_ERR_IO, "Monte Carlo cache: cannot create '%s': %s", path,
+            return ns_fail(err, NS_ERR_IO, "Monte Carlo cache: cannot create '%s': %s", path,
                         strerror(errno));
         *p = saved;
         if (saved == '\0')
@@ -86,7 +72,7 @@ static int make_dirs(const char *dir, ns_error *err)
     }
     struct stat st;
     if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
-        return fail(err, NS_ERR_IO, "Monte Carlo cache: '%s' is not a directory", dir);
+        return ns_fail(err, NS_ERR_IO, "Monte Carlo cache: '%s' is not a directory", dir);
     return NS_OK;
 }
 
@@ -97,11 +83,11 @@ int ns_mc_provider_create(const ns_mc_provider_desc *desc, ns_mc_provider **out,
     if (!desc)
         desc = &defaults;
     if (!(desc->collisions >= 0) || desc->collisions > 1e15)
-        return fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: collisions %g (0 to 1e15)",
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: collisions %g (0 to 1e15)",
                     desc->collisions);
     ns_mc_provider *p = calloc(1, sizeof *p);
     if (!p)
-        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo cache: out of memory");
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo cache: out of memory");
     int status = resolve_dir(desc->cache_dir, p->dir, err);
     if (status) {
         free(p);
@@ -345,7 +331,7 @@ int ns_mc_provider_tables(void *user, double g, double albedo, float *j_double, 
     /* The lobe matrix depends on g only: one for both orders. */
     double *lobe = malloc((size_t)NS_MC_NDIR * NS_MC_NDIR * sizeof(double));
     if (!lobe)
-        return fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo: out of memory");
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo: out of memory");
     ns_mc_lobe_matrix(g, p->lobe_in, p->lobe_out, p->threads, lobe);
     for (int o = 0; o < 2 && !status; o++)
         if (!have[o])
