@@ -206,10 +206,11 @@ static void add_times(ns_render_stats *stats, const scatter_times *t)
             ns_stats_add_stage(stats, rows[i].name, rows[i].ms);
 }
 
-static float boundary_factor(const GpuMaterial *m, ns_method method)
+/* Radiance inside a medium reaches vacuum divided by ior^2 (see the top of this file). */
+static float exit_factor(const GpuMaterial *m)
 {
     float ior = m->sigma_t[3];
-    return method == NS_METHOD_DIPOLE ? 1.0f : 1.0f / (ior * ior);
+    return 1.0f / (ior * ior);
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -247,7 +248,7 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, scatter_t
         const float(*radiance)[4] = out.mapped;
         float inv_spp = 1.0f / (float)in->scene->render.spp;
         for (uint32_t i = 0; i < n; i++) {
-            float f = inv_spp * boundary_factor(&in->gs->materials[kept[i].material], NS_METHOD_NN);
+            float f = inv_spp * exit_factor(&in->gs->materials[kept[i].material]);
             for (int c = 0; c < 3; c++)
                 in->pixels[3 * kept[i].pixel + c] += kept[i].throughput[c] * radiance[i][c] * f;
         }
@@ -394,7 +395,8 @@ static void compose_gathered(const ns_scatter_inputs *in, const tile_plan *t, co
         return;
     for (uint32_t i = 0; i < list->count; i++) {
         const GpuSegment *s = &list->segments[i];
-        float f = inv_spp * boundary_factor(&in->gs->materials[s->material], scene->render.method);
+        /* The dipole's R_d is radiance outside already. */
+        float f = inv_spp * (scene->render.method == NS_METHOD_DIPOLE ? 1.0f : exit_factor(&in->gs->materials[s->material]));
         for (int c = 0; c < 3; c++)
             contribution[s->pixel][c] += s->throughput[c] * radiance[i][c] * f;
     }
