@@ -30,7 +30,8 @@ static const char usage_text[] =
     "                      [--target logrel|paper] [--epochs N (200)] [--batch B (8192)]\n"
     "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
     "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
-    "                      [--eps E (logrel floor, 1e-13)] [--no-calibrate]\n"
+    "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
+    "                      [--oversample-albedo A:F] [--no-calibrate]\n"
     "                      [--threads T] [--quiet]\n"
     "\n"
     "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
@@ -39,7 +40,11 @@ static const char usage_text[] =
     "OUT/<order>.json (how they were made). A checkpoint is written every epoch to\n"
     "CHECKPOINT_DIR/train_<order>.ckpt (default: DIR); --resume continues from it (with\n"
     "--epochs at the checkpoint's epoch it only writes the weights). logrel weights get an\n"
-    "energy calibration factor (docs/network.md) unless --no-calibrate.\n";
+    "energy calibration factor (docs/network.md) unless --no-calibrate. --zero-floor F:\n"
+    "the written weights decode every J/E_k below (F - 1) eps as 0 (the network's noise\n"
+    "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
+    "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
+    "far-reaching high-albedo tables are the ones the network fits worst).\n";
 
 typedef struct {
     const char *data, *out_dir, *ckpt_dir;
@@ -47,7 +52,7 @@ typedef struct {
     ns_nn_target target;
     int epochs, resume, quiet, threads, calibrate;
     uint32_t batch, samples_per_table;
-    double lr, time_budget, eps;
+    double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor;
     uint64_t seed;
     char command[2048];
 } train_options;
@@ -104,6 +109,17 @@ static int parse_value(train_options *o, const char *arg, const char *val)
         rc = parse_number(arg, val, 1e-7, 1, &o->lr);
     else if (!strcmp(arg, "--eps"))
         rc = parse_number(arg, val, 1e-30, 1e-3, &o->eps);
+    else if (!strcmp(arg, "--oversample-albedo")) {
+        char *end = NULL;
+        o->oversample_albedo = strtod(val, &end);
+        o->oversample_factor = end && *end == ':' ? strtod(end + 1, &end) : NAN;
+        if (!end || *end || !(o->oversample_albedo >= 0 && o->oversample_albedo <= 1) ||
+            !(o->oversample_factor >= 1 && o->oversample_factor <= 100))
+            return usage_error("--oversample-albedo: '%s' is not A:F with A in [0, 1] and F in "
+                               "[1, 100]",
+                               val);
+    } else if (!strcmp(arg, "--zero-floor"))
+        rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);
     else if (!strcmp(arg, "--time-budget"))
         rc = parse_number(arg, val, 1, 1e7, &o->time_budget);
     else if (!strcmp(arg, "--seed"))
@@ -126,6 +142,9 @@ static int parse_options(int argc, char **argv, train_options *o)
     o->samples_per_table = 24000;
     o->lr = 0.003;
     o->eps = 1e-13;
+    o->zero_floor = 10;
+    o->oversample_albedo = 2; /* none */
+    o->oversample_factor = 1;
     o->calibrate = 1;
     o->seed = 1;
     size_t len = (size_t)snprintf(o->command, sizeof o->command, "nscatter");
@@ -319,8 +338,10 @@ static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h,
             continue;
         }
         int held = is_holdout(tab.g, tab.albedo);
-        status = cdf ? sample_table(held ? &d->test : &d->train, h, &tab, o->samples_per_table,
-                                    &rng, cdf)
+        uint32_t samples = o->samples_per_table;
+        if (!held && tab.albedo >= o->oversample_albedo)
+            samples = (uint32_t)(samples * o->oversample_factor) & ~1u;
+        status = cdf ? sample_table(held ? &d->test : &d->train, h, &tab, samples, &rng, cdf)
                      : NS_ERR_OUT_OF_HOST_MEMORY;
         (held ? &d->test : &d->train)->materials++;
         if (held && names_len + 32 < sizeof d->names)
@@ -586,18 +607,22 @@ static int write_json(const train_options *o, ns_order order, const ns_nn_weight
             h->g_min, h->g_max, h->g_min, h->albedo_max);
     fprintf(f,
             "  \"target_transform\": {\"name\": \"%s\", \"formula\": \"%s\", \"eps\": %.9g, "
-            "\"mean\": %.9g, \"scale\": %.9g, \"energy_calibration\": %.6g},\n",
+            "\"mean\": %.9g, \"scale\": %.9g, \"energy_calibration\": %.6g, "
+            "\"zero_floor\": %g, \"training_eps\": %.9g},\n",
             h->target == NS_NN_TARGET_PAPER ? "paper" : "logrel",
             h->target == NS_NN_TARGET_PAPER ? "(ln(J+1)-mean)/scale"
                                             : "(ln(J/E_k+eps)-mean)/scale, E_k=a^2 or a^3/(1-a)",
-            h->target_eps, h->target_mean, h->target_scale, r->calibration);
+            h->target_eps, h->target_mean, h->target_scale, r->calibration,
+            h->target == NS_NN_TARGET_LOGREL ? o->zero_floor : 1.0, o->eps);
     fprintf(f,
             "  \"training_set\": {\"data\": \"%s\", \"train_materials\": %d, "
             "\"test_materials\": %d, \"held_out\": [%s], \"samples_per_table\": %u, "
+            "\"oversampled_albedo_from\": %g, \"oversample_factor\": %g, "
             "\"train_samples\": %u, \"test_samples\": %u, \"sampling\": \"half uniform over "
             "cells, half proportional to cell energy\"},\n",
             o->data, d->train.materials, d->test.materials, d->names, o->samples_per_table,
-            d->train.n, d->test.n);
+            o->oversample_factor > 1 ? o->oversample_albedo : 1.0, o->oversample_factor, d->train.n,
+            d->test.n);
     fprintf(f,
             "  \"optimiser\": {\"name\": \"adam\", \"lr\": %g, \"batch\": %u, \"seed\": %llu},\n"
             "  \"epochs\": %d,\n  \"epochs_requested\": %d,\n  \"final_train_loss\": %.6g,\n"
@@ -665,6 +690,14 @@ static int train_order(const train_options *o, ns_order order)
                 ns_order_name(order), calibration);
     }
     res.calibration = calibration;
+    /* Decode floor. Where the table is empty the network answers its floor ln(eps) with an
+     * error of a few tenths either way, and (e^t - eps) E_k keeps the positive half of that
+     * noise: a tiny J, but in the far cells of a 400-mfp table it lit a shell at r ~ 300 mfp
+     * and doubled <r^2> of the double table (docs/network.md). Decoding with a larger eps
+     * sends everything below (F - 1) eps to zero; the cells that hold the light are many
+     * orders above it. The file keeps one eps, the decoding one. */
+    if (o->target == NS_NN_TARGET_LOGREL)
+        w.h.target_eps *= (float)o->zero_floor;
     if (!rc) {
         char bin[4200], json[4200];
         snprintf(bin, sizeof bin, "%s/%s.bin", o->out_dir, ns_order_name(order));
