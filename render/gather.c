@@ -151,50 +151,203 @@ static float box_distance(const float *amin, const float *amax, const float *bmi
     return sqrtf(g2);
 }
 
+/* ---------------------------------------------------------------------------------------
+ * The nodes the gather walks: the grid's tree with every leaf of more than
+ * NS_GATHER_MAX_LEAF_VRLS VRLs cut into pieces (same box, a representative each), so that one
+ * dispatch can always take a whole leaf under lavapipe's loop budget. The limit does not
+ * depend on the device, so the CPU reference walks exactly the GPU's nodes. A grid made by
+ * hand (node_count 0, the tests) is walked as its cells, each a leaf.
+ * ------------------------------------------------------------------------------------- */
+#define NS_GATHER_MAX_LEAF_VRLS (2u * NS_LAVAPIPE_LOOP_BUDGET / NS_GATHER_ITERATIONS_PER_VRL - 1u)
+
+typedef struct gather_nodes {
+    GpuVrlNode *nodes;
+    GpuVrl *representatives;
+    uint32_t count;
+} gather_nodes;
+
+static void free_nodes(gather_nodes *n)
+{
+    free(n->nodes);
+    free(n->representatives);
+    memset(n, 0, sizeof *n);
+}
+
+static uint32_t pieces_of(uint32_t count)
+{
+    return count ? (count + NS_GATHER_MAX_LEAF_VRLS - 1) / NS_GATHER_MAX_LEAF_VRLS : 1;
+}
+
+/* Appends the leaf `node` (skip set here), cut into pieces when it is large. */
+static void append_leaf(gather_nodes *out, const ns_vrl_grid *grid, GpuVrlNode node,
+                        const GpuVrl *representative)
+{
+    if (node.count <= NS_GATHER_MAX_LEAF_VRLS) {
+        node.skip = out->count + 1;
+        out->representatives[out->count] = *representative;
+        out->nodes[out->count++] = node;
+        return;
+    }
+    for (uint32_t first = 0; first < node.count; first += NS_GATHER_MAX_LEAF_VRLS) {
+        GpuVrlNode piece = node;
+        piece.first = node.first + first;
+        piece.count = node.count - first < NS_GATHER_MAX_LEAF_VRLS ? node.count - first
+                                                                   : NS_GATHER_MAX_LEAF_VRLS;
+        piece.skip = out->count + 1;
+        out->representatives[out->count] = ns_vrl_representative(grid->vrls + piece.first, piece.count);
+        out->nodes[out->count++] = piece;
+    }
+}
+
+/* Copies the subtree of grid node i; returns the index past it in the grid's array. */
+static uint32_t copy_subtree(gather_nodes *out, const ns_vrl_grid *grid, uint32_t i)
+{
+    const GpuVrlNode *node = &grid->nodes[i];
+    if (node->leaf) {
+        append_leaf(out, grid, *node, &grid->node_representatives[i]);
+        return node->skip;
+    }
+    uint32_t index = out->count++;
+    out->nodes[index] = *node;
+    out->representatives[index] = grid->node_representatives[i];
+    for (uint32_t child = i + 1; child < node->skip;)
+        child = copy_subtree(out, grid, child);
+    out->nodes[index].skip = out->count;
+    return node->skip;
+}
+
+static int build_nodes(const ns_vrl_grid *grid, gather_nodes *out)
+{
+    memset(out, 0, sizeof *out);
+    uint32_t n = 0;
+    if (grid->node_count)
+        for (uint32_t i = 0; i < grid->node_count; i++)
+            n += grid->nodes[i].leaf ? pieces_of(grid->nodes[i].count) : 1;
+    else
+        for (uint32_t c = 0; c < grid->cell_count; c++)
+            n += pieces_of(grid->cells[c].count);
+    out->nodes = malloc(sizeof *out->nodes * (n ? n : 1));
+    out->representatives = malloc(sizeof *out->representatives * (n ? n : 1));
+    if (!out->nodes || !out->representatives) {
+        free_nodes(out);
+        return -1;
+    }
+    if (grid->node_count)
+        for (uint32_t i = 0; i < grid->node_count;)
+            i = copy_subtree(out, grid, i);
+    else
+        for (uint32_t c = 0; c < grid->cell_count; c++) {
+            const GpuVrlCell *cell = &grid->cells[c];
+            GpuVrlNode leaf = {.first = cell->first, .count = cell->count, .leaf = 1, .level = grid->level};
+            memcpy(leaf.bmin, cell->bmin, sizeof leaf.bmin);
+            memcpy(leaf.bmax, cell->bmax, sizeof leaf.bmax);
+            append_leaf(out, grid, leaf, &grid->representatives[c]);
+        }
+    return 0;
+}
+
+/* The shader's walk of [first, end) for one segment; adds to out. */
 static void gather_one(const GpuGatherParams *p, const GpuSegment *seg, const ns_vrl_grid *grid,
-                       const float *table, float out[4], ns_gather_counts *counts)
+                       const gather_nodes *tree, uint32_t first, uint32_t end, const float *table,
+                       float out[4], ns_gather_counts *counts)
 {
     float w[3] = {-seg->direction[0], -seg->direction[1], -seg->direction[2]};
     float d[3] = {seg->exit[0] - seg->entry[0], seg->exit[1] - seg->entry[1], seg->exit[2] - seg->entry[2]};
     float length_c = sqrtf(dot3(d, d));
-    float attenuation[3], paper_weight[3];
+    float attenuation[3], paper_weight[3], smin[3], smax[3];
+    int dipole = p->counts[3] == NS_GATHER_MODE_DIPOLE;
     for (int c = 0; c < 3; c++) {
         attenuation[c] = expf(-p->sigma_t[c] * length_c);
         paper_weight[c] = (1.0f - attenuation[c]) / (1.0f - expf(-(float)NS_PAPER_ACCUMULATION_MFP));
+        smin[c] = dipole ? seg->entry[c] : fminf(seg->entry[c], seg->exit[c]);
+        smax[c] = dipole ? seg->entry[c] : fmaxf(seg->entry[c], seg->exit[c]);
     }
-    float smin[3], smax[3];
-    for (int i = 0; i < 3; i++) {
-        int dipole = p->counts[3] == NS_GATHER_MODE_DIPOLE;
-        smin[i] = dipole ? seg->entry[i] : fminf(seg->entry[i], seg->exit[i]);
-        smax[i] = dipole ? seg->entry[i] : fmaxf(seg->entry[i], seg->exit[i]);
-    }
-    float sum[3] = {0, 0, 0};
-    for (uint32_t ci = 0; ci < grid->cell_count; ci++) {
-        const GpuVrlCell *cell = &grid->cells[ci];
-        float gap = box_distance(smin, smax, cell->bmin, cell->bmax);
+    for (uint32_t ci = first; ci < end;) {
+        const GpuVrlNode *node = &tree->nodes[ci];
+        float gap = box_distance(smin, smax, node->bmin, node->bmax);
         if (gap > p->cull[0]) {
             counts->cells_culled++;
+            ci = node->skip;
             continue;
         }
         if (p->cull[1] > 0.0f) {
-            float e[3] = {cell->bmax[0] - cell->bmin[0], cell->bmax[1] - cell->bmin[1],
-                          cell->bmax[2] - cell->bmin[2]};
+            float e[3] = {node->bmax[0] - node->bmin[0], node->bmax[1] - node->bmin[1],
+                          node->bmax[2] - node->bmin[2]};
             float radius2 = 0.25f * dot3(e, e);
             if (gap * gap > radius2 && 3.14159265358979f * radius2 / (gap * gap) < p->cull[1]) {
-                contribution(p, table, &grid->representatives[ci], seg, w, attenuation, paper_weight, sum);
+                contribution(p, table, &tree->representatives[ci], seg, w, attenuation, paper_weight, out);
                 counts->cells_represented++;
                 counts->interactions++;
+                ci = node->skip;
                 continue;
             }
         }
-        for (uint32_t k = cell->first; k < cell->first + cell->count; k++)
-            contribution(p, table, &grid->vrls[k], seg, w, attenuation, paper_weight, sum);
-        counts->interactions += cell->count;
+        if (!node->leaf) {
+            ci++;
+            continue;
+        }
+        for (uint32_t k = node->first; k < node->first + node->count; k++)
+            contribution(p, table, &grid->vrls[k], seg, w, attenuation, paper_weight, out);
+        counts->interactions += node->count;
+        ci = node->skip;
     }
-    out[0] = sum[0];
-    out[1] = sum[1];
-    out[2] = sum[2];
-    out[3] = 0.0f;
+}
+
+/* Node ranges [first, first + count) for the dispatches: each a run of whole subtrees whose
+ * walk stays within the loop budget even if it culls and represents nothing (every node
+ * visited, every leaf's VRLs evaluated). A subtree too large for one range is left out and
+ * its children are placed instead: its representative is then never used, and its light
+ * comes from the children. budget 0: one range. Returns the number of ranges (push holds
+ * room for nodes->count + 1). */
+typedef struct range_split {
+    const gather_nodes *tree;
+    uint32_t budget, cost, ranges, open, first;
+    GpuGatherPush *push;
+} range_split;
+
+static uint32_t subtree_cost(const gather_nodes *tree, uint32_t i)
+{
+    uint32_t cost = 0;
+    for (uint32_t k = i; k < tree->nodes[i].skip; k++)
+        cost += NS_GATHER_ITERATIONS_PER_VRL * (1 + (tree->nodes[k].leaf ? tree->nodes[k].count : 0));
+    return cost;
+}
+
+static void close_range(range_split *r)
+{
+    if (r->open)
+        r->push[r->ranges++] = (GpuGatherPush){.first_cell = r->first, .cell_count = r->open};
+    r->open = 0;
+    r->cost = 0;
+}
+
+static void place_subtree(range_split *r, uint32_t i)
+{
+    const GpuVrlNode *node = &r->tree->nodes[i];
+    uint32_t cost = r->budget ? subtree_cost(r->tree, i) : 0;
+    if (r->budget && cost > r->budget && !node->leaf) {
+        close_range(r); /* the node itself is skipped: ranges are contiguous runs */
+        for (uint32_t child = i + 1; child < node->skip; child = r->tree->nodes[child].skip)
+            place_subtree(r, child);
+        return;
+    }
+    if (r->open && (r->first + r->open != i || (r->budget && r->cost + cost > r->budget)))
+        close_range(r);
+    if (!r->open)
+        r->first = i;
+    r->open += node->skip - i;
+    r->cost += cost;
+}
+
+static uint32_t split_ranges(const gather_nodes *tree, uint32_t budget, GpuGatherPush *push)
+{
+    range_split r = {.tree = tree, .budget = budget, .push = push};
+    for (uint32_t i = 0; i < tree->count; i = tree->nodes[i].skip)
+        place_subtree(&r, i);
+    close_range(&r);
+    if (!r.ranges)
+        push[r.ranges++] = (GpuGatherPush){0};
+    return r.ranges;
 }
 
 void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
@@ -202,8 +355,22 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
                    float (*out)[4], ns_gather_counts *counts)
 {
     ns_gather_counts local = {0};
-    for (uint32_t i = 0; i < segment_count; i++)
-        gather_one(params, &segments[i], grid, table, out[i], &local);
+    gather_nodes tree;
+    if (build_nodes(grid, &tree))
+        abort(); /* tests only */
+    /* The GPU's ranges under lavapipe's budget: the same nodes visited in the same order. */
+    GpuGatherPush *push = calloc(tree.count + 1, sizeof *push);
+    if (!push)
+        abort();
+    uint32_t ranges = split_ranges(&tree, 2 * NS_LAVAPIPE_LOOP_BUDGET, push);
+    for (uint32_t i = 0; i < segment_count; i++) {
+        memset(out[i], 0, sizeof out[i]);
+        for (uint32_t r = 0; r < ranges; r++)
+            gather_one(params, &segments[i], grid, &tree, push[r].first_cell,
+                       push[r].first_cell + push[r].cell_count, table, out[i], &local);
+    }
+    free(push);
+    free_nodes(&tree);
     if (counts)
         *counts = local;
 }
@@ -212,63 +379,6 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
  * GPU
  * ------------------------------------------------------------------------------------- */
 enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
-
-/* The grid's cells with every cell of more than max_vrls VRLs cut into pieces (same box, a
- * representative each), so that one dispatch can always take at least one whole piece. */
-typedef struct gather_cells {
-    GpuVrlCell *cells;
-    GpuVrl *representatives;
-    uint32_t count;
-} gather_cells;
-
-static int split_large_cells(const ns_vrl_grid *grid, uint32_t max_vrls, gather_cells *out)
-{
-    uint32_t n = 0;
-    for (uint32_t ci = 0; ci < grid->cell_count; ci++)
-        n += grid->cells[ci].count ? (grid->cells[ci].count + max_vrls - 1) / max_vrls : 1;
-    out->count = n;
-    out->cells = malloc(sizeof *out->cells * (n ? n : 1));
-    out->representatives = malloc(sizeof *out->representatives * (n ? n : 1));
-    if (!out->cells || !out->representatives)
-        return -1;
-    uint32_t j = 0;
-    for (uint32_t ci = 0; ci < grid->cell_count; ci++) {
-        const GpuVrlCell *cell = &grid->cells[ci];
-        if (cell->count <= max_vrls) {
-            out->cells[j] = *cell;
-            out->representatives[j++] = grid->representatives[ci];
-            continue;
-        }
-        for (uint32_t first = 0; first < cell->count; first += max_vrls) {
-            out->cells[j] = *cell;
-            out->cells[j].first = cell->first + first;
-            out->cells[j].count = cell->count - first < max_vrls ? cell->count - first : max_vrls;
-            out->representatives[j] = ns_vrl_representative(grid->vrls + out->cells[j].first,
-                                                        out->cells[j].count);
-            j++;
-        }
-    }
-    return 0;
-}
-
-/* Cell ranges [first, first + count) whose loop iterations stay within budget. Returns the
- * number of ranges written to push (room for cells->count + 1). */
-static uint32_t split_ranges(const gather_cells *cells, uint32_t budget, GpuGatherPush *push)
-{
-    uint32_t ranges = 0, first = 0, cost = 0;
-    for (uint32_t ci = 0; ci < cells->count; ci++) {
-        uint32_t cell_cost = 1 + cells->cells[ci].count * NS_GATHER_ITERATIONS_PER_VRL;
-        if (budget && ci > first && cost + cell_cost > budget) {
-            push[ranges++] = (GpuGatherPush){.first_cell = first, .cell_count = ci - first};
-            first = ci;
-            cost = 0;
-        }
-        cost += cell_cost;
-    }
-    if (cells->count > first || ranges == 0)
-        push[ranges++] = (GpuGatherPush){.first_cell = first, .cell_count = cells->count - first};
-    return ranges;
-}
 
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err)
@@ -279,23 +389,20 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
         return NS_OK;
     /* lavapipe: a dispatch's invocations stay within the loop budget (shared.h). */
     uint32_t budget = ctx->dev.loop_limited ? 2 * NS_LAVAPIPE_LOOP_BUDGET : 0;
-    uint32_t max_vrls = budget ? budget / NS_GATHER_ITERATIONS_PER_VRL - 1 : UINT32_MAX;
-    gather_cells split = {0};
+    gather_nodes tree;
     GpuGatherPush *push = NULL;
-    if (split_large_cells(grid, max_vrls, &split) ||
-        !(push = calloc(split.count + 1, sizeof *push))) {
-        free(split.cells);
-        free(split.representatives);
+    if (build_nodes(grid, &tree) || !(push = calloc(tree.count + 1, sizeof *push))) {
+        free_nodes(&tree);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u cells", grid->cell_count);
     }
-    uint32_t ranges = split_ranges(&split, budget, push);
+    uint32_t ranges = split_ranges(&tree, budget, push);
     for (uint32_t i = 0; i < ranges; i++) {
         push[i].first_segment = desc->first_segment;
         push[i].accumulate = i > 0;
     }
     GpuGatherParams params = desc->params;
     params.counts[0] = desc->segment_count;
-    params.counts[1] = split.count;
+    params.counts[1] = tree.count;
     params.counts[2] = grid->vrl_count;
 
     gpu_buffer own[G_COUNT];
@@ -303,10 +410,10 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     gpu_buffer_desc descs[] = {
         {.size = sizeof params, .kind = GPU_BUFFER_UNIFORM, .data = &params, .data_size = sizeof params,
          .label = "ns.gather.params"},
-        {.size = (uint64_t)split.count * sizeof(GpuVrlCell), .data = split.cells,
-         .data_size = (uint64_t)split.count * sizeof(GpuVrlCell), .label = "ns.gather.cells"},
-        {.size = (uint64_t)split.count * sizeof(GpuVrl), .data = split.representatives,
-         .data_size = (uint64_t)split.count * sizeof(GpuVrl), .label = "ns.gather.representatives"},
+        {.size = (uint64_t)tree.count * sizeof(GpuVrlNode), .data = tree.nodes,
+         .data_size = (uint64_t)tree.count * sizeof(GpuVrlNode), .label = "ns.gather.nodes"},
+        {.size = (uint64_t)tree.count * sizeof(GpuVrl), .data = tree.representatives,
+         .data_size = (uint64_t)tree.count * sizeof(GpuVrl), .label = "ns.gather.representatives"},
         {.size = (uint64_t)grid->vrl_count * sizeof(GpuVrl), .data = grid->vrls,
          .data_size = (uint64_t)grid->vrl_count * sizeof(GpuVrl), .label = "ns.gather.vrls"},
         {.size = 16, .label = "ns.gather.no_table"},
@@ -348,7 +455,6 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     for (int i = 0; i < G_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
     free(push);
-    free(split.cells);
-    free(split.representatives);
+    free_nodes(&tree);
     return status;
 }

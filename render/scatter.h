@@ -113,22 +113,31 @@ void ns_vrl_target_sphere(const ns_scene *scene, const ns_object *o, float out[4
 double ns_vrl_seed_offset(uint32_t seed);
 uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi);
 
-/* One level of the grid hierarchy of one medium's VRLs (paper Section 4.3). */
+/* The grid hierarchy of one medium's VRLs (paper Section 4.3): the cells of the chosen
+ * (leaf) level, and the tree of every level from the coarsest down to it that the gather
+ * walks (GpuVrlNode, shaders/scatter_shared.h). */
 typedef struct ns_vrl_grid {
     GpuVrl *vrls;            /* the medium's VRLs, sorted by cell */
     uint32_t vrl_count;
-    GpuVrlCell *cells;       /* non-empty cells only */
+    GpuVrlCell *cells;       /* non-empty cells of the chosen level only */
     GpuVrl *representatives; /* one per cell, same index */
     uint32_t cell_count;
     uint32_t level;          /* chosen level in the hierarchy, 0 = finest */
     uint32_t level_count;    /* levels built (2 to 5) */
     float cell_size;         /* edge of a cell of the chosen level (scene units) */
+    GpuVrlNode *nodes;       /* depth first; the leaves are `cells`, in the same order */
+    GpuVrl *node_representatives; /* one per node, same index */
+    uint32_t node_count;     /* 0 for a grid made by hand (tests): the gather walks `cells` */
 } ns_vrl_grid;
 
-/* Builds the hierarchy over the VRLs of `material` and keeps the level chosen for a medium
- * whose smallest mean free path is mfp_min (scene units). */
-int ns_vrl_grid_build(const ns_vrl_set *set, uint32_t material, float mfp_min, ns_vrl_grid *out,
-                      ns_error *err);
+/* Builds the hierarchy over the VRLs of `material` for a medium whose smallest mean free
+ * path is mfp_min (scene units); the leaves are the finest level whose cells hold leaf_fill
+ * VRLs on average (0: NS_VRL_CELL_FILL, for the exact gather; NS_VRL_LEAF_FILL_REPRESENTED
+ * when far nodes stand in for their VRLs). */
+#define NS_VRL_CELL_FILL 16u
+#define NS_VRL_LEAF_FILL_REPRESENTED 4u
+int ns_vrl_grid_build(const ns_vrl_set *set, uint32_t material, float mfp_min, uint32_t leaf_fill,
+                      ns_vrl_grid *out, ns_error *err);
 void ns_vrl_grid_free(ns_vrl_grid *grid);
 
 /* The representative of vrls[0, count) (count >= 1): total power, power-weighted (mean of
@@ -162,7 +171,8 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
                   ns_error *err);
 
 /* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
- * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. */
+ * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. It walks the nodes in lavapipe's
+ * dispatch ranges. */
 void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
                    uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
                    float (*out)[4], ns_gather_counts *counts);

@@ -269,17 +269,48 @@ typedef struct gather_list {
     uint32_t material_first[NS_MAX_MATERIALS + 1]; /* material m: [first[m], first[m + 1]) */
 } gather_list;
 
+/* Even bits of v packed into the low half: one coordinate of a Morton code. */
+static uint32_t morton_compact(uint32_t v)
+{
+    v &= 0x55555555u;
+    v = (v | (v >> 1)) & 0x33333333u;
+    v = (v | (v >> 2)) & 0x0f0f0f0fu;
+    v = (v | (v >> 4)) & 0x00ff00ffu;
+    v = (v | (v >> 8)) & 0x0000ffffu;
+    return v;
+}
+
+/* The gathered pixels in Morton (Z) order: consecutive segments of the list, which the
+ * gather runs side by side in one SIMD group, then lie close together on the image, so
+ * their walks of the VRL hierarchy take the same branches (row order put 8 of them along
+ * 16 pixels of one row). Returns the count; order holds room for every pixel. */
+static uint32_t gathered_in_z_order(const tile_plan *t, uint32_t *order)
+{
+    uint32_t side = 1, n = 0;
+    while (side < t->width || side < t->height)
+        side *= 2;
+    for (uint64_t code = 0; code < (uint64_t)side * side; code++) {
+        uint32_t x = morton_compact((uint32_t)code), y = morton_compact((uint32_t)(code >> 1));
+        if (x < t->width && y < t->height && t->gathered[y * t->width + x])
+            order[n++] = y * t->width + x;
+    }
+    return n;
+}
+
 static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_method method, gather_list *g)
 {
     memset(g->material_first, 0, sizeof g->material_first);
     uint32_t pixels = t->width * t->height, n = 0;
-    for (uint32_t p = 0; p < pixels; p++)
-        if (t->gathered[p])
-            for (uint32_t k = t->segment_start[p]; k < t->segment_start[p + 1]; k++)
-                if (participates(&segs[t->by_pixel[k]], method)) {
-                    g->material_first[segs[t->by_pixel[k]].material + 1]++;
-                    n++;
-                }
+    uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
+    if (!order)
+        return -1;
+    uint32_t gathered = gathered_in_z_order(t, order);
+    for (uint32_t j = 0; j < gathered; j++)
+        for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++)
+            if (participates(&segs[t->by_pixel[k]], method)) {
+                g->material_first[segs[t->by_pixel[k]].material + 1]++;
+                n++;
+            }
     for (uint32_t m = 0; m < NS_MAX_MATERIALS; m++)
         g->material_first[m + 1] += g->material_first[m];
     g->count = n;
@@ -287,18 +318,19 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
     uint32_t *fill = calloc(NS_MAX_MATERIALS, sizeof *fill);
     if (!g->segments || !fill) {
         free(fill);
+        free(order);
         return -1;
     }
-    for (uint32_t p = 0; p < pixels; p++)
-        if (t->gathered[p])
-            for (uint32_t k = t->segment_start[p]; k < t->segment_start[p + 1]; k++) {
-                uint32_t i = t->by_pixel[k];
-                if (!participates(&segs[i], method))
-                    continue;
-                uint32_t at = g->material_first[segs[i].material] + fill[segs[i].material]++;
-                g->segments[at] = segs[i];
-            }
+    for (uint32_t j = 0; j < gathered; j++)
+        for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++) {
+            uint32_t i = t->by_pixel[k];
+            if (!participates(&segs[i], method))
+                continue;
+            uint32_t at = g->material_first[segs[i].material] + fill[segs[i].material]++;
+            g->segments[at] = segs[i];
+        }
     free(fill);
+    free(order);
     return 0;
 }
 
@@ -339,7 +371,9 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
         float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
         ns_vrl_grid grid = {0};
         double t1 = ns_now_ms();
-        status = ns_vrl_grid_build(&set, m, s_max > 0 ? 1.0f / s_max : INFINITY, &grid, err);
+        /* Representatives pay off only with small leaves (docs/scattering.md). */
+        uint32_t leaf_fill = scene->render.cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
+        status = ns_vrl_grid_build(&set, m, s_max > 0 ? 1.0f / s_max : INFINITY, leaf_fill, &grid, err);
         times->grid += ns_now_ms() - t1;
         const ns_scatter_tables *tables = NULL;
         uint32_t mode = NS_GATHER_MODE_DIPOLE;

@@ -1,7 +1,7 @@
 #version 450
 // gather.comp — double and multiple scattering gathered from Virtual Ray Lights (the paper's
-// Algorithm 1): one invocation per camera segment visits the grid cells of one dispatch's
-// cell range, skips cells beyond the table's reach, and sums the contribution of each VRL
+// Algorithm 1): one invocation per camera segment walks the grid hierarchy's nodes of one
+// dispatch's range, skips nodes beyond the table's reach, and sums the contribution of each VRL
 // through the accumulated table A (DESIGN.md section 2):
 //     L += P s^2 [A(x_entry) - e^{-s Lc} A(x_exit)]      per channel, in the VRL's frame,
 // or the paper's 5-mfp form W A5(x_entry), or (dipole mode) P R_d(|x_entry - origin|) / pi.
@@ -15,7 +15,7 @@ layout(local_size_x = NS_GATHER_GROUP) in;
 
 layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams params; };
 layout(std430, binding = 1) readonly buffer SegmentBlock { GpuSegment segments[]; };
-layout(std430, binding = 2) readonly buffer CellBlock { GpuVrlCell cells[]; };
+layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
 layout(std430, binding = 3) readonly buffer RepresentativeBlock { GpuVrl representatives[]; };
 layout(std430, binding = 4) readonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
@@ -139,29 +139,40 @@ void main()
 
     vec3 sum = vec3(0.0);
     uint interactions = 0u, culled = 0u, represented = 0u;
+    // Walk the dispatch's run of whole subtrees (depth first; skip = past the subtree): a
+    // node beyond the table's reach goes with its subtree, a node small enough seen from the
+    // segment (option) counts as its representative, a leaf's VRLs are evaluated.
     uint end = min(push.first_cell + push.cell_count, params.counts.y);
-    for (uint ci = push.first_cell; ci < end; ci++) {
-        GpuVrlCell cell = cells[ci];
-        float gap = box_distance(smin, smax, cell.bmin, cell.bmax);
+    uint ci = push.first_cell;
+    while (ci < end) {
+        GpuVrlNode node = nodes[ci];
+        float gap = box_distance(smin, smax, node.bmin, node.bmax);
         if (gap > params.cull.x) {
             culled++;
+            ci = node.skip;
             continue;
         }
         if (params.cull.y > 0.0) {
             // The box's solid angle seen from the segment's nearest point, bounded by the
-            // sphere around its diagonal: far, small cells count as their representative.
-            vec3 extent = cell.bmax - cell.bmin;
+            // sphere around its diagonal.
+            vec3 extent = node.bmax - node.bmin;
             float radius2 = 0.25 * dot(extent, extent);
             if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
                 sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight, exit_matters);
                 represented++;
                 interactions++;
+                ci = node.skip;
                 continue;
             }
         }
-        for (uint k = cell.first; k < cell.first + cell.count; k++)
+        if (node.leaf == 0u) {
+            ci++;
+            continue;
+        }
+        for (uint k = node.first; k < node.first + node.count; k++)
             sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
-        interactions += cell.count;
+        interactions += node.count;
+        ci = node.skip;
     }
     vec4 previous = push.accumulate != 0u ? radiance[index] : vec4(0.0);
     radiance[index] = previous + vec4(sum, 0.0);

@@ -37,6 +37,23 @@ struct GpuVrlCell {
     ns_uint count;
 };
 
+/* A node of the hierarchy the gather walks (render/vrl_grid.c): the cells of every level from
+ * the coarsest down to the chosen leaf level, in depth-first order, so that a node's
+ * children follow it and `skip` is the index just past its subtree. A node covers
+ * vrls[first, first + count) (its subtree's VRLs are contiguous thanks to the Morton sort)
+ * and [bmin, bmax] is the box of their origins; a representative VRL is stored at the same
+ * index in a parallel array. leaf = 1: the gather evaluates the node's VRLs; 0: its
+ * children follow. An inner node with one child is left out (the child stands for it). */
+struct GpuVrlNode {
+    ns_vec3 bmin;
+    ns_uint first;
+    ns_vec3 bmax;
+    ns_uint count;
+    ns_uint skip;
+    ns_uint leaf;
+    ns_uint level; /* grid level, 0 = finest */
+    ns_uint pad;
+};
 /* The render tables: the default Monte Carlo grid (offline/mc.h: 128 z x 64 rho x 18 theta x
  * 18 phi, spatial edges scale * sinh(step * i), z symmetric about 0, 10-degree angular bins).
  * A table buffer holds the three RGB channels one after another, each in the .npy order
@@ -98,11 +115,13 @@ NS_CONST(uint, NS_GATHER_ITERATIONS_PER_VRL, 2);
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuVrl GpuVrl;
 typedef struct GpuVrlCell GpuVrlCell;
+typedef struct GpuVrlNode GpuVrlNode;
 typedef struct GpuGatherParams GpuGatherParams;
 typedef struct GpuGatherPush GpuGatherPush;
 _Static_assert(sizeof(GpuVrl) == 48 && offsetof(GpuVrl, power) == 32, "GpuVrl layout");
 _Static_assert(offsetof(GpuVrl, material) == 28 && offsetof(GpuVrl, events) == 44, "GpuVrl");
 _Static_assert(sizeof(GpuVrlCell) == 32 && offsetof(GpuVrlCell, count) == 28, "GpuVrlCell");
+_Static_assert(sizeof(GpuVrlNode) == 48 && offsetof(GpuVrlNode, skip) == 32, "GpuVrlNode");
 _Static_assert(sizeof(GpuGatherParams) == 128, "GpuGatherParams std140 size");
 _Static_assert(sizeof(GpuGatherPush) == 16, "GpuGatherPush size");
 #endif

@@ -20,11 +20,25 @@ static void random_unit(float v[3])
     set3(v, r * cosf(phi), r * sinf(phi), z);
 }
 
+/* smooth_table: a table that changes by a few percent from bin to bin, as real ones do.
+ * With random values, a point that the GPU's asinh/acos put in the neighbouring bin of the
+ * CPU's changes its term completely; with thousands of VRLs per segment such flips, not the
+ * arithmetic, would set the difference. */
+static int smooth_table;
+
 static float *random_table(void)
 {
     float *t = malloc(sizeof *t * 3 * (size_t)NS_TABLE_CELLS);
-    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
+    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++) {
         t[i] = uniform01();
+        if (smooth_table) {
+            size_t cell = i % NS_TABLE_CELLS, dir = cell % (NS_TABLE_NTHETA * NS_TABLE_NPHI);
+            size_t spatial = cell / (NS_TABLE_NTHETA * NS_TABLE_NPHI);
+            double z = fabs((double)(spatial / NS_TABLE_NRHO) - NS_TABLE_NZ / 2.0);
+            double rho = (double)(spatial % NS_TABLE_NRHO);
+            t[i] = (float)((1 + i / NS_TABLE_CELLS) * (1 + 0.02 * dir) / (1 + 0.05 * (z + rho)));
+        }
+    }
     return t;
 }
 
@@ -119,14 +133,35 @@ static ns_scatter_tables table_geometry(void)
 /* Runs the GPU gather and the CPU one; returns the largest relative difference (relative to
  * the larger of the CPU value and floor_fraction of the mean, so that a segment whose
  * entry and exit terms nearly cancel cannot inflate it). */
-static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_t segment_count,
-                      double floor_fraction, ns_gather_counts *gpu_counts)
+/* The hierarchy render/vrl_grid.c builds over random VRLs (medium mfp 1/8 as test_material's
+ * largest extinction): several levels and direction classes. */
+static void hierarchy_grid(ns_vrl_grid *g, uint32_t vrl_count, uint32_t leaf_fill)
+{
+    ns_vrl_grid flat;
+    random_grid(&flat, vrl_count, 1);
+    ns_vrl_set set = {.vrls = flat.vrls, .count = vrl_count, .paths = vrl_count};
+    ns_error err = {0};
+    CHECK_INT(ns_vrl_grid_build(&set, 0, 1.0f / 8.0f, leaf_fill, g, &err), NS_OK);
+    ns_vrl_grid_free(&flat);
+}
+
+/* Runs the GPU gather and the CPU one; returns the largest relative difference (relative to
+ * the larger of the CPU value and floor_fraction of the mean, so that a segment whose
+ * entry and exit terms nearly cancel cannot inflate it). cells 0: the real hierarchy
+ * (hierarchy_grid) instead of cells of consecutive VRLs; solid_angle: the option's threshold
+ * (render.cull_solid_angle). cpu_out (optional) receives the CPU sums. */
+static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_t segment_count,
+                           double floor_fraction, float solid_angle, ns_gather_counts *gpu_counts,
+                           float (*cpu_out)[4])
 {
     ns_context *ctx = test_context();
     ns_error err = {0};
     float *table = mode == NS_GATHER_MODE_DIPOLE ? NULL : random_table();
     ns_vrl_grid grid;
-    random_grid(&grid, vrl_count, cells);
+    if (cells)
+        random_grid(&grid, vrl_count, cells);
+    else
+        hierarchy_grid(&grid, vrl_count, solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0);
     GpuSegment *segments = random_segments(segment_count);
     GpuMaterial m = test_material();
     ns_scatter_tables tables = table_geometry();
@@ -155,7 +190,7 @@ static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_
                            .grid = &grid,
                            .table = table ? &tables.a : NULL,
                            .out = &out_buf};
-    ns_gather_params(&desc.params, &m, mode, table ? &tables : NULL, 0.0f);
+    ns_gather_params(&desc.params, &m, mode, table ? &tables : NULL, solid_angle);
     if (!status)
         status = ns_gather_run(ctx, &desc, gpu_counts, &err);
     if (status)
@@ -168,6 +203,10 @@ static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_
     desc.params.counts[0] = segment_count;
     ns_gather_cpu(&desc.params, segments, segment_count, &grid, table, cpu, &cpu_counts);
     CHECK(cpu_counts.interactions == gpu_counts->interactions);
+    CHECK(cpu_counts.cells_represented == gpu_counts->cells_represented);
+    CHECK(cpu_counts.cells_culled == gpu_counts->cells_culled);
+    if (cpu_out)
+        memcpy(cpu_out, cpu, sizeof *cpu * segment_count);
 
     double mean = 0, worst = 0;
     for (uint32_t i = 0; i < segment_count; i++)
@@ -189,10 +228,14 @@ static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_
     free(cpu);
     free(segments);
     free(table);
-    free(grid.vrls);
-    free(grid.cells);
-    free(grid.representatives);
+    ns_vrl_grid_free(&grid);
     return worst;
+}
+
+static double compare(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_t segment_count,
+                      double floor_fraction, ns_gather_counts *gpu_counts)
+{
+    return compare_walk(mode, vrl_count, cells, segment_count, floor_fraction, 0.0f, gpu_counts, NULL);
 }
 
 static void test_exact_form_small(void)
@@ -238,8 +281,60 @@ static void test_split_across_dispatches(void)
         CHECK(counts.dispatches > 1);
 }
 
+/* The hierarchy walked exactly (no threshold): every VRL meets every segment (nothing lies
+ * beyond the table's reach here), and the sum equals the flat sum over one cell of all the
+ * VRLs on the CPU, whatever the tree's shape; the GPU walk equals the CPU walk. */
+static void test_hierarchy_exact(void)
+{
+    enum { VRLS = 3000, SEGMENTS = 128 };
+    ns_gather_counts counts;
+    smooth_table = 1;
+    static float tree_sum[SEGMENTS][4], flat_sum[SEGMENTS][4];
+    uint32_t rng_before = rng;
+    double worst = compare_walk(NS_GATHER_MODE_EXACT, VRLS, 0, SEGMENTS, 1e-3, 0.0f, &counts, tree_sum);
+    printf("hierarchy, exact: worst relative difference GPU vs CPU %.2e\n", worst);
+    /* 3000 float terms per segment, summed in the same order: rounding bounds it. */
+    CHECK(worst <= VRLS * ldexp(1.0, -24) * 1.5);
+    CHECK(counts.interactions == (uint64_t)VRLS * SEGMENTS);
+    CHECK(counts.cells_represented == 0);
+    /* Same random draws again: the same VRLs, segments and table, in one flat cell. */
+    rng = rng_before;
+    worst = compare_walk(NS_GATHER_MODE_EXACT, VRLS, 1, SEGMENTS, 1e-3, 0.0f, &counts, flat_sum);
+    double flat_vs_tree = 0, mean = 0;
+    for (int i = 0; i < SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            mean += fabs(flat_sum[i][c]) / (3.0 * SEGMENTS);
+    for (int i = 0; i < SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            flat_vs_tree = fmax(flat_vs_tree, fabs(tree_sum[i][c] - flat_sum[i][c]) /
+                                                   fmax(fabs(flat_sum[i][c]), 1e-3 * mean));
+    printf("hierarchy, exact: tree walk vs flat sum %.2e\n", flat_vs_tree);
+    CHECK(mean > 0);
+    CHECK(flat_vs_tree <= VRLS * ldexp(1.0, -24) * 2);
+    smooth_table = 0;
+}
+
+/* With the solid-angle option the walk replaces far nodes by their representatives: fewer
+ * interactions, and the GPU still equals the CPU walk node for node (counts equal too). */
+static void test_hierarchy_representatives(void)
+{
+    ns_gather_counts counts;
+    smooth_table = 1;
+    double worst = compare_walk(NS_GATHER_MODE_EXACT, 3000, 0, 128, 1e-3, 0.05f, &counts, NULL);
+    smooth_table = 0;
+    printf("hierarchy, solid angle 0.05: %llu interactions (%llu represented) of %u, worst "
+           "relative difference GPU vs CPU %.2e\n",
+           (unsigned long long)counts.interactions, (unsigned long long)counts.cells_represented,
+           3000u * 128u, worst);
+    CHECK(worst <= 3000 * ldexp(1.0, -24) * 1.5);
+    CHECK(counts.cells_represented > 0);
+    CHECK(counts.interactions < 3000u * 128u);
+}
+
 int main(void)
 {
+    RUN(test_hierarchy_exact);
+    RUN(test_hierarchy_representatives);
     RUN(test_exact_form_small);
     RUN(test_paper_form_small);
     RUN(test_dipole);

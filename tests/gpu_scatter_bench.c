@@ -6,11 +6,15 @@
  * As a test (default) it renders once, small, and checks that every scattering stage and
  * count is reported. With NSCATTER_BENCH=N it prints the medians of N runs: 256x256 and
  * 512x512, multiple only and the full solution, with render.vrls = 40000 (the issue's
- * target scene), then the interaction rates (docs/scattering.md quotes them). */
+ * target scene), then the solid-angle option's time and error against the exact gather, then
+ * the interaction rates (docs/scattering.md quotes them). NSCATTER_BENCH_ONLY=renders |
+ * solid_angle | gather runs one part; NSCATTER_BENCH_256_ONLY=1 skips 512x512 in the
+ * solid-angle sweep; NSCATTER_BENCH_POINT_ONLY=1 drops the environment light. */
 #include <pthread.h>
 #include <stdlib.h>
 
 #include "gpu_util.h"
+#include "image_metrics.h"
 #include "scatter.h"
 
 static ns_material materials[2];
@@ -49,7 +53,7 @@ static ns_scene candle_scene(uint32_t size, uint32_t components, uint32_t vrls)
     s.objects = objects;
     s.object_count = 2;
     s.lights = lights;
-    s.light_count = 2;
+    s.light_count = getenv("NSCATTER_BENCH_POINT_ONLY") ? 1 : 2;
     return s;
 }
 
@@ -134,6 +138,51 @@ static void bench_renders(int runs)
             printf(" %8llu %12llu\n", (unsigned long long)stats.vrl_count,
                    (unsigned long long)stats.interactions);
         }
+}
+
+/* The solid-angle option (render.cull_solid_angle): far nodes of the hierarchy count as
+ * their representative. Error against the exact gather (threshold 0) of the same scene and
+ * VRLs, and the time it buys: multiple only, 256x256 and 512x512. */
+static void bench_solid_angle(int runs)
+{
+    const float thresholds[] = {0.0f, 0.02f, 0.05f, 0.1f, 0.2f, 0.5f};
+    enum { COUNT = sizeof thresholds / sizeof thresholds[0] };
+    const uint32_t sizes[] = {256, 512};
+    int size_count = getenv("NSCATTER_BENCH_256_ONLY") ? 1 : 2;
+    printf("\nsolid-angle threshold, multiple only, 40000 VRL paths, median ms of %d runs\n", runs);
+    printf("%-8s %9s %10s %10s %12s %12s %9s %9s\n", "size", "threshold", "gather", "total",
+           "interactions", "represented", "PSNR dB", "rel.err");
+    for (int a = 0; a < size_count; a++) {
+        ns_image exact = {0};
+        for (int k = 0; k < COUNT; k++) {
+            double gather[MAX_RUNS], total[MAX_RUNS];
+            ns_render_stats stats = {0};
+            ns_image img = {0};
+            for (int r = 0; r < runs; r++) {
+                ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
+                s.render.cull_solid_angle = thresholds[k];
+                memset(&stats, 0, sizeof stats);
+                ns_image_free(&img);
+                double t0 = ns_now_ms();
+                if (!render_ok(&s, &img, &stats))
+                    return;
+                total[r] = ns_now_ms() - t0;
+                gather[r] = stage_ms(&stats, "gather");
+            }
+            image_metrics m = {0};
+            if (k == 0)
+                exact = img;
+            else
+                image_compare(&img, &exact, NULL, &m);
+            printf("%3ux%-4u %9.3g %10.1f %10.1f %12llu %12llu %9.1f %8.3f%%\n", sizes[a], sizes[a],
+                   (double)thresholds[k], median(gather, runs), median(total, runs),
+                   (unsigned long long)stats.interactions, (unsigned long long)stats.cells_represented,
+                   k ? m.psnr[3] : INFINITY, k ? 100 * m.relerr[3] : 0.0);
+            if (k)
+                ns_image_free(&img);
+        }
+        ns_image_free(&exact);
+    }
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -263,8 +312,12 @@ int main(void)
     const char *runs = getenv("NSCATTER_BENCH");
     if (runs && atoi(runs) > 0) {
         int n = atoi(runs) < MAX_RUNS ? atoi(runs) : MAX_RUNS;
-        bench_renders(n);
-        bench_gather(n);
+        if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "renders"))
+            bench_renders(n);
+        if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "solid_angle"))
+            bench_solid_angle(n);
+        if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "gather"))
+            bench_gather(n);
     }
     ns_context_destroy(test_context());
     return harness_report();

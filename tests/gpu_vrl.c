@@ -540,7 +540,7 @@ static void test_grid_of_generated(void)
         return;
     ns_vrl_grid grid;
     ns_error err = {0};
-    CHECK_INT(ns_vrl_grid_build(&set, 0, 0.1f, &grid, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, 0.1f, 0, &grid, &err), NS_OK);
     CHECK_INT(grid.vrl_count, set.count);
     double cells = 0;
     for (uint32_t i = 0; i < grid.cell_count; i++)
@@ -625,7 +625,7 @@ static void bench(void)
             ns_vrl_grid grid;
             double t1 = ns_now_ms();
             /* mfp of the sphere's material: 1 / max sigma_t = 1 / 3.1 */
-            CHECK_INT(ns_vrl_grid_build(&set, 0, 1.0f / 3.1f, &grid, &err), NS_OK);
+            CHECK_INT(ns_vrl_grid_build(&set, 0, 1.0f / 3.1f, 0, &grid, &err), NS_OK);
             grid_ms[r] = ns_now_ms() - t1;
             count = set.count;
             cells = grid.cell_count;

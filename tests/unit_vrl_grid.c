@@ -2,7 +2,8 @@
  * exactly one cell, cells contiguous and covering the sorted buffer, boxes around their
  * origins, representatives that sum the power and average origin and direction by power,
  * the documented lattice (cells of level i are the finest cells >> i, so level i + 1 merges
- * 2 x 2 x 2 cells of level i), the level count and the level rule, and bad arguments. */
+ * 2 x 2 x 2 cells of level i, within direction classes), the level count and the level rule,
+ * the depth-first tree over the levels the gather walks, and bad arguments. */
 #include <stdlib.h>
 
 #include "harness.h"
@@ -60,18 +61,83 @@ static lattice lattice_of(const ns_vrl_set *set, uint32_t material, const ns_vrl
     return l;
 }
 
-/* The documented cell of a VRL at `level` (vrl_grid.h), packed into one integer. */
-static uint32_t expected_cell(const lattice *l, const float origin[3], uint32_t level)
+/* The documented direction class of a VRL (vrl_grid.h): the cell of its direction on an
+ * N x N octahedral map, N = NS_VRL_DIRECTION_CLASSES. */
+static uint32_t expected_class(const float d[3])
 {
-    uint32_t packed = 0;
+    const float n = (float)NS_VRL_DIRECTION_CLASSES;
+    float l1 = fabsf(d[0]) + fabsf(d[1]) + fabsf(d[2]);
+    float u = d[0] / l1, v = d[1] / l1;
+    if (d[2] < 0) {
+        float fu = (1 - fabsf(v)) * (u < 0 ? -1.0f : 1.0f), fv = (1 - fabsf(u)) * (v < 0 ? -1.0f : 1.0f);
+        u = fu;
+        v = fv;
+    }
+    uint32_t iu = (uint32_t)fminf((u + 1) * 0.5f * n, n - 1), iv = (uint32_t)fminf((v + 1) * 0.5f * n, n - 1);
+    return iv * NS_VRL_DIRECTION_CLASSES + iu;
+}
+
+/* The documented cell of a VRL at `level` (vrl_grid.h) within its direction class, packed
+ * into one integer. */
+static uint32_t expected_cell(const lattice *l, const GpuVrl *vrl, uint32_t level)
+{
+    uint32_t packed = expected_class(vrl->direction) << 24;
     for (int k = 0; k < 3; k++) {
-        float x = (origin[k] - l->lo[k]) / l->s0;
+        float x = (vrl->origin[k] - l->lo[k]) / l->s0;
         uint32_t c = x > 0.0f ? (uint32_t)x : 0;
         if (c > l->r0 - 1)
             c = l->r0 - 1;
         packed |= (c >> level) << (8 * k);
     }
     return packed;
+}
+
+/* The tree (GpuVrlNode): depth first, skip past the subtree, leaves = the cells in order,
+ * inner nodes with two children at least whose runs tile theirs, boxes and representatives
+ * of their VRLs, leaves at the chosen level and inner nodes above it. */
+static void check_tree(const ns_vrl_grid *g)
+{
+    CHECK(g->node_count >= g->cell_count && g->node_count < 2 * g->cell_count + 1);
+    uint32_t leaves = 0, bad = 0, next_vrl = 0;
+    for (uint32_t i = 0; i < g->node_count; i++) {
+        const GpuVrlNode *n = &g->nodes[i];
+        bad += n->skip <= i || n->skip > g->node_count || n->count == 0;
+        if (n->leaf) {
+            const GpuVrlCell *c = &g->cells[leaves++];
+            bad += n->skip != i + 1 || n->level != g->level || n->first != c->first ||
+                   n->count != c->count || memcmp(n->bmin, c->bmin, sizeof n->bmin) ||
+                   memcmp(n->bmax, c->bmax, sizeof n->bmax);
+            bad += n->first != next_vrl;
+            next_vrl = n->first + n->count;
+            continue;
+        }
+        uint32_t children = 0, covered = n->first;
+        float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (uint32_t c = i + 1; c < n->skip; c = g->nodes[c].skip) {
+            const GpuVrlNode *child = &g->nodes[c];
+            children++;
+            bad += child->first != covered || child->level >= n->level || child->skip > n->skip;
+            covered = child->first + child->count;
+            for (int a = 0; a < 3; a++) {
+                lo[a] = fminf(lo[a], child->bmin[a]);
+                hi[a] = fmaxf(hi[a], child->bmax[a]);
+            }
+        }
+        bad += children < 2 || covered != n->first + n->count || n->level <= g->level;
+        for (int a = 0; a < 3; a++)
+            bad += lo[a] != n->bmin[a] || hi[a] != n->bmax[a];
+        double power = 0;
+        for (uint32_t k = n->first; k < n->first + n->count; k++)
+            power += g->vrls[k].power[0];
+        bad += fabs(g->node_representatives[i].power[0] - power) > 1e-5 * power;
+    }
+    CHECK_INT(leaves, g->cell_count);
+    CHECK_INT(bad, 0);
+    /* The roots (reached by skips from 0) cover every VRL. */
+    uint32_t covered = 0;
+    for (uint32_t i = 0; i < g->node_count; i = g->nodes[i].skip)
+        covered += g->nodes[i].count;
+    CHECK_INT(covered, g->vrl_count);
 }
 
 /* cell_of[id] = index of the cell holding VRL id (NS_NONE when absent). */
@@ -94,14 +160,14 @@ static void check_level(const ns_vrl_set *set, const ns_vrl_grid *g, uint32_t *c
         next = cell->first + cell->count;
         double power[3] = {0, 0, 0}, origin[3] = {0, 0, 0}, dir[3] = {0, 0, 0}, weight = 0;
         float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-        uint32_t key = expected_cell(&l, g->vrls[cell->first].origin, g->level);
+        uint32_t key = expected_cell(&l, &g->vrls[cell->first], g->level);
         for (uint32_t k = cell->first; k < next && k < g->vrl_count; k++) {
             const GpuVrl *v = &g->vrls[k];
             twice += v->events < set->count && cell_of[v->events] != NS_NONE;
             if (v->events < set->count)
                 cell_of[v->events] = c;
             wrong_material += v->material != 0;
-            mixed += expected_cell(&l, v->origin, g->level) != key;
+            mixed += expected_cell(&l, v, g->level) != key;
             double w = (v->power[0] + v->power[1] + v->power[2]) / 3.0;
             weight += w;
             for (int a = 0; a < 3; a++) {
@@ -141,8 +207,8 @@ static void check_level(const ns_vrl_set *set, const ns_vrl_grid *g, uint32_t *c
     uint32_t same_key = 0;
     for (uint32_t c = 1; c < g->cell_count; c++)
         for (uint32_t d = 0; d < c; d++)
-            same_key += expected_cell(&l, g->vrls[g->cells[c].first].origin, g->level) ==
-                        expected_cell(&l, g->vrls[g->cells[d].first].origin, g->level);
+            same_key += expected_cell(&l, &g->vrls[g->cells[c].first], g->level) ==
+                        expected_cell(&l, &g->vrls[g->cells[d].first], g->level);
     CHECK_INT(same_key, 0);
 }
 
@@ -151,18 +217,19 @@ static void test_levels(float mfp, uint32_t want_levels, uint32_t want_r0)
     ns_vrl_set set = random_set(3000);
     ns_error err = {0};
     ns_vrl_grid auto_grid;
-    CHECK_INT(ns_vrl_grid_build(&set, 0, mfp, &auto_grid, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, mfp, 0, &auto_grid, &err), NS_OK);
     CHECK_INT(auto_grid.level_count, want_levels);
     uint32_t levels = auto_grid.level_count;
     uint32_t *cells_of[5] = {0}, cell_counts[5] = {0};
     for (uint32_t level = 0; level < levels && level < 5; level++) {
         ns_vrl_grid g;
-        CHECK_INT(ns_vrl_grid_build_level(&set, 0, mfp, level, &g, &err), NS_OK);
+        CHECK_INT(ns_vrl_grid_build_level(&set, 0, mfp, 0, level, &g, &err), NS_OK);
         CHECK_INT(g.level, level);
         CHECK_INT(g.level_count, levels);
         CHECK_INT(lattice_of(&set, 0, &g).r0, want_r0);
         cells_of[level] = malloc(sizeof(uint32_t) * set.count);
         check_level(&set, &g, cells_of[level]);
+        check_tree(&g);
         cell_counts[level] = g.cell_count;
         if (level > 0) {
             /* Merging: VRLs together at level - 1 stay together, and a cell gathers at
@@ -203,7 +270,7 @@ static void test_levels(float mfp, uint32_t want_levels, uint32_t want_r0)
         free(cells_of[i]);
     /* Deterministic. */
     ns_vrl_grid again;
-    CHECK_INT(ns_vrl_grid_build(&set, 0, mfp, &again, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, mfp, 0, &again, &err), NS_OK);
     CHECK(again.cell_count == auto_grid.cell_count &&
           !memcmp(again.vrls, auto_grid.vrls, sizeof(GpuVrl) * again.vrl_count) &&
           !memcmp(again.cells, auto_grid.cells, sizeof(GpuVrlCell) * again.cell_count));
@@ -212,19 +279,19 @@ static void test_levels(float mfp, uint32_t want_levels, uint32_t want_r0)
     free(set.vrls);
 }
 
-/* Extent of the origins is just under 2: ratio extent / mfp decides the finest resolution
+/* Extent of the origins is just under 2: ratio 8 * extent / mfp (NS_VRL_CELLS_PER_MFP) decides the finest resolution
  * (power of two, 2..64) and the level count log2 + 1 (2..5). */
 static void test_coarse_medium(void)
 {
-    test_levels(1.5f, 2, 2);
+    test_levels(12.0f, 2, 2);
 }
 static void test_mid_medium(void)
 {
-    test_levels(0.3f, 4, 8);
+    test_levels(2.4f, 4, 8);
 }
 static void test_fine_medium(void)
 {
-    test_levels(0.07f, 5, 32);
+    test_levels(0.56f, 5, 32);
 }
 static void test_very_fine_medium(void)
 {
@@ -237,8 +304,8 @@ static void test_level_follows_count(void)
     ns_vrl_set few = random_set(200), many = random_set(60000);
     ns_vrl_grid a, b;
     ns_error err = {0};
-    CHECK_INT(ns_vrl_grid_build(&few, 0, 0.05f, &a, &err), NS_OK);
-    CHECK_INT(ns_vrl_grid_build(&many, 0, 0.05f, &b, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&few, 0, 1.0f, 0, &a, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&many, 0, 1.0f, 0, &b, &err), NS_OK);
     CHECK(a.level > b.level);
     CHECK(a.vrl_count >= NS_VRL_CELL_FILL * a.cell_count || a.level + 1 == a.level_count);
     ns_vrl_grid_free(&a);
@@ -253,29 +320,31 @@ static void test_degenerate_sets(void)
     ns_vrl_grid g;
     /* No VRL of this medium: an empty grid. */
     ns_vrl_set set = random_set(10);
-    CHECK_INT(ns_vrl_grid_build(&set, 7, 0.1f, &g, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&set, 7, 0.1f, 0, &g, &err), NS_OK);
     CHECK(g.vrl_count == 0 && g.cell_count == 0 && g.cells == NULL);
     ns_vrl_grid_free(&g);
     ns_vrl_set empty = {0};
-    CHECK_INT(ns_vrl_grid_build(&empty, 0, 0.1f, &g, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&empty, 0, 0.1f, 0, &g, &err), NS_OK);
     CHECK_INT(g.cell_count, 0);
     ns_vrl_grid_free(&g);
-    /* Every origin in one point: one cell at every level. */
-    for (uint32_t i = 0; i < set.count; i++)
+    /* Every origin in one point and one direction: one cell at every level. */
+    for (uint32_t i = 0; i < set.count; i++) {
         memcpy(set.vrls[i].origin, set.vrls[0].origin, sizeof set.vrls[0].origin);
-    CHECK_INT(ns_vrl_grid_build_level(&set, 0, 0.1f, 0, &g, &err), NS_OK);
+        memcpy(set.vrls[i].direction, set.vrls[0].direction, sizeof set.vrls[0].direction);
+    }
+    CHECK_INT(ns_vrl_grid_build_level(&set, 0, 0.1f, 0, 0, &g, &err), NS_OK);
     CHECK_INT(g.cell_count, 1);
     CHECK_INT(g.cells[0].count, g.vrl_count);
     ns_vrl_grid_free(&g);
     /* A medium that does not attenuate (mfp infinite): the coarsest lattice. */
-    CHECK_INT(ns_vrl_grid_build(&set, 0, INFINITY, &g, &err), NS_OK);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, INFINITY, 0, &g, &err), NS_OK);
     CHECK_INT(g.level_count, 2);
     ns_vrl_grid_free(&g);
     /* Bad arguments name themselves. */
-    CHECK_INT(ns_vrl_grid_build(&set, 0, 0.0f, &g, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, 0.0f, 0, &g, &err), NS_ERR_INVALID_ARGUMENT);
     CHECK_STR_CONTAINS(err.message, "mfp_min");
-    CHECK_INT(ns_vrl_grid_build(&set, 0, NAN, &g, &err), NS_ERR_INVALID_ARGUMENT);
-    CHECK_INT(ns_vrl_grid_build_level(&set, 0, 1.0f, 2, &g, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_vrl_grid_build(&set, 0, NAN, 0, &g, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_vrl_grid_build_level(&set, 0, 1.0f, 0, 2, &g, &err), NS_ERR_INVALID_ARGUMENT);
     CHECK_STR_CONTAINS(err.message, "level 2");
     CHECK(g.cells == NULL && g.vrls == NULL);
     free(set.vrls);
