@@ -260,8 +260,8 @@ typedef struct ns_render_stats {
     uint64_t vrl_count;           /* VRLs stored */
     uint64_t gather_segments;     /* camera segments gathered (after tiling) */
     uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */
-    uint64_t cells_culled;        /* grid cells skipped: beyond the table's reach */
-    uint64_t cells_represented;   /* grid cells replaced by their representative VRL */
+    uint64_t cells_culled;        /* hierarchy nodes skipped with their subtrees: beyond the table's reach */
+    uint64_t cells_represented;   /* hierarchy nodes replaced by their representative VRL */
     uint64_t weights_bytes;       /* network weights used (nn) */
     uint64_t table_bytes;         /* scattering tables held on the device for this render */
 } ns_render_stats;

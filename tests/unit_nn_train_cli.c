@@ -100,6 +100,32 @@ static void test_train_and_resume(void)
     CHECK_INT(run(cmd_train, resume), 0);
     text = read_text(json);
     CHECK_STR_CONTAINS(text, "\"epochs\": 3,");
+    CHECK_STR_CONTAINS(text, "\"zero_floor\": 10,");
+    ns_nn_weights resumed;
+    CHECK_INT(ns_nn_weights_load(bin, &resumed, &err), 0);
+
+    /* The decode floor: the same training (resumed at its last epoch, nothing more to run)
+     * written with --zero-floor 1 keeps a tenth of the default's eps, all else equal. */
+    const char *floor1[] = {"train",     "--data",  dir,        "--order",      "double",
+                            "--out-dir", out,       "--epochs", "3",            "--samples-per-table",
+                            "400",       "--batch", "64",       "--zero-floor", "1",
+                            "--quiet",   "--resume", NULL};
+    CHECK_INT(run(cmd_train, floor1), 0);
+    ns_nn_weights unfloored;
+    CHECK_INT(ns_nn_weights_load(bin, &unfloored, &err), 0);
+    CHECK_NEAR(resumed.h.target_eps / unfloored.h.target_eps, 10.0, 1e-4);
+    CHECK(resumed.h.target_mean == unfloored.h.target_mean);
+    CHECK(!memcmp(resumed.p, unfloored.p, sizeof resumed.p));
+
+    /* Oversampling: the tables with albedo >= 0.9 give 3x the samples (400 + 3 x 400). */
+    const char *oversampled[] = {"train",     "--data",  dir,        "--order", "double",
+                                 "--out-dir", out,       "--epochs", "1",       "--samples-per-table",
+                                 "400",       "--batch", "64",       "--oversample-albedo", "0.9:3",
+                                 "--quiet",   NULL};
+    CHECK_INT(run(cmd_train, oversampled), 0);
+    text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"train_samples\": 1600,");
+    CHECK_STR_CONTAINS(text, "\"oversample_factor\": 3,");
 }
 
 static void test_argument_errors(void)
@@ -112,6 +138,16 @@ static void test_argument_errors(void)
     CHECK_INT(run(cmd_train, empty), 2);
     const char *bad_target[] = {"train", "--data", dir, "--target", "log", NULL};
     CHECK_INT(run(cmd_train, bad_target), 2);
+    const char *bad_floor[] = {"train", "--data", dir, "--zero-floor", "0.5", NULL};
+    CHECK_INT(run(cmd_train, bad_floor), 2);
+    const char *bad_oversample[][2] = {{"--oversample-albedo", "0.9"},
+                                       {"--oversample-albedo", "0.9:0.5"},
+                                       {"--oversample-albedo", "1.5:2"},
+                                       {"--oversample-albedo", "0.9:2x"}};
+    for (int i = 0; i < 4; i++) {
+        const char *bad[] = {"train", "--data", dir, bad_oversample[i][0], bad_oversample[i][1], NULL};
+        CHECK_INT(run(cmd_train, bad), 2);
+    }
     const char *bad_g[] = {"table", "--source", "nn",  "--order", "double", "--g",
                            "1.5",   "--albedo", "0.5", "--out",   "/tmp/x", NULL};
     CHECK_INT(run(cmd_table, bad_g), 2);
