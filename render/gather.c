@@ -246,22 +246,49 @@ static int build_nodes(const ns_vrl_grid *grid, gather_nodes *out)
     return 0;
 }
 
-/* The shader's walk of [first, end) for one segment; adds to out. */
+/* The box around a segment (its entry point alone for the dipole). */
+static void segment_box(const GpuGatherParams *p, const GpuSegment *seg, float smin[3], float smax[3])
+{
+    int dipole = p->counts[3] == NS_GATHER_MODE_DIPOLE;
+    for (int c = 0; c < 3; c++) {
+        smin[c] = dipole ? seg->entry[c] : fminf(seg->entry[c], seg->exit[c]);
+        smax[c] = dipole ? seg->entry[c] : fmaxf(seg->entry[c], seg->exit[c]);
+    }
+}
+
+typedef struct segment_terms {
+    float w[3], attenuation[3], paper_weight[3];
+} segment_terms;
+
+static segment_terms terms_of(const GpuGatherParams *p, const GpuSegment *seg)
+{
+    segment_terms t;
+    float d[3] = {seg->exit[0] - seg->entry[0], seg->exit[1] - seg->entry[1], seg->exit[2] - seg->entry[2]};
+    float length_c = sqrtf(dot3(d, d));
+    for (int c = 0; c < 3; c++) {
+        t.w[c] = -seg->direction[c];
+        t.attenuation[c] = expf(-p->sigma_t[c] * length_c);
+        t.paper_weight[c] = (1.0f - t.attenuation[c]) / (1.0f - expf(-(float)NS_PAPER_ACCUMULATION_MFP));
+    }
+    return t;
+}
+
+static void gather_leaf(const GpuGatherParams *p, const GpuSegment *seg, const ns_vrl_grid *grid,
+                        const GpuVrlNode *node, const float *table, float out[4])
+{
+    segment_terms t = terms_of(p, seg);
+    for (uint32_t k = node->first; k < node->first + node->count; k++)
+        contribution(p, table, &grid->vrls[k], seg, t.w, t.attenuation, t.paper_weight, out);
+}
+
+/* The shader's walk with the solid-angle option of [first, end) for one segment alone. */
 static void gather_one(const GpuGatherParams *p, const GpuSegment *seg, const ns_vrl_grid *grid,
                        const gather_nodes *tree, uint32_t first, uint32_t end, const float *table,
                        float out[4], ns_gather_counts *counts)
 {
-    float w[3] = {-seg->direction[0], -seg->direction[1], -seg->direction[2]};
-    float d[3] = {seg->exit[0] - seg->entry[0], seg->exit[1] - seg->entry[1], seg->exit[2] - seg->entry[2]};
-    float length_c = sqrtf(dot3(d, d));
-    float attenuation[3], paper_weight[3], smin[3], smax[3];
-    int dipole = p->counts[3] == NS_GATHER_MODE_DIPOLE;
-    for (int c = 0; c < 3; c++) {
-        attenuation[c] = expf(-p->sigma_t[c] * length_c);
-        paper_weight[c] = (1.0f - attenuation[c]) / (1.0f - expf(-(float)NS_PAPER_ACCUMULATION_MFP));
-        smin[c] = dipole ? seg->entry[c] : fminf(seg->entry[c], seg->exit[c]);
-        smax[c] = dipole ? seg->entry[c] : fmaxf(seg->entry[c], seg->exit[c]);
-    }
+    segment_terms t = terms_of(p, seg);
+    float smin[3], smax[3];
+    segment_box(p, seg, smin, smax);
     for (uint32_t ci = first; ci < end;) {
         const GpuVrlNode *node = &tree->nodes[ci];
         float gap = box_distance(smin, smax, node->bmin, node->bmax);
@@ -270,25 +297,54 @@ static void gather_one(const GpuGatherParams *p, const GpuSegment *seg, const ns
             ci = node->skip;
             continue;
         }
-        if (p->cull[1] > 0.0f) {
-            float e[3] = {node->bmax[0] - node->bmin[0], node->bmax[1] - node->bmin[1],
-                          node->bmax[2] - node->bmin[2]};
-            float radius2 = 0.25f * dot3(e, e);
-            if (gap * gap > radius2 && 3.14159265358979f * radius2 / (gap * gap) < p->cull[1]) {
-                contribution(p, table, &tree->representatives[ci], seg, w, attenuation, paper_weight, out);
-                counts->cells_represented++;
-                counts->interactions++;
-                ci = node->skip;
-                continue;
-            }
+        float e[3] = {node->bmax[0] - node->bmin[0], node->bmax[1] - node->bmin[1],
+                      node->bmax[2] - node->bmin[2]};
+        float radius2 = 0.25f * dot3(e, e);
+        if (gap * gap > radius2 && 3.14159265358979f * radius2 / (gap * gap) < p->cull[1]) {
+            contribution(p, table, &tree->representatives[ci], seg, t.w, t.attenuation,
+                         t.paper_weight, out);
+            counts->cells_represented++;
+            counts->interactions++;
+            ci = node->skip;
+            continue;
         }
         if (!node->leaf) {
             ci++;
             continue;
         }
-        for (uint32_t k = node->first; k < node->first + node->count; k++)
-            contribution(p, table, &grid->vrls[k], seg, w, attenuation, paper_weight, out);
+        gather_leaf(p, seg, grid, node, table, out);
         counts->interactions += node->count;
+        ci = node->skip;
+    }
+}
+
+/* The shader's exact walk (no solid-angle threshold) of [first, end) for one subgroup:
+ * `lanes` consecutive segments cull a node only when it is beyond every one's reach. */
+static void gather_group_exact(const GpuGatherParams *p, const GpuSegment *segs, uint32_t lanes,
+                               const ns_vrl_grid *grid, const gather_nodes *tree, uint32_t first,
+                               uint32_t end, const float *table, float (*out)[4],
+                               ns_gather_counts *counts)
+{
+    for (uint32_t ci = first; ci < end;) {
+        const GpuVrlNode *node = &tree->nodes[ci];
+        int all_beyond = 1;
+        for (uint32_t l = 0; l < lanes && all_beyond; l++) {
+            float smin[3], smax[3];
+            segment_box(p, &segs[l], smin, smax);
+            all_beyond = box_distance(smin, smax, node->bmin, node->bmax) > p->cull[0];
+        }
+        if (all_beyond) {
+            counts->cells_culled += lanes;
+            ci = node->skip;
+            continue;
+        }
+        if (!node->leaf) {
+            ci++;
+            continue;
+        }
+        for (uint32_t l = 0; l < lanes; l++)
+            gather_leaf(p, &segs[l], grid, node, table, out[l]);
+        counts->interactions += (uint64_t)lanes * node->count;
         ci = node->skip;
     }
 }
@@ -352,7 +408,7 @@ static uint32_t split_ranges(const gather_nodes *tree, uint32_t budget, GpuGathe
 
 void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
                    uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
-                   float (*out)[4], ns_gather_counts *counts)
+                   uint32_t subgroup_size, float (*out)[4], ns_gather_counts *counts)
 {
     ns_gather_counts local = {0};
     gather_nodes tree;
@@ -363,11 +419,18 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
     if (!push)
         abort();
     uint32_t ranges = split_ranges(&tree, 2 * NS_LAVAPIPE_LOOP_BUDGET, push);
-    for (uint32_t i = 0; i < segment_count; i++) {
-        memset(out[i], 0, sizeof out[i]);
-        for (uint32_t r = 0; r < ranges; r++)
-            gather_one(params, &segments[i], grid, &tree, push[r].first_cell,
-                       push[r].first_cell + push[r].cell_count, table, out[i], &local);
+    uint32_t lanes = subgroup_size ? subgroup_size : 1;
+    for (uint32_t i = 0; i < segment_count; i += lanes) {
+        uint32_t n = segment_count - i < lanes ? segment_count - i : lanes;
+        memset(out[i], 0, sizeof out[i] * n);
+        for (uint32_t r = 0; r < ranges; r++) {
+            uint32_t first = push[r].first_cell, end = first + push[r].cell_count;
+            if (params->cull[1] > 0.0f)
+                for (uint32_t l = 0; l < n; l++)
+                    gather_one(params, &segments[i + l], grid, &tree, first, end, table, out[i + l], &local);
+            else
+                gather_group_exact(params, &segments[i], n, grid, &tree, first, end, table, &out[i], &local);
+        }
     }
     free(push);
     free_nodes(&tree);

@@ -43,6 +43,9 @@ typedef struct gpu_device {
     int validation;
     /* lavapipe: every shader invocation stops its loops after 65535 iterations in all. */
     int loop_limited;
+    /* Invocations per subgroup in compute shaders: the exact gather walks its hierarchy once
+     * per subgroup (votes), and its CPU reference groups segments the same way. */
+    uint32_t subgroup_size;
     /* Validation warnings/errors seen so far (written by the messenger callback). */
     uint32_t validation_messages;
     char last_validation_message[384];

@@ -260,12 +260,28 @@ static int compute_queue_family(VkPhysicalDevice physical, uint32_t *family)
     return 0;
 }
 
+/* Subgroup size, or 0 when compute shaders lack subgroup votes and ballots (the gather's
+ * walk needs them; every desktop driver and lavapipe has them). */
+static uint32_t compute_subgroup_size(VkPhysicalDevice physical)
+{
+    VkPhysicalDeviceSubgroupProperties subgroup = {
+        .sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
+    VkPhysicalDeviceProperties2 props2 = {.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2,
+                                          .pNext = &subgroup};
+    vkGetPhysicalDeviceProperties2(physical, &props2);
+    VkSubgroupFeatureFlags need = VK_SUBGROUP_FEATURE_VOTE_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
+    int ok = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
+             (subgroup.supportedOperations & need) == need;
+    return ok ? subgroup.subgroupSize : 0;
+}
+
 static int usable(VkPhysicalDevice physical)
 {
     VkPhysicalDeviceProperties props;
     vkGetPhysicalDeviceProperties(physical, &props);
     uint32_t family;
-    return props.apiVersion >= VK_API_VERSION_1_1 && compute_queue_family(physical, &family);
+    return props.apiVersion >= VK_API_VERSION_1_1 && compute_queue_family(physical, &family) &&
+           compute_subgroup_size(physical) > 0;
 }
 
 static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err)
@@ -311,7 +327,9 @@ static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err
     }
     if (chosen < 0 || !usable(devices[chosen]))
         return ns_fail(err, NS_ERR_NO_DEVICE,
-                       "no Vulkan 1.1 device with a compute queue among %u device(s)", count);
+                       "no Vulkan 1.1 device with a compute queue and subgroup votes and "
+                       "ballots in compute shaders among %u device(s)",
+                       count);
     dev->physical = devices[chosen];
     compute_queue_family(dev->physical, &dev->queue_family);
     vkGetPhysicalDeviceProperties(dev->physical, &dev->properties);
@@ -329,6 +347,7 @@ static void fill_device_info(gpu_device *dev)
     info->device_id = dev->properties.deviceID;
     info->is_cpu = dev->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
     dev->loop_limited = contains_nocase(dev->properties.deviceName, "llvmpipe");
+    dev->subgroup_size = compute_subgroup_size(dev->physical);
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {
         VkPhysicalDeviceDriverProperties driver = {

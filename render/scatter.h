@@ -172,10 +172,12 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
 
 /* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
  * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. It walks the nodes in lavapipe's
- * dispatch ranges. */
+ * dispatch ranges; the exact walk takes its culling decisions for subgroup_size
+ * consecutive segments together, as gather.comp does (gpu_device.subgroup_size; the sums do
+ * not depend on it, the counts do). */
 void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
                    uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
-                   float (*out)[4], ns_gather_counts *counts);
+                   uint32_t subgroup_size, float (*out)[4], ns_gather_counts *counts);
 
 /* ---------------------------------------------------------------------------------------
  * Single scattering (single.c): `samples` regular samples along every segment, connected to

@@ -8,6 +8,8 @@
 // The result is the radiance arriving at the segment's entry from inside the medium, before
 // the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
 #extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_vote : require
+#extension GL_KHR_shader_subgroup_ballot : require
 #include "shared.h"
 #include "scatter_shared.h"
 
@@ -139,20 +141,47 @@ void main()
 
     vec3 sum = vec3(0.0);
     uint interactions = 0u, culled = 0u, represented = 0u;
-    // Walk the dispatch's run of whole subtrees (depth first; skip = past the subtree): a
-    // node beyond the table's reach goes with its subtree, a node small enough seen from the
-    // segment (option) counts as its representative, a leaf's VRLs are evaluated.
     uint end = min(push.first_cell + push.cell_count, params.counts.y);
     uint ci = push.first_cell;
-    while (ci < end) {
-        GpuVrlNode node = nodes[ci];
-        float gap = box_distance(smin, smax, node.bmin, node.bmax);
-        if (gap > params.cull.x) {
-            culled++;
+    if (params.cull.y == 0.0) {
+        // Exact: one walk per subgroup. A node goes with its subtree when it is beyond the
+        // table's reach of every segment of the subgroup; a segment that alone would have
+        // culled it evaluates VRLs whose tables do not reach it and adds exactly zero. The
+        // node index is then the same in every invocation, and broadcast makes that known:
+        // lavapipe loads the node and the leaf's VRLs once for all lanes instead of
+        // gathering them per lane (2x the interactions per second of a per-lane walk).
+        while (ci < end) {
+            ci = subgroupBroadcastFirst(ci);
+            GpuVrlNode node = nodes[ci];
+            float gap = box_distance(smin, smax, node.bmin, node.bmax);
+            if (subgroupAll(gap > params.cull.x)) {
+                culled++;
+                ci = node.skip;
+                continue;
+            }
+            if (node.leaf == 0u) {
+                ci++;
+                continue;
+            }
+            for (uint k = node.first; k < node.first + node.count; k++)
+                sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
+            interactions += node.count;
             ci = node.skip;
-            continue;
         }
-        if (params.cull.y > 0.0) {
+    } else {
+        // Solid-angle option: each segment walks alone, since neighbouring segments refine
+        // different nodes (a walk per subgroup refined whatever any lane needed: 5x the
+        // interactions). A node beyond the table's reach goes with its subtree, a node
+        // small enough seen from the segment counts as its representative, a leaf's VRLs
+        // are evaluated.
+        while (ci < end) {
+            GpuVrlNode node = nodes[ci];
+            float gap = box_distance(smin, smax, node.bmin, node.bmax);
+            if (gap > params.cull.x) {
+                culled++;
+                ci = node.skip;
+                continue;
+            }
             // The box's solid angle seen from the segment's nearest point, bounded by the
             // sphere around its diagonal.
             vec3 extent = node.bmax - node.bmin;
@@ -164,15 +193,15 @@ void main()
                 ci = node.skip;
                 continue;
             }
+            if (node.leaf == 0u) {
+                ci++;
+                continue;
+            }
+            for (uint k = node.first; k < node.first + node.count; k++)
+                sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
+            interactions += node.count;
+            ci = node.skip;
         }
-        if (node.leaf == 0u) {
-            ci++;
-            continue;
-        }
-        for (uint k = node.first; k < node.first + node.count; k++)
-            sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
-        interactions += node.count;
-        ci = node.skip;
     }
     vec4 previous = push.accumulate != 0u ? radiance[index] : vec4(0.0);
     radiance[index] = previous + vec4(sum, 0.0);

@@ -91,11 +91,23 @@ static void random_grid(ns_vrl_grid *g, uint32_t vrl_count, uint32_t cells)
     }
 }
 
+/* far_pattern 1: segments in alternate blocks of 64 (whole subgroups) lie 300 units away,
+ * beyond the tables' reach (400 mfp / extinction 3 = 188 units); 2: every third segment
+ * does, so that subgroups mix near and far segments. */
+static uint32_t far_pattern;
+
+static int is_far(uint32_t i)
+{
+    return far_pattern == 1 ? (i / 64) % 2 == 0 : far_pattern == 2 ? i % 3 == 0 : 0;
+}
+
 static GpuSegment *random_segments(uint32_t n)
 {
     GpuSegment *s = calloc(n, sizeof *s);
     for (uint32_t i = 0; i < n; i++) {
         set3(s[i].entry, 2 * uniform01() - 1, 2 * uniform01() - 1, 2 * uniform01() - 1);
+        if (is_far(i))
+            s[i].entry[0] += 300.0f;
         float d[3];
         random_unit(d);
         float len = 0.05f + 1.5f * uniform01();
@@ -201,7 +213,7 @@ static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, ui
     float(*cpu)[4] = calloc(segment_count, sizeof *cpu);
     ns_gather_counts cpu_counts;
     desc.params.counts[0] = segment_count;
-    ns_gather_cpu(&desc.params, segments, segment_count, &grid, table, cpu, &cpu_counts);
+    ns_gather_cpu(&desc.params, segments, segment_count, &grid, table, ctx->dev.subgroup_size, cpu, &cpu_counts);
     CHECK(cpu_counts.interactions == gpu_counts->interactions);
     CHECK(cpu_counts.cells_represented == gpu_counts->cells_represented);
     CHECK(cpu_counts.cells_culled == gpu_counts->cells_culled);
@@ -331,8 +343,37 @@ static void test_hierarchy_representatives(void)
     CHECK(counts.interactions < 3000u * 128u);
 }
 
+/* Culling: segments beyond every VRL's reach get nothing, whole subtrees go at once, and
+ * the exact walk culls a node only when every segment of the subgroup is beyond it (the
+ * CPU's counts, grouped by the device's subgroup size, equal the GPU's). */
+static void test_hierarchy_culling(void)
+{
+    ns_gather_counts counts;
+    static float sums[256][4];
+    smooth_table = 1;
+    for (far_pattern = 1; far_pattern <= 2; far_pattern++) {
+        double worst = compare_walk(NS_GATHER_MODE_EXACT, 2000, 0, 256, 1e-3, 0.0f, &counts, sums);
+        printf("culling, %s: %llu nodes culled, %llu interactions, worst difference %.2e\n",
+               far_pattern == 1 ? "far subgroups" : "a third far, mixed", (unsigned long long)counts.cells_culled,
+               (unsigned long long)counts.interactions, worst);
+        double far_sum = 0;
+        for (uint32_t i = 0; i < 256; i++)
+            if (is_far(i))
+                far_sum += fabs(sums[i][0]) + fabs(sums[i][1]) + fabs(sums[i][2]);
+        CHECK(far_sum == 0.0);
+        CHECK(worst <= 5e-4); /* 2000 terms: rounding, and bins a last bit apart */
+        if (far_pattern == 1) {
+            CHECK(counts.cells_culled > 0);
+            CHECK(counts.interactions == 2000u * 128u); /* the near half only */
+        }
+    }
+    far_pattern = 0;
+    smooth_table = 0;
+}
+
 int main(void)
 {
+    RUN(test_hierarchy_culling);
     RUN(test_hierarchy_exact);
     RUN(test_hierarchy_representatives);
     RUN(test_exact_form_small);

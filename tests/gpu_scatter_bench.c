@@ -200,7 +200,7 @@ typedef struct cpu_job {
 static void *cpu_worker(void *arg)
 {
     cpu_job *j = arg;
-    ns_gather_cpu(j->params, j->segments, j->count, j->grid, j->table, j->out, NULL);
+    ns_gather_cpu(j->params, j->segments, j->count, j->grid, j->table, 1, j->out, NULL);
     return NULL;
 }
 
