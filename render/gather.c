@@ -1,6 +1,7 @@
 /* gather.c — the gather stage's C side: its uniform block (table mapping, culling reach,
- * dipole constants), the split of the VRL grid's cells across dispatches (lavapipe's loop
- * limit), and the same sum on the CPU for the tests (shaders/gather.comp is the GPU one). */
+ * dipole constants), the nodes of the VRL hierarchy it walks and their split across
+ * dispatches (lavapipe's loop limit), and the same walk on the CPU for the tests
+ * (shaders/gather.comp is the GPU one). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
