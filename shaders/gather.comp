@@ -169,27 +169,37 @@ void main()
             ci = node.skip;
         }
     } else {
-        // Solid-angle option: each segment walks alone, since neighbouring segments refine
-        // different nodes (a walk per subgroup refined whatever any lane needed: 5x the
-        // interactions). A node beyond the table's reach goes with its subtree, a node
-        // small enough seen from the segment counts as its representative, a leaf's VRLs
-        // are evaluated.
+        // Solid-angle option: every segment takes its own decisions (neighbours refine
+        // different nodes), but the subgroup still walks one node at a time so that the
+        // loads stay uniform: a lane that culled or represented a node sits out its subtree
+        // (mask_until), and the walk descends while any lane still needs the node. Each
+        // lane thus sees exactly the nodes of its own walk (ns_gather_cpu walks each segment
+        // alone and gets the same sums and counts), without a per-lane node index, which
+        // made lavapipe gather every node and VRL load lane by lane.
+        uint mask_until = 0u;
         while (ci < end) {
+            ci = subgroupBroadcastFirst(ci);
             GpuVrlNode node = nodes[ci];
-            float gap = box_distance(smin, smax, node.bmin, node.bmax);
-            if (gap > params.cull.x) {
-                culled++;
-                ci = node.skip;
-                continue;
+            bool needs = ci >= mask_until;
+            if (needs) {
+                float gap = box_distance(smin, smax, node.bmin, node.bmax);
+                // The box's solid angle seen from the segment's nearest point, bounded by
+                // the sphere around its diagonal.
+                vec3 extent = node.bmax - node.bmin;
+                float radius2 = 0.25 * dot(extent, extent);
+                if (gap > params.cull.x) {
+                    culled++;
+                    mask_until = node.skip;
+                    needs = false;
+                } else if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
+                    sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight, exit_matters);
+                    represented++;
+                    interactions++;
+                    mask_until = node.skip;
+                    needs = false;
+                }
             }
-            // The box's solid angle seen from the segment's nearest point, bounded by the
-            // sphere around its diagonal.
-            vec3 extent = node.bmax - node.bmin;
-            float radius2 = 0.25 * dot(extent, extent);
-            if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
-                sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight, exit_matters);
-                represented++;
-                interactions++;
+            if (!subgroupAny(needs)) {
                 ci = node.skip;
                 continue;
             }
@@ -197,9 +207,11 @@ void main()
                 ci++;
                 continue;
             }
-            for (uint k = node.first; k < node.first + node.count; k++)
-                sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
-            interactions += node.count;
+            if (needs) {
+                for (uint k = node.first; k < node.first + node.count; k++)
+                    sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
+                interactions += node.count;
+            }
             ci = node.skip;
         }
     }
