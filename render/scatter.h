@@ -107,6 +107,18 @@ double ns_vrl_light_power(const GpuLight *light, const float sphere[4]);
  * itself, else the sphere around its box, slightly enlarged. Not for planes. */
 void ns_vrl_target_sphere(const ns_scene *scene, const ns_object *o, float out[4]);
 
+/* A scattering medium object the light paths of both VRL generators aim at. */
+typedef struct ns_vrl_target {
+    float sphere[4]; /* centre, radius (ns_vrl_target_sphere) */
+    uint32_t object;
+} ns_vrl_target;
+
+/* The scene's scattering medium objects (empty meshes skipped), into out (room for
+ * scene->object_count). A plane of such a material is a half-space with no sphere to aim
+ * at: NS_ERR_NOT_AVAILABLE naming the object, with `who` (the stage) in the message. */
+int ns_vrl_targets(const ns_scene *scene, const char *who, ns_vrl_target *out, uint32_t *count,
+                   ns_error *err);
+
 /* Systematic sampling of light paths over strata: one offset xi in [0, 1) per seed
  * (splitmix64), and the first path of the stratum whose cumulative probability starts at
  * cdf: the smallest i with (i + xi) / paths >= cdf. */

@@ -21,11 +21,6 @@
 /* ---------------------------------------------------------------------------------------
  * Targets: a bounding sphere per scattering medium object.
  * ------------------------------------------------------------------------------------- */
-typedef struct vrl_target {
-    float sphere[4]; /* centre, radius */
-    uint32_t object;
-} vrl_target;
-
 static int material_scatters(const ns_material *m)
 {
     return m->type == NS_MATERIAL_MEDIUM &&
@@ -75,13 +70,9 @@ void ns_vrl_target_sphere(const ns_scene *scene, const ns_object *o, float out[4
     box_sphere(lo, hi, out);
 }
 
-/* Targets of every scattering medium object. A plane of such a material is a half-space
- * with no bounding sphere to aim at: refused (the caller gets NS_ERR_NOT_AVAILABLE naming
- * it). *out is malloc'd (NULL when there is none). */
-static int collect_targets(const ns_scene *scene, vrl_target **out, uint32_t *count, ns_error *err)
+int ns_vrl_targets(const ns_scene *scene, const char *who, ns_vrl_target *out, uint32_t *count,
+                   ns_error *err)
 {
-    *out = NULL;
-    *count = 0;
     uint32_t n = 0;
     for (uint32_t i = 0; i < scene->object_count; i++) {
         const ns_object *o = &scene->objects[i];
@@ -89,28 +80,14 @@ static int collect_targets(const ns_scene *scene, vrl_target **out, uint32_t *co
             continue;
         if (o->shape == NS_SHAPE_PLANE)
             return ns_fail(err, NS_ERR_NOT_AVAILABLE,
-                           "objects[%u]: a plane of scattering medium '%s' is unbounded; VRLs "
-                           "need a bounded medium (sphere, box or mesh)",
-                           i, scene->materials[o->material].name);
+                           "objects[%u]: a plane of scattering medium '%s' is unbounded; %s "
+                           "needs a bounded medium (sphere, box or mesh)",
+                           i, scene->materials[o->material].name, who);
         if (o->shape == NS_SHAPE_MESH && o->triangle_count == 0)
             continue;
-        n++;
+        ns_vrl_target_sphere(scene, o, out[n].sphere);
+        out[n++].object = i;
     }
-    if (!n)
-        return NS_OK;
-    vrl_target *t = malloc(sizeof *t * n);
-    if (!t)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %u targets", n);
-    n = 0;
-    for (uint32_t i = 0; i < scene->object_count; i++) {
-        const ns_object *o = &scene->objects[i];
-        if (!material_scatters(&scene->materials[o->material]) ||
-            (o->shape == NS_SHAPE_MESH && o->triangle_count == 0))
-            continue;
-        ns_vrl_target_sphere(scene, o, t[n].sphere);
-        t[n++].object = i;
-    }
-    *out = t;
     *count = n;
     return NS_OK;
 }
@@ -169,7 +146,7 @@ uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi)
     return x <= 0 ? 0 : x >= paths ? paths : (uint64_t)x;
 }
 
-static int plan_strata(const ns_gpu_scene *gs, const vrl_target *targets, uint32_t target_count,
+static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
                        uint32_t paths, uint32_t seed, vrl_plan *plan, ns_error *err)
 {
     memset(plan, 0, sizeof *plan);
@@ -205,7 +182,7 @@ static int plan_strata(const ns_gpu_scene *gs, const vrl_target *targets, uint32
         uint64_t end = ns_vrl_first_path_at(cdf, paths, xi);
         if (end <= first)
             continue; /* no path this time: expected N p < 1, weight 1 / (N p) covers it */
-        const vrl_target *t = &targets[k % target_count];
+        const ns_vrl_target *t = &targets[k % target_count];
         GpuVrlStratum *s = &plan->strata[plan->count++];
         memcpy(s->target, t->sphere, sizeof s->target);
         s->weight[0] = (float)(1.0 / (p * paths));
@@ -295,10 +272,13 @@ int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *
         return ns_fail(err, NS_ERR_LIMIT, "render.vrls: %u light paths, at most %u", paths,
                        NS_MAX_VRLS);
     out->paths = paths;
-    vrl_target *targets = NULL;
+    ns_vrl_target *targets =
+        malloc(sizeof *targets * (scene->object_count ? scene->object_count : 1));
     uint32_t target_count = 0;
     vrl_plan plan = {0};
-    int status = collect_targets(scene, &targets, &target_count, err);
+    int status =
+        targets ? ns_vrl_targets(scene, "the VRL stage", targets, &target_count, err)
+                : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %u targets", scene->object_count);
     if (!status && paths && target_count)
         status = plan_strata(gs, targets, target_count, paths, seed, &plan, err);
     if (!status && plan.count)

@@ -53,12 +53,6 @@
 /* =======================================================================================
  * Emitters: (light, target object) pairs and their share of the paths.
  * ===================================================================================== */
-static int material_scatters(const ns_material *m)
-{
-    return m->type == NS_MATERIAL_MEDIUM &&
-           (m->sigma_s[0] > 0.0f || m->sigma_s[1] > 0.0f || m->sigma_s[2] > 0.0f);
-}
-
 static void box_of(const ns_scene *scene, const ns_object *o, float lo[3], float hi[3])
 {
     for (int k = 0; k < 3; k++) {
@@ -89,45 +83,19 @@ typedef struct emitter_list {
     uint32_t count;
 } emitter_list;
 
-/* The scattering medium objects (their index and target sphere). A plane of such a material
- * is unbounded: no sphere to aim at, refused naming it. */
-static int collect_targets(const ns_scene *scene, uint32_t *objects, float (*spheres)[4],
-                           uint32_t *count, ns_error *err)
-{
-    uint32_t n = 0;
-    for (uint32_t i = 0; i < scene->object_count; i++) {
-        const ns_object *o = &scene->objects[i];
-        if (!material_scatters(&scene->materials[o->material]))
-            continue;
-        if (o->shape == NS_SHAPE_PLANE)
-            return ns_fail(err, NS_ERR_NOT_AVAILABLE,
-                           "objects[%u]: a plane of scattering medium '%s' is unbounded; the vrl "
-                           "method needs a bounded medium (sphere, box or mesh)",
-                           i, scene->materials[o->material].name);
-        if (o->shape == NS_SHAPE_MESH && o->triangle_count == 0)
-            continue;
-        objects[n] = i;
-        ns_vrl_target_sphere(scene, o, spheres[n]);
-        n++;
-    }
-    *count = n;
-    return NS_OK;
-}
-
 static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t paths,
                          uint32_t seed, emitter_list *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     uint32_t n_obj = scene->object_count ? scene->object_count : 1;
-    uint32_t *objects = malloc(sizeof *objects * n_obj);
-    float(*spheres)[4] = malloc(sizeof *spheres * n_obj);
+    ns_vrl_target *targets_of = malloc(sizeof *targets_of * n_obj);
     uint64_t pairs = 0;
     double *power = NULL;
     uint32_t targets = 0;
     int status =
-        objects && spheres ? NS_OK : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
+        targets_of ? NS_OK : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
     if (!status)
-        status = collect_targets(scene, objects, spheres, &targets, err);
+        status = ns_vrl_targets(scene, "the vrl method", targets_of, &targets, err);
     if (!status) {
         pairs = (uint64_t)gs->light_count * targets;
         power = malloc(sizeof *power * (pairs ? pairs : 1));
@@ -138,7 +106,7 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
     }
     double total = 0;
     for (uint64_t k = 0; !status && k < pairs; k++) {
-        double p = ns_vrl_light_power(&gs->lights[k / targets], spheres[k % targets]);
+        double p = ns_vrl_light_power(&gs->lights[k / targets], targets_of[k % targets].sphere);
         power[k] = p > 0 && isfinite(p) ? p : 0;
         total += power[k];
     }
@@ -154,18 +122,17 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
                 continue;
             const GpuLight *light = &gs->lights[k / targets];
             GpuVrlEmitter *e = &out->items[out->count++];
-            memcpy(e->target, spheres[k % targets], sizeof e->target);
+            memcpy(e->target, targets_of[k % targets].sphere, sizeof e->target);
             memcpy(e->position, light->position, sizeof e->position);
             memcpy(e->direction, light->direction, sizeof e->direction);
             for (int c = 0; c < 3; c++)
                 e->color[c] = (float)(light->color[c] / (p * paths));
             e->ids[0] = (uint32_t)first;
             e->ids[1] = light->info[0];
-            e->ids[2] = objects[k % targets];
+            e->ids[2] = targets_of[k % targets].object;
         }
     }
-    free(objects);
-    free(spheres);
+    free(targets_of);
     free(power);
     if (status) {
         free(out->items);
