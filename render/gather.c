@@ -274,12 +274,12 @@ static segment_terms terms_of(const GpuGatherParams *p, const GpuSegment *seg)
     return t;
 }
 
-static void gather_leaf(const GpuGatherParams *p, const GpuSegment *seg, const ns_vrl_grid *grid,
-                        const GpuVrlNode *node, const float *table, float out[4])
+static void gather_leaf(const GpuGatherParams *p, const GpuSegment *seg, const segment_terms *t,
+                        const ns_vrl_grid *grid, const GpuVrlNode *node, const float *table,
+                        float out[4])
 {
-    segment_terms t = terms_of(p, seg);
     for (uint32_t k = node->first; k < node->first + node->count; k++)
-        contribution(p, table, &grid->vrls[k], seg, t.w, t.attenuation, t.paper_weight, out);
+        contribution(p, table, &grid->vrls[k], seg, t->w, t->attenuation, t->paper_weight, out);
 }
 
 /* The shader's walk with the solid-angle option of [first, end) for one segment alone. */
@@ -313,11 +313,13 @@ static void gather_one(const GpuGatherParams *p, const GpuSegment *seg, const ns
             ci++;
             continue;
         }
-        gather_leaf(p, seg, grid, node, table, out);
+        gather_leaf(p, seg, &t, grid, node, table, out);
         counts->interactions += node->count;
         ci = node->skip;
     }
 }
+
+#define NS_GATHER_MAX_LANES 128u /* the largest subgroup of any known device */
 
 /* The shader's exact walk (no solid-angle threshold) of [first, end) for one subgroup:
  * `lanes` consecutive segments cull a node only when it is beyond every one's reach. */
@@ -326,14 +328,17 @@ static void gather_group_exact(const GpuGatherParams *p, const GpuSegment *segs,
                                uint32_t end, const float *table, float (*out)[4],
                                ns_gather_counts *counts)
 {
+    segment_terms terms[NS_GATHER_MAX_LANES];
+    float smin[NS_GATHER_MAX_LANES][3], smax[NS_GATHER_MAX_LANES][3];
+    for (uint32_t l = 0; l < lanes; l++) {
+        terms[l] = terms_of(p, &segs[l]);
+        segment_box(p, &segs[l], smin[l], smax[l]);
+    }
     for (uint32_t ci = first; ci < end;) {
         const GpuVrlNode *node = &tree->nodes[ci];
         int all_beyond = 1;
-        for (uint32_t l = 0; l < lanes && all_beyond; l++) {
-            float smin[3], smax[3];
-            segment_box(p, &segs[l], smin, smax);
-            all_beyond = box_distance(smin, smax, node->bmin, node->bmax) > p->cull[0];
-        }
+        for (uint32_t l = 0; l < lanes && all_beyond; l++)
+            all_beyond = box_distance(smin[l], smax[l], node->bmin, node->bmax) > p->cull[0];
         if (all_beyond) {
             counts->cells_culled += lanes;
             ci = node->skip;
@@ -344,7 +349,7 @@ static void gather_group_exact(const GpuGatherParams *p, const GpuSegment *segs,
             continue;
         }
         for (uint32_t l = 0; l < lanes; l++)
-            gather_leaf(p, &segs[l], grid, node, table, out[l]);
+            gather_leaf(p, &segs[l], &terms[l], grid, node, table, out[l]);
         counts->interactions += (uint64_t)lanes * node->count;
         ci = node->skip;
     }
@@ -420,7 +425,9 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
     if (!push)
         abort();
     uint32_t ranges = split_ranges(&tree, 2 * NS_LAVAPIPE_LOOP_BUDGET, push);
-    uint32_t lanes = subgroup_size ? subgroup_size : 1;
+    uint32_t lanes = subgroup_size < 1                     ? 1
+                     : subgroup_size > NS_GATHER_MAX_LANES ? NS_GATHER_MAX_LANES
+                                                           : subgroup_size;
     for (uint32_t i = 0; i < segment_count; i += lanes) {
         uint32_t n = segment_count - i < lanes ? segment_count - i : lanes;
         memset(out[i], 0, sizeof out[i] * n);
