@@ -31,7 +31,7 @@ static const char usage_text[] =
     "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
     "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
     "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
-    "                      [--oversample-albedo A:F] [--no-calibrate]\n"
+    "                      [--oversample-albedo A:F] [--g-map linear|log] [--no-calibrate]\n"
     "                      [--threads T] [--quiet]\n"
     "\n"
     "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
@@ -44,13 +44,16 @@ static const char usage_text[] =
     "the written weights decode every J/E_k below (F - 1) eps as 0 (the network's noise\n"
     "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
     "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
-    "far-reaching high-albedo tables are the ones the network fits worst).\n";
+    "far-reaching high-albedo tables are the ones the network fits worst).\n"
+    "--g-map log: g enters as the mean of g/0.99 and ln(1 - g)/ln(0.01), which widens the\n"
+    "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
 
 typedef struct {
     const char *data, *out_dir, *ckpt_dir;
     unsigned orders;
     ns_nn_target target;
     int epochs, resume, quiet, threads, calibrate;
+    uint32_t input_map; /* NS_NN_INPUT_MAP_*: how g enters the network */
     uint32_t batch, samples_per_table;
     double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor;
     uint64_t seed;
@@ -98,6 +101,13 @@ static int parse_value(train_options *o, const char *arg, const char *val)
             o->target = NS_NN_TARGET_LOGREL;
         else
             return usage_error("--target: '%s' is not logrel or paper", val);
+    } else if (!strcmp(arg, "--g-map")) {
+        if (!strcmp(val, "linear"))
+            o->input_map = NS_NN_INPUT_MAP_ASINH;
+        else if (!strcmp(val, "log"))
+            o->input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+        else
+            return usage_error("--g-map: '%s' is not linear or log", val);
     } else if (!strcmp(arg, "--epochs"))
         rc = parse_number(arg, val, 1, 1e6, &v), o->epochs = (int)v;
     else if (!strcmp(arg, "--batch"))
@@ -137,6 +147,7 @@ static int parse_options(int argc, char **argv, train_options *o)
     o->out_dir = "weights";
     o->orders = 3;
     o->target = NS_NN_TARGET_LOGREL;
+    o->input_map = NS_NN_INPUT_MAP_ASINH;
     o->epochs = 200;
     o->batch = 8192;
     o->samples_per_table = 24000;
@@ -398,7 +409,7 @@ static void restandardise(dataset *d, ns_nn_header *h, float mean, float scale)
 
 typedef struct {
     char magic[8];
-    uint32_t epoch, order, target, pad;
+    uint32_t epoch, order, target, input_map; /* input_map 0: written before maps had numbers (1) */
     uint64_t step;
     float target_mean, target_scale;
     float p[NS_NN_PARAMS], m[NS_NN_PARAMS], v[NS_NN_PARAMS];
@@ -600,11 +611,13 @@ static int write_json(const train_options *o, ns_order order, const ns_nn_weight
     fprintf(f,
             "  \"input_normalisation\": {\"rho\": \"asinh(rho/%g)/asinh(%g/%g)\", "
             "\"z\": \"(asinh(z/%g)/asinh(%g/%g)+1)/2\", \"theta\": \"theta/pi\", "
-            "\"phi\": \"phi/pi\", \"g\": \"(g-%g)/(%g-%g)\", "
+            "\"phi\": \"phi/pi\", \"g\": \"%s(g-%g)/(%g-%g)%s\", \"input_map\": %u, "
             "\"albedo\": \"ln(1-albedo)/ln(1-%g)\", \"clamped_to\": [0, 1], "
             "\"points\": \"bin centres (mid-edges)\"},\n",
             h->sinh_scale, h->extent, h->sinh_scale, h->sinh_scale, h->extent, h->sinh_scale,
-            h->g_min, h->g_max, h->g_min, h->albedo_max);
+            h->input_map == NS_NN_INPUT_MAP_ASINH_LOGG ? "0.5*" : "", h->g_min, h->g_max, h->g_min,
+            h->input_map == NS_NN_INPUT_MAP_ASINH_LOGG ? "+0.5*ln(1-g)/ln(1-g_max)" : "",
+            h->input_map, h->albedo_max);
     fprintf(f,
             "  \"target_transform\": {\"name\": \"%s\", \"formula\": \"%s\", \"eps\": %.9g, "
             "\"mean\": %.9g, \"scale\": %.9g, \"energy_calibration\": %.6g, "
@@ -637,6 +650,10 @@ static int train_order(const train_options *o, ns_order order)
 {
     ns_nn_weights w;
     ns_nn_header_init(&w.h, (uint32_t)order, o->target);
+    if (o->input_map == NS_NN_INPUT_MAP_ASINH_LOGG) {
+        w.h.input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+        w.h.g_max = 0.99f; /* the grid's largest g; ln(1 - g) needs g_max < 1 */
+    }
     if (o->target == NS_NN_TARGET_LOGREL)
         w.h.target_eps = (float)o->eps;
     dataset d;
@@ -655,7 +672,7 @@ static int train_order(const train_options *o, ns_order order)
     char path[4200];
     checkpoint_path(o, order, path, sizeof path);
     if (o->resume && checkpoint_load(path, &ck) == 0 && ck.order == (uint32_t)order &&
-        ck.target == (uint32_t)o->target) {
+        ck.target == (uint32_t)o->target && (ck.input_map ? ck.input_map : 1) == o->input_map) {
         fprintf(stderr, "nscatter train: resuming %s from epoch %u (%s)\n", ns_order_name(order),
                 ck.epoch, path);
         memcpy(w.p, ck.p, sizeof w.p);
@@ -667,6 +684,7 @@ static int train_order(const train_options *o, ns_order order)
         memcpy(ck.magic, "NSNNCKP1", 8);
         ck.order = (uint32_t)order;
         ck.target = (uint32_t)o->target;
+        ck.input_map = o->input_map;
         ck.target_mean = w.h.target_mean;
         ck.target_scale = w.h.target_scale;
         ns_nn_init_params(w.p, o->seed + (uint64_t)order);

@@ -88,14 +88,16 @@ static int check_header(const ns_nn_header *h, const char *what, ns_error *err)
                        "%s: order %u is neither double (0) nor "
                        "multiple (1)",
                        what, h->order);
-    if (h->target > NS_NN_TARGET_LOGREL || h->input_map != NS_NN_INPUT_MAP_ASINH)
+    if (h->target > NS_NN_TARGET_LOGREL ||
+        (h->input_map != NS_NN_INPUT_MAP_ASINH && h->input_map != NS_NN_INPUT_MAP_ASINH_LOGG))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                        "%s: unknown target transform %u or input "
                        "map %u",
                        what, h->target, h->input_map);
     if (!(h->target_eps > 0) || !(h->target_scale > 0) || !isfinite(h->target_mean) ||
         !(h->extent > 0) || !(h->sinh_scale > 0) || !(h->albedo_max > 0 && h->albedo_max < 1) ||
-        !(h->g_max > h->g_min))
+        !(h->g_max > h->g_min) ||
+        (h->input_map == NS_NN_INPUT_MAP_ASINH_LOGG && !(h->g_min >= 0 && h->g_max < 1)))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: invalid normalisation constants", what);
     return 0;
 }
@@ -188,7 +190,10 @@ float ns_nn_map_albedo(const ns_nn_header *h, double albedo)
 
 float ns_nn_map_g(const ns_nn_header *h, double g)
 {
-    return clamp01((g - h->g_min) / ((double)h->g_max - h->g_min));
+    double linear = (g - h->g_min) / ((double)h->g_max - h->g_min);
+    if (h->input_map != NS_NN_INPUT_MAP_ASINH_LOGG || !(g < h->g_max))
+        return clamp01(linear);
+    return clamp01(0.5 * linear + 0.5 * log1p(-g) / log1p(-(double)h->g_max));
 }
 
 void ns_nn_normalise(const ns_nn_header *h, double rho, double z, double theta, double phi,

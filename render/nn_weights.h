@@ -52,6 +52,11 @@ typedef enum { NS_NN_TARGET_PAPER = 0, NS_NN_TARGET_LOGREL = 1 } ns_nn_target;
  * wide in the network's input; albedo through -ln(1 - a), which spreads the high-albedo
  * end where the tables change fastest. */
 #define NS_NN_INPUT_MAP_ASINH 1u
+/* Input map version 2: as version 1, but g through the mean of (g - g_min) / (g_max - g_min)
+ * and ln(1 - g) / ln(1 - g_max) (g_max < 1): the forward-scattering end, where the tables
+ * change with 1 / (1 - g), gets a third of the input range from g 0.9 to 0.99 instead of a
+ * tenth, while low g keeps half of its linear spread. */
+#define NS_NN_INPUT_MAP_ASINH_LOGG 2u
 
 typedef struct ns_nn_header {
     char magic[8];
@@ -61,7 +66,7 @@ typedef struct ns_nn_header {
     uint32_t inputs, hidden1, hidden2, outputs; /* 6, 50, 50, 1 */
     uint32_t activation;                        /* 1 = tanh */
     uint32_t target;                            /* ns_nn_target */
-    uint32_t input_map;                         /* NS_NN_INPUT_MAP_ASINH */
+    uint32_t input_map;                         /* NS_NN_INPUT_MAP_* */
     uint32_t param_count;                       /* NS_NN_PARAMS */
     float target_eps, target_mean, target_scale;
     float extent;       /* spatial extent (mfp) mapped to 1 */

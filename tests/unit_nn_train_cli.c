@@ -126,6 +126,28 @@ static void test_train_and_resume(void)
     text = read_text(json);
     CHECK_STR_CONTAINS(text, "\"train_samples\": 1600,");
     CHECK_STR_CONTAINS(text, "\"oversample_factor\": 3,");
+
+    /* --g-map log: input map 2 in the header and the JSON; a checkpoint of map 1 is not
+     * resumed into it (the inputs would mean something else). */
+    const char *logg[] = {"train",     "--data",  dir,        "--order",  "double",
+                          "--out-dir", out,       "--epochs", "1",        "--samples-per-table",
+                          "400",       "--batch", "64",       "--g-map",  "log",
+                          "--quiet",   "--resume", NULL};
+    CHECK_INT(run(cmd_train, logg), 0);
+    ns_nn_weights mapped;
+    CHECK_INT(ns_nn_weights_load(bin, &mapped, &err), 0);
+    CHECK_INT(mapped.h.input_map, NS_NN_INPUT_MAP_ASINH_LOGG);
+    CHECK(mapped.h.g_max < 1);
+    text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"input_map\": 2,");
+    CHECK_STR_CONTAINS(text, "ln(1-g)");
+    /* Started afresh, not from the map-1 checkpoint (at epoch 1 too, so resuming it would have
+     * trained nothing): the same as a run without --resume, bit for bit. */
+    logg[16] = NULL;
+    CHECK_INT(run(cmd_train, logg), 0);
+    ns_nn_weights fresh;
+    CHECK_INT(ns_nn_weights_load(bin, &fresh, &err), 0);
+    CHECK(!memcmp(mapped.p, fresh.p, sizeof fresh.p));
 }
 
 static void test_argument_errors(void)
@@ -140,6 +162,8 @@ static void test_argument_errors(void)
     CHECK_INT(run(cmd_train, bad_target), 2);
     const char *bad_floor[] = {"train", "--data", dir, "--zero-floor", "0.5", NULL};
     CHECK_INT(run(cmd_train, bad_floor), 2);
+    const char *bad_gmap[] = {"train", "--data", dir, "--g-map", "sqrt", NULL};
+    CHECK_INT(run(cmd_train, bad_gmap), 2);
     const char *bad_oversample[][2] = {{"--oversample-albedo", "0.9"},
                                        {"--oversample-albedo", "0.9:0.5"},
                                        {"--oversample-albedo", "1.5:2"},

@@ -101,6 +101,19 @@ static void test_rejects_bad_files(void)
     memcpy(buf, &h, sizeof h);
     expect_error(buf, n, "architecture");
 
+    /* Input map 2 needs g_max < 1 (ln(1 - g_max)); an unknown map number is refused. */
+    memcpy(&h, good, sizeof h);
+    h.input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+    h.g_max = 1.0f;
+    h.header_crc32 = ns_crc32(&h, offsetof(ns_nn_header, header_crc32));
+    memcpy(buf, &h, sizeof h);
+    expect_error(buf, n, "normalisation");
+    h.input_map = 3;
+    h.g_max = 0.99f;
+    h.header_crc32 = ns_crc32(&h, offsetof(ns_nn_header, header_crc32));
+    memcpy(buf, &h, sizeof h);
+    expect_error(buf, n, "input map 3");
+
     /* A flipped header byte without a fixed CRC. */
     memcpy(buf, good, n);
     buf[offsetof(ns_nn_header, target_mean)] ^= 0x40;
@@ -158,6 +171,18 @@ static void test_normalisation(void)
     CHECK_NEAR(ns_nn_map_albedo(&h, 0.999), 1.0, 1e-5);
     CHECK_NEAR(ns_nn_map_albedo(&h, 0.0), 0.0, 1e-7);
     CHECK(ns_nn_map_albedo(&h, 0.9) > 0.3); /* the high-albedo end gets most of the range */
+    /* g: map 1 linear; map 2 the mean of linear and ln(1 - g) / ln(1 - g_max). */
+    CHECK_NEAR(ns_nn_map_g(&h, 0.45), 0.45, 1e-7);
+    ns_nn_header hg = h;
+    hg.input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+    hg.g_max = 0.99f;
+    CHECK_NEAR(ns_nn_map_g(&hg, 0.0), 0.0, 1e-7);
+    CHECK_NEAR(ns_nn_map_g(&hg, 0.99), 1.0, 1e-6);
+    CHECK_NEAR(ns_nn_map_g(&hg, 0.9), 0.5 * 0.9 / 0.99f + 0.5 * log(0.1) / log(1 - 0.99f), 1e-6);
+    CHECK(ns_nn_map_g(&hg, 0.99) - ns_nn_map_g(&hg, 0.9) > 0.29); /* linear: 0.09 */
+    CHECK_NEAR(ns_nn_map_g(&hg, 0.999), 1.0, 1e-7); /* beyond g_max: clamped, not NaN */
+    CHECK_NEAR(ns_nn_map_g(&hg, 1.0), 1.0, 1e-7);
+    CHECK_NEAR(ns_nn_map_g(&hg, -0.5), 0.0, 1e-7);
     ns_table_free(&t);
     /* The target transform round-trips. */
     for (int target = 0; target < 2; target++) {
