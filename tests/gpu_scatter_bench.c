@@ -9,7 +9,8 @@
  * target scene), then the solid-angle option's time and error against the exact gather, then
  * the interaction rates (docs/scattering.md quotes them). NSCATTER_BENCH_ONLY=renders |
  * solid_angle | gather runs one part; NSCATTER_BENCH_256_ONLY=1 skips 512x512 in the
- * solid-angle sweep; NSCATTER_BENCH_POINT_ONLY=1 drops the environment light. */
+ * solid-angle sweep, NSCATTER_BENCH_THRESHOLDS=0.05,0.5 sweeps those thresholds (after the
+ * exact gather); NSCATTER_BENCH_POINT_ONLY=1 drops the environment light. */
 #include <pthread.h>
 #include <stdlib.h>
 
@@ -145,8 +146,21 @@ static void bench_renders(int runs)
  * VRLs, and the time it buys: multiple only, 256x256 and 512x512. */
 static void bench_solid_angle(int runs)
 {
-    const float thresholds[] = {0.0f, 0.02f, 0.05f, 0.1f, 0.2f, 0.5f};
-    enum { COUNT = sizeof thresholds / sizeof thresholds[0] };
+    float thresholds[8] = {0.0f, 0.02f, 0.05f, 0.1f, 0.2f, 0.5f};
+    int count = 6;
+    /* NSCATTER_BENCH_THRESHOLDS=0.05,0.5: a shorter sweep (the exact gather always first). */
+    const char *list = getenv("NSCATTER_BENCH_THRESHOLDS");
+    if (list) {
+        count = 1;
+        for (char *end; count < 8; list = end + 1) {
+            float t = strtof(list, &end);
+            if (end == list)
+                break;
+            thresholds[count++] = t;
+            if (*end != ',')
+                break;
+        }
+    }
     const uint32_t sizes[] = {256, 512};
     int size_count = getenv("NSCATTER_BENCH_256_ONLY") ? 1 : 2;
     printf("\nsolid-angle threshold, multiple only, 40000 VRL paths, median ms of %d runs\n", runs);
@@ -154,7 +168,7 @@ static void bench_solid_angle(int runs)
            "interactions", "represented", "PSNR dB", "rel.err");
     for (int a = 0; a < size_count; a++) {
         ns_image exact = {0};
-        for (int k = 0; k < COUNT; k++) {
+        for (int k = 0; k < count; k++) {
             double gather[MAX_RUNS], total[MAX_RUNS];
             ns_render_stats stats = {0};
             ns_image img = {0};
