@@ -59,7 +59,7 @@ static int check_nets(const ns_nn_weights *const nets[2], ns_error *err)
                            o ? "multiple" : "double");
         /* Both networks must read the same inputs: one input table serves both orders. */
         const ns_nn_header *a = &nets[0]->h, *b = &nets[o]->h;
-        if (a->extent != b->extent || a->sinh_scale != b->sinh_scale ||
+        if (a->input_map != b->input_map || a->extent != b->extent || a->sinh_scale != b->sinh_scale ||
             a->albedo_max != b->albedo_max || a->g_min != b->g_min || a->g_max != b->g_max)
             return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                            "weights: double and multiple networks normalise inputs differently");

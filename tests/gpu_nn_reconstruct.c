@@ -246,6 +246,12 @@ static void test_rejects_bad_material(void)
     d.nets[1] = &w[0]; /* the double network in the multiple slot */
     CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, NULL, &err), NS_ERR_INVALID_ARGUMENT);
     CHECK_STR_CONTAINS(err.message, "multiple");
+    /* The two networks feed on one input table: a multiple network of input map 2 (g through
+     * ln(1 - g)) beside a double network of map 1 is refused, even with the same g range. */
+    d.nets[1] = &w[1];
+    w[1].h.input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+    CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "normalise inputs differently");
 }
 
 /* Is bin i of axis a a node of the sampling (the rule of nn_reconstruct.c's sample_axis)? */
