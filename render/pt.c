@@ -113,30 +113,27 @@ static void pt_plan_light_subpaths(const ns_scene *scene, pt_light_plan *plan)
     plan->target[3] = sqrtf(r2) * 1.0001f + 1e-6f;
 }
 
-/* Light sub-paths give every order from 2 up. The single order behind a refracting boundary
- * would need a specular connection (docs/reference.md), so a render asking for it there is
- * refused rather than returned without that light; so is any scattering order when such a
- * medium sits on an unbounded plane (no sphere to aim the sub-paths at). */
+/* Light sub-paths give every order from 2 up, and the specular connection (manifold
+ * next-event estimation, pt.comp) the single order. The sub-paths aim at a sphere around the
+ * refracting media, so a render that needs them while such a medium is an unbounded plane is
+ * refused rather than returned without that light. */
 static int pt_check_reachable(const ns_scene *scene, const pt_light_plan *plan, ns_error *err)
 {
-    if (plan->first_delta < 0 || plan->material < 0)
+    if (plan->first_delta < 0 || plan->material < 0 || !plan->unbounded)
         return NS_OK;
-    uint32_t missing = plan->unbounded ? scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE
-                                       : scene->render.components & NS_COMPONENT_SINGLE;
+    uint32_t missing = scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
     if (!missing)
         return NS_OK;
     static const char *kinds[] = {"directional", "point"};
     const ns_material *mat = &scene->materials[plan->material];
     return ns_fail(err, NS_ERR_NOT_AVAILABLE,
                    "pt: lights[%d] (%s) reaches medium '%s' (materials[%d], ior %g) only "
-                   "through its refracting boundary; %s; leave out %s, or use "
+                   "through its refracting boundary, and that medium is a plane: the light "
+                   "sub-paths of its double and multiple scattering need a bounded medium; "
+                   "leave out components \"double\" and \"multiple\", or use "
                    "sphere/environment lights or ior 1",
                    plan->first_delta, kinds[scene->lights[plan->first_delta].type], mat->name,
-                   plan->material, (double)mat->ior,
-                   plan->unbounded ? "light sub-paths need a bounded medium (not a plane)"
-                                   : "its single scattering needs a specular connection, "
-                                     "which is not implemented",
-                   plan->unbounded ? "the scattering components" : "component \"single\"");
+                   plan->material, (double)mat->ior);
 }
 
 _Static_assert(PT_LIGHTS + 1 == NS_SCENE_BUFFER_COUNT, "pt.comp binds the scene buffers first");

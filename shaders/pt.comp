@@ -15,8 +15,9 @@
 //   - Henyey-Greenstein phase sampling; next-event estimation to point, directional and
 //     sphere lights from every scattering event (zero where a refracting boundary is in the
 //     way: there sphere lights and the environment are reached by the phase-sampled
-//     continuation, and point/directional lights by light sub-paths connected to the
-//     camera stretches, orders 2 and up; the single order is refused: docs/reference.md);
+//     continuation, and point/directional lights by a specular connection through the
+//     boundary for the single order and by light sub-paths connected to the camera
+//     stretches for orders 2 and up: docs/reference.md);
 //   - smooth dielectric boundaries chosen stochastically (reflect with probability F,
 //     total internal reflection always reflects), weight unchanged;
 //   - Russian roulette on the throughput after the third scattering event.
@@ -285,6 +286,142 @@ float fresnel(float cos_i, float eta, out float cos_t)
 }
 
 // ---------------------------------------------------------------------------------------
+// Single scattering of a point or directional light behind a refracting boundary: manifold
+// next-event estimation (Hanika et al. 2015) for one refraction. The light reaches x only
+// along the direction v whose refraction where it leaves the medium points exactly at the
+// light: a specular connection that sampling never hits. Newton's method finds v, starting
+// from the straight line, on the residual of the refracted ray at the light (its miss
+// distance for a point light, its deviation from the light's direction for a directional
+// one) with central differences for the 2 x 2 Jacobian J. The same J gives the energy:
+// light leaving a point light into solid angle dw lands on |det J| dw of area across the
+// ray at x (|det J| of deviation per dw for a directional light), so the irradiance at x is
+// T I / |det J| (T E / |det J|) times the n^2 of the radiance theorem, which the camera
+// path's leaving refraction takes back (the radiance convention, docs/reference.md).
+// Only the solution Newton reaches from the straight line counts; where two refracted rays
+// cross at x (a caustic of a curved boundary) or the path needs a second specular event,
+// the light is missed (docs/reference.md). Used at the camera path's first event only:
+// every path with more events has a light sub-path strategy.
+// ---------------------------------------------------------------------------------------
+const int NS_PT_MNEE_ITERATIONS = 10;
+const float NS_PT_MNEE_STEP = 1e-3; // radians, for the central differences
+
+// Where the ray from x inside `medium` along v leaves it: the point y, the outward normal
+// there, the refracted direction o and the Fresnel transmittance. False when anything else
+// comes first or the ray is totally reflected.
+bool leave_medium(vec3 x, vec3 v, uint medium, out vec3 y, out vec3 n, out vec3 o, out float transmit)
+{
+    Hit h;
+    y = x;
+    n = v;
+    o = v;
+    transmit = 0.0;
+    if (!trace_scene(x, v, 0.0, NS_INF, h) || h.front || prims[h.prim].info.y != medium)
+        return false;
+    float ior = materials[medium].sigma_t.w;
+    y = x + h.t * v;
+    n = h.normal;
+    float cos_i = dot(v, n), cos_t;
+    float f = fresnel(cos_i, ior, cos_t);
+    if (!(cos_i > 0.0) || f >= 1.0)
+        return false;
+    o = normalize(ior * v + (cos_t - ior * cos_i) * n);
+    transmit = 1.0 - f;
+    return true;
+}
+
+// The refracted ray's miss at the light in the basis (b1, b2) across it.
+bool light_miss(vec3 x, vec3 v, uint medium, GpuLight light, vec3 b1, vec3 b2, out vec2 miss)
+{
+    vec3 y, n, o;
+    float transmit;
+    miss = vec2(0.0);
+    if (!leave_medium(x, v, medium, y, n, o, transmit))
+        return false;
+    if (light.info.x == NS_GPU_LIGHT_POINT) {
+        vec3 to_light = light.position.xyz - y;
+        float along = dot(to_light, o);
+        vec3 off = to_light - along * o;
+        miss = vec2(dot(off, b1), dot(off, b2));
+        return along > 0.0;
+    }
+    miss = vec2(dot(o, b1), dot(o, b2));
+    return dot(o, light.direction.xyz) < 0.0;
+}
+
+vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
+{
+    bool point = light.info.x == NS_GPU_LIGHT_POINT;
+    vec3 v = point ? normalize(light.position.xyz - x) : -light.direction.xyz;
+    // Seed: the light's own refraction at the face the straight line meets (the straight
+    // line itself may lie beyond the critical angle).
+    Hit h;
+    if (trace_scene(x, v, 0.0, NS_INF, h) && !h.front && prims[h.prim].info.y == medium) {
+        vec3 travel = point ? normalize(x + h.t * v - light.position.xyz) : light.direction.xyz;
+        float cos_i = -dot(travel, h.normal), cos_t, ior = materials[medium].sigma_t.w;
+        if (cos_i > 0.0 && fresnel(cos_i, 1.0 / ior, cos_t) < 1.0)
+            v = -normalize(travel / ior + (cos_i / ior - cos_t) * h.normal);
+    }
+    for (int it = 0; it < NS_PT_MNEE_ITERATIONS; it++) {
+        vec3 y, n, o;
+        float transmit;
+        if (!leave_medium(x, v, medium, y, n, o, transmit))
+            return vec3(0.0);
+        vec3 t1, t2, b1, b2;
+        basis(v, t1, t2);
+        basis(point ? o : -light.direction.xyz, b1, b2);
+        vec2 miss, p1, m1, p2, m2;
+        const float h = NS_PT_MNEE_STEP;
+        if (!light_miss(x, v, medium, light, b1, b2, miss) ||
+            !light_miss(x, normalize(v + h * t1), medium, light, b1, b2, p1) ||
+            !light_miss(x, normalize(v - h * t1), medium, light, b1, b2, m1) ||
+            !light_miss(x, normalize(v + h * t2), medium, light, b1, b2, p2) ||
+            !light_miss(x, normalize(v - h * t2), medium, light, b1, b2, m2))
+            return vec3(0.0);
+        mat2 jacobian = mat2((p1 - m1) / (2.0 * h), (p2 - m2) / (2.0 * h));
+        float det = determinant(jacobian);
+        if (!(abs(det) > 0.0))
+            return vec3(0.0);
+        float light_distance = point ? distance(light.position.xyz, y) : NS_INF;
+        float tolerance = point ? 1e-5 * (light_distance + distance(x, y)) : 1e-5;
+        if (length(miss) <= tolerance) {
+            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE);
+            return light.color.rgb * (hg_phase(dot(d, v), g) * transmit / abs(det)) *
+                   beer_lambert(sigma_t_of(medium), distance(x, y)) * visible;
+        }
+        vec2 step = -(inverse(jacobian) * miss);
+        float len = length(step);
+        if (len > 0.25)
+            step *= 0.25 / len;
+        // Halve the step while it lands where the ray cannot leave (another face beyond
+        // the critical angle, another object).
+        bool moved = false;
+        for (int k = 0; k < 6 && !moved; k++, step *= 0.5) {
+            vec3 candidate = normalize(v + step.x * t1 + step.y * t2);
+            if (leave_medium(x, candidate, medium, y, n, o, transmit)) {
+                v = candidate;
+                moved = true;
+            }
+        }
+        if (!moved)
+            return vec3(0.0);
+    }
+    return vec3(0.0);
+}
+
+// Every point and directional light's specular connection to x (single scattering).
+vec3 specular_light_medium(vec3 x, vec3 d, float g, uint medium)
+{
+    vec3 sum = vec3(0.0);
+    for (uint i = 0u; i < params.counts.y; i++) {
+        out_of_budget();
+        GpuLight light = lights[i];
+        if (light.info.x == NS_GPU_LIGHT_POINT || light.info.x == NS_GPU_LIGHT_DIRECTIONAL)
+            sum += specular_light(x, d, g, medium, light);
+    }
+    return sum;
+}
+
+// ---------------------------------------------------------------------------------------
 // Light sub-paths: point and directional light reaching a medium through a refracting
 // boundary. Next-event estimation cannot sample such light (the refracted path is a
 // specular chain) and a camera path never hits a delta light, so each camera sample traces
@@ -520,6 +657,8 @@ bool path_step(inout PathState s)
             float g = mm.sigma_s.w;
             if (order_counts(s.events))
                 s.radiance += s.w * direct_light_medium(s.o, s.d, g, s.medium);
+            if (s.events == 1u && order_counts(1u) && mm.sigma_t.w != 1.0)
+                s.radiance += s.w * specular_light_medium(s.o, s.d, g, s.medium);
             s.d = hg_sample(s.d, g);
             s.nee_covered = true;
             s.last_event = s.o;

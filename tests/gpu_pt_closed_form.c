@@ -284,6 +284,142 @@ static void test_single_scattering_sphere_light(void)
     ns_image_free(&img);
 }
 
+/* ---------------------------------------------------------------------------------------
+ * Single scattering behind a refracting face (ior 1.5): the specular connection. A deep
+ * slab y in [-30, 0] (no light comes back from its floor), seen from above.
+ * ------------------------------------------------------------------------------------- */
+static const double dielectric_ior = 1.5;
+
+/* Unpolarised Fresnel reflectance, eta = n_incident / n_transmitted; cos_t returned. */
+static double fresnel_reflectance(double cos_i, double eta, double *cos_t)
+{
+    double sin2_t = eta * eta * (1 - cos_i * cos_i);
+    if (sin2_t >= 1)
+        return *cos_t = 0, 1;
+    *cos_t = sqrt(1 - sin2_t);
+    double rs = (eta * cos_i - *cos_t) / (eta * cos_i + *cos_t);
+    double rp = (cos_i - eta * *cos_t) / (cos_i + eta * *cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+static double hg(double cos_t, double g)
+{
+    double denom = 1 + g * g - 2 * g * cos_t;
+    return (1 - g * g) / (4 * M_PI * denom * sqrt(denom));
+}
+
+/* The light's direction of travel: 50 degrees from the vertical, towards +x. */
+static const double oblique_sin = 0.766044443118978, oblique_cos = 0.642787609686539;
+
+/* Directional light of irradiance E = 1 through the face (Hanrahan & Krueger 1993): inside,
+ * the refracted beam has irradiance T_i E mu_i' / mu_i across it; seen along a camera ray
+ * refracted to cosine mu_o, the single scattering sums to sigma_s p E_in mu_i /
+ * (sigma_t (mu_i + mu_o)), and leaves with T_o / n^2:
+ *   L = T_i T_o E mu_i' sigma_s p / (sigma_t (mu_i + mu_o) n^2). */
+static double refracted_single_expected(const double d[3], int c)
+{
+    double eta = 1 / dielectric_ior, mu_i, mu_o;
+    double t_i = 1 - fresnel_reflectance(oblique_cos, eta, &mu_i);
+    double mu_o_out = fabs(d[1]);
+    double t_o = 1 - fresnel_reflectance(mu_o_out, eta, &mu_o);
+    /* Propagation directions inside: the light's (down, towards +x), the camera ray's. */
+    double light_in[3] = {eta * oblique_sin, -mu_i, 0};
+    double cam_in[3] = {eta * d[0], -mu_o, eta * d[2]};
+    /* Scattered from the light's direction into the camera ray's reverse. */
+    double cos_s = -(light_in[0] * cam_in[0] + light_in[1] * cam_in[1] + light_in[2] * cam_in[2]);
+    double st = ss_sigma_s[c] + ss_sigma_a[c];
+    return t_i * t_o * oblique_cos * ss_sigma_s[c] * hg(cos_s, ss_g) /
+           (st * (mu_i + mu_o) * dielectric_ior * dielectric_ior);
+}
+
+static ns_scene refracted_scene(ns_material *m, ns_object *o, ns_light *l)
+{
+    ns_scene s = single_scene(m, o, l);
+    m->ior = (float)dielectric_ior;
+    *o = slab(-30, 0, 0);
+    set3(l->direction, oblique_sin, -oblique_cos, 0);
+    return s;
+}
+
+static void test_single_scattering_refracted_directional(void)
+{
+    ns_material m;
+    ns_object o;
+    ns_light l;
+    ns_scene s = refracted_scene(&m, &o, &l);
+    s.render.spp = 64;
+    ns_image img;
+    if (render_ok(&s, &img, NULL))
+        for (int c = 0; c < 3; c++) {
+            image_stats st = channel_stats(&img, c);
+            double want = mean_expected(&s.camera, c, refracted_single_expected);
+            fprintf(stderr, "  refracted directional, single, channel %d: %.6f +- %.6f, expected %.6f\n",
+                    c, st.mean, st.se, want);
+            CHECK(st.se < 0.01 * want);
+            CHECK_NEAR(st.mean, want, 4 * st.se + 1e-3 * want);
+        }
+    ns_image_free(&img);
+}
+
+/* A point light of intensity 1 at height a = 2 above the face and 1.5 to the side of the
+ * central camera ray (straight down, 1-degree field of view). At depth b the path bends
+ * once: R = a tan(t_o) + b tan(t_i) = 1.5 with sin(t_o) = n sin(t_i), solved by bisection.
+ * The pencil of solid angle sin(t_o) dt_o dphi lands on R dphi across by dR/dt_o cos(t_i)
+ * along, so the irradiance across the ray is T_i I sin(t_o) / (R cos(t_i) dR/dt_o), with
+ * dR/dt_o = a / cos^2(t_o) + b / cos^2(t_i) * cos(t_o) / (n cos(t_i)); then attenuation,
+ * phase and the quadrature over depth, and T_o / n^2 on the way out (T_o at normal
+ * incidence). An independent derivation from the shader's numerical Jacobian. */
+static double refracted_point_expected(int c)
+{
+    const double a = 2, side = 1.5, n = dielectric_ior, st = ss_sigma_s[c] + ss_sigma_a[c];
+    double mu_o;
+    double t_o = 1 - fresnel_reflectance(1, 1 / n, &mu_o);
+    const int steps = 4000;
+    const double depth = 30 / st;
+    double sum = 0;
+    for (int k = 0; k < steps; k++) {
+        double b = (k + 0.5) / steps * depth;
+        double lo = 0, hi = asin(1 / n);
+        for (int it = 0; it < 100; it++) {
+            double ti = 0.5 * (lo + hi), to = asin(n * sin(ti));
+            if (a * tan(to) + b * tan(ti) < side)
+                lo = ti;
+            else
+                hi = ti;
+        }
+        double ti = 0.5 * (lo + hi), to = asin(n * sin(ti)), cos_t;
+        double trans = 1 - fresnel_reflectance(cos(to), 1 / n, &cos_t);
+        double dr = a / (cos(to) * cos(to)) + b / (cos(ti) * cos(ti)) * cos(to) / (n * cos(ti));
+        double irradiance = trans * sin(to) / (side * cos(ti) * dr) * exp(-st * b / cos(ti));
+        /* Light travels (-sin ti, -cos ti, 0), then up towards the camera: cos = -cos ti. */
+        sum += ss_sigma_s[c] * hg(-cos(ti), ss_g) * irradiance * exp(-st * b);
+    }
+    return t_o * sum * depth / steps / (n * n);
+}
+
+static void test_single_scattering_refracted_point(void)
+{
+    ns_material m;
+    ns_object o;
+    ns_light l;
+    ns_scene s = refracted_scene(&m, &o, &l);
+    s.camera.fov_deg = 1;
+    l = light(NS_LIGHT_POINT, 1, 1, 1);
+    set3(l.position, 1.5, 2, 0);
+    s.render.spp = 64;
+    ns_image img;
+    if (render_ok(&s, &img, NULL))
+        for (int c = 0; c < 3; c++) {
+            image_stats st = channel_stats(&img, c);
+            double want = refracted_point_expected(c);
+            fprintf(stderr, "  refracted point, single, channel %d: %.6f +- %.6f, expected %.6f\n", c,
+                    st.mean, st.se, want);
+            CHECK(st.se < 0.01 * want);
+            CHECK_NEAR(st.mean, want, 4 * st.se + 2e-3 * want);
+        }
+    ns_image_free(&img);
+}
+
 /* RMS over pixels of (pixel - expected) at N and 4N samples per pixel: ratio 2 when the
  * estimator is unbiased with finite variance (bias would flatten the ratio towards 1). */
 static double rms_error(int spp, uint32_t seed)
@@ -329,6 +465,8 @@ int main(void)
     RUN(test_beer_lambert_dielectric);
     RUN(test_single_scattering_slab);
     RUN(test_single_scattering_sphere_light);
+    RUN(test_single_scattering_refracted_directional);
+    RUN(test_single_scattering_refracted_point);
     RUN(test_error_falls_like_inverse_sqrt_spp);
     ns_context_destroy(test_context());
     return harness_report();
