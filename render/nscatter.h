@@ -65,6 +65,11 @@ int ns_fail(ns_error *err, int status, const char *fmt, ...) __attribute__((form
 #define NS_MAX_SPP 4096
 #define NS_MAX_DEPTH 64
 #define NS_MAX_SCATTER 100000 /* render.max_scatter */
+/* What "pt" estimates: bumped whenever a change to shaders/pt.comp changes its expected
+ * image, so that caches of reference images (nscatter bench) do not serve stale ones.
+ * 2: specular connection for single scattering; no light reflected by diffuse surfaces
+ * into media. */
+#define NS_PT_ESTIMATOR_VERSION 2
 #define NS_MAX_MATERIALS 256
 #define NS_MAX_OBJECTS 4096
 #define NS_MAX_LIGHTS 256

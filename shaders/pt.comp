@@ -6,7 +6,8 @@
 // until every pixel is done), so a path may take any number of scattering events.
 //
 // Light transport is the scene model every method shares (docs/rendering.md): diffuse
-// surfaces take direct light from every light and end the path (no interreflection);
+// surfaces take direct light from every light and end the path (no interreflection), and
+// light they reflect does not enter media (a path that scattered and then meets one ends);
 // shadow rays pass index-matched boundaries with their Beer-Lambert factor and stop at
 // refracting ones. On top of that, and unlike the camera pass, light scatters inside media:
 //   - free-flight distances with one channel picked uniformly and the one-sample balance
@@ -691,7 +692,10 @@ bool path_step(inout PathState s)
     GpuMaterial mat = materials[m];
     vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
     if (mat.reflectance.w == 0.0) {
-        if (order_counts(s.events))
+        // Only the camera sees diffuse surfaces lit: light they reflect into a medium is
+        // outside the shared model (the VRLs, the tables and the camera pass all start
+        // from the lights themselves), so a path that scattered first ends here dark.
+        if (s.events == 0u && order_counts(0u))
             s.radiance += s.w * direct_light_surface(p, n, mat.reflectance.rgb, s.medium);
         return false;
     }
