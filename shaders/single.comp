@@ -14,7 +14,9 @@
 //     on total internal reflection), Fresnel-transmitted (1 - F), its irradiance carried
 //     into the medium as E_perp (1 - F) cos_i / cos_t (flux through the plane is kept), and
 //     attenuated along the refracted direction over the exact distance from x to that plane.
-//     Outside, a shadow ray from b to the light.
+//     Outside, a shadow ray from b to the light. Point and sphere lights are refracted
+//     exactly through that plane instead (point_refracted: the refraction point and the
+//     pencil's divergence inside), which is exact on flat faces.
 //   Environment: one in-medium direction per sample, drawn from the phase function; through
 //     a refracting boundary the radiance inside is n^2 (1 - F) L_env, nothing on TIR.
 //
@@ -230,6 +232,67 @@ vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
     return s.irradiance * phase_hg(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium);
 }
 
+// A point light through the face at b, taken as the plane (b, n), as a flat face exactly:
+// the refraction point on that plane (the light at height a above the plane, x at depth h
+// below it, r apart along it: a tan t_o + h tan t_t = r, sin t_o = n sin t_t), and the
+// irradiance of the refracted
+// pencil, which keeps diverging inside: the solid angle sin t_o dt_o dphi lands on
+// r dphi by dr cos t_t across the ray, so E = T I sin t_o / (r cos t_t dr/dt_o) with
+// dr/dt_o = a / cos^2 t_o + h cos t_o / (n cos^3 t_t); on the normal, T I / (a + h/n)^2.
+vec3 point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, vec3 n)
+{
+    float ior = mat.sigma_t.w;
+    vec3 p = light.position.xyz;
+    float a = dot(p - b, n), h = max(0.0, dot(b - x, n));
+    if (!(a > 0.0))
+        return vec3(0.0); // the light is behind the tangent plane at b
+    vec3 along = (p - x) - dot(p - x, n) * n;
+    float r = length(along);
+    vec3 e_r = r > 0.0 ? along / r : vec3(0.0);
+    // Newton on w = tan t_o: f(w) = a w + h tan t_t - r is increasing and concave (tan t_t
+    // stays below 1 / sqrt(n^2 - 1)). tan t_t <= w / n puts the root at or right of the
+    // paraxial w = r / (a + h / n), where Newton starts and from where it converges
+    // monotonically; r / a bounds it on the right (steps beyond the bracket bisect it).
+    float lo = r / (a + h / ior), hi = r / a, w = lo;
+    float sin_t = 0.0, cos_t = 1.0;
+    loop_count += 4u; // lavapipe counts these iterations: so must the dispatch sizing
+    for (int it = 0; it < 4; it++) {
+        float k = 1.0 + w * w;
+        sin_t = w / (ior * sqrt(k));
+        cos_t = sqrt(1.0 - sin_t * sin_t);
+        float f_w = a * w + h * sin_t / cos_t - r;
+        if (f_w > 0.0)
+            hi = w;
+        else
+            lo = w;
+        float next = w - f_w / (a + h / (ior * cos_t * cos_t * cos_t * k * sqrt(k)));
+        w = next >= lo && next <= hi ? next : 0.5 * (lo + hi); // converged: next == w
+    }
+    float k = 1.0 + w * w;
+    sin_t = w / (ior * sqrt(k));
+    cos_t = sqrt(1.0 - sin_t * sin_t);
+    float sin_o = w / sqrt(k), cos_o = 1.0 / sqrt(k);
+    float u = h * sin_t / cos_t;
+    float unused;
+    float f = fresnel(cos_o, 1.0 / ior, unused);
+    if (f >= 1.0 || cos_o <= 1e-6)
+        return vec3(0.0);
+    float spread;
+    if (r > 1e-5 * (a + h)) {
+        float dr = a / (cos_o * cos_o) + h * cos_o / (ior * cos_t * cos_t * cos_t);
+        spread = sin_o / (r * cos_t * dr);
+    } else {
+        spread = 1.0 / ((a + h / ior) * (a + h / ior));
+    }
+    vec3 y = x + h * n + u * e_r; // the refraction point on the plane
+    vec3 travel = h > 0.0 ? normalize(x - y) : -n;
+    vec3 to_light = p - y;
+    float d_light = length(to_light);
+    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE);
+    return light.color.rgb * ((1.0 - f) * spread) * outside * beer_lambert(mat.sigma_t.xyz, h / cos_t) *
+           phase_hg(dot(travel, wo), mat.sigma_s.w);
+}
+
 vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial mat)
 {
     float g = mat.sigma_s.w, ior = mat.sigma_t.w;
@@ -248,7 +311,21 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
         return vec3(0.0);
     vec3 b = x + h.t * aim;
     vec3 n = h.normal; // outward: the light arrives against it
+    if (light.info.x == NS_GPU_LIGHT_POINT)
+        return point_refracted(light, x, wo, mat, b, n);
     LightSample s = sample_light(light, b);
+    if (light.info.x == NS_GPU_LIGHT_SPHERE) {
+        // A sphere light diverges like a point light: one point of it, taken along the
+        // sampled direction at the centre's distance, with the intensity that gives b the
+        // sampled irradiance (a small sphere is then the point light of equal power).
+        if (!s.valid)
+            return vec3(0.0);
+        float d_centre = distance(light.position.xyz, b);
+        GpuLight point = light;
+        point.position.xyz = b + s.toward * d_centre;
+        point.color.rgb = s.irradiance * (d_centre * d_centre);
+        return point_refracted(point, x, wo, mat, b, n);
+    }
     float cos_i = dot(s.toward, n);
     if (!s.valid || cos_i <= 0.0)
         return vec3(0.0); // the light is behind the tangent plane at b

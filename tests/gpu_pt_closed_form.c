@@ -351,13 +351,11 @@ static void test_single_scattering_refracted_directional(void)
 }
 
 /* A point light of intensity 1 at height a = 2 above the face and 1.5 to the side of the
- * central camera ray (straight down, 1-degree field of view). At depth b the path bends
- * once: R = a tan(t_o) + b tan(t_i) = 1.5 with sin(t_o) = n sin(t_i), solved by bisection.
- * The pencil of solid angle sin(t_o) dt_o dphi lands on R dphi across by dR/dt_o cos(t_i)
- * along, so the irradiance across the ray is T_i I sin(t_o) / (R cos(t_i) dR/dt_o), with
- * dR/dt_o = a / cos^2(t_o) + b / cos^2(t_i) * cos(t_o) / (n cos(t_i)); then attenuation,
- * phase and the quadrature over depth, and T_o / n^2 on the way out (T_o at normal
- * incidence). An independent derivation from the shader's numerical Jacobian. */
+ * central camera ray (straight down, 1-degree field of view). At each depth b the light
+ * bends once (planar_refracted_point, gpu_util.h: the refraction point by bisection and the
+ * refracted pencil's irradiance), then attenuation, phase and the quadrature over depth,
+ * and T_o / n^2 on the way out (T_o at normal incidence). A derivation independent of the
+ * shader's numerical Jacobian. */
 static double refracted_point_expected(int c)
 {
     const double a = 2, side = 1.5, n = dielectric_ior, st = ss_sigma_s[c] + ss_sigma_a[c];
@@ -367,21 +365,10 @@ static double refracted_point_expected(int c)
     const double depth = 30 / st;
     double sum = 0;
     for (int k = 0; k < steps; k++) {
-        double b = (k + 0.5) / steps * depth;
-        double lo = 0, hi = asin(1 / n);
-        for (int it = 0; it < 100; it++) {
-            double ti = 0.5 * (lo + hi), to = asin(n * sin(ti));
-            if (a * tan(to) + b * tan(ti) < side)
-                lo = ti;
-            else
-                hi = ti;
-        }
-        double ti = 0.5 * (lo + hi), to = asin(n * sin(ti)), cos_t;
-        double trans = 1 - fresnel_reflectance(cos(to), 1 / n, &cos_t);
-        double dr = a / (cos(to) * cos(to)) + b / (cos(ti) * cos(ti)) * cos(to) / (n * cos(ti));
-        double irradiance = trans * sin(to) / (side * cos(ti) * dr) * exp(-st * b / cos(ti));
-        /* Light travels (-sin ti, -cos ti, 0), then up towards the camera: cos = -cos ti. */
-        sum += ss_sigma_s[c] * hg(-cos(ti), ss_g) * irradiance * exp(-st * b);
+        double b = (k + 0.5) / steps * depth, cos_t, tan_t;
+        double irradiance = planar_refracted_point(a, b, side, n, &cos_t, &tan_t) * exp(-st * b / cos_t);
+        /* Light travels (-sin t_t, -cos t_t, 0), then up towards the camera: cos = -cos t_t. */
+        sum += ss_sigma_s[c] * hg(-cos_t, ss_g) * irradiance * exp(-st * b);
     }
     return t_o * sum * depth / steps / (n * n);
 }

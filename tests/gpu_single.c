@@ -362,6 +362,58 @@ static void test_point_far_refracted(void)
                       1e-3);
 }
 
+/* sigma_s p E ... for a point light of `intensity` at p above the slab's ior-`ior` top face,
+ * through that flat face exactly (planar_refracted_point, gpu_util.h): at each point x of the
+ * segment the refraction point, the refracted pencil's irradiance, the attenuation along
+ * the refracted path and the phase between its direction and -d; Simpson along the segment. */
+static double slab_point_refracted(const GpuSegment *seg, const double p[3], double intensity,
+                                   double ior, int channel)
+{
+    double st = SIGMA_S[channel] + SIGMA_A[channel];
+    double len = seg_length(seg);
+    const int n = 4000; /* even */
+    double sum = 0;
+    for (int i = 0; i <= n; i++) {
+        double t = len * i / n, x[3];
+        for (int k = 0; k < 3; k++)
+            x[k] = seg->entry[k] + t * seg->direction[k];
+        double a = p[1] - TOP, h = TOP - x[1];
+        double across[3] = {p[0] - x[0], 0, p[2] - x[2]};
+        double r = sqrt(dot3d(across, across)), cos_t, tan_t;
+        double e = intensity * planar_refracted_point(a, h, r, ior, &cos_t, &tan_t);
+        /* The light's direction inside, from the refraction point y down to x. */
+        double y[3] = {x[0] + (r > 0 ? across[0] / r : 0) * h * tan_t, TOP,
+                       x[2] + (r > 0 ? across[2] / r : 0) * h * tan_t};
+        double travel[3] = {x[0] - y[0], x[1] - y[1], x[2] - y[2]}, len_in = sqrt(dot3d(travel, travel));
+        double d[3] = {seg->direction[0], seg->direction[1], seg->direction[2]};
+        /* At the face itself the light travels straight down, -n: cos = dot(-n, -d) = d_y. */
+        double cos_theta = len_in > 0 ? -dot3d(travel, d) / len_in : d[1];
+        double f = SIGMA_S[channel] * hg(cos_theta, G) * e * exp(-st * (t + h / cos_t));
+        sum += f * (i == 0 || i == n ? 1 : i % 2 ? 4 : 2);
+    }
+    return sum * len / n / 3;
+}
+
+/* ior 1.5, a point light 3 above the face: the refracted pencil keeps diverging inside (the
+ * far light's directional form no longer holds). The shader takes the face as the plane it
+ * is, so it must equal the flat-face solution. */
+static void test_point_near_refracted(void)
+{
+    double p[3] = {0.5, TOP + 3.0, -0.4};
+    slab s;
+    ns_light l = light(NS_LIGHT_POINT, 4, 8, 12);
+    set3(l.position, p[0], p[1], p[2]);
+    make_slab(&s, 1.5, l);
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c], slab_point_refracted(&segs[i], p, 4.0 * (c + 1), 1.5, c), 3e-4);
+}
+
 /* A small sphere light equals a point light of intensity L pi r^2 (the irradiance of a
  * fully visible sphere is exact; the cone's spread changes phase and path only slightly). */
 static void test_sphere_light(void)
@@ -834,6 +886,7 @@ int main(void)
     RUN(test_directional_refracted_oblique);
     RUN(test_point_index_matched);
     RUN(test_point_far_refracted);
+    RUN(test_point_near_refracted);
     RUN(test_sphere_light);
     RUN(test_shadow_index_matched);
     RUN(test_shadow_refracted);

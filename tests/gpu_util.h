@@ -95,6 +95,37 @@ static inline ns_object plane(double py, uint32_t material)
     return o;
 }
 
+/* A point light of unit intensity at height a above a flat refracting face (ior n, light
+ * outside), seen from depth h below it, r apart along the face: the single refraction by
+ * bisection on the inside angle t_t (a tan t_o + h tan t_t = r, sin t_o = n sin t_t), and
+ * the irradiance across the refracted ray at depth h, T sin t_o / (r cos t_t dr/dt_o) with
+ * T = 1 - F (unpolarised) and dr/dt_o = a / cos^2 t_o + h cos t_o / (n cos^3 t_t): the
+ * pencil of solid angle sin t_o dt_o dphi lands on r dphi by dr cos t_t. *tan_t gives the
+ * refraction point (r_in = h tan t_t from the foot of x), *cos_t the path h / cos t_t. */
+static inline double planar_refracted_point(double a, double h, double r, double n, double *cos_t,
+                                            double *tan_t)
+{
+    double lo = 0, hi = asin(1 / n);
+    for (int it = 0; it < 100; it++) {
+        double ti = 0.5 * (lo + hi), to = asin(fmin(1, n * sin(ti)));
+        if (a * tan(to) + h * tan(ti) < r)
+            lo = ti;
+        else
+            hi = ti;
+    }
+    double ti = 0.5 * (lo + hi), to = asin(fmin(1, n * sin(ti)));
+    *cos_t = cos(ti);
+    *tan_t = tan(ti);
+    double ci = cos(to), ct = cos(ti), eta = 1 / n;
+    /* Fresnel of the light arriving from outside at t_o (cos of the refracted ray: ct). */
+    double rs = (eta * ci - ct) / (eta * ci + ct), rp = (ci - eta * ct) / (ci + eta * ct);
+    double transmit = 1 - 0.5 * (rs * rs + rp * rp);
+    if (r < 1e-9 * (a + h))
+        return transmit / ((a + h / n) * (a + h / n));
+    double dr = a / (ci * ci) + h * ci / (n * ct * ct * ct);
+    return transmit * sin(to) / (r * ct * dr);
+}
+
 static inline ns_light light(ns_light_type type, double r, double g, double b)
 {
     ns_light l;
