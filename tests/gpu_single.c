@@ -322,46 +322,6 @@ static double slab_point(const GpuSegment *seg, const double p[3], double intens
     return sum * len / n / 3;
 }
 
-static void test_point_index_matched(void)
-{
-    double p[3] = {0.5, 3.0, -0.4};
-    slab s;
-    ns_light l = light(NS_LIGHT_POINT, 4, 8, 12);
-    set3(l.position, p[0], p[1], p[2]);
-    make_slab(&s, 1.0, l);
-    GpuSegment segs[SLAB_SEGMENTS];
-    slab_segments(segs);
-    float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
-        return;
-    for (int i = 0; i < SLAB_SEGMENTS; i++)
-        for (int c = 0; c < 3; c++)
-            CHECK_REL(out[i][c], slab_point(&segs[i], p, 4.0 * (c + 1), c), 1e-3);
-}
-
-/* ior 1.5, a point light 1e5 away along -dir with intensity E d^2: the directional form. */
-static void test_point_far_refracted(void)
-{
-    double dir[3] = {0.35, -1, -0.2};
-    unit(dir);
-    const double far = 1e5;
-    ns_light l =
-        light(NS_LIGHT_POINT, E_RGB[0] * far * far, E_RGB[1] * far * far, E_RGB[2] * far * far);
-    set3(l.position, -far * dir[0], TOP - far * dir[1], -far * dir[2]);
-    slab s;
-    make_slab(&s, 1.5, l);
-    GpuSegment segs[SLAB_SEGMENTS];
-    slab_segments(segs);
-    float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
-        return;
-    for (int i = 0; i < SLAB_SEGMENTS; i++)
-        for (int c = 0; c < 3; c++)
-            CHECK_REL(out[i][c],
-                      slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.5, E_RGB[c], c),
-                      1e-3);
-}
-
 /* sigma_s p E ... for a point light of `intensity` at p above the slab's ior-`ior` top face,
  * through that flat face exactly (planar_refracted_point, gpu_util.h): at each point x of the
  * segment the refraction point, the refracted pencil's irradiance, the attenuation along
@@ -394,15 +354,42 @@ static double slab_point_refracted(const GpuSegment *seg, const double p[3], dou
     return sum * len / n / 3;
 }
 
-/* ior 1.5, a point light 3 above the face: the refracted pencil keeps diverging inside (the
- * far light's directional form no longer holds). The shader takes the face as the plane it
- * is, so it must equal the flat-face solution. */
-static void test_point_near_refracted(void)
+/* A point light of intensity (4, 8, 12) at p over the slab of ior `ior`: index matched,
+ * the straight-line quadrature; refracting, the flat-face solution (slab_point_refracted). */
+static void check_point_light(double ior, const double p[3], double tolerance)
 {
-    double p[3] = {0.5, TOP + 3.0, -0.4};
     slab s;
     ns_light l = light(NS_LIGHT_POINT, 4, 8, 12);
     set3(l.position, p[0], p[1], p[2]);
+    make_slab(&s, ior, l);
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    float out[SLAB_SEGMENTS][4];
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+        return;
+    for (int i = 0; i < SLAB_SEGMENTS; i++)
+        for (int c = 0; c < 3; c++)
+            CHECK_REL(out[i][c],
+                      ior == 1.0 ? slab_point(&segs[i], p, 4.0 * (c + 1), c)
+                                 : slab_point_refracted(&segs[i], p, 4.0 * (c + 1), ior, c),
+                      tolerance);
+}
+
+static void test_point_index_matched(void)
+{
+    check_point_light(1.0, (double[3]){0.5, 3.0, -0.4}, 1e-3);
+}
+
+/* ior 1.5, a point light 1e5 away along -dir with intensity E d^2: the directional form. */
+static void test_point_far_refracted(void)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    const double far = 1e5;
+    ns_light l =
+        light(NS_LIGHT_POINT, E_RGB[0] * far * far, E_RGB[1] * far * far, E_RGB[2] * far * far);
+    set3(l.position, -far * dir[0], TOP - far * dir[1], -far * dir[2]);
+    slab s;
     make_slab(&s, 1.5, l);
     GpuSegment segs[SLAB_SEGMENTS];
     slab_segments(segs);
@@ -411,7 +398,18 @@ static void test_point_near_refracted(void)
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++)
-            CHECK_REL(out[i][c], slab_point_refracted(&segs[i], p, 4.0 * (c + 1), 1.5, c), 3e-4);
+            CHECK_REL(out[i][c],
+                      slab_directional(&segs[i], seg_length(&segs[i]), dir, 1.5, E_RGB[c], c),
+                      1e-3);
+}
+
+
+/* ior 1.5, a point light 3 above the face: the refracted pencil keeps diverging inside (the
+ * far light's directional form no longer holds). The shader takes the face as the plane it
+ * is, so it must equal the flat-face solution. */
+static void test_point_near_refracted(void)
+{
+    check_point_light(1.5, (double[3]){0.5, TOP + 3.0, -0.4}, 3e-4);
 }
 
 /* A small sphere light equals a point light of intensity L pi r^2 (the irradiance of a
