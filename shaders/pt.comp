@@ -291,14 +291,15 @@ float fresnel(float cos_i, float eta, out float cos_t)
 // next-event estimation (Hanika et al. 2015) for one refraction. The light reaches x only
 // along the direction v whose refraction where it leaves the medium points exactly at the
 // light: a specular connection that sampling never hits. Newton's method finds v, starting
-// from the straight line, on the residual of the refracted ray at the light (its miss
-// distance for a point light, its deviation from the light's direction for a directional
-// one) with central differences for the 2 x 2 Jacobian J. The same J gives the energy:
+// from the light's refraction at the face the straight line to it meets, on the residual
+// of the refracted ray at the light (its miss distance for a point light, its deviation
+// from the light's direction for a directional one) with central differences for the
+// 2 x 2 Jacobian J. The same J gives the energy:
 // light leaving a point light into solid angle dw lands on |det J| dw of area across the
 // ray at x (|det J| of deviation per dw for a directional light), so the irradiance at x is
 // T I / |det J| (T E / |det J|) times the n^2 of the radiance theorem, which the camera
 // path's leaving refraction takes back (the radiance convention, docs/reference.md).
-// Only the solution Newton reaches from the straight line counts; where two refracted rays
+// Only the solution Newton reaches from that seed counts; where two refracted rays
 // cross at x (a caustic of a curved boundary) or the path needs a second specular event,
 // the light is missed (docs/reference.md). Used at the camera path's first event only:
 // every path with more events has a light sub-path strategy.
@@ -330,14 +331,9 @@ bool leave_medium(vec3 x, vec3 v, uint medium, out vec3 y, out vec3 n, out vec3 
     return true;
 }
 
-// The refracted ray's miss at the light in the basis (b1, b2) across it.
-bool light_miss(vec3 x, vec3 v, uint medium, GpuLight light, vec3 b1, vec3 b2, out vec2 miss)
+// The miss at the light of the refracted ray (y, o), in the basis (b1, b2) across it.
+bool miss_at_light(vec3 y, vec3 o, GpuLight light, vec3 b1, vec3 b2, out vec2 miss)
 {
-    vec3 y, n, o;
-    float transmit;
-    miss = vec2(0.0);
-    if (!leave_medium(x, v, medium, y, n, o, transmit))
-        return false;
     if (light.info.x == NS_GPU_LIGHT_POINT) {
         vec3 to_light = light.position.xyz - y;
         float along = dot(to_light, o);
@@ -347,6 +343,15 @@ bool light_miss(vec3 x, vec3 v, uint medium, GpuLight light, vec3 b1, vec3 b2, o
     }
     miss = vec2(dot(o, b1), dot(o, b2));
     return dot(o, light.direction.xyz) < 0.0;
+}
+
+// The same for the ray from x along v, refracted where it leaves the medium.
+bool light_miss(vec3 x, vec3 v, uint medium, GpuLight light, vec3 b1, vec3 b2, out vec2 miss)
+{
+    vec3 y, n, o;
+    float transmit;
+    miss = vec2(0.0);
+    return leave_medium(x, v, medium, y, n, o, transmit) && miss_at_light(y, o, light, b1, b2, miss);
 }
 
 vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
@@ -372,7 +377,7 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
         basis(point ? o : -light.direction.xyz, b1, b2);
         vec2 miss, p1, m1, p2, m2;
         const float h = NS_PT_MNEE_STEP;
-        if (!light_miss(x, v, medium, light, b1, b2, miss) ||
+        if (!miss_at_light(y, o, light, b1, b2, miss) ||
             !light_miss(x, normalize(v + h * t1), medium, light, b1, b2, p1) ||
             !light_miss(x, normalize(v - h * t1), medium, light, b1, b2, m1) ||
             !light_miss(x, normalize(v + h * t2), medium, light, b1, b2, p2) ||
