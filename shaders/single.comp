@@ -235,10 +235,10 @@ vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
 // A point light through the face at b, taken as the plane (b, n), as a flat face exactly:
 // the refraction point on that plane (the light at height a above the plane, x at depth h
 // below it, r apart along it: a tan t_o + h tan t_t = r, sin t_o = n sin t_t), and the
-// irradiance of the refracted
-// pencil, which keeps diverging inside: the solid angle sin t_o dt_o dphi lands on
-// r dphi by dr cos t_t across the ray, so E = T I sin t_o / (r cos t_t dr/dt_o) with
-// dr/dt_o = a / cos^2 t_o + h cos t_o / (n cos^3 t_t); on the normal, T I / (a + h/n)^2.
+// irradiance of the refracted pencil, which keeps diverging inside: the solid angle
+// sin t_o dt_o dphi lands on r dphi by dr cos t_t across the ray, so
+// E = T I sin t_o / (r cos t_t dr/dt_o) with dr/dt_o = a / cos^2 t_o + h cos t_o /
+// (n cos^3 t_t); on the normal, T I / (a + h/n)^2.
 vec3 point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, vec3 n)
 {
     float ior = mat.sigma_t.w;
