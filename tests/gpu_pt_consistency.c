@@ -120,12 +120,7 @@ static void test_plane_medium_orders(void)
     ns_object o = plane(0, 0);
     ns_light l = light(NS_LIGHT_POINT, 10, 10, 10);
     set3(l.position, 0, 3, 0);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &o;
-    s.object_count = 1;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_of_one(&s, &m, &o, &l);
     s.render.method = NS_METHOD_PT;
     s.render.spp = 1;
     const uint32_t refused[2] = {NS_COMPONENT_DOUBLE, NS_COMPONENT_SINGLE | NS_COMPONENT_MULTIPLE};
@@ -218,12 +213,7 @@ static void compare_delta_light_estimators(ns_light_type type)
         set3(l.position, -1, 2.5, 1.5);
         set3(l.color, 10, 10, 10);
     }
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &o;
-    s.object_count = 1;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_of_one(&s, &m, &o, &l);
     s.render.method = NS_METHOD_PT;
     const uint32_t orders[3] = {NS_COMPONENT_SINGLE, NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE};
     const char *names[3] = {"single", "double", "multiple"};

@@ -126,6 +126,17 @@ static inline double planar_refracted_point(double a, double h, double r, double
     return transmit * sin(to) / (r * ct * dr);
 }
 
+/* A scene of one material, one object and one light (the pointers must outlive it). */
+static inline void scene_of_one(ns_scene *s, ns_material *m, ns_object *o, ns_light *l)
+{
+    s->materials = m;
+    s->material_count = 1;
+    s->objects = o;
+    s->object_count = 1;
+    s->lights = l;
+    s->light_count = 1;
+}
+
 static inline ns_light light(ns_light_type type, double r, double g, double b)
 {
     ns_light l;
