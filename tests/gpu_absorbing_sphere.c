@@ -18,12 +18,7 @@ static ns_scene sphere_scene(ns_material *m, ns_object *o, ns_light *l, uint32_t
     s.render.max_depth = 32;
     *o = sphere(0, 0, 0, 1.0, 0);
     *l = light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2]);
-    s.materials = m;
-    s.material_count = 1;
-    s.objects = o;
-    s.object_count = 1;
-    s.lights = l;
-    s.light_count = 1;
+    scene_lists(&s, m, 1, o, 1, l, 1);
     return s;
 }
 

@@ -40,12 +40,7 @@ static ns_scene bench_scene(uint32_t size, uint32_t spp)
     set3(lights[1].position, 2.5, 3.5, 2.5);
     lights[1].radius = 0.3f;
     lights[2] = light(NS_LIGHT_ENVIRONMENT, 0.25, 0.3, 0.4);
-    s.materials = materials;
-    s.material_count = 4;
-    s.objects = objects;
-    s.object_count = 6;
-    s.lights = lights;
-    s.light_count = 3;
+    scene_lists(&s, materials, 4, objects, 6, lights, 3);
     return s;
 }
 

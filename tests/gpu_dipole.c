@@ -33,12 +33,7 @@ static void test_slab_total_reflectance(void)
     set3(box.max, 2.5, 0, 2.5);
     ns_light sun = light(NS_LIGHT_DIRECTIONAL, irradiance, irradiance, irradiance);
     set3(sun.direction, 0, -1, 0);
-    s.materials = &mat;
-    s.material_count = 1;
-    s.objects = &box;
-    s.object_count = 1;
-    s.lights = &sun;
-    s.light_count = 1;
+    scene_lists(&s, &mat, 1, &box, 1, &sun, 1);
     ns_image img = {0};
     ns_render_stats stats = {0};
     if (!render_ok(&s, &img, &stats))

@@ -18,12 +18,7 @@ static ns_scene valid_scene(void)
     objects[1] = plane(-1, 1);
     l = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
     set3(l.direction, 0, -1, 0);
-    s.materials = m;
-    s.material_count = 2;
-    s.objects = objects;
-    s.object_count = 2;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_lists(&s, m, 2, objects, 2, &l, 1);
     return s;
 }
 

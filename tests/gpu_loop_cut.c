@@ -30,12 +30,7 @@ static ns_scene build(ns_material mats[2], ns_light *sun, uint32_t planes)
     }
     *sun = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
     set3(sun->direction, 0, -1, 0);
-    s.materials = mats;
-    s.material_count = 2;
-    s.objects = objects;
-    s.object_count = 2 + planes;
-    s.lights = sun;
-    s.light_count = 1;
+    scene_lists(&s, mats, 2, objects, 2 + planes, sun, 1);
     return s;
 }
 

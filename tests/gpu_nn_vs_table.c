@@ -46,12 +46,7 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
     lights[0] = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
     set3(lights[0].direction, -0.4 / 1.2, -0.8 / 1.2, -0.6 / 1.2);
     lights[1] = light(NS_LIGHT_ENVIRONMENT, 0.2, 0.25, 0.3);
-    s->materials = mats;
-    s->material_count = 2;
-    s->objects = objs;
-    s->object_count = 2;
-    s->lights = lights;
-    s->light_count = 2;
+    scene_lists(s, mats, 2, objs, 2, lights, 2);
 }
 
 static void test_nn_matches_table(void)

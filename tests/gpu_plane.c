@@ -36,12 +36,7 @@ static void check_directional(double theta_deg, int with_environment)
                           light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2])};
     double th = theta_deg * M_PI / 180;
     set3(lights[0].direction, -sin(th), -cos(th), 0); /* travels down, tilted by theta */
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &floor;
-    s.object_count = 1;
-    s.lights = lights;
-    s.light_count = with_environment ? 2 : 1;
+    scene_lists(&s, &m, 1, &floor, 1, lights, with_environment ? 2 : 1);
 
     ns_image img = {0};
     ns_render_stats stats = {0};
@@ -96,12 +91,7 @@ static void test_point_light(void)
     ns_object floor = plane(0, 0);
     ns_light l = light(NS_LIGHT_POINT, I[0], I[1], I[2]);
     set3(l.position, 0, h, 0);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &floor;
-    s.object_count = 1;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_lists(&s, &m, 1, &floor, 1, &l, 1);
     ns_image img = {0};
     if (!render_ok(&s, &img, NULL))
         return;
@@ -133,12 +123,7 @@ static void test_sphere_light(void)
     ns_light l = light(NS_LIGHT_SPHERE, Le[0], Le[1], Le[2]);
     set3(l.position, 0, h, 0);
     l.radius = (float)R;
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &floor;
-    s.object_count = 1;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_lists(&s, &m, 1, &floor, 1, &l, 1);
     ns_image img = {0};
     if (!render_ok(&s, &img, NULL))
         return;
@@ -175,12 +160,7 @@ static void test_environment_occlusion(void)
         set3(s.camera.position, x + 10, 3, 0);
         set3(s.camera.look_at, x, 0, 0);
         s.render.spp = 4096;
-        s.materials = &m;
-        s.material_count = 1;
-        s.objects = objects;
-        s.object_count = 2;
-        s.lights = &l;
-        s.light_count = 1;
+        scene_lists(&s, &m, 1, objects, 2, &l, 1);
         ns_image img = {0};
         if (!render_ok(&s, &img, NULL))
             return;
@@ -210,12 +190,7 @@ static void test_shadow_through_index_matched_medium(void)
         ns_object objects[2] = {plane(0, 0), sphere(0, 1.5, 0, 0.5, 1)};
         ns_light l = light(NS_LIGHT_POINT, I[0], I[1], I[2]);
         set3(l.position, 0, h, 0);
-        s.materials = m;
-        s.material_count = 2;
-        s.objects = objects;
-        s.object_count = 2;
-        s.lights = &l;
-        s.light_count = 1;
+        scene_lists(&s, m, 2, objects, 2, &l, 1);
         ns_image img = {0};
         if (!render_ok(&s, &img, NULL))
             return;
@@ -237,12 +212,7 @@ static void test_seed_determinism(void)
     ns_light l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
     ns_scene s = base_scene(24, 24, 60);
     set3(s.camera.position, 0, 4, 6);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = objects;
-    s.object_count = 2;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_lists(&s, &m, 1, objects, 2, &l, 1);
     ns_image a = {0}, b = {0}, c = {0};
     if (!render_ok(&s, &a, NULL) || !render_ok(&s, &b, NULL))
         return;

@@ -116,7 +116,7 @@ static void check_slab(double ior, double (*expected)(const double d[3], int c))
     ns_material m = medium((double[3]){0, 0, 0}, slab_sigma_a, ior);
     ns_object o = slab(-0.5, 0.5, 0);
     ns_light l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
-    scene_of_one(&s, &m, &o, &l);
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
     s.render.spp = 256;
     ns_image img;
     if (render_ok(&s, &img, NULL))
@@ -153,7 +153,7 @@ static void test_diffuse_plane(void)
     double theta = 60 * M_PI / 180;
     ns_light l = light(NS_LIGHT_DIRECTIONAL, 1, 2, 3);
     set3(l.direction, sin(theta), -cos(theta), 0);
-    scene_of_one(&s, &m, &o, &l);
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
     s.render.spp = 2;
     ns_image img;
     if (render_ok(&s, &img, NULL)) {
@@ -199,7 +199,7 @@ static ns_scene single_scene(ns_material *m, ns_object *o, ns_light *l)
     *o = slab(-1, 0, 0);
     *l = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
     set3(l->direction, 0, -1, 0);
-    scene_of_one(&s, m, o, l);
+    scene_lists(&s, m, 1, o, 1, l, 1);
     s.render.components = NS_COMPONENT_SINGLE;
     return s;
 }

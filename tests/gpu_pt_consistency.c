@@ -34,12 +34,7 @@ static void build(ns_scene *s, ns_material mats[3], ns_object objs[3], ns_light 
     set3(lights[1].position, 2.5, 3.5, 2.5);
     lights[1].radius = 0.3f;
     lights[2] = light(NS_LIGHT_ENVIRONMENT, 0.25, 0.3, 0.4);
-    s->materials = mats;
-    s->material_count = 3;
-    s->objects = objs;
-    s->object_count = 3;
-    s->lights = lights;
-    s->light_count = 3;
+    scene_lists(s, mats, 3, objs, 3, lights, 3);
     s->render.max_depth = 32; /* the camera pass's Fresnel series, nearly complete */
 }
 
@@ -120,7 +115,7 @@ static void test_plane_medium_orders(void)
     ns_object o = plane(0, 0);
     ns_light l = light(NS_LIGHT_POINT, 10, 10, 10);
     set3(l.position, 0, 3, 0);
-    scene_of_one(&s, &m, &o, &l);
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
     s.render.method = NS_METHOD_PT;
     s.render.spp = 1;
     const uint32_t refused[2] = {NS_COMPONENT_DOUBLE, NS_COMPONENT_SINGLE | NS_COMPONENT_MULTIPLE};
@@ -213,7 +208,7 @@ static void compare_delta_light_estimators(ns_light_type type)
         set3(l.position, -1, 2.5, 1.5);
         set3(l.color, 10, 10, 10);
     }
-    scene_of_one(&s, &m, &o, &l);
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
     s.render.method = NS_METHOD_PT;
     const uint32_t orders[3] = {NS_COMPONENT_SINGLE, NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE};
     const char *names[3] = {"single", "double", "multiple"};

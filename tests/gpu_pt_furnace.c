@@ -21,12 +21,7 @@ static ns_scene furnace_scene(ns_material *m, ns_object *o, ns_light *l, const d
     m->g = (float)g;
     *o = sphere(0, 0, 0, 1, 0);
     *l = light(NS_LIGHT_ENVIRONMENT, 1.0, 0.5, 0.25);
-    s.materials = m;
-    s.material_count = 1;
-    s.objects = o;
-    s.object_count = 1;
-    s.lights = l;
-    s.light_count = 1;
+    scene_lists(&s, m, 1, o, 1, l, 1);
     s.render.method = NS_METHOD_PT;
     s.render.components =
         NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;

@@ -49,12 +49,7 @@ static ns_scene candle_scene(uint32_t size, uint32_t components, uint32_t vrls)
     lights[0] = light(NS_LIGHT_POINT, 6, 4.5, 2.5);
     set3(lights[0].position, 0.3, 3.6, 0.2);
     lights[1] = light(NS_LIGHT_ENVIRONMENT, 0.05, 0.06, 0.08);
-    s.materials = materials;
-    s.material_count = 2;
-    s.objects = objects;
-    s.object_count = 2;
-    s.lights = lights;
-    s.light_count = getenv("NSCATTER_BENCH_POINT_ONLY") ? 1 : 2;
+    scene_lists(&s, materials, 2, objects, 2, lights, getenv("NSCATTER_BENCH_POINT_ONLY") ? 1 : 2);
     return s;
 }
 

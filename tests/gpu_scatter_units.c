@@ -30,12 +30,7 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
     set3(lights[0].direction, 0.3 / 1.1446, -1 / 1.1446, -0.4 / 1.1446);
     lights[1] = light(NS_LIGHT_POINT, 4 * k * k, 4 * k * k, 4 * k * k);
     set3(lights[1].position, 1.5 * k, 2.5 * k, 1.0 * k);
-    s->materials = mats;
-    s->material_count = 2;
-    s->objects = objs;
-    s->object_count = 2;
-    s->lights = lights;
-    s->light_count = 2;
+    scene_lists(s, mats, 2, objs, 2, lights, 2);
 }
 
 static void check_scale_invariance(ns_method method, uint32_t components, const char *what)

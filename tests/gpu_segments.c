@@ -16,12 +16,7 @@ static ns_scene segment_scene(ns_material *m, ns_object *o, ns_light *l, uint32_
     *m = medium(sigma_s, sigma_a, 1.0);
     *o = sphere(0, 0, 0, 1.5, 0);
     *l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
-    s.materials = m;
-    s.material_count = 1;
-    s.objects = o;
-    s.object_count = 1;
-    s.lights = l;
-    s.light_count = 1;
+    scene_lists(&s, m, 1, o, 1, l, 1);
     return s;
 }
 
@@ -123,12 +118,7 @@ static void test_no_segments_without_media(void)
     ns_light l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
     ns_scene s = base_scene(16, 16, 20);
     set3(s.camera.position, 0, 0, 10);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &o;
-    s.object_count = 1;
-    s.lights = &l;
-    s.light_count = 1;
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
     ns_image img = {0};
     ns_render_stats stats = {0};
     if (render_ok(&s, &img, &stats))

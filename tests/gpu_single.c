@@ -503,12 +503,7 @@ static void check_environment(double ior)
     ns_object ball = sphere(0, 0, 0, 1, 0);
     ns_light env = light(NS_LIGHT_ENVIRONMENT, 1, 2, 3);
     ns_scene s = base_scene(16, 16, 60);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &ball;
-    s.object_count = 1;
-    s.lights = &env;
-    s.light_count = 1;
+    scene_lists(&s, &m, 1, &ball, 1, &env, 1);
     GpuSegment seg = segment(-0.01, 0, 0, 1, 0, 0, 0.02);
     seg.material = 0;
     float out[1][4];
@@ -564,12 +559,7 @@ static void test_order_independent(void)
     set3(lights[0].position, 0, 3, 0);
     lights[0].radius = 0.5f;
     ns_scene s = base_scene(16, 16, 60);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &ball;
-    s.object_count = 1;
-    s.lights = lights;
-    s.light_count = 2;
+    scene_lists(&s, &m, 1, &ball, 1, lights, 2);
     enum { N = 8 };
     GpuSegment segs[N], reversed[N];
     for (int i = 0; i < N; i++) {
@@ -685,12 +675,7 @@ static void test_against_path_tracer(void)
     ns_scene s = base_scene(16, 16, 40);
     set3(s.camera.position, 0, 0.5, 4);
     set3(s.camera.look_at, 0, 0, 0);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &ball;
-    s.object_count = 1;
-    s.lights = lights;
-    s.light_count = 2;
+    scene_lists(&s, &m, 1, &ball, 1, lights, 2);
     const uint32_t pixels = 16 * 16;
 
     /* Ours: camera pass segments, then single scattering on them. */
@@ -758,12 +743,7 @@ static void test_camera_segments_refracting(void)
     lights[2].radius = 0.4f;
     ns_scene s = base_scene(24, 24, 45);
     set3(s.camera.position, 0, 0.3, 3.5);
-    s.materials = &m;
-    s.material_count = 1;
-    s.objects = &ball;
-    s.object_count = 1;
-    s.lights = lights;
-    s.light_count = 4;
+    scene_lists(&s, &m, 1, &ball, 1, lights, 4);
     s.render.spp = 2;
     uint32_t capacity = 24 * 24 * s.render.spp * 2;
     GpuSegment *segs = calloc(capacity, sizeof *segs);

@@ -37,12 +37,7 @@ static void build(ns_scene *s, ns_material mats[3], ns_object objs[3], ns_light 
     objs[2].material = 0;
     *sun = light(NS_LIGHT_DIRECTIONAL, 3, 3, 3);
     set3(sun->direction, 0, -0.6, -0.8);
-    s->materials = mats;
-    s->material_count = 3;
-    s->objects = objs;
-    s->object_count = 3;
-    s->lights = sun;
-    s->light_count = 1;
+    scene_lists(s, mats, 3, objs, 3, sun, 1);
 }
 
 /* Which object the centre of pixel (x, y) sees first: 0 wall/none, 1 bright, 2 dark

@@ -126,15 +126,17 @@ static inline double planar_refracted_point(double a, double h, double r, double
     return transmit * sin(to) / (r * ct * dr);
 }
 
-/* A scene of one material, one object and one light (the pointers must outlive it). */
-static inline void scene_of_one(ns_scene *s, ns_material *m, ns_object *o, ns_light *l)
+/* Points a scene at its lists of materials, objects and lights (which must outlive it). */
+static inline void scene_lists(ns_scene *s, const ns_material *materials, uint32_t material_count,
+                               const ns_object *objects, uint32_t object_count,
+                               const ns_light *lights, uint32_t light_count)
 {
-    s->materials = m;
-    s->material_count = 1;
-    s->objects = o;
-    s->object_count = 1;
-    s->lights = l;
-    s->light_count = 1;
+    s->materials = materials;
+    s->material_count = material_count;
+    s->objects = objects;
+    s->object_count = object_count;
+    s->lights = lights;
+    s->light_count = light_count;
 }
 
 static inline ns_light light(ns_light_type type, double r, double g, double b)

@@ -76,12 +76,8 @@ static ns_scene scene_of(const vrl_case *c)
 {
     ns_scene s = base_scene(8, 8, 60);
     set3(s.camera.position, 0, 0, 10);
-    s.materials = c->materials;
-    s.material_count = c->material_count;
-    s.objects = c->objects;
-    s.object_count = c->object_count;
-    s.lights = c->lights;
-    s.light_count = c->light_count;
+    scene_lists(&s, c->materials, c->material_count, c->objects, c->object_count, c->lights,
+                c->light_count);
     s.triangles = c->triangles;
     s.triangle_count = c->triangle_count;
     s.render.components = NS_COMPONENT_MULTIPLE;

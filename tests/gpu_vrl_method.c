@@ -82,12 +82,7 @@ static ns_scene sphere_scene(const ns_light *lights, uint32_t light_count, doubl
     unit_sphere = sphere(0, 0, 0, 1, 0);
     ns_scene s = base_scene(24, 24, 40);
     set3(s.camera.position, 0, 0, 4);
-    s.materials = &sphere_medium;
-    s.material_count = 1;
-    s.objects = &unit_sphere;
-    s.object_count = 1;
-    s.lights = lights;
-    s.light_count = light_count;
+    scene_lists(&s, &sphere_medium, 1, &unit_sphere, 1, lights, light_count);
     s.render.method = NS_METHOD_VRL;
     return s;
 }
