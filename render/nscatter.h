@@ -167,6 +167,9 @@ typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumul
 #define NS_DEFAULT_VRLS 10000u
 #define NS_MAX_VRLS 1000000u
 #define NS_MAX_GATHER_TILE 16u
+#define NS_MAX_GATHER_LEVELS 4u
+#define NS_DEFAULT_GATHER_LEVELS 0u
+#define NS_DEFAULT_GATHER_TOLERANCE 0.02f
 #define NS_DEFAULT_SINGLE_SAMPLES 100u
 #define NS_MAX_SINGLE_SAMPLES 4096u
 
@@ -181,6 +184,11 @@ typedef struct ns_render_settings {
     /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
     uint32_t vrls;           /* light paths traced towards the media (VRLs stored <= this) */
     uint32_t gather_tile;    /* one gathered camera pixel per tile x tile block, >= 1 */
+    /* Adaptive gather: the tiles are first gathered on a lattice 2^gather_levels tiles apart;
+     * a tile between gathered ones is interpolated when they agree within gather_tolerance
+     * (relative, per channel) and see the same surface, else gathered. 0 = every tile. */
+    uint32_t gather_levels;
+    float gather_tolerance;
     uint32_t single_samples; /* regular samples per camera segment for single scattering */
     ns_accumulation accumulation;
     float cull_solid_angle; /* sr; 0 = exact (only cells beyond the table's reach are culled) */
@@ -264,6 +272,7 @@ typedef struct ns_render_stats {
     uint64_t vrl_paths;           /* light paths traced */
     uint64_t vrl_count;           /* VRLs stored */
     uint64_t gather_segments;     /* camera segments gathered (after tiling) */
+    uint64_t tiles_interpolated;  /* tiles interpolated from coarser ones (render.gather_levels) */
     uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */
     uint64_t cells_culled;        /* hierarchy nodes skipped with their subtrees: beyond the table's reach */
     uint64_t cells_represented;   /* hierarchy nodes replaced by their representative VRL */

@@ -36,11 +36,21 @@ typedef struct pixel_key {
     float weight[3];     /* sum of throughput / spp over participating segments */
 } pixel_key;
 
+/* How a pixel's double and multiple scattering is found. */
+enum {
+    PIXEL_UPSAMPLED = 0, /* at the end, from the four nearest tiles' representatives */
+    PIXEL_GATHERED,      /* gathered itself */
+    PIXEL_INTERPOLATED,  /* a tile's representative, interpolated from coarser tiles */
+};
+
 typedef struct tile_plan {
     uint32_t width, height, tile, tiles_x, tiles_y;
+    uint32_t levels; /* coarser lattices above the tiles (render.gather_levels) */
+    float tolerance; /* render.gather_tolerance */
     pixel_key *keys;
     uint32_t *representative; /* per tile: the gathered pixel standing for it, or NS_NONE */
-    uint8_t *gathered;        /* per pixel: gathered itself */
+    uint8_t *state;           /* per pixel: PIXEL_* */
+    float (*radiance)[3];     /* per gathered or interpolated pixel: Lbar (top of file) */
     uint32_t *segment_start;  /* pixel -> its segments [start[p], start[p + 1]) in by_pixel */
     uint32_t *by_pixel;
 } tile_plan;
@@ -49,7 +59,8 @@ static void tile_plan_free(tile_plan *t)
 {
     free(t->keys);
     free(t->representative);
-    free(t->gathered);
+    free(t->state);
+    free(t->radiance);
     free(t->segment_start);
     free(t->by_pixel);
     memset(t, 0, sizeof *t);
@@ -99,6 +110,11 @@ static uint32_t choose_representative(const tile_plan *t, uint32_t tx, uint32_t 
     return NS_NONE;
 }
 
+static int is_representative(const tile_plan *t, uint32_t x, uint32_t y)
+{
+    return t->representative[(y / t->tile) * t->tiles_x + x / t->tile] == y * t->width + x;
+}
+
 /* Bilinear neighbours of pixel (x, y) among the tiles' representatives: up to 4 (pixel,
  * weight) pairs that see the same surface. Returns how many. */
 static int upsample_sources(const tile_plan *t, uint32_t x, uint32_t y, uint32_t pixel[4], float weight[4])
@@ -134,12 +150,17 @@ static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32
     t->tile = scene->render.gather_tile ? scene->render.gather_tile : 1;
     t->tiles_x = (t->width + t->tile - 1) / t->tile;
     t->tiles_y = (t->height + t->tile - 1) / t->tile;
+    /* The vrl method's estimates are noisy (neighbours never agree) and each of its gathers
+     * traces new light paths: it gathers every tile. */
+    t->levels = scene->render.method == NS_METHOD_VRL ? 0 : scene->render.gather_levels;
+    t->tolerance = scene->render.gather_tolerance;
     t->keys = malloc(sizeof *t->keys * pixels);
     t->representative = malloc(sizeof *t->representative * t->tiles_x * t->tiles_y);
-    t->gathered = calloc(pixels, 1);
+    t->state = calloc(pixels, 1);
+    t->radiance = calloc(pixels, sizeof *t->radiance);
     t->segment_start = calloc(pixels + 1, sizeof *t->segment_start);
     t->by_pixel = malloc(sizeof *t->by_pixel * (n ? n : 1));
-    if (!t->keys || !t->representative || !t->gathered || !t->segment_start || !t->by_pixel)
+    if (!t->keys || !t->representative || !t->state || !t->radiance || !t->segment_start || !t->by_pixel)
         return -1;
     ns_method method = scene->render.method;
     float inv_spp = 1.0f / (float)scene->render.spp;
@@ -170,20 +191,123 @@ static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32
     }
     free(fill);
     for (uint32_t ty = 0; ty < t->tiles_y; ty++)
-        for (uint32_t tx = 0; tx < t->tiles_x; tx++) {
-            uint32_t r = choose_representative(t, tx, ty);
-            t->representative[ty * t->tiles_x + tx] = r;
-            if (r != NS_NONE)
-                t->gathered[r] = 1;
-        }
+        for (uint32_t tx = 0; tx < t->tiles_x; tx++)
+            t->representative[ty * t->tiles_x + tx] = choose_representative(t, tx, ty);
+    /* A pixel that no neighbouring representative can stand for is gathered itself. */
     for (uint32_t y = 0; y < t->height; y++)
         for (uint32_t x = 0; x < t->width; x++) {
             uint32_t p = y * t->width + x, src[4];
             float w[4];
-            if (t->keys[p].material != NS_NONE && !t->gathered[p] && upsample_sources(t, x, y, src, w) == 0)
-                t->gathered[p] = 1;
+            if (t->keys[p].material != NS_NONE && !is_representative(t, x, y) &&
+                upsample_sources(t, x, y, src, w) == 0)
+                t->state[p] = PIXEL_GATHERED;
         }
     return 0;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The adaptive gather (render.gather_levels = L > 0). The tiles' representatives are taken
+ * on lattices 2^L, 2^(L-1), ..., 1 tiles apart, coarsest first: every one on the coarsest
+ * is gathered; one first on a finer lattice lies midway between two of the coarser lattice
+ * along a row or a column, or between four at the corners of a square (the midpoint of
+ * both diagonals). It takes their mean when all of them see its surface and the error of
+ * that mean, estimated from the coarser lattice, is within the tolerance in every channel;
+ * else it is gathered. Each lattice is one gather round.
+ *
+ * The estimate. On a line through the coarser samples a (at -h) and b (at +h), with a' at
+ * -3h and b' at +3h, the midpoint's mean (a + b) / 2 misses f(0) by f'' h^2 / 2, and the
+ * second differences b - 2a + a' and a - 2b + b' are 4 f'' h^2: each gives the error as
+ * its eighth. The larger one counts; where neither outer sample sees the same surface (a
+ * silhouette close by) the spread |a - b| must be within the tolerance. A first-order test
+ * (the spread alone) would gather most of a medium: multiple scattering falls like
+ * exp(-sigma_tr r), several per cent per tile in a dense channel, while the error of the
+ * mean is second order. Multiple scattering varies over a mean free path or more, many
+ * pixels at any resolution that needs speed, so most of a medium is interpolated; its
+ * silhouettes, the boundaries between media and the light's own features are gathered.
+ * ------------------------------------------------------------------------------------- */
+
+/* The representative of tile (tx, ty) when it sees the surface of `self`, else NS_NONE. */
+static uint32_t same_surface_at(const tile_plan *t, int64_t tx, int64_t ty, uint32_t self)
+{
+    if (tx < 0 || ty < 0 || tx >= t->tiles_x || ty >= t->tiles_y)
+        return NS_NONE;
+    uint32_t r = t->representative[(uint32_t)ty * t->tiles_x + (uint32_t)tx];
+    return r != NS_NONE && compatible(&t->keys[self], &t->keys[r]) ? r : NS_NONE;
+}
+
+/* The line from tile (tx, ty) through (tx + dx * step, ty + dy * step) and its mirror: adds
+ * the two inner samples to sum; returns 0 when they cannot stand for the tile. */
+static int line_agrees(const tile_plan *t, uint32_t tx, uint32_t ty, int dx, int dy, uint32_t step,
+                       uint32_t self, float sum[3])
+{
+    int64_t sx = (int64_t)dx * step, sy = (int64_t)dy * step;
+    uint32_t a = same_surface_at(t, (int64_t)tx - sx, (int64_t)ty - sy, self);
+    uint32_t b = same_surface_at(t, (int64_t)tx + sx, (int64_t)ty + sy, self);
+    if (a == NS_NONE || b == NS_NONE)
+        return 0;
+    uint32_t a_out = same_surface_at(t, (int64_t)tx - 3 * sx, (int64_t)ty - 3 * sy, self);
+    uint32_t b_out = same_surface_at(t, (int64_t)tx + 3 * sx, (int64_t)ty + 3 * sy, self);
+    for (int c = 0; c < 3; c++) {
+        float fa = t->radiance[a][c], fb = t->radiance[b][c], error = 0.0f;
+        if (a_out != NS_NONE)
+            error = fabsf(fb - 2.0f * fa + t->radiance[a_out][c]) / 8.0f;
+        if (b_out != NS_NONE)
+            error = fmaxf(error, fabsf(fa - 2.0f * fb + t->radiance[b_out][c]) / 8.0f);
+        if (a_out == NS_NONE && b_out == NS_NONE)
+            error = fabsf(fa - fb);
+        if (error > t->tolerance * 0.5f * (fa + fb))
+            return 0;
+        sum[c] += fa + fb;
+    }
+    return 1;
+}
+
+static int interpolate_tile(tile_plan *t, uint32_t tx, uint32_t ty, uint32_t step)
+{
+    uint32_t self = t->representative[ty * t->tiles_x + tx];
+    int odd_x = (tx / step) & 1, odd_y = (ty / step) & 1;
+    float sum[3] = {0, 0, 0};
+    int ok = odd_x && odd_y ? line_agrees(t, tx, ty, 1, 1, step, self, sum) &&
+                                  line_agrees(t, tx, ty, 1, -1, step, self, sum)
+                            : line_agrees(t, tx, ty, odd_x, odd_y, step, self, sum);
+    if (!ok)
+        return 0;
+    float samples = odd_x && odd_y ? 4.0f : 2.0f;
+    for (int c = 0; c < 3; c++)
+        t->radiance[self][c] = sum[c] / samples;
+    return 1;
+}
+
+/* Marks in `round` the pixels to gather on lattice `level` (2^level tiles apart) and
+ * interpolates the rest of that lattice's new tiles. Returns how many were marked. */
+static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_t *interpolated)
+{
+    memset(round, 0, (size_t)t->width * t->height);
+    uint32_t marked = 0, step = 1u << level;
+    if (level == t->levels) /* the pixels no representative stands for go first */
+        for (uint32_t p = 0; p < t->width * t->height; p++)
+            if (t->state[p] == PIXEL_GATHERED) {
+                round[p] = 1;
+                marked++;
+            }
+    for (uint32_t ty = 0; ty < t->tiles_y; ty += step)
+        for (uint32_t tx = 0; tx < t->tiles_x; tx += step) {
+            int coarsest = level == t->levels;
+            if (!coarsest && (tx / step) % 2 == 0 && (ty / step) % 2 == 0)
+                continue; /* on a coarser lattice: done in an earlier round */
+            uint32_t r = t->representative[ty * t->tiles_x + tx];
+            if (r == NS_NONE)
+                continue;
+            if (!coarsest && interpolate_tile(t, tx, ty, step)) {
+                t->state[r] = PIXEL_INTERPOLATED;
+                (*interpolated)++;
+                continue;
+            }
+            t->state[r] = PIXEL_GATHERED;
+            round[r] = 1;
+            marked++;
+        }
+    return marked;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -280,32 +404,33 @@ static uint32_t morton_compact(uint32_t v)
     return v;
 }
 
-/* The gathered pixels in Morton (Z) order: consecutive segments of the list, which the
- * gather runs side by side in one SIMD group, then lie close together on the image, so
+/* The pixels marked in `round` in Morton (Z) order: consecutive segments of the list, which
+ * the gather runs side by side in one SIMD group, then lie close together on the image, so
  * their walks of the VRL hierarchy take the same branches (row order put 8 of them along
  * 16 pixels of one row). Returns the count; order holds room for every pixel. */
-static uint32_t gathered_in_z_order(const tile_plan *t, uint32_t *order)
+static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint32_t *order)
 {
     uint32_t side = 1, n = 0;
     while (side < t->width || side < t->height)
         side *= 2;
     for (uint64_t code = 0; code < (uint64_t)side * side; code++) {
         uint32_t x = morton_compact((uint32_t)code), y = morton_compact((uint32_t)(code >> 1));
-        if (x < t->width && y < t->height && t->gathered[y * t->width + x])
+        if (x < t->width && y < t->height && round[y * t->width + x])
             order[n++] = y * t->width + x;
     }
     return n;
 }
 
-static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_method method, gather_list *g)
+static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_method method,
+                             const uint8_t *round, gather_list *g)
 {
-    memset(g->material_first, 0, sizeof g->material_first);
+    memset(g, 0, sizeof *g);
     uint32_t pixels = t->width * t->height, n = 0;
     uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
     if (!order)
         return -1;
-    uint32_t gathered = gathered_in_z_order(t, order);
-    for (uint32_t j = 0; j < gathered; j++)
+    uint32_t marked = marked_in_z_order(t, round, order);
+    for (uint32_t j = 0; j < marked; j++)
         for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++)
             if (participates(&segs[t->by_pixel[k]], method)) {
                 g->material_first[segs[t->by_pixel[k]].material + 1]++;
@@ -321,7 +446,7 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
         free(order);
         return -1;
     }
-    for (uint32_t j = 0; j < gathered; j++)
+    for (uint32_t j = 0; j < marked; j++)
         for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++) {
             uint32_t i = t->by_pixel[k];
             if (!participates(&segs[i], method))
@@ -345,36 +470,77 @@ static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32
     key->accumulation = scene->render.accumulation;
 }
 
-/* Table and dipole methods: VRLs, then per medium its grid, its tables and the gather. */
-static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const gather_list *list,
-                            gpu_buffer *seg_buf, gpu_buffer *out, ns_render_stats *stats,
-                            scatter_times *times, ns_error *err)
+/* What the table and dipole methods gather from, kept across the rounds of an adaptive
+ * gather: the VRLs, and each medium's grid, built when a round first needs it. The tables
+ * are asked of the cache in every round (a hit costs nothing): a pointer kept across rounds
+ * could be evicted by another medium's tables. */
+typedef struct vrl_source {
+    int ready;
+    ns_vrl_set set;
+    ns_vrl_grid *grids;       /* per material */
+    uint8_t *grid_built;      /* per material */
+    uint64_t *table_bytes;    /* per material, 0 until its tables were used */
+} vrl_source;
+
+static void vrl_source_free(vrl_source *v, uint32_t material_count)
+{
+    for (uint32_t m = 0; v->grids && m < material_count; m++)
+        ns_vrl_grid_free(&v->grids[m]);
+    free(v->grids);
+    free(v->grid_built);
+    free(v->table_bytes);
+    ns_vrl_set_free(&v->set);
+    memset(v, 0, sizeof *v);
+}
+
+static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *v,
+                           ns_render_stats *stats, scatter_times *times, ns_error *err)
+{
+    const ns_scene *scene = in->scene;
+    uint32_t materials = in->gs->material_count ? in->gs->material_count : 1;
+    memset(v, 0, sizeof *v);
+    v->ready = 1;
+    v->grids = calloc(materials, sizeof *v->grids);
+    v->grid_built = calloc(materials, 1);
+    v->table_bytes = calloc(materials, sizeof *v->table_bytes);
+    if (!v->grids || !v->grid_built || !v->table_bytes)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
+    double t0 = ns_now_ms();
+    int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
+                                 scene->render.seed, &v->set, err);
+    times->vrl += ns_now_ms() - t0;
+    if (!status && stats) {
+        stats->vrl_paths = v->set.paths;
+        stats->vrl_count = v->set.count;
+    }
+    return status;
+}
+
+/* Table and dipole methods: one round's segments, per medium its grid, tables and gather. */
+static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source,
+                            const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
+                            ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
     const ns_scene *scene = in->scene;
     ns_method method = scene->render.method;
     uint32_t orders = scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
-    ns_vrl_set set = {0};
-    uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
-    double t0 = ns_now_ms();
-    int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
-                                 scene->render.seed, &set, err);
-    times->vrl += ns_now_ms() - t0;
-    if (!status && stats) {
-        stats->vrl_paths = set.paths;
-        stats->vrl_count = set.count;
-    }
+    int status = source->ready ? NS_OK : vrl_source_init(ctx, in, source, stats, times, err);
     for (uint32_t m = 0; m < in->gs->material_count && !status; m++) {
         uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
         if (!count)
             continue;
         const GpuMaterial *mat = &in->gs->materials[m];
-        float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
-        ns_vrl_grid grid = {0};
-        double t1 = ns_now_ms();
-        /* Representatives pay off only with small leaves (docs/scattering.md). */
-        uint32_t leaf_fill = scene->render.cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
-        status = ns_vrl_grid_build(&set, m, s_max > 0 ? 1.0f / s_max : INFINITY, leaf_fill, &grid, err);
-        times->grid += ns_now_ms() - t1;
+        ns_vrl_grid *grid = &source->grids[m];
+        if (!source->grid_built[m]) {
+            float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
+            double t1 = ns_now_ms();
+            /* Representatives pay off only with small leaves (docs/scattering.md). */
+            uint32_t leaf_fill = scene->render.cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
+            status = ns_vrl_grid_build(&source->set, m, s_max > 0 ? 1.0f / s_max : INFINITY,
+                                       leaf_fill, grid, err);
+            times->grid += ns_now_ms() - t1;
+            source->grid_built[m] = !status;
+        }
         const ns_scatter_tables *tables = NULL;
         uint32_t mode = NS_GATHER_MODE_DIPOLE;
         if (!status && method != NS_METHOD_DIPOLE) {
@@ -384,18 +550,19 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
             status = ns_tables_get(ctx, &key, &tables, &ts, err);
             times->reconstruct += ts.reconstruct_ms;
             times->accumulate += ts.accumulate_ms;
-            if (!status && stats) {
-                stats->weights_bytes = ts.weights_bytes;
-                table_bytes += tables->bytes;
+            if (!status) {
+                if (stats)
+                    stats->weights_bytes = ts.weights_bytes;
+                source->table_bytes[m] = tables->bytes;
             }
             mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                       : NS_GATHER_MODE_EXACT;
         }
-        if (!status && grid.vrl_count) {
+        if (!status && grid->vrl_count) {
             ns_gather_desc desc = {.segments = seg_buf,
                                    .first_segment = first,
                                    .segment_count = count,
-                                   .grid = &grid,
+                                   .grid = grid,
                                    .table = tables ? &tables->a : NULL,
                                    .out = out};
             ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle);
@@ -408,78 +575,76 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, const 
                 stats->cells_culled += counts.cells_culled;
                 stats->cells_represented += counts.cells_represented;
             }
+        } else if (!status) {
+            memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
         }
-        ns_vrl_grid_free(&grid);
     }
-    ns_vrl_set_free(&set);
-    if (stats && table_bytes > stats->table_bytes)
-        stats->table_bytes = table_bytes;
     return status;
 }
 
-/* Composes the gathered radiance into the gathered pixels, then upsamples the rest. */
-static void compose_gathered(const ns_scatter_inputs *in, const tile_plan *t, const gather_list *list,
-                             const float (*radiance)[4])
+/* The gathered radiance of one round, as Lbar of its pixels (top of file). */
+static void store_round(const ns_scatter_inputs *in, tile_plan *t, const gather_list *list,
+                        const uint8_t *round, const float (*radiance)[4])
 {
     const ns_scene *scene = in->scene;
-    uint32_t pixels = t->width * t->height;
     float inv_spp = 1.0f / (float)scene->render.spp;
-    float(*contribution)[3] = calloc(pixels, sizeof *contribution);
-    if (!contribution)
-        return;
     for (uint32_t i = 0; i < list->count; i++) {
         const GpuSegment *s = &list->segments[i];
         /* The dipole's R_d is radiance outside already. */
         float f = inv_spp * (scene->render.method == NS_METHOD_DIPOLE ? 1.0f : exit_factor(&in->gs->materials[s->material]));
         for (int c = 0; c < 3; c++)
-            contribution[s->pixel][c] += s->throughput[c] * radiance[i][c] * f;
+            t->radiance[s->pixel][c] += s->throughput[c] * radiance[i][c] * f;
     }
+    for (uint32_t p = 0; p < t->width * t->height; p++)
+        if (round[p])
+            for (int c = 0; c < 3; c++)
+                t->radiance[p][c] = t->keys[p].weight[c] > 0 ? t->radiance[p][c] / t->keys[p].weight[c] : 0.0f;
+}
+
+/* Pixels take their own Lbar (gathered or interpolated) or the mix of their tiles'. */
+static void compose(const ns_scatter_inputs *in, const tile_plan *t)
+{
     for (uint32_t y = 0; y < t->height; y++)
         for (uint32_t x = 0; x < t->width; x++) {
             uint32_t p = y * t->width + x;
             const pixel_key *k = &t->keys[p];
             if (k->material == NS_NONE)
                 continue;
-            if (t->gathered[p]) {
+            if (t->state[p] != PIXEL_UPSAMPLED) {
                 for (int c = 0; c < 3; c++)
-                    in->pixels[3 * p + c] += contribution[p][c];
+                    in->pixels[3 * p + c] += k->weight[c] * t->radiance[p][c];
                 continue;
             }
             uint32_t src[4];
             float w[4], total = 0, mix[3] = {0, 0, 0};
             int n = upsample_sources(t, x, y, src, w);
             for (int i = 0; i < n; i++) {
-                const pixel_key *r = &t->keys[src[i]];
                 for (int c = 0; c < 3; c++)
-                    if (r->weight[c] > 0)
-                        mix[c] += w[i] * contribution[src[i]][c] / r->weight[c];
+                    mix[c] += w[i] * t->radiance[src[i]][c];
                 total += w[i];
             }
             for (int c = 0; c < 3 && total > 0; c++)
                 in->pixels[3 * p + c] += k->weight[c] * mix[c] / total;
         }
-    free(contribution);
 }
 
-static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
-                                  scatter_times *times, ns_error *err)
+/* One round: its segments to the device, gathered, stored as Lbar. */
+static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan *t, const uint8_t *round,
+                        vrl_source *source, ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
     const ns_scene *scene = in->scene;
-    ns_method method = scene->render.method;
-    const GpuSegment *segs = in->segments->mapped;
     double t0 = ns_now_ms();
-    tile_plan plan = {0};
-    gather_list list = {0};
-    int status = NS_OK;
-    if (tile_plan_build(scene, segs, in->segment_count, &plan) ||
-        gather_list_build(&plan, segs, method, &list))
-        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
+    gather_list list;
+    if (gather_list_build(t, in->segments->mapped, scene->render.method, round, &list)) {
+        free(list.segments);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
+    }
     times->composite += ns_now_ms() - t0;
     if (stats)
         stats->gather_segments += list.count;
-
     gpu_buffer seg_buf = {0}, out[2] = {{0}};
-    if (!status && list.count) {
+    int status = NS_OK;
+    if (list.count) {
         status = gpu_buffer_create(&ctx->dev, &seg_buf,
                                    &(gpu_buffer_desc){.size = sizeof(GpuSegment) * list.count,
                                                       .data = list.segments,
@@ -493,7 +658,7 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
                                        err);
     }
     if (!status && list.count) {
-        if (method == NS_METHOD_VRL) {
+        if (scene->render.method == NS_METHOD_VRL) {
             double t1 = ns_now_ms();
             status = ns_vrl_method_gather(ctx, scene, in->gs, in->scene_buffers, &seg_buf, list.count,
                                           &out[0], &out[1], stats, err);
@@ -509,19 +674,57 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
                         d[i][c] = (want_double ? d[i][c] : 0.0f) + (want_multiple ? mult[i][c] : 0.0f);
             }
         } else {
-            status = gather_from_vrls(ctx, in, &list, &seg_buf, &out[0], stats, times, err);
+            status = gather_from_vrls(ctx, in, source, &list, &seg_buf, &out[0], stats, times, err);
         }
     }
-    if (!status && list.count) {
+    if (!status) {
         double t2 = ns_now_ms();
-        compose_gathered(in, &plan, &list, out[0].mapped);
+        store_round(in, t, &list, round, list.count ? out[0].mapped : NULL);
         times->composite += ns_now_ms() - t2;
     }
     gpu_buffer_destroy(&ctx->dev, &seg_buf);
     gpu_buffer_destroy(&ctx->dev, &out[0]);
     gpu_buffer_destroy(&ctx->dev, &out[1]);
     free(list.segments);
+    return status;
+}
+
+static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
+                                  scatter_times *times, ns_error *err)
+{
+    const ns_scene *scene = in->scene;
+    double t0 = ns_now_ms();
+    tile_plan plan = {0};
+    vrl_source source = {0};
+    uint8_t *round = malloc((size_t)scene->camera.width * scene->camera.height + 1);
+    int status = NS_OK;
+    if (!round || tile_plan_build(scene, in->segments->mapped, in->segment_count, &plan))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
+    times->composite += ns_now_ms() - t0;
+    uint64_t interpolated = 0;
+    for (int level = (int)plan.levels; level >= 0 && !status; level--) {
+        double t1 = ns_now_ms();
+        uint32_t marked = plan_round(&plan, (uint32_t)level, round, &interpolated);
+        times->composite += ns_now_ms() - t1;
+        if (marked)
+            status = gather_round(ctx, in, &plan, round, &source, stats, times, err);
+    }
+    if (!status) {
+        double t2 = ns_now_ms();
+        compose(in, &plan);
+        times->composite += ns_now_ms() - t2;
+    }
+    if (stats) {
+        stats->tiles_interpolated += interpolated;
+        uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
+        for (uint32_t m = 0; source.table_bytes && m < in->gs->material_count; m++)
+            table_bytes += source.table_bytes[m];
+        if (table_bytes > stats->table_bytes)
+            stats->table_bytes = table_bytes;
+    }
+    vrl_source_free(&source, in->gs->material_count);
     tile_plan_free(&plan);
+    free(round);
     return status;
 }
 

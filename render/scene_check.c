@@ -146,6 +146,10 @@ static int check_render(const ns_render_settings *r, ns_error *err)
             return BAD("render.vrls: %u outside 1..%u", r->vrls, NS_MAX_VRLS);
         if ((r->components & gathered) && (r->gather_tile < 1 || r->gather_tile > NS_MAX_GATHER_TILE))
             return BAD("render.gather_tile: %u outside 1..%u", r->gather_tile, NS_MAX_GATHER_TILE);
+        if (r->gather_levels > NS_MAX_GATHER_LEVELS)
+            return BAD("render.gather_levels: %u over %u", r->gather_levels, NS_MAX_GATHER_LEVELS);
+        if (!(r->gather_tolerance >= 0.0f && r->gather_tolerance <= 1.0f))
+            return BAD("render.gather_tolerance: %g outside 0..1", (double)r->gather_tolerance);
         if ((r->components & NS_COMPONENT_SINGLE) &&
             (r->single_samples < 1 || r->single_samples > NS_MAX_SINGLE_SAMPLES))
             return BAD("render.single_samples: %u outside 1..%u", r->single_samples,

@@ -60,6 +60,7 @@ json_t *render_stats_counts_json(const ns_render_stats *stats)
         {"vrl_paths", stats->vrl_paths},
         {"vrl_count", stats->vrl_count},
         {"gather_segments", stats->gather_segments},
+        {"tiles_interpolated", stats->tiles_interpolated},
         {"interactions", stats->interactions},
         {"cells_culled", stats->cells_culled},
         {"cells_represented", stats->cells_represented},

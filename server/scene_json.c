@@ -1207,8 +1207,9 @@ static void check_components_available(parser *p, const json_t *components, uint
 static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
-                                       "max_scatter", "vrls", "gather_tile", "single_samples",
-                                       "accumulation", "cull_solid_angle", NULL};
+                                       "max_scatter", "vrls", "gather_tile", "gather_levels",
+                                       "gather_tolerance", "single_samples", "accumulation",
+                                       "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
     ns_render_settings *r = &p->render;
     *r = (ns_render_settings){
@@ -1220,6 +1221,8 @@ static void parse_render(parser *p, const json_t *v)
         .exposure = 0,
         .vrls = NS_DEFAULT_VRLS,
         .gather_tile = 2,
+        .gather_levels = NS_DEFAULT_GATHER_LEVELS,
+        .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
         .single_samples = NS_DEFAULT_SINGLE_SAMPLES,
         .accumulation = NS_ACCUMULATION_EXACT,
         .cull_solid_angle = 0,
@@ -1253,6 +1256,10 @@ static void parse_render(parser *p, const json_t *v)
         field_uint(p, v, "vrls", 0, 1, NS_MAX_VRLS, "vrls (light paths traced towards the media)", &r->vrls);
         field_uint(p, v, "gather_tile", 0, 1, NS_MAX_GATHER_TILE,
                    "gather_tile (one gathered pixel per tile x tile block)", &r->gather_tile);
+        field_uint(p, v, "gather_levels", 0, 0, NS_MAX_GATHER_LEVELS,
+                   "gather_levels (coarser lattices of tiles; 0 = gather every tile)", &r->gather_levels);
+        field_float(p, v, "gather_tolerance", 0, R_UNIT,
+                    "gather_tolerance (relative spread that still interpolates)", &r->gather_tolerance);
         field_uint(p, v, "single_samples", 0, 1, NS_MAX_SINGLE_SAMPLES,
                    "single_samples (samples per camera segment)", &r->single_samples);
         int accumulation;

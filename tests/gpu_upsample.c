@@ -5,7 +5,10 @@
  *  - pixels that see no medium get exactly nothing in both;
  *  - every pixel of the dark sphere stays within the dark sphere's own range at tile 1
  *    (plus a margin for interpolation within it), however close it is to the bright one;
- *  - away from edges the upsampled image follows the full one closely. */
+ *  - away from edges the upsampled image follows the full one closely.
+ * The adaptive gather (render.gather_levels) is held to the same rules at tile 1 with three
+ * coarser lattices: it gathers far fewer segments, and with tolerance 0 it interpolates
+ * nothing that is not exact, so its image is the full one. */
 #include "gpu_util.h"
 
 #define W 96
@@ -61,6 +64,63 @@ static int seen(const ns_scene *s, uint32_t x, uint32_t y)
     return which;
 }
 
+/* Checks `up` (a render that gathered fewer pixels) against `full` (tile 1, every pixel). */
+static void check_against_full(const ns_scene *s1, const ns_image *full, const ns_image *up,
+                               double max_interior_error)
+{
+    double dark_max = 0, bright_mean = 0;
+    uint32_t bright_pixels = 0;
+    uint32_t covered = 0;
+    for (uint32_t y = 0; y < H; y++)
+        for (uint32_t x = 0; x < W; x++) {
+            int which = seen(s1, x, y);
+            double g = pixel_at(full, x, y)[1];
+            if (which == 2)
+                dark_max = fmax(dark_max, g);
+            if (which == 1) {
+                bright_mean += g;
+                bright_pixels++;
+            }
+        }
+    bright_mean /= bright_pixels ? bright_pixels : 1;
+    printf("tile 1: dark sphere max %.4g, bright sphere mean %.4g\n", dark_max, bright_mean);
+    CHECK(dark_max > 0);
+    /* The test can only see bleeding if the bright sphere is much brighter. */
+    CHECK(bright_mean > 3 * dark_max);
+    uint32_t dark_over = 0, lit_background = 0;
+    double interior_error = 0, interior_mean = 0;
+    for (uint32_t y = 0; y < H; y++)
+        for (uint32_t x = 0; x < W; x++) {
+            int which = seen(s1, x, y);
+            /* A pixel next to a silhouette may be partly covered by its jittered sample: judge
+             * background and interior only where all eight neighbours see the same thing. */
+            int same = 1;
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++) {
+                    int nx = (int)x + dx, ny = (int)y + dy;
+                    if (nx >= 0 && ny >= 0 && nx < W && ny < H && seen(s1, (uint32_t)nx, (uint32_t)ny) != which)
+                        same = 0;
+                }
+            const float *a = pixel_at(up, x, y), *b = pixel_at(full, x, y);
+            if (which == 0 && same && (a[0] != 0 || a[1] != 0 || a[2] != 0 || b[1] != 0))
+                lit_background++;
+            if (which == 2 && a[1] > 1.25 * dark_max)
+                dark_over++;
+            if (which != 0 && same) {
+                interior_error += fabs(a[1] - b[1]);
+                interior_mean += b[1];
+                covered++;
+            }
+        }
+    printf("background pixels lit: %u; dark pixels above 1.25x the dark sphere's max: %u; "
+           "interior mean |up - full| / mean %.4f over %u pixels\n",
+           lit_background, dark_over, interior_error / fmax(interior_mean, 1e-30), covered);
+    CHECK_INT(lit_background, 0);
+    CHECK_INT(dark_over, 0);
+    CHECK(covered > 500);
+    CHECK(interior_error < max_interior_error * interior_mean);
+}
+
 static void test_no_bleeding(void)
 {
     ns_scene s1, s4;
@@ -73,66 +133,81 @@ static void test_no_bleeding(void)
     ns_render_stats st1 = {0}, st4 = {0};
     if (!render_ok(&s1, &full, &st1) || !render_ok(&s4, &up, &st4))
         return;
+    printf("gathered segments: %llu at tile 1, %llu at tile 4\n",
+           (unsigned long long)st1.gather_segments, (unsigned long long)st4.gather_segments);
     CHECK(st4.gather_segments < st1.gather_segments / 4);
-    double dark_max = 0, bright_mean = 0;
-    uint32_t bright_pixels = 0;
-    uint32_t covered = 0;
-    for (uint32_t y = 0; y < H; y++)
-        for (uint32_t x = 0; x < W; x++) {
-            int which = seen(&s1, x, y);
-            double g = pixel_at(&full, x, y)[1];
-            if (which == 2)
-                dark_max = fmax(dark_max, g);
-            if (which == 1) {
-                bright_mean += g;
-                bright_pixels++;
-            }
-        }
-    bright_mean /= bright_pixels ? bright_pixels : 1;
-    printf("tile 1: dark sphere max %.4g, bright sphere mean %.4g; gathered segments %llu (tile 1) %llu (tile 4)\n",
-           dark_max, bright_mean, (unsigned long long)st1.gather_segments,
-           (unsigned long long)st4.gather_segments);
-    CHECK(dark_max > 0);
-    /* The test can only see bleeding if the bright sphere is much brighter. */
-    CHECK(bright_mean > 3 * dark_max);
-    uint32_t dark_over = 0, lit_background = 0;
-    double interior_error = 0, interior_mean = 0;
-    for (uint32_t y = 0; y < H; y++)
-        for (uint32_t x = 0; x < W; x++) {
-            int which = seen(&s1, x, y);
-            /* A pixel next to a silhouette may be partly covered by its jittered sample: judge
-             * background and interior only where all eight neighbours see the same thing. */
-            int same = 1;
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dx = -1; dx <= 1; dx++) {
-                    int nx = (int)x + dx, ny = (int)y + dy;
-                    if (nx >= 0 && ny >= 0 && nx < W && ny < H && seen(&s1, (uint32_t)nx, (uint32_t)ny) != which)
-                        same = 0;
-                }
-            const float *a = pixel_at(&up, x, y), *b = pixel_at(&full, x, y);
-            if (which == 0 && same && (a[0] != 0 || a[1] != 0 || a[2] != 0 || b[1] != 0))
-                lit_background++;
-            if (which == 2 && a[1] > 1.25 * dark_max)
-                dark_over++;
-            if (which != 0 && same) {
-                interior_error += fabs(a[1] - b[1]);
-                interior_mean += b[1];
-                covered++;
-            }
-        }
-    printf("background pixels lit: %u; dark pixels above 1.25x the dark sphere's max: %u; "
-           "interior mean |tile 4 - tile 1| / mean %.3f over %u pixels\n",
-           lit_background, dark_over, interior_error / fmax(interior_mean, 1e-30), covered);
-    CHECK_INT(lit_background, 0);
-    CHECK_INT(dark_over, 0);
-    CHECK(covered > 500);
-    CHECK(interior_error < 0.1 * interior_mean);
+    check_against_full(&s1, &full, &up, 0.1);
     ns_image_free(&full);
     ns_image_free(&up);
+}
+
+/* Mean |a - b| / mean b over the pixels of the spheres away from silhouettes. */
+static double interior_difference(const ns_scene *s, const ns_image *a, const ns_image *b)
+{
+    double difference = 0, mean = 0;
+    for (uint32_t y = 1; y + 1 < H; y++)
+        for (uint32_t x = 1; x + 1 < W; x++) {
+            int which = seen(s, x, y), same = which != 0;
+            for (int dy = -1; dy <= 1; dy++)
+                for (int dx = -1; dx <= 1; dx++)
+                    same = same && seen(s, x + dx, y + dy) == which;
+            if (same) {
+                difference += fabs(pixel_at(a, x, y)[1] - pixel_at(b, x, y)[1]);
+                mean += pixel_at(b, x, y)[1];
+            }
+        }
+    return difference / fmax(mean, 1e-30);
+}
+
+/* The adaptive gather interpolates the VRL estimate's own noise away where the full gather
+ * keeps it, so the judge is a render with ten times the light paths: interpolation must not
+ * take the image further from it than gathering every pixel does. */
+static void test_adaptive(void)
+{
+    ns_scene sr, s1, sa, s0;
+    ns_material mr[3], m1[3], ma[3], m0[3];
+    ns_object orr[3], o1[3], oa[3], o0[3];
+    ns_light lr, l1, la, l0;
+    build(&sr, mr, orr, &lr, 1);
+    build(&s1, m1, o1, &l1, 1);
+    build(&sa, ma, oa, &la, 1);
+    build(&s0, m0, o0, &l0, 1);
+    sr.render.vrls = 30000;
+    sa.render.gather_levels = s0.render.gather_levels = 3;
+    sa.render.gather_tolerance = 0.02f;
+    s0.render.gather_tolerance = 0.0f;
+    ns_image reference = {0}, full = {0}, adaptive = {0}, strict = {0};
+    ns_render_stats str = {0}, st1 = {0}, sta = {0}, st0 = {0};
+    if (!render_ok(&sr, &reference, &str) || !render_ok(&s1, &full, &st1) ||
+        !render_ok(&sa, &adaptive, &sta) || !render_ok(&s0, &strict, &st0))
+        return;
+    double e_full = interior_difference(&s1, &full, &reference);
+    double e_adaptive = interior_difference(&s1, &adaptive, &reference);
+    printf("adaptive: %llu segments gathered (%llu tiles interpolated) against %llu; "
+           "against %u light paths: every pixel %.4f, adaptive %.4f\n",
+           (unsigned long long)sta.gather_segments, (unsigned long long)sta.tiles_interpolated,
+           (unsigned long long)st1.gather_segments, sr.render.vrls, e_full, e_adaptive);
+    CHECK(sta.tiles_interpolated > 0);
+    CHECK(sta.gather_segments < 3 * st1.gather_segments / 4);
+    CHECK(st1.tiles_interpolated == 0);
+    CHECK(e_adaptive < 1.05 * e_full);
+    check_against_full(&s1, &full, &adaptive, 0.05);
+    /* Tolerance 0 interpolates only where the estimated error is exactly 0 (no light). */
+    double worst = 0;
+    for (uint32_t i = 0; i < 3u * W * H; i++)
+        worst = fmax(worst, fabs(strict.rgb[i] - full.rgb[i]) / fmax(fabs(full.rgb[i]), 1e-20));
+    printf("tolerance 0: %llu tiles interpolated; largest relative difference from every pixel "
+           "gathered: %.3g\n", (unsigned long long)st0.tiles_interpolated, worst);
+    CHECK(worst < 1e-6);
+    ns_image_free(&reference);
+    ns_image_free(&full);
+    ns_image_free(&adaptive);
+    ns_image_free(&strict);
 }
 
 int main(void)
 {
     RUN(test_no_bleeding);
+    RUN(test_adaptive);
     return harness_report();
 }

@@ -67,6 +67,20 @@ def expect_422(t, srv, scene, pointer, what):
     t.check(any(p and p.startswith(pointer) for p in pointers), f"{what}: names {pointer}, got {pointers}")
 
 
+def test_adaptive_gather_counts_interpolated_tiles(t, srv):
+    renders = {}
+    for levels in (0, 2):
+        status, headers, body = srv.render(scatter_scene(components=("multiple",), gather_tile=1,
+                                                         gather_levels=levels, gather_tolerance=0.5))
+        t.equal(status, 200, f"gather_levels {levels} ({body[:300]!r})")
+        renders[levels] = stats_of(headers)
+    if len(renders) == 2:
+        t.equal(renders[0].get("tiles_interpolated"), 0, f"every tile gathered: {renders[0]}")
+        t.check(renders[2].get("tiles_interpolated", 0) > 0, f"tiles interpolated: {renders[2]}")
+        t.check(0 < renders[2].get("gather_segments", 0) < renders[0].get("gather_segments", 0),
+                f"fewer segments gathered: {renders[2]} against {renders[0]}")
+
+
 def test_bad_settings_422(t, srv):
     expect_422(t, srv, scatter_scene(vrls=0), "/render/vrls", "zero VRLs")
     expect_422(t, srv, scatter_scene(gather_tile=99), "/render/gather_tile", "tile too large")
@@ -75,6 +89,11 @@ def test_bad_settings_422(t, srv):
     expect_422(t, srv, scatter_scene(cull_solid_angle=-1), "/render/cull_solid_angle",
                "negative solid angle")
     expect_422(t, srv, scatter_scene(single_samples=0), "/render/single_samples", "zero samples")
+    expect_422(t, srv, scatter_scene(gather_levels=5), "/render/gather_levels", "too many levels")
+    expect_422(t, srv, scatter_scene(gather_tolerance=1.5), "/render/gather_tolerance",
+               "tolerance above 1")
+    expect_422(t, srv, scatter_scene(gather_tolerance="loose"), "/render/gather_tolerance",
+               "tolerance not a number")
     expect_422(t, srv, scatter_scene(method="dipole", components=("double",)), "/render/components",
                "dipole cannot give double alone")
 
@@ -83,7 +102,7 @@ def main():
     t = Checks()
     with Server() as srv:
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
-                     test_bad_settings_422):
+                     test_adaptive_gather_counts_interpolated_tiles, test_bad_settings_422):
             t.run(test, srv)
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")

@@ -76,6 +76,8 @@ const DEFAULT_METHOD = 'nn';
 const SCATTER_NUMBERS = [
   { key: 'vrls', id: 'vrls', integer: true },
   { key: 'gather_tile', id: 'gather-tile', integer: true },
+  { key: 'gather_levels', id: 'gather-levels', integer: true },
+  { key: 'gather_tolerance', id: 'gather-tolerance', integer: false },
   { key: 'single_samples', id: 'single-samples', integer: true },
   { key: 'cull_solid_angle', id: 'cull-solid-angle', integer: false },
 ];
@@ -87,6 +89,7 @@ const COUNT_ROWS = [
   { key: 'vrl_paths', label: 'light paths traced' },
   { key: 'camera_segments', label: 'camera segments in media' },
   { key: 'gather_segments', label: 'segments gathered' },
+  { key: 'tiles_interpolated', label: 'tiles interpolated' },
   { key: 'interactions', label: 'VRL–segment interactions' },
   { key: 'cells_culled', label: 'grid cells culled' },
   { key: 'cells_represented', label: 'grid cells by representative' },
