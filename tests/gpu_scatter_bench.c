@@ -7,9 +7,10 @@
  * count is reported. With NSCATTER_BENCH=N it prints the medians of N runs: 256x256 and
  * 512x512, multiple only and the full solution, with render.vrls = 40000 (the issue's
  * target scene), then the solid-angle option's time and error against the exact gather, then
- * the interaction rates (docs/scattering.md quotes them). NSCATTER_BENCH_ONLY=renders |
- * solid_angle | gather runs one part; NSCATTER_BENCH_256_ONLY=1 skips 512x512 in the
- * solid-angle sweep, NSCATTER_BENCH_THRESHOLDS=0.05,0.5 sweeps those thresholds (after the
+ * the adaptive gather's, then the interaction rates (docs/scattering.md quotes them).
+ * NSCATTER_BENCH_ONLY=renders | solid_angle | adaptive | gather runs one part;
+ * NSCATTER_BENCH_256_ONLY=1 skips 512x512 in the solid-angle and adaptive sweeps,
+ * NSCATTER_BENCH_THRESHOLDS=0.05,0.5 sweeps those thresholds (after the
  * exact gather); NSCATTER_BENCH_POINT_ONLY=1 drops the environment light. */
 #include <pthread.h>
 #include <stdlib.h>
@@ -194,6 +195,69 @@ static void bench_solid_angle(int runs)
     }
 }
 
+/* The adaptive gather (render.gather_levels, gather_tolerance), alone and with the
+ * solid-angle option: time, and error against the exact gather of every tile with the same
+ * VRLs and against one with five times the light paths (nearer the converged image: the
+ * adaptive gather smooths the VRL estimate's own noise, which the first comparison counts
+ * as error). Multiple only, 256x256 and 512x512. */
+static void bench_adaptive(int runs)
+{
+    const struct {
+        uint32_t levels;
+        float tolerance, solid_angle;
+    } settings[] = {{0, 0, 0},        {0, 0, 0.05f},      {3, 0.01f, 0},     {3, 0.02f, 0},
+                    {3, 0.02f, 0.05f}, {4, 0.05f, 0.05f}, {4, 0.05f, 0.5f}};
+    const int count = sizeof settings / sizeof settings[0];
+    const uint32_t sizes[] = {256, 512};
+    int size_count = getenv("NSCATTER_BENCH_256_ONLY") ? 1 : 2;
+    printf("\nadaptive gather, multiple only, 40000 VRL paths, median ms of %d runs; error against "
+           "every tile gathered exactly (same VRLs) and against 200000 light paths\n", runs);
+    printf("%-8s %6s %9s %6s %9s %9s %9s %12s %12s %8s %8s %8s\n", "size", "levels", "tolerance",
+           "sr", "gather", "total", "segments", "interpolated", "interactions", "PSNR dB",
+           "rel.err", "vs 200k");
+    for (int a = 0; a < size_count; a++) {
+        ns_image exact = {0}, converged = {0};
+        ns_scene c = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 200000);
+        if (!render_ok(&c, &converged, NULL))
+            return;
+        for (int k = 0; k < count; k++) {
+            double gather[MAX_RUNS], total[MAX_RUNS];
+            ns_render_stats stats = {0};
+            ns_image img = {0};
+            for (int r = 0; r < runs; r++) {
+                ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
+                s.render.gather_levels = settings[k].levels;
+                s.render.gather_tolerance = settings[k].tolerance;
+                s.render.cull_solid_angle = settings[k].solid_angle;
+                memset(&stats, 0, sizeof stats);
+                ns_image_free(&img);
+                double t0 = ns_now_ms();
+                if (!render_ok(&s, &img, &stats))
+                    return;
+                total[r] = ns_now_ms() - t0;
+                gather[r] = stage_ms(&stats, "gather");
+            }
+            image_metrics m = {0}, mc = {0};
+            if (k > 0)
+                image_compare(&img, &exact, NULL, &m);
+            image_compare(&img, &converged, NULL, &mc);
+            printf("%3ux%-4u %6u %9.3g %6.3g %9.1f %9.1f %9llu %12llu %12llu %8.1f %7.3f%% %7.3f%%\n",
+                   sizes[a], sizes[a], settings[k].levels, (double)settings[k].tolerance,
+                   (double)settings[k].solid_angle, median(gather, runs), median(total, runs),
+                   (unsigned long long)stats.gather_segments, (unsigned long long)stats.tiles_interpolated,
+                   (unsigned long long)stats.interactions, k ? m.psnr[3] : INFINITY,
+                   k ? 100 * m.relerr[3] : 0.0, 100 * mc.relerr[3]);
+            fflush(stdout);
+            if (k == 0)
+                exact = img;
+            else
+                ns_image_free(&img);
+        }
+        ns_image_free(&exact);
+        ns_image_free(&converged);
+    }
+}
+
 /* ---------------------------------------------------------------------------------------
  * The gather alone: GPU against ns_gather_cpu on 2 threads, same inputs.
  * ------------------------------------------------------------------------------------- */
@@ -325,6 +389,8 @@ int main(void)
             bench_renders(n);
         if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "solid_angle"))
             bench_solid_angle(n);
+        if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "adaptive"))
+            bench_adaptive(n);
         if (!getenv("NSCATTER_BENCH_ONLY") || !strcmp(getenv("NSCATTER_BENCH_ONLY"), "gather"))
             bench_gather(n);
     }
