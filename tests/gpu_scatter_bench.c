@@ -137,6 +137,27 @@ static void bench_renders(int runs)
         }
 }
 
+/* Renders scene `runs` times: the last image and stats, the median gather and total ms.
+ * Returns 0 when a render failed. */
+static int timed_renders(const ns_scene *scene, int runs, ns_image *img, ns_render_stats *stats,
+                         double *gather_ms, double *total_ms)
+{
+    double gather[MAX_RUNS], total[MAX_RUNS];
+    for (int r = 0; r < runs; r++) {
+        ns_scene s = *scene;
+        memset(stats, 0, sizeof *stats);
+        ns_image_free(img);
+        double t0 = ns_now_ms();
+        if (!render_ok(&s, img, stats))
+            return 0;
+        total[r] = ns_now_ms() - t0;
+        gather[r] = stage_ms(stats, "gather");
+    }
+    *gather_ms = median(gather, runs);
+    *total_ms = median(total, runs);
+    return 1;
+}
+
 /* The solid-angle option (render.cull_solid_angle): far nodes of the hierarchy count as
  * their representative. Error against the exact gather (threshold 0) of the same scene and
  * VRLs, and the time it buys: multiple only, 256x256 and 512x512. */
@@ -165,27 +186,20 @@ static void bench_solid_angle(int runs)
     for (int a = 0; a < size_count; a++) {
         ns_image exact = {0};
         for (int k = 0; k < count; k++) {
-            double gather[MAX_RUNS], total[MAX_RUNS];
             ns_render_stats stats = {0};
             ns_image img = {0};
-            for (int r = 0; r < runs; r++) {
-                ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
-                s.render.cull_solid_angle = thresholds[k];
-                memset(&stats, 0, sizeof stats);
-                ns_image_free(&img);
-                double t0 = ns_now_ms();
-                if (!render_ok(&s, &img, &stats))
-                    return;
-                total[r] = ns_now_ms() - t0;
-                gather[r] = stage_ms(&stats, "gather");
-            }
+            ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
+            s.render.cull_solid_angle = thresholds[k];
+            double gather, total;
+            if (!timed_renders(&s, runs, &img, &stats, &gather, &total))
+                return;
             image_metrics m = {0};
             if (k == 0)
                 exact = img;
             else
                 image_compare(&img, &exact, NULL, &m);
             printf("%3ux%-4u %9.3g %10.1f %10.1f %12llu %12llu %9.1f %8.3f%%\n", sizes[a], sizes[a],
-                   (double)thresholds[k], median(gather, runs), median(total, runs),
+                   (double)thresholds[k], gather, total,
                    (unsigned long long)stats.interactions, (unsigned long long)stats.cells_represented,
                    k ? m.psnr[3] : INFINITY, k ? 100 * m.relerr[3] : 0.0);
             if (k)
@@ -221,29 +235,22 @@ static void bench_adaptive(int runs)
         if (!render_ok(&c, &converged, NULL))
             return;
         for (int k = 0; k < count; k++) {
-            double gather[MAX_RUNS], total[MAX_RUNS];
             ns_render_stats stats = {0};
             ns_image img = {0};
-            for (int r = 0; r < runs; r++) {
-                ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
-                s.render.gather_levels = settings[k].levels;
-                s.render.gather_tolerance = settings[k].tolerance;
-                s.render.cull_solid_angle = settings[k].solid_angle;
-                memset(&stats, 0, sizeof stats);
-                ns_image_free(&img);
-                double t0 = ns_now_ms();
-                if (!render_ok(&s, &img, &stats))
-                    return;
-                total[r] = ns_now_ms() - t0;
-                gather[r] = stage_ms(&stats, "gather");
-            }
+            ns_scene s = candle_scene(sizes[a], NS_COMPONENT_MULTIPLE, 40000);
+            s.render.gather_levels = settings[k].levels;
+            s.render.gather_tolerance = settings[k].tolerance;
+            s.render.cull_solid_angle = settings[k].solid_angle;
+            double gather, total;
+            if (!timed_renders(&s, runs, &img, &stats, &gather, &total))
+                return;
             image_metrics m = {0}, mc = {0};
             if (k > 0)
                 image_compare(&img, &exact, NULL, &m);
             image_compare(&img, &converged, NULL, &mc);
             printf("%3ux%-4u %6u %9.3g %6.3g %9.1f %9.1f %9llu %12llu %12llu %8.1f %7.3f%% %7.3f%%\n",
                    sizes[a], sizes[a], settings[k].levels, (double)settings[k].tolerance,
-                   (double)settings[k].solid_angle, median(gather, runs), median(total, runs),
+                   (double)settings[k].solid_angle, gather, total,
                    (unsigned long long)stats.gather_segments, (unsigned long long)stats.tiles_interpolated,
                    (unsigned long long)stats.interactions, k ? m.psnr[3] : INFINITY,
                    k ? 100 * m.relerr[3] : 0.0, 100 * mc.relerr[3]);
