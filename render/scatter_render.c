@@ -17,7 +17,9 @@
  * tiles, using only those that see the same medium at a similar distance (their first
  * segment's material and entry distance), and multiplies by its own sum of throughputs
  * (so coverage and Fresnel stay its own). A pixel that no neighbour can stand for is
- * gathered itself: light never bleeds across silhouettes or between objects.
+ * gathered itself: light never bleeds across silhouettes or between objects. With
+ * render.gather_levels the tiles' own pixels are gathered coarse to fine and interpolated
+ * where that is accurate (the adaptive gather, below).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -284,7 +286,8 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
 {
     memset(round, 0, (size_t)t->width * t->height);
     uint32_t marked = 0, step = 1u << level;
-    if (level == t->levels) /* the pixels no representative stands for go first */
+    int coarsest = level == t->levels;
+    if (coarsest) /* the pixels no representative stands for go first */
         for (uint32_t p = 0; p < t->width * t->height; p++)
             if (t->state[p] == PIXEL_GATHERED) {
                 round[p] = 1;
@@ -292,7 +295,6 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
             }
     for (uint32_t ty = 0; ty < t->tiles_y; ty += step)
         for (uint32_t tx = 0; tx < t->tiles_x; tx += step) {
-            int coarsest = level == t->levels;
             if (!coarsest && (tx / step) % 2 == 0 && (ty / step) % 2 == 0)
                 continue; /* on a coarser lattice: done in an earlier round */
             uint32_t r = t->representative[ty * t->tiles_x + tx];
