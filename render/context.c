@@ -108,6 +108,8 @@ void ns_context_destroy(ns_context *ctx)
     if (ctx->dev.device)
         for (size_t i = 0; i < sizeof pipeline_rows / sizeof pipeline_rows[0]; i++)
             gpu_pipeline_destroy(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]));
+    if (ctx->dev.device)
+        gpu_pipeline_destroy(&ctx->dev, &ctx->pt);
     gpu_device_destroy(&ctx->dev);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);

@@ -24,6 +24,9 @@ struct ns_context {
     gpu_pipeline single;     /* shaders/single.comp */
     gpu_pipeline vrl_trace;  /* shaders/vrl_trace.comp (method vrl) */
     gpu_pipeline vrl_gather; /* shaders/vrl_gather.comp (method vrl) */
+    /* shaders/pt.comp: made by the first pt render and kept. Its compile (~0.3 s on
+     * lavapipe) is paid once per context, and never by a context that renders no pt. */
+    gpu_pipeline pt;
     struct ns_table_cache *tables;
     struct ns_nn_state *nn;
     ns_mc_tables_fn mc_tables;

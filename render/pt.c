@@ -30,7 +30,6 @@ enum {
 
 typedef struct pt_job {
     gpu_buffer buffers[PT_COUNT];
-    gpu_pipeline pipeline;
     ns_gpu_scene scene;
 } pt_job;
 
@@ -217,7 +216,7 @@ static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene,
         int status = gpu_dispatch_many(
             &ctx->dev,
             &(gpu_dispatch_desc){
-                .pipeline = &job->pipeline,
+                .pipeline = &ctx->pt,
                 .buffers = bound,
                 .buffer_count = PT_COUNT,
                 .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
@@ -259,13 +258,16 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     pt_job job;
     memset(&job, 0, sizeof job);
     double t0 = ns_now_ms();
-    int status = gpu_pipeline_create(&ctx->dev, &job.pipeline,
+    int status = NS_OK;
+    if (!ctx->pt.pipeline) { /* the first pt render of this context (the caller holds its lock) */
+        status = gpu_pipeline_create(&ctx->dev, &ctx->pt,
                                      &(gpu_pipeline_desc){.shader = "pt",
                                                           .binding_count = PT_COUNT,
                                                           .push_constant_size = sizeof(GpuPtPush)},
                                      err);
+        ns_stats_add_stage(stats, "pt_pipeline", ns_now_ms() - t0);
+    }
     double t1 = ns_now_ms();
-    ns_stats_add_stage(stats, "pt_pipeline", t1 - t0);
     if (!status)
         status = ns_gpu_scene_build(scene, &job.scene, err);
     if (!status) {
@@ -293,7 +295,6 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     ns_stats_add_stage(stats, "readback", ns_now_ms() - t4);
     for (int i = 0; i < PT_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &job.buffers[i]);
-    gpu_pipeline_destroy(&ctx->dev, &job.pipeline);
     ns_gpu_scene_free(&job.scene);
     return status;
 }

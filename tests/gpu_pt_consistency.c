@@ -187,6 +187,39 @@ static void test_floor_light_does_not_enter_media(void)
     ns_image_free(&floored);
 }
 
+static int has_stage(const ns_render_stats *stats, const char *name)
+{
+    for (uint32_t i = 0; i < stats->stage_count; i++)
+        if (!strcmp(stats->stages[i].name, name))
+            return 1;
+    return 0;
+}
+
+/* The pt pipeline is made by the context's first pt render and kept: the second render
+ * neither makes it again (no pt_pipeline stage) nor renders differently. Runs first, on
+ * the binary's fresh context. */
+static void test_pipeline_made_once(void)
+{
+    ns_scene s = base_scene(8, 8, 40);
+    set3(s.camera.position, 0, 0, 4);
+    ns_material m = medium((double[3]){1, 1, 1}, (double[3]){0.1, 0.1, 0.1}, 1.3);
+    ns_object o = sphere(0, 0, 0, 1, 0);
+    ns_light l = light(NS_LIGHT_ENVIRONMENT, 1, 1, 1);
+    scene_lists(&s, &m, 1, &o, 1, &l, 1);
+    s.render.method = NS_METHOD_PT;
+    s.render.components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_MULTIPLE;
+    ns_image first = {0}, second = {0};
+    ns_render_stats stats1 = {0}, stats2 = {0};
+    if (!render_ok(&s, &first, &stats1) || !render_ok(&s, &second, &stats2))
+        return;
+    CHECK(has_stage(&stats1, "pt_pipeline"));
+    CHECK(!has_stage(&stats2, "pt_pipeline"));
+    CHECK(has_stage(&stats2, "pt_pass"));
+    CHECK(memcmp(first.rgb, second.rgb, sizeof(float) * 3 * 8 * 8) == 0);
+    ns_image_free(&first);
+    ns_image_free(&second);
+}
+
 /* The estimators behind a refracting boundary against next-event estimation: a scattering
  * sphere lit by a delta light with ior 1 (next-event estimation reaches every scattering
  * event) and with ior 1.0001 (physically the same: Fresnel ~2.5e-9, no visible bending;
@@ -260,6 +293,7 @@ static void test_light_subpaths_match_nee_point(void)
 
 int main(void)
 {
+    RUN(test_pipeline_made_once);
     RUN(test_surface_order_matches_camera_pass);
     RUN(test_scattering_only_inside_the_sphere);
     RUN(test_plane_medium_orders);
