@@ -224,6 +224,16 @@ typedef struct ns_scatter_inputs {
     float *pixels;             /* linear RGB, 3 floats per pixel */
 } ns_scatter_inputs;
 
+/* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
+ * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
+ * (NS_NONE: nothing) at camera distance `distance[p]`; `gather` gives the radiance of a
+ * pixel the rounds gather. Fills every pixel's radiance (gathered or interpolated) and
+ * interpolated[p]. Returns 0, or -1 out of memory. */
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
+                      const uint32_t *material, const float *distance,
+                      void (*gather)(uint32_t pixel, float radiance[3], void *user), void *user,
+                      float (*radiance)[3], uint8_t *interpolated);
+
 int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                       ns_error *err);
 

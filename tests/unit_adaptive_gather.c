@@ -1,0 +1,223 @@
+/* unit_adaptive_gather.c — the adaptive gather's rule (render.gather_levels,
+ * render/scatter_render.c) against closed forms, on fields given as functions, through the
+ * same rounds the render runs (ns_adaptive_tiles; tiles of one pixel):
+ *  - a linear field: every tile off the coarsest lattice is interpolated, and exactly;
+ *  - a parabola in x, f = 1 + c x^2: the mean of the two neighbours h away misses by c h^2,
+ *    which the second differences estimate exactly, so a tile is interpolated if and only
+ *    if c h^2 <= tolerance x the mean, and then carries exactly that error;
+ *  - in both, a line whose two outer samples (3h away) both leave the image (the
+ *    anti-diagonal at a corner) has no second difference and must pass on the spread of its
+ *    two neighbours instead;
+ *  - two media side by side, or one surface at two distances: no value crosses between them;
+ *  - levels 0 or tolerance 0: everything is gathered. */
+#include <math.h>
+#include <stdlib.h>
+
+#include "harness.h"
+#include "scatter.h"
+
+#define W 33
+#define H 33 /* the coarsest lattice (8 apart) reaches every edge */
+
+typedef struct field {
+    double (*f)(const struct field *, double x, double y);
+    double c; /* the parabola's: f'' = 2c along x, 0 along y */
+    int gathered; /* calls */
+} field;
+
+static void gather(uint32_t pixel, float radiance[3], void *user)
+{
+    field *fd = user;
+    double v = fd->f(fd, pixel % W, pixel / W);
+    for (int k = 0; k < 3; k++)
+        radiance[k] = (float)(v * (k + 1)); /* three channels, same shape */
+    fd->gathered++;
+}
+
+static double linear(const field *fd, double x, double y)
+{
+    (void)fd;
+    return 1 + 0.01 * x + 0.02 * y;
+}
+
+static double parabola(const field *fd, double x, double y)
+{
+    (void)y;
+    return 1 + fd->c * x * x;
+}
+
+static double step_in_x(const field *fd, double x, double y)
+{
+    (void)fd;
+    (void)y;
+    return x < 16 ? 1 : 5;
+}
+
+static uint32_t materials[W * H];
+static float distances[W * H];
+static float radiance[W * H][3];
+static uint8_t interpolated[W * H];
+
+static void one_surface(void)
+{
+    for (int p = 0; p < W * H; p++) {
+        materials[p] = 0;
+        distances[p] = 10;
+    }
+}
+
+/* The level of lattice that pixel (x, y) is first on, with `levels` levels. */
+static int first_level(int x, int y, int levels)
+{
+    for (int k = levels; k > 0; k--)
+        if (x % (1 << k) == 0 && y % (1 << k) == 0)
+            return k;
+    return 0;
+}
+
+static int in_image(int x, int y) { return x >= 0 && y >= 0 && x < W && y < H; }
+
+/* The rule, stated on the field itself: tile (x, y), first on the lattice h = 2^level apart,
+ * is interpolated when each of its lines (along x, along y, or both diagonals) has an error
+ * within tolerance x the mean of its two neighbours; the error of the mean is c (dx h)^2
+ * when a second difference exists (an outer sample in the image), else the neighbours'
+ * spread. Returns the expected value through *value. */
+static int expected_interpolated(const field *fd, int x, int y, int levels, float tolerance,
+                                 double *value)
+{
+    int level = first_level(x, y, levels), h = 1 << level;
+    if (level == levels)
+        return 0;
+    int odd_x = (x / h) % 2, odd_y = (y / h) % 2;
+    int line_count = odd_x && odd_y ? 2 : 1;
+    int lines[2][2] = {{odd_x, odd_y}, {1, -1}}; /* both odd: the two diagonals */
+    double sum = 0;
+    for (int i = 0; i < line_count; i++) {
+        int dx = lines[i][0] * h, dy = lines[i][1] * h;
+        double a = fd->f(fd, x - dx, y - dy), b = fd->f(fd, x + dx, y + dy);
+        int outer = in_image(x - 3 * dx, y - 3 * dy) || in_image(x + 3 * dx, y + 3 * dy);
+        double error = outer ? fd->c * dx * dx : fabs(a - b);
+        if (error > tolerance * 0.5 * (a + b))
+            return 0;
+        sum += a + b;
+    }
+    *value = sum / (2 * line_count);
+    return 1;
+}
+
+static int run(field *fd, uint32_t levels, float tolerance)
+{
+    fd->gathered = 0;
+    return ns_adaptive_tiles(W, H, levels, tolerance, materials, distances, gather, fd, radiance,
+                             interpolated) == 0;
+}
+
+/* Compares the rounds with the rule; returns how many tiles it interpolated. */
+static int check_against_rule(const field *fd, int levels, float tolerance)
+{
+    int count = 0, decisions_ok = 1, values_ok = 1;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            int p = y * W + x;
+            double want = fd->f(fd, x, y);
+            int expected = expected_interpolated(fd, x, y, levels, tolerance, &want);
+            decisions_ok &= interpolated[p] == expected;
+            for (int k = 0; k < 3; k++)
+                values_ok &= fabs(radiance[p][k] - want * (k + 1)) <= 2e-6 * (k + 1);
+            count += interpolated[p];
+        }
+    CHECK(decisions_ok);
+    CHECK(values_ok);
+    return count;
+}
+
+static void test_linear_field_is_interpolated_exactly(void)
+{
+    one_surface();
+    field fd = {.f = linear};
+    if (!run(&fd, 3, 1e-4f))
+        return;
+    int count = check_against_rule(&fd, 3, 1e-4f);
+    /* All but the 5 x 5 coarsest and the 12 anti-diagonals at the corners (their spread is
+     * 0.01-0.16, far above 1e-4). Every interpolated value is the field's, exactly. */
+    CHECK_INT(count, W * H - 25 - 12);
+    CHECK_INT(fd.gathered, 25 + 12);
+}
+
+static void test_parabola_interpolated_where_its_error_is_within_tolerance(void)
+{
+    one_surface();
+    /* h = 1: error 1e-4, within 1.5e-4 x mean (mean 1 to 1.1); h = 2: 4e-4, not. An
+     * estimate off by a factor 2 either way would flip the first. */
+    field fd = {.f = parabola, .c = 1e-4};
+    if (!run(&fd, 3, 1.5e-4f))
+        return;
+    int count = check_against_rule(&fd, 3, 1.5e-4f);
+    printf("parabola: %d of %d tiles interpolated\n", count, W * H);
+    CHECK(count > 0 && count < W * H - 25);
+}
+
+static void test_nothing_crosses_media_or_surfaces(void)
+{
+    field fd = {.f = step_in_x};
+    for (int pass = 0; pass < 2; pass++) {
+        /* pass 0: two media meeting at x = 16; pass 1: one medium, a step in distance. */
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++) {
+                materials[y * W + x] = pass == 0 && x >= 16 ? 1 : 0;
+                distances[y * W + x] = pass == 1 && x >= 16 ? 12.0f : 10.0f;
+            }
+        if (!run(&fd, 3, 1.0f)) /* the loosest tolerance: only the keys can refuse */
+            return;
+        int wrong = 0, beside_step = 0;
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++) {
+                wrong += radiance[y * W + x][0] != (float)step_in_x(&fd, x, y);
+                beside_step += interpolated[y * W + x] && x == 15;
+            }
+        CHECK_INT(wrong, 0);
+        /* x = 15 lies midway between x = 14 and x = 16 at the finest level: gathered. */
+        CHECK_INT(beside_step, 0);
+    }
+    /* Nothing seen: nothing gathered, nothing interpolated. */
+    for (int p = 0; p < W * H; p++)
+        materials[p] = NS_NONE;
+    if (run(&fd, 3, 1.0f)) {
+        CHECK_INT(fd.gathered, 0);
+        int any = 0;
+        for (int p = 0; p < W * H; p++)
+            any |= interpolated[p];
+        CHECK_INT(any, 0);
+    }
+}
+
+static void test_no_levels_or_no_tolerance_gathers_everything(void)
+{
+    one_surface();
+    field fd = {.f = parabola, .c = 1e-4};
+    const uint32_t levels[2] = {0, 3};
+    const float tolerances[2] = {0.5f, 0.0f};
+    for (int i = 0; i < 2; i++) {
+        if (!run(&fd, levels[i], tolerances[i]))
+            return;
+        /* tolerance 0 still takes the tiles whose estimate is exactly 0: those midway in y
+         * alone (the field is constant in y) */
+        int expected = 0;
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++) {
+                int level = first_level(x, y, (int)levels[i]), h = 1 << level;
+                int midway_in_y_only = level < (int)levels[i] && (x / h) % 2 == 0;
+                expected += !midway_in_y_only;
+            }
+        CHECK_INT(fd.gathered, expected);
+    }
+}
+
+int main(void)
+{
+    RUN(test_linear_field_is_interpolated_exactly);
+    RUN(test_parabola_interpolated_where_its_error_is_within_tolerance);
+    RUN(test_nothing_crosses_media_or_surfaces);
+    RUN(test_no_levels_or_no_tolerance_gathers_everything);
+    return harness_report();
+}
