@@ -44,6 +44,7 @@ void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
         p->table_map[0] = tables->scale;
         p->table_map[1] = tables->inv_step;
         p->table_map[2] = tables->extent;
+        p->table_map[3] = NS_GATHER_BEAM_CUTOFF;
         /* A point farther than extent * sqrt(2) (mfp) from every origin of a cell lies outside
          * every VRL's table (|z| and rho both below the extent): the cell adds nothing. */
         p->cull[0] = s_min > 0.0f ? tables->extent * 1.41422f / s_min : INFINITY;
@@ -117,6 +118,21 @@ static void dipole_rd(const GpuGatherParams *p, float r, float rd[3])
     }
 }
 
+/* The segment's table value for an endless beam along v (gather.comp's beam_value). */
+static void beam_value(const GpuGatherParams *p, const float *table, const GpuVrl *v,
+                       const GpuSegment *seg, const float *w, const float *attenuation,
+                       const float *paper_weight, float value[3])
+{
+    float a_entry[3], a_exit[3];
+    table_at(p, table, v, seg->entry, w, a_entry);
+    if (p->counts[3] == NS_GATHER_MODE_EXACT)
+        table_at(p, table, v, seg->exit, w, a_exit);
+    for (int c = 0; c < 3; c++)
+        value[c] = p->counts[3] == NS_GATHER_MODE_PAPER ? paper_weight[c] * a_entry[c]
+                                                        : a_entry[c] - attenuation[c] * a_exit[c];
+}
+
+/* v's contribution: its beam less the beam past its exit (gather.comp's contribution). */
 static void contribution(const GpuGatherParams *p, const float *table, const GpuVrl *v,
                          const GpuSegment *seg, const float *w, const float *attenuation,
                          const float *paper_weight, float *sum)
@@ -130,15 +146,25 @@ static void contribution(const GpuGatherParams *p, const float *table, const Gpu
             sum[c] += v->power[c] * rd[c] / 3.14159265358979f;
         return;
     }
-    float a_entry[3], a_exit[3];
-    table_at(p, table, v, seg->entry, w, a_entry);
-    if (p->counts[3] == NS_GATHER_MODE_EXACT)
-        table_at(p, table, v, seg->exit, w, a_exit);
+    float value[3], beam_attenuation[3];
+    beam_value(p, table, v, seg, w, attenuation, paper_weight, value);
+    int truncated = 0;
+    for (int c = 0; c < 3; c++) {
+        beam_attenuation[c] = expf(-p->sigma_t[c] * v->length);
+        truncated |= v->length > 0.0f && beam_attenuation[c] > p->table_map[3];
+    }
+    if (truncated) {
+        GpuVrl beyond = *v;
+        float beyond_value[3];
+        for (int i = 0; i < 3; i++)
+            beyond.origin[i] = v->origin[i] + v->length * v->direction[i];
+        beam_value(p, table, &beyond, seg, w, attenuation, paper_weight, beyond_value);
+        for (int c = 0; c < 3; c++)
+            value[c] = fmaxf(value[c] - beam_attenuation[c] * beyond_value[c], 0.0f);
+    }
     for (int c = 0; c < 3; c++) {
         float s = p->sigma_t[c];
-        float value = p->counts[3] == NS_GATHER_MODE_PAPER ? paper_weight[c] * a_entry[c]
-                                                           : a_entry[c] - attenuation[c] * a_exit[c];
-        sum[c] += v->power[c] * s * s * value;
+        sum[c] += v->power[c] * s * s * value[c];
     }
 }
 

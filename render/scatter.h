@@ -160,6 +160,12 @@ GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count);
 /* ---------------------------------------------------------------------------------------
  * Gather (gather.c, shaders/gather.comp): one medium's segments x its VRL grid.
  * ------------------------------------------------------------------------------------- */
+/* A VRL's beam past its exit is subtracted in the gather (gather.comp) while its
+ * transmittance e^{-s L} exceeds this in some channel: dropping it below changes that VRL's
+ * contribution by less than this fraction (the part past the exit is at most e^{-s L} of the
+ * whole beam's, all terms being positive). */
+#define NS_GATHER_BEAM_CUTOFF 1e-3f
+
 /* Fills the gather's uniform block for a medium (material m), a mode (NS_GATHER_MODE_*), the
  * tables (NULL in dipole mode) and the solid-angle threshold (0 = exact). */
 void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,

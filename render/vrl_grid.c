@@ -145,7 +145,8 @@ GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count)
 {
     GpuVrl r;
     memset(&r, 0, sizeof r);
-    double weight = 0, origin[3] = {0, 0, 0}, dir[3] = {0, 0, 0};
+    double weight = 0, origin[3] = {0, 0, 0}, dir[3] = {0, 0, 0}, length = 0;
+    int endless = 0;
     for (uint32_t k = 0; k < count; k++) {
         double w = (vrls[k].power[0] + vrls[k].power[1] + vrls[k].power[2]) / 3.0;
         for (int i = 0; i < 3; i++) {
@@ -154,8 +155,12 @@ GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count)
             dir[i] += w * vrls[k].direction[i];
         }
         weight += w;
-        r.length = fmaxf(r.length, vrls[k].length);
+        length += w * vrls[k].length;
+        endless |= vrls[k].length <= 0.0f;
     }
+    /* The gather subtracts the beam past a VRL's exit: the representative's ends where its
+     * VRLs' do on average, and never if one of them is endless (length 0). */
+    r.length = endless || weight <= 0 ? 0.0f : (float)(length / weight);
     double norm = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
     for (int i = 0; i < 3; i++) {
         r.origin[i] = (float)(weight > 0 ? origin[i] / weight : vrls[0].origin[i]);

@@ -5,6 +5,10 @@
 // through the accumulated table A (DESIGN.md section 2):
 //     L += P s^2 [A(x_entry) - e^{-s Lc} A(x_exit)]      per channel, in the VRL's frame,
 // or the paper's 5-mfp form W A5(x_entry), or (dipole mode) P R_d(|x_entry - origin|) / pi.
+// A VRL is a stretch of length L_v, not the endless beam the tables assume: the beam that
+// would go on past its exit (power e^{-s L_v} P, from origin + L_v d) is subtracted with the
+// same tables (DESIGN.md's definition is linear in the source), unless it is below
+// params.table_map.w in every channel.
 // The result is the radiance arriving at the segment's entry from inside the medium, before
 // the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
 #extension GL_GOOGLE_include_directive : require
@@ -18,14 +22,35 @@ layout(local_size_x = NS_GATHER_GROUP) in;
 layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams params; };
 layout(std430, binding = 1) readonly buffer SegmentBlock { GpuSegment segments[]; };
 layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
-layout(std430, binding = 3) readonly buffer RepresentativeBlock { GpuVrl representatives[]; };
-layout(std430, binding = 4) readonly buffer VrlBlock { GpuVrl vrls[]; };
+// GpuVrl read as three vec4 (origin + length, direction + material, power + events), as in
+// vrl_gather.comp: glslang takes `vrl.length` for the length() method.
+layout(std430, binding = 3) readonly buffer RepresentativeBlock { vec4 representative_words[]; };
+layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
 layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
 layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuGatherPush push; };
 
 const float PI = 3.14159265358979;
+
+struct Vrl {
+    vec3 origin;
+    float len; // 0: no exit was found, the beam is endless
+    vec3 direction;
+    vec3 power;
+};
+
+Vrl vrl_at(uint k)
+{
+    return Vrl(vrl_words[3u * k].xyz, vrl_words[3u * k].w, vrl_words[3u * k + 1u].xyz,
+               vrl_words[3u * k + 2u].xyz);
+}
+
+Vrl representative_at(uint k)
+{
+    return Vrl(representative_words[3u * k].xyz, representative_words[3u * k].w,
+               representative_words[3u * k + 1u].xyz, representative_words[3u * k + 2u].xyz);
+}
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
 
 // The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
@@ -65,7 +90,7 @@ float table_read(int channel, int cell, uint dir)
 
 // A at point p for light arriving along w, per channel, in mfp units; theta_row = the
 // theta bin times the phi bin count.
-vec3 table_at(GpuVrl v, vec3 p, vec3 w, uint theta_row)
+vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
 {
     vec3 delta = p - v.origin;
     float z = dot(delta, v.direction);
@@ -91,7 +116,19 @@ vec3 dipole_rd(float r)
 }
 
 // exit_matters: e^{-s Lc} is above float resolution in some channel, so A(exit) counts.
-vec3 contribution(GpuVrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
+// The segment's table value for an endless beam from `origin` along v's direction.
+vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_attenuation,
+                vec3 paper_weight, bool exit_matters)
+{
+    if (params.counts.w == NS_GATHER_MODE_PAPER)
+        return paper_weight * table_at(v, seg.entry, w, theta_row);
+    vec3 value = table_at(v, seg.entry, w, theta_row);
+    if (exit_matters)
+        value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+    return value;
+}
+
+vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
                   bool exit_matters)
 {
     uint mode = params.counts.w;
@@ -99,13 +136,14 @@ vec3 contribution(GpuVrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, ve
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
     vec3 s = params.sigma_t.xyz;
     uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
-    vec3 value;
-    if (mode == NS_GATHER_MODE_PAPER) {
-        value = paper_weight * table_at(v, seg.entry, w, theta_row);
-    } else {
-        value = table_at(v, seg.entry, w, theta_row);
-        if (exit_matters)
-            value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+    vec3 value = beam_value(v, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+    vec3 beam_attenuation = exp(-s * v.len);
+    if (v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
+        Vrl beyond = v;
+        beyond.origin = v.origin + v.len * v.direction;
+        value -= beam_attenuation * beam_value(beyond, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+        // Nearest-bin reads of two frames can cross where the exact difference is ~0.
+        value = max(value, vec3(0.0));
     }
     return v.power * s * s * value;
 }
@@ -164,7 +202,7 @@ void main()
                 continue;
             }
             for (uint k = node.first; k < node.first + node.count; k++)
-                sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
+                sum += contribution(vrl_at(k), seg, w, segment_attenuation, paper_weight, exit_matters);
             interactions += node.count;
             ci = node.skip;
         }
@@ -192,7 +230,7 @@ void main()
                     mask_until = node.skip;
                     needs = false;
                 } else if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
-                    sum += contribution(representatives[ci], seg, w, segment_attenuation, paper_weight, exit_matters);
+                    sum += contribution(representative_at(ci), seg, w, segment_attenuation, paper_weight, exit_matters);
                     represented++;
                     interactions++;
                     mask_until = node.skip;
@@ -209,7 +247,7 @@ void main()
             }
             if (needs) {
                 for (uint k = node.first; k < node.first + node.count; k++)
-                    sum += contribution(vrls[k], seg, w, segment_attenuation, paper_weight, exit_matters);
+                    sum += contribution(vrl_at(k), seg, w, segment_attenuation, paper_weight, exit_matters);
                 interactions += node.count;
             }
             ci = node.skip;
