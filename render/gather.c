@@ -28,7 +28,7 @@ static void dipole_constants(GpuGatherParams *p, const GpuMaterial *m)
 }
 
 void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
-                      const ns_scatter_tables *tables, float cull_solid_angle)
+                      const ns_scatter_tables *tables, float cull_solid_angle, int bounded_beams)
 {
     memset(p, 0, sizeof *p);
     memcpy(p->sigma_t, m->sigma_t, sizeof p->sigma_t);
@@ -44,7 +44,7 @@ void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
         p->table_map[0] = tables->scale;
         p->table_map[1] = tables->inv_step;
         p->table_map[2] = tables->extent;
-        p->table_map[3] = NS_GATHER_BEAM_CUTOFF;
+        p->table_map[3] = bounded_beams ? NS_BEAM_CUTOFF : 0.0f;
         /* A point farther than extent * sqrt(2) (mfp) from every origin of a cell lies outside
          * every VRL's table (|z| and rho both below the extent): the cell adds nothing. */
         p->cull[0] = s_min > 0.0f ? tables->extent * 1.41422f / s_min : INFINITY;
@@ -151,7 +151,7 @@ static void contribution(const GpuGatherParams *p, const float *table, const Gpu
     int truncated = 0;
     for (int c = 0; c < 3; c++) {
         beam_attenuation[c] = expf(-p->sigma_t[c] * v->length);
-        truncated |= v->length > 0.0f && beam_attenuation[c] > p->table_map[3];
+        truncated |= p->table_map[3] > 0.0f && v->length > 0.0f && beam_attenuation[c] > p->table_map[3];
     }
     if (truncated) {
         GpuVrl beyond = *v;

@@ -163,6 +163,10 @@ enum {
 /* How a camera segment reads the accumulated table: exactly, A(entry) - e^{-s Lc} A(exit)
  * (DESIGN.md section 2), or the paper's 5-mfp table with its length weight W (Eq. 5). */
 typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumulation;
+/* The beams of the table methods' VRLs: endless, as the paper's tables assume, or bounded by
+ * the medium (each VRL ends where its beam leaves; the beam's internal reflections are VRLs
+ * of their own). docs/scattering.md. */
+typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams;
 
 #define NS_DEFAULT_VRLS 10000u
 #define NS_MAX_VRLS 1000000u
@@ -191,6 +195,7 @@ typedef struct ns_render_settings {
     float gather_tolerance;
     uint32_t single_samples; /* regular samples per camera segment for single scattering */
     ns_accumulation accumulation;
+    ns_vrl_beams vrl_beams; /* nn and table only */
     float cull_solid_angle; /* sr; 0 = exact (only cells beyond the table's reach are culled) */
 } ns_render_settings;
 

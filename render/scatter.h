@@ -92,11 +92,13 @@ typedef struct ns_vrl_set {
 
 /* Traces `paths` light paths from the scene's lights towards its media (every light kind,
  * Fresnel-transmitted through smooth boundaries, power-correct) and keeps the first stretch
- * of each inside a medium. scene_buffers: the five scene buffers (ns_gpu_scene_buffer_descs)
- * already on the device. */
+ * of each inside a medium, then up to chain - 1 internal reflections of its unscattered
+ * beam (chain in [1, NS_VRL_MAX_CHAIN]; vrl.comp). A path's stretches are consecutive in
+ * out->vrls. scene_buffers: the five scene buffers (ns_gpu_scene_buffer_descs) already on
+ * the device. */
 int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
-                    gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
-                    ns_error *err);
+                    gpu_buffer *scene_buffers, uint32_t paths, uint32_t chain, uint32_t seed,
+                    ns_vrl_set *out, ns_error *err);
 void ns_vrl_set_free(ns_vrl_set *set);
 
 /* Power (mean of RGB) a scene light sends through a sphere (xyz centre, w radius): how both
@@ -160,16 +162,11 @@ GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count);
 /* ---------------------------------------------------------------------------------------
  * Gather (gather.c, shaders/gather.comp): one medium's segments x its VRL grid.
  * ------------------------------------------------------------------------------------- */
-/* A VRL's beam past its exit is subtracted in the gather (gather.comp) while its
- * transmittance e^{-s L} exceeds this in some channel: dropping it below changes that VRL's
- * contribution by less than this fraction (the part past the exit is at most e^{-s L} of the
- * whole beam's, all terms being positive). */
-#define NS_GATHER_BEAM_CUTOFF 1e-3f
-
 /* Fills the gather's uniform block for a medium (material m), a mode (NS_GATHER_MODE_*), the
- * tables (NULL in dipole mode) and the solid-angle threshold (0 = exact). */
+ * tables (NULL in dipole mode), the solid-angle threshold (0 = exact) and the beam model
+ * (bounded_beams: each VRL's beam ends at its length, render.vrl_beams). */
 void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
-                      const ns_scatter_tables *tables, float cull_solid_angle);
+                      const ns_scatter_tables *tables, float cull_solid_angle, int bounded_beams);
 
 typedef struct ns_gather_desc {
     GpuGatherParams params;       /* counts.x/y/z are filled by ns_gather_run */

@@ -26,6 +26,7 @@
 #include <string.h>
 
 #include "scatter.h"
+#include "vrl_shared.h"
 
 /* Two pixels see "the same surface" when their first stretches are in the same medium and
  * start at distances within this fraction of each other. */
@@ -574,8 +575,11 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     if (!v->grids || !v->grid_built || !v->table_bytes)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
     double t0 = ns_now_ms();
+    /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
+     * VRLs of their own. */
+    uint32_t chain = scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED ? NS_VRL_MAX_CHAIN : 1;
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
-                                 scene->render.seed, &v->set, err);
+                                 chain, scene->render.seed, &v->set, err);
     times->vrl += ns_now_ms() - t0;
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
@@ -633,7 +637,8 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                                    .grid = grid,
                                    .table = tables ? &tables->a : NULL,
                                    .out = out};
-            ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle);
+            ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle,
+                             scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED);
             ns_gather_counts counts;
             double t2 = ns_now_ms();
             status = ns_gather_run(ctx, &desc, &counts, err);

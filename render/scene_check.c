@@ -154,6 +154,11 @@ static int check_render(const ns_render_settings *r, ns_error *err)
             (r->single_samples < 1 || r->single_samples > NS_MAX_SINGLE_SAMPLES))
             return BAD("render.single_samples: %u outside 1..%u", r->single_samples,
                        NS_MAX_SINGLE_SAMPLES);
+        if ((unsigned)r->vrl_beams > NS_VRL_BEAMS_BOUNDED)
+            return BAD("render.vrl_beams: %d is not a beam model", (int)r->vrl_beams);
+        if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && r->method != NS_METHOD_NN &&
+            r->method != NS_METHOD_TABLE)
+            return BAD("render.vrl_beams: bounded beams apply to methods nn and table");
         if ((unsigned)r->accumulation > NS_ACCUMULATION_PAPER)
             return BAD("render.accumulation: unknown value %d", (int)r->accumulation);
         if (!(r->cull_solid_angle >= 0.0f && r->cull_solid_angle <= 12.57f))

@@ -199,14 +199,14 @@ static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uin
  * ------------------------------------------------------------------------------------- */
 enum { V_STRATA, V_SLOTS, V_COUNTERS, V_OWN };
 
-static int compact_slots(const GpuVrl *slots, uint32_t paths, uint32_t stored, ns_vrl_set *out,
-                         ns_error *err)
+static int compact_slots(const GpuVrl *slots, uint64_t slot_count, uint32_t stored,
+                         ns_vrl_set *out, ns_error *err)
 {
     out->vrls = malloc(sizeof *out->vrls * (stored ? stored : 1));
     if (!out->vrls)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %u VRLs", stored);
     uint32_t n = 0;
-    for (uint32_t i = 0; i < paths; i++)
+    for (uint64_t i = 0; i < slot_count; i++)
         if (slots[i].material != NS_NONE && n < stored)
             out->vrls[n++] = slots[i];
     out->count = n;
@@ -216,8 +216,10 @@ static int compact_slots(const GpuVrl *slots, uint32_t paths, uint32_t stored, n
 }
 
 static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_plan *plan,
-                       uint32_t paths, uint32_t seed, ns_vrl_set *out, ns_error *err)
+                       uint32_t paths, uint32_t chain, uint32_t seed, ns_vrl_set *out,
+                       ns_error *err)
 {
+    uint64_t slot_count = (uint64_t)paths * chain;
     gpu_buffer own[V_OWN];
     memset(own, 0, sizeof own);
     gpu_buffer_desc descs[V_OWN] = {
@@ -225,7 +227,7 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
          .data = plan->strata,
          .data_size = (uint64_t)plan->count * sizeof(GpuVrlStratum),
          .label = "ns.vrl.strata"},
-        {.size = (uint64_t)paths * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
+        {.size = slot_count * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
         {.size = NS_VRL_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl.counters"},
     };
     int status = gpu_buffers_create(&ctx->dev, own, descs, V_OWN, err);
@@ -238,6 +240,7 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
         GpuVrlPush push = {.path_count = paths,
                            .stratum_count = plan->count,
                            .seed = seed,
+                           .chain = chain,
                            .budget = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0};
         status = gpu_dispatch_many(
             &ctx->dev,
@@ -256,7 +259,7 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
                         "vrl: %u light path(s) ran past lavapipe's loop budget (%u iterations)",
                         c[NS_VRL_COUNTER_LOOP_LIMIT], NS_LAVAPIPE_LOOP_BUDGET);
         else
-            status = compact_slots(own[V_SLOTS].mapped, paths, c[NS_VRL_COUNTER_STORED], out, err);
+            status = compact_slots(own[V_SLOTS].mapped, slot_count, c[NS_VRL_COUNTER_STORED], out, err);
     }
     for (int i = 0; i < V_OWN; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
@@ -264,10 +267,13 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
 }
 
 int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
-                    gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
-                    ns_error *err)
+                    gpu_buffer *scene_buffers, uint32_t paths, uint32_t chain, uint32_t seed,
+                    ns_vrl_set *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
+    if (chain < 1 || chain > NS_VRL_MAX_CHAIN)
+        return ns_fail(err, NS_ERR_INTERNAL, "vrl: chain %u must be in [1, %u]", chain,
+                       NS_VRL_MAX_CHAIN);
     if (paths > NS_MAX_VRLS)
         return ns_fail(err, NS_ERR_LIMIT, "render.vrls: %u light paths, at most %u", paths,
                        NS_MAX_VRLS);
@@ -282,7 +288,7 @@ int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *
     if (!status && paths && target_count)
         status = plan_strata(gs, targets, target_count, paths, seed, &plan, err);
     if (!status && plan.count)
-        status = trace_paths(ctx, scene_buffers, &plan, paths, seed, out, err);
+        status = trace_paths(ctx, scene_buffers, &plan, paths, chain, seed, out, err);
     free(targets);
     free(plan.strata);
     if (status)

@@ -1209,8 +1209,9 @@ static void parse_render(parser *p, const json_t *v)
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
                                        "gather_tolerance", "single_samples", "accumulation",
-                                       "cull_solid_angle", NULL};
+                                       "vrl_beams", "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
+    static const char *const beam_names[] = {"endless", "bounded"};
     ns_render_settings *r = &p->render;
     *r = (ns_render_settings){
         .method = NS_METHOD_NN,
@@ -1266,6 +1267,18 @@ static void parse_render(parser *p, const json_t *v)
         if (json_object_get(v, "accumulation") &&
             field_enum(p, v, "accumulation", 0, accumulation_names, 2, "accumulation", &accumulation))
             r->accumulation = (ns_accumulation)accumulation;
+        int beams;
+        if (json_object_get(v, "vrl_beams") &&
+            field_enum(p, v, "vrl_beams", 0, beam_names, 2, "vrl_beams", &beams)) {
+            r->vrl_beams = (ns_vrl_beams)beams;
+            /* The other methods have no table VRLs: the key would be silently meaningless. */
+            if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && method_ok && r->method != NS_METHOD_NN &&
+                r->method != NS_METHOD_TABLE) {
+                size_t inner = push_key(p, "vrl_beams");
+                report(p, "vrl_beams \"bounded\" applies to methods \"nn\" and \"table\" only");
+                pop(p, inner);
+            }
+        }
         field_float(p, v, "cull_solid_angle", 0, R_SOLID_ANGLE,
                     "cull_solid_angle (sr; 0 = exact)", &r->cull_solid_angle);
         /* Only the path tracer can cut paths by their scattering events; the other methods

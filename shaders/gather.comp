@@ -5,10 +5,10 @@
 // through the accumulated table A (DESIGN.md section 2):
 //     L += P s^2 [A(x_entry) - e^{-s Lc} A(x_exit)]      per channel, in the VRL's frame,
 // or the paper's 5-mfp form W A5(x_entry), or (dipole mode) P R_d(|x_entry - origin|) / pi.
-// A VRL is a stretch of length L_v, not the endless beam the tables assume: the beam that
-// would go on past its exit (power e^{-s L_v} P, from origin + L_v d) is subtracted with the
-// same tables (DESIGN.md's definition is linear in the source), unless it is below
-// params.table_map.w in every channel.
+// With bounded beams (render.vrl_beams; params.table_map.w > 0) a VRL is a stretch of length
+// L_v, not the endless beam the tables assume: the beam that would go on past its exit
+// (power e^{-s L_v} P, from origin + L_v d) is subtracted with the same tables (DESIGN.md's
+// definition is linear in the source), unless it is below table_map.w in every channel.
 // The result is the radiance arriving at the segment's entry from inside the medium, before
 // the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
 #extension GL_GOOGLE_include_directive : require
@@ -138,7 +138,7 @@ vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 
     uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
     vec3 value = beam_value(v, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
     vec3 beam_attenuation = exp(-s * v.len);
-    if (v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
+    if (params.table_map.w > 0.0 && v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
         Vrl beyond = v;
         beyond.origin = v.origin + v.len * v.direction;
         value -= beam_attenuation * beam_value(beyond, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);

@@ -67,7 +67,8 @@ NS_CONST(uint, NS_TABLE_CELLS, 128 * 64 * 18 * 18);
 /* Uniform block of the gather (binding 0). One gather dispatch serves one medium. */
 struct GpuGatherParams {
     ns_vec4 sigma_t;   /* xyz: extinction per scene unit of each channel; w = ior */
-    ns_vec4 table_map; /* x = sinh scale (mfp), y = 1 / sinh step, z = extent (mfp), w = unused */
+    ns_vec4 table_map; /* x = sinh scale (mfp), y = 1 / sinh step, z = extent (mfp), w = the
+                          beam cutoff of bounded beams (NS_BEAM_CUTOFF; 0: endless beams) */
     ns_uvec4 counts;   /* x = segments, y = cells, z = VRLs, w = mode (NS_GATHER_MODE_*) */
     ns_vec4 cull;      /* x = cull distance (scene units): cells farther from a segment add
                           nothing; y = solid-angle threshold (0 = off): a cell whose box
@@ -77,6 +78,17 @@ struct GpuGatherParams {
     ns_vec4 dipole_zv;       /* xyz = z_v per channel; w = unused */
     ns_vec4 dipole_alpha;    /* xyz = reduced albedo alpha' per channel; w = unused */
 };
+
+/* Bounded beams (render.vrl_beams): the beam past a VRL's exit is subtracted in the gather
+ * (gather.comp), and the beam is reflected at its exit (vrl.comp), while its transmittance
+ * e^{-s L} exceeds this in some channel. Leaving it out below changes that VRL's contribution
+ * by less than this fraction: the part past the exit is at most e^{-s L} of the whole beam's,
+ * all terms being positive. */
+#if defined(__STDC__) || defined(__cplusplus)
+#define NS_BEAM_CUTOFF 1e-3f
+#else
+const float NS_BEAM_CUTOFF = 1e-3;
+#endif
 
 /* Gather modes: the exact segment form A(entry) - exp(-s Lc) A(exit); the paper's 5-mfp
  * table with its weight W; the dipole's R_d(|entry - origin|) of Jensen et al. 2001. */

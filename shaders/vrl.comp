@@ -8,9 +8,16 @@
 //     model), and light entering another scattering medium is that medium's strata's job;
 //   - index-matched (ior 1) non-scattering media are crossed with their Beer-Lambert factor;
 //   - at the target's boundary the refracted part is kept with weight 1 - F (deterministic,
-//     power-correct); the reflected part is not followed; ior 1 enters unchanged.
-// Every path writes its own slot (path index), a VRL or material = NS_NONE, so the result
-// does not depend on the order invocations run in; the C side compacts the slots.
+//     power-correct); the reflected part is not followed; ior 1 enters unchanged;
+//   - inside, the unscattered beam is followed through internal reflections, up to
+//     push.chain stretches in all: where a stretch meets its medium's boundary, the beam is
+//     reflected with the Fresnel probability F (1 on total internal reflection; Russian
+//     roulette: the reflected stretch carries the beam's power as it arrives, e^{-sigma_t L}
+//     P) and every reflected stretch is one more VRL with events 0. The transmitted part
+//     leaves; the gather ends each stretch at its exit (gather.comp).
+// Every path writes its own push.chain slots (path index * chain + stretch), VRLs or
+// material = NS_NONE, so the result does not depend on the order invocations run in; the C
+// side compacts the slots.
 #extension GL_GOOGLE_include_directive : require
 #include "shared.h"
 #include "scatter_shared.h"
@@ -247,8 +254,9 @@ uint stratum_of(uint i)
 }
 
 // The VRL at the boundary point the path entered through: refracted direction, (1 - F),
-// and the distance to the next boundary along it.
-GpuVrl enter(vec3 o, vec3 d, Hit h, vec3 beta)
+// and the distance to the next boundary along it (exit_hit: that boundary, exit_hit.t = 0
+// when there is none).
+GpuVrl enter(vec3 o, vec3 d, Hit h, vec3 beta, out Hit exit_hit)
 {
     vec3 p = o + h.t * d;
     uint m = prims[h.prim].info.y;
@@ -262,10 +270,38 @@ GpuVrl enter(vec3 o, vec3 d, Hit h, vec3 beta)
         d_in = normalize(eta * d + (eta * cos_i - cos_t) * h.normal);
         beta *= 1.0 - f;
     }
-    Hit exit_hit;
     float stretch = trace_scene(p, d_in, ray_epsilon(p), NS_INF, exit_hit) ? exit_hit.t : 0.0;
+    exit_hit.t = stretch;
     // A constructor: glslang reads `v.length` as the length() method.
     return GpuVrl(p, stretch, d_in, m, beta, 0u);
+}
+
+// The stretch after `v`, which ends on `exit_hit` (exit_hit.t = its length, 0 without an
+// exit): its internal reflection there, taken with the Fresnel probability, or false when
+// the beam leaves (or ends anywhere but on its own medium's boundary, seen from inside).
+// exit_hit becomes the new stretch's end.
+bool reflect_stretch(GpuVrl v, inout Hit exit_hit, out GpuVrl next)
+{
+    next = v;
+    float len = exit_hit.t;
+    if (len <= 0.0 || prims[exit_hit.prim].info.y != v.material || exit_hit.front)
+        return false;
+    GpuMaterial mat = materials[v.material];
+    vec3 n = exit_hit.normal; // outward: the beam leaves along it
+    float cos_t;
+    float f = fresnel(dot(v.direction, n), mat.sigma_t.w, cos_t); // 1 on total reflection
+    // A beam too faint to be subtracted past its exit (gather.comp) is not reflected either.
+    vec3 arriving = beer_lambert(mat.sigma_t.xyz, len);
+    if (mat.sigma_t.w == 1.0 || max(arriving.x, max(arriving.y, arriving.z)) <= NS_BEAM_CUTOFF ||
+        rnd() >= f)
+        return false;
+    vec3 p = v.origin + len * v.direction;
+    p -= n * ray_epsilon(p);
+    vec3 d = normalize(reflect(v.direction, n));
+    float stretch = trace_scene(p, d, 0.0, NS_INF, exit_hit) ? exit_hit.t : 0.0;
+    exit_hit.t = stretch;
+    next = GpuVrl(p, stretch, d, v.material, v.power * arriving, 0u);
+    return max(next.power.x, max(next.power.y, next.power.z)) > 0.0;
 }
 
 void main()
@@ -277,20 +313,30 @@ void main()
     GpuVrlStratum s = strata[stratum_of(i)];
     vec3 o, d, beta;
     uint medium;
-    Hit h;
-    bool stored = false;
-    GpuVrl v = GpuVrl(vec3(0.0), 0.0, vec3(0.0), NS_NONE, vec3(0.0), 0u);
+    Hit h, exit_hit;
+    const GpuVrl none = GpuVrl(vec3(0.0), 0.0, vec3(0.0), NS_NONE, vec3(0.0), 0u);
+    GpuVrl chain[NS_VRL_MAX_CHAIN];
+    uint stored = 0u;
     if (emit(lights[s.ids.y], s.target.xyz, s.target.w, o, d, medium, beta) &&
         walk_to_target(o, d, medium, s.ids.z, beta, h)) {
-        v = enter(o, d, h, beta * s.weight.x);
-        stored = max(v.power.x, max(v.power.y, v.power.z)) > 0.0;
+        GpuVrl v = enter(o, d, h, beta * s.weight.x, exit_hit);
+        if (max(v.power.x, max(v.power.y, v.power.z)) > 0.0) {
+            chain[stored++] = v;
+            GpuVrl next;
+            while (stored < push.chain && reflect_stretch(v, exit_hit, next)) {
+                chain[stored++] = next;
+                v = next;
+            }
+        }
     }
     if (push.budget != 0u && loop_count > push.budget) {
         atomicAdd(counters[NS_VRL_COUNTER_LOOP_LIMIT], 1u);
-        stored = false;
+        stored = 0u;
     }
-    if (!stored)
-        v = GpuVrl(vec3(0.0), 0.0, vec3(0.0), NS_NONE, vec3(0.0), 0u);
-    vrls[i] = v;
-    atomicAdd(counters[stored ? NS_VRL_COUNTER_STORED : NS_VRL_COUNTER_LOST], 1u);
+    for (uint k = 0u; k < push.chain; k++)
+        vrls[i * push.chain + k] = k < stored ? chain[k] : none;
+    if (stored > 0u)
+        atomicAdd(counters[NS_VRL_COUNTER_STORED], stored);
+    else
+        atomicAdd(counters[NS_VRL_COUNTER_LOST], 1u);
 }

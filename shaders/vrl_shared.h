@@ -14,19 +14,25 @@ struct GpuVrlStratum {
 };
 
 /* Push block: path i in [0, path_count) runs in invocation i. budget = loop iterations an
- * invocation may run before it is counted in NS_VRL_COUNTER_LOOP_LIMIT (0 = no limit). */
+ * invocation may run before it is counted in NS_VRL_COUNTER_LOOP_LIMIT (0 = no limit).
+ * chain = stretches a path may store, in [1, NS_VRL_MAX_CHAIN]: the first one and chain - 1
+ * internal reflections of the unscattered beam; path i writes slots [i chain, (i + 1) chain). */
 struct GpuVrlPush {
     ns_uint path_count;
     ns_uint stratum_count;
     ns_uint seed;
     ns_uint budget;
-    ns_uint pad0;
+    ns_uint chain;
     ns_uint pad1;
     ns_uint pad2;
     ns_uint pad3;
 };
 
 NS_CONST(uint, NS_VRL_GROUP, 64);
+
+/* The most stretches one light path stores (its beam's first stretch and internal
+ * reflections). */
+NS_CONST(uint, NS_VRL_MAX_CHAIN, 4);
 
 /* Boundary crossings a light path may make before it enters its medium (index-matched,
  * non-scattering objects are crossed; anything else ends the walk). */

@@ -1,6 +1,7 @@
 /* gpu_gather.c — the gather shader equals the CPU implementation of the same sum
  * (render/gather.c ns_gather_cpu): random VRLs, random camera segments and a random table,
- * in the exact segment form, the paper's W form and the dipole; and a case large enough that
+ * in the exact segment form, the paper's W form (both with bounded beams: the beam past each
+ * VRL's length subtracted) and the dipole; and a case large enough that
  * lavapipe's loop limit splits the cells (and one oversized cell) across dispatches, which
  * must not change the result. Validation layers on (NSCATTER_VALIDATION=1). */
 #include "gpu_util.h"
@@ -202,7 +203,8 @@ static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, ui
                            .grid = &grid,
                            .table = table ? &tables.a : NULL,
                            .out = &out_buf};
-    ns_gather_params(&desc.params, &m, mode, table ? &tables : NULL, solid_angle);
+    /* Bounded beams: the test's VRLs (length 1) have their beams past the exit subtracted. */
+    ns_gather_params(&desc.params, &m, mode, table ? &tables : NULL, solid_angle, 1);
     if (!status)
         status = ns_gather_run(ctx, &desc, gpu_counts, &err);
     if (status)

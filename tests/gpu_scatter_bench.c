@@ -343,7 +343,7 @@ static void bench_gather(int runs)
     gpu_buffer_create(&ctx->dev, &out, &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "bench"}, &err);
     ns_gather_desc desc = {.segments = &seg_buf, .segment_count = segment_count, .grid = &grid,
                            .table = &tables->a, .out = &out};
-    ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, tables, 0.0f);
+    ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, tables, 0.0f, 0);
     double gpu[MAX_RUNS], cpu[MAX_RUNS];
     for (int r = 0; r < runs; r++) {
         ns_gather_counts counts;

@@ -1,7 +1,9 @@
 /* gpu_vrl.c — Virtual Ray Light generation (shaders/vrl.comp, render/vrl.c) against closed
  * forms: the VRLs' total power equals the flux that enters the medium, Fresnel-transmitted,
  * for every light kind; origins lie on the boundary and directions obey Snell's law; the
- * result is deterministic for a seed; blockers and bad input behave. Validation on.
+ * beam's internal reflections (mirror directions, e^{-sigma_t L} power, total reflection
+ * always followed, partial with the Fresnel probability); the result is deterministic for a
+ * seed; blockers and bad input behave. Validation on.
  *
  * Monte Carlo bound: the total is a sum over N independent paths of x_i (a path's VRL power,
  * 0 when it stored none), so its standard deviation is sqrt(N var(x)), estimated from the
@@ -9,6 +11,7 @@
  * that this bound is tight (below 1% of the answer) so that it cannot hide a wrong result. */
 #include "gpu_util.h"
 #include "scatter.h"
+#include "vrl_shared.h"
 
 enum { PATHS = 20000 };
 
@@ -86,6 +89,7 @@ static ns_scene scene_of(const vrl_case *c)
 }
 
 static double last_generate_ms; /* ns_vrl_generate alone, for the benchmark */
+static uint32_t generate_chain = 1; /* stretches per path: the first ones alone, unless a test says */
 
 static int generate(const vrl_case *c, uint32_t paths, uint32_t seed, ns_vrl_set *set,
                     ns_error *err)
@@ -106,7 +110,7 @@ static int generate(const vrl_case *c, uint32_t paths, uint32_t seed, ns_vrl_set
     status = gpu_buffers_create(&ctx->dev, bufs, descs, NS_SCENE_BUFFER_COUNT, err);
     double t0 = ns_now_ms();
     if (!status)
-        status = ns_vrl_generate(ctx, &s, &gs, bufs, paths, seed, set, err);
+        status = ns_vrl_generate(ctx, &s, &gs, bufs, paths, generate_chain, seed, set, err);
     last_generate_ms = ns_now_ms() - t0;
     for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &bufs[i]);
@@ -337,6 +341,147 @@ static void test_directional_box(void)
         CHECK_INT(off_face, 0);
         CHECK_INT(bad_snell, 0);
         ns_vrl_set_free(&set);
+    }
+}
+
+/* Distance from p (inside the box [-half, half]) to its boundary along d, and the outward
+ * normal of the face the ray leaves through. */
+static double box_exit(const double half[3], const float p[3], const float d[3], double n[3])
+{
+    double best = INFINITY;
+    int axis = 0;
+    for (int k = 0; k < 3; k++) {
+        if (d[k] == 0)
+            continue;
+        double t = ((d[k] > 0 ? half[k] : -half[k]) - p[k]) / d[k];
+        if (t < best) {
+            best = t;
+            axis = k;
+        }
+    }
+    n[0] = n[1] = n[2] = 0;
+    n[axis] = d[axis] > 0 ? 1 : -1;
+    return best;
+}
+
+/* Unpolarised Fresnel reflectance from inside ior into vacuum at incidence cosine mu; 1 past
+ * the critical angle. */
+static double fresnel_out(double mu, double ior)
+{
+    double sin2_t = ior * ior * (1 - mu * mu);
+    if (sin2_t >= 1)
+        return 1;
+    double cos_t = sqrt(1 - sin2_t);
+    double rs = (ior * mu - cos_t) / (ior * mu + cos_t);
+    double rp = (mu - ior * cos_t) / (mu + ior * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+static void test_internal_reflections(void)
+{
+    /* A tall box under a point light just above its top face: every beam enters the top and
+     * meets a side wall beyond the critical angle (ior 1.5: 41.8 degrees; the walls are met at
+     * 52 degrees or more). Each stretch after a path's first starts where the one before
+     * ends, runs along its mirror image about that face's normal, carries its power times
+     * e^{-sigma_t L} per channel and is as long as the box allows; a stretch ending beyond
+     * the critical angle is always followed, one ending below it with the Fresnel
+     * probability (a binomial count); at ior 1 none is. Following the beam changes nothing of
+     * the first stretches (same seed, chain 1). */
+    const double half[3] = {0.5, 3, 0.5};
+    const double sigma_s[3] = {0.2, 0.3, 0.4}, sigma_a[3] = {0.05, 0.05, 0.05};
+    for (int variant = 0; variant < 2; variant++) {
+        double ior = variant ? 1.0 : 1.5;
+        vrl_case c;
+        memset(&c, 0, sizeof c);
+        c.materials[0] = medium(sigma_s, sigma_a, ior);
+        c.material_count = 1;
+        c.objects[0].shape = NS_SHAPE_BOX;
+        set3(c.objects[0].min, -half[0], -half[1], -half[2]);
+        set3(c.objects[0].max, half[0], half[1], half[2]);
+        c.object_count = 1;
+        c.lights[0] = light(NS_LIGHT_POINT, 1, 1, 1);
+        set3(c.lights[0].position, 0, half[1] + 0.3, 0);
+        c.light_count = 1;
+        ns_vrl_set set = {0}, first = {0};
+        generate_chain = NS_VRL_MAX_CHAIN;
+        int ok = generate_ok(&c, PATHS, 11, &set);
+        generate_chain = 1;
+        if (!ok || !generate_ok(&c, PATHS, 11, &first)) {
+            ns_vrl_set_free(&set);
+            return;
+        }
+        uint32_t bad_length = 0, bad_reflection = 0, bad_power = 0, missed_total = 0;
+        uint32_t total_children = 0, partial_children = 0, deepest = 0, firsts = 0, bad_first = 0;
+        uint32_t edge = 0;
+        double partial_expected = 0, partial_variance = 0;
+        uint32_t position = 0;
+        for (uint32_t i = 0; i < set.count; i++) {
+            const GpuVrl *v = &set.vrls[i];
+            double n[3];
+            double length = box_exit(half, v->origin, v->direction, n);
+            /* A beam entering within the ray offset (3e-4 here) of an edge leaves before the
+             * exit search starts: no exit (length 0, an endless beam) is the shader's answer. */
+            int at_edge = length < 1e-3;
+            edge += at_edge;
+            bad_length += !at_edge && fabs(v->length - length) > 1e-3 * length + 1e-4;
+            if (position == 0) {
+                /* A first stretch: the same as with chain 1, in the same order. */
+                bad_first += firsts >= first.count ||
+                             memcmp(v, &first.vrls[firsts], sizeof *v) != 0;
+                firsts++;
+            }
+            int child = 0;
+            if (i + 1 < set.count) {
+                const GpuVrl *w = &set.vrls[i + 1];
+                double gap = 0;
+                for (int k = 0; k < 3; k++) {
+                    double end = v->origin[k] + (double)v->length * v->direction[k];
+                    gap += (w->origin[k] - end) * (w->origin[k] - end);
+                }
+                child = sqrt(gap) < 2e-3;
+            }
+            double mu = v->direction[0] * n[0] + v->direction[1] * n[1] + v->direction[2] * n[2];
+            double f = fresnel_out(mu, ior);
+            if (child) {
+                const GpuVrl *w = &set.vrls[i + 1];
+                for (int k = 0; k < 3; k++) {
+                    bad_reflection += fabs(w->direction[k] - (v->direction[k] - 2 * mu * n[k])) > 1e-4;
+                    double want = v->power[k] * exp(-(sigma_s[k] + sigma_a[k]) * v->length);
+                    bad_power += fabs(w->power[k] - want) > 1e-4 * want;
+                }
+                total_children += f >= 1;
+                partial_children += f < 1;
+            } else if (position + 1 < NS_VRL_MAX_CHAIN && !at_edge) {
+                missed_total += f >= 1;
+            }
+            if (position + 1 < NS_VRL_MAX_CHAIN && f < 1 && !at_edge) {
+                partial_expected += f;
+                partial_variance += f * (1 - f);
+            }
+            position = child ? position + 1 : 0;
+            deepest = position > deepest ? position : deepest;
+        }
+        fprintf(stderr,
+                "  ior %.1f: %u stretches from %u first ones; followed: %u by total reflection, "
+                "%u by Fresnel (expected %.1f); deepest chain %u\n",
+                ior, set.count, firsts, total_children, partial_children, partial_expected,
+                deepest + 1);
+        CHECK_INT(firsts, first.count);
+        CHECK_INT(bad_first, 0);
+        CHECK_INT(bad_length, 0);
+        CHECK(edge < set.count / 100);
+        CHECK_INT(bad_reflection, 0);
+        CHECK_INT(bad_power, 0);
+        CHECK_INT(missed_total, 0);
+        CHECK(fabs(partial_children - partial_expected) <= 4 * sqrt(partial_variance) + 1);
+        if (ior == 1.0) {
+            CHECK_INT(set.count, first.count);
+        } else {
+            CHECK(total_children > first.count / 2);
+            CHECK_INT(deepest + 1, NS_VRL_MAX_CHAIN);
+        }
+        ns_vrl_set_free(&set);
+        ns_vrl_set_free(&first);
     }
 }
 
@@ -643,6 +788,7 @@ int main(void)
     RUN(test_directional_fresnel);
     RUN(test_directional_index_matched);
     RUN(test_directional_box);
+    RUN(test_internal_reflections);
     RUN(test_point_light);
     RUN(test_environment_light);
     RUN(test_sphere_light);
