@@ -81,6 +81,21 @@ def test_adaptive_gather_counts_interpolated_tiles(t, srv):
                 f"fewer segments gathered: {renders[2]} against {renders[0]}")
 
 
+def test_bounded_beams_add_reflected_vrls(t, srv):
+    counts = {}
+    for beams in ("endless", "bounded"):
+        status, headers, body = srv.render(scatter_scene(components=("double", "multiple"),
+                                                         vrl_beams=beams))
+        t.equal(status, 200, f"vrl_beams {beams} ({body[:300]!r})")
+        counts[beams] = stats_of(headers)
+    if len(counts) == 2:
+        # The wax sphere reflects part of each beam where it leaves: one more VRL each time.
+        t.equal(counts["bounded"].get("vrl_paths"), counts["endless"].get("vrl_paths"),
+                f"same light paths: {counts}")
+        t.check(counts["bounded"].get("vrl_count", 0) > counts["endless"].get("vrl_count", 0) > 0,
+                f"internal reflections stored as VRLs: {counts}")
+
+
 def test_bad_settings_422(t, srv):
     expect_422(t, srv, scatter_scene(vrls=0), "/render/vrls", "zero VRLs")
     expect_422(t, srv, scatter_scene(gather_tile=99), "/render/gather_tile", "tile too large")
@@ -96,12 +111,16 @@ def test_bad_settings_422(t, srv):
                "tolerance not a number")
     expect_422(t, srv, scatter_scene(method="dipole", components=("double",)), "/render/components",
                "dipole cannot give double alone")
+    expect_422(t, srv, scatter_scene(vrl_beams="finite"), "/render/vrl_beams", "unknown beam model")
+    expect_422(t, srv, scatter_scene(method="vrl", vrl_beams="bounded"), "/render/vrl_beams",
+               "bounded beams with method vrl")
 
 
 def main():
     t = Checks()
     with Server() as srv:
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
+                     test_bounded_beams_add_reflected_vrls,
                      test_adaptive_gather_counts_interpolated_tiles, test_bad_settings_422):
             t.run(test, srv)
         code = srv.stop()
