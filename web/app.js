@@ -81,7 +81,11 @@ const SCATTER_NUMBERS = [
   { key: 'single_samples', id: 'single-samples', integer: true },
   { key: 'cull_solid_angle', id: 'cull-solid-angle', integer: false },
 ];
-const DEFAULT_ACCUMULATION = 'exact';
+/* The scattering choices: a select per render key, with the server's default. */
+const SCATTER_CHOICES = [
+  { key: 'accumulation', id: 'accumulation', fallback: 'exact' },
+  { key: 'vrl_beams', id: 'vrl-beams', fallback: 'endless' },
+];
 
 /* X-Nscatter-Stats keys shown under the timings, in this order. */
 const COUNT_ROWS = [
@@ -341,7 +345,7 @@ const controls = {
   components: Array.from(document.querySelectorAll('input[name=component]')),
   method: $('method'),
   methodNote: $('method-note'),
-  accumulation: $('accumulation'),
+  scatterChoices: SCATTER_CHOICES.map((choice) => ({ ...choice, select: $(choice.id) })),
   scatterNumbers: SCATTER_NUMBERS.map((field) => ({ ...field, input: $(field.id) })),
 };
 
@@ -404,13 +408,15 @@ function readControls() {
   readRenderSettings(render);
 }
 
-/* Method, accumulation and the scattering numbers. A value the page does not know (a typo
+/* Method, the scattering choices and numbers. A value the page does not know (a typo
  * the server will reject with its pointer) is shown as it is rather than replaced. */
 function readRenderSettings(render) {
   const method = render.method === undefined ? DEFAULT_METHOD : String(render.method);
   setSelectValue(controls.method, method);
   showMethodComponents(method);
-  setSelectValue(controls.accumulation, render.accumulation === undefined ? DEFAULT_ACCUMULATION : String(render.accumulation));
+  for (const choice of controls.scatterChoices) {
+    setSelectValue(choice.select, render[choice.key] === undefined ? choice.fallback : String(render[choice.key]));
+  }
   for (const field of controls.scatterNumbers) {
     const value = render[field.key];
     const isNumber = typeof value === 'number' && Number.isFinite(value);
@@ -568,9 +574,9 @@ function onMethodChange() {
   editScene((scene) => { renderSettings(scene).method = method; });
 }
 
-function onAccumulationChange() {
-  const value = controls.accumulation.value;
-  editScene((scene) => { renderSettings(scene).accumulation = value; });
+function onScatterChoiceChange(choice) {
+  const value = choice.select.value;
+  editScene((scene) => { renderSettings(scene)[choice.key] = value; });
 }
 
 /* A scattering number: empty removes the key (the server's default applies); a value
@@ -1047,7 +1053,7 @@ function init() {
   controls.spp.addEventListener('change', (e) => onIntegerChange(e, (s, v) => { settings(s).spp = v; }));
   for (const box of controls.components) box.addEventListener('change', onComponentsChange);
   controls.method.addEventListener('change', onMethodChange);
-  controls.accumulation.addEventListener('change', onAccumulationChange);
+  for (const choice of controls.scatterChoices) choice.select.addEventListener('change', () => onScatterChoiceChange(choice));
   for (const field of controls.scatterNumbers) field.input.addEventListener('change', () => onScatterNumberChange(field));
   controls.exposure.addEventListener('input', onSliderInput);
   controls.exposure.addEventListener('change', onExposureChange);
