@@ -110,6 +110,8 @@ void ns_context_destroy(ns_context *ctx)
             gpu_pipeline_destroy(&ctx->dev, pipeline_at(ctx, &pipeline_rows[i]));
     if (ctx->dev.device)
         gpu_pipeline_destroy(&ctx->dev, &ctx->pt);
+    if (ctx->dev.device)
+        gpu_pipeline_destroy(&ctx->dev, &ctx->gather_bounded);
     gpu_device_destroy(&ctx->dev);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);

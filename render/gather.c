@@ -518,6 +518,18 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     };
     int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
     int status = NS_OK;
+    /* Bounded beams have their own shader (gather.glsl says why), made on first use: its
+     * compile (lavapipe compiles in the first dispatch) falls in this gather's time. */
+    gpu_pipeline *pipeline = &ctx->gather;
+    if (params.table_map[3] > 0.0f) {
+        pipeline = &ctx->gather_bounded;
+        if (!pipeline->pipeline)
+            status = gpu_pipeline_create(&ctx->dev, pipeline,
+                                         &(gpu_pipeline_desc){.shader = "gather_bounded",
+                                                              .binding_count = G_COUNT,
+                                                              .push_constant_size = sizeof(GpuGatherPush)},
+                                         err);
+    }
     for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
         if (targets[i] == G_TABLE && desc->table)
             continue;
@@ -533,7 +545,7 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
             bound[G_TABLE] = (gpu_buffer *)desc->table;
         status = gpu_dispatch_many(
             &ctx->dev,
-            &(gpu_dispatch_desc){.pipeline = &ctx->gather,
+            &(gpu_dispatch_desc){.pipeline = pipeline,
                                  .buffers = bound,
                                  .buffer_count = G_COUNT,
                                  .groups = {(desc->segment_count + NS_GATHER_GROUP - 1) / NS_GATHER_GROUP, 1, 1},

@@ -14,16 +14,6 @@
  * pt at 512 spp has a standard error near 0.5% of these means. Validation on. */
 #include "gpu_util.h"
 
-static void image_mean(const ns_image *img, double out[3])
-{
-    size_t n = (size_t)img->width * img->height;
-    for (int c = 0; c < 3; c++)
-        out[c] = 0;
-    for (size_t i = 0; i < n; i++)
-        for (int c = 0; c < 3; c++)
-            out[c] += img->rgb[3 * i + c] / (double)n;
-}
-
 /* Mean of the double-scattering image of `s` rendered by `method` with `beams`. */
 static int double_mean(ns_scene s, ns_method method, ns_vrl_beams beams, uint32_t spp,
                        double out[3])

@@ -190,4 +190,15 @@ static inline const float *pixel_at(const ns_image *img, uint32_t x, uint32_t y)
     return img->rgb + 3 * ((size_t)y * img->width + x);
 }
 
+/* Mean of each channel over the image. */
+static inline void image_mean(const ns_image *img, double out[3])
+{
+    size_t n = (size_t)img->width * img->height;
+    for (int c = 0; c < 3; c++)
+        out[c] = 0;
+    for (size_t i = 0; i < n; i++)
+        for (int c = 0; c < 3; c++)
+            out[c] += img->rgb[3 * i + c] / (double)n;
+}
+
 #endif

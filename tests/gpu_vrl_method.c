@@ -630,16 +630,6 @@ static void test_first_stretch_flux(void)
  * ------------------------------------------------------------------------------------- */
 enum { RUNS = 6 };
 
-static void image_mean(const ns_image *img, double out[3])
-{
-    size_t n = (size_t)img->width * img->height;
-    for (int c = 0; c < 3; c++)
-        out[c] = 0;
-    for (size_t i = 0; i < n; i++)
-        for (int c = 0; c < 3; c++)
-            out[c] += img->rgb[3 * i + c] / (double)n;
-}
-
 /* Image means of the vrl method's double and multiple components for one seed. */
 static int vrl_image_means(ns_scene s, uint32_t seed, double dbl[3], double mult[3])
 {

@@ -1,0 +1,271 @@
+// gather.glsl — the gather shader's body, compiled twice: gather.comp (endless beams, the
+// default) and gather_bounded.comp (NS_BOUNDED_BEAMS 1). Two shaders rather than a branch on
+// a uniform: lavapipe ran the endless gather 1.5x slower with the bounded code present and
+// never taken (register pressure in the vectorised loop).
+//
+// gather — double and multiple scattering gathered from Virtual Ray Lights (the paper's
+// Algorithm 1): one invocation per camera segment walks the grid hierarchy's nodes of one
+// dispatch's range, skips nodes beyond the table's reach, and sums the contribution of each VRL
+// through the accumulated table A (DESIGN.md section 2):
+//     L += P s^2 [A(x_entry) - e^{-s Lc} A(x_exit)]      per channel, in the VRL's frame,
+// or the paper's 5-mfp form W A5(x_entry), or (dipole mode) P R_d(|x_entry - origin|) / pi.
+// With bounded beams (render.vrl_beams; gather_bounded.comp) a VRL is a stretch of length
+// L_v, not the endless beam the tables assume: the beam that would go on past its exit
+// (power e^{-s L_v} P, from origin + L_v d) is subtracted with the same tables (DESIGN.md's
+// definition is linear in the source), unless it is below table_map.w in every channel.
+// The result is the radiance arriving at the segment's entry from inside the medium, before
+// the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
+#extension GL_KHR_shader_subgroup_vote : require
+#extension GL_KHR_shader_subgroup_ballot : require
+#include "shared.h"
+#include "scatter_shared.h"
+
+layout(local_size_x = NS_GATHER_GROUP) in;
+
+layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams params; };
+layout(std430, binding = 1) readonly buffer SegmentBlock { GpuSegment segments[]; };
+layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
+// GpuVrl read as three vec4 (origin + length, direction + material, power + events), as in
+// vrl_gather.comp: glslang takes `vrl.length` for the length() method.
+layout(std430, binding = 3) readonly buffer RepresentativeBlock { vec4 representative_words[]; };
+layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
+layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
+layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
+layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+layout(push_constant) uniform PushBlock { GpuGatherPush push; };
+
+const float PI = 3.14159265358979;
+
+struct Vrl {
+    vec3 origin;
+    float len; // 0: no exit was found, the beam is endless
+    vec3 direction;
+    vec3 power;
+};
+
+Vrl vrl_at(uint k)
+{
+    return Vrl(vrl_words[3u * k].xyz, vrl_words[3u * k].w, vrl_words[3u * k + 1u].xyz,
+               vrl_words[3u * k + 2u].xyz);
+}
+
+Vrl representative_at(uint k)
+{
+    return Vrl(representative_words[3u * k].xyz, representative_words[3u * k].w,
+               representative_words[3u * k + 1u].xyz, representative_words[3u * k + 2u].xyz);
+}
+const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
+
+// The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
+uint theta_bin(vec3 w, vec3 d)
+{
+    float cos_theta = clamp(dot(w, d), -1.0, 1.0);
+    return min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
+}
+
+// The phi bin at a point whose radial unit vector is e_rho (mirror-symmetric about it).
+uint phi_bin(vec3 w, vec3 d, vec3 e_rho)
+{
+    vec3 w_perp = w - dot(w, d) * d;
+    float perp = length(w_perp);
+    float cos_phi = perp > 1e-6 ? clamp(dot(w_perp, e_rho) / perp, -1.0, 1.0) : 1.0;
+    return min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
+}
+
+// Spatial part of the table index of each channel for (z, rho) in mfp per channel, or -1
+// beyond the table. Vector arithmetic, no loop over channels (lavapipe counts loops).
+ivec3 spatial_bins(vec3 z_mfp, vec3 rho_mfp)
+{
+    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
+    ivec3 iz = ivec3(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
+    ivec3 ir = ivec3(floor(asinh(rho_mfp / scale) * inv_step));
+    iz = clamp(iz, 0, int(NS_TABLE_NZ) - 1);
+    ir = clamp(ir, 0, int(NS_TABLE_NRHO) - 1);
+    bvec3 inside = lessThan(max(abs(z_mfp), rho_mfp), vec3(extent));
+    return mix(ivec3(-1), iz * int(NS_TABLE_NRHO) + ir, inside);
+}
+
+float table_read(int channel, int cell, uint dir)
+{
+    return cell < 0 ? 0.0
+                    : table[uint(channel) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
+}
+
+// A at point p for light arriving along w, per channel, in mfp units; theta_row = the
+// theta bin times the phi bin count.
+vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
+{
+    vec3 delta = p - v.origin;
+    float z = dot(delta, v.direction);
+    vec3 radial = delta - z * v.direction;
+    float rho = length(radial);
+    // On the axis any radial direction is as good: the phi bins all meet there.
+    vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
+    uint dir = theta_row + phi_bin(w, v.direction, e_rho);
+    vec3 s = params.sigma_t.xyz;
+    ivec3 cell = spatial_bins(z * s, rho * s);
+    return vec3(table_read(0, cell.x, dir), table_read(1, cell.y, dir), table_read(2, cell.z, dir));
+}
+
+vec3 dipole_rd(float r)
+{
+    vec3 r2 = vec3(r * r);
+    vec3 dr = sqrt(r2 + params.dipole_zr.xyz * params.dipole_zr.xyz);
+    vec3 dv = sqrt(r2 + params.dipole_zv.xyz * params.dipole_zv.xyz);
+    vec3 str = params.dipole_sigma_tr.xyz;
+    vec3 real_source = params.dipole_zr.xyz * (str * dr + 1.0) * exp(-str * dr) / (dr * dr * dr);
+    vec3 virtual_source = params.dipole_zv.xyz * (str * dv + 1.0) * exp(-str * dv) / (dv * dv * dv);
+    return params.dipole_alpha.xyz / (4.0 * PI) * (real_source + virtual_source);
+}
+
+// exit_matters: e^{-s Lc} is above float resolution in some channel, so A(exit) counts.
+// The segment's table value for an endless beam from `origin` along v's direction.
+vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_attenuation,
+                vec3 paper_weight, bool exit_matters)
+{
+    if (params.counts.w == NS_GATHER_MODE_PAPER)
+        return paper_weight * table_at(v, seg.entry, w, theta_row);
+    vec3 value = table_at(v, seg.entry, w, theta_row);
+    if (exit_matters)
+        value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+    return value;
+}
+
+vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
+                  bool exit_matters)
+{
+    uint mode = params.counts.w;
+    if (mode == NS_GATHER_MODE_DIPOLE)
+        return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
+    vec3 s = params.sigma_t.xyz;
+    uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
+    vec3 value = beam_value(v, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+#if NS_BOUNDED_BEAMS
+    vec3 beam_attenuation = exp(-s * v.len);
+    if (v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
+        Vrl beyond = v;
+        beyond.origin = v.origin + v.len * v.direction;
+        value -= beam_attenuation * beam_value(beyond, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+        // Nearest-bin reads of two frames can cross where the exact difference is ~0.
+        value = max(value, vec3(0.0));
+    }
+#endif
+    return v.power * s * s * value;
+}
+
+// Lower bound of the distance between the segment's bounding box and a cell's box.
+float box_distance(vec3 amin, vec3 amax, vec3 bmin, vec3 bmax)
+{
+    vec3 gap = max(vec3(0.0), max(amin - bmax, bmin - amax));
+    return length(gap);
+}
+
+void main()
+{
+    uint index = push.first_segment + gl_GlobalInvocationID.x;
+    if (gl_GlobalInvocationID.x >= params.counts.x)
+        return;
+    GpuSegment seg = segments[index];
+    vec3 w = -seg.direction; // light travels towards the camera
+    float length_c = distance(seg.entry, seg.exit);
+    vec3 s = params.sigma_t.xyz;
+    vec3 segment_attenuation = exp(-s * length_c);
+    vec3 paper_weight = (1.0 - segment_attenuation) / (1.0 - exp(-float(NS_PAPER_ACCUMULATION_MFP)));
+    // A(entry) integrates through the exit, so e^{-s Lc} A(exit) <= A(entry) always; past
+    // ~17 mfp in every channel that term is a 6e-8 fraction of A(exit), far below what the
+    // other VRLs add, and it is not read (half the work on long segments).
+    bool exit_matters = max(segment_attenuation.x, max(segment_attenuation.y, segment_attenuation.z)) > 6e-8;
+    vec3 smin = min(seg.entry, seg.exit), smax = max(seg.entry, seg.exit);
+    // Dipole mode: only segments that enter from outside see the dipole (render.c gives
+    // the others no light), evaluated at their entry point.
+    bool dipole = params.counts.w == NS_GATHER_MODE_DIPOLE;
+    if (dipole)
+        smax = smin = seg.entry;
+
+    vec3 sum = vec3(0.0);
+    uint interactions = 0u, culled = 0u, represented = 0u;
+    uint end = min(push.first_cell + push.cell_count, params.counts.y);
+    uint ci = push.first_cell;
+    if (params.cull.y == 0.0) {
+        // Exact: one walk per subgroup. A node goes with its subtree when it is beyond the
+        // table's reach of every segment of the subgroup; a segment that alone would have
+        // culled it evaluates VRLs whose tables do not reach it and adds exactly zero. The
+        // node index is then the same in every invocation, and broadcast makes that known:
+        // lavapipe loads the node and the leaf's VRLs once for all lanes instead of
+        // gathering them per lane (2x the interactions per second of a per-lane walk).
+        while (ci < end) {
+            ci = subgroupBroadcastFirst(ci);
+            GpuVrlNode node = nodes[ci];
+            float gap = box_distance(smin, smax, node.bmin, node.bmax);
+            if (subgroupAll(gap > params.cull.x)) {
+                culled++;
+                ci = node.skip;
+                continue;
+            }
+            if (node.leaf == 0u) {
+                ci++;
+                continue;
+            }
+            for (uint k = node.first; k < node.first + node.count; k++)
+                sum += contribution(vrl_at(k), seg, w, segment_attenuation, paper_weight, exit_matters);
+            interactions += node.count;
+            ci = node.skip;
+        }
+    } else {
+        // Solid-angle option: every segment takes its own decisions (neighbours refine
+        // different nodes), but the subgroup still walks one node at a time so that the
+        // loads stay uniform: a lane that culled or represented a node sits out its subtree
+        // (mask_until), and the walk descends while any lane still needs the node. Each
+        // lane thus sees exactly the nodes of its own walk (ns_gather_cpu walks each segment
+        // alone and gets the same sums and counts), without a per-lane node index, which
+        // made lavapipe gather every node and VRL load lane by lane.
+        uint mask_until = 0u;
+        while (ci < end) {
+            ci = subgroupBroadcastFirst(ci);
+            GpuVrlNode node = nodes[ci];
+            bool needs = ci >= mask_until;
+            if (needs) {
+                float gap = box_distance(smin, smax, node.bmin, node.bmax);
+                // The box's solid angle seen from the segment's nearest point, bounded by
+                // the sphere around its diagonal.
+                vec3 extent = node.bmax - node.bmin;
+                float radius2 = 0.25 * dot(extent, extent);
+                if (gap > params.cull.x) {
+                    culled++;
+                    mask_until = node.skip;
+                    needs = false;
+                } else if (gap * gap > radius2 && PI * radius2 / (gap * gap) < params.cull.y) {
+                    sum += contribution(representative_at(ci), seg, w, segment_attenuation, paper_weight, exit_matters);
+                    represented++;
+                    interactions++;
+                    mask_until = node.skip;
+                    needs = false;
+                }
+            }
+            if (!subgroupAny(needs)) {
+                ci = node.skip;
+                continue;
+            }
+            if (node.leaf == 0u) {
+                ci++;
+                continue;
+            }
+            if (needs) {
+                for (uint k = node.first; k < node.first + node.count; k++)
+                    sum += contribution(vrl_at(k), seg, w, segment_attenuation, paper_weight, exit_matters);
+                interactions += node.count;
+            }
+            ci = node.skip;
+        }
+    }
+    vec4 previous = push.accumulate != 0u ? radiance[index] : vec4(0.0);
+    radiance[index] = previous + vec4(sum, 0.0);
+    // 64-bit interaction count from 32-bit atomics: carry into the high word on wrap.
+    uint before = atomicAdd(counters[NS_GATHER_COUNTER_INTERACTIONS], interactions);
+    if (before + interactions < before)
+        atomicAdd(counters[NS_GATHER_COUNTER_INTERACTIONS_HIGH], 1u);
+    if (culled > 0u)
+        atomicAdd(counters[NS_GATHER_COUNTER_CULLED], culled);
+    if (represented > 0u)
+        atomicAdd(counters[NS_GATHER_COUNTER_REPRESENTED], represented);
+}
