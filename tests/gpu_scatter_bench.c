@@ -11,7 +11,8 @@
  * NSCATTER_BENCH_ONLY=renders | solid_angle | adaptive | gather runs one part;
  * NSCATTER_BENCH_256_ONLY=1 skips 512x512 in the solid-angle and adaptive sweeps,
  * NSCATTER_BENCH_THRESHOLDS=0.05,0.5 sweeps those thresholds (after the
- * exact gather); NSCATTER_BENCH_POINT_ONLY=1 drops the environment light. */
+ * exact gather); NSCATTER_BENCH_POINT_ONLY=1 drops the environment light;
+ * NSCATTER_BENCH_BEAMS=bounded renders with render.vrl_beams "bounded". */
 #include <pthread.h>
 #include <stdlib.h>
 
@@ -31,6 +32,8 @@ static ns_scene candle_scene(uint32_t size, uint32_t components, uint32_t vrls)
     s.render.spp = 1;
     s.render.components = components;
     s.render.vrls = vrls;
+    const char *beams = getenv("NSCATTER_BENCH_BEAMS");
+    s.render.vrl_beams = beams && !strcmp(beams, "bounded") ? NS_VRL_BEAMS_BOUNDED : NS_VRL_BEAMS_ENDLESS;
     materials[0] = diffuse(0.5, 0.45, 0.4);
     /* The paper's Table 1 candle: albedo 0.98 0.962 0.75, mfp 0.65 0.63 0.59, g 0.8. */
     const double albedo[3] = {0.98, 0.962, 0.75}, mfp[3] = {0.65, 0.63, 0.59};
