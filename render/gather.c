@@ -477,6 +477,20 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
  * ------------------------------------------------------------------------------------- */
 enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
 
+int ns_gather_bounded_pipeline(ns_context *ctx, ns_error *err)
+{
+    if (ctx->gather_bounded.pipeline)
+        return NS_OK;
+    int status = gpu_pipeline_create(&ctx->dev, &ctx->gather_bounded,
+                                     &(gpu_pipeline_desc){.shader = "gather_bounded",
+                                                          .binding_count = G_COUNT,
+                                                          .push_constant_size = sizeof(GpuGatherPush)},
+                                     err);
+    if (!status)
+        status = gpu_pipeline_warm(&ctx->dev, &ctx->gather_bounded, err);
+    return status;
+}
+
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err)
 {
@@ -518,17 +532,10 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     };
     int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
     int status = NS_OK;
-    /* Bounded beams have their own shader (gather.glsl says why), made on first use: its
-     * compile (lavapipe compiles in the first dispatch) falls in this gather's time. */
     gpu_pipeline *pipeline = &ctx->gather;
     if (params.table_map[3] > 0.0f) {
         pipeline = &ctx->gather_bounded;
-        if (!pipeline->pipeline)
-            status = gpu_pipeline_create(&ctx->dev, pipeline,
-                                         &(gpu_pipeline_desc){.shader = "gather_bounded",
-                                                              .binding_count = G_COUNT,
-                                                              .push_constant_size = sizeof(GpuGatherPush)},
-                                         err);
+        status = ns_gather_bounded_pipeline(ctx, err);
     }
     for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
         if (targets[i] == G_TABLE && desc->table)

@@ -185,6 +185,11 @@ typedef struct ns_gather_counts {
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err);
 
+/* Bounded beams have their own gather shader (gather.glsl says why), made and compiled by
+ * the first render that needs it and kept in the context (about 1 s on lavapipe, reported
+ * as the stage "gather_pipeline"); ns_gather_run makes it too if nobody did. */
+int ns_gather_bounded_pipeline(ns_context *ctx, ns_error *err);
+
 /* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
  * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. It walks the nodes in lavapipe's
  * dispatch ranges; the exact walk takes its culling decisions for subgroup_size

@@ -581,6 +581,12 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  chain, scene->render.seed, &v->set, err);
     times->vrl += ns_now_ms() - t0;
+    if (!status && chain > 1 && !ctx->gather_bounded.pipeline) {
+        double t1 = ns_now_ms();
+        status = ns_gather_bounded_pipeline(ctx, err);
+        if (stats)
+            ns_stats_add_stage(stats, "gather_pipeline", ns_now_ms() - t1);
+    }
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
