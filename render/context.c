@@ -111,7 +111,8 @@ void ns_context_destroy(ns_context *ctx)
     if (ctx->dev.device)
         gpu_pipeline_destroy(&ctx->dev, &ctx->pt);
     if (ctx->dev.device)
-        gpu_pipeline_destroy(&ctx->dev, &ctx->gather_bounded);
+        for (size_t i = 0; i < sizeof ctx->gather_forms / sizeof ctx->gather_forms[0]; i++)
+            gpu_pipeline_destroy(&ctx->dev, &ctx->gather_forms[i]);
     gpu_device_destroy(&ctx->dev);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);

@@ -477,17 +477,44 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
  * ------------------------------------------------------------------------------------- */
 enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
 
-int ns_gather_bounded_pipeline(ns_context *ctx, ns_error *err)
+/* The shader of each form of the gather (gather.glsl): mode x beams. */
+static const struct {
+    uint32_t mode;
+    int bounded;
+    const char *shader;
+} gather_forms[] = {
+    {NS_GATHER_MODE_EXACT, 0, "gather"},         {NS_GATHER_MODE_EXACT, 1, "gather_bounded"},
+    {NS_GATHER_MODE_PAPER, 0, "gather_paper"},   {NS_GATHER_MODE_PAPER, 1, "gather_paper_bounded"},
+    {NS_GATHER_MODE_DIPOLE, 0, "gather_dipole"},
+};
+
+int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
+                       double *made_ms, ns_error *err)
 {
-    if (ctx->gather_bounded.pipeline)
+    _Static_assert(sizeof gather_forms / sizeof gather_forms[0] ==
+                       sizeof ctx->gather_forms / sizeof ctx->gather_forms[0],
+                   "one pipeline per form");
+    *made_ms = 0;
+    bounded = bounded && mode != NS_GATHER_MODE_DIPOLE;
+    size_t i = 0;
+    while (i < sizeof gather_forms / sizeof gather_forms[0] &&
+           (gather_forms[i].mode != mode || gather_forms[i].bounded != bounded))
+        i++;
+    if (i == sizeof gather_forms / sizeof gather_forms[0])
+        return ns_fail(err, NS_ERR_INTERNAL, "gather: no shader for mode %u", mode);
+    /* The default form is made with the context's other pipelines. */
+    *pipeline = i == 0 ? &ctx->gather : &ctx->gather_forms[i];
+    if ((*pipeline)->pipeline)
         return NS_OK;
-    int status = gpu_pipeline_create(&ctx->dev, &ctx->gather_bounded,
-                                     &(gpu_pipeline_desc){.shader = "gather_bounded",
+    double t0 = ns_now_ms();
+    int status = gpu_pipeline_create(&ctx->dev, *pipeline,
+                                     &(gpu_pipeline_desc){.shader = gather_forms[i].shader,
                                                           .binding_count = G_COUNT,
                                                           .push_constant_size = sizeof(GpuGatherPush)},
                                      err);
     if (!status)
-        status = gpu_pipeline_warm(&ctx->dev, &ctx->gather_bounded, err);
+        status = gpu_pipeline_warm(&ctx->dev, *pipeline, err);
+    *made_ms = ns_now_ms() - t0;
     return status;
 }
 
@@ -532,11 +559,10 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     };
     int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
     int status = NS_OK;
-    gpu_pipeline *pipeline = &ctx->gather;
-    if (params.table_map[3] > 0.0f) {
-        pipeline = &ctx->gather_bounded;
-        status = ns_gather_bounded_pipeline(ctx, err);
-    }
+    gpu_pipeline *pipeline = NULL;
+    double made_ms;
+    status = ns_gather_pipeline(ctx, params.counts[3], params.table_map[3] > 0.0f, &pipeline,
+                                &made_ms, err);
     for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
         if (targets[i] == G_TABLE && desc->table)
             continue;

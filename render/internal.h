@@ -27,9 +27,10 @@ struct ns_context {
     /* shaders/pt.comp: made by the first pt render and kept. Its compile (~0.3 s on
      * lavapipe) is paid once per context, and never by a context that renders no pt. */
     gpu_pipeline pt;
-    /* shaders/gather_bounded.comp (render.vrl_beams "bounded"): made by the first gather that
-     * needs it and kept, like pt. */
-    gpu_pipeline gather_bounded;
+    /* The gather's other forms (gather.c ns_gather_pipeline: bounded beams, the paper's
+     * accumulation, the dipole), one shader each: made by the first gather that needs one
+     * and kept, like pt. gather above is the default form, made with the others. */
+    gpu_pipeline gather_forms[5];
     struct ns_table_cache *tables;
     struct ns_nn_state *nn;
     ns_mc_tables_fn mc_tables;

@@ -185,10 +185,13 @@ typedef struct ns_gather_counts {
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err);
 
-/* Bounded beams have their own gather shader (gather.glsl says why), made and compiled by
- * the first render that needs it and kept in the context (about 1 s on lavapipe, reported
- * as the stage "gather_pipeline"); ns_gather_run makes it too if nobody did. */
-int ns_gather_bounded_pipeline(ns_context *ctx, ns_error *err);
+/* Each form of the gather (mode x bounded beams) has its own shader (gather.glsl says why).
+ * The default (exact, endless) is made with the context; the others are made and compiled by
+ * the first gather that needs them and kept. Points *pipeline at the form's pipeline;
+ * *made_ms = the time spent making it now (0 if it was there). ns_gather_run calls it;
+ * renders call it first to report that time as the stage "gather_pipeline". */
+int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
+                       double *made_ms, ns_error *err);
 
 /* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
  * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. It walks the nodes in lavapipe's

@@ -581,12 +581,6 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  chain, scene->render.seed, &v->set, err);
     times->vrl += ns_now_ms() - t0;
-    if (!status && chain > 1 && !ctx->gather_bounded.pipeline) {
-        double t1 = ns_now_ms();
-        status = ns_gather_bounded_pipeline(ctx, err);
-        if (stats)
-            ns_stats_add_stage(stats, "gather_pipeline", ns_now_ms() - t1);
-    }
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
@@ -645,9 +639,17 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                                    .out = out};
             ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle,
                              scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED);
+            /* A form other than the default compiles its shader on first use: its own stage. */
+            gpu_pipeline *unused;
+            double made_ms;
+            status = ns_gather_pipeline(ctx, mode, desc.params.table_map[3] > 0.0f, &unused,
+                                        &made_ms, err);
+            if (made_ms > 0 && stats)
+                ns_stats_add_stage(stats, "gather_pipeline", made_ms);
             ns_gather_counts counts;
             double t2 = ns_now_ms();
-            status = ns_gather_run(ctx, &desc, &counts, err);
+            if (!status)
+                status = ns_gather_run(ctx, &desc, &counts, err);
             times->gather += ns_now_ms() - t2;
             if (!status && stats) {
                 stats->interactions += counts.interactions;

@@ -1,7 +1,11 @@
-// gather.glsl — the gather shader's body, compiled twice: gather.comp (endless beams, the
-// default) and gather_bounded.comp (NS_BOUNDED_BEAMS 1). Two shaders rather than a branch on
-// a uniform: lavapipe ran the endless gather 1.5x slower with the bounded code present and
-// never taken (register pressure in the vectorised loop).
+// gather.glsl — the gather shader's body, compiled once per form: NS_GATHER_FORM (the
+// NS_GATHER_MODE_* it evaluates) and NS_BOUNDED_BEAMS (0 endless, 1 bounded) are defined by
+// gather.comp (exact, endless: the default), gather_bounded.comp, gather_paper.comp,
+// gather_paper_bounded.comp and gather_dipole.comp. One shader per form rather than branches
+// on the uniform block: on lavapipe code that is present but never taken costs the loop
+// dearly (register pressure in the vectorised walk). With the paper and dipole forms in it,
+// the exact gather ran 1.5x slower (1.63-1.76 s against 1.10-1.19 s, candle at 128^2); with
+// the bounded form in it, 1.5x slower again.
 //
 // gather — double and multiple scattering gathered from Virtual Ray Lights (the paper's
 // Algorithm 1): one invocation per camera segment walks the grid hierarchy's nodes of one
@@ -123,7 +127,7 @@ vec3 dipole_rd(float r)
 vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_attenuation,
                 vec3 paper_weight, bool exit_matters)
 {
-    if (params.counts.w == NS_GATHER_MODE_PAPER)
+    if (NS_GATHER_FORM == NS_GATHER_MODE_PAPER)
         return paper_weight * table_at(v, seg.entry, w, theta_row);
     vec3 value = table_at(v, seg.entry, w, theta_row);
     if (exit_matters)
@@ -134,8 +138,7 @@ vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_atte
 vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
                   bool exit_matters)
 {
-    uint mode = params.counts.w;
-    if (mode == NS_GATHER_MODE_DIPOLE)
+    if (NS_GATHER_FORM == NS_GATHER_MODE_DIPOLE)
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
     vec3 s = params.sigma_t.xyz;
     uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
@@ -178,7 +181,7 @@ void main()
     vec3 smin = min(seg.entry, seg.exit), smax = max(seg.entry, seg.exit);
     // Dipole mode: only segments that enter from outside see the dipole (render.c gives
     // the others no light), evaluated at their entry point.
-    bool dipole = params.counts.w == NS_GATHER_MODE_DIPOLE;
+    bool dipole = NS_GATHER_FORM == NS_GATHER_MODE_DIPOLE;
     if (dipole)
         smax = smin = seg.entry;
 
