@@ -3,9 +3,9 @@
 // gather.comp (exact, endless: the default), gather_bounded.comp, gather_paper.comp,
 // gather_paper_bounded.comp and gather_dipole.comp. One shader per form rather than branches
 // on the uniform block: on lavapipe code that is present but never taken costs the loop
-// dearly (register pressure in the vectorised walk). With the paper and dipole forms in it,
-// the exact gather ran 1.5x slower (1.63-1.76 s against 1.10-1.19 s, candle at 128^2); with
-// the bounded form in it, 1.5x slower again.
+// dearly (register pressure in the vectorised walk): with the paper and dipole forms in it
+// the exact gather ran 1.5-1.7x slower, with the bounded form too 1.5x slower again
+// (docs/scattering.md, *One shader per form*).
 //
 // gather — double and multiple scattering gathered from Virtual Ray Lights (the paper's
 // Algorithm 1): one invocation per camera segment walks the grid hierarchy's nodes of one
