@@ -558,11 +558,10 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
         {.size = NS_GATHER_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.gather.counters"},
     };
     int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
-    int status = NS_OK;
     gpu_pipeline *pipeline = NULL;
     double made_ms;
-    status = ns_gather_pipeline(ctx, params.counts[3], params.table_map[3] > 0.0f, &pipeline,
-                                &made_ms, err);
+    int status = ns_gather_pipeline(ctx, params.counts[3], params.table_map[3] > 0.0f, &pipeline,
+                                    &made_ms, err);
     for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
         if (targets[i] == G_TABLE && desc->table)
             continue;

@@ -186,7 +186,8 @@ typedef struct ns_render_settings {
     float exposure;     /* stops; applied by the encoders, not by the renderer */
     uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
     /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
-    uint32_t vrls;           /* light paths traced towards the media (VRLs stored <= this) */
+    uint32_t vrls;           /* light paths traced towards the media (VRLs stored <= this,
+                                or 4x with bounded beams: vrl_beams) */
     uint32_t gather_tile;    /* one gathered camera pixel per tile x tile block, >= 1 */
     /* Adaptive gather: the tiles are first gathered on a lattice 2^gather_levels tiles apart;
      * a tile between gathered ones is interpolated when they agree within gather_tolerance

@@ -58,6 +58,7 @@ Vrl representative_at(uint k)
     return Vrl(representative_words[3u * k].xyz, representative_words[3u * k].w,
                representative_words[3u * k + 1u].xyz, representative_words[3u * k + 2u].xyz);
 }
+
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
 
 // The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
