@@ -69,7 +69,8 @@ struct GpuGatherParams {
     ns_vec4 sigma_t;   /* xyz: extinction per scene unit of each channel; w = ior */
     ns_vec4 table_map; /* x = sinh scale (mfp), y = 1 / sinh step, z = extent (mfp), w = the
                           beam cutoff of bounded beams (NS_BEAM_CUTOFF; 0: endless beams) */
-    ns_uvec4 counts;   /* x = segments, y = cells, z = VRLs, w = mode (NS_GATHER_MODE_*) */
+    ns_uvec4 counts;   /* x = segments, y = cells, z = VRLs, w = mode (NS_GATHER_MODE_*: each
+                          shader is compiled for one, gather.glsl; the C side picks it) */
     ns_vec4 cull;      /* x = cull distance (scene units): cells farther from a segment add
                           nothing; y = solid-angle threshold (0 = off): a cell whose box
                           subtends less from the segment is replaced by its representative */

@@ -82,12 +82,18 @@ def test_adaptive_gather_counts_interpolated_tiles(t, srv):
 
 
 def test_bounded_beams_add_reflected_vrls(t, srv):
-    counts = {}
-    for beams in ("endless", "bounded"):
+    counts, timings = {}, []
+    for beams in ("endless", "bounded", "bounded"):
         status, headers, body = srv.render(scatter_scene(components=("double", "multiple"),
                                                          vrl_beams=beams))
         t.equal(status, 200, f"vrl_beams {beams} ({body[:300]!r})")
         counts[beams] = stats_of(headers)
+        timings.append(server_timing(headers.get("server-timing", "")))
+    # The bounded gather's shader is made by the server's first bounded render and kept.
+    if len(timings) == 3:
+        t.check("gather_pipeline" not in timings[0], f"endless: no shader to make: {timings[0]}")
+        t.check("gather_pipeline" in timings[1], f"first bounded render makes it: {timings[1]}")
+        t.check("gather_pipeline" not in timings[2], f"second one reuses it: {timings[2]}")
     if len(counts) == 2:
         # The wax sphere reflects part of each beam where it leaves: one more VRL each time.
         t.equal(counts["bounded"].get("vrl_paths"), counts["endless"].get("vrl_paths"),
