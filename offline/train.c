@@ -1,4 +1,4 @@
-/* train.c — `nscatter train`: samples the Monte Carlo grid, trains one network per order with
+/* train.c — the training behind `nscatter train` (cli/cmd_train.c): samples the Monte Carlo grid, trains one network per order with
  * Adam, checkpoints every epoch (resumable), writes weights/<order>.bin and .json. */
 #include "train.h"
 
@@ -14,8 +14,6 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "../server/commands.h"
-#include "cli_util.h"
 #include "nn_train.h"
 #include "nn_weights.h"
 
@@ -25,169 +23,23 @@ const double ns_train_holdout_default[][2] = {
 const int ns_train_holdout_default_count =
     (int)(sizeof ns_train_holdout_default / sizeof ns_train_holdout_default[0]);
 
-static const char usage_text[] =
-    "usage: nscatter train --data DIR [--order double|multiple|both] [--out-dir weights]\n"
-    "                      [--target logrel|paper] [--epochs N (200)] [--batch B (8192)]\n"
-    "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
-    "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
-    "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
-    "                      [--oversample-albedo A:F] [--g-map linear|log] [--no-calibrate]\n"
-    "                      [--threads T] [--quiet]\n"
-    "\n"
-    "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
-    "`nscatter mc --grid`; the materials g/a 0.3/0.8 0.5/0.95 0.7/0.5 0.9/0.9 0.0/0.3\n"
-    "0.95/0.99 0.5/0.2 are held out as the test set. Writes OUT/<order>.bin (weights) and\n"
-    "OUT/<order>.json (how they were made). A checkpoint is written every epoch to\n"
-    "CHECKPOINT_DIR/train_<order>.ckpt (default: DIR); --resume continues from it (with\n"
-    "--epochs at the checkpoint's epoch it only writes the weights). logrel weights get an\n"
-    "energy calibration factor (docs/network.md) unless --no-calibrate. --zero-floor F:\n"
-    "the written weights decode every J/E_k below (F - 1) eps as 0 (the network's noise\n"
-    "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
-    "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
-    "far-reaching high-albedo tables are the ones the network fits worst).\n"
-    "--g-map log: g enters as the mean of g/0.99 and ln(1 - g)/ln(0.01), which widens the\n"
-    "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
-
-typedef struct {
-    const char *data, *out_dir, *ckpt_dir;
-    unsigned orders;
-    ns_nn_target target;
-    int epochs, resume, quiet, threads, calibrate;
-    uint32_t input_map; /* NS_NN_INPUT_MAP_*: how g enters the network */
-    uint32_t batch, samples_per_table;
-    double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor;
-    uint64_t seed;
-    char command[2048];
-} train_options;
-
-#define usage_error(...) cli_usage_error("nscatter train", __VA_ARGS__)
+/* Every failure is reported on stderr as "nscatter train: ..." and gives exit status 2 (bad
+ * input: a missing table, an unwritable folder), as the command's usage errors do. */
+static int usage_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static int usage_error(const char *fmt, ...)
+{
+    va_list args;
+    va_start(args, fmt);
+    fputs("nscatter train: ", stderr);
+    vfprintf(stderr, fmt, args);
+    fputc('\n', stderr);
+    va_end(args);
+    return 2;
+}
 
 static double now_seconds(void)
 {
     return ns_now_ms() * 1e-3;
-}
-
-/* =======================================================================================
- * Options
- * ===================================================================================== */
-
-static int parse_number(const char *name, const char *text, double lo, double hi, double *out)
-{
-    return cli_parse_number("nscatter train", name, text, lo, hi, out);
-}
-
-static int parse_value(train_options *o, const char *arg, const char *val)
-{
-    double v = 0;
-    int rc = 0;
-    if (!strcmp(arg, "--data"))
-        o->data = val;
-    else if (!strcmp(arg, "--out-dir"))
-        o->out_dir = val;
-    else if (!strcmp(arg, "--checkpoint-dir"))
-        o->ckpt_dir = val;
-    else if (!strcmp(arg, "--order")) {
-        ns_order ord;
-        if (!strcmp(val, "both"))
-            o->orders = 3;
-        else if (!ns_order_parse(val, &ord))
-            o->orders = 1u << ord;
-        else
-            return usage_error("--order: '%s' is not double, multiple or both", val);
-    } else if (!strcmp(arg, "--target")) {
-        if (!strcmp(val, "paper"))
-            o->target = NS_NN_TARGET_PAPER;
-        else if (!strcmp(val, "logrel"))
-            o->target = NS_NN_TARGET_LOGREL;
-        else
-            return usage_error("--target: '%s' is not logrel or paper", val);
-    } else if (!strcmp(arg, "--g-map")) {
-        if (!strcmp(val, "linear"))
-            o->input_map = NS_NN_INPUT_MAP_ASINH;
-        else if (!strcmp(val, "log"))
-            o->input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
-        else
-            return usage_error("--g-map: '%s' is not linear or log", val);
-    } else if (!strcmp(arg, "--epochs"))
-        rc = parse_number(arg, val, 1, 1e6, &v), o->epochs = (int)v;
-    else if (!strcmp(arg, "--batch"))
-        rc = parse_number(arg, val, 16, 1 << 20, &v), o->batch = (uint32_t)v;
-    else if (!strcmp(arg, "--samples-per-table"))
-        /* even: samples alternate uniform / energy-proportional (the calibration uses it) */
-        rc = parse_number(arg, val, 100, 1e7, &v), o->samples_per_table = (uint32_t)v & ~1u;
-    else if (!strcmp(arg, "--lr"))
-        rc = parse_number(arg, val, 1e-7, 1, &o->lr);
-    else if (!strcmp(arg, "--eps"))
-        rc = parse_number(arg, val, 1e-30, 1e-3, &o->eps);
-    else if (!strcmp(arg, "--oversample-albedo")) {
-        char *end = NULL;
-        o->oversample_albedo = strtod(val, &end);
-        o->oversample_factor = end && *end == ':' ? strtod(end + 1, &end) : NAN;
-        if (!end || *end || !(o->oversample_albedo >= 0 && o->oversample_albedo <= 1) ||
-            !(o->oversample_factor >= 1 && o->oversample_factor <= 100))
-            return usage_error("--oversample-albedo: '%s' is not A:F with A in [0, 1] and F in "
-                               "[1, 100]",
-                               val);
-    } else if (!strcmp(arg, "--zero-floor"))
-        rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);
-    else if (!strcmp(arg, "--time-budget"))
-        rc = parse_number(arg, val, 1, 1e7, &o->time_budget);
-    else if (!strcmp(arg, "--seed"))
-        rc = parse_number(arg, val, 0, 9007199254740992.0, &v), o->seed = (uint64_t)v;
-    else if (!strcmp(arg, "--threads"))
-        rc = parse_number(arg, val, 1, 256, &v), o->threads = (int)v;
-    else
-        return usage_error("unknown option '%s' (see nscatter train --help)", arg);
-    return rc;
-}
-
-static int parse_options(int argc, char **argv, train_options *o)
-{
-    memset(o, 0, sizeof *o);
-    o->out_dir = "weights";
-    o->orders = 3;
-    o->target = NS_NN_TARGET_LOGREL;
-    o->input_map = NS_NN_INPUT_MAP_ASINH;
-    o->epochs = 200;
-    o->batch = 8192;
-    o->samples_per_table = 24000;
-    o->lr = 0.003;
-    o->eps = 1e-13;
-    o->zero_floor = 10;
-    o->oversample_albedo = 2; /* none */
-    o->oversample_factor = 1;
-    o->calibrate = 1;
-    o->seed = 1;
-    size_t len = (size_t)snprintf(o->command, sizeof o->command, "nscatter");
-    for (int i = 0; i < argc && len < sizeof o->command; i++)
-        len += (size_t)snprintf(o->command + len, sizeof o->command - len, " %s", argv[i]);
-    for (int i = 1; i < argc; i++) {
-        const char *arg = argv[i];
-        if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
-            fputs(usage_text, stdout);
-            return -1;
-        }
-        if (!strcmp(arg, "--resume") || !strcmp(arg, "--quiet")) {
-            *(!strcmp(arg, "--resume") ? &o->resume : &o->quiet) = 1;
-            continue;
-        }
-        if (!strcmp(arg, "--no-calibrate")) {
-            o->calibrate = 0;
-            continue;
-        }
-        if (strncmp(arg, "--", 2) != 0)
-            return usage_error("unexpected argument '%s' (see nscatter train --help)", arg);
-        if (i + 1 >= argc)
-            return usage_error("%s: missing value", arg);
-        int rc = parse_value(o, arg, argv[++i]);
-        if (rc)
-            return rc;
-    }
-    if (!o->data)
-        return usage_error("--data: missing (the directory written by nscatter mc --grid)");
-    if (!o->ckpt_dir)
-        o->ckpt_dir = o->data;
-    return 0;
 }
 
 /* =======================================================================================
@@ -306,7 +158,7 @@ static int sample_table(sample_set *s, const ns_nn_header *h, const ns_table *ta
     return 0;
 }
 
-static int load_dataset(const train_options *o, ns_order order, ns_nn_header *h, dataset *d)
+static int load_dataset(const ns_train_options *o, ns_order order, ns_nn_header *h, dataset *d)
 {
     DIR *dir = opendir(o->data);
     if (!dir)
@@ -417,7 +269,7 @@ typedef struct {
     uint32_t crc;
 } checkpoint;
 
-static void checkpoint_path(const train_options *o, ns_order order, char *out, size_t cap)
+static void checkpoint_path(const ns_train_options *o, ns_order order, char *out, size_t cap)
 {
     snprintf(out, cap, "%s/train_%s.ckpt", o->ckpt_dir, ns_order_name(order));
 }
@@ -464,7 +316,7 @@ static double evaluate(ns_nn_trainer *tr, const float *p, const sample_set *s)
 }
 
 /* Learning rate: constant, then down by 10x over the last 40% of the epochs (cosine). */
-static float learning_rate(const train_options *o, int epoch)
+static float learning_rate(const ns_train_options *o, int epoch)
 {
     double f = (double)epoch / o->epochs;
     if (f < 0.6)
@@ -489,7 +341,7 @@ static void shuffle(uint32_t *idx, uint32_t n, uint64_t *rng)
     }
 }
 
-static int run_epochs(const train_options *o, ns_order order, ns_nn_weights *w, const dataset *d,
+static int run_epochs(const ns_train_options *o, ns_order order, ns_nn_weights *w, const dataset *d,
                       checkpoint *ck, train_result *res)
 {
     ns_nn_trainer tr;
@@ -594,7 +446,7 @@ static double energy_calibration(ns_nn_trainer *tr, const float *p, const sample
  * Output
  * ===================================================================================== */
 
-static int write_json(const train_options *o, ns_order order, const ns_nn_weights *w,
+static int write_json(const ns_train_options *o, ns_order order, const ns_nn_weights *w,
                       const dataset *d, const train_result *r, const char *path)
 {
     FILE *f = fopen(path, "w");
@@ -646,7 +498,7 @@ static int write_json(const train_options *o, ns_order order, const ns_nn_weight
     return fclose(f) ? usage_error("%s: write failed", path) : 0;
 }
 
-static int train_order(const train_options *o, ns_order order)
+static int train_order(const ns_train_options *o, ns_order order)
 {
     ns_nn_weights w;
     ns_nn_header_init(&w.h, (uint32_t)order, o->target);
@@ -734,18 +586,35 @@ static int train_order(const train_options *o, ns_order order)
     return rc;
 }
 
-int cmd_train(int argc, char **argv)
+ns_train_options ns_train_options_default(void)
 {
-    train_options o;
-    int rc = parse_options(argc, argv, &o);
-    if (rc)
-        return rc < 0 ? 0 : rc;
-    if (mkdir(o.out_dir, 0755) != 0 && errno != EEXIST)
-        return usage_error("--out-dir: cannot create '%s': %s", o.out_dir, strerror(errno));
-    if (o.threads)
-        openblas_set_num_threads(o.threads);
+    return (ns_train_options){
+        .out_dir = "weights",
+        .orders = 3,
+        .target = NS_NN_TARGET_LOGREL,
+        .input_map = NS_NN_INPUT_MAP_ASINH,
+        .epochs = 200,
+        .batch = 8192,
+        .samples_per_table = 24000,
+        .lr = 0.003,
+        .eps = 1e-13,
+        .zero_floor = 10,
+        .oversample_albedo = 2, /* none */
+        .oversample_factor = 1,
+        .calibrate = 1,
+        .seed = 1,
+    };
+}
+
+int ns_train(const ns_train_options *o)
+{
+    if (mkdir(o->out_dir, 0755) != 0 && errno != EEXIST)
+        return usage_error("--out-dir: cannot create '%s': %s", o->out_dir, strerror(errno));
+    if (o->threads)
+        openblas_set_num_threads(o->threads);
+    int rc = 0;
     for (int k = 0; k < 2 && !rc; k++)
-        if (o.orders & (1u << k))
-            rc = train_order(&o, (ns_order)k);
+        if (o->orders & (1u << k))
+            rc = train_order(o, (ns_order)k);
     return rc;
 }

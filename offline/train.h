@@ -6,6 +6,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "nn_weights.h"
 #include "table_io.h"
 
 /* Default held-out materials (g, albedo pairs of the grid, never trained on). */
@@ -14,5 +15,25 @@ extern const int ns_train_holdout_default_count;
 
 /* Parses "DIR/g0.30_a0.900_double.json"-style names written by the grid: 0 or -1. */
 int ns_train_parse_table_name(const char *name, double *g, double *albedo, ns_order *order);
+
+/* What `nscatter train` does (docs/network.md); ns_train_options_default() fills the
+ * defaults its usage text names. data is required; ckpt_dir NULL means data. */
+typedef struct ns_train_options {
+    const char *data, *out_dir, *ckpt_dir;
+    unsigned orders;
+    ns_nn_target target;
+    int epochs, resume, quiet, threads, calibrate;
+    uint32_t input_map; /* NS_NN_INPUT_MAP_*: how g enters the network */
+    uint32_t batch, samples_per_table;
+    double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor;
+    uint64_t seed;
+    char command[2048];
+} ns_train_options;
+
+ns_train_options ns_train_options_default(void);
+
+/* Trains the orders o->orders asks for, one after the other, writing OUT_DIR/<order>.bin and
+ * .json; progress on stderr. 0 done, 2 bad input (the message is on stderr), 1 failure. */
+int ns_train(const ns_train_options *o);
 
 #endif

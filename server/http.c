@@ -1,4 +1,4 @@
-/* http.c — `nscatter serve`: the HTTP render service (libmicrohttpd).
+/* http.c — the HTTP render service (libmicrohttpd) behind http_serve() (http.h).
  *
  * One thread per connection. The render context is made once, before the socket opens;
  * renders run one at a time on the render queue's worker (render_queue.h), and a full queue
@@ -25,8 +25,8 @@
 #include <jansson.h>
 #include <microhttpd.h>
 
-#include "commands.h"
 #include "encode.h"
+#include "http.h"
 #include "mc_provider.h"
 #include "nscatter.h"
 #include "problem.h"
@@ -35,8 +35,6 @@
 #include "scene_json.h"
 #include "web_assets.h"
 
-#define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
-#define HTTP_DEFAULT_QUEUE 4u
 #define HTTP_MAX_CONNECTIONS 64u
 #define HTTP_IDLE_TIMEOUT_S 60u
 #define HTTP_DEVICE_HEADER "X-Nscatter-Device"
@@ -771,105 +769,8 @@ static void http_request_completed(void *cls, struct MHD_Connection *conn, void 
 }
 
 /* ---------------------------------------------------------------------------------------
- * The command.
+ * The service's life: context, queue, daemon, signals, drain.
  * ------------------------------------------------------------------------------------- */
-typedef struct serve_args {
-    const char *host;
-    unsigned port;
-    uint32_t queue;
-    uint64_t max_body;
-    const char *asset_dir;
-    const char *device;
-} serve_args;
-
-static void serve_usage(FILE *out)
-{
-    fprintf(out,
-            "usage: nscatter serve [options]\n"
-            "\n"
-            "  --host ADDR       address to listen on (default 127.0.0.1)\n"
-            "  --port N          TCP port (default 8080); 0 picks a free one\n"
-            "  --queue N         renders admitted at once, running one included (default 4);\n"
-            "                    more get 503 with Retry-After\n"
-            "  --max-body BYTES  largest request body (default 67108864 = 64 MiB)\n"
-            "  --assets DIR      folder of mesh assets scenes may name (\"asset\": \"x.glb\")\n"
-            "  --device D        Vulkan device: index or name substring (default: lavapipe;\n"
-            "                    also NSCATTER_DEVICE)\n"
-            "\n"
-            "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
-            "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
-}
-
-static int parse_unsigned(const char *text, unsigned long long max, unsigned long long *out)
-{
-    if (!text || *text < '0' || *text > '9')
-        return -1;
-    errno = 0;
-    char *end = NULL;
-    unsigned long long v = strtoull(text, &end, 10);
-    if (errno || *end || v > max)
-        return -1;
-    *out = v;
-    return 0;
-}
-
-static int parse_serve_args(int argc, char **argv, serve_args *a, int *done)
-{
-    *a = (serve_args){.host = "127.0.0.1",
-                      .port = 8080,
-                      .queue = HTTP_DEFAULT_QUEUE,
-                      .max_body = HTTP_DEFAULT_MAX_BODY};
-    for (int i = 1; i < argc; i++) {
-        const char *arg = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
-        unsigned long long n = 0;
-        if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
-            serve_usage(stdout);
-            *done = 1;
-            return 0;
-        }
-        if (!value) {
-            fprintf(stderr, "nscatter serve: unknown option or missing value: '%s'\n", arg);
-            serve_usage(stderr);
-            return 2;
-        }
-        i++;
-        if (!strcmp(arg, "--host")) {
-            a->host = value;
-        } else if (!strcmp(arg, "--port")) {
-            if (parse_unsigned(value, 65535, &n)) {
-                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n",
-                        value);
-                return 2;
-            }
-            a->port = (unsigned)n;
-        } else if (!strcmp(arg, "--queue")) {
-            if (parse_unsigned(value, 1024, &n) || n < 1) {
-                fprintf(stderr, "nscatter serve: --queue '%s' is not a number 1-1024\n", value);
-                return 2;
-            }
-            a->queue = (uint32_t)n;
-        } else if (!strcmp(arg, "--max-body")) {
-            if (parse_unsigned(value, 1ull << 32, &n) || n < 1) {
-                fprintf(stderr,
-                        "nscatter serve: --max-body '%s' is not a byte count "
-                        "1-4294967296\n",
-                        value);
-                return 2;
-            }
-            a->max_body = n;
-        } else if (!strcmp(arg, "--assets")) {
-            a->asset_dir = value;
-        } else if (!strcmp(arg, "--device")) {
-            a->device = value;
-        } else {
-            fprintf(stderr, "nscatter serve: unknown option '%s'\n", arg);
-            serve_usage(stderr);
-            return 2;
-        }
-    }
-    return 0;
-}
-
 /* Resolves --host to one socket address (numeric or a name such as localhost). */
 static int resolve_host(const char *host, unsigned port, struct sockaddr_storage *addr)
 {
@@ -928,13 +829,15 @@ static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv, const si
     MHD_stop_daemon(daemon);
 }
 
-int cmd_serve(int argc, char **argv)
+int http_serve(const http_serve_desc *desc)
 {
-    serve_args args;
-    int done = 0;
-    int rc = parse_serve_args(argc, argv, &args, &done);
-    if (rc || done)
-        return rc;
+    http_serve_desc args = *desc;
+    if (!args.host)
+        args.host = "127.0.0.1";
+    if (!args.queue)
+        args.queue = HTTP_DEFAULT_QUEUE;
+    if (!args.max_body)
+        args.max_body = HTTP_DEFAULT_MAX_BODY;
     struct sockaddr_storage addr;
     if (resolve_host(args.host, args.port, &addr))
         return 2;

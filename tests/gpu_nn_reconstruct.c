@@ -7,8 +7,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "../offline/mc.h"
-#include "../offline/nn_train.h"
+#include "mc.h"
+#include "nn_train.h"
 #include "harness.h"
 #include "nn_reconstruct.h"
 

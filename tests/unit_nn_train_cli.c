@@ -7,8 +7,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "../offline/table_io.h"
-#include "../server/commands.h"
+#include "table_io.h"
+#include "commands.h"
 #include "harness.h"
 #include "nn_weights.h"
 

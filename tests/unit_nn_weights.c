@@ -7,9 +7,9 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "../offline/mc.h"
-#include "../offline/nn_train.h"
-#include "../offline/train.h"
+#include "mc.h"
+#include "nn_train.h"
+#include "train.h"
 #include "harness.h"
 #include "nn_weights.h"
 

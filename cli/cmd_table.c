@@ -15,11 +15,11 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "../offline/cli_util.h"
-#include "../offline/mc.h"
-#include "../offline/nn_train.h"
-#include "../offline/table_io.h"
-#include "../render/nn.h"
+#include "args.h"
+#include "mc.h"
+#include "nn_train.h"
+#include "table_io.h"
+#include "nn.h"
 #include "commands.h"
 
 static const char usage_text[] =

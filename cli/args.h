@@ -1,7 +1,7 @@
-/* cli_util.h — argument checking shared by the offline subcommands (mc, train, table):
+/* args.h — argument checking shared by the subcommands (cli/cmd_*.c):
  * one wording for usage errors, so every command names the bad argument the same way. */
-#ifndef NS_CLI_UTIL_H
-#define NS_CLI_UTIL_H
+#ifndef NS_CLI_ARGS_H
+#define NS_CLI_ARGS_H
 
 /* Prints "COMMAND: <message>" and a newline on stderr; returns 2, the exit status for bad
  * usage, so a caller can write `return cli_usage_error(...)`. */

@@ -9,8 +9,8 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "../server/commands.h"
-#include "cli_util.h"
+#include "commands.h"
+#include "args.h"
 #include "mc.h"
 #include "table_io.h"
 

@@ -1,5 +1,5 @@
-/* cli_util.c — see cli_util.h. */
-#include "cli_util.h"
+/* args.c — see args.h. */
+#include "args.h"
 
 #include <errno.h>
 #include <math.h>

@@ -1,0 +1,106 @@
+/* cmd_serve.c — `nscatter serve`: the command line of the HTTP service (server/http.h). */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "commands.h"
+#include "http.h"
+
+static void serve_usage(FILE *out)
+{
+    fprintf(out,
+            "usage: nscatter serve [options]\n"
+            "\n"
+            "  --host ADDR       address to listen on (default 127.0.0.1)\n"
+            "  --port N          TCP port (default 8080); 0 picks a free one\n"
+            "  --queue N         renders admitted at once, running one included (default 4);\n"
+            "                    more get 503 with Retry-After\n"
+            "  --max-body BYTES  largest request body (default 67108864 = 64 MiB)\n"
+            "  --assets DIR      folder of mesh assets scenes may name (\"asset\": \"x.glb\")\n"
+            "  --device D        Vulkan device: index or name substring (default: lavapipe;\n"
+            "                    also NSCATTER_DEVICE)\n"
+            "\n"
+            "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
+            "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
+}
+
+static int parse_unsigned(const char *text, unsigned long long max, unsigned long long *out)
+{
+    if (!text || *text < '0' || *text > '9')
+        return -1;
+    errno = 0;
+    char *end = NULL;
+    unsigned long long v = strtoull(text, &end, 10);
+    if (errno || *end || v > max)
+        return -1;
+    *out = v;
+    return 0;
+}
+
+static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done)
+{
+    *a = (http_serve_desc){.host = "127.0.0.1",
+                      .port = 8080,
+                      .queue = HTTP_DEFAULT_QUEUE,
+                      .max_body = HTTP_DEFAULT_MAX_BODY};
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
+        unsigned long long n = 0;
+        if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
+            serve_usage(stdout);
+            *done = 1;
+            return 0;
+        }
+        if (!value) {
+            fprintf(stderr, "nscatter serve: unknown option or missing value: '%s'\n", arg);
+            serve_usage(stderr);
+            return 2;
+        }
+        i++;
+        if (!strcmp(arg, "--host")) {
+            a->host = value;
+        } else if (!strcmp(arg, "--port")) {
+            if (parse_unsigned(value, 65535, &n)) {
+                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n",
+                        value);
+                return 2;
+            }
+            a->port = (unsigned)n;
+        } else if (!strcmp(arg, "--queue")) {
+            if (parse_unsigned(value, 1024, &n) || n < 1) {
+                fprintf(stderr, "nscatter serve: --queue '%s' is not a number 1-1024\n", value);
+                return 2;
+            }
+            a->queue = (uint32_t)n;
+        } else if (!strcmp(arg, "--max-body")) {
+            if (parse_unsigned(value, 1ull << 32, &n) || n < 1) {
+                fprintf(stderr,
+                        "nscatter serve: --max-body '%s' is not a byte count "
+                        "1-4294967296\n",
+                        value);
+                return 2;
+            }
+            a->max_body = n;
+        } else if (!strcmp(arg, "--assets")) {
+            a->asset_dir = value;
+        } else if (!strcmp(arg, "--device")) {
+            a->device = value;
+        } else {
+            fprintf(stderr, "nscatter serve: unknown option '%s'\n", arg);
+            serve_usage(stderr);
+            return 2;
+        }
+    }
+    return 0;
+}
+
+int cmd_serve(int argc, char **argv)
+{
+    http_serve_desc desc;
+    int done = 0;
+    int rc = parse_serve_args(argc, argv, &desc, &done);
+    if (rc || done)
+        return rc;
+    return http_serve(&desc);
+}

@@ -1,0 +1,148 @@
+/* cmd_train.c — `nscatter train`: the command line of offline/train.c (fits the double and
+ * multiple scattering networks to the Monte Carlo grid, docs/network.md). */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "args.h"
+#include "commands.h"
+#include "train.h"
+
+static const char usage_text[] =
+    "usage: nscatter train --data DIR [--order double|multiple|both] [--out-dir weights]\n"
+    "                      [--target logrel|paper] [--epochs N (200)] [--batch B (8192)]\n"
+    "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
+    "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
+    "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
+    "                      [--oversample-albedo A:F] [--g-map linear|log] [--no-calibrate]\n"
+    "                      [--threads T] [--quiet]\n"
+    "\n"
+    "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
+    "`nscatter mc --grid`; the materials g/a 0.3/0.8 0.5/0.95 0.7/0.5 0.9/0.9 0.0/0.3\n"
+    "0.95/0.99 0.5/0.2 are held out as the test set. Writes OUT/<order>.bin (weights) and\n"
+    "OUT/<order>.json (how they were made). A checkpoint is written every epoch to\n"
+    "CHECKPOINT_DIR/train_<order>.ckpt (default: DIR); --resume continues from it (with\n"
+    "--epochs at the checkpoint's epoch it only writes the weights). logrel weights get an\n"
+    "energy calibration factor (docs/network.md) unless --no-calibrate. --zero-floor F:\n"
+    "the written weights decode every J/E_k below (F - 1) eps as 0 (the network's noise\n"
+    "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
+    "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
+    "far-reaching high-albedo tables are the ones the network fits worst).\n"
+    "--g-map log: g enters as the mean of g/0.99 and ln(1 - g)/ln(0.01), which widens the\n"
+    "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
+
+#define usage_error(...) cli_usage_error("nscatter train", __VA_ARGS__)
+
+/* =======================================================================================
+ * Options
+ * ===================================================================================== */
+
+static int parse_value(ns_train_options *o, const char *arg, const char *val)
+{
+    double v = 0;
+    int rc = 0;
+    if (!strcmp(arg, "--data"))
+        o->data = val;
+    else if (!strcmp(arg, "--out-dir"))
+        o->out_dir = val;
+    else if (!strcmp(arg, "--checkpoint-dir"))
+        o->ckpt_dir = val;
+    else if (!strcmp(arg, "--order")) {
+        ns_order ord;
+        if (!strcmp(val, "both"))
+            o->orders = 3;
+        else if (!ns_order_parse(val, &ord))
+            o->orders = 1u << ord;
+        else
+            return usage_error("--order: '%s' is not double, multiple or both", val);
+    } else if (!strcmp(arg, "--target")) {
+        if (!strcmp(val, "paper"))
+            o->target = NS_NN_TARGET_PAPER;
+        else if (!strcmp(val, "logrel"))
+            o->target = NS_NN_TARGET_LOGREL;
+        else
+            return usage_error("--target: '%s' is not logrel or paper", val);
+    } else if (!strcmp(arg, "--g-map")) {
+        if (!strcmp(val, "linear"))
+            o->input_map = NS_NN_INPUT_MAP_ASINH;
+        else if (!strcmp(val, "log"))
+            o->input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+        else
+            return usage_error("--g-map: '%s' is not linear or log", val);
+    } else if (!strcmp(arg, "--epochs"))
+        rc = cli_parse_number("nscatter train", arg, val, 1, 1e6, &v), o->epochs = (int)v;
+    else if (!strcmp(arg, "--batch"))
+        rc = cli_parse_number("nscatter train", arg, val, 16, 1 << 20, &v), o->batch = (uint32_t)v;
+    else if (!strcmp(arg, "--samples-per-table"))
+        /* even: samples alternate uniform / energy-proportional (the calibration uses it) */
+        rc = cli_parse_number("nscatter train", arg, val, 100, 1e7, &v), o->samples_per_table = (uint32_t)v & ~1u;
+    else if (!strcmp(arg, "--lr"))
+        rc = cli_parse_number("nscatter train", arg, val, 1e-7, 1, &o->lr);
+    else if (!strcmp(arg, "--eps"))
+        rc = cli_parse_number("nscatter train", arg, val, 1e-30, 1e-3, &o->eps);
+    else if (!strcmp(arg, "--oversample-albedo")) {
+        char *end = NULL;
+        o->oversample_albedo = strtod(val, &end);
+        o->oversample_factor = end && *end == ':' ? strtod(end + 1, &end) : NAN;
+        if (!end || *end || !(o->oversample_albedo >= 0 && o->oversample_albedo <= 1) ||
+            !(o->oversample_factor >= 1 && o->oversample_factor <= 100))
+            return usage_error("--oversample-albedo: '%s' is not A:F with A in [0, 1] and F in "
+                               "[1, 100]",
+                               val);
+    } else if (!strcmp(arg, "--zero-floor"))
+        rc = cli_parse_number("nscatter train", arg, val, 1, 1e6, &o->zero_floor);
+    else if (!strcmp(arg, "--time-budget"))
+        rc = cli_parse_number("nscatter train", arg, val, 1, 1e7, &o->time_budget);
+    else if (!strcmp(arg, "--seed"))
+        rc = cli_parse_number("nscatter train", arg, val, 0, 9007199254740992.0, &v), o->seed = (uint64_t)v;
+    else if (!strcmp(arg, "--threads"))
+        rc = cli_parse_number("nscatter train", arg, val, 1, 256, &v), o->threads = (int)v;
+    else
+        return usage_error("unknown option '%s' (see nscatter train --help)", arg);
+    return rc;
+}
+
+static int parse_options(int argc, char **argv, ns_train_options *o)
+{
+    *o = ns_train_options_default();
+    size_t len = (size_t)snprintf(o->command, sizeof o->command, "nscatter");
+    for (int i = 0; i < argc && len < sizeof o->command; i++)
+        len += (size_t)snprintf(o->command + len, sizeof o->command - len, " %s", argv[i]);
+    for (int i = 1; i < argc; i++) {
+        const char *arg = argv[i];
+        if (!strcmp(arg, "--help") || !strcmp(arg, "-h")) {
+            fputs(usage_text, stdout);
+            return -1;
+        }
+        if (!strcmp(arg, "--resume") || !strcmp(arg, "--quiet")) {
+            *(!strcmp(arg, "--resume") ? &o->resume : &o->quiet) = 1;
+            continue;
+        }
+        if (!strcmp(arg, "--no-calibrate")) {
+            o->calibrate = 0;
+            continue;
+        }
+        if (strncmp(arg, "--", 2) != 0)
+            return usage_error("unexpected argument '%s' (see nscatter train --help)", arg);
+        if (i + 1 >= argc)
+            return usage_error("%s: missing value", arg);
+        int rc = parse_value(o, arg, argv[++i]);
+        if (rc)
+            return rc;
+    }
+    if (!o->data)
+        return usage_error("--data: missing (the directory written by nscatter mc --grid)");
+    if (!o->ckpt_dir)
+        o->ckpt_dir = o->data;
+    return 0;
+}
+
+int cmd_train(int argc, char **argv)
+{
+    ns_train_options o;
+    int rc = parse_options(argc, argv, &o);
+    if (rc)
+        return rc < 0 ? 0 : rc;
+    return ns_train(&o);
+}

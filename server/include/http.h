@@ -1,0 +1,26 @@
+/* http.h — the HTTP render service (libmicrohttpd; docs/http.md): the one entry point of
+ * server/, used by `nscatter serve` (cli/cmd_serve.c). */
+#ifndef NS_HTTP_H
+#define NS_HTTP_H
+
+#include <stdint.h>
+
+#define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
+#define HTTP_DEFAULT_QUEUE 4u
+
+/* Zero means "default" in every field but port (0 picks a free port). */
+typedef struct http_serve_desc {
+    const char *host;      /* address or name to listen on; NULL: 127.0.0.1 */
+    unsigned port;         /* TCP port; 0: a free one (printed) */
+    uint32_t queue;        /* renders admitted at once, the running one included; 0: 4 */
+    uint64_t max_body;     /* largest request body in bytes; 0: 64 MiB */
+    const char *asset_dir; /* folder of mesh assets scenes may name; NULL: none */
+    const char *device;    /* Vulkan device, index or name part; NULL: NSCATTER_DEVICE, lavapipe */
+} http_serve_desc;
+
+/* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
+ * stdout and serves until SIGINT or SIGTERM, then drains admitted renders and returns the
+ * process exit status: 0 stopped cleanly, 1 could not listen, 2 bad host. */
+int http_serve(const http_serve_desc *desc);
+
+#endif
