@@ -1,4 +1,4 @@
-/* cmd_serve.c — `nscatter serve`: the command line of the HTTP service (server/http.h). */
+/* cmd_serve.c — `nscatter serve`: the command line of the HTTP service (server/include/http.h). */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>

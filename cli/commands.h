@@ -4,13 +4,14 @@
 #ifndef NS_COMMANDS_H
 #define NS_COMMANDS_H
 
-int cmd_info(int argc, char **argv);   /* server/cmd_info.c: chosen device and driver */
-int cmd_render(int argc, char **argv); /* server/cmd_render.c: scene JSON -> PNG/EXR */
-int cmd_serve(int argc, char **argv);  /* server/http.c: the HTTP service */
-int cmd_mc(int argc, char **argv);     /* offline/mc_cli.c: Monte Carlo tables */
-int cmd_train(int argc, char **argv);  /* offline/train.c: fit the scattering networks */
-int cmd_table(int argc, char **argv);  /* server/cmd_table.c: NN/MC table, accuracy report */
-int cmd_compare(int argc, char **argv); /* server/cmd_compare.c: PSNR/RMSE of two images */
-int cmd_bench(int argc, char **argv);   /* server/cmd_bench.c: benchmark, report.md */
+/* Each lives in cli/cmd_<name>.c; the work itself is in the layers below. */
+int cmd_info(int argc, char **argv);    /* chosen device and driver */
+int cmd_render(int argc, char **argv);  /* scene JSON -> PNG/EXR (io/render_job.h) */
+int cmd_serve(int argc, char **argv);   /* the HTTP service (server/include/http.h) */
+int cmd_mc(int argc, char **argv);      /* Monte Carlo tables (offline/mc.h) */
+int cmd_train(int argc, char **argv);   /* fit the scattering networks (offline/train.h) */
+int cmd_table(int argc, char **argv);   /* NN/MC table, accuracy report */
+int cmd_compare(int argc, char **argv); /* PSNR/RMSE of two images (io/image_metrics.h) */
+int cmd_bench(int argc, char **argv);   /* benchmark, report.md (cli/bench.h) */
 
 #endif

@@ -1,6 +1,6 @@
 /* gltf_shim.h — glTF 2.0 meshes to flat triangle lists, through tinygltf.
  *
- * The only C++ in the project lives behind this header (server/gltf_shim.cpp): tinygltf is
+ * The only C++ in the project lives behind this header (io/gltf_shim.cpp): tinygltf is
  * compiled there with its own file access, image decoding and image writing switched off,
  * and every C++ exception is caught inside the shim. The C side reads asset files itself
  * (after checking the name) and hands bytes over.
@@ -30,7 +30,7 @@ extern "C" {
  *
  * On success returns 0, *positions_out points to 9 * *triangle_count floats allocated
  * with malloc() (the caller frees them with free()), and *triangle_count >= 1.
- * On failure returns a negative ns_status (render/nscatter.h) and writes a one-line
+ * On failure returns a negative ns_status (render/include/nscatter.h) and writes a one-line
  * message to err: NS_ERR_INVALID_ARGUMENT for anything wrong with the file,
  * NS_ERR_LIMIT when it is over GLTF_MAX_BYTES or holds more than max_triangles triangles,
  * NS_ERR_OUT_OF_HOST_MEMORY when allocation fails. *positions_out is then NULL. */

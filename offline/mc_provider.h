@@ -1,4 +1,4 @@
-/* mc_provider.h — Monte Carlo tables for method "table" (render/nscatter.h ns_mc_tables_fn):
+/* mc_provider.h — Monte Carlo tables for method "table" (render/include/nscatter.h ns_mc_tables_fn):
  * the render library does not link the offline tracer, so the server hands it this provider.
  *
  * For one channel (g, albedo) it runs offline/mc.h's ns_mc_run at the default budget of

@@ -1,5 +1,5 @@
 /* nn_train.h — mini-batch gradient descent (Adam) for the 6->50->50->1 tanh network of
- * render/nn_weights.h, with the matrix products in OpenBLAS. The loss is the mean squared
+ * render/include/nn_weights.h, with the matrix products in OpenBLAS. The loss is the mean squared
  * error between the network output and the (already transformed) target. */
 #ifndef NS_NN_TRAIN_H
 #define NS_NN_TRAIN_H

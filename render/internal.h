@@ -1,5 +1,5 @@
 /* internal.h — what the render library's modules share with each other and with the GPU
- * tests, but not with the server (which sees render/nscatter.h only). */
+ * tests, but not with the server (which sees render/include/nscatter.h only). */
 #ifndef NS_RENDER_INTERNAL_H
 #define NS_RENDER_INTERNAL_H
 

@@ -1,6 +1,6 @@
 /* nn_reconstruct.h — (private to render/) the double and multiple scattering tables of an
  * RGB material, reconstructed from the networks by shaders/nn_reconstruct.comp (issue 4);
- * render/nn.h wraps it for code outside render/.
+ * render/include/nn.h wraps it for code outside render/.
  *
  * One dispatch evaluates both networks at every cell centre of the table, for the three
  * channels (each channel its own albedo, g shared). Optionally each of the six tables is then

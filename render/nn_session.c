@@ -1,4 +1,4 @@
-/* nn_session.c — device + pipeline + networks behind the opaque handle of render/nn.h. */
+/* nn_session.c — device + pipeline + networks behind the opaque handle of render/include/nn.h. */
 #include <stdlib.h>
 #include <string.h>
 

@@ -1,5 +1,5 @@
 #version 450
-// nn_reconstruct.comp — evaluates the scattering networks (render/nn_weights.h) at the
+// nn_reconstruct.comp — evaluates the scattering networks (render/include/nn_weights.h) at the
 // nodes of a table (the bins GpuNnParams.interp lists per axis: every cell, or every
 // stride-th bin for nn_interpolate.comp to fill in): gl_GlobalInvocationID.x picks 16
 // consecutive nodes, .y the RGB channel (each its own albedo), .z the order (0 double, 1

@@ -70,7 +70,7 @@ NS_CONST(uint, NS_PT_YIELD_LAVAPIPE, 1000);
  * a runaway job: at lavapipe's 15-30 ms per dispatch it is hours. */
 NS_CONST(uint, NS_PT_MAX_DISPATCHES, 1000000);
 
-/* NS_COMPONENT_* bits of render/nscatter.h, for the shader (render/pt.c checks they match). */
+/* NS_COMPONENT_* bits of render/include/nscatter.h, for the shader (render/pt.c checks they match). */
 NS_CONST(uint, NS_PT_SURFACE, 1);
 NS_CONST(uint, NS_PT_SINGLE, 2);
 NS_CONST(uint, NS_PT_DOUBLE, 4);

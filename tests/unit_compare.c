@@ -1,4 +1,4 @@
-/* unit_compare.c — image comparison (server/image_metrics.c) and `nscatter compare`:
+/* unit_compare.c — image comparison (io/image_metrics.c) and `nscatter compare`:
  * closed-form metrics (identical images, a constant offset, one channel, masks), PNG
  * decoding to linear, the false-colour ramp, and the CLI's JSON and exit statuses for
  * size mismatches, corrupt and missing files. */

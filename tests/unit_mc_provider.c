@@ -1,4 +1,4 @@
-/* unit_mc_provider.c — the Monte Carlo table provider of method "table" (server/mc_provider.c)
+/* unit_mc_provider.c — the Monte Carlo table provider of method "table" (offline/mc_provider.c)
  * at a tiny budget: where its cache directory comes from, that it computes both orders with
  * the exact energies (to Monte Carlo accuracy), serves them from disk the second time (the
  * same bytes), never trusts a damaged file (recomputes it, same bytes again: fixed seed), still

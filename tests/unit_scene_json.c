@@ -187,7 +187,7 @@ static void test_components_per_method(void)
 }
 
 /* With only the surface component, the example parses, and every number lands where the
- * contract (render/nscatter.h) says. */
+ * contract (render/include/nscatter.h) says. */
 static void test_example_scene_values(void)
 {
     char *text = example_scene("[\"surface\"]");
