@@ -161,12 +161,12 @@ static uint64_t scene_buffer_bytes(const gpu_buffer_desc descs[NS_SCENE_BUFFER_C
 
 /* Fails after the params and BVH buffers exist: the primitive buffer is larger than the
  * device allows a storage buffer to be, and every buffer made before it is freed. No valid
- * scene reaches the limit of a desktop GPU (4 GiB there, while NS_MAX_TRIANGLES x 64 bytes is
- * 256 MiB), so this test lowers the limit the context read from the device to 16 bytes below
- * a small mesh's primitive buffer, as if the device were that small: gpu_buffer_create checks
- * every buffer against that same field, so the path taken is the one a real limit takes, on
- * every device and in a fraction of a second. test_scene_beyond_the_device_limit below meets
- * the real limit where a valid scene can. */
+ * scene reaches the limit of a desktop GPU (commonly 4 GiB, while NS_MAX_TRIANGLES x 64 bytes
+ * is 256 MiB), so this test lowers the limit the context read from the device to 16 bytes
+ * below a small mesh's primitive buffer, as if the device were that small: gpu_buffer_create
+ * checks every buffer against that same field, so the path taken is the one a real limit
+ * takes, on every device and in a fraction of a second. test_scene_beyond_the_device_limit
+ * below meets the real limit where a valid scene can. */
 static void test_failure_after_upload_frees_buffers(void)
 {
     enum { COUNT = 4096 };
