@@ -123,15 +123,18 @@ static double table_exit(const double p[3], const double w[3])
     return fmin(uz, ur);
 }
 
+/* Accumulates j into *a_out (the caller frees it). Returns the status, and checks it: a
+ * caller that gives up on a failure is still counted as failed. */
 static int accumulate(const float *j, ns_accumulation mode, float **a_out, uint64_t *steps)
 {
     ns_scatter_tables t;
     ns_error err = {0};
     int status = ns_tables_accumulate(test_context(), j, mode, &t, steps, &err);
-    if (status) {
-        fprintf(stderr, "ns_tables_accumulate: %s\n", err.message);
+    if (status)
+        fprintf(stderr, "ns_tables_accumulate: %s (%s)\n", err.message, ns_status_name(status));
+    CHECK_INT(status, NS_OK);
+    if (status)
         return status;
-    }
     *a_out = malloc(3 * cells * sizeof(float));
     memcpy(*a_out, t.a.mapped, 3 * cells * sizeof(float));
     CHECK_REL(t.scale, 0.5, 1e-7);

@@ -7,12 +7,13 @@
 
 #include "harness.h"
 
+static const char *bin;
+
 /* Runs `$NSCATTER_BIN args 2>&1`, returns the exit status and the output in out. */
 static int run(const char *args, char *out, size_t size)
 {
-    const char *bin = getenv("NSCATTER_BIN");
     char cmd[1024];
-    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", bin ? bin : "nscatter", args);
+    snprintf(cmd, sizeof cmd, "'%s' %s 2>&1", bin, args);
     FILE *p = popen(cmd, "r");
     if (!p)
         return -1;
@@ -60,6 +61,16 @@ static void test_bad_usage(void)
 
 int main(void)
 {
+    /* The binary under test, never whatever `nscatter` the PATH holds. */
+    bin = getenv("NSCATTER_BIN");
+    if (!bin || !*bin) {
+        fprintf(stderr, "FAIL: NSCATTER_BIN is not set: run this test through ctest\n");
+        return 1;
+    }
+    /* These checks are about the default device, and the binary would read NSCATTER_DEVICE
+     * (set by whoever runs the tests on another device) as a choice of device: its children
+     * must not see it. */
+    unsetenv("NSCATTER_DEVICE");
     RUN(test_text);
     RUN(test_json);
     RUN(test_missing_device);

@@ -22,6 +22,9 @@ static ns_scene valid_scene(void)
     return s;
 }
 
+/* The error of the last expect_refused, for a test that checks more of its message. */
+static ns_error refused;
+
 static void expect_refused(const ns_scene *s, int want_status, const char *field)
 {
     ns_context *ctx = test_context();
@@ -34,6 +37,7 @@ static void expect_refused(const ns_scene *s, int want_status, const char *field
     CHECK_STR_CONTAINS(err.message, field);
     CHECK(img.rgb == NULL && img.width == 0);
     CHECK_INT(ctx->dev.live_buffers, buffers_before);
+    refused = err;
 }
 
 static void test_valid_scene_renders(void)
@@ -120,33 +124,110 @@ static void test_unavailable_components(void)
     expect_refused(&s, NS_ERR_NOT_AVAILABLE, "multiple");
 }
 
-/* Fails after the params and BVH buffers exist: the primitive buffer is larger than a
- * storage buffer may be (2.2 M triangles x 64 bytes > 128 MiB on lavapipe). */
-static void test_failure_after_upload_frees_buffers(void)
+/* A sheet of `count` small triangles in front of the camera; NULL when out of memory. */
+static ns_triangle *triangle_sheet(uint64_t count)
 {
-    ns_context *ctx = test_context();
-    uint64_t limit = ctx->dev.properties.limits.maxStorageBufferRange;
-    uint64_t count = limit / sizeof(GpuPrim) + 16;
-    if (count > NS_MAX_TRIANGLES) {
-        fprintf(stderr, "skip: this device's storage buffers hold every allowed triangle\n");
-        return;
-    }
     ns_triangle *tris = malloc(sizeof *tris * count);
-    if (!tris)
-        return;
-    for (uint64_t i = 0; i < count; i++) {
+    for (uint64_t i = 0; tris && i < count; i++) {
         float x = (float)(i % 2048) * 0.01f, y = (float)(i / 2048) * 0.01f;
         set3(tris[i].v[0], x, y, -3);
         set3(tris[i].v[1], x + 0.01, y, -3);
         set3(tris[i].v[2], x, y + 0.01, -3);
     }
+    return tris;
+}
+
+/* The valid scene with its sphere replaced by the mesh of `count` triangles. */
+static ns_scene mesh_scene(const ns_triangle *tris, uint32_t count)
+{
     ns_scene s = valid_scene();
     objects[0].shape = NS_SHAPE_MESH;
     objects[0].first_triangle = 0;
-    objects[0].triangle_count = (uint32_t)count;
+    objects[0].triangle_count = count;
     s.triangles = tris;
-    s.triangle_count = (uint32_t)count;
-    expect_refused(&s, NS_ERR_LIMIT, "ns.scene.prims");
+    s.triangle_count = count;
+    return s;
+}
+
+/* The size gpu_buffer_create gives the scene buffer labelled `label` (rounded up to 16). */
+static uint64_t scene_buffer_bytes(const gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT],
+                                   const char *label)
+{
+    for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
+        if (descs[i].label && !strcmp(descs[i].label, label))
+            return descs[i].size < 16 ? 16 : (descs[i].size + 15) & ~(uint64_t)15;
+    return 0;
+}
+
+/* Fails after the params and BVH buffers exist: the primitive buffer is larger than the
+ * device allows a storage buffer to be, and every buffer made before it is freed. No valid
+ * scene reaches the limit of a desktop GPU (commonly 4 GiB, while NS_MAX_TRIANGLES x 64 bytes
+ * is 256 MiB), so this test lowers the limit the context read from the device to 16 bytes
+ * below a small mesh's primitive buffer, as if the device were that small: gpu_buffer_create
+ * checks every buffer against that same field, so the path taken is the one a real limit
+ * takes, on every device and in a fraction of a second. test_scene_beyond_the_device_limit
+ * below meets the real limit where a valid scene can. */
+static void test_failure_after_upload_frees_buffers(void)
+{
+    enum { COUNT = 4096 };
+    ns_context *ctx = test_context();
+    ns_triangle *tris = triangle_sheet(COUNT);
+    CHECK(tris != NULL);
+    if (!tris)
+        return;
+    ns_scene s = mesh_scene(tris, COUNT);
+    /* The sizes of the buffers the render will make for this scene. */
+    ns_gpu_scene gs;
+    ns_error err = {0};
+    int status = ns_gpu_scene_build(&s, &gs, &err);
+    if (status)
+        fprintf(stderr, "ns_gpu_scene_build: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
+    uint64_t nodes = 0, prims = 0;
+    if (!status) {
+        ns_gpu_scene_buffer_descs(&gs, descs);
+        nodes = scene_buffer_bytes(descs, "ns.scene.bvh_nodes");
+        prims = scene_buffer_bytes(descs, "ns.scene.prims");
+    }
+    ns_gpu_scene_free(&gs);
+    uint64_t limit = prims - 16;
+    /* The test means something only if the BVH's buffer fits under the lowered limit (it is
+     * made first) and the primitive buffer does not. */
+    CHECK(nodes > 0 && nodes <= limit);
+    CHECK(prims > 16 && prims <= ctx->dev.properties.limits.maxStorageBufferRange);
+    if (!status && nodes > 0 && nodes <= limit && prims > 16) {
+        uint32_t real = ctx->dev.properties.limits.maxStorageBufferRange;
+        ctx->dev.properties.limits.maxStorageBufferRange = (uint32_t)limit;
+        expect_refused(&s, NS_ERR_LIMIT, "'ns.scene.prims'");
+        char allows[64];
+        snprintf(allows, sizeof allows, "the device allows %llu", (unsigned long long)limit);
+        CHECK_STR_CONTAINS(refused.message, allows);
+        ctx->dev.properties.limits.maxStorageBufferRange = real;
+    }
+    free(tris);
+}
+
+/* The same failure at the device's real limit (2.2 M triangles x 64 bytes > 128 MiB on
+ * lavapipe), where a valid scene can exceed it. */
+static void test_scene_beyond_the_device_limit(void)
+{
+    ns_context *ctx = test_context();
+    uint64_t limit = ctx->dev.properties.limits.maxStorageBufferRange;
+    uint64_t count = limit / sizeof(GpuPrim) + 16;
+    if (count > NS_MAX_TRIANGLES)
+        SKIP("this device's storage buffers hold NS_MAX_TRIANGLES triangles and more: no "
+             "valid scene exceeds them (test_failure_after_upload_frees_buffers covers the "
+             "path with a lowered limit)");
+    ns_triangle *tris = triangle_sheet(count);
+    CHECK(tris != NULL);
+    if (!tris)
+        return;
+    ns_scene s = mesh_scene(tris, (uint32_t)count);
+    expect_refused(&s, NS_ERR_LIMIT, "'ns.scene.prims'");
+    char allows[64];
+    snprintf(allows, sizeof allows, "the device allows %llu", (unsigned long long)limit);
+    CHECK_STR_CONTAINS(refused.message, allows);
     free(tris);
 }
 
@@ -160,6 +241,7 @@ int main(void)
     RUN(test_bad_counts_and_ranges);
     RUN(test_unavailable_components);
     RUN(test_failure_after_upload_frees_buffers);
+    RUN(test_scene_beyond_the_device_limit);
     ns_context_destroy(test_context());
     return harness_report();
 }

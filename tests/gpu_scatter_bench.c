@@ -307,10 +307,12 @@ static void bench_gather(int runs)
     ns_table_key key = {.source = NS_METHOD_NN, .g = 0.8f, .albedo = {0.98f, 0.962f, 0.75f},
                         .orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE};
     const ns_scatter_tables *tables = NULL;
-    if (ns_tables_get(ctx, &key, &tables, NULL, &err)) {
+    int status = ns_tables_get(ctx, &key, &tables, NULL, &err);
+    if (status)
         fprintf(stderr, "tables: %s\n", err.message);
+    CHECK_INT(status, NS_OK); /* a bench that could not run is a failure, not a quiet pass */
+    if (status)
         return;
-    }
     const uint32_t vrl_count = 40000, cells = 64, segment_count = 4096;
     ns_vrl_grid grid = {0};
     grid.vrls = calloc(vrl_count, sizeof *grid.vrls);
@@ -342,24 +344,26 @@ static void bench_gather(int runs)
         m.sigma_t[c] = 1.0f / (float)(c == 0 ? 0.65 : c == 1 ? 0.63 : 0.59);
     m.sigma_t[3] = 1.45f;
     gpu_buffer seg_buf = {0}, out = {0};
-    gpu_buffer_create(&ctx->dev, &seg_buf,
-                      &(gpu_buffer_desc){.size = sizeof *segments * segment_count, .data = segments,
-                                         .data_size = sizeof *segments * segment_count, .label = "bench"},
-                      &err);
-    gpu_buffer_create(&ctx->dev, &out, &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "bench"}, &err);
+    status = gpu_buffer_create(&ctx->dev, &seg_buf,
+                               &(gpu_buffer_desc){.size = sizeof *segments * segment_count, .data = segments,
+                                                  .data_size = sizeof *segments * segment_count, .label = "bench"},
+                               &err);
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &out,
+                                   &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "bench"}, &err);
     ns_gather_desc desc = {.segments = &seg_buf, .segment_count = segment_count, .grid = &grid,
                            .table = &tables->a, .out = &out};
     ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, tables, 0.0f, 0);
     double gpu[MAX_RUNS], cpu[MAX_RUNS];
-    for (int r = 0; r < runs; r++) {
+    for (int r = 0; r < runs && !status; r++) {
         ns_gather_counts counts;
         double t0 = ns_now_ms();
-        if (ns_gather_run(ctx, &desc, &counts, &err)) {
-            fprintf(stderr, "gather: %s\n", err.message);
-            break;
-        }
+        status = ns_gather_run(ctx, &desc, &counts, &err);
         gpu[r] = ns_now_ms() - t0;
     }
+    if (status)
+        fprintf(stderr, "gather: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
     float(*host)[4] = calloc(segment_count, sizeof *host);
     GpuGatherParams params = desc.params;
     params.counts[0] = segment_count;
@@ -377,7 +381,7 @@ static void bench_gather(int runs)
         cpu[r] = ns_now_ms() - t0;
     }
     double pairs = (double)vrl_count * segment_count;
-    double g = median(gpu, runs), c = median(cpu, runs);
+    double g = status ? NAN : median(gpu, runs), c = median(cpu, runs);
     printf("gather, %u VRLs x %u segments (%.0f M interactions), median of %d:\n", vrl_count,
            segment_count, pairs / 1e6, runs);
     printf("  GPU (%s): %8.1f ms  %7.1f M interactions/s\n", ctx->dev.info.device_name, g, pairs / g / 1e3);

@@ -4,15 +4,28 @@
  *
  *   static void test_something(void) { CHECK(x == 1); CHECK_NEAR(got, want, 1e-6); }
  *   int main(void) { RUN(test_something); return harness_report(); }
+ *
+ * A program that ran no check at all fails: a test whose every check was bypassed (an early
+ * return, a helper that gave up) proves nothing and must not look green.
+ *
+ * Skips are for what a machine may truly lack (never lavapipe, which CI always has: a
+ * missing default device must fail). SKIP("why") inside a RUN function skips that test
+ * function; harness_skip("why") skips the whole program with exit status
+ * HARNESS_SKIP_STATUS, which tests/CMakeLists.txt declares as SKIP_RETURN_CODE so that CTest
+ * counts it as a skip, not a pass. Both print the reason.
  */
 #ifndef NS_TEST_HARNESS_H
 #define NS_TEST_HARNESS_H
 
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
-static int harness_passed, harness_failed;
+/* CTest's SKIP_RETURN_CODE for every C test program (tests/CMakeLists.txt). */
+#define HARNESS_SKIP_STATUS 77
+
+static int harness_passed, harness_failed, harness_skipped;
 static const char *harness_current = "";
 
 #define CHECK(cond)                                                                          \
@@ -67,18 +80,61 @@ static const char *harness_current = "";
         }                                                                                    \
     } while (0)
 
+/* Skips the rest of the current test function (a void function run by RUN), saying why. */
+#define SKIP(reason)                                                                         \
+    do {                                                                                     \
+        harness_skipped++;                                                                   \
+        fprintf(stderr, "skip %s (%s:%d): %s\n", harness_current, __FILE__, __LINE__,        \
+                (reason));                                                                   \
+        return;                                                                              \
+    } while (0)
+
 #define RUN(fn)                                                                              \
     do {                                                                                     \
         harness_current = #fn;                                                               \
-        int before_ = harness_failed;                                                        \
+        int before_ = harness_failed, skipped_ = harness_skipped;                            \
         fn();                                                                                \
-        fprintf(stderr, "%s %s\n", harness_failed == before_ ? "ok  " : "FAIL", #fn);        \
+        fprintf(stderr, "%s %s\n",                                                           \
+                harness_failed != before_       ? "FAIL"                                     \
+                : harness_skipped != skipped_ ? "skip"                                       \
+                                              : "ok  ",                                      \
+                #fn);                                                                        \
     } while (0)
 
+/* The summary line and the exit status: 1 if a check failed or none ran at all,
+ * HARNESS_SKIP_STATUS if nothing was checked because everything was skipped, else 0. */
 static inline int harness_report(void)
 {
-    printf("%d passed, %d failed\n", harness_passed, harness_failed);
-    return harness_failed ? 1 : 0;
+    if (harness_skipped)
+        printf("%d passed, %d failed, %d skipped\n", harness_passed, harness_failed,
+               harness_skipped);
+    else
+        printf("%d passed, %d failed\n", harness_passed, harness_failed);
+    if (harness_failed)
+        return 1;
+    if (harness_passed == 0 && harness_skipped > 0) {
+        printf("skipped: no check ran, every test was skipped (reasons above)\n");
+        return HARNESS_SKIP_STATUS;
+    }
+    if (harness_passed == 0) {
+        printf("FAIL: no check ran: a test program that checks nothing proves nothing\n");
+        return 1;
+    }
+    return 0;
+}
+
+/* Skips the whole program: prints the reason and exits with HARNESS_SKIP_STATUS, unless a
+ * check has already failed, which stays a failure. */
+_Noreturn static inline void harness_skip(const char *reason)
+{
+    fflush(stderr);
+    if (harness_failed) {
+        printf("%d passed, %d failed; then skipped: %s\n", harness_passed, harness_failed,
+               reason);
+        exit(1);
+    }
+    printf("skipped: %s\n", reason);
+    exit(HARNESS_SKIP_STATUS);
 }
 
 #endif

@@ -105,11 +105,17 @@ static int expected_interpolated(const field *fd, int x, int y, int levels, floa
     return 1;
 }
 
+/* Runs the rounds; returns 1 when they ran. The status is checked here, so that a caller
+ * that gives up on a failure is still counted as failed. */
 static int run(field *fd, uint32_t levels, float tolerance)
 {
     fd->gathered = 0;
-    return ns_adaptive_tiles(W, H, levels, tolerance, materials, distances, gather, fd, radiance,
-                             interpolated) == 0;
+    int status = ns_adaptive_tiles(W, H, levels, tolerance, materials, distances, gather, fd,
+                                   radiance, interpolated);
+    if (status)
+        fprintf(stderr, "ns_adaptive_tiles: status %d (out of memory)\n", status);
+    CHECK_INT(status, 0);
+    return status == 0;
 }
 
 /* Compares the rounds with the rule; returns how many tiles it interpolated. */
