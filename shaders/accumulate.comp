@@ -44,7 +44,7 @@ layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuAccumulatePush push; };
 
-const float PI = 3.14159265358979;
+#include "common.glsl"
 const float ANGLE_STEP = PI / float(NS_TABLE_NTHETA); // theta and phi bins: 10 degrees
 const float FAR = 3.0e38;
 const int NZ = int(NS_TABLE_NZ), NRHO = int(NS_TABLE_NRHO), NPHI = int(NS_TABLE_NPHI);

@@ -21,83 +21,9 @@ layout(std430, binding = 6) writeonly buffer SegmentBlock { GpuSegment segments[
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuSamplePush push; };
 
-const float PI = 3.14159265358979;
-
-// ---------------------------------------------------------------------------------------
-// Deterministic random numbers: a PCG hash chain seeded from render.seed and the pixel.
-// ---------------------------------------------------------------------------------------
-uint rng_state;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float rnd()
-{
-    rng_state = pcg_hash(rng_state);
-    return float(rng_state >> 8u) * (1.0 / 16777216.0);
-}
-
-// Offset for spawning rays off a surface, relative to the position's magnitude.
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
-
-vec3 sigma_t_of(uint material)
-{
-    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
-}
-
-// exp(-sigma_t * distance) that is exactly 1 for sigma_t 0 even at infinite distance.
-vec3 beer_lambert(vec3 sigma_t, float distance)
-{
-    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
-                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
-                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
-    return exp(-tau);
-}
-
-// Orthonormal basis around n (Duff et al. 2017).
-void basis(vec3 n, out vec3 t, out vec3 b)
-{
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-// ---------------------------------------------------------------------------------------
-// Shadow rays: diffuse surfaces and refracting boundaries block light (this pass does not
-// follow caustics); index-matched media let it through with their Beer-Lambert factor.
-// ---------------------------------------------------------------------------------------
-vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium)
-{
-    vec3 tau = vec3(0.0);
-    float t_enter = 0.0, tmin = 0.0;
-    for (int crossing = 0; crossing < 16; crossing++) {
-        Hit h;
-        if (!trace_scene(o, d, tmin, tmax, h))
-            break;
-        uint m = prims[h.prim].info.y;
-        GpuMaterial mat = materials[m];
-        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
-            return vec3(0.0);
-        if (!h.front && medium != NS_NONE)
-            tau += sigma_t_of(medium) * (h.t - t_enter);
-        medium = h.front ? m : NS_NONE;
-        t_enter = h.t;
-        tmin = h.t + ray_epsilon(o + h.t * d);
-    }
-    vec3 tr = exp(-tau);
-    if (medium != NS_NONE)
-        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
-    return tr;
-}
+#define NS_COMMON_TRACE
+#define NS_COMMON_LIGHTS
+#include "common.glsl"
 
 // Outgoing radiance of a Lambertian surface of reflectance rho at p (n faces the viewer)
 // from all lights, one shadow ray each.
@@ -114,7 +40,7 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium);
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -122,59 +48,26 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium);
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             // Uniform sampling of the cone the sphere subtends (pdf 1 / solid angle).
-            vec3 v = light.position.xyz - o;
-            float d2 = dot(v, v);
-            float r2 = light.position.w * light.position.w;
-            if (d2 <= r2)
+            vec3 wi;
+            float t_light, solid_angle;
+            if (!sample_sphere_light(light, o, wi, t_light, solid_angle))
                 continue;
-            float dist = sqrt(d2);
-            float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
-            float cos_t = 1.0 - rnd() * (1.0 - cos_max);
-            float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
-            float phi = 2.0 * PI * rnd();
-            vec3 w = v / dist, tx, ty;
-            basis(w, tx, ty);
-            vec3 wi = normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + w * cos_t);
             float c = dot(n, wi);
             if (c <= 0.0)
                 continue;
-            float t_light = hit_sphere(o, wi, light.position, 0.0, NS_INF);
-            if (t_light < 0.0)
-                t_light = dist; // grazing the silhouette in float: treat as the centre distance
-            float solid_angle = 2.0 * PI * (1.0 - cos_max);
-            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium);
+            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false);
         }
     }
     // Every environment light together: one cosine-distributed ray, whose pdf cancels the
     // cosine and 1/pi of the Lambertian BRDF.
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
-        float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
-        vec3 tx, ty;
-        basis(n, tx, ty);
-        vec3 wi = normalize(tx * (r * cos(phi)) + ty * (r * sin(phi)) + n * sqrt(max(0.0, 1.0 - r * r)));
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium);
+        vec3 wi = cosine_sample_direct(n);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false);
     }
     return rho * sum;
-}
-
-// Nearest sphere light along the ray before tmax (they are seen, but cast no shadows).
-float hit_sphere_lights(vec3 o, vec3 d, float tmax, out uint which)
-{
-    which = NS_NONE;
-    float best = tmax;
-    for (uint i = 0u; i < params.counts.y; i++) {
-        if (lights[i].info.x != NS_GPU_LIGHT_SPHERE)
-            continue;
-        float t = hit_sphere(o, d, lights[i].position, 0.0, best);
-        if (t > 0.0) {
-            best = t;
-            which = i;
-        }
-    }
-    return best;
 }
 
 void record_segment(vec3 a, vec3 b, vec3 d, vec3 w, uint material, uint pixel, uint s, uint depth)
@@ -192,20 +85,6 @@ void record_segment(vec3 a, vec3 b, vec3 d, vec3 w, uint material, uint pixel, u
     segments[index].sample_index = s;
     segments[index].throughput = w;
     segments[index].depth = depth;
-}
-
-// Unpolarised Fresnel reflectance of a smooth dielectric; eta = n_incident / n_transmitted,
-// cos_i > 0. Returns 1 on total internal reflection, and cos_t of the refracted ray.
-float fresnel(float cos_i, float eta, out float cos_t)
-{
-    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
-    cos_t = 0.0;
-    if (sin2_t >= 1.0)
-        return 1.0;
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -279,7 +158,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
                     reflected.entered = false;
                     PathState refracted = s;
                     refracted.o = p - n * eps;
-                    refracted.d = normalize(eta * s.d + (eta * cos_i - cos_t) * n);
+                    refracted.d = refract_direction(s.d, n, eta, cos_i, cos_t);
                     refracted.medium = next_medium;
                     refracted.entered = next_medium != NS_NONE;
                     if (f >= 1.0) {

@@ -38,7 +38,7 @@ layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuGatherPush push; };
 
-const float PI = 3.14159265358979;
+#include "common.glsl"
 
 struct Vrl {
     vec3 origin;

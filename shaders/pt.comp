@@ -38,61 +38,9 @@ layout(std430, binding = 6) buffer CounterBlock { uint counters[]; };
 layout(std430, binding = 7) buffer PathBlock { GpuPtPath paths[]; };
 layout(push_constant) uniform PushBlock { GpuPtPush push; };
 
-const float PI = 3.14159265358979;
-
-// ---------------------------------------------------------------------------------------
-// Random numbers: a PCG hash chain per pixel and sample (deterministic, split-invariant).
-// ---------------------------------------------------------------------------------------
-uint rng_state;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float rnd()
-{
-    rng_state = pcg_hash(rng_state);
-    return float(rng_state >> 8u) * (1.0 / 16777216.0);
-}
-
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
-
-vec3 sigma_t_of(uint material)
-{
-    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
-}
-
-// exp(-sigma_t * distance), exactly 1 for sigma_t 0 even at infinite distance.
-vec3 beer_lambert(vec3 sigma_t, float distance)
-{
-    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
-                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
-                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
-    return exp(-tau);
-}
-
-void basis(vec3 n, out vec3 t, out vec3 b)
-{
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-vec3 around(vec3 axis, float cos_t, float phi)
-{
-    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
-    vec3 tx, ty;
-    basis(axis, tx, ty);
-    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
-}
+#define NS_COMMON_TRACE
+#define NS_COMMON_LIGHTS
+#include "common.glsl"
 
 bool order_counts(uint events)
 {
@@ -100,78 +48,6 @@ bool order_counts(uint events)
              : events == 1u ? NS_PT_SINGLE
              : events == 2u ? NS_PT_DOUBLE : NS_PT_MULTIPLE;
     return (push.components & bit) != 0u && events <= push.max_events;
-}
-
-// ---------------------------------------------------------------------------------------
-// Henyey-Greenstein, cos measured between the propagation directions before and after.
-// ---------------------------------------------------------------------------------------
-float hg_phase(float cos_t, float g)
-{
-    float denom = 1.0 + g * g - 2.0 * g * cos_t;
-    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
-}
-
-vec3 hg_sample(vec3 d, float g)
-{
-    float u = rnd();
-    float cos_t;
-    if (abs(g) < 1e-3) {
-        cos_t = 1.0 - 2.0 * u;
-    } else {
-        float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
-        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
-    }
-    return around(d, cos_t, 2.0 * PI * rnd());
-}
-
-// ---------------------------------------------------------------------------------------
-// Shadow rays (as in the camera pass): blocked by diffuse surfaces and refracting
-// boundaries, attenuated by index-matched media.
-// ---------------------------------------------------------------------------------------
-vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium)
-{
-    vec3 tau = vec3(0.0);
-    float t_enter = 0.0, tmin = 0.0;
-    for (int crossing = 0; crossing < 16; crossing++) {
-        Hit h;
-        if (!trace_scene(o, d, tmin, tmax, h))
-            break;
-        uint m = prims[h.prim].info.y;
-        GpuMaterial mat = materials[m];
-        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
-            return vec3(0.0);
-        if (!h.front && medium != NS_NONE)
-            tau += sigma_t_of(medium) * (h.t - t_enter);
-        medium = h.front ? m : NS_NONE;
-        t_enter = h.t;
-        tmin = h.t + ray_epsilon(o + h.t * d);
-    }
-    vec3 tr = exp(-tau);
-    if (medium != NS_NONE)
-        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
-    return tr;
-}
-
-// A direction towards sphere light `light` from o, uniform in the cone it subtends.
-// Returns false when o is inside it. solid_angle = the cone's (1 / pdf).
-bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float solid_angle)
-{
-    vec3 v = light.position.xyz - o;
-    float d2 = dot(v, v);
-    float r2 = light.position.w * light.position.w;
-    wi = vec3(0.0, 0.0, 1.0);
-    t_light = 0.0;
-    solid_angle = 0.0;
-    if (d2 <= r2)
-        return false;
-    float dist = sqrt(d2);
-    float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
-    wi = around(v / dist, 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
-    t_light = hit_sphere(o, wi, light.position, 0.0, NS_INF);
-    if (t_light < 0.0)
-        t_light = dist; // grazing the silhouette in float
-    solid_angle = 2.0 * PI * (1.0 - cos_max);
-    return true;
 }
 
 // Radiance leaving a Lambertian surface (n faces the viewer) from every light; the path
@@ -189,7 +65,7 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium);
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -197,7 +73,7 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium);
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
@@ -205,13 +81,12 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
                 continue;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium);
+                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false);
         }
     }
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
-        float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
-        vec3 wi = around(n, sqrt(max(0.0, 1.0 - r * r)), phi);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium);
+        vec3 wi = cosine_sample(n);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false);
     }
     return rho * sum;
 }
@@ -229,61 +104,22 @@ vec3 direct_light_medium(vec3 p, vec3 d, float g, uint medium)
         uint kind = light.info.x;
         if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
             vec3 wi = -light.direction.xyz;
-            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium);
+            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium, false);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - p;
             float d2 = dot(v, v);
             float dist = sqrt(d2);
             vec3 wi = v / dist;
-            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium);
+            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium, false);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
             if (sample_sphere_light(light, p, wi, t_light, solid_angle))
                 sum += light.color.rgb * hg_phase(dot(d, wi), g) * solid_angle *
-                       transmittance(p, wi, t_light, medium);
+                       transmittance(p, wi, t_light, medium, false);
         }
     }
     return sum;
-}
-
-float hit_sphere_lights(vec3 o, vec3 d, float tmax, out uint which)
-{
-    which = NS_NONE;
-    float best = tmax;
-    for (uint i = 0u; i < params.counts.y; i++) {
-        if (lights[i].info.x != NS_GPU_LIGHT_SPHERE)
-            continue;
-        float t = hit_sphere(o, d, lights[i].position, 0.0, best);
-        if (t > 0.0) {
-            best = t;
-            which = i;
-        }
-    }
-    return best;
-}
-
-// A hit that contradicts the medium the ray is in: leaving a medium while outside every
-// medium, or entering the one it is already in. Media do not nest, so this is a grazing
-// ray meeting the surface it just left within float error; it is stepped over. (Taken
-// as a real boundary, a reflection there would put the ray inside the medium with the
-// medium unset, trapped by total internal reflection: seen once in a million light
-// sub-paths on scenes/default.json.)
-bool spurious_boundary(bool front, uint hit_medium, uint medium)
-{
-    return front ? medium == hit_medium : medium == NS_NONE;
-}
-
-float fresnel(float cos_i, float eta, out float cos_t)
-{
-    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
-    cos_t = 0.0;
-    if (sin2_t >= 1.0)
-        return 1.0;
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -390,7 +226,7 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
         float light_distance = point ? distance(light.position.xyz, y) : NS_INF;
         float tolerance = point ? 1e-5 * (light_distance + distance(x, y)) : 1e-5;
         if (length(miss) <= tolerance) {
-            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE);
+            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE, false);
             return light.color.rgb * (hg_phase(dot(d, v), g) * transmit / abs(det)) *
                    beer_lambert(sigma_t_of(medium), distance(x, y)) * visible;
         }
@@ -475,17 +311,13 @@ LightVertex trace_light_subpath()
         // A point on the disk facing the light that covers the target sphere, just
         // outside it; the light must reach that point from infinity.
         d = light.direction.xyz;
-        vec3 tx, ty;
-        basis(d, tx, ty);
-        float rho = r * sqrt(rnd()), phi = 2.0 * PI * rnd();
-        float back = 1.001 * r + ray_epsilon(c);
-        o = c + rho * (cos(phi) * tx + sin(phi) * ty) - back * d;
-        beta = light.color.rgb * (PI * r * r) * transmittance(o, -d, NS_INF, NS_NONE);
+        o = disk_before_sphere(c, r, d);
+        beta = light.color.rgb * (PI * r * r) * transmittance(o, -d, NS_INF, NS_NONE, false);
     } else {
         o = light.position.xyz;
         vec3 v = c - o;
         float dist2 = dot(v, v);
-        float cos_max = dist2 > r * r ? sqrt(1.0 - r * r / dist2) : -1.0;
+        float cos_max = cone_cos(o, c, r);
         d = around(dist2 > 0.0 ? normalize(v) : vec3(0.0, 0.0, 1.0), 1.0 - rnd() * (1.0 - cos_max),
                    2.0 * PI * rnd());
         beta = light.color.rgb * (2.0 * PI * (1.0 - cos_max));
@@ -501,9 +333,7 @@ LightVertex trace_light_subpath()
         if (medium != NS_NONE) {
             GpuMaterial mm = materials[medium];
             vec3 st = mm.sigma_t.xyz;
-            float u_channel = rnd();
-            float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
-            float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+            float t = free_flight(st);
             float t_end = hit ? h.t : NS_INF;
             if (t < t_end) {
                 vec3 tr = exp(-st * t);
@@ -555,7 +385,7 @@ LightVertex trace_light_subpath()
         bool reflects = f >= 1.0 || rnd() < f;
         if (h.front && !reflects) { // refracted in
             o = p - n * eps;
-            d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+            d = refract_direction(d, n, eta, cos_i, cos_t);
             medium = m;
             entered = true;
         } else if (!h.front && reflects) { // reflected back in from the inside
@@ -592,7 +422,7 @@ vec3 connect_light_vertex(vec3 o, vec3 d, float t_end, vec3 w, uint medium, vec3
     GpuMaterial mm = materials[medium];
     float g = mm.sigma_s.w;
     vec3 f = w * exp(-mm.sigma_t.xyz * t) * mm.sigma_s.xyz * hg_phase(dot(d, wi), g) *
-             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium);
+             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium, false);
     // beta is flux inside the medium, so f * beta is radiance inside it; leaving a medium
     // of index n into vacuum divides radiance by n^2. Camera paths that enter and leave
     // again see both factors cancel and carry neither; this connection has only the exit.
@@ -638,9 +468,7 @@ bool path_step(inout PathState s)
                                                s.light.beta, s.light.dir);
         GpuMaterial mm = materials[s.medium];
         vec3 st = mm.sigma_t.xyz;
-        float u_channel = rnd();
-        float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
-        float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+        float t = free_flight(st);
         if (t < t_end) {
             // A scattering event: weight = transmittance * sigma_s / (mean of the three
             // channels' distance pdfs).
@@ -729,7 +557,7 @@ bool path_step(inout PathState s)
         s.d = normalize(reflect(s.d, n));
     } else {
         s.o = p - n * eps;
-        s.d = normalize(eta * s.d + (eta * cos_i - cos_t) * n);
+        s.d = refract_direction(s.d, n, eta, cos_i, cos_t);
         s.medium = next_medium;
     }
     s.nee_covered = false;

@@ -44,120 +44,8 @@ layout(push_constant) uniform PushBlock {
     uint segment_count;
 } push;
 
-const float PI = 3.14159265358979;
-
-// ---------------------------------------------------------------------------------------
-// Helpers shared in spirit with camera.comp (the same definitions, so that the two passes
-// agree on shadowing and Fresnel).
-// ---------------------------------------------------------------------------------------
-uint rng_state;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float rnd()
-{
-    rng_state = pcg_hash(rng_state);
-    return float(rng_state >> 8u) * (1.0 / 16777216.0);
-}
-
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
-
-vec3 sigma_t_of(uint material)
-{
-    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
-}
-
-// exp(-sigma_t * distance) that is exactly 1 for sigma_t 0 even at infinite distance.
-vec3 beer_lambert(vec3 sigma_t, float distance)
-{
-    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
-                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
-                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
-    return exp(-tau);
-}
-
-void basis(vec3 n, out vec3 t, out vec3 b)
-{
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-// Shadow ray: diffuse surfaces and refracting boundaries block, index-matched media
-// attenuate. `medium` is the medium o lies in (NS_NONE outside).
-vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium)
-{
-    vec3 tau = vec3(0.0);
-    float t_enter = 0.0, tmin = 0.0;
-    for (int crossing = 0; crossing < 16; crossing++) {
-        if (out_of_budget())
-            break;
-        Hit h;
-        if (!trace_scene(o, d, tmin, tmax, h))
-            break;
-        uint m = prims[h.prim].info.y;
-        GpuMaterial mat = materials[m];
-        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
-            return vec3(0.0);
-        if (!h.front && medium != NS_NONE)
-            tau += sigma_t_of(medium) * (h.t - t_enter);
-        medium = h.front ? m : NS_NONE;
-        t_enter = h.t;
-        tmin = h.t + ray_epsilon(o + h.t * d);
-    }
-    vec3 tr = exp(-tau);
-    if (medium != NS_NONE)
-        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
-    return tr;
-}
-
-// Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted, cos_i > 0. Returns 1
-// on total internal reflection, and cos_t of the refracted ray.
-float fresnel(float cos_i, float eta, out float cos_t)
-{
-    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
-    cos_t = 0.0;
-    if (sin2_t >= 1.0)
-        return 1.0;
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
-}
-
-// Henyey-Greenstein, cos_theta between the light's travel direction and the scattered one.
-float phase_hg(float cos_theta, float g)
-{
-    float denom = 1.0 + g * g - 2.0 * g * cos_theta;
-    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
-}
-
-// A travel direction of incoming light drawn from p_HG about wo (pdf = p_HG).
-vec3 sample_hg(vec3 wo, float g)
-{
-    float u = rnd(), phi = 2.0 * PI * rnd();
-    float cos_theta;
-    if (abs(g) < 1e-3) {
-        cos_theta = 1.0 - 2.0 * u;
-    } else {
-        float q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
-        cos_theta = clamp((1.0 + g * g - q * q) / (2.0 * g), -1.0, 1.0);
-    }
-    float sin_theta = sqrt(max(0.0, 1.0 - cos_theta * cos_theta));
-    vec3 tx, ty;
-    basis(wo, tx, ty);
-    return normalize(tx * (sin_theta * cos(phi)) + ty * (sin_theta * sin(phi)) + wo * cos_theta);
-}
+#define NS_COMMON_TRACE
+#include "common.glsl"
 
 // ---------------------------------------------------------------------------------------
 // Light seen from a point p (outside the medium, or inside an index-matched one): the
@@ -189,22 +77,13 @@ LightSample sample_light(GpuLight light, vec3 p)
         s.valid = d2 > 0.0;
     } else {
         // Sphere: uniform over the cone it subtends (pdf 1 / solid angle), as camera.comp.
+        // The direction is drawn even from inside the light, where the sample is invalid,
+        // so that the random stream stays as it always was.
         vec3 v = light.position.xyz - p;
         float d2 = dot(v, v);
         float r2 = light.position.w * light.position.w;
         s.valid = d2 > r2;
-        float dist = sqrt(d2);
-        float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
-        float cos_t = 1.0 - rnd() * (1.0 - cos_max);
-        float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
-        float phi = 2.0 * PI * rnd();
-        vec3 w = v / dist, tx, ty;
-        basis(w, tx, ty);
-        s.toward = normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + w * cos_t);
-        s.distance = hit_sphere(p, s.toward, light.position, 0.0, NS_INF);
-        if (s.distance < 0.0)
-            s.distance = dist; // grazing the silhouette in float
-        s.irradiance = light.color.rgb * (2.0 * PI * (1.0 - cos_max));
+        s.irradiance = light.color.rgb * sphere_light_toward(light, p, s.toward, s.distance);
     }
     return s;
 }
@@ -229,7 +108,7 @@ vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
     LightSample s = sample_light(light, x);
     if (!s.valid)
         return vec3(0.0);
-    return s.irradiance * phase_hg(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium);
+    return s.irradiance * hg_phase(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium, true);
 }
 
 // A point light through the face at b, taken as the plane (b, n), as a flat face exactly:
@@ -288,9 +167,9 @@ vec3 point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, v
     vec3 travel = h > 0.0 ? normalize(x - y) : -n;
     vec3 to_light = p - y;
     float d_light = length(to_light);
-    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE);
+    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE, true);
     return light.color.rgb * ((1.0 - f) * spread) * outside * beer_lambert(mat.sigma_t.xyz, h / cos_t) *
-           phase_hg(dot(travel, wo), mat.sigma_s.w);
+           hg_phase(dot(travel, wo), mat.sigma_s.w);
 }
 
 vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial mat)
@@ -304,7 +183,7 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
         LightSample s = sample_light(light, x);
         if (!s.valid)
             return vec3(0.0);
-        return s.irradiance * phase_hg(dot(-s.toward, wo), g) * beer_lambert(mat.sigma_t.xyz, s.distance);
+        return s.irradiance * hg_phase(dot(-s.toward, wo), g) * beer_lambert(mat.sigma_t.xyz, s.distance);
     }
     // Anything but this medium's own boundary, left from inside, blocks the light.
     if (prims[h.prim].info.y != medium || h.front)
@@ -338,8 +217,8 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
     // Exact distance from x back to the plane through b along the refracted direction.
     float s_inside = max(0.0, dot(b - x, n)) / cos_t;
     vec3 e_inside = s.irradiance * ((1.0 - f) * cos_i / cos_t);
-    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE);
-    return e_inside * outside * beer_lambert(mat.sigma_t.xyz, s_inside) * phase_hg(dot(travel, wo), g);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE, true);
+    return e_inside * outside * beer_lambert(mat.sigma_t.xyz, s_inside) * hg_phase(dot(travel, wo), g);
 }
 
 // Environment radiance arriving at x from inside the medium along -back (back points where
@@ -347,10 +226,10 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
 // integral p_HG L_in over the sphere is L_in itself.
 vec3 environment_in(vec3 x, vec3 wo, uint medium, GpuMaterial mat)
 {
-    vec3 back = -sample_hg(wo, mat.sigma_s.w);
+    vec3 back = -hg_sample_mirrored(wo, mat.sigma_s.w);
     float ior = mat.sigma_t.w;
     if (ior == 1.0)
-        return params.environment.rgb * transmittance(x, back, NS_INF, medium);
+        return params.environment.rgb * transmittance(x, back, NS_INF, medium, true);
     Hit h;
     if (!trace_scene(x, back, 0.0, NS_INF, h))
         return params.environment.rgb * beer_lambert(mat.sigma_t.xyz, NS_INF);
@@ -366,7 +245,7 @@ vec3 environment_in(vec3 x, vec3 wo, uint medium, GpuMaterial mat)
     if (f >= 1.0)
         return vec3(0.0); // total internal reflection: no light from outside this way
     vec3 leaving = normalize(ior * back - (ior * cos_i - cos_t) * n);
-    vec3 outside = transmittance(b + n * ray_epsilon(b), leaving, NS_INF, NS_NONE);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), leaving, NS_INF, NS_NONE, true);
     return params.environment.rgb * (ior * ior * (1.0 - f)) * outside *
            beer_lambert(mat.sigma_t.xyz, h.t);
 }

@@ -33,101 +33,12 @@ layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuVrlPush push; };
 
-const float PI = 3.14159265358979;
-
-// ---------------------------------------------------------------------------------------
-// Random numbers: a PCG hash chain per path (deterministic for a seed).
-// ---------------------------------------------------------------------------------------
-uint rng_state;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float rnd()
-{
-    rng_state = pcg_hash(rng_state);
-    return float(rng_state >> 8u) * (1.0 / 16777216.0);
-}
-
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
-
-// Orthonormal basis around n (Duff et al. 2017).
-void basis(vec3 n, out vec3 t, out vec3 b)
-{
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-vec3 around(vec3 axis, float cos_t, float phi)
-{
-    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
-    vec3 tx, ty;
-    basis(axis, tx, ty);
-    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
-}
-
-vec3 uniform_sphere()
-{
-    return around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * rnd(), 2.0 * PI * rnd());
-}
-
-// A point uniform on the disk of radius r around c perpendicular to d.
-vec3 disk_point(vec3 c, vec3 d, float r)
-{
-    vec3 tx, ty;
-    basis(d, tx, ty);
-    float rho = r * sqrt(rnd()), phi = 2.0 * PI * rnd();
-    return c + rho * (cos(phi) * tx + sin(phi) * ty);
-}
-
-// Cosine of the half-angle of the cone from p that holds the sphere (c, r); -1 inside it.
-float cone_cos(vec3 p, vec3 c, float r)
-{
-    vec3 v = c - p;
-    float d2 = dot(v, v);
-    return d2 > r * r ? sqrt(1.0 - r * r / d2) : -1.0;
-}
-
-// Unpolarised Fresnel reflectance of a smooth dielectric (as camera.comp); eta = n_i / n_t.
-float fresnel(float cos_i, float eta, out float cos_t)
-{
-    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
-    cos_t = 0.0;
-    if (sin2_t >= 1.0)
-        return 1.0;
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
-}
-
-bool scatters(GpuMaterial m)
-{
-    return m.reflectance.w != 0.0 && max(m.sigma_s.x, max(m.sigma_s.y, m.sigma_s.z)) > 0.0;
-}
+#include "common.glsl"
 
 // An index-matched medium that does not scatter: light crosses it, attenuated.
 bool crossable(GpuMaterial m)
 {
     return m.reflectance.w != 0.0 && m.sigma_t.w == 1.0 && !scatters(m);
-}
-
-vec3 beer_lambert(vec3 sigma_t, float distance)
-{
-    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
-                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
-                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
-    return exp(-tau);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -203,10 +114,10 @@ bool emit(GpuLight light, vec3 c, float r, out vec3 o, out vec3 d, out uint medi
         // A uniform point on the disk perpendicular to d covering the target sphere, moved
         // back just outside it: E * area (directional); the environment first draws d
         // uniformly over the sphere of directions: L * 4 pi * area.
-        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? light.direction.xyz : uniform_sphere();
+        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? light.direction.xyz : uniform_sphere_around_z();
         float area = PI * r * r;
         beta = light.color.rgb * (kind == NS_GPU_LIGHT_DIRECTIONAL ? area : 4.0 * PI * area);
-        o = disk_point(c, d, r) - (1.001 * r + ray_epsilon(c)) * d;
+        o = disk_before_sphere(c, r, d);
         beta *= from_infinity(o, d, medium);
     } else if (kind == NS_GPU_LIGHT_POINT) {
         // Uniform directions in the cone subtending the sphere: I * solid angle.
@@ -220,7 +131,7 @@ bool emit(GpuLight light, vec3 c, float r, out vec3 o, out vec3 d, out uint medi
         // uniform direction in the cone from there to the target (pdf 1 / solid angle):
         // L * cos * solid angle * area, zero when the direction goes into the light. From a
         // point inside the target sphere, cosine-distributed directions: L * pi * area.
-        vec3 n = uniform_sphere();
+        vec3 n = uniform_sphere_around_z();
         float radius = light.position.w;
         float area = 4.0 * PI * radius * radius;
         o = light.position.xyz + radius * n;
@@ -229,8 +140,7 @@ bool emit(GpuLight light, vec3 c, float r, out vec3 o, out vec3 d, out uint medi
             d = around(normalize(c - o), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
             beta = light.color.rgb * (max(dot(n, d), 0.0) * 2.0 * PI * (1.0 - cos_max) * area);
         } else {
-            float s = sqrt(rnd());
-            d = around(n, sqrt(max(0.0, 1.0 - s * s)), 2.0 * PI * rnd());
+            d = cosine_sample(n);
             beta = light.color.rgb * (PI * area);
         }
         o += n * ray_epsilon(o);
@@ -267,7 +177,7 @@ GpuVrl enter(vec3 o, vec3 d, Hit h, vec3 beta, out Hit exit_hit)
         float cos_i = -dot(d, h.normal);
         float cos_t;
         float f = fresnel(cos_i, eta, cos_t); // from the outside: never total reflection
-        d_in = normalize(eta * d + (eta * cos_i - cos_t) * h.normal);
+        d_in = refract_direction(d, h.normal, eta, cos_i, cos_t);
         beta *= 1.0 - f;
     }
     float stretch = trace_scene(p, d_in, ray_epsilon(p), NS_INF, exit_hit) ? exit_hit.t : 0.0;

@@ -48,30 +48,7 @@ layout(std430, binding = 6) buffer ResultBlock { GpuVrlResult results[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuVrlGatherPush push; };
 
-const float PI = 3.14159265358979;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float unit_float(uint h)
-{
-    return float(h >> 8u) * (1.0 / 16777216.0);
-}
-
-float hg_phase(float cos_t, float g)
-{
-    float denom = 1.0 + g * g - 2.0 * g * cos_t;
-    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
-}
-
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
+#include "common.glsl"
 
 // Sines below this count as parallel lines (t sampled uniformly).
 const float PARALLEL_SIN = 1e-3;

@@ -33,86 +33,17 @@ layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuVrlTracePush push; };
 
-const float PI = 3.14159265358979;
-
-uint rng_state;
-
-uint pcg_hash(uint v)
-{
-    uint state = v * 747796405u + 2891336453u;
-    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-    return (word >> 22u) ^ word;
-}
-
-float rnd()
-{
-    rng_state = pcg_hash(rng_state);
-    return float(rng_state >> 8u) * (1.0 / 16777216.0);
-}
-
-float ray_epsilon(vec3 p)
-{
-    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
-}
-
-void basis(vec3 n, out vec3 t, out vec3 b)
-{
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
-vec3 around(vec3 axis, float cos_t, float phi)
-{
-    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
-    vec3 tx, ty;
-    basis(axis, tx, ty);
-    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
-}
-
-vec3 uniform_sphere()
-{
-    float z = 1.0 - 2.0 * rnd(), phi = 2.0 * PI * rnd();
-    float r = sqrt(max(0.0, 1.0 - z * z));
-    return vec3(r * cos(phi), r * sin(phi), z);
-}
-
-// Henyey-Greenstein sampling, cos between the directions before and after.
-vec3 hg_sample(vec3 d, float g)
-{
-    float u = rnd();
-    float cos_t;
-    if (abs(g) < 1e-3) {
-        cos_t = 1.0 - 2.0 * u;
-    } else {
-        float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
-        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
-    }
-    return around(d, cos_t, 2.0 * PI * rnd());
-}
-
-float fresnel(float cos_i, float eta, out float cos_t)
-{
-    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
-    cos_t = 0.0;
-    if (sin2_t >= 1.0)
-        return 1.0;
-    cos_t = sqrt(1.0 - sin2_t);
-    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    return 0.5 * (rs * rs + rp * rp);
-}
-
-bool scatters(GpuMaterial m)
-{
-    return m.reflectance.w != 0.0 && m.sigma_s.x + m.sigma_s.y + m.sigma_s.z > 0.0;
-}
+#define NS_COMMON_TRACE
+#include "common.glsl"
 
 // Transmittance from o to infinity along d outside the media (the light's side of a
 // directional or environment sample): blocked by diffuse surfaces and refracting
-// boundaries, attenuated by index-matched media, as the camera pass's shadow rays.
+// boundaries, attenuated by index-matched media, as the camera pass's shadow rays. It is
+// not common.glsl's transmittance(o, d, NS_INF, NS_NONE, false), which differs in two
+// cases and would change this method's images: a ray that leaves the scene inside an
+// index-matched medium keeps exp(-tau) here, where transmittance applies that medium's
+// Beer-Lambert to infinity (0 in every channel it attenuates); and a ray that runs out of
+// crossings is blocked here, where transmittance returns the attenuation so far.
 vec3 transmittance_to_infinity(vec3 o, vec3 d)
 {
     vec3 tau = vec3(0.0);
@@ -152,16 +83,6 @@ uint find_emitter(uint path)
     return lo;
 }
 
-// A point on the disk of the target sphere facing direction d, just before the sphere.
-vec3 disk_point(vec4 target, vec3 d)
-{
-    vec3 tx, ty;
-    basis(d, tx, ty);
-    float rho = target.w * sqrt(rnd()), phi = 2.0 * PI * rnd();
-    float back = 1.001 * target.w + ray_epsilon(target.xyz);
-    return target.xyz + rho * (cos(phi) * tx + sin(phi) * ty) - back * d;
-}
-
 // Direction from o uniform in the cone that the target sphere subtends (the whole sphere of
 // directions when o is inside it); returns the cone's solid angle (1 / pdf).
 float cone_towards(vec4 target, vec3 o, out vec3 d)
@@ -173,9 +94,7 @@ float cone_towards(vec4 target, vec3 o, out vec3 d)
         d = uniform_sphere();
         return 4.0 * PI;
     }
-    float cos_max = sqrt(max(0.0, 1.0 - r2 / dist2));
-    d = around(v / sqrt(dist2), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
-    return 2.0 * PI * (1.0 - cos_max);
+    return sample_cone(target, o, d);
 }
 
 // Emits the ray of `path`; flux = 0 when it carries nothing (a sphere light's back side,
@@ -190,7 +109,7 @@ void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_obje
         // Flux through the target's disk: E pi r^2 for a directional light; for a uniform
         // environment L every direction (4 pi) brings L pi r^2.
         d = kind == NS_GPU_LIGHT_DIRECTIONAL ? e.direction.xyz : uniform_sphere();
-        o = disk_point(e.target, d);
+        o = disk_before_sphere(e.target.xyz, e.target.w, d);
         float disk = PI * e.target.w * e.target.w;
         flux = color * disk * (kind == NS_GPU_LIGHT_DIRECTIONAL ? 1.0 : 4.0 * PI) *
                transmittance_to_infinity(o, -d);
@@ -232,8 +151,7 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
         GpuMaterial mat = materials[m];
         if (mat.reflectance.w == 0.0)
             return false;
-        bool spurious = h.front ? medium == m : medium == NS_NONE;
-        if (spurious) {
+        if (spurious_boundary(h.front, m, medium)) {
             o = p + d * eps;
             continue;
         }
@@ -246,7 +164,7 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
                 float cos_t;
                 float f = fresnel(cos_i, eta, cos_t);
                 flux *= 1.0 - f;
-                d = normalize(eta * d + (eta * cos_i - cos_t) * n);
+                d = refract_direction(d, n, eta, cos_i, cos_t);
             }
             w.origin = vec4(p - n * eps, max(flux.x, max(flux.y, flux.z)));
             w.direction = vec4(d, 0.0);
@@ -292,9 +210,7 @@ bool walk_step(inout GpuVrlWalk w)
 
     GpuMaterial mm = materials[w.state.z];
     vec3 st = mm.sigma_t.xyz;
-    float u_channel = rnd();
-    float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
-    float t = st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+    float t = free_flight(st);
     if (t < h.t) {
         vec3 tr = exp(-st * t);
         w.flux.xyz *= tr * mm.sigma_s.xyz / dot(st * tr, vec3(1.0 / 3.0));

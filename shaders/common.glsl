@@ -1,0 +1,373 @@
+// common.glsl — the helpers the kernels share: random numbers, ray offsets, Beer-Lambert,
+// the orthonormal basis, Fresnel, Henyey-Greenstein, direction sampling and, for kernels
+// that trace shadow rays, transmittance and the sphere lights. One definition each, so that
+// the passes cannot drift apart on shadowing, Fresnel or a random stream.
+//
+// Every helper is the exact code the kernels had, operation for operation: glslang keeps
+// the order of floating-point operations, so a rewritten expression (another order, a max
+// for a clamp, an extra normalize) can change an image's bits. Where two kernels had
+// different code for the same job, both forms are kept below under their own names, with
+// what differs; merging them would change the images of one of the kernels.
+//
+// Needs shared.h included first. The rest reads the scene and is compiled only for kernels
+// that ask for it, because GLSL rejects a function that names an undeclared buffer even
+// when nothing calls it: a kernel that defines NS_COMMON_TRACE before including this file
+// has included trace.glsl and declared materials[] (shadow rays, sphere lights, free
+// flights); one that also defines NS_COMMON_LIGHTS has declared lights[] (the sphere lights
+// a ray hits).
+
+const float PI = 3.14159265358979;
+
+// ---------------------------------------------------------------------------------------
+// Random numbers: a PCG hash (Jarzynski & Olano 2020) chained through rng_state. Each
+// kernel seeds rng_state from what a sample is (the render seed, the pixel or path, the
+// sample index), never from the order invocations run in, so an image does not depend on
+// scheduling or on how the work was split into dispatches.
+// ---------------------------------------------------------------------------------------
+uint rng_state;
+
+uint pcg_hash(uint v)
+{
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// A float in [0, 1) from the top 24 bits of a hash: a float holds 24 bits exactly, so every
+// value is equally likely and 1 is never reached.
+float unit_float(uint h)
+{
+    return float(h >> 8u) * (1.0 / 16777216.0);
+}
+
+float rnd()
+{
+    rng_state = pcg_hash(rng_state);
+    return unit_float(rng_state);
+}
+
+// ---------------------------------------------------------------------------------------
+// Geometry and attenuation.
+// ---------------------------------------------------------------------------------------
+
+// Offset for spawning rays off a surface. It grows with the position's magnitude because
+// the float error of a hit point does; 1 scene unit and below share one absolute offset.
+float ray_epsilon(vec3 p)
+{
+    return 1e-4 * max(1.0, max(abs(p.x), max(abs(p.y), abs(p.z))));
+}
+
+// exp(-sigma_t * distance), but exactly 1 in a channel whose sigma_t is 0, even at infinite
+// distance, where the product would be NaN (0 * inf).
+vec3 beer_lambert(vec3 sigma_t, float distance)
+{
+    vec3 tau = vec3(sigma_t.x > 0.0 ? sigma_t.x * distance : 0.0,
+                    sigma_t.y > 0.0 ? sigma_t.y * distance : 0.0,
+                    sigma_t.z > 0.0 ? sigma_t.z * distance : 0.0);
+    return exp(-tau);
+}
+
+// Orthonormal basis around the unit vector n (Duff et al. 2017): branch-free apart from the
+// sign, and without the cancellation of cross products with a fixed axis near that axis.
+void basis(vec3 n, out vec3 t, out vec3 b)
+{
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+// The unit direction at polar angle acos(cos_t) and azimuth phi about axis. The result is
+// normalised again because the basis and the sum round, and callers take dot products with
+// it as cosines.
+vec3 around(vec3 axis, float cos_t, float phi)
+{
+    float sin_t = sqrt(max(0.0, 1.0 - cos_t * cos_t));
+    vec3 tx, ty;
+    basis(axis, tx, ty);
+    return normalize(tx * (sin_t * cos(phi)) + ty * (sin_t * sin(phi)) + axis * cos_t);
+}
+
+// A hit that contradicts the medium the ray is in: leaving a medium while outside every
+// medium, or entering the one it is already in. Media do not nest, so this is a grazing
+// ray meeting the surface it just left within float error, and it is stepped over. (Taken
+// as a real boundary, a reflection there would put the ray inside the medium with the
+// medium unset, trapped by total internal reflection: seen once in a million light
+// sub-paths of pt.comp on scenes/default.json.)
+bool spurious_boundary(bool front, uint hit_medium, uint medium)
+{
+    return front ? medium == hit_medium : medium == NS_NONE;
+}
+
+// Whether a material is a medium that scatters light, rather than a diffuse surface or a
+// medium that only absorbs. vrl_trace.comp tested the sum of sigma_s rather than its
+// largest channel; scene_check.c holds every sigma_s finite and >= 0, and for such values
+// the two tests agree.
+bool scatters(GpuMaterial m)
+{
+    return m.reflectance.w != 0.0 && max(m.sigma_s.x, max(m.sigma_s.y, m.sigma_s.z)) > 0.0;
+}
+
+// ---------------------------------------------------------------------------------------
+// Smooth dielectric boundaries.
+// ---------------------------------------------------------------------------------------
+
+// Unpolarised Fresnel reflectance; eta = n_incident / n_transmitted, cos_i > 0. Returns 1
+// on total internal reflection, so that callers can take 1 - F as the transmitted part
+// without a separate test, and cos_t of the refracted ray.
+float fresnel(float cos_i, float eta, out float cos_t)
+{
+    float sin2_t = eta * eta * max(0.0, 1.0 - cos_i * cos_i);
+    cos_t = 0.0;
+    if (sin2_t >= 1.0)
+        return 1.0;
+    cos_t = sqrt(1.0 - sin2_t);
+    float rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    float rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// The refracted direction of d at a boundary whose normal n points back towards where d
+// comes from (cos_i = -dot(d, n) > 0), with the eta and cos_t that fresnel() returned, so
+// that the direction and the Fresnel weight agree on the angle. The refractions written
+// from the other side of the normal (pt.comp's leave_medium and specular_light, single.comp's
+// light_refracted and environment_in) order their operations differently and keep their
+// own expressions: rewritten through this one they would round differently.
+vec3 refract_direction(vec3 d, vec3 n, float eta, float cos_i, float cos_t)
+{
+    return normalize(eta * d + (eta * cos_i - cos_t) * n);
+}
+
+// ---------------------------------------------------------------------------------------
+// Henyey-Greenstein phase function; cos_t is measured between the two directions of
+// travel, so g > 0 scatters forwards.
+// ---------------------------------------------------------------------------------------
+float hg_phase(float cos_t, float g)
+{
+    float denom = 1.0 + g * g - 2.0 * g * cos_t;
+    return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
+}
+
+// A direction drawn from p_HG about d (pdf = p_HG). Near g = 0 the inverse CDF divides by
+// g, so the isotropic case is taken on its own.
+vec3 hg_sample(vec3 d, float g)
+{
+    float u = rnd();
+    float cos_t;
+    if (abs(g) < 1e-3) {
+        cos_t = 1.0 - 2.0 * u;
+    } else {
+        float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
+        cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
+    }
+    return around(d, cos_t, 2.0 * PI * rnd());
+}
+
+// The same distribution as hg_sample, as single.comp has always drawn it: for g != 0 its
+// inverse CDF divides by 1 - g + 2 g u where hg_sample's divides by 1 + g - 2 g u, that is
+// it reads u backwards (u = 0 gives cos -1 here, +1 there). Both sample p_HG exactly, but a
+// random number gives another direction and the two expressions round differently, so
+// single scattering keeps its own: sharing hg_sample would change its images.
+vec3 hg_sample_mirrored(vec3 d, float g)
+{
+    float u = rnd(), phi = 2.0 * PI * rnd();
+    float cos_t;
+    if (abs(g) < 1e-3) {
+        cos_t = 1.0 - 2.0 * u;
+    } else {
+        float q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
+        cos_t = clamp((1.0 + g * g - q * q) / (2.0 * g), -1.0, 1.0);
+    }
+    return around(d, cos_t, phi);
+}
+
+// ---------------------------------------------------------------------------------------
+// Direction and point sampling.
+// ---------------------------------------------------------------------------------------
+
+// A unit direction uniform over the sphere, from z uniform in [-1, 1] (Archimedes).
+vec3 uniform_sphere()
+{
+    float z = 1.0 - 2.0 * rnd(), phi = 2.0 * PI * rnd();
+    float r = sqrt(max(0.0, 1.0 - z * z));
+    return vec3(r * cos(phi), r * sin(phi), z);
+}
+
+// The same z and phi as uniform_sphere, as vrl.comp has always built the direction: through
+// around(+z), whose final normalize rounds the result differently from the direct formula.
+// The VRLs of the nn, table and dipole methods come from it, so it stays as it is.
+vec3 uniform_sphere_around_z()
+{
+    return around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * rnd(), 2.0 * PI * rnd());
+}
+
+// A cosine-distributed direction about n (pdf cos / pi), which cancels the cosine and the
+// 1 / pi of a Lambertian surface or a uniform sphere light's emission.
+vec3 cosine_sample(vec3 n)
+{
+    float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
+    return around(n, sqrt(max(0.0, 1.0 - r * r)), phi);
+}
+
+// The same distribution as cosine_sample, as camera.comp has always built it: the sine of
+// the polar angle is the r drawn, where around() recomputes it from the cosine (a value that
+// rounds differently). The surface images of every method but pt come from it.
+vec3 cosine_sample_direct(vec3 n)
+{
+    float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
+    vec3 tx, ty;
+    basis(n, tx, ty);
+    return normalize(tx * (r * cos(phi)) + ty * (r * sin(phi)) + n * sqrt(max(0.0, 1.0 - r * r)));
+}
+
+// A direction d from o uniform in the cone that the sphere (xyz, radius w) subtends; returns
+// the cone's solid angle (1 / pdf). Sampling the cone rather than the sphere's surface
+// wastes no sample on its far side. The result means nothing for o inside the sphere, which
+// the callers test (or ignore) themselves.
+float sample_cone(vec4 sphere, vec3 o, out vec3 d)
+{
+    vec3 v = sphere.xyz - o;
+    float d2 = dot(v, v);
+    float r2 = sphere.w * sphere.w;
+    float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
+    d = around(v / sqrt(d2), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+    return 2.0 * PI * (1.0 - cos_max);
+}
+
+// Cosine of the half-angle of the cone from p that holds the sphere (c, r); -1 inside it,
+// where the "cone" is every direction. The emission of vrl.comp and of pt.comp's light
+// sub-paths samples that cone about normalize(c - p) with this cosine. It is not
+// sample_cone: that one divides c - p by the distance, which rounds differently from
+// normalize, so sharing it would change the VRLs and the pt images.
+float cone_cos(vec3 p, vec3 c, float r)
+{
+    vec3 v = c - p;
+    float d2 = dot(v, v);
+    return d2 > r * r ? sqrt(1.0 - r * r / d2) : -1.0;
+}
+
+// A point uniform on the disk through the centre c of a sphere of radius r across d, moved
+// back along d to just outside the sphere: parallel rays along d from such points cover the
+// sphere with uniform density, for lights that arrive from infinity.
+vec3 disk_before_sphere(vec3 c, float r, vec3 d)
+{
+    vec3 tx, ty;
+    basis(d, tx, ty);
+    float rho = r * sqrt(rnd()), phi = 2.0 * PI * rnd();
+    return c + rho * (cos(phi) * tx + sin(phi) * ty) - (1.001 * r + ray_epsilon(c)) * d;
+}
+
+#ifdef NS_COMMON_TRACE
+// ---------------------------------------------------------------------------------------
+// Shadow rays, sphere lights and free flights: need trace.glsl and materials[].
+// ---------------------------------------------------------------------------------------
+
+vec3 sigma_t_of(uint material)
+{
+    return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
+}
+
+// Transmittance of a shadow ray from o (in `medium`, NS_NONE outside) along d up to tmax.
+// Diffuse surfaces and refracting boundaries block it, because light bent on the way is no
+// straight shadow ray (pt.comp reaches it by other strategies); index-matched boundaries
+// let it through with the Beer-Lambert factor of the media crossed.
+//
+// counted: each crossing counts one loop iteration (out_of_budget) and stops the ray once
+// the budget is spent. single.comp passes true: render/single.c sizes its dispatches from
+// the iterations counted, so they must include these, which lavapipe counts against its
+// limit. camera.comp and pt.comp pass false, as they always have: counting would move
+// their budget checks, and so their images.
+vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, bool counted)
+{
+    vec3 tau = vec3(0.0);
+    float t_enter = 0.0, tmin = 0.0;
+    for (int crossing = 0; crossing < 16; crossing++) {
+        if (counted && out_of_budget())
+            break;
+        Hit h;
+        if (!trace_scene(o, d, tmin, tmax, h))
+            break;
+        uint m = prims[h.prim].info.y;
+        GpuMaterial mat = materials[m];
+        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
+            return vec3(0.0);
+        if (!h.front && medium != NS_NONE)
+            tau += sigma_t_of(medium) * (h.t - t_enter);
+        medium = h.front ? m : NS_NONE;
+        t_enter = h.t;
+        tmin = h.t + ray_epsilon(o + h.t * d);
+    }
+    vec3 tr = exp(-tau);
+    if (medium != NS_NONE)
+        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
+    return tr;
+}
+
+// A direction wi towards the sphere light from o, uniform in the cone it subtends, and the
+// distance t_light to its surface along wi; returns the cone's solid angle (1 / pdf). It
+// draws its two random numbers even when o is inside the light (and the result means
+// nothing), because single.comp has always drawn them there.
+float sphere_light_toward(GpuLight light, vec3 o, out vec3 wi, out float t_light)
+{
+    float solid_angle = sample_cone(light.position, o, wi);
+    t_light = hit_sphere(o, wi, light.position, 0.0, NS_INF);
+    if (t_light < 0.0) {
+        // Grazing the silhouette the ray can miss the sphere in float: the centre's distance
+        // is then off by at most the radius.
+        vec3 v = light.position.xyz - o;
+        t_light = sqrt(dot(v, v));
+    }
+    return solid_angle;
+}
+
+// sphere_light_toward for a point that may lie inside the light: false there, without
+// drawing random numbers, because from inside the light has no cone to sample and
+// camera.comp and pt.comp take no light from it.
+bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float solid_angle)
+{
+    vec3 v = light.position.xyz - o;
+    float d2 = dot(v, v);
+    float r2 = light.position.w * light.position.w;
+    wi = vec3(0.0, 0.0, 1.0);
+    t_light = 0.0;
+    solid_angle = 0.0;
+    if (d2 <= r2)
+        return false;
+    solid_angle = sphere_light_toward(light, o, wi, t_light);
+    return true;
+}
+
+// A free-flight distance in a medium of extinction st for spectral MIS: one channel picked
+// uniformly, then an exponential distance in that channel (infinite where it is clear).
+// The caller weights an event at distance t by e^{-st t} sigma_s / mean(st e^{-st t}), the
+// one-sample balance heuristic over the three channels' pdfs, which keeps every channel
+// unbiased however different their extinctions are.
+float free_flight(vec3 st)
+{
+    float u_channel = rnd();
+    float st_c = u_channel < 1.0 / 3.0 ? st.x : (u_channel < 2.0 / 3.0 ? st.y : st.z);
+    return st_c > 0.0 ? -log(1.0 - rnd()) / st_c : NS_INF;
+}
+#endif
+
+#if defined(NS_COMMON_TRACE) && defined(NS_COMMON_LIGHTS)
+// The nearest sphere light along the ray before tmax, with which = NS_NONE when there is
+// none. Sphere lights are seen by camera rays but are not scene geometry: they cast no
+// shadows.
+float hit_sphere_lights(vec3 o, vec3 d, float tmax, out uint which)
+{
+    which = NS_NONE;
+    float best = tmax;
+    for (uint i = 0u; i < params.counts.y; i++) {
+        if (lights[i].info.x != NS_GPU_LIGHT_SPHERE)
+            continue;
+        float t = hit_sphere(o, d, lights[i].position, 0.0, best);
+        if (t > 0.0) {
+            best = t;
+            which = i;
+        }
+    }
+    return best;
+}
+#endif
