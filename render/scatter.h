@@ -57,10 +57,9 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
 int ns_tables_init(ns_context *ctx, ns_error *err);
 void ns_tables_destroy(ns_context *ctx); /* frees the cache and the networks; safe twice */
 
-/* The default table grid (the Monte Carlo grid of offline/mc.c, rebuilt here because render/
- * does not link offline/): edges in file order z, rho, theta, phi. */
-#define NS_TABLE_SINH_SCALE 0.5 /* mfp */
-#define NS_TABLE_EXTENT 400.0   /* mfp */
+/* The edges of the default table grid (render/include/table_grid.h, the grid offline/mc.c
+ * fills; rebuilt here because render/ does not link offline/), in file order z, rho, theta,
+ * phi. */
 typedef struct ns_table_grid {
     double z[NS_TABLE_NZ + 1], rho[NS_TABLE_NRHO + 1];
     double theta[NS_TABLE_NTHETA + 1], phi[NS_TABLE_NPHI + 1];
