@@ -7,6 +7,7 @@
 
 #include "gpu.h"
 #include "nscatter.h"
+#include "pipelines.h"
 #include "shared.h"
 
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
@@ -15,22 +16,9 @@ struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeli
 
 struct ns_context {
     gpu_device dev;
-    gpu_pipeline camera;     /* shaders/camera.comp */
-    gpu_pipeline trace_test; /* shaders/trace_test.comp */
-    /* The scattering stages (render/scatter.h); made and warmed with the others. */
-    gpu_pipeline accumulate; /* shaders/accumulate.comp */
-    gpu_pipeline vrl;        /* shaders/vrl.comp */
-    gpu_pipeline gather;     /* shaders/gather.comp */
-    gpu_pipeline single;     /* shaders/single.comp */
-    gpu_pipeline vrl_trace;  /* shaders/vrl_trace.comp (method vrl) */
-    gpu_pipeline vrl_gather; /* shaders/vrl_gather.comp (method vrl) */
-    /* shaders/pt.comp: made by the first pt render and kept. Its compile (~0.3 s on
-     * lavapipe) is paid once per context, and never by a context that renders no pt. */
-    gpu_pipeline pt;
-    /* The gather's other forms (gather.c ns_gather_pipeline: bounded beams, the paper's
-     * accumulation, the dipole), one shader each: made by the first gather that needs one
-     * and kept, like pt. gather above is the default form, made with the others. */
-    gpu_pipeline gather_forms[5];
+    /* Every pipeline of the renderer but the networks', by ns_pipeline_id: made at start-up
+     * or on first use as render/pipelines.c's table says; get one with ns_pipeline. */
+    gpu_pipeline pipelines[NS_PIPELINE_CONTEXT_COUNT];
     struct ns_table_cache *tables;
     struct ns_nn_state *nn;
     ns_mc_tables_fn mc_tables;
@@ -84,7 +72,8 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
                  ns_render_debug *debug, ns_error *err);
 
 /* Traces rays against prims (spheres, boxes, triangles; built into a BVH here) and planes
- * with shaders/trace_test.comp. hits[i].prim is an index into prims, or prim_count + j for
+ * with shaders/trace_test.comp (render/trace_rays.c; tests only: the pipeline is made by the
+ * first call and kept, never at start-up). hits[i].prim is an index into prims, or prim_count + j for
  * planes[j], or NS_NONE. */
 int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
                   uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,

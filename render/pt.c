@@ -183,8 +183,9 @@ static int pt_check_counters(const uint32_t *counters, ns_error *err)
 /* Batches of dispatches (1, 2, 4, ... 16 long) until the last dispatch of a batch finds
  * every pixel done: a pixel's samples may need many dispatches when its paths are long
  * (each dispatch yields after NS_PT_YIELD_LAVAPIPE counted iterations on lavapipe). */
-static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene,
-                       const pt_light_plan *plan, uint32_t *dispatched, ns_error *err)
+static int pt_dispatch(ns_context *ctx, const gpu_pipeline *pipeline, pt_job *job,
+                       const ns_scene *scene, const pt_light_plan *plan, uint32_t *dispatched,
+                       ns_error *err)
 {
     gpu_buffer *bound[PT_COUNT];
     for (int i = 0; i < PT_COUNT; i++)
@@ -216,7 +217,7 @@ static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene,
         int status = gpu_dispatch_many(
             &ctx->dev,
             &(gpu_dispatch_desc){
-                .pipeline = &ctx->pt,
+                .pipeline = pipeline,
                 .buffers = bound,
                 .buffer_count = PT_COUNT,
                 .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
@@ -257,16 +258,12 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
         return reachable;
     pt_job job;
     memset(&job, 0, sizeof job);
-    double t0 = ns_now_ms();
-    int status = NS_OK;
-    if (!ctx->pt.pipeline) { /* the first pt render of this context (the caller holds its lock) */
-        status = gpu_pipeline_create(&ctx->dev, &ctx->pt,
-                                     &(gpu_pipeline_desc){.shader = "pt",
-                                                          .binding_count = PT_COUNT,
-                                                          .push_constant_size = sizeof(GpuPtPush)},
-                                     err);
-        ns_stats_add_stage(stats, "pt_pipeline", ns_now_ms() - t0);
-    }
+    /* Made by the first pt render of this context (the caller holds its lock) and kept. */
+    gpu_pipeline *pipeline = NULL;
+    double made_ms = 0;
+    int status = ns_pipeline(ctx, NS_PIPELINE_PT, &pipeline, &made_ms, err);
+    if (made_ms > 0)
+        ns_stats_add_stage(stats, "pt_pipeline", made_ms);
     double t1 = ns_now_ms();
     if (!status)
         status = ns_gpu_scene_build(scene, &job.scene, err);
@@ -286,7 +283,7 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     ns_stats_add_stage(stats, "upload", t3 - t2);
     uint32_t dispatched = 0;
     if (!status)
-        status = pt_dispatch(ctx, &job, scene, &plan, &dispatched, err);
+        status = pt_dispatch(ctx, pipeline, &job, scene, &plan, &dispatched, err);
     double t4 = ns_now_ms();
     ns_stats_add_stage(stats, "pt_pass", t4 - t3);
     (void)dispatched; /* not in ns_render_stats (a shared struct); measured by the tests */

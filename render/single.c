@@ -11,15 +11,6 @@
 
 #include "scatter.h"
 
-/* Mirrors the push block of shaders/single.comp. */
-typedef struct single_push {
-    uint32_t first_sample;
-    uint32_t sample_count;
-    uint32_t samples;
-    uint32_t segment_count;
-} single_push;
-_Static_assert(sizeof(single_push) == 16, "single.comp push block");
-
 enum { SINGLE_GROUP = 64 };
 
 /* More samples per segment than this is refused: on lavapipe each may need its own
@@ -66,13 +57,17 @@ static int check_arguments(const gpu_buffer *scene_buffers, const gpu_buffer *se
     return NS_OK;
 }
 
-static int dispatch(ns_context *ctx, gpu_buffer **bound, const single_push *push, uint32_t count,
+static int dispatch(ns_context *ctx, gpu_buffer **bound, const GpuSinglePush *push, uint32_t count,
                     uint32_t segment_count, ns_error *err)
 {
+    gpu_pipeline *pipeline;
+    int status = ns_pipeline(ctx, NS_PIPELINE_SINGLE, &pipeline, NULL, err);
+    if (status)
+        return status;
     return gpu_dispatch_many(
         &ctx->dev,
         &(gpu_dispatch_desc){
-            .pipeline = &ctx->single,
+            .pipeline = pipeline,
             .buffers = bound,
             .buffer_count = NS_SCENE_BUFFER_COUNT + 3,
             .groups = {(segment_count + SINGLE_GROUP - 1) / SINGLE_GROUP, 1, 1},
@@ -99,11 +94,11 @@ static int cut_short_error(const gpu_buffer *counters, ns_error *err)
 /* Push blocks for samples [first, end) of `samples` in chunks of per_dispatch; returns the
  * number of blocks written. */
 static uint32_t chunk_samples(uint32_t first, uint32_t end, uint32_t samples, uint32_t per_dispatch,
-                              uint32_t segment_count, single_push *push)
+                              uint32_t segment_count, GpuSinglePush *push)
 {
     uint32_t n = 0;
     for (uint32_t s = first; s < end; s += per_dispatch)
-        push[n++] = (single_push){.first_sample = s,
+        push[n++] = (GpuSinglePush){.first_sample = s,
                                   .sample_count = end - s < per_dispatch ? end - s : per_dispatch,
                                   .samples = samples,
                                   .segment_count = segment_count};
@@ -112,7 +107,7 @@ static uint32_t chunk_samples(uint32_t first, uint32_t end, uint32_t samples, ui
 
 /* Runs samples [first, end) of `samples` in chunks of per_dispatch, in one submission. */
 static int run_chunks(ns_context *ctx, gpu_buffer **bound, uint32_t segment_count, uint32_t first,
-                      uint32_t end, uint32_t samples, uint32_t per_dispatch, single_push *push,
+                      uint32_t end, uint32_t samples, uint32_t per_dispatch, GpuSinglePush *push,
                       ns_error *err)
 {
     uint32_t n = chunk_samples(first, end, samples, per_dispatch, segment_count, push);
@@ -124,7 +119,7 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
                           uint32_t samples, uint32_t budget, ns_error *err)
 {
     const gpu_buffer *counters = bound[NS_SCENE_BUFFER_COUNT + 2];
-    single_push *push = calloc(samples, sizeof *push);
+    GpuSinglePush *push = calloc(samples, sizeof *push);
     if (!push)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single scattering: %u dispatches", samples);
     int status;

@@ -230,7 +230,10 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
         {.size = slot_count * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
         {.size = NS_VRL_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl.counters"},
     };
-    int status = gpu_buffers_create(&ctx->dev, own, descs, V_OWN, err);
+    gpu_pipeline *pipeline = NULL;
+    int status = ns_pipeline(ctx, NS_PIPELINE_VRL, &pipeline, NULL, err);
+    if (!status)
+        status = gpu_buffers_create(&ctx->dev, own, descs, V_OWN, err);
     if (!status) {
         gpu_buffer *bound[NS_SCENE_BUFFER_COUNT + V_OWN];
         for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
@@ -244,7 +247,7 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
                            .budget = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0};
         status = gpu_dispatch_many(
             &ctx->dev,
-            &(gpu_dispatch_desc){.pipeline = &ctx->vrl,
+            &(gpu_dispatch_desc){.pipeline = pipeline,
                                  .buffers = bound,
                                  .buffer_count = NS_SCENE_BUFFER_COUNT + V_OWN,
                                  .groups = {(paths + NS_VRL_GROUP - 1) / NS_VRL_GROUP, 1, 1},

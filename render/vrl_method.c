@@ -249,6 +249,10 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
     const GpuParams *params = scene_buffers[0].mapped;
     GpuVrlWalk *walks = own[T_WALKS].mapped;
     uint32_t yield = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
+    gpu_pipeline *pipeline;
+    int made = ns_pipeline(ctx, NS_PIPELINE_VRL_TRACE, &pipeline, NULL, err);
+    if (made)
+        return made;
     for (;;) {
         memset(walks, 0, sizeof *walks * push->path_count);
         for (uint32_t i = 0; offsets && i < push->path_count; i++)
@@ -258,7 +262,7 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
         uint32_t dispatches = 0;
         int status = repeat_until_done(
             ctx,
-            &(repeat_desc){.pipeline = &ctx->vrl_trace,
+            &(repeat_desc){.pipeline = pipeline,
                            .bound = bound,
                            .groups =
                                (push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
@@ -433,6 +437,10 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                                    : GATHER_YIELD_LAVAPIPE;
     const GpuSegment *segs = bound[4]->mapped;
     GpuVrlResult *results = bound[6]->mapped;
+    gpu_pipeline *pipeline;
+    int made = ns_pipeline(ctx, NS_PIPELINE_VRL_GATHER, &pipeline, NULL, err);
+    if (made)
+        return made;
     for (;;) {
         /* This material's segments start (again) from nothing. */
         for (uint32_t i = 0; i < segment_count; i++)
@@ -449,7 +457,7 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
         uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
         int status =
             repeat_until_done(ctx,
-                              &(repeat_desc){.pipeline = &ctx->vrl_gather,
+                              &(repeat_desc){.pipeline = pipeline,
                                              .bound = bound,
                                              .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) /
                                                        NS_VRL_METHOD_GROUP,
