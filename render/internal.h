@@ -71,6 +71,56 @@ typedef struct ns_render_debug {
 int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_render_debug *debug, ns_error *err);
 
+/* ---------------------------------------------------------------------------------------
+ * Resumed dispatches (render/resume.c). lavapipe stops every shader invocation after 65535
+ * loop iterations in all, silently (shared.h), so the long passes (pt.c, single.c and the
+ * vrl method's two, vrl_method.c) are cut into many dispatches: an invocation counts its
+ * loop iterations, yields after a budget with its state saved in a buffer and resumes in
+ * the next dispatch, or each dispatch takes its own share of the work. The shaders count,
+ * in a counter buffer, the work left (only in a dispatch that reports, so that the count is
+ * that of one dispatch) and the invocations lavapipe cut short anyway. One round runs
+ * submissions until the work-left counter reads 0 after one.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_resume_desc {
+    const gpu_pipeline *pipeline;
+    gpu_buffer *const *buffers; /* pipeline->binding_count of them, in binding order */
+    uint32_t groups[3];
+    /* Push blocks of pipeline->push_constant_size bytes. With a report field
+     * (report_offset != NS_NONE: the byte offset of a uint in the block) push is one block
+     * (push_count 1) and each submission dispatches copies of it, the report field 1 in the
+     * last copy and 0 in the others. Without one, push holds push_count different blocks,
+     * the round's dispatches known in advance, dispatched in one submission. */
+    const void *push;
+    uint32_t push_count;
+    uint32_t report_offset;
+    uint32_t *counters;  /* the shader's counter buffer, mapped */
+    uint32_t unfinished; /* counter of the work left after a reporting dispatch; NS_NONE: one
+                            submission finishes the round */
+    uint32_t cut;        /* counter of the invocations cut short; NS_NONE: check sees to it */
+    uint32_t first_batch; /* dispatches in the first submission (0: 1), with a report field */
+    uint32_t max_batch;   /* each next submission doubles the last, up to this many */
+    uint32_t max_submissions; /* gives up before the submission after this many (0: never) */
+    uint64_t max_dispatches;  /* or once this many dispatches ran (0: never) */
+    /* Called after every submission (may be NULL) with the counters: a nonzero return ends
+     * the round with that status (a pass's own counters, such as pt's truncated paths). */
+    int (*check)(const uint32_t *counters, void *user, ns_error *err);
+    void *user;
+} ns_resume_desc;
+
+/* ns_resume_dispatch's answers besides NS_OK and the (negative) ns_status errors; err is
+ * left untouched, because what they mean (start again with a smaller budget, or fail with
+ * the pass's own message) is the caller's to say. */
+enum {
+    NS_RESUME_CUT = 1,     /* the cut counter was not 0 after a submission: the work done is
+                              wrong and the round stopped there */
+    NS_RESUME_GAVE_UP = 2, /* max_submissions or max_dispatches reached, work still left */
+};
+
+/* Runs one round as desc says. Zeroes the work-left and cut counters before each
+ * submission. dispatches (may be NULL) is added the number of dispatches made. */
+int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *desc, uint32_t *dispatches,
+                       ns_error *err);
+
 /* Traces rays against prims (spheres, boxes, triangles; built into a BVH here) and planes
  * with shaders/trace_test.comp (render/trace_rays.c; tests only: the pipeline is made by the
  * first call and kept, never at start-up). hits[i].prim is an index into prims, or prim_count + j for
