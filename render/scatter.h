@@ -126,6 +126,23 @@ int ns_vrl_targets(const ns_scene *scene, const char *who, ns_vrl_target *out, u
 double ns_vrl_seed_offset(uint32_t seed);
 uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi);
 
+/* One stratum of light paths: paths [first_path, the next stratum's first_path or paths)
+ * start at scene light `light` (gs->lights) and aim at targets[target]; p is the stratum's
+ * share of the paths, so a path's flux weight is 1 / (p paths). */
+typedef struct ns_vrl_stratum {
+    uint32_t light, target, first_path;
+    double p;
+} ns_vrl_stratum;
+
+/* The light-path stratification both VRL generators use (vrl.c, vrl_method.c): `paths`
+ * paths spread over the (light, target) pairs by systematic sampling with the seed's offset,
+ * in proportion to ns_vrl_light_power. *out (malloc'd, free it) holds the strata that got at
+ * least one path, in path order; none (NULL, 0) when no light sends power through a target.
+ * who names the stage in an out-of-memory message. */
+int ns_vrl_stratify(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
+                    uint32_t paths, uint32_t seed, const char *who, ns_vrl_stratum **out,
+                    uint32_t *count, ns_error *err);
+
 /* The grid hierarchy of one medium's VRLs (paper Section 4.3): the cells of the chosen
  * (leaf) level, and the tree of every level from the coarsest down to it that the gather
  * walks (GpuVrlNode, shaders/scatter_shared.h). */

@@ -90,51 +90,34 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
     memset(out, 0, sizeof *out);
     uint32_t n_obj = scene->object_count ? scene->object_count : 1;
     ns_vrl_target *targets_of = malloc(sizeof *targets_of * n_obj);
-    uint64_t pairs = 0;
-    double *power = NULL;
     uint32_t targets = 0;
+    ns_vrl_stratum *strata = NULL;
+    uint32_t count = 0;
     int status =
         targets_of ? NS_OK : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
     if (!status)
         status = ns_vrl_targets(scene, "the vrl method", targets_of, &targets, err);
-    if (!status) {
-        pairs = (uint64_t)gs->light_count * targets;
-        power = malloc(sizeof *power * (pairs ? pairs : 1));
-        out->items = calloc(pairs ? pairs : 1, sizeof *out->items);
-        if (!power || !out->items)
-            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %llu emitters",
-                             (unsigned long long)pairs);
-    }
-    double total = 0;
-    for (uint64_t k = 0; !status && k < pairs; k++) {
-        double p = ns_vrl_light_power(&gs->lights[k / targets], targets_of[k % targets].sphere);
-        power[k] = p > 0 && isfinite(p) ? p : 0;
-        total += power[k];
-    }
-    if (!status && total > 0) {
-        double xi = ns_vrl_seed_offset(seed), cdf = 0;
-        for (uint64_t k = 0; k < pairs; k++) {
-            if (power[k] <= 0)
-                continue;
-            double p = power[k] / total;
-            uint64_t first = ns_vrl_first_path_at(cdf, paths, xi);
-            cdf += p;
-            if (ns_vrl_first_path_at(cdf, paths, xi) <= first)
-                continue;
-            const GpuLight *light = &gs->lights[k / targets];
-            GpuVrlEmitter *e = &out->items[out->count++];
-            memcpy(e->target, targets_of[k % targets].sphere, sizeof e->target);
-            memcpy(e->position, light->position, sizeof e->position);
-            memcpy(e->direction, light->direction, sizeof e->direction);
-            for (int c = 0; c < 3; c++)
-                e->color[c] = (float)(light->color[c] / (p * paths));
-            e->ids[0] = (uint32_t)first;
-            e->ids[1] = light->info[0];
-            e->ids[2] = targets_of[k % targets].object;
-        }
+    /* The same systematic sampling over (light, target) pairs as the VRL stage (vrl.c). */
+    if (!status)
+        status = ns_vrl_stratify(gs, targets_of, targets, paths, seed, "vrl method", &strata,
+                                 &count, err);
+    if (!status && count && !(out->items = calloc(count, sizeof *out->items)))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u emitters", count);
+    for (uint32_t i = 0; !status && i < count; i++) {
+        const ns_vrl_stratum *st = &strata[i];
+        const GpuLight *light = &gs->lights[st->light];
+        GpuVrlEmitter *e = &out->items[out->count++];
+        memcpy(e->target, targets_of[st->target].sphere, sizeof e->target);
+        memcpy(e->position, light->position, sizeof e->position);
+        memcpy(e->direction, light->direction, sizeof e->direction);
+        for (int c = 0; c < 3; c++)
+            e->color[c] = (float)(light->color[c] / (st->p * paths));
+        e->ids[0] = st->first_path;
+        e->ids[1] = light->info[0];
+        e->ids[2] = targets_of[st->target].object;
     }
     free(targets_of);
-    free(power);
+    free(strata);
     if (status) {
         free(out->items);
         memset(out, 0, sizeof *out);
