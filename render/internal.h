@@ -93,12 +93,12 @@ typedef struct ns_resume_desc {
     const void *push;
     uint32_t push_count;
     uint32_t report_offset;
-    uint32_t *counters;  /* the shader's counter buffer, mapped */
-    uint32_t unfinished; /* counter of the work left after a reporting dispatch; NS_NONE: one
-                            submission finishes the round */
-    uint32_t cut;        /* counter of the invocations cut short; NS_NONE: check sees to it */
-    uint32_t first_batch; /* dispatches in the first submission (0: 1), with a report field */
-    uint32_t max_batch;   /* each next submission doubles the last, up to this many */
+    uint32_t *counters;       /* the shader's counter buffer, mapped */
+    uint32_t unfinished;      /* counter of the work left after a reporting dispatch; NS_NONE: one
+                                 submission finishes the round */
+    uint32_t cut;             /* counter of the invocations cut short; NS_NONE: check sees to it */
+    uint32_t first_batch;     /* dispatches in the first submission (0: 1), with a report field */
+    uint32_t max_batch;       /* each next submission doubles the last, up to this many */
     uint32_t max_submissions; /* gives up before the submission after this many (0: never) */
     uint64_t max_dispatches;  /* or once this many dispatches ran (0: never) */
     /* Called after every submission (may be NULL) with the counters: a nonzero return ends
@@ -123,8 +123,8 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *desc, uint32_t *di
 
 /* Traces rays against prims (spheres, boxes, triangles; built into a BVH here) and planes
  * with shaders/trace_test.comp (render/trace_rays.c; tests only: the pipeline is made by the
- * first call and kept, never at start-up). hits[i].prim is an index into prims, or prim_count + j for
- * planes[j], or NS_NONE. */
+ * first call and kept, never at start-up). hits[i].prim is an index into prims, or prim_count + j
+ * for planes[j], or NS_NONE. */
 int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
                   uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
                   ns_error *err);

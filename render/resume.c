@@ -35,8 +35,8 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *d, uint32_t *dispa
         batch = batch < d->max_batch ? batch : d->max_batch;
         blocks = malloc((size_t)size * d->max_batch);
         if (!blocks)
-            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: %u push blocks",
-                           d->pipeline->name, d->max_batch);
+            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: %u push blocks", d->pipeline->name,
+                           d->max_batch);
     }
     uint64_t round = 0;
     for (uint32_t submissions = 0;; submissions++) {

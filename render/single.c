@@ -121,8 +121,8 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
     if (!push)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single scattering: %u dispatches", samples);
     if (!budget) {
-        status = run_chunks(ctx, pipeline, bound, segment_count, 0, samples, samples, samples,
-                            push, err);
+        status = run_chunks(ctx, pipeline, bound, segment_count, 0, samples, samples, samples, push,
+                            err);
         if (status == NS_RESUME_CUT)
             status = cut_short_error(counters, err);
         free(push);

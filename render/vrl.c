@@ -205,8 +205,8 @@ static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uin
     memset(plan, 0, sizeof *plan);
     ns_vrl_stratum *strata = NULL;
     uint32_t count = 0;
-    int status = ns_vrl_stratify(gs, targets, target_count, paths, seed, "vrl", &strata, &count,
-                                 err);
+    int status =
+        ns_vrl_stratify(gs, targets, target_count, paths, seed, "vrl", &strata, &count, err);
     plan->strata = status || !count ? NULL : calloc(count, sizeof *plan->strata);
     if (!status && count && !plan->strata)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %u strata", count);
