@@ -208,7 +208,7 @@ static void session_close(nn_session *s)
 
 static int default_table(ns_table *t, ns_order order, double g, double albedo)
 {
-    const uint32_t n[4] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
     ns_error err = {0};
     if (ns_table_create(t, n, &err)) {
         fprintf(stderr, "nscatter table: %s\n", err.message);

@@ -11,9 +11,9 @@
 #include <time.h>
 #include <unistd.h>
 
-#define SPATIAL_BINS (NS_MC_NZ * NS_MC_NRHO)
-#define THETA_STEP (M_PI / NS_MC_NTHETA)
-#define PHI_STEP (M_PI / NS_MC_NPHI)
+#define SPATIAL_BINS (NS_TABLE_NZ * NS_TABLE_NRHO)
+#define THETA_STEP (M_PI / NS_TABLE_NTHETA)
+#define PHI_STEP (M_PI / NS_TABLE_NPHI)
 #define LOBE_IN_DEFAULT 8
 #define LOBE_OUT_DEFAULT 128
 #define MAX_THREADS 256
@@ -117,28 +117,31 @@ static inline void scatter_direction(double d[3], double c, double b)
  * Bins
  * ===================================================================================== */
 
-static double sinh_step(void) { return asinh(NS_MC_EXTENT / NS_MC_SINH_SCALE) / NS_MC_NRHO; }
+static double sinh_step(void)
+{
+    return asinh(NS_TABLE_EXTENT / NS_TABLE_SINH_SCALE) / NS_TABLE_NRHO;
+}
 
 void ns_mc_default_edges(ns_table *t)
 {
     double c = sinh_step();
-    for (int i = 0; i <= NS_MC_NZ; i++)
-        t->edges[NS_AXIS_Z][i] = NS_MC_SINH_SCALE * sinh(c * (i - NS_MC_NZ / 2));
-    for (int i = 0; i <= NS_MC_NRHO; i++)
-        t->edges[NS_AXIS_RHO][i] = NS_MC_SINH_SCALE * sinh(c * i);
-    t->edges[NS_AXIS_Z][NS_MC_NZ / 2] = 0.0; /* exactly, not sinh(0 * c) rounding */
+    for (int i = 0; i <= NS_TABLE_NZ; i++)
+        t->edges[NS_AXIS_Z][i] = NS_TABLE_SINH_SCALE * sinh(c * (i - NS_TABLE_NZ / 2));
+    for (int i = 0; i <= NS_TABLE_NRHO; i++)
+        t->edges[NS_AXIS_RHO][i] = NS_TABLE_SINH_SCALE * sinh(c * i);
+    t->edges[NS_AXIS_Z][NS_TABLE_NZ / 2] = 0.0; /* exactly, not sinh(0 * c) rounding */
     t->edges[NS_AXIS_RHO][0] = 0.0;
-    for (int i = 0; i <= NS_MC_NTHETA; i++)
-        t->edges[NS_AXIS_THETA][i] = M_PI * i / NS_MC_NTHETA;
-    for (int i = 0; i <= NS_MC_NPHI; i++)
-        t->edges[NS_AXIS_PHI][i] = M_PI * i / NS_MC_NPHI;
+    for (int i = 0; i <= NS_TABLE_NTHETA; i++)
+        t->edges[NS_AXIS_THETA][i] = M_PI * i / NS_TABLE_NTHETA;
+    for (int i = 0; i <= NS_TABLE_NPHI; i++)
+        t->edges[NS_AXIS_PHI][i] = M_PI * i / NS_TABLE_NPHI;
 }
 
 /* Index of v among n bins with the given edges, or -1 outside. The sinh mapping gives the
  * index directly; one step either way repairs the rounding at an edge. */
 static inline int sinh_bin(const double *edges, int n, int offset, double v, double inv_step)
 {
-    int i = (int)floor(asinh(v * (1.0 / NS_MC_SINH_SCALE)) * inv_step) + offset;
+    int i = (int)floor(asinh(v * (1.0 / NS_TABLE_SINH_SCALE)) * inv_step) + offset;
     if (i < 0 || i >= n)
         return -1;
     if (v < edges[i])
@@ -167,8 +170,8 @@ static inline int local_direction_bin(double x, double y, double rho, const doub
     double along_phi = d[1] * ex - d[0] * ey;
     double theta = acos(fmax(-1.0, fmin(1.0, d[2])));
     double phi = atan2(fabs(along_phi), along_rho); /* folded into [0, pi] */
-    return angle_bin(theta, THETA_STEP, NS_MC_NTHETA) * NS_MC_NPHI +
-           angle_bin(phi, PHI_STEP, NS_MC_NPHI);
+    return angle_bin(theta, THETA_STEP, NS_TABLE_NTHETA) * NS_TABLE_NPHI +
+           angle_bin(phi, PHI_STEP, NS_TABLE_NPHI);
 }
 
 /* =======================================================================================
@@ -233,12 +236,13 @@ static void deposit(trace_worker_state *w, int order, const double p[3], const d
     /* The emitted direction's mean cosine given the incoming one is exactly g cos (HG):
      * its expectation has less noise than one sampled direction. */
     sums->cos_theta += g * d[2];
-    int iz = sinh_bin(job->bins->edges[NS_AXIS_Z], NS_MC_NZ, NS_MC_NZ / 2, p[2], job->inv_step);
-    int ir = sinh_bin(job->bins->edges[NS_AXIS_RHO], NS_MC_NRHO, 0, rho, job->inv_step);
+    int iz =
+        sinh_bin(job->bins->edges[NS_AXIS_Z], NS_TABLE_NZ, NS_TABLE_NZ / 2, p[2], job->inv_step);
+    int ir = sinh_bin(job->bins->edges[NS_AXIS_RHO], NS_TABLE_NRHO, 0, rho, job->inv_step);
     if (iz < 0 || ir < 0)
         return;
     sums->in_table += 1.0;
-    size_t cell = ((size_t)iz * NS_MC_NRHO + (size_t)ir) * NS_MC_NDIR +
+    size_t cell = ((size_t)iz * NS_TABLE_NRHO + (size_t)ir) * NS_MC_NDIR +
                   (size_t)local_direction_bin(p[0], p[1], rho, d);
     w->counts[order][cell]++;
     if (++w->deposits == UINT32_MAX)
@@ -354,12 +358,12 @@ static int parallel_for(unsigned threads, uint64_t count, void (*fn)(void *, uin
  * comes from a fixed stream per theta row.
  * ===================================================================================== */
 
-#define PHI_UNFOLDED (2 * NS_MC_NPHI)
+#define PHI_UNFOLDED (2 * NS_TABLE_NPHI)
 
 typedef struct {
     double g;
     unsigned n_in, n_out;
-    double *offsets; /* [NS_MC_NTHETA][NS_MC_NTHETA][PHI_UNFOLDED] */
+    double *offsets; /* [NS_TABLE_NTHETA][NS_TABLE_NTHETA][PHI_UNFOLDED] */
 } lobe_job;
 
 /* Sampling resolves the lobe's peak but leaves ~5-10% noise in small bins far from it,
@@ -391,7 +395,7 @@ static void replace_smooth_pairs_by_quadrature(double g, int n, int theta_in, do
     double in[QUAD_MAX_N * QUAD_MAX_N][3], on[QUAD_MAX_N * QUAD_MAX_N][3];
     n = n > QUAD_MAX_N ? QUAD_MAX_N : n;
     bin_nodes(theta_in, 0.0, n, in);
-    for (int to = 0; to < NS_MC_NTHETA; to++) {
+    for (int to = 0; to < NS_TABLE_NTHETA; to++) {
         double solid_angle_out = (cos(to * THETA_STEP) - cos((to + 1) * THETA_STEP)) * PHI_STEP;
         for (int u = 0; u < PHI_UNFOLDED; u++) {
             bin_nodes(to, -M_PI + u * PHI_STEP, n, on);
@@ -413,8 +417,8 @@ static void replace_smooth_pairs_by_quadrature(double g, int n, int theta_in, do
 static void lobe_offsets_row(void *ctx, uint64_t theta_in)
 {
     lobe_job *job = ctx;
-    double *out = job->offsets + theta_in * NS_MC_NTHETA * PHI_UNFOLDED;
-    memset(out, 0, NS_MC_NTHETA * PHI_UNFOLDED * sizeof *out);
+    double *out = job->offsets + theta_in * NS_TABLE_NTHETA * PHI_UNFOLDED;
+    memset(out, 0, NS_TABLE_NTHETA * PHI_UNFOLDED * sizeof *out);
     double c0 = cos((double)theta_in * THETA_STEP), c1 = cos((double)(theta_in + 1) * THETA_STEP);
     unsigned n_in = job->n_in, rings = job->n_out, azimuths = 4 * job->n_out;
     double w = 1.0 / ((double)n_in * n_in * rings * azimuths);
@@ -434,7 +438,8 @@ static void lobe_offsets_row(void *ctx, uint64_t theta_in)
                 for (unsigned k = 0; k < azimuths; k++) {
                     double d[3] = {in[0], in[1], in[2]};
                     scatter_direction(d, c, 2.0 * M_PI * (k + turn) / azimuths);
-                    int it = angle_bin(acos(fmax(-1.0, fmin(1.0, d[2]))), THETA_STEP, NS_MC_NTHETA);
+                    int it =
+                        angle_bin(acos(fmax(-1.0, fmin(1.0, d[2]))), THETA_STEP, NS_TABLE_NTHETA);
                     /* Unfolded phi in [-pi, pi) as bins 0..35 counted from -pi. */
                     int ip = (int)floor((atan2(d[1], d[0]) + M_PI) / PHI_STEP);
                     ip = ip < 0 ? 0 : (ip >= PHI_UNFOLDED ? PHI_UNFOLDED - 1 : ip);
@@ -444,9 +449,9 @@ static void lobe_offsets_row(void *ctx, uint64_t theta_in)
         }
     replace_smooth_pairs_by_quadrature(job->g, (int)job->n_in, (int)theta_in, out);
     double sum = 0.0;
-    for (int i = 0; i < NS_MC_NTHETA * PHI_UNFOLDED; i++)
+    for (int i = 0; i < NS_TABLE_NTHETA * PHI_UNFOLDED; i++)
         sum += out[i];
-    for (int i = 0; i < NS_MC_NTHETA * PHI_UNFOLDED; i++)
+    for (int i = 0; i < NS_TABLE_NTHETA * PHI_UNFOLDED; i++)
         out[i] /= sum; /* exact energy conservation (the sum is 1 up to quadrature error) */
 }
 
@@ -462,20 +467,20 @@ void ns_mc_lobe_matrix(double g, unsigned in_samples, unsigned out_samples, unsi
         lj.n_out = LOBE_MAX_SAMPLES;
     if (threads == 0)
         threads = ns_mc_default_threads();
-    double offsets[NS_MC_NTHETA * NS_MC_NTHETA * PHI_UNFOLDED];
+    double offsets[NS_TABLE_NTHETA * NS_TABLE_NTHETA * PHI_UNFOLDED];
     lj.offsets = offsets;
-    parallel_for(threads - 1, NS_MC_NTHETA, lobe_offsets_row, &lj);
+    parallel_for(threads - 1, NS_TABLE_NTHETA, lobe_offsets_row, &lj);
     /* Unfolded bin index u counts from -pi; the incoming bins start at phi = 0, index 18. */
-    for (int ti = 0; ti < NS_MC_NTHETA; ti++)
-        for (int pi = 0; pi < NS_MC_NPHI; pi++)
-            for (int to = 0; to < NS_MC_NTHETA; to++)
-                for (int po = 0; po < NS_MC_NPHI; po++) {
-                    const double *u = offsets + (ti * NS_MC_NTHETA + to) * PHI_UNFOLDED;
+    for (int ti = 0; ti < NS_TABLE_NTHETA; ti++)
+        for (int pi = 0; pi < NS_TABLE_NPHI; pi++)
+            for (int to = 0; to < NS_TABLE_NTHETA; to++)
+                for (int po = 0; po < NS_TABLE_NPHI; po++) {
+                    const double *u = offsets + (ti * NS_TABLE_NTHETA + to) * PHI_UNFOLDED;
                     int direct = ((po - pi) % PHI_UNFOLDED + PHI_UNFOLDED) % PHI_UNFOLDED;
                     int mirror = ((-po - 1 - pi) % PHI_UNFOLDED + PHI_UNFOLDED) % PHI_UNFOLDED;
-                    lobe[(size_t)(ti * NS_MC_NPHI + pi) * NS_MC_NDIR + to * NS_MC_NPHI + po] =
-                        u[(NS_MC_NPHI + direct) % PHI_UNFOLDED] +
-                        u[(NS_MC_NPHI + mirror) % PHI_UNFOLDED];
+                    lobe[(size_t)(ti * NS_TABLE_NPHI + pi) * NS_MC_NDIR + to * NS_TABLE_NPHI + po] =
+                        u[(NS_TABLE_NPHI + direct) % PHI_UNFOLDED] +
+                        u[(NS_TABLE_NPHI + mirror) % PHI_UNFOLDED];
                 }
 }
 
@@ -508,12 +513,12 @@ static void convolve_spatial_bin(void *ctx, uint64_t cell)
     float *dst = job->table->data + cell * NS_MC_NDIR;
     if (!any)
         return; /* the table was zeroed at creation */
-    uint32_t iz = (uint32_t)(cell / NS_MC_NRHO), ir = (uint32_t)(cell % NS_MC_NRHO);
+    uint32_t iz = (uint32_t)(cell / NS_TABLE_NRHO), ir = (uint32_t)(cell % NS_TABLE_NRHO);
     double per_volume = job->scale / ns_table_bin_volume(job->table, iz, ir);
     for (int o = 0; o < NS_MC_NDIR; o++)
         dst[o] = (float)(out[o] * per_volume /
-                         ns_table_bin_solid_angle(job->table, (uint32_t)(o / NS_MC_NPHI),
-                                                  (uint32_t)(o % NS_MC_NPHI)));
+                         ns_table_bin_solid_angle(job->table, (uint32_t)(o / NS_TABLE_NPHI),
+                                                  (uint32_t)(o % NS_TABLE_NPHI)));
 }
 
 /* =======================================================================================
@@ -696,7 +701,8 @@ static int trace_all(const ns_mc_desc *desc, trace_job *job, unsigned threads,
 
 static int allocate_result(const ns_mc_desc *desc, ns_mc_result *out, ns_error *err)
 {
-    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA,
+                                              NS_TABLE_NPHI};
     for (int o = 0; o < 2; o++) {
         int rc = ns_table_create(&out->table[o], n, err);
         if (rc)

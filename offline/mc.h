@@ -27,19 +27,14 @@
 #include <stdint.h>
 
 #include "nscatter.h"
+#include "table_grid.h"
 #include "table_io.h"
 
-/* Default binning. Spatial edges follow 0.5 sinh(c i): ~0.056 mfp wide at the source,
- * ~11% of the distance far away, reaching NS_MC_EXTENT in rho and in both directions of z
- * (400 mfp: the light of a = 0.999, g = 0.9 reaches well beyond 200).
- * Angular bins are 10 degrees wide in theta and phi. */
-#define NS_MC_EXTENT 400.0
-#define NS_MC_SINH_SCALE 0.5
-#define NS_MC_NZ 128 /* 64 below z = 0, 64 above */
-#define NS_MC_NRHO 64
-#define NS_MC_NTHETA 18
-#define NS_MC_NPHI 18
-#define NS_MC_NDIR (NS_MC_NTHETA * NS_MC_NPHI)
+/* Default binning: the renderer's table grid (render/include/table_grid.h: NS_TABLE_NZ,
+ * NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI, NS_TABLE_SINH_SCALE, NS_TABLE_EXTENT), so
+ * that the tables made here are the ones the renderer reads. NS_MC_NDIR directions (theta x
+ * phi bins) per spatial bin. */
+#define NS_MC_NDIR (NS_TABLE_NTHETA * NS_TABLE_NPHI)
 
 /* Fills the edges of a table created with the default bin counts above. */
 void ns_mc_default_edges(ns_table *t);

@@ -14,7 +14,7 @@
 
 #define DIR_CAP 3000
 #define PATH_CAP 4096
-#define CELLS ((size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR) /* = NS_TABLE_CELLS of the renderer */
+#define CELLS ((size_t)NS_TABLE_CELLS) /* floats in one table (render/include/table_grid.h) */
 
 struct ns_mc_provider {
     char dir[DIR_CAP];
@@ -165,7 +165,8 @@ static int near(double a, double b, double rel)
 static const char *cache_file_problem(const ns_table *t, double g, double albedo, ns_order order,
                                       uint64_t photons)
 {
-    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA,
+                                              NS_TABLE_NPHI};
     for (int a = 0; a < NS_AXIS_COUNT; a++)
         if (t->n[a] != n[a])
             return "its shape is not the default grid's";
@@ -216,7 +217,8 @@ static void remember_double(ns_mc_provider *p, double g, double albedo, const fl
  * 0 when there is none for this g. */
 static int rescale_double(ns_mc_provider *p, double g, double albedo, ns_table *t)
 {
-    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA,
+                                              NS_TABLE_NPHI};
     if (!p->unit_double || p->unit_g != g || ns_table_create(t, n, NULL))
         return 0;
     ns_mc_default_edges(t);

@@ -477,23 +477,22 @@ void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
  * ------------------------------------------------------------------------------------- */
 enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT, G_COUNTERS, G_COUNT };
 
-/* The shader of each form of the gather (gather.glsl): mode x beams. */
+/* The pipeline of each form of the gather (gather.glsl: one shader per mode x beams). */
 static const struct {
     uint32_t mode;
     int bounded;
-    const char *shader;
+    ns_pipeline_id pipeline;
 } gather_forms[] = {
-    {NS_GATHER_MODE_EXACT, 0, "gather"},         {NS_GATHER_MODE_EXACT, 1, "gather_bounded"},
-    {NS_GATHER_MODE_PAPER, 0, "gather_paper"},   {NS_GATHER_MODE_PAPER, 1, "gather_paper_bounded"},
-    {NS_GATHER_MODE_DIPOLE, 0, "gather_dipole"},
+    {NS_GATHER_MODE_EXACT, 0, NS_PIPELINE_GATHER},
+    {NS_GATHER_MODE_EXACT, 1, NS_PIPELINE_GATHER_BOUNDED},
+    {NS_GATHER_MODE_PAPER, 0, NS_PIPELINE_GATHER_PAPER},
+    {NS_GATHER_MODE_PAPER, 1, NS_PIPELINE_GATHER_PAPER_BOUNDED},
+    {NS_GATHER_MODE_DIPOLE, 0, NS_PIPELINE_GATHER_DIPOLE},
 };
 
 int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
                        double *made_ms, ns_error *err)
 {
-    _Static_assert(sizeof gather_forms / sizeof gather_forms[0] ==
-                       sizeof ctx->gather_forms / sizeof ctx->gather_forms[0],
-                   "one pipeline per form");
     *made_ms = 0;
     bounded = bounded && mode != NS_GATHER_MODE_DIPOLE;
     size_t i = 0;
@@ -502,20 +501,8 @@ int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline
         i++;
     if (i == sizeof gather_forms / sizeof gather_forms[0])
         return ns_fail(err, NS_ERR_INTERNAL, "gather: no shader for mode %u", mode);
-    /* The default form is made with the context's other pipelines. */
-    *pipeline = i == 0 ? &ctx->gather : &ctx->gather_forms[i];
-    if ((*pipeline)->pipeline)
-        return NS_OK;
-    double t0 = ns_now_ms();
-    int status = gpu_pipeline_create(&ctx->dev, *pipeline,
-                                     &(gpu_pipeline_desc){.shader = gather_forms[i].shader,
-                                                          .binding_count = G_COUNT,
-                                                          .push_constant_size = sizeof(GpuGatherPush)},
-                                     err);
-    if (!status)
-        status = gpu_pipeline_warm(&ctx->dev, *pipeline, err);
-    *made_ms = ns_now_ms() - t0;
-    return status;
+    /* The default form is made at start-up, the others by their first gather (pipelines.c). */
+    return ns_pipeline(ctx, gather_forms[i].pipeline, pipeline, made_ms, err);
 }
 
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,

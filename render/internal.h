@@ -7,6 +7,7 @@
 
 #include "gpu.h"
 #include "nscatter.h"
+#include "pipelines.h"
 #include "shared.h"
 
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
@@ -15,22 +16,9 @@ struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeli
 
 struct ns_context {
     gpu_device dev;
-    gpu_pipeline camera;     /* shaders/camera.comp */
-    gpu_pipeline trace_test; /* shaders/trace_test.comp */
-    /* The scattering stages (render/scatter.h); made and warmed with the others. */
-    gpu_pipeline accumulate; /* shaders/accumulate.comp */
-    gpu_pipeline vrl;        /* shaders/vrl.comp */
-    gpu_pipeline gather;     /* shaders/gather.comp */
-    gpu_pipeline single;     /* shaders/single.comp */
-    gpu_pipeline vrl_trace;  /* shaders/vrl_trace.comp (method vrl) */
-    gpu_pipeline vrl_gather; /* shaders/vrl_gather.comp (method vrl) */
-    /* shaders/pt.comp: made by the first pt render and kept. Its compile (~0.3 s on
-     * lavapipe) is paid once per context, and never by a context that renders no pt. */
-    gpu_pipeline pt;
-    /* The gather's other forms (gather.c ns_gather_pipeline: bounded beams, the paper's
-     * accumulation, the dipole), one shader each: made by the first gather that needs one
-     * and kept, like pt. gather above is the default form, made with the others. */
-    gpu_pipeline gather_forms[5];
+    /* Every pipeline of the renderer but the networks', by ns_pipeline_id: made at start-up
+     * or on first use as render/pipelines.c's table says; get one with ns_pipeline. */
+    gpu_pipeline pipelines[NS_PIPELINE_CONTEXT_COUNT];
     struct ns_table_cache *tables;
     struct ns_nn_state *nn;
     ns_mc_tables_fn mc_tables;
@@ -83,9 +71,60 @@ typedef struct ns_render_debug {
 int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_render_debug *debug, ns_error *err);
 
+/* ---------------------------------------------------------------------------------------
+ * Resumed dispatches (render/resume.c). lavapipe stops every shader invocation after 65535
+ * loop iterations in all, silently (shared.h), so the long passes (pt.c, single.c and the
+ * vrl method's two, vrl_method.c) are cut into many dispatches: an invocation counts its
+ * loop iterations, yields after a budget with its state saved in a buffer and resumes in
+ * the next dispatch, or each dispatch takes its own share of the work. The shaders count,
+ * in a counter buffer, the work left (only in a dispatch that reports, so that the count is
+ * that of one dispatch) and the invocations lavapipe cut short anyway. One round runs
+ * submissions until the work-left counter reads 0 after one.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_resume_desc {
+    const gpu_pipeline *pipeline;
+    gpu_buffer *const *buffers; /* pipeline->binding_count of them, in binding order */
+    uint32_t groups[3];
+    /* Push blocks of pipeline->push_constant_size bytes. With a report field
+     * (report_offset != NS_NONE: the byte offset of a uint in the block) push is one block
+     * (push_count 1) and each submission dispatches copies of it, the report field 1 in the
+     * last copy and 0 in the others. Without one, push holds push_count different blocks,
+     * the round's dispatches known in advance, dispatched in one submission. */
+    const void *push;
+    uint32_t push_count;
+    uint32_t report_offset;
+    uint32_t *counters;       /* the shader's counter buffer, mapped */
+    uint32_t unfinished;      /* counter of the work left after a reporting dispatch; NS_NONE: one
+                                 submission finishes the round */
+    uint32_t cut;             /* counter of the invocations cut short; NS_NONE: check sees to it */
+    uint32_t first_batch;     /* dispatches in the first submission (0: 1), with a report field */
+    uint32_t max_batch;       /* each next submission doubles the last, up to this many */
+    uint32_t max_submissions; /* gives up before the submission after this many (0: never) */
+    uint64_t max_dispatches;  /* or once this many dispatches ran (0: never) */
+    /* Called after every submission (may be NULL) with the counters: a nonzero return ends
+     * the round with that status (a pass's own counters, such as pt's truncated paths). */
+    int (*check)(const uint32_t *counters, void *user, ns_error *err);
+    void *user;
+} ns_resume_desc;
+
+/* ns_resume_dispatch's answers besides NS_OK and the (negative) ns_status errors; err is
+ * left untouched, because what they mean (start again with a smaller budget, or fail with
+ * the pass's own message) is the caller's to say. */
+enum {
+    NS_RESUME_CUT = 1,     /* the cut counter was not 0 after a submission: the work done is
+                              wrong and the round stopped there */
+    NS_RESUME_GAVE_UP = 2, /* max_submissions or max_dispatches reached, work still left */
+};
+
+/* Runs one round as desc says. Zeroes the work-left and cut counters before each
+ * submission. dispatches (may be NULL) is added the number of dispatches made. */
+int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *desc, uint32_t *dispatches,
+                       ns_error *err);
+
 /* Traces rays against prims (spheres, boxes, triangles; built into a BVH here) and planes
- * with shaders/trace_test.comp. hits[i].prim is an index into prims, or prim_count + j for
- * planes[j], or NS_NONE. */
+ * with shaders/trace_test.comp (render/trace_rays.c; tests only: the pipeline is made by the
+ * first call and kept, never at start-up). hits[i].prim is an index into prims, or prim_count + j
+ * for planes[j], or NS_NONE. */
 int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
                   uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
                   ns_error *err);

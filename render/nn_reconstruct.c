@@ -8,6 +8,7 @@
 #include <time.h>
 
 #include "nn_shared.h"
+#include "pipelines.h"
 
 _Static_assert(NS_NN_B3_OFF + 1 == NS_NN_NET_VEC4, "nn_shared.h layout");
 _Static_assert(NS_NN_W2_OFF == NS_NN_B1_OFF + NS_NN_H4, "nn_shared.h layout");
@@ -70,13 +71,11 @@ static int check_nets(const ns_nn_weights *const nets[2], ns_error *err)
 int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err)
 {
     memset(nn, 0, sizeof *nn);
-    int status = gpu_pipeline_create(
-        dev, &nn->pipeline, &(gpu_pipeline_desc){.shader = "nn_reconstruct", .binding_count = 3},
-        err);
+    /* Their rows in render/pipelines.c's table say "with the networks": made here, in a
+     * context and in an nn session alike. */
+    int status = ns_pipeline_make(dev, NS_PIPELINE_NN_RECONSTRUCT, &nn->pipeline, err);
     if (!status)
-        status = gpu_pipeline_create(
-            dev, &nn->interpolate,
-            &(gpu_pipeline_desc){.shader = "nn_interpolate", .binding_count = 3}, err);
+        status = ns_pipeline_make(dev, NS_PIPELINE_NN_INTERPOLATE, &nn->interpolate, err);
     if (!status)
         status = gpu_buffer_create(dev, &nn->params,
                                    &(gpu_buffer_desc){.size = sizeof(struct GpuNnParams),

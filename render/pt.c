@@ -5,6 +5,7 @@
 #include "pt.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -155,8 +156,10 @@ static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *er
     return gpu_buffers_create(&ctx->dev, job->buffers, descs, PT_COUNT, err);
 }
 
-static int pt_check_counters(const uint32_t *counters, ns_error *err)
+/* After every submission (ns_resume_desc.check): the first problem the counters show. */
+static int pt_check_counters(const uint32_t *counters, void *user, ns_error *err)
 {
+    (void)user;
     if (counters[NS_COUNTER_LOOP_LIMIT])
         return ns_fail(err, NS_ERR_LIMIT,
                        "pt: %u pixel sample(s) ran past lavapipe's loop limit (65535 "
@@ -180,57 +183,53 @@ static int pt_check_counters(const uint32_t *counters, ns_error *err)
     return NS_OK;
 }
 
-/* Batches of dispatches (1, 2, 4, ... 16 long) until the last dispatch of a batch finds
- * every pixel done: a pixel's samples may need many dispatches when its paths are long
- * (each dispatch yields after NS_PT_YIELD_LAVAPIPE counted iterations on lavapipe). */
-static int pt_dispatch(ns_context *ctx, pt_job *job, const ns_scene *scene,
-                       const pt_light_plan *plan, uint32_t *dispatched, ns_error *err)
+/* Submissions of 1, 2, 4, ... 16 dispatches (ns_resume_dispatch) until the last dispatch of
+ * one finds every pixel done: a pixel's samples may need many dispatches when its paths are
+ * long (each dispatch yields after NS_PT_YIELD_LAVAPIPE counted iterations on lavapipe). */
+static int pt_dispatch(ns_context *ctx, const gpu_pipeline *pipeline, pt_job *job,
+                       const ns_scene *scene, const pt_light_plan *plan, uint32_t *dispatched,
+                       ns_error *err)
 {
     gpu_buffer *bound[PT_COUNT];
     for (int i = 0; i < PT_COUNT; i++)
         bound[i] = &job->buffers[i];
     const ns_camera *cam = &scene->camera;
     uint32_t *counters = job->buffers[PT_COUNTERS].mapped;
-    GpuPtPush push[16];
-    for (uint32_t i = 0; i < 16; i++)
-        push[i] = (GpuPtPush){
-            .target = {plan->target[0], plan->target[1], plan->target[2], plan->target[3]},
-            .delta_lights = plan->delta_lights,
-            .components = scene->render.components,
-            .max_events = ns_pt_max_events(scene->render.components, scene->render.max_scatter),
-            .yield_after = ctx->dev.loop_limited ? NS_PT_YIELD_LAVAPIPE : 1u << 24,
-            .report = 0,
-        };
+    GpuPtPush push = {
+        .target = {plan->target[0], plan->target[1], plan->target[2], plan->target[3]},
+        .delta_lights = plan->delta_lights,
+        .components = scene->render.components,
+        .max_events = ns_pt_max_events(scene->render.components, scene->render.max_scatter),
+        .yield_after = ctx->dev.loop_limited ? NS_PT_YIELD_LAVAPIPE : 1u << 24,
+    };
     *dispatched = 0;
-    for (uint32_t batch = 1;; batch = batch < 16 ? 2 * batch : 16) {
-        if (*dispatched >= NS_PT_MAX_DISPATCHES)
-            return ns_fail(err, NS_ERR_LIMIT,
-                           "pt: not finished after %u dispatches (%u pixels left); the media "
-                           "are too thick or spp too high for the reference on this device",
-                           *dispatched, counters[NS_PT_COUNTER_UNFINISHED]);
-        for (uint32_t i = 0; i < batch; i++)
-            push[i].report = i + 1 == batch;
-        /* The previous submission has completed (gpu_dispatch_many waits for its fence),
-         * and the next one makes this host write visible. */
-        counters[NS_PT_COUNTER_UNFINISHED] = 0;
-        int status = gpu_dispatch_many(
-            &ctx->dev,
-            &(gpu_dispatch_desc){
-                .pipeline = &ctx->pt,
-                .buffers = bound,
-                .buffer_count = PT_COUNT,
-                .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
-                           (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
-                .push = push,
-                .dispatch_count = batch,
-            },
-            err);
-        *dispatched += batch;
-        if (!status)
-            status = pt_check_counters(counters, err);
-        if (status || counters[NS_PT_COUNTER_UNFINISHED] == 0)
-            return status;
-    }
+    /* An invocation that lavapipe cut short anyway is an error here (pt_check_counters's
+     * first check), not a reason to start again with a smaller budget as in the vrl method. */
+    int status = ns_resume_dispatch(
+        ctx,
+        &(ns_resume_desc){
+            .pipeline = pipeline,
+            .buffers = bound,
+            .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
+                       (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
+            .push = &push,
+            .push_count = 1,
+            .report_offset = offsetof(GpuPtPush, report),
+            .counters = counters,
+            .unfinished = NS_PT_COUNTER_UNFINISHED,
+            .cut = NS_NONE,
+            .first_batch = 1,
+            .max_batch = 16,
+            .max_dispatches = NS_PT_MAX_DISPATCHES,
+            .check = pt_check_counters,
+        },
+        dispatched, err);
+    if (status == NS_RESUME_GAVE_UP)
+        status = ns_fail(err, NS_ERR_LIMIT,
+                         "pt: not finished after %u dispatches (%u pixels left); the media "
+                         "are too thick or spp too high for the reference on this device",
+                         *dispatched, counters[NS_PT_COUNTER_UNFINISHED]);
+    return status;
 }
 
 static int pt_read_back(pt_job *job, const ns_camera *cam, ns_image *out, ns_error *err)
@@ -257,16 +256,12 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
         return reachable;
     pt_job job;
     memset(&job, 0, sizeof job);
-    double t0 = ns_now_ms();
-    int status = NS_OK;
-    if (!ctx->pt.pipeline) { /* the first pt render of this context (the caller holds its lock) */
-        status = gpu_pipeline_create(&ctx->dev, &ctx->pt,
-                                     &(gpu_pipeline_desc){.shader = "pt",
-                                                          .binding_count = PT_COUNT,
-                                                          .push_constant_size = sizeof(GpuPtPush)},
-                                     err);
-        ns_stats_add_stage(stats, "pt_pipeline", ns_now_ms() - t0);
-    }
+    /* Made by the first pt render of this context (the caller holds its lock) and kept. */
+    gpu_pipeline *pipeline = NULL;
+    double made_ms = 0;
+    int status = ns_pipeline(ctx, NS_PIPELINE_PT, &pipeline, &made_ms, err);
+    if (made_ms > 0)
+        ns_stats_add_stage(stats, "pt_pipeline", made_ms);
     double t1 = ns_now_ms();
     if (!status)
         status = ns_gpu_scene_build(scene, &job.scene, err);
@@ -286,7 +281,7 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     ns_stats_add_stage(stats, "upload", t3 - t2);
     uint32_t dispatched = 0;
     if (!status)
-        status = pt_dispatch(ctx, &job, scene, &plan, &dispatched, err);
+        status = pt_dispatch(ctx, pipeline, &job, scene, &plan, &dispatched, err);
     double t4 = ns_now_ms();
     ns_stats_add_stage(stats, "pt_pass", t4 - t3);
     (void)dispatched; /* not in ns_render_stats (a shared struct); measured by the tests */

@@ -4,10 +4,11 @@
 
 #include "internal.h"
 
-/* Renders a validated scene with the path tracer; the caller holds ctx->lock. The
- * pipeline is made for this render and destroyed after it (the reference is not on the
- * fast path). Fails with NS_ERR_LIMIT, never a wrong image, when a path ran past lavapipe's
- * loop budget, was trapped at boundaries (NS_PT_MAX_BOUNDARY_RUN) or came out non-finite. */
+/* Renders a validated scene with the path tracer; the caller holds ctx->lock. The pipeline
+ * is made by the context's first pt render and kept (render/pipelines.c: the reference is not
+ * on the fast path). Fails with NS_ERR_LIMIT, never a wrong image, when a path ran past
+ * lavapipe's loop budget, was trapped at boundaries (NS_PT_MAX_BOUNDARY_RUN) or came out
+ * non-finite. */
 int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_error *err);
 

@@ -4,7 +4,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "bvh.h"
 #include "internal.h"
 #include "pt.h"
 #include "scatter.h"
@@ -98,6 +97,10 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
     const ns_camera *cam = &scene->camera;
     uint32_t per_dispatch = ctx->dev.loop_limited ? 1 : count;
     uint32_t dispatches = (count + per_dispatch - 1) / per_dispatch;
+    gpu_pipeline *camera;
+    int status = ns_pipeline(ctx, NS_PIPELINE_CAMERA, &camera, NULL, err);
+    if (status)
+        return status;
     GpuSamplePush *push = calloc(dispatches, sizeof *push);
     if (!push)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u dispatches", dispatches);
@@ -107,10 +110,10 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
         push[i].sample_count = count - done < per_dispatch ? count - done : per_dispatch;
     }
     memset(job->buffers[B_COUNTERS].mapped, 0, NS_COUNTER_COUNT * sizeof(uint32_t));
-    int status = gpu_dispatch_many(
+    status = gpu_dispatch_many(
         &ctx->dev,
         &(gpu_dispatch_desc){
-            .pipeline = &ctx->camera,
+            .pipeline = camera,
             .buffers = bound,
             .buffer_count = B_COUNT,
             .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
@@ -321,70 +324,4 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
               ns_error *err)
 {
     return ns_render_ex(ctx, scene, out, stats, NULL, err);
-}
-
-/* =======================================================================================
- * BVH test path: rays against primitives through shaders/trace_test.comp.
- * ===================================================================================== */
-int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
-                  uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
-                  ns_error *err)
-{
-    ns_bvh bvh;
-    int status = ns_bvh_build(prims, prim_count, &bvh, err);
-    GpuPrim *all = status ? NULL : malloc(sizeof *all * ((size_t)prim_count + plane_count + 1));
-    if (!status && !all)
-        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "trace: primitives");
-    gpu_buffer buffers[5];
-    memset(buffers, 0, sizeof buffers);
-    if (!status) {
-        if (prim_count)
-            memcpy(all, bvh.prims, sizeof *all * prim_count);
-        if (plane_count)
-            memcpy(all + prim_count, planes, sizeof *all * plane_count);
-        GpuParams params = {0};
-        params.counts[3] = bvh.node_count;
-        params.prims[0] = prim_count;
-        params.prims[1] = plane_count;
-        params.prims[3] = ray_count;
-        const struct {
-            const void *data;
-            uint64_t size;
-        } plan[5] = {
-            {&params, sizeof params},
-            {bvh.nodes, (uint64_t)bvh.node_count * sizeof(GpuNode)},
-            {all, ((uint64_t)prim_count + plane_count) * sizeof(GpuPrim)},
-            {rays, (uint64_t)ray_count * sizeof(GpuRay)},
-            {NULL, (uint64_t)ray_count * sizeof(GpuHit)},
-        };
-        for (int i = 0; i < 5 && !status; i++)
-            status = gpu_buffer_create(
-                &ctx->dev, &buffers[i],
-                &(gpu_buffer_desc){.size = plan[i].size,
-                                   .kind = i ? GPU_BUFFER_STORAGE : GPU_BUFFER_UNIFORM,
-                                   .data = plan[i].data,
-                                   .data_size = plan[i].data ? plan[i].size : 0,
-                                   .label = "ns.trace_test"},
-                err);
-    }
-    if (!status) {
-        gpu_buffer *bound[5] = {&buffers[0], &buffers[1], &buffers[2], &buffers[3], &buffers[4]};
-        pthread_mutex_lock(&ctx->lock);
-        status = gpu_dispatch(
-            &ctx->dev, &ctx->trace_test, bound, 5,
-            (uint32_t[3]){(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1}, err);
-        pthread_mutex_unlock(&ctx->lock);
-    }
-    if (!status) {
-        memcpy(hits, buffers[4].mapped, sizeof *hits * ray_count);
-        /* Back from tree order to the caller's order. */
-        for (uint32_t i = 0; i < ray_count; i++)
-            if (hits[i].prim != NS_NONE && hits[i].prim < prim_count)
-                hits[i].prim = bvh.order[hits[i].prim];
-    }
-    for (int i = 0; i < 5; i++)
-        gpu_buffer_destroy(&ctx->dev, &buffers[i]);
-    free(all);
-    ns_bvh_free(&bvh);
-    return status;
 }

@@ -57,10 +57,9 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
 int ns_tables_init(ns_context *ctx, ns_error *err);
 void ns_tables_destroy(ns_context *ctx); /* frees the cache and the networks; safe twice */
 
-/* The default table grid (the Monte Carlo grid of offline/mc.c, rebuilt here because render/
- * does not link offline/): edges in file order z, rho, theta, phi. */
-#define NS_TABLE_SINH_SCALE 0.5 /* mfp */
-#define NS_TABLE_EXTENT 400.0   /* mfp */
+/* The edges of the default table grid (render/include/table_grid.h, the grid offline/mc.c
+ * fills; rebuilt here because render/ does not link offline/), in file order z, rho, theta,
+ * phi. */
 typedef struct ns_table_grid {
     double z[NS_TABLE_NZ + 1], rho[NS_TABLE_NRHO + 1];
     double theta[NS_TABLE_NTHETA + 1], phi[NS_TABLE_NPHI + 1];
@@ -126,6 +125,23 @@ int ns_vrl_targets(const ns_scene *scene, const char *who, ns_vrl_target *out, u
  * cdf: the smallest i with (i + xi) / paths >= cdf. */
 double ns_vrl_seed_offset(uint32_t seed);
 uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi);
+
+/* One stratum of light paths: paths [first_path, the next stratum's first_path or paths)
+ * start at scene light `light` (gs->lights) and aim at targets[target]; p is the stratum's
+ * share of the paths, so a path's flux weight is 1 / (p paths). */
+typedef struct ns_vrl_stratum {
+    uint32_t light, target, first_path;
+    double p;
+} ns_vrl_stratum;
+
+/* The light-path stratification both VRL generators use (vrl.c, vrl_method.c): `paths`
+ * paths spread over the (light, target) pairs by systematic sampling with the seed's offset,
+ * in proportion to ns_vrl_light_power. *out (malloc'd, free it) holds the strata that got at
+ * least one path, in path order; none (NULL, 0) when no light sends power through a target.
+ * who names the stage in an out-of-memory message. */
+int ns_vrl_stratify(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
+                    uint32_t paths, uint32_t seed, const char *who, ns_vrl_stratum **out,
+                    uint32_t *count, ns_error *err);
 
 /* The grid hierarchy of one medium's VRLs (paper Section 4.3): the cells of the chosen
  * (leaf) level, and the tree of every level from the coarsest down to it that the gather

@@ -135,6 +135,10 @@ enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_COUNT };
 
 static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_error *err)
 {
+    gpu_pipeline *pipeline;
+    int status = ns_pipeline(ctx, NS_PIPELINE_ACCUMULATE, &pipeline, NULL, err);
+    if (status)
+        return status;
     uint32_t dispatches = (NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH;
     GpuAccumulatePush push[(NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH];
     for (uint32_t i = 0; i < dispatches; i++) {
@@ -145,7 +149,7 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
     }
     return gpu_dispatch_many(
         &ctx->dev,
-        &(gpu_dispatch_desc){.pipeline = &ctx->accumulate,
+        &(gpu_dispatch_desc){.pipeline = pipeline,
                              .buffers = bound,
                              .buffer_count = B_COUNT,
                              .groups = {CELLS_PER_DISPATCH / NS_ACCUMULATE_GROUP, 1, 1},

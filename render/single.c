@@ -11,15 +11,6 @@
 
 #include "scatter.h"
 
-/* Mirrors the push block of shaders/single.comp. */
-typedef struct single_push {
-    uint32_t first_sample;
-    uint32_t sample_count;
-    uint32_t samples;
-    uint32_t segment_count;
-} single_push;
-_Static_assert(sizeof(single_push) == 16, "single.comp push block");
-
 enum { SINGLE_GROUP = 64 };
 
 /* More samples per segment than this is refused: on lavapipe each may need its own
@@ -66,22 +57,6 @@ static int check_arguments(const gpu_buffer *scene_buffers, const gpu_buffer *se
     return NS_OK;
 }
 
-static int dispatch(ns_context *ctx, gpu_buffer **bound, const single_push *push, uint32_t count,
-                    uint32_t segment_count, ns_error *err)
-{
-    return gpu_dispatch_many(
-        &ctx->dev,
-        &(gpu_dispatch_desc){
-            .pipeline = &ctx->single,
-            .buffers = bound,
-            .buffer_count = NS_SCENE_BUFFER_COUNT + 3,
-            .groups = {(segment_count + SINGLE_GROUP - 1) / SINGLE_GROUP, 1, 1},
-            .push = push,
-            .dispatch_count = count,
-        },
-        err);
-}
-
 static uint32_t cut_short(const gpu_buffer *counters)
 {
     return ((const uint32_t *)counters->mapped)[COUNTER_CUT_SHORT];
@@ -99,54 +74,72 @@ static int cut_short_error(const gpu_buffer *counters, ns_error *err)
 /* Push blocks for samples [first, end) of `samples` in chunks of per_dispatch; returns the
  * number of blocks written. */
 static uint32_t chunk_samples(uint32_t first, uint32_t end, uint32_t samples, uint32_t per_dispatch,
-                              uint32_t segment_count, single_push *push)
+                              uint32_t segment_count, GpuSinglePush *push)
 {
     uint32_t n = 0;
     for (uint32_t s = first; s < end; s += per_dispatch)
-        push[n++] = (single_push){.first_sample = s,
-                                  .sample_count = end - s < per_dispatch ? end - s : per_dispatch,
-                                  .samples = samples,
-                                  .segment_count = segment_count};
+        push[n++] = (GpuSinglePush){.first_sample = s,
+                                    .sample_count = end - s < per_dispatch ? end - s : per_dispatch,
+                                    .samples = samples,
+                                    .segment_count = segment_count};
     return n;
 }
 
-/* Runs samples [first, end) of `samples` in chunks of per_dispatch, in one submission. */
-static int run_chunks(ns_context *ctx, gpu_buffer **bound, uint32_t segment_count, uint32_t first,
-                      uint32_t end, uint32_t samples, uint32_t per_dispatch, single_push *push,
-                      ns_error *err)
+/* Runs samples [first, end) of `samples` in chunks of per_dispatch, in one submission: a
+ * round of ns_resume_dispatch whose dispatches are all known in advance (each chunk its own
+ * push block, no work-left count). NS_RESUME_CUT when an invocation was cut short. */
+static int run_chunks(ns_context *ctx, const gpu_pipeline *pipeline, gpu_buffer **bound,
+                      uint32_t segment_count, uint32_t first, uint32_t end, uint32_t samples,
+                      uint32_t per_dispatch, GpuSinglePush *push, ns_error *err)
 {
     uint32_t n = chunk_samples(first, end, samples, per_dispatch, segment_count, push);
-    ((uint32_t *)bound[NS_SCENE_BUFFER_COUNT + 2]->mapped)[COUNTER_CUT_SHORT] = 0;
-    return dispatch(ctx, bound, push, n, segment_count, err);
+    return ns_resume_dispatch(
+        ctx,
+        &(ns_resume_desc){
+            .pipeline = pipeline,
+            .buffers = bound,
+            .groups = {(segment_count + SINGLE_GROUP - 1) / SINGLE_GROUP, 1, 1},
+            .push = push,
+            .push_count = n,
+            .report_offset = NS_NONE,
+            .counters = bound[NS_SCENE_BUFFER_COUNT + 2]->mapped,
+            .unfinished = NS_NONE,
+            .cut = COUNTER_CUT_SHORT,
+        },
+        NULL, err);
 }
 
 static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_count,
                           uint32_t samples, uint32_t budget, ns_error *err)
 {
     const gpu_buffer *counters = bound[NS_SCENE_BUFFER_COUNT + 2];
-    single_push *push = calloc(samples, sizeof *push);
+    gpu_pipeline *pipeline;
+    int status = ns_pipeline(ctx, NS_PIPELINE_SINGLE, &pipeline, NULL, err);
+    if (status)
+        return status;
+    GpuSinglePush *push = calloc(samples, sizeof *push);
     if (!push)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single scattering: %u dispatches", samples);
-    int status;
     if (!budget) {
-        status = run_chunks(ctx, bound, segment_count, 0, samples, samples, samples, push, err);
-        if (!status && cut_short(counters))
+        status = run_chunks(ctx, pipeline, bound, segment_count, 0, samples, samples, samples, push,
+                            err);
+        if (status == NS_RESUME_CUT)
             status = cut_short_error(counters, err);
         free(push);
         return status;
     }
     /* Sample 0 alone measures the cost of one sample. */
-    status = run_chunks(ctx, bound, segment_count, 0, 1, samples, 1, push, err);
-    if (!status && cut_short(counters))
+    status = run_chunks(ctx, pipeline, bound, segment_count, 0, 1, samples, 1, push, err);
+    if (status == NS_RESUME_CUT)
         status = cut_short_error(counters, err);
     uint32_t cost = ((const uint32_t *)counters->mapped)[COUNTER_MAX_LOOPS];
     uint32_t per_dispatch = budget / (SINGLE_COST_FACTOR * (cost ? cost : 1));
     per_dispatch = per_dispatch ? per_dispatch : 1;
     uint32_t first = 1;
     while (!status && samples > 1) {
-        status =
-            run_chunks(ctx, bound, segment_count, first, samples, samples, per_dispatch, push, err);
-        if (status || !cut_short(counters))
+        status = run_chunks(ctx, pipeline, bound, segment_count, first, samples, samples,
+                            per_dispatch, push, err);
+        if (status != NS_RESUME_CUT)
             break;
         if (per_dispatch == 1) {
             status = cut_short_error(counters, err);
@@ -156,6 +149,7 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
          * smaller chunks (the chunk that starts at sample 0 overwrites the output). */
         per_dispatch = per_dispatch / 4 ? per_dispatch / 4 : 1;
         first = 0;
+        status = NS_OK;
     }
     free(push);
     return status;

@@ -146,14 +146,18 @@ uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi)
     return x <= 0 ? 0 : x >= paths ? paths : (uint64_t)x;
 }
 
-static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
-                       uint32_t paths, uint32_t seed, vrl_plan *plan, ns_error *err)
+int ns_vrl_stratify(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
+                    uint32_t paths, uint32_t seed, const char *who, ns_vrl_stratum **out,
+                    uint32_t *count, ns_error *err)
 {
-    memset(plan, 0, sizeof *plan);
+    *out = NULL;
+    *count = 0;
     uint64_t pairs = (uint64_t)gs->light_count * target_count;
-    double *power = malloc(sizeof *power * (pairs ? pairs : 1));
+    if (!pairs || !paths)
+        return NS_OK;
+    double *power = malloc(sizeof *power * pairs);
     if (!power)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata",
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: %llu strata", who,
                        (unsigned long long)pairs);
     double total = 0;
     for (uint64_t k = 0; k < pairs; k++) {
@@ -166,13 +170,15 @@ static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uin
         free(power);
         return NS_OK;
     }
-    plan->strata = calloc(pairs < paths ? pairs : paths, sizeof *plan->strata);
-    if (!plan->strata) {
+    /* Every stratum that gets a path gets a path of its own: at most min(pairs, paths). */
+    ns_vrl_stratum *strata = calloc(pairs < paths ? pairs : paths, sizeof *strata);
+    if (!strata) {
         free(power);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %llu strata",
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: %llu strata", who,
                        (unsigned long long)pairs);
     }
     double xi = ns_vrl_seed_offset(seed), cdf = 0;
+    uint32_t n = 0;
     for (uint64_t k = 0; k < pairs; k++) {
         if (power[k] <= 0)
             continue;
@@ -182,16 +188,39 @@ static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uin
         uint64_t end = ns_vrl_first_path_at(cdf, paths, xi);
         if (end <= first)
             continue; /* no path this time: expected N p < 1, weight 1 / (N p) covers it */
-        const ns_vrl_target *t = &targets[k % target_count];
-        GpuVrlStratum *s = &plan->strata[plan->count++];
-        memcpy(s->target, t->sphere, sizeof s->target);
-        s->weight[0] = (float)(1.0 / (p * paths));
-        s->ids[0] = (uint32_t)first;
-        s->ids[1] = (uint32_t)(k / target_count);
-        s->ids[2] = t->object;
+        strata[n++] = (ns_vrl_stratum){.light = (uint32_t)(k / target_count),
+                                       .target = (uint32_t)(k % target_count),
+                                       .first_path = (uint32_t)first,
+                                       .p = p};
     }
     free(power);
+    *out = strata;
+    *count = n;
     return NS_OK;
+}
+
+static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32_t target_count,
+                       uint32_t paths, uint32_t seed, vrl_plan *plan, ns_error *err)
+{
+    memset(plan, 0, sizeof *plan);
+    ns_vrl_stratum *strata = NULL;
+    uint32_t count = 0;
+    int status =
+        ns_vrl_stratify(gs, targets, target_count, paths, seed, "vrl", &strata, &count, err);
+    plan->strata = status || !count ? NULL : calloc(count, sizeof *plan->strata);
+    if (!status && count && !plan->strata)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl: %u strata", count);
+    for (uint32_t i = 0; !status && i < count; i++) {
+        const ns_vrl_stratum *st = &strata[i];
+        GpuVrlStratum *s = &plan->strata[plan->count++];
+        memcpy(s->target, targets[st->target].sphere, sizeof s->target);
+        s->weight[0] = (float)(1.0 / (st->p * paths));
+        s->ids[0] = st->first_path;
+        s->ids[1] = st->light;
+        s->ids[2] = targets[st->target].object;
+    }
+    free(strata);
+    return status;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -230,7 +259,10 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
         {.size = slot_count * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
         {.size = NS_VRL_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl.counters"},
     };
-    int status = gpu_buffers_create(&ctx->dev, own, descs, V_OWN, err);
+    gpu_pipeline *pipeline = NULL;
+    int status = ns_pipeline(ctx, NS_PIPELINE_VRL, &pipeline, NULL, err);
+    if (!status)
+        status = gpu_buffers_create(&ctx->dev, own, descs, V_OWN, err);
     if (!status) {
         gpu_buffer *bound[NS_SCENE_BUFFER_COUNT + V_OWN];
         for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
@@ -244,7 +276,7 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
                            .budget = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0};
         status = gpu_dispatch_many(
             &ctx->dev,
-            &(gpu_dispatch_desc){.pipeline = &ctx->vrl,
+            &(gpu_dispatch_desc){.pipeline = pipeline,
                                  .buffers = bound,
                                  .buffer_count = NS_SCENE_BUFFER_COUNT + V_OWN,
                                  .groups = {(paths + NS_VRL_GROUP - 1) / NS_VRL_GROUP, 1, 1},

@@ -23,6 +23,7 @@
  * image.
  */
 #include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -40,15 +41,15 @@
 #define GATHER_YIELD_VISIBILITY 1000u
 #define MIN_YIELD 4u
 
-/* repeat_until_done's answer when lavapipe cut an invocation (not an ns_status). */
-#define REPEAT_CUT 1
-
 /* VRLs a render may make (48 bytes each; lavapipe caps a storage buffer at 128 MiB). */
 #define VRL_METHOD_MAX_VRLS (2u * 1024u * 1024u)
 
 /* Submissions after which a pass gives up: every dispatch advances every unfinished path or
  * segment, so this only bounds a runaway job. */
 #define MAX_BATCHES 100000u
+
+/* Dispatches in one submission at most (the batches double up to it). */
+#define MAX_PER_BATCH 4096u
 
 /* =======================================================================================
  * Emitters: (light, target object) pairs and their share of the paths.
@@ -89,51 +90,34 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
     memset(out, 0, sizeof *out);
     uint32_t n_obj = scene->object_count ? scene->object_count : 1;
     ns_vrl_target *targets_of = malloc(sizeof *targets_of * n_obj);
-    uint64_t pairs = 0;
-    double *power = NULL;
     uint32_t targets = 0;
+    ns_vrl_stratum *strata = NULL;
+    uint32_t count = 0;
     int status =
         targets_of ? NS_OK : ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: targets");
     if (!status)
         status = ns_vrl_targets(scene, "the vrl method", targets_of, &targets, err);
-    if (!status) {
-        pairs = (uint64_t)gs->light_count * targets;
-        power = malloc(sizeof *power * (pairs ? pairs : 1));
-        out->items = calloc(pairs ? pairs : 1, sizeof *out->items);
-        if (!power || !out->items)
-            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %llu emitters",
-                             (unsigned long long)pairs);
-    }
-    double total = 0;
-    for (uint64_t k = 0; !status && k < pairs; k++) {
-        double p = ns_vrl_light_power(&gs->lights[k / targets], targets_of[k % targets].sphere);
-        power[k] = p > 0 && isfinite(p) ? p : 0;
-        total += power[k];
-    }
-    if (!status && total > 0) {
-        double xi = ns_vrl_seed_offset(seed), cdf = 0;
-        for (uint64_t k = 0; k < pairs; k++) {
-            if (power[k] <= 0)
-                continue;
-            double p = power[k] / total;
-            uint64_t first = ns_vrl_first_path_at(cdf, paths, xi);
-            cdf += p;
-            if (ns_vrl_first_path_at(cdf, paths, xi) <= first)
-                continue;
-            const GpuLight *light = &gs->lights[k / targets];
-            GpuVrlEmitter *e = &out->items[out->count++];
-            memcpy(e->target, targets_of[k % targets].sphere, sizeof e->target);
-            memcpy(e->position, light->position, sizeof e->position);
-            memcpy(e->direction, light->direction, sizeof e->direction);
-            for (int c = 0; c < 3; c++)
-                e->color[c] = (float)(light->color[c] / (p * paths));
-            e->ids[0] = (uint32_t)first;
-            e->ids[1] = light->info[0];
-            e->ids[2] = targets_of[k % targets].object;
-        }
+    /* The same systematic sampling over (light, target) pairs as the VRL stage (vrl.c). */
+    if (!status)
+        status = ns_vrl_stratify(gs, targets_of, targets, paths, seed, "vrl method", &strata,
+                                 &count, err);
+    if (!status && count && !(out->items = calloc(count, sizeof *out->items)))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u emitters", count);
+    for (uint32_t i = 0; !status && i < count; i++) {
+        const ns_vrl_stratum *st = &strata[i];
+        const GpuLight *light = &gs->lights[st->light];
+        GpuVrlEmitter *e = &out->items[out->count++];
+        memcpy(e->target, targets_of[st->target].sphere, sizeof e->target);
+        memcpy(e->position, light->position, sizeof e->position);
+        memcpy(e->direction, light->direction, sizeof e->direction);
+        for (int c = 0; c < 3; c++)
+            e->color[c] = (float)(light->color[c] / (st->p * paths));
+        e->ids[0] = st->first_path;
+        e->ids[1] = light->info[0];
+        e->ids[2] = targets_of[st->target].object;
     }
     free(targets_of);
-    free(power);
+    free(strata);
     if (status) {
         free(out->items);
         memset(out, 0, sizeof *out);
@@ -142,7 +126,7 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
 }
 
 /* =======================================================================================
- * Shared plumbing: the loop budget and repeated dispatches.
+ * Shared plumbing: the loop budget and the resumed dispatches.
  * ===================================================================================== */
 static int check_scene_buffers(const ns_context *ctx, const gpu_buffer *scene_buffers,
                                const char *what, ns_error *err)
@@ -159,65 +143,16 @@ static int check_scene_buffers(const ns_context *ctx, const gpu_buffer *scene_bu
     return NS_OK;
 }
 
-/* Runs `per_batch` dispatches of one push block per submission, the last one reporting,
- * until counters[left_counter] reads 0 after a batch. push_report points at the push
- * block's report field. Returns REPEAT_CUT (err untouched) as soon as an invocation was cut
- * by the loop limit: the work done so far is wrong and the caller starts again. */
-typedef struct repeat_desc {
-    const gpu_pipeline *pipeline;
-    gpu_buffer **bound;
-    uint32_t groups;
-    void *push;            /* one push block (32 bytes) */
-    uint32_t *push_report; /* its report field */
-    gpu_buffer *counters;
-    uint32_t left_counter;  /* counter of unfinished work after a reporting dispatch */
-    uint32_t limit_counter; /* counter of invocations cut by the loop limit */
-    uint32_t per_batch;     /* dispatches in the first submission */
-    const char *what;
-} repeat_desc;
-
-static int repeat_until_done(ns_context *ctx, const repeat_desc *r, uint32_t *dispatches,
-                             ns_error *err)
+/* Both passes run rounds of ns_resume_dispatch: one push block, its report field set in the
+ * last dispatch of each submission, MAX_PER_BATCH dispatches per submission at most and
+ * MAX_BATCHES submissions. A round that gave up becomes the pass's error here;
+ * NS_RESUME_CUT (an invocation cut by the loop limit) goes back to the pass, which starts
+ * again with a smaller budget. */
+static int round_status(int status, const char *what, ns_error *err)
 {
-    enum { BLOCK = 32, MAX_PER_BATCH = 4096 };
-    uint32_t per_batch = r->per_batch ? r->per_batch : 1;
-    if (per_batch > MAX_PER_BATCH)
-        per_batch = MAX_PER_BATCH;
-    uint8_t *blocks = malloc((size_t)BLOCK * MAX_PER_BATCH);
-    if (!blocks)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: push blocks", r->what);
-    uint32_t *c = r->counters->mapped;
-    c[r->limit_counter] = 0;
-    int status = NS_OK;
-    for (uint32_t batch = 0;; batch++) {
-        if (batch >= MAX_BATCHES) {
-            status = ns_fail(err, NS_ERR_LIMIT, "%s: still unfinished after %u submissions",
-                             r->what, MAX_BATCHES);
-            break;
-        }
-        for (uint32_t i = 0; i < per_batch; i++) {
-            *r->push_report = i + 1 == per_batch;
-            memcpy(blocks + (size_t)BLOCK * i, r->push, BLOCK);
-        }
-        c[r->left_counter] = 0;
-        status = gpu_dispatch_many(&ctx->dev,
-                                   &(gpu_dispatch_desc){.pipeline = r->pipeline,
-                                                        .buffers = r->bound,
-                                                        .buffer_count = 8,
-                                                        .groups = {r->groups, 1, 1},
-                                                        .push = blocks,
-                                                        .dispatch_count = per_batch},
-                                   err);
-        *dispatches += per_batch;
-        if (!status && c[r->limit_counter])
-            status = REPEAT_CUT;
-        if (status || c[r->left_counter] == 0)
-            break;
-        /* More than expected (shadow rays, long walks): grow the batches. */
-        if (per_batch < MAX_PER_BATCH)
-            per_batch *= 2;
-    }
-    free(blocks);
+    if (status == NS_RESUME_GAVE_UP)
+        return ns_fail(err, NS_ERR_LIMIT, "%s: still unfinished after %u submissions", what,
+                       MAX_BATCHES);
     return status;
 }
 
@@ -249,29 +184,36 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
     const GpuParams *params = scene_buffers[0].mapped;
     GpuVrlWalk *walks = own[T_WALKS].mapped;
     uint32_t yield = params->limits[0] ? TRACE_YIELD_LAVAPIPE : 0;
+    gpu_pipeline *pipeline;
+    int status = ns_pipeline(ctx, NS_PIPELINE_VRL_TRACE, &pipeline, NULL, err);
+    if (status)
+        return status;
     for (;;) {
         memset(walks, 0, sizeof *walks * push->path_count);
         for (uint32_t i = 0; offsets && i < push->path_count; i++)
             walks[i].count[1] = offsets[i];
         ((uint32_t *)own[T_COUNTERS].mapped)[NS_VRL_TRACE_TRUNCATED] = 0;
         push->yield_after = yield;
-        uint32_t dispatches = 0;
-        int status = repeat_until_done(
+        status = ns_resume_dispatch(
             ctx,
-            &(repeat_desc){.pipeline = &ctx->vrl_trace,
-                           .bound = bound,
-                           .groups =
-                               (push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP,
-                           .push = push,
-                           .push_report = &push->report,
-                           .counters = &own[T_COUNTERS],
-                           .left_counter = NS_VRL_TRACE_ACTIVE,
-                           .limit_counter = NS_VRL_TRACE_LOOP_LIMIT,
-                           .per_batch = yield ? 4 : 1,
-                           .what = "vrl method: light paths"},
-            &dispatches, err);
-        if (status != REPEAT_CUT)
-            return status;
+            &(ns_resume_desc){
+                .pipeline = pipeline,
+                .buffers = bound,
+                .groups = {(push->path_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP, 1,
+                           1},
+                .push = push,
+                .push_count = 1,
+                .report_offset = offsetof(GpuVrlTracePush, report),
+                .counters = own[T_COUNTERS].mapped,
+                .unfinished = NS_VRL_TRACE_ACTIVE,
+                .cut = NS_VRL_TRACE_LOOP_LIMIT,
+                .first_batch = yield ? 4 : 1,
+                .max_batch = MAX_PER_BATCH,
+                .max_submissions = MAX_BATCHES,
+            },
+            NULL, err);
+        if (status != NS_RESUME_CUT)
+            return round_status(status, "vrl method: light paths", err);
         if (!yield || yield <= MIN_YIELD)
             return loop_limit_error("vrl method: light paths", yield, err);
         yield /= 4;
@@ -433,6 +375,10 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                                    : GATHER_YIELD_LAVAPIPE;
     const GpuSegment *segs = bound[4]->mapped;
     GpuVrlResult *results = bound[6]->mapped;
+    gpu_pipeline *pipeline;
+    int status = ns_pipeline(ctx, NS_PIPELINE_VRL_GATHER, &pipeline, NULL, err);
+    if (status)
+        return status;
     for (;;) {
         /* This material's segments start (again) from nothing. */
         for (uint32_t i = 0; i < segment_count; i++)
@@ -447,22 +393,25 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                                  .visibility = visibility ? 1u : 0u};
         /* Without shadow rays a VRL costs one counted iteration: this many dispatches finish. */
         uint32_t per_batch = yield ? (end - first + yield - 1) / yield : 1;
-        int status =
-            repeat_until_done(ctx,
-                              &(repeat_desc){.pipeline = &ctx->vrl_gather,
-                                             .bound = bound,
-                                             .groups = (segment_count + NS_VRL_METHOD_GROUP - 1) /
-                                                       NS_VRL_METHOD_GROUP,
-                                             .push = &push,
-                                             .push_report = &push.report,
-                                             .counters = counters,
-                                             .left_counter = NS_VRL_GATHER_UNFINISHED,
-                                             .limit_counter = NS_VRL_GATHER_LOOP_LIMIT,
-                                             .per_batch = per_batch,
-                                             .what = "vrl method: gather"},
-                              dispatches, err);
-        if (status != REPEAT_CUT)
-            return status;
+        status = ns_resume_dispatch(
+            ctx,
+            &(ns_resume_desc){
+                .pipeline = pipeline,
+                .buffers = bound,
+                .groups = {(segment_count + NS_VRL_METHOD_GROUP - 1) / NS_VRL_METHOD_GROUP, 1, 1},
+                .push = &push,
+                .push_count = 1,
+                .report_offset = offsetof(GpuVrlGatherPush, report),
+                .counters = counters->mapped,
+                .unfinished = NS_VRL_GATHER_UNFINISHED,
+                .cut = NS_VRL_GATHER_LOOP_LIMIT,
+                .first_batch = per_batch,
+                .max_batch = MAX_PER_BATCH,
+                .max_submissions = MAX_BATCHES,
+            },
+            dispatches, err);
+        if (status != NS_RESUME_CUT)
+            return round_status(status, "vrl method: gather", err);
         if (!yield || yield <= MIN_YIELD)
             return loop_limit_error("vrl method: gather", yield, err);
         yield /= 4;

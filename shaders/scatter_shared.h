@@ -54,15 +54,11 @@ struct GpuVrlNode {
     ns_uint level; /* grid level, 0 = finest */
     ns_uint pad;
 };
-/* The render tables: the default Monte Carlo grid (offline/mc.h: 128 z x 64 rho x 18 theta x
- * 18 phi, spatial edges scale * sinh(step * i), z symmetric about 0, 10-degree angular bins).
- * A table buffer holds the three RGB channels one after another, each in the .npy order
+/* The render tables: the default Monte Carlo grid (NS_TABLE_NZ .. NS_TABLE_CELLS, the edges'
+ * scale and extent), defined once for C and GLSL in render/include/table_grid.h. A table
+ * buffer holds the three RGB channels one after another, each in the .npy order
  * [z][rho][theta][phi]. */
-NS_CONST(uint, NS_TABLE_NZ, 128);
-NS_CONST(uint, NS_TABLE_NRHO, 64);
-NS_CONST(uint, NS_TABLE_NTHETA, 18);
-NS_CONST(uint, NS_TABLE_NPHI, 18);
-NS_CONST(uint, NS_TABLE_CELLS, 128 * 64 * 18 * 18);
+#include "table_grid.h"
 
 /* Uniform block of the gather (binding 0). One gather dispatch serves one medium. */
 struct GpuGatherParams {

@@ -91,6 +91,17 @@ struct GpuSamplePush {
     ns_uint pad1;
 };
 
+/* Push constants of single scattering (single.comp): samples [first_sample, first_sample +
+ * sample_count) of the `samples` regular samples along each of segment_count segments. The
+ * samples are split across dispatches (render/single.c: lavapipe's loop limit); a dispatch
+ * with first_sample 0 writes its segments' outputs, later ones add to them. */
+struct GpuSinglePush {
+    ns_uint first_sample;
+    ns_uint sample_count;
+    ns_uint samples; /* all samples of a segment (sets dt) */
+    ns_uint segment_count;
+};
+
 /* lavapipe (llvmpipe) stops any loop after 65535 iterations in one shader invocation
  * (gallivm's LP_MAX_TGSI_LOOP_ITERATIONS), silently. The camera pass counts its own loop
  * iterations and reports (counter NS_COUNTER_LOOP_LIMIT) rather than return a wrong image;
@@ -178,8 +189,11 @@ typedef struct GpuSegment GpuSegment;
 typedef struct GpuRay GpuRay;
 typedef struct GpuHit GpuHit;
 typedef struct GpuSamplePush GpuSamplePush;
+typedef struct GpuSinglePush GpuSinglePush;
 _Static_assert(sizeof(GpuParams) == 144, "GpuParams std430 size");
 _Static_assert(sizeof(GpuSamplePush) == 16, "GpuSamplePush size");
+_Static_assert(sizeof(GpuSinglePush) == 16 && offsetof(GpuSinglePush, segment_count) == 12,
+               "GpuSinglePush layout");
 _Static_assert(offsetof(GpuParams, image) == 80, "GpuParams.image offset");
 _Static_assert(offsetof(GpuParams, prims) == 112, "GpuParams.prims offset");
 _Static_assert(sizeof(GpuNode) == 32 && offsetof(GpuNode, bmax) == 16, "GpuNode layout");

@@ -35,14 +35,8 @@ layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 // budget); counters[1]: the most loop iterations one invocation counted (out_of_budget) in
 // one dispatch, which render/single.c uses to size the next dispatches.
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-// Mirrors single_push in render/single.c. A dispatch with first_sample 0 writes its
-// segments' outputs, later ones add to them.
-layout(push_constant) uniform PushBlock {
-    uint first_sample;
-    uint sample_count;
-    uint samples; // all samples of a segment (sets dt)
-    uint segment_count;
-} push;
+// GpuSinglePush (shared.h): which samples this dispatch takes.
+layout(push_constant) uniform PushBlock { GpuSinglePush push; };
 
 #define NS_COMMON_TRACE
 #include "common.glsl"

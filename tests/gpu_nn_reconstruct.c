@@ -177,7 +177,7 @@ static void check_material(const ns_nn_weights w[2], double g, const double albe
                            const char *label)
 {
     ns_table shape;
-    const uint32_t n[4] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
     CHECK_INT(ns_table_create(&shape, n, NULL), 0);
     ns_mc_default_edges(&shape);
     size_t cells = ns_table_size(&shape);
@@ -274,7 +274,7 @@ static void test_sampled_matches_every_cell(void)
     if (load_builtin(w))
         return;
     ns_table shape;
-    const uint32_t n[4] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
     CHECK_INT(ns_table_create(&shape, n, NULL), 0);
     ns_mc_default_edges(&shape);
     size_t cells = ns_table_size(&shape);

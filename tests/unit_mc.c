@@ -241,10 +241,10 @@ static void test_double_against_beam_integral(void)
             while (t->edges[NS_AXIS_Z][iz + 1] <= zs[z_i])
                 iz++;
             const uint64_t *counts = r.counts[NS_ORDER_DOUBLE] +
-                                     ((size_t)iz * NS_MC_NRHO + ir) * NS_MC_NDIR;
-            for (uint32_t it = 0; it < NS_MC_NTHETA; it += 2)
-                for (uint32_t ip = 0; ip < NS_MC_NPHI; ip += 3) {
-                    uint32_t o = it * NS_MC_NPHI + ip;
+                                     ((size_t)iz * NS_TABLE_NRHO + ir) * NS_MC_NDIR;
+            for (uint32_t it = 0; it < NS_TABLE_NTHETA; it += 2)
+                for (uint32_t ip = 0; ip < NS_TABLE_NPHI; ip += 3) {
+                    uint32_t o = it * NS_TABLE_NPHI + ip;
                     /* Poisson noise of sum_i count_i lobe[i][o], relative. */
                     double mean = 0.0, var = 0.0;
                     for (int i = 0; i < NS_MC_NDIR; i++) {
@@ -259,7 +259,7 @@ static void test_double_against_beam_integral(void)
                     double want = j2_bin_average(t, g, a, iz, ir, it, ip);
                     /* phi measured from -e_rho instead of e_rho: the convention error the
                      * moments cannot see must be seen here. */
-                    double mirrored = j2_bin_average(t, g, a, iz, ir, it, NS_MC_NPHI - 1 - ip);
+                    double mirrored = j2_bin_average(t, g, a, iz, ir, it, NS_TABLE_NPHI - 1 - ip);
                     /* Noise plus 1.5% for the lobe matrix's assumption that incoming
                      * directions are uniform within their 10-degree bin. */
                     double sigma = rel_sigma * want;
@@ -300,8 +300,8 @@ static void test_thread_count_invariance(void)
     for (int o = 0; o < 2; o++) {
         size_t n = ns_table_size(&one.table[o]);
         CHECK(memcmp(one.table[o].data, two.table[o].data, n * sizeof(float)) == 0);
-        CHECK(memcmp(one.counts[o], two.counts[o], (size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR *
-                                                        sizeof(uint64_t)) == 0);
+        CHECK(memcmp(one.counts[o], two.counts[o],
+                     (size_t)NS_TABLE_NZ * NS_TABLE_NRHO * NS_MC_NDIR * sizeof(uint64_t)) == 0);
         CHECK(memcmp(&one.moments[o], &two.moments[o], sizeof one.moments[o]) == 0);
     }
     CHECK_INT(one.collisions, two.collisions);
@@ -321,7 +321,7 @@ static void test_seed_changes_table(void)
     desc.seed = 2;
     CHECK(ns_mc_run(&desc, &r2, &err) == 0);
     CHECK(memcmp(r1.counts[0], r2.counts[0],
-                 (size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR * sizeof(uint64_t)) != 0);
+                 (size_t)NS_TABLE_NZ * NS_TABLE_NRHO * NS_MC_NDIR * sizeof(uint64_t)) != 0);
     ns_mc_result_free(&r1);
     ns_mc_result_free(&r2);
 }
@@ -334,7 +334,7 @@ static void test_double_albedo_rescale(void)
     ns_mc_result r3, r9;
     CHECK(run_mc(0.4, 0.3, 20000, NS_MC_WANT_DOUBLE, 2, 2, 8, &r3) == 0);
     CHECK(run_mc(0.4, 0.9, 20000, NS_MC_WANT_DOUBLE, 2, 2, 8, &r9) == 0);
-    size_t cells = (size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR;
+    size_t cells = (size_t)NS_TABLE_NZ * NS_TABLE_NRHO * NS_MC_NDIR;
     CHECK(memcmp(r3.counts[0], r9.counts[0], cells * sizeof(uint64_t)) == 0);
     ns_error err;
     CHECK(ns_mc_result_set_double_albedo(&r3, 0.9, &err) == 0);
@@ -359,13 +359,14 @@ static void test_lobe_matrix(void)
     for (int i = 0; i < NS_MC_NDIR; i++) {
         double sum = 0.0, cos_out = 0.0;
         for (int o = 0; o < NS_MC_NDIR; o++) {
-            int it = o / NS_MC_NPHI;
+            int it = o / NS_TABLE_NPHI;
             double l = lobe[(size_t)i * NS_MC_NDIR + o];
             sum += l;
-            cos_out += l * 0.5 * (cos(it * M_PI / NS_MC_NTHETA) + cos((it + 1) * M_PI / NS_MC_NTHETA));
+            cos_out += l * 0.5 * (cos(it * M_PI / NS_TABLE_NTHETA) + cos((it + 1) * M_PI / NS_TABLE_NTHETA));
         }
-        int ti = i / NS_MC_NPHI;
-        double cos_in = 0.5 * (cos(ti * M_PI / NS_MC_NTHETA) + cos((ti + 1) * M_PI / NS_MC_NTHETA));
+        int ti = i / NS_TABLE_NPHI;
+        double cos_in =
+            0.5 * (cos(ti * M_PI / NS_TABLE_NTHETA) + cos((ti + 1) * M_PI / NS_TABLE_NTHETA));
         worst_sum = fmax(worst_sum, fabs(sum - 1.0));
         worst_cos = fmax(worst_cos, fabs(cos_out - g * cos_in));
     }

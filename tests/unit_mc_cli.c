@@ -113,8 +113,8 @@ static void test_good_run(void)
             CHECK(t.g == 0.3 && t.albedo == 0.6 && t.photons == 3000 && t.seed == 9);
             CHECK_REL(t.energy_expected, ns_mc_expected_energy((ns_order)o, 0.6), 1e-12);
             CHECK_REL(t.energy_captured, ns_table_energy(&t), 1e-5);
-            CHECK_INT(t.n[0], NS_MC_NZ);
-            CHECK_INT(t.n[3], NS_MC_NPHI);
+            CHECK_INT(t.n[0], NS_TABLE_NZ);
+            CHECK_INT(t.n[3], NS_TABLE_NPHI);
             ns_table_free(&t);
         }
     }

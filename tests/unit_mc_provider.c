@@ -15,7 +15,7 @@
 #include "mc_provider.h"
 #include "scatter.h"
 
-static const size_t cells = (size_t)NS_MC_NZ * NS_MC_NRHO * NS_MC_NDIR;
+static const size_t cells = (size_t)NS_TABLE_NZ * NS_TABLE_NRHO * NS_MC_NDIR;
 static char root[256];
 
 static ns_mc_provider *tiny_provider(const char *dir)
@@ -33,7 +33,8 @@ static ns_mc_provider *tiny_provider(const char *dir)
 
 static double energy_of(const float *j)
 {
-    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA,
+                                              NS_TABLE_NPHI};
     ns_table t;
     if (ns_table_create(&t, n, NULL))
         return NAN;
@@ -57,7 +58,8 @@ static void test_default_grid_matches_offline(void)
 {
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    static const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    static const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA,
+                                              NS_TABLE_NPHI};
     ns_table t;
     if (ns_table_create(&t, n, NULL))
         return;
@@ -69,8 +71,8 @@ static void test_default_grid_matches_offline(void)
             differ += fabs(mine[a][i] - t.edges[a][i]) > 1e-12 * fmax(1.0, fabs(t.edges[a][i]));
     CHECK_INT(differ, 0);
     CHECK_INT(NS_TABLE_CELLS, cells);
-    CHECK_NEAR(grid.extent, NS_MC_EXTENT, 0);
-    CHECK_NEAR(grid.scale, NS_MC_SINH_SCALE, 0);
+    CHECK_NEAR(grid.extent, NS_TABLE_EXTENT, 0);
+    CHECK_NEAR(grid.scale, NS_TABLE_SINH_SCALE, 0);
     ns_table_free(&t);
 }
 

@@ -172,24 +172,24 @@ static void test_unwritable(void)
 /* The default bins: increasing, symmetric in z, fine at the source, reaching the extent. */
 static void test_default_edges(void)
 {
-    const uint32_t n[NS_AXIS_COUNT] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    const uint32_t n[NS_AXIS_COUNT] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
     ns_table t;
     ns_error err;
     CHECK(ns_table_create(&t, n, &err) == 0);
     ns_mc_default_edges(&t);
     const double *z = t.edges[NS_AXIS_Z], *rho = t.edges[NS_AXIS_RHO];
-    CHECK_NEAR(z[0], -NS_MC_EXTENT, 1e-9);
-    CHECK_NEAR(z[NS_MC_NZ], NS_MC_EXTENT, 1e-9);
-    CHECK(z[NS_MC_NZ / 2] == 0.0 && rho[0] == 0.0);
-    CHECK_NEAR(rho[NS_MC_NRHO], NS_MC_EXTENT, 1e-9);
+    CHECK_NEAR(z[0], -NS_TABLE_EXTENT, 1e-9);
+    CHECK_NEAR(z[NS_TABLE_NZ], NS_TABLE_EXTENT, 1e-9);
+    CHECK(z[NS_TABLE_NZ / 2] == 0.0 && rho[0] == 0.0);
+    CHECK_NEAR(rho[NS_TABLE_NRHO], NS_TABLE_EXTENT, 1e-9);
     CHECK(rho[1] < 0.06); /* fine near the beam */
-    CHECK(rho[NS_MC_NRHO] - rho[NS_MC_NRHO - 1] < 0.12 * NS_MC_EXTENT); /* ~11% far away */
-    for (int i = 0; i < NS_MC_NZ; i++) {
+    CHECK(rho[NS_TABLE_NRHO] - rho[NS_TABLE_NRHO - 1] < 0.12 * NS_TABLE_EXTENT); /* ~11% far away */
+    for (int i = 0; i < NS_TABLE_NZ; i++) {
         CHECK(z[i + 1] > z[i]);
-        CHECK_NEAR(z[i], -z[NS_MC_NZ - i], 1e-9);
+        CHECK_NEAR(z[i], -z[NS_TABLE_NZ - i], 1e-9);
     }
-    CHECK_NEAR(t.edges[NS_AXIS_THETA][NS_MC_NTHETA], M_PI, 1e-12);
-    CHECK_NEAR(t.edges[NS_AXIS_PHI][NS_MC_NPHI], M_PI, 1e-12);
+    CHECK_NEAR(t.edges[NS_AXIS_THETA][NS_TABLE_NTHETA], M_PI, 1e-12);
+    CHECK_NEAR(t.edges[NS_AXIS_PHI][NS_TABLE_NPHI], M_PI, 1e-12);
     CHECK(t.edges[NS_AXIS_THETA][1] <= 10.0 * M_PI / 180.0 + 1e-12);
     ns_table_free(&t);
 }

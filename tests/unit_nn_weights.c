@@ -147,9 +147,9 @@ static void test_normalisation(void)
 {
     ns_nn_header h;
     ns_nn_header_init(&h, 0, NS_NN_TARGET_LOGREL);
-    h.extent = (float)NS_MC_EXTENT; /* train sets it from the tables it reads */
+    h.extent = (float)NS_TABLE_EXTENT; /* train sets it from the tables it reads */
     ns_table t;
-    const uint32_t n[4] = {NS_MC_NZ, NS_MC_NRHO, NS_MC_NTHETA, NS_MC_NPHI};
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
     CHECK_INT(ns_table_create(&t, n, NULL), 0);
     ns_mc_default_edges(&t);
     /* The asinh map undoes the sinh bins: bin centres land nearly evenly spaced in [0, 1]. */
@@ -166,8 +166,8 @@ static void test_normalisation(void)
     }
     CHECK(max_step < 3 * min_step);
     CHECK_NEAR(ns_nn_map_z(&h, 0.0), 0.5, 1e-7);
-    CHECK_NEAR(ns_nn_map_z(&h, -NS_MC_EXTENT), 0.0, 1e-6);
-    CHECK_NEAR(ns_nn_map_z(&h, NS_MC_EXTENT), 1.0, 1e-6);
+    CHECK_NEAR(ns_nn_map_z(&h, -NS_TABLE_EXTENT), 0.0, 1e-6);
+    CHECK_NEAR(ns_nn_map_z(&h, NS_TABLE_EXTENT), 1.0, 1e-6);
     CHECK_NEAR(ns_nn_map_albedo(&h, 0.999), 1.0, 1e-5);
     CHECK_NEAR(ns_nn_map_albedo(&h, 0.0), 0.0, 1e-7);
     CHECK(ns_nn_map_albedo(&h, 0.9) > 0.3); /* the high-albedo end gets most of the range */

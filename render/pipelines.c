@@ -1,0 +1,110 @@
+/* pipelines.c — the table of every compute pipeline of the renderer, and the one function
+ * that gets a context's pipeline by id (making it on first use where the table says so). */
+#include "pipelines.h"
+
+#include "internal.h"
+#include "accumulate_shared.h"
+#include "pt_shared.h"
+#include "scatter_shared.h"
+#include "vrl_method_shared.h"
+#include "vrl_shared.h"
+
+/* The push-constant sizes are the sizeof of the structs the shaders declare their push
+ * blocks with (each header checks its struct's size with _Static_assert), so a block that
+ * grows on one side cannot leave the pipeline layout behind. */
+static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
+    [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 4, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_VRL_TRACE] = {"vrl_trace", 8, sizeof(GpuVrlTracePush), NS_PIPELINE_AT_START},
+    [NS_PIPELINE_VRL_GATHER] = {"vrl_gather", 8, sizeof(GpuVrlGatherPush), NS_PIPELINE_AT_START},
+    /* Without the paper's and the dipole's branches the default gather runs 1.7x faster on
+     * lavapipe (gather.glsl), so each form is its own shader and only the default one is
+     * compiled at start-up; the others are warmed when made so that their render reports the
+     * compile as the stage "gather_pipeline". */
+    [NS_PIPELINE_GATHER_BOUNDED] = {"gather_bounded", 8, sizeof(GpuGatherPush),
+                                    NS_PIPELINE_FIRST_USE_WARMED},
+    [NS_PIPELINE_GATHER_PAPER] = {"gather_paper", 8, sizeof(GpuGatherPush),
+                                  NS_PIPELINE_FIRST_USE_WARMED},
+    [NS_PIPELINE_GATHER_PAPER_BOUNDED] = {"gather_paper_bounded", 8, sizeof(GpuGatherPush),
+                                          NS_PIPELINE_FIRST_USE_WARMED},
+    [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
+                                   NS_PIPELINE_FIRST_USE_WARMED},
+    /* The reference path tracer is not on the fast path: its compile (~0.3 s on lavapipe) is
+     * paid once per context by the first pt render (stage "pt_pipeline" and its first
+     * dispatch), never by a context that renders no pt. */
+    [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE},
+    /* Only the BVH tests trace rays on their own (ns_trace_rays): a service never does. */
+    [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE},
+    [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS},
+    [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS},
+};
+
+const ns_pipeline_row *ns_pipeline_row_of(ns_pipeline_id id)
+{
+    return (unsigned)id < NS_PIPELINE_COUNT ? &pipeline_rows[id] : NULL;
+}
+
+int ns_pipeline_make(gpu_device *dev, ns_pipeline_id id, gpu_pipeline *pipe, ns_error *err)
+{
+    const ns_pipeline_row *row = ns_pipeline_row_of(id);
+    if (!row)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline id %d is not in the table", (int)id);
+    return gpu_pipeline_create(dev, pipe,
+                               &(gpu_pipeline_desc){.shader = row->shader,
+                                                    .binding_count = row->bindings,
+                                                    .push_constant_size = row->push_bytes},
+                               err);
+}
+
+int ns_pipelines_create(ns_context *ctx, ns_error *err)
+{
+    int status = NS_OK;
+    for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT && !status; id++)
+        if (pipeline_rows[id].when == NS_PIPELINE_AT_START)
+            status = ns_pipeline_make(&ctx->dev, (ns_pipeline_id)id, &ctx->pipelines[id], err);
+    /* All made first, then all warmed: lavapipe compiles inside the first dispatch. */
+    for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT && !status; id++)
+        if (pipeline_rows[id].when == NS_PIPELINE_AT_START)
+            status = gpu_pipeline_warm(&ctx->dev, &ctx->pipelines[id], err);
+    return status;
+}
+
+void ns_pipelines_destroy(ns_context *ctx)
+{
+    /* A pipeline never made is zeroed, and destroying it does nothing. */
+    for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT; id++)
+        gpu_pipeline_destroy(&ctx->dev, &ctx->pipelines[id]);
+}
+
+int ns_pipeline(ns_context *ctx, ns_pipeline_id id, gpu_pipeline **out, double *made_ms,
+                ns_error *err)
+{
+    *out = NULL;
+    if (made_ms)
+        *made_ms = 0;
+    if ((unsigned)id >= NS_PIPELINE_CONTEXT_COUNT)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline id %d is not a context's", (int)id);
+    gpu_pipeline *pipe = &ctx->pipelines[id];
+    if (pipe->pipeline) {
+        *out = pipe;
+        return NS_OK;
+    }
+    /* Start-up made every NS_PIPELINE_AT_START pipeline or the context does not exist. */
+    if (pipeline_rows[id].when == NS_PIPELINE_AT_START)
+        return ns_fail(err, NS_ERR_INTERNAL, "pipeline %s was not made at start-up",
+                       pipeline_rows[id].shader);
+    double t0 = ns_now_ms();
+    int status = ns_pipeline_make(&ctx->dev, id, pipe, err);
+    /* A failed warm-up leaves the pipeline made: the next render uses it (and its first
+     * dispatch compiles it), as it would any pipeline. */
+    if (!status && pipeline_rows[id].when == NS_PIPELINE_FIRST_USE_WARMED)
+        status = gpu_pipeline_warm(&ctx->dev, pipe, err);
+    if (made_ms)
+        *made_ms = ns_now_ms() - t0;
+    if (!status)
+        *out = pipe;
+    return status;
+}
