@@ -250,13 +250,15 @@ typedef struct ns_scatter_inputs {
 
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
  * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
- * (NS_NONE: nothing) at camera distance `distance[p]`; `gather` gives the radiance of a
- * pixel the rounds gather. Fills every pixel's radiance (gathered or interpolated) and
- * interpolated[p]. Returns 0, or -1 out of memory. */
+ * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the
+ * radiance of a pixel the rounds gather, from the caller's field (a struct the test
+ * defines: the library only passes it on). Fills every pixel's radiance (gathered or
+ * interpolated) and interpolated[p]. Returns 0, or -1 out of memory. */
+typedef struct ns_tile_field ns_tile_field;
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
                       const uint32_t *material, const float *distance,
-                      void (*gather)(uint32_t pixel, float radiance[3], void *user), void *user,
-                      float (*radiance)[3], uint8_t *interpolated);
+                      void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
+                      ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);
 
 int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                       ns_error *err);
