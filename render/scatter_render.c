@@ -150,7 +150,7 @@ static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32
     uint32_t pixels = cam->width * cam->height;
     t->width = cam->width;
     t->height = cam->height;
-    t->tile = scene->render.gather_tile ? scene->render.gather_tile : 1;
+    t->tile = scene->render.gather_tile; /* >= 1: resolved and checked by ns_render */
     t->tiles_x = (t->width + t->tile - 1) / t->tile;
     t->tiles_y = (t->height + t->tile - 1) / t->tile;
     /* The vrl method's estimates are noisy (neighbours never agree) and each of its gathers
