@@ -1213,21 +1213,11 @@ static void parse_render(parser *p, const json_t *v)
     static const char *const accumulation_names[] = {"exact", "paper"};
     static const char *const beam_names[] = {"endless", "bounded"};
     ns_render_settings *r = &p->render;
-    *r = (ns_render_settings){
-        .method = NS_METHOD_NN,
-        .components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
-        .spp = 1,
-        .seed = 1,
-        .max_depth = 8,
-        .exposure = 0,
-        .vrls = NS_DEFAULT_VRLS,
-        .gather_tile = 2,
-        .gather_levels = NS_DEFAULT_GATHER_LEVELS,
-        .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
-        .single_samples = NS_DEFAULT_SINGLE_SAMPLES,
-        .accumulation = NS_ACCUMULATION_EXACT,
-        .cull_solid_angle = 0,
-    };
+    /* An absent key is left 0, which the render library reads as its default (resolved at
+     * the end). Not so for seed and gather_tolerance: 0 is a value of their own there, which
+     * the library keeps, so only the parser, which sees whether the key was written, can
+     * give them their defaults. */
+    *r = (ns_render_settings){.seed = NS_DEFAULT_SEED, .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE};
     size_t saved = push_key(p, "render");
     if (v && !expect_object(p, v, "render")) {
         pop(p, saved);
@@ -1295,6 +1285,10 @@ static void parse_render(parser *p, const json_t *v)
             }
         }
     }
+    /* The settings leave the parser resolved, as ns_render will render them: what the scene
+     * reports (image metadata, --timings) is then the effective spp, max_depth and
+     * components, not a 0 standing for them. */
+    *r = ns_render_settings_resolve(*r);
     if (method_ok && components_ok)
         check_components_available(p, components, r->components);
     pop(p, saved);

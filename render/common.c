@@ -1,4 +1,5 @@
-/* common.c — status table, stage timings and the clock: small things every module uses. */
+/* common.c — status table, stage timings, the clock and the render settings' defaults:
+ * small things every module uses. */
 #include <stdio.h>
 #include <string.h>
 #include <time.h>
@@ -76,4 +77,24 @@ uint32_t ns_unsupported_components(ns_method method, uint32_t components)
     if (method == NS_METHOD_DIPOLE && (components & gathered) && (components & gathered) != gathered)
         return components & gathered;
     return 0;
+}
+
+ns_render_settings ns_render_settings_resolve(ns_render_settings r)
+{
+    /* The fields whose default is 0 need nothing; seed and gather_tolerance keep their 0,
+     * a value of its own there (nscatter.h). The others: 0 is outside their range, so it
+     * can only mean "not set". */
+    if (!r.components)
+        r.components = NS_DEFAULT_COMPONENTS;
+    if (!r.spp)
+        r.spp = NS_DEFAULT_SPP;
+    if (!r.max_depth)
+        r.max_depth = NS_DEFAULT_MAX_DEPTH;
+    if (!r.vrls)
+        r.vrls = NS_DEFAULT_VRLS;
+    if (!r.gather_tile)
+        r.gather_tile = NS_DEFAULT_GATHER_TILE;
+    if (!r.single_samples)
+        r.single_samples = NS_DEFAULT_SINGLE_SAMPLES;
+    return r;
 }

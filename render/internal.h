@@ -29,7 +29,10 @@ struct ns_context {
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);
- * the message names the field, e.g. "objects[3].material: 9 out of range (2 materials)". */
+ * the message names the field, e.g. "objects[3].material: 9 out of range (2 materials)".
+ * Render settings left 0 are checked as their defaults (ns_render_settings_resolve). The
+ * stages below ns_render read scene->render resolved: a test that calls one directly with
+ * settings it left 0 resolves them first. */
 int ns_scene_validate(const ns_scene *scene, ns_error *err);
 
 /* The scene in the shaders' layout. prims = BVH primitives in tree order, then the planes. */

@@ -297,6 +297,13 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     memset(out, 0, sizeof *out);
     if (!ctx)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_render: no context");
+    /* Settings left 0 take their defaults here, once: everything below reads them resolved. */
+    ns_scene resolved;
+    if (scene) {
+        resolved = *scene;
+        resolved.render = ns_render_settings_resolve(scene->render);
+        scene = &resolved;
+    }
     int status = ns_scene_validate(scene, err);
     if (status)
         return status;

@@ -209,14 +209,27 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
 int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
                        double *made_ms, ns_error *err);
 
-/* The same sum on the CPU (tests): out[i] for segments[i], i < segment_count; table = A
- * (float [3][NS_TABLE_CELLS]) or NULL in dipole mode. It walks the nodes in lavapipe's
- * dispatch ranges; the exact walk takes its culling decisions for subgroup_size
- * consecutive segments together, as gather.comp does (gpu_device.subgroup_size; the sums do
- * not depend on it, the counts do). */
-void ns_gather_cpu(const GpuGatherParams *params, const GpuSegment *segments,
-                   uint32_t segment_count, const ns_vrl_grid *grid, const float *table,
-                   uint32_t subgroup_size, float (*out)[4], ns_gather_counts *counts);
+/* The nodes the gather walks: the grid's tree (depth first, GpuVrlNode.skip past each
+ * subtree) with every leaf too large for one dispatch under lavapipe's loop budget cut into
+ * pieces, and a representative VRL per node. ns_gather_run builds them for the GPU; the
+ * CPU reference of the tests (tests/oracles/gather_cpu.c) builds the same ones, so that
+ * both walk the same nodes. Build returns 0, or -1 out of memory (out freed). */
+typedef struct ns_gather_nodes {
+    GpuVrlNode *nodes;
+    GpuVrl *representatives;
+    uint32_t count;
+} ns_gather_nodes;
+
+int ns_gather_nodes_build(const ns_vrl_grid *grid, ns_gather_nodes *out);
+void ns_gather_nodes_free(ns_gather_nodes *n);
+
+/* Node ranges [first_cell, first_cell + cell_count) of tree for the dispatches, written into
+ * push (room for tree->count + 1): each a run of whole subtrees whose walk stays within
+ * `budget` loop iterations even if it culls and represents nothing (every node visited,
+ * every leaf's VRLs evaluated). A subtree too large for one range is left out and its
+ * children are placed instead: its representative is then never used, and its light comes
+ * from the children. budget 0: one range. Returns the number of ranges. */
+uint32_t ns_gather_ranges(const ns_gather_nodes *tree, uint32_t budget, GpuGatherPush *push);
 
 /* ---------------------------------------------------------------------------------------
  * Single scattering (single.c): `samples` regular samples along every segment, connected to
@@ -253,13 +266,15 @@ typedef struct ns_scatter_inputs {
 
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
  * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
- * (NS_NONE: nothing) at camera distance `distance[p]`; `gather` gives the radiance of a
- * pixel the rounds gather. Fills every pixel's radiance (gathered or interpolated) and
- * interpolated[p]. Returns 0, or -1 out of memory. */
+ * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the
+ * radiance of a pixel the rounds gather, from the caller's field (a struct the test
+ * defines: the library only passes it on). Fills every pixel's radiance (gathered or
+ * interpolated) and interpolated[p]. Returns 0, or -1 out of memory. */
+typedef struct ns_tile_field ns_tile_field;
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
                       const uint32_t *material, const float *distance,
-                      void (*gather)(uint32_t pixel, float radiance[3], void *user), void *user,
-                      float (*radiance)[3], uint8_t *interpolated);
+                      void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
+                      ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);
 
 int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                       ns_error *err);

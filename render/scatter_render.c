@@ -150,7 +150,7 @@ static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32
     uint32_t pixels = cam->width * cam->height;
     t->width = cam->width;
     t->height = cam->height;
-    t->tile = scene->render.gather_tile ? scene->render.gather_tile : 1;
+    t->tile = scene->render.gather_tile; /* >= 1: resolved and checked by ns_render */
     t->tiles_x = (t->width + t->tile - 1) / t->tile;
     t->tiles_y = (t->height + t->tile - 1) / t->tile;
     /* The vrl method's estimates are noisy (neighbours never agree) and each of its gathers
@@ -313,44 +313,13 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
     return marked;
 }
 
-/* ns_adaptive_tiles' rounds: each marked pixel's radiance from the caller's function. */
-typedef struct pixel_gather_call {
-    void (*gather)(uint32_t pixel, float radiance[3], void *user);
-    void *user;
-} pixel_gather_call;
-
-static int gather_by_pixel(tile_plan *t, const uint8_t *round, void *user)
-{
-    const pixel_gather_call *call = user;
-    for (uint32_t p = 0; p < t->width * t->height; p++)
-        if (round[p])
-            call->gather(p, t->radiance[p], call->user);
-    return NS_OK;
-}
-
-/* Every round, coarsest lattice first: plan it, then let `gather` fill the radiance (Lbar)
- * of the pixels it marked before the next, finer round reads them. The render and the
- * tests (ns_adaptive_tiles) share this loop. */
-typedef int (*round_gather_fn)(tile_plan *t, const uint8_t *round, void *user);
-
-static int adaptive_rounds(tile_plan *t, uint8_t *round, round_gather_fn gather, void *user,
-                           uint64_t *interpolated, double *plan_ms)
-{
-    int status = NS_OK;
-    for (int level = (int)t->levels; level >= 0 && !status; level--) {
-        double t0 = ns_now_ms();
-        uint32_t marked = plan_round(t, (uint32_t)level, round, interpolated);
-        *plan_ms += ns_now_ms() - t0;
-        if (marked)
-            status = gather(t, round, user);
-    }
-    return status;
-}
-
+/* The rounds as render_double_multiple runs them, on tiles of one pixel whose keys and
+ * radiance the caller gives: coarsest lattice first, plan_round marks the pixels to gather,
+ * and they are gathered (their Lbar filled) before the next, finer round reads them. */
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
                       const uint32_t *material, const float *distance,
-                      void (*gather)(uint32_t pixel, float radiance[3], void *user), void *user,
-                      float (*radiance)[3], uint8_t *interpolated)
+                      void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
+                      ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
     uint32_t pixels = width * height;
     tile_plan t = {.width = width, .height = height, .tile = 1, .tiles_x = width,
@@ -365,11 +334,12 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
         t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1}};
         t.representative[p] = material[p] == NS_NONE ? NS_NONE : p;
     }
-    pixel_gather_call call = {gather, user};
     uint64_t count = 0;
-    double unused = 0;
-    if (!status)
-        status = adaptive_rounds(&t, round, gather_by_pixel, &call, &count, &unused);
+    for (int level = (int)levels; level >= 0 && !status; level--)
+        if (plan_round(&t, (uint32_t)level, round, &count))
+            for (uint32_t p = 0; p < pixels; p++)
+                if (round[p])
+                    gather(p, t.radiance[p], field);
     for (uint32_t p = 0; p < pixels && !status; p++) {
         memcpy(radiance[p], t.radiance[p], sizeof radiance[p]);
         interpolated[p] = t.state[p] == PIXEL_INTERPOLATED;
@@ -770,21 +740,6 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
     return status;
 }
 
-typedef struct render_round_call {
-    ns_context *ctx;
-    const ns_scatter_inputs *in;
-    vrl_source *source;
-    ns_render_stats *stats;
-    scatter_times *times;
-    ns_error *err;
-} render_round_call;
-
-static int render_round(tile_plan *t, const uint8_t *round, void *user)
-{
-    render_round_call *c = user;
-    return gather_round(c->ctx, c->in, t, round, c->source, c->stats, c->times, c->err);
-}
-
 static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                                   scatter_times *times, ns_error *err)
 {
@@ -798,9 +753,16 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
     times->composite += ns_now_ms() - t0;
     uint64_t interpolated = 0;
-    render_round_call call = {ctx, in, &source, stats, times, err};
-    if (!status)
-        status = adaptive_rounds(&plan, round, render_round, &call, &interpolated, &times->composite);
+    /* The rounds of the adaptive gather, coarsest lattice first (a single round, every tile,
+     * without render.gather_levels): each gathers what plan_round marked before the next,
+     * finer round interpolates from it. */
+    for (int level = (int)plan.levels; level >= 0 && !status; level--) {
+        double t1 = ns_now_ms();
+        uint32_t marked = plan_round(&plan, (uint32_t)level, round, &interpolated);
+        times->composite += ns_now_ms() - t1;
+        if (marked)
+            status = gather_round(ctx, in, &plan, round, &source, stats, times, err);
+    }
     if (!status) {
         double t2 = ns_now_ms();
         compose(in, &plan);

@@ -172,8 +172,10 @@ int ns_scene_validate(const ns_scene *s, ns_error *err)
     if (!s)
         return BAD("scene: NULL");
     int status = check_camera(&s->camera, err);
+    /* Settings left 0 are checked as the defaults ns_render renders them with. */
+    ns_render_settings render = ns_render_settings_resolve(s->render);
     if (!status)
-        status = check_render(&s->render, err);
+        status = check_render(&render, err);
     if (status)
         return status;
     if (s->material_count > NS_MAX_MATERIALS || (s->material_count && !s->materials))

@@ -1,6 +1,6 @@
 /* vrl_method.h — (private to render/ and the tests) the two halves of the `vrl` method
- * (render/vrl_method.c; ns_vrl_method_gather in scatter.h strings them together) and a CPU
- * copy of the gather's estimator with the same random numbers. */
+ * (render/vrl_method.c; ns_vrl_method_gather in scatter.h strings them together). The CPU
+ * copy of the gather's estimator the tests compare with is tests/oracles/vrl_method_cpu.c. */
 #ifndef NS_RENDER_VRL_METHOD_H
 #define NS_RENDER_VRL_METHOD_H
 
@@ -29,14 +29,6 @@ int ns_vrl_method_gather_vrls(ns_context *ctx, gpu_buffer *scene_buffers, const 
                               uint32_t vrl_count, uint32_t seed, const uint8_t *visibility,
                               gpu_buffer *out_double, gpu_buffer *out_multiple,
                               ns_vrl_gather_counts *counts, ns_error *err);
-
-/* The gather's estimator on the CPU without visibility (tests): the same sums as
- * ns_vrl_method_gather_vrls for segments[i], i < segment_count, given the VRLs in the order
- * the GPU visits them (grouped by material, in their order within a material: see
- * ns_vrl_method_sort). */
-void ns_vrl_method_gather_cpu(const GpuMaterial *materials, const GpuSegment *segments,
-                              uint32_t segment_count, const GpuVrl *vrls, uint32_t vrl_count,
-                              uint32_t seed, float (*out_double)[4], float (*out_multiple)[4]);
 
 /* The order the GPU gather visits VRLs in: a stable sort by material. first[m], first[m + 1]
  * bound material m's (first has material_count + 1 entries). Returns 0, or -1 when out of

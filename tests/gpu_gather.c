@@ -1,11 +1,11 @@
 /* gpu_gather.c — the gather shader equals the CPU implementation of the same sum
- * (render/gather.c ns_gather_cpu): random VRLs, random camera segments and a random table,
+ * (tests/oracles/gather_cpu.c ns_gather_cpu): random VRLs, random camera segments and a random table,
  * in the exact segment form and the paper's W form (each with endless and with bounded beams:
  * the beam past each VRL's length subtracted, the gather_bounded shader) and the dipole; and a case large enough that
  * lavapipe's loop limit splits the cells (and one oversized cell) across dispatches, which
  * must not change the result. Validation layers on (NSCATTER_VALIDATION=1). */
 #include "gpu_util.h"
-#include "scatter.h"
+#include "oracles/gather_cpu.h"
 
 static uint32_t rng = 12345u;
 static float uniform01(void)

@@ -89,7 +89,7 @@ static void test_bad_numbers(void)
     s.camera.width = 0;
     expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "camera.width");
     s = valid_scene();
-    s.render.spp = 0;
+    s.render.spp = NS_MAX_SPP + 1;
     expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.spp");
     s = valid_scene();
     s.render.max_depth = NS_MAX_DEPTH + 1;

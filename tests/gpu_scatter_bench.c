@@ -1,7 +1,7 @@
 /* gpu_scatter_bench.c — timings of the scattering stages on a candle-like scene (a block of
  * the paper's candle wax lit by a flame-like point light and a dim environment), and the
  * gather's VRL-segment interactions per second against a plain C loop of the same arithmetic
- * (render/gather.c ns_gather_cpu) on 2 threads, on the same VRLs, segments and table.
+ * (tests/oracles/gather_cpu.c ns_gather_cpu) on 2 threads, on the same VRLs, segments and table.
  *
  * As a test (default) it renders once, small, and checks that every scattering stage and
  * count is reported. With NSCATTER_BENCH=N it prints the medians of N runs: 256x256 and
@@ -18,7 +18,7 @@
 
 #include "gpu_util.h"
 #include "image_metrics.h"
-#include "scatter.h"
+#include "oracles/gather_cpu.h"
 #include "vrl_shared.h"
 
 static ns_material materials[2];

@@ -42,14 +42,10 @@ static inline ns_scene base_scene(uint32_t width, uint32_t height, double fov)
     s.camera.width = width;
     s.camera.height = height;
     set3(s.camera.up, 0, 1, 0);
-    s.render.method = NS_METHOD_NN;
+    /* The other settings are left 0: ns_render gives them their defaults. */
     s.render.components = NS_COMPONENT_SURFACE;
     s.render.spp = 4;
     s.render.seed = 7;
-    s.render.max_depth = 8;
-    s.render.vrls = NS_DEFAULT_VRLS;
-    s.render.gather_tile = 2;
-    s.render.single_samples = NS_DEFAULT_SINGLE_SAMPLES;
     return s;
 }
 

@@ -1,6 +1,7 @@
 /* gpu_vrl_method.c — the `vrl` method (Novak et al. 2012, render/vrl_method.c):
- *   - the GPU gather equals its CPU copy (same random numbers) on random VRLs and segments,
- *     with enough VRLs that lavapipe's loop limit splits them across dispatches;
+ *   - the GPU gather equals its CPU copy (tests/oracles/vrl_method_cpu.c; same random
+ *     numbers) on random VRLs and segments, with enough VRLs that lavapipe's loop limit
+ *     splits them across dispatches;
  *   - the estimator's mean equals a numerical double integral of the ray-to-ray transport
  *     (oblique, nearly crossing and parallel pairs);
  *   - the first-stretch VRLs carry exactly the flux that enters an index-matched sphere, for
@@ -11,7 +12,7 @@
 #include <stdlib.h>
 
 #include "gpu_util.h"
-#include "vrl_method.h"
+#include "oracles/vrl_method_cpu.h"
 
 /* ---------------------------------------------------------------------------------------
  * A scene on the device (the five scene buffers, with lavapipe's loop budget as render.c

@@ -19,15 +19,15 @@
 #define W 33
 #define H 33 /* the coarsest lattice (8 apart) reaches every edge */
 
-typedef struct field {
-    double (*f)(const struct field *, double x, double y);
+/* The field the rounds gather from: ns_adaptive_tiles passes it to gather() as it is. */
+typedef struct ns_tile_field {
+    double (*f)(const struct ns_tile_field *, double x, double y);
     double c; /* the parabola's: f'' = 2c along x, 0 along y */
     int gathered; /* calls */
 } field;
 
-static void gather(uint32_t pixel, float radiance[3], void *user)
+static void gather(uint32_t pixel, float radiance[3], field *fd)
 {
-    field *fd = user;
     double v = fd->f(fd, pixel % W, pixel / W);
     for (int k = 0; k < 3; k++)
         radiance[k] = (float)(v * (k + 1)); /* three channels, same shape */

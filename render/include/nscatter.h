@@ -168,37 +168,72 @@ typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumul
  * of their own). docs/scattering.md. */
 typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams;
 
-#define NS_DEFAULT_VRLS 10000u
 #define NS_MAX_VRLS 1000000u
 #define NS_MAX_GATHER_TILE 16u
 #define NS_MAX_GATHER_LEVELS 4u
+#define NS_MAX_SINGLE_SAMPLES 4096u
+
+/* The defaults of the render settings (docs/scene.md lists the same). */
+#define NS_DEFAULT_COMPONENTS \
+    (NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)
+#define NS_DEFAULT_SPP 1u
+#define NS_DEFAULT_SEED 1u
+#define NS_DEFAULT_MAX_DEPTH 8u
+#define NS_DEFAULT_VRLS 10000u
+#define NS_DEFAULT_GATHER_TILE 2u
 #define NS_DEFAULT_GATHER_LEVELS 0u
 #define NS_DEFAULT_GATHER_TOLERANCE 0.02f
 #define NS_DEFAULT_SINGLE_SAMPLES 100u
-#define NS_MAX_SINGLE_SAMPLES 4096u
 
+/* How to render. A field left 0 means its default: ns_render replaces it once, first
+ * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
+ * struct renders with every default. Where the default is itself 0 (method, exposure,
+ * max_scatter, gather_levels, accumulation, vrl_beams, cull_solid_angle) nothing needs
+ * replacing. Two fields are exceptions, because 0 is a value of their own there: seed and
+ * gather_tolerance keep a 0 as given, and their defaults (NS_DEFAULT_SEED,
+ * NS_DEFAULT_GATHER_TOLERANCE) are applied by the scene parser, which knows whether the key
+ * was written. */
 typedef struct ns_render_settings {
-    ns_method method;
-    uint32_t components; /* NS_COMPONENT_* bits */
-    uint32_t spp;        /* jittered camera samples per pixel, >= 1 */
+    ns_method method;    /* 0: NS_METHOD_NN, the default */
+    uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
+    uint32_t spp;        /* jittered camera samples per pixel, 1..NS_MAX_SPP; 0: NS_DEFAULT_SPP */
+    /* Random seed, any value: 0 is a seed like the others and stays 0 (the parser's default
+     * for an absent key is NS_DEFAULT_SEED). */
     uint32_t seed;
-    uint32_t max_depth; /* surface/boundary bounces of a camera path */
-    float exposure;     /* stops; applied by the encoders, not by the renderer */
+    /* Surface/boundary bounces of a camera path, 1..NS_MAX_DEPTH; 0: NS_DEFAULT_MAX_DEPTH. */
+    uint32_t max_depth;
+    float exposure;       /* stops; applied by the encoders, not by the renderer; 0: none */
     uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
     /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
-    uint32_t vrls;           /* light paths traced towards the media (VRLs stored <= this,
-                                or 4x with bounded beams: vrl_beams) */
-    uint32_t gather_tile;    /* one gathered camera pixel per tile x tile block, >= 1 */
+    uint32_t vrls;           /* light paths traced towards the media, 1..NS_MAX_VRLS (VRLs
+                                stored <= this, or 4x with bounded beams: vrl_beams); 0:
+                                NS_DEFAULT_VRLS */
+    uint32_t gather_tile;    /* one gathered camera pixel per tile x tile block,
+                                1..NS_MAX_GATHER_TILE; 0: NS_DEFAULT_GATHER_TILE */
     /* Adaptive gather: the tiles are first gathered on a lattice 2^gather_levels tiles apart;
      * a tile between gathered ones is interpolated when they agree within gather_tolerance
-     * (relative, per channel) and see the same surface, else gathered. 0 = every tile. */
+     * (relative, per channel) and see the same surface, else gathered. gather_levels 0 =
+     * every tile, the default. gather_tolerance 0 is a tolerance of its own (interpolate only
+     * where the estimated error is exactly 0) and stays 0: a caller that sets gather_levels
+     * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. */
     uint32_t gather_levels;
     float gather_tolerance;
-    uint32_t single_samples; /* regular samples per camera segment for single scattering */
-    ns_accumulation accumulation;
-    ns_vrl_beams vrl_beams; /* nn and table only */
-    float cull_solid_angle; /* sr; 0 = exact (only cells beyond the table's reach are culled) */
+    /* Regular samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
+     * 0: NS_DEFAULT_SINGLE_SAMPLES. */
+    uint32_t single_samples;
+    ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
+    ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
+    float cull_solid_angle; /* sr; 0 = exact, the default (only cells beyond the table's reach
+                               are culled) */
 } ns_render_settings;
+
+/* `settings` with each field left 0 replaced by its default (ns_render_settings above says
+ * which); every other field as given, in range or not (ns_render checks them). ns_render
+ * calls it before anything else reads the settings. Callers that report settings call it
+ * to report the values rendered: the scene parser returns its settings resolved, so that an
+ * image's metadata and `nscatter render --timings` name the effective spp, max_depth and
+ * components. */
+ns_render_settings ns_render_settings_resolve(ns_render_settings settings);
 
 typedef struct ns_scene {
     ns_camera camera;
@@ -286,7 +321,8 @@ typedef struct ns_render_stats {
     uint64_t table_bytes;         /* scattering tables held on the device for this render */
 } ns_render_stats;
 
-/* Renders scene into *out (allocated here). Checks the scene's structural invariants
+/* Renders scene into *out (allocated here). Render settings left 0 take their defaults
+ * (ns_render_settings). Checks the scene's structural invariants
  * again (indices in range, finite numbers) and fails with NS_ERR_INVALID_ARGUMENT rather
  * than trusting the caller. Requested components that this build cannot render yet fail
  * with NS_ERR_NOT_AVAILABLE and a message naming them. stats may be NULL. */
