@@ -8,7 +8,6 @@
  * report and the contact sheet.
  */
 #include <errno.h>
-#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -302,31 +301,6 @@ static unsigned char *read_all(const char *path, size_t *size)
     return data;
 }
 
-/* Temporary file beside path, then rename: a cache never holds half a file. */
-static int write_atomically(const char *path, const void *data, size_t size)
-{
-    char tmp[4200];
-    snprintf(tmp, sizeof tmp, "%s.tmp.XXXXXX", path);
-    int fd = mkstemp(tmp);
-    if (fd < 0)
-        return -1;
-    FILE *f = fdopen(fd, "wb");
-    if (!f) {
-        close(fd);
-        unlink(tmp);
-        return -1;
-    }
-    int ok = fwrite(data, 1, size, f) == size;
-    ok = fclose(f) == 0 && ok;
-    if (ok)
-        chmod(tmp, 0644);
-    if (!ok || rename(tmp, path)) {
-        unlink(tmp);
-        return -1;
-    }
-    return 0;
-}
-
 static uint64_t fnv1a(uint64_t h, const void *data, size_t size)
 {
     const unsigned char *p = data;
@@ -368,8 +342,9 @@ static int write_asset(bench *b, const char *name, const bench_mesh *mesh)
     int same = old && old_size == size && !memcmp(old, glb, size);
     free(old);
     int rc = 0;
-    if (!same && write_atomically(path, glb, size)) {
-        fprintf(stderr, "nscatter bench: cannot write '%s': %s\n", path, strerror(errno));
+    /* Atomically (ns_write_file_atomic): a cache never holds half a file. */
+    if (!same && ns_write_file_atomic(path, glb, size, &err)) {
+        fprintf(stderr, "nscatter bench: %s\n", err.message);
         rc = 1;
     }
     free(glb);
@@ -603,7 +578,7 @@ static int write_reference(const char *path, const ns_image *img, const bench_re
     ns_error err = {0};
     if (encode_exr(img, 0, NULL, 0, &exr, &err))
         return -1;
-    int rc = write_atomically(path, exr.data, exr.size);
+    int rc = ns_write_file_atomic(path, exr.data, exr.size, NULL);
     encode_buffer_free(&exr);
     if (rc)
         return -1;
@@ -614,7 +589,7 @@ static int write_reference(const char *path, const ns_image *img, const bench_re
                              (json_int_t)BENCH_REF_SEED, "ms", r->ms, "device", r->device);
     char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
     json_decref(meta);
-    rc = text ? write_atomically(meta_path, text, strlen(text)) : -1;
+    rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
     free(text);
     return rc;
 }

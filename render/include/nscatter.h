@@ -306,6 +306,27 @@ void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms);
 /* Monotonic clock in milliseconds, for stage timings. */
 double ns_now_ms(void);
 
+/* ---------------------------------------------------------------------------------------
+ * Files.
+ * ------------------------------------------------------------------------------------- */
+/* Replaces the file at path with `size` bytes of data, atomically: they go to a new
+ * temporary file beside it (PATH.tmp.XXXXXX, mode 0644), which is flushed to the disk
+ * (fsync) and renamed over path, and then the folder is flushed too. A reader sees the old
+ * file or the whole new one, never a part, also after a crash; on any failure the old file
+ * is left as it was and the temporary file is removed. Returns 0, or NS_ERR_IO with a
+ * message that names the path and errno as the failing call set it
+ * (NS_ERR_OUT_OF_HOST_MEMORY when out of memory). */
+int ns_write_file_atomic(const char *path, const void *data, size_t size, ns_error *err);
+
+/* The same for a file made of several pieces written one after the other (a header, then
+ * the data it describes), without copying them into one buffer first. */
+typedef struct ns_file_part {
+    const void *data;
+    size_t size;
+} ns_file_part;
+int ns_write_file_atomic_parts(const char *path, const ns_file_part *parts, size_t count,
+                               ns_error *err);
+
 #ifdef __cplusplus
 }
 #endif
