@@ -31,7 +31,7 @@
 #define NS_SOURCE_DIR "."
 #endif
 
-#define BENCH_ALL (NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)
+#define BENCH_ALL NS_COMPONENT_ALL
 #define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
@@ -64,9 +64,9 @@ const char *bench_components_name(uint32_t components)
 {
     switch (components) {
     case BENCH_ALL: return "full";
-    case NS_COMPONENT_MULTIPLE: return "multiple";
+    case NS_COMPONENT_MULTIPLE: return ns_component_name(components);
     case NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE: return "double+multiple";
-    case NS_COMPONENT_SURFACE: return "surface";
+    case NS_COMPONENT_SURFACE: return ns_component_name(components);
     default: return "other";
     }
 }
@@ -461,19 +461,17 @@ static int load_scene(bench *b, json_t *entry, bench_scene *s)
 static json_t *scene_for(const bench_scene *s, ns_method method, uint32_t components, uint32_t spp,
                          uint32_t seed, uint32_t vrls)
 {
-    static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
     json_t *copy = json_deep_copy(s->scene);
     json_t *render = json_object_get(copy, "render");
     if (!render) {
         render = json_object();
         json_object_set_new(copy, "render", render);
     }
-    json_object_set_new(render, "method", json_string(method_names[method]));
+    json_object_set_new(render, "method", json_string(ns_method_name(method)));
     json_t *list = json_array();
-    static const char *const component_names[] = {"surface", "single", "double", "multiple"};
-    for (int c = 0; c < 4; c++)
+    for (int c = 0; c < NS_COMPONENT_COUNT; c++)
         if (components & (1u << c))
-            json_array_append_new(list, json_string(component_names[c]));
+            json_array_append_new(list, json_string(ns_component_name(1u << c)));
     json_object_set_new(render, "components", list);
     if (spp)
         json_object_set_new(render, "spp", json_integer(spp));

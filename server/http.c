@@ -306,19 +306,15 @@ static long long content_length(struct MHD_Connection *conn)
  * ------------------------------------------------------------------------------------- */
 static json_t *methods_json(void)
 {
-    static const ns_method methods[] = {NS_METHOD_NN, NS_METHOD_TABLE, NS_METHOD_VRL,
-                                        NS_METHOD_DIPOLE, NS_METHOD_PT};
-    const uint32_t all =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     json_t *list = json_array();
-    for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++) {
-        uint32_t missing = ns_unsupported_components(methods[i], all);
+    for (int m = 0; m < NS_METHOD_COUNT; m++) {
+        uint32_t missing = ns_unsupported_components((ns_method)m, NS_COMPONENT_ALL);
         json_t *available = json_array(), *unavailable = json_array();
-        render_components_append(available, all & ~missing);
+        render_components_append(available, NS_COMPONENT_ALL & ~missing);
         render_components_append(unavailable, missing);
         json_array_append_new(list, json_pack("{s:s, s:o, s:o}", "name",
-                                              render_method_name(methods[i]), "components",
-                                              available, "unavailable_components", unavailable));
+                                              ns_method_name((ns_method)m), "components", available,
+                                              "unavailable_components", unavailable));
     }
     return list;
 }
