@@ -104,10 +104,15 @@ static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const 
     char *text = body ? json_dumps(body, JSON_INDENT(2) | JSON_REAL_PRECISION(6)) : NULL;
     json_decref(body);
     if (!text) {
-        static const char fallback[] = "{\"title\": \"Internal Server Error\", \"status\": 500, "
-                                       "\"code\": \"internal_error\"}\n";
-        return send_bytes(conn, 500, PROBLEM_CONTENT_TYPE, (void *)fallback, sizeof fallback - 1,
-                          MHD_RESPMEM_PERSISTENT, NULL);
+        /* Out of memory for the JSON itself: a short problem built without allocating. */
+        char fallback[160];
+        int fallback_status = problem_http_status(PROBLEM_STATUS_INTERNAL);
+        int n = snprintf(fallback, sizeof fallback,
+                         "{\"title\": \"%s\", \"status\": %d, \"code\": \"%s\"}\n",
+                         problem_title(PROBLEM_STATUS_INTERNAL), fallback_status,
+                         ns_status_name(NS_ERR_INTERNAL));
+        return send_bytes(conn, fallback_status, PROBLEM_CONTENT_TYPE, fallback, (size_t)n,
+                          MHD_RESPMEM_MUST_COPY, NULL);
     }
     size_t len = strlen(text);
     char *with_newline = realloc(text, len + 2);
@@ -126,20 +131,45 @@ static enum MHD_Result send_problem_json(struct MHD_Connection *conn, json_t *pr
     return send_json(conn, status ? status : 500, PROBLEM_CONTENT_TYPE, problem, headers);
 }
 
-static json_t *problemf(int status, const char *code, const char *fmt, ...)
+/* problem_new() and problem_from_status() with a printf-formatted detail. */
+static json_t *problemf(problem_kind kind, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+static json_t *problemf(problem_kind kind, const char *fmt, ...)
 {
     char detail[768];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
-    return problem_new(status, code, detail);
+    return problem_new(kind, detail);
 }
 
-static enum MHD_Result send_problem(struct MHD_Connection *conn, int status, const char *code,
-                                    const char *detail, const char *const *headers)
+static json_t *status_problemf(problem_kind kind, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static json_t *status_problemf(problem_kind kind, int status, const char *fmt, ...)
 {
-    return send_problem_json(conn, problem_new(status, code, detail), headers);
+    char detail[768];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    return problem_from_status(kind, status, detail);
+}
+
+/* 503 with the reason the render context could not be made, from /readyz and from a render
+ * request alike: a client polling either learns the same code. */
+static json_t *no_context_problem(const http_server *srv)
+{
+    return status_problemf(PROBLEM_STATUS_UNAVAILABLE, srv->ctx_err.status,
+                           "render context not available: %s", srv->ctx_err.message);
+}
+
+static enum MHD_Result send_out_of_memory(struct MHD_Connection *conn)
+{
+    return send_problem_json(
+        conn,
+        problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY, "out of memory"),
+        NULL);
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -355,10 +385,7 @@ static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_ser
         return send_json(
             conn, 200, "application/json",
             json_pack("{s:s, s:s}", "status", "ready", "device", srv->device.device_name), NULL);
-    return send_problem_json(conn,
-                             problemf(503, ns_status_name(srv->ctx_err.status),
-                                      "render context not available: %s", srv->ctx_err.message),
-                             NULL);
+    return send_problem_json(conn, no_context_problem(srv), NULL);
 }
 
 /* GET / and GET /<file>: the embedded web page. */
@@ -367,7 +394,7 @@ static enum MHD_Result answer_web(struct MHD_Connection *conn, const char *url)
     const char *name = strcmp(url, "/") ? url + 1 : "index.html";
     const web_asset *asset = strchr(name, '/') ? NULL : web_asset_find(name);
     if (!asset)
-        return send_problem_json(conn, problemf(404, "not_found", "no resource at %s", url), NULL);
+        return send_problem_json(conn, problemf(PROBLEM_NOT_FOUND, "no resource at %s", url), NULL);
     static const char *const headers[] = {"Cache-Control", "no-cache", NULL};
     return send_bytes(conn, 200, asset->content_type, (void *)asset->data, asset->size,
                       MHD_RESPMEM_PERSISTENT, headers);
@@ -412,32 +439,30 @@ static json_t *check_render_headers(struct MHD_Connection *conn, const http_serv
     const char *type =
         MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
     if (!content_type_is_json(type))
-        return problemf(415, "unsupported_media_type",
+        return problemf(PROBLEM_UNSUPPORTED_MEDIA_TYPE,
                         "Content-Type must be application/json (charset utf-8), got '%.100s'",
                         type ? type : "(none)");
     const char *accept = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_ACCEPT);
     char exr_param[32];
     if (negotiate_format(accept, &req->format, exr_param, sizeof exr_param))
-        return problemf(406, "not_acceptable",
+        return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept '%.200s' allows neither image/png nor image/x-exr", accept);
     query_check query = {0};
     MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
     if (query.problem[0])
-        return problem_new(400, "bad_query", query.problem);
+        return problem_new(PROBLEM_BAD_QUERY, query.problem);
     if (exr_param[0] && strcmp(exr_param, "half") && strcmp(exr_param, "float"))
-        return problemf(406, "not_acceptable",
+        return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept image/x-exr; format=%s: use format=half or format=float",
                         exr_param);
     int half = query.has_format ? query.half : !strcmp(exr_param, "half");
     if ((query.has_format || exr_param[0]) && req->format == ENCODE_PNG)
-        return problem_new(400, "bad_query",
-                           "format=half|float applies to image/x-exr; the Accept header "
-                           "selected image/png");
+        return problem_new(PROBLEM_BAD_QUERY, "format=half|float applies to image/x-exr; the "
+                                              "Accept header selected image/png");
     if (req->format != ENCODE_PNG && half)
         req->format = ENCODE_EXR_HALF;
     if (!srv->ctx)
-        return problemf(503, ns_status_name(srv->ctx_err.status),
-                        "render context not available: %s", srv->ctx_err.message);
+        return no_context_problem(srv);
     return NULL;
 }
 
@@ -462,8 +487,9 @@ static void collect_body(const http_server *srv, http_request *req, const char *
             cap *= 2;
         char *grown = realloc(req->body, cap);
         if (!grown) {
-            req->early_problem = problem_new(503, "out_of_host_memory",
-                                             "out of memory while reading the request body");
+            req->early_problem =
+                problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY,
+                                    "out of memory while reading the request body");
             free(req->body);
             req->body = NULL;
             req->size = req->cap = 0;
@@ -488,7 +514,7 @@ static json_t *issues_problem(const scene_issues *issues)
         else
             snprintf(detail, sizeof detail, "line %d, column %d: %s", issues->line, issues->column,
                      what);
-        json_t *p = problem_new(400, "malformed_json", detail);
+        json_t *p = problem_new(PROBLEM_MALFORMED_JSON, detail);
         json_object_set_new(p, "line", json_integer(issues->line));
         json_object_set_new(p, "column", json_integer(issues->column));
         problem_add_error(p, issues->count ? issues->items[0].pointer : "", detail);
@@ -496,12 +522,12 @@ static json_t *issues_problem(const scene_issues *issues)
     }
     json_t *p;
     if (issues->count)
-        p = problemf(422, "invalid_scene", "the scene has %u problem%s; first: %s: %s",
+        p = problemf(PROBLEM_INVALID_SCENE, "the scene has %u problem%s; first: %s: %s",
                      issues->total, issues->total == 1 ? "" : "s",
                      issues->items[0].pointer[0] ? issues->items[0].pointer : "(document)",
                      issues->items[0].detail);
     else
-        p = problem_new(422, "invalid_scene", "the scene is not valid");
+        p = problem_new(PROBLEM_INVALID_SCENE, "the scene is not valid");
     for (uint32_t i = 0; i < issues->count && i < SCENE_MAX_ISSUES; i++)
         problem_add_error(p, issues->items[i].pointer, issues->items[i].detail);
     return p;
@@ -550,16 +576,15 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     double t0 = ns_now_ms();
     scene_issues *issues = calloc(1, sizeof *issues);
     if (!issues)
-        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+        return send_out_of_memory(conn);
     scene_doc *doc = NULL;
     int rc = scene_parse(req->body ? req->body : "", req->size,
                          &(scene_parse_options){.asset_dir = srv->asset_dir}, &doc, issues);
     ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
     if (rc) {
-        json_t *p =
-            rc == NS_ERR_INVALID_ARGUMENT
-                ? issues_problem(issues)
-                : problem_new(ns_status_http(rc), ns_status_name(rc), ns_status_message(rc));
+        json_t *p = rc == NS_ERR_INVALID_ARGUMENT ? issues_problem(issues)
+                                                  : problem_from_status(problem_kind_of_status(rc),
+                                                                        rc, ns_status_message(rc));
         free(issues);
         return send_problem_json(conn, p, NULL);
     }
@@ -573,7 +598,7 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     render_request *job = calloc(1, sizeof *job);
     if (!job) {
         scene_doc_free(doc);
-        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+        return send_out_of_memory(conn);
     }
     job->scene = scene;
     job->format = req->format;
@@ -593,7 +618,7 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
         char seconds[16];
         snprintf(seconds, sizeof seconds, "%u", retry_after);
         const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, seconds, NULL};
-        json_t *p = problemf(503, "queue_full",
+        json_t *p = problemf(PROBLEM_QUEUE_FULL,
                              "%u render%s already admitted (queue capacity); retry in %s s",
                              srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
         return send_problem_json(conn, p, headers);
@@ -605,9 +630,9 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     char device[256];
     header_safe(srv->device.device_name, device, sizeof device);
     if (job->status) {
-        json_t *p =
-            problemf(ns_status_http(job->status), ns_status_name(job->status), "%s",
-                     job->err.message[0] ? job->err.message : ns_status_message(job->status));
+        json_t *p = status_problemf(problem_kind_of_status(job->status), job->status, "%s",
+                                    job->err.message[0] ? job->err.message
+                                                        : ns_status_message(job->status));
         const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
         ret = send_problem_json(conn, p, headers);
     } else {
@@ -672,15 +697,15 @@ static json_t *check_route(http_route route, const char *url, const char *method
     int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
     *allow = NULL;
     if (route == ROUTE_NONE)
-        return problemf(404, "not_found", "no resource at %.200s", url);
+        return problemf(PROBLEM_NOT_FOUND, "no resource at %.200s", url);
     if (route != ROUTE_RENDERS && !is_get) {
         *allow = "GET, HEAD";
-        return problemf(405, "method_not_allowed", "%.16s is not allowed on %.200s; use GET",
+        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on %.200s; use GET",
                         method, url);
     }
     if (route == ROUTE_RENDERS && strcmp(method, MHD_HTTP_METHOD_POST)) {
         *allow = "POST";
-        return problemf(405, "method_not_allowed", "%.16s is not allowed on /v1/renders; use POST",
+        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on /v1/renders; use POST",
                         method);
     }
     return NULL;
@@ -698,7 +723,7 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
         (unsigned long long)length > srv->max_body)
         /* Without reading a byte of the body: MHD then closes the connection. */
         return send_problem_json(conn,
-                                 problemf(413, "body_too_large",
+                                 problemf(PROBLEM_BODY_TOO_LARGE,
                                           "Content-Length %lld is over the limit of %llu bytes",
                                           length, (unsigned long long)srv->max_body),
                                  NULL);
@@ -743,7 +768,7 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         return answer_get(conn, srv, req->route, url);
     if (req->too_large)
         return send_problem_json(conn,
-                                 problemf(413, "body_too_large",
+                                 problemf(PROBLEM_BODY_TOO_LARGE,
                                           "the request body is over the limit of %llu bytes",
                                           (unsigned long long)srv->max_body),
                                  NULL);
