@@ -18,6 +18,7 @@
 
 #include <jansson.h>
 
+#include "args.h"
 #include "bench.h"
 #include "bench_mesh.h"
 #include "commands.h"
@@ -125,30 +126,16 @@ static int bench_bad(const char *arg, const char *value, const char *why)
 
 static int parse_u32(const char *arg, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
 {
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !(v >= lo && v <= hi) || v != floor(v)) {
-        char why[128];
-        snprintf(why, sizeof why, "must be an integer in [%u, %u]", lo, hi);
-        return bench_bad(arg, text, why);
-    }
+    uint64_t v = 0;
+    if (cli_parse_uint("nscatter bench", arg, text, lo, hi, &v))
+        return 2;
     *out = (uint32_t)v;
     return 0;
 }
 
 static int parse_real(const char *arg, const char *text, double lo, double hi, double *out)
 {
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !(v >= lo && v <= hi)) {
-        char why[128];
-        snprintf(why, sizeof why, "must be a number in [%g, %g]", lo, hi);
-        return bench_bad(arg, text, why);
-    }
-    *out = v;
-    return 0;
+    return cli_parse_number("nscatter bench", arg, text, lo, hi, out);
 }
 
 static int bench_method_by_name(const char *name, size_t len)
@@ -246,19 +233,15 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
 /* "1,4,16" -> ladder spp values. */
 static int parse_ladder(const char *text, uint32_t *spp, uint32_t *count)
 {
-    *count = 0;
-    for (const char *p = text; *p;) {
-        char item[32];
-        size_t len = strcspn(p, ",");
-        if (len == 0 || len >= sizeof item || *count == BENCH_MAX_LADDER)
-            return bench_bad("--pt-spp", text, "a comma-separated list of at most 8 spp values");
-        memcpy(item, p, len);
-        item[len] = 0;
-        if (parse_u32("--pt-spp", item, 1, NS_MAX_SPP, &spp[(*count)++]))
-            return 2;
-        p += len + (p[len] == ',');
-    }
-    return *count ? 0 : bench_bad("--pt-spp", text, "no spp values");
+    uint64_t v[BENCH_MAX_LADDER];
+    size_t n = 0;
+    if (cli_parse_uint_list("nscatter bench", "--pt-spp", text, 1, NS_MAX_SPP, v, BENCH_MAX_LADDER,
+                            &n))
+        return 2;
+    for (size_t i = 0; i < n; i++)
+        spp[i] = (uint32_t)v[i];
+    *count = (uint32_t)n;
+    return 0;
 }
 
 /* ---------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@
 
 #include <jansson.h>
 
+#include "args.h"
 #include "commands.h"
 #include "encode.h"
 #include "mc_provider.h"
@@ -65,10 +66,8 @@ static int format_from_path(const char *path, encode_format *format)
 
 static int parse_float_arg(const char *text, float *out)
 {
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !isfinite(v) || fabs(v) > 64.0)
+    double v = 0;
+    if (cli_number(text, &v) || fabs(v) > 64.0)
         return -1;
     *out = (float)v;
     return 0;

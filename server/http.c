@@ -182,6 +182,36 @@ static const char *skip_space(const char *s)
     return s;
 }
 
+/* The HTTP layer's one number parser, for header values (Content-Length, the q of an Accept
+ * range): the whole of `text`, spaces and tabs around it allowed, as decimal digits and, when
+ * `fraction` is set, a '.' and more digits. No sign, exponent, hex, "inf" or "nan": no header
+ * grammar here has them, though strtoull and strtod would take some ("-5" as a huge length).
+ * Returns 0 with the integer part in *whole (saturated at UINT64_MAX, larger than any limit)
+ * and the value in *value (either may be NULL), or -1. */
+static int parse_header_number(const char *text, int fraction, uint64_t *whole, double *value)
+{
+    const char *s = skip_space(text);
+    uint64_t w = 0, frac = 0, scale = 1;
+    int digits = 0;
+    for (; *s >= '0' && *s <= '9'; s++, digits++) {
+        unsigned d = (unsigned)(*s - '0');
+        w = w > (UINT64_MAX - d) / 10 ? UINT64_MAX : w * 10 + d;
+    }
+    if (fraction && *s == '.')
+        for (s++; *s >= '0' && *s <= '9'; s++, digits++)
+            if (scale < 1000000000000000000ull) { /* later digits cannot change a double */
+                frac = frac * 10 + (uint64_t)(*s - '0');
+                scale *= 10;
+            }
+    if (!digits || *skip_space(s))
+        return -1;
+    if (whole)
+        *whole = w;
+    if (value)
+        *value = (double)w + (double)frac / (double)scale;
+    return 0;
+}
+
 /* Copies the token [s, end) trimmed and lower-cased into out. */
 static void copy_trimmed_lower(const char *s, const char *end, char *out, size_t cap)
 {
@@ -226,9 +256,7 @@ static int parse_media_range(const char *s, const char *end, media_range *m)
             value[vlen - 2] = 0;
         }
         if (!strcmp(name, "q")) {
-            char *q_end = NULL;
-            m->q = strtod(value, &q_end);
-            if (q_end == value || *q_end || !(m->q >= 0.0 && m->q <= 1.0))
+            if (parse_header_number(value, 1, NULL, &m->q) || !(m->q >= 0.0 && m->q <= 1.0))
                 return -1;
         } else if (!strcmp(name, "charset")) {
             snprintf(m->charset, sizeof m->charset, "%s", value);
@@ -318,17 +346,10 @@ static long long content_length(struct MHD_Connection *conn)
         MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     if (!v)
         return -1;
-    v = skip_space(v);
-    if (*v < '0' || *v > '9')
+    uint64_t n = 0;
+    if (parse_header_number(v, 0, &n, NULL))
         return -2;
-    errno = 0;
-    char *end = NULL;
-    unsigned long long n = strtoull(v, &end, 10);
-    if (errno == ERANGE || n > (unsigned long long)LLONG_MAX)
-        return LLONG_MAX; /* larger than any limit */
-    if (*skip_space(end))
-        return -2;
-    return (long long)n;
+    return n > (uint64_t)LLONG_MAX ? LLONG_MAX : (long long)n; /* larger than any limit */
 }
 
 /* ---------------------------------------------------------------------------------------
