@@ -8,7 +8,6 @@
  * report and the contact sheet.
  */
 #include <errno.h>
-#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,6 +18,7 @@
 
 #include <jansson.h>
 
+#include "args.h"
 #include "bench.h"
 #include "bench_mesh.h"
 #include "commands.h"
@@ -32,7 +32,7 @@
 #define NS_SOURCE_DIR "."
 #endif
 
-#define BENCH_ALL (NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)
+#define BENCH_ALL NS_COMPONENT_ALL
 #define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
@@ -65,9 +65,9 @@ const char *bench_components_name(uint32_t components)
 {
     switch (components) {
     case BENCH_ALL: return "full";
-    case NS_COMPONENT_MULTIPLE: return "multiple";
+    case NS_COMPONENT_MULTIPLE: return ns_component_name(components);
     case NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE: return "double+multiple";
-    case NS_COMPONENT_SURFACE: return "surface";
+    case NS_COMPONENT_SURFACE: return ns_component_name(components);
     default: return "other";
     }
 }
@@ -126,30 +126,16 @@ static int bench_bad(const char *arg, const char *value, const char *why)
 
 static int parse_u32(const char *arg, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
 {
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !(v >= lo && v <= hi) || v != floor(v)) {
-        char why[128];
-        snprintf(why, sizeof why, "must be an integer in [%u, %u]", lo, hi);
-        return bench_bad(arg, text, why);
-    }
+    uint64_t v = 0;
+    if (cli_parse_uint("nscatter bench", arg, text, lo, hi, &v))
+        return 2;
     *out = (uint32_t)v;
     return 0;
 }
 
 static int parse_real(const char *arg, const char *text, double lo, double hi, double *out)
 {
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !(v >= lo && v <= hi)) {
-        char why[128];
-        snprintf(why, sizeof why, "must be a number in [%g, %g]", lo, hi);
-        return bench_bad(arg, text, why);
-    }
-    *out = v;
-    return 0;
+    return cli_parse_number("nscatter bench", arg, text, lo, hi, out);
 }
 
 static int bench_method_by_name(const char *name, size_t len)
@@ -247,19 +233,15 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
 /* "1,4,16" -> ladder spp values. */
 static int parse_ladder(const char *text, uint32_t *spp, uint32_t *count)
 {
-    *count = 0;
-    for (const char *p = text; *p;) {
-        char item[32];
-        size_t len = strcspn(p, ",");
-        if (len == 0 || len >= sizeof item || *count == BENCH_MAX_LADDER)
-            return bench_bad("--pt-spp", text, "a comma-separated list of at most 8 spp values");
-        memcpy(item, p, len);
-        item[len] = 0;
-        if (parse_u32("--pt-spp", item, 1, NS_MAX_SPP, &spp[(*count)++]))
-            return 2;
-        p += len + (p[len] == ',');
-    }
-    return *count ? 0 : bench_bad("--pt-spp", text, "no spp values");
+    uint64_t v[BENCH_MAX_LADDER];
+    size_t n = 0;
+    if (cli_parse_uint_list("nscatter bench", "--pt-spp", text, 1, NS_MAX_SPP, v, BENCH_MAX_LADDER,
+                            &n))
+        return 2;
+    for (size_t i = 0; i < n; i++)
+        spp[i] = (uint32_t)v[i];
+    *count = (uint32_t)n;
+    return 0;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -300,31 +282,6 @@ static unsigned char *read_all(const char *path, size_t *size)
         *size = (size_t)n;
     }
     return data;
-}
-
-/* Temporary file beside path, then rename: a cache never holds half a file. */
-static int write_atomically(const char *path, const void *data, size_t size)
-{
-    char tmp[4200];
-    snprintf(tmp, sizeof tmp, "%s.tmp.XXXXXX", path);
-    int fd = mkstemp(tmp);
-    if (fd < 0)
-        return -1;
-    FILE *f = fdopen(fd, "wb");
-    if (!f) {
-        close(fd);
-        unlink(tmp);
-        return -1;
-    }
-    int ok = fwrite(data, 1, size, f) == size;
-    ok = fclose(f) == 0 && ok;
-    if (ok)
-        chmod(tmp, 0644);
-    if (!ok || rename(tmp, path)) {
-        unlink(tmp);
-        return -1;
-    }
-    return 0;
 }
 
 static uint64_t fnv1a(uint64_t h, const void *data, size_t size)
@@ -368,8 +325,9 @@ static int write_asset(bench *b, const char *name, const bench_mesh *mesh)
     int same = old && old_size == size && !memcmp(old, glb, size);
     free(old);
     int rc = 0;
-    if (!same && write_atomically(path, glb, size)) {
-        fprintf(stderr, "nscatter bench: cannot write '%s': %s\n", path, strerror(errno));
+    /* Atomically (ns_write_file_atomic): a cache never holds half a file. */
+    if (!same && ns_write_file_atomic(path, glb, size, &err)) {
+        fprintf(stderr, "nscatter bench: %s\n", err.message);
         rc = 1;
     }
     free(glb);
@@ -486,19 +444,17 @@ static int load_scene(bench *b, json_t *entry, bench_scene *s)
 static json_t *scene_for(const bench_scene *s, ns_method method, uint32_t components, uint32_t spp,
                          uint32_t seed, uint32_t vrls)
 {
-    static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
     json_t *copy = json_deep_copy(s->scene);
     json_t *render = json_object_get(copy, "render");
     if (!render) {
         render = json_object();
         json_object_set_new(copy, "render", render);
     }
-    json_object_set_new(render, "method", json_string(method_names[method]));
+    json_object_set_new(render, "method", json_string(ns_method_name(method)));
     json_t *list = json_array();
-    static const char *const component_names[] = {"surface", "single", "double", "multiple"};
-    for (int c = 0; c < 4; c++)
+    for (int c = 0; c < NS_COMPONENT_COUNT; c++)
         if (components & (1u << c))
-            json_array_append_new(list, json_string(component_names[c]));
+            json_array_append_new(list, json_string(ns_component_name(1u << c)));
     json_object_set_new(render, "components", list);
     if (spp)
         json_object_set_new(render, "spp", json_integer(spp));
@@ -603,7 +559,7 @@ static int write_reference(const char *path, const ns_image *img, const bench_re
     ns_error err = {0};
     if (encode_exr(img, 0, NULL, 0, &exr, &err))
         return -1;
-    int rc = write_atomically(path, exr.data, exr.size);
+    int rc = ns_write_file_atomic(path, exr.data, exr.size, NULL);
     encode_buffer_free(&exr);
     if (rc)
         return -1;
@@ -614,7 +570,7 @@ static int write_reference(const char *path, const ns_image *img, const bench_re
                              (json_int_t)BENCH_REF_SEED, "ms", r->ms, "device", r->device);
     char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
     json_decref(meta);
-    rc = text ? write_atomically(meta_path, text, strlen(text)) : -1;
+    rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
     free(text);
     return rc;
 }

@@ -9,6 +9,7 @@
 
 #include <jansson.h>
 
+#include "args.h"
 #include "commands.h"
 #include "encode.h"
 #include "image_metrics.h"
@@ -57,11 +58,7 @@ static int compare_parse_args(int argc, char **argv, compare_args *args)
                 return 2;
             }
         } else if (!strcmp(arg, "--diff-scale") && i + 1 < argc) {
-            char *end;
-            errno = 0;
-            args->diff_scale = strtod(argv[++i], &end);
-            if (errno || *end || end == argv[i] || !(args->diff_scale > 0.0) ||
-                !isfinite(args->diff_scale)) {
+            if (cli_number(argv[++i], &args->diff_scale) || !(args->diff_scale > 0.0)) {
                 fprintf(stderr, "nscatter compare: --diff-scale '%s' is not a positive number\n",
                         argv[i]);
                 return 2;

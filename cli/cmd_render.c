@@ -1,17 +1,15 @@
 /* cmd_render.c — `nscatter render SCENE.json -o OUT.png|OUT.exr`: one render from the
  * command line, written atomically, with optional per-stage timings as JSON on stdout. */
 #include <errno.h>
-#include <fcntl.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
 #include <jansson.h>
 
+#include "args.h"
 #include "commands.h"
 #include "encode.h"
 #include "mc_provider.h"
@@ -68,10 +66,8 @@ static int format_from_path(const char *path, encode_format *format)
 
 static int parse_float_arg(const char *text, float *out)
 {
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !isfinite(v) || fabs(v) > 64.0)
+    double v = 0;
+    if (cli_number(text, &v) || fabs(v) > 64.0)
         return -1;
     *out = (float)v;
     return 0;
@@ -181,44 +177,17 @@ static char *read_scene_file(const char *path, size_t *length)
     return text;
 }
 
-/* Writes to a temporary file beside `path`, then renames it over `path`, so a reader never
- * sees a half-written image and a failed render leaves an earlier image in place. */
+/* Writes to a temporary file beside `path`, then renames it over `path`
+ * (ns_write_file_atomic), so a reader never sees a half-written image and a failed render
+ * leaves an earlier image in place. */
 static int write_file_atomically(const char *path, const encode_buffer *buf)
 {
-    size_t tmp_len = strlen(path) + 16;
-    char *tmp = malloc(tmp_len);
-    if (!tmp)
-        return -1;
-    snprintf(tmp, tmp_len, "%s.tmp.XXXXXX", path);
-    int fd = mkstemp(tmp);
-    if (fd < 0) {
-        fprintf(stderr, "nscatter render: cannot create a file beside '%s': %s\n", path,
-                strerror(errno));
-        free(tmp);
+    ns_error err = {0};
+    if (ns_write_file_atomic(path, buf->data, buf->size, &err)) {
+        fprintf(stderr, "nscatter render: %s\n", err.message);
         return -1;
     }
-    size_t done = 0;
-    while (done < buf->size) {
-        ssize_t n = write(fd, buf->data + done, buf->size - done);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            break;
-        done += (size_t)n;
-    }
-    int ok = done == buf->size && fchmod(fd, 0644) == 0 && fsync(fd) == 0;
-    int saved = errno;
-    ok = close(fd) == 0 && ok;
-    if (ok && rename(tmp, path) != 0) {
-        saved = errno;
-        ok = 0;
-    }
-    if (!ok) {
-        fprintf(stderr, "nscatter render: cannot write '%s': %s\n", path, strerror(saved));
-        unlink(tmp);
-    }
-    free(tmp);
-    return ok ? 0 : -1;
+    return 0;
 }
 
 /* ---------------------------------------------------------------------------------------

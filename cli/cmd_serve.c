@@ -1,9 +1,9 @@
 /* cmd_serve.c — `nscatter serve`: the command line of the HTTP service (server/include/http.h). */
-#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "args.h"
 #include "commands.h"
 #include "http.h"
 
@@ -25,19 +25,6 @@ static void serve_usage(FILE *out)
             "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
 }
 
-static int parse_unsigned(const char *text, unsigned long long max, unsigned long long *out)
-{
-    if (!text || *text < '0' || *text > '9')
-        return -1;
-    errno = 0;
-    char *end = NULL;
-    unsigned long long v = strtoull(text, &end, 10);
-    if (errno || *end || v > max)
-        return -1;
-    *out = v;
-    return 0;
-}
-
 static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done)
 {
     *a = (http_serve_desc){.host = "127.0.0.1",
@@ -46,7 +33,7 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
                       .max_body = HTTP_DEFAULT_MAX_BODY};
     for (int i = 1; i < argc; i++) {
         const char *arg = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
-        unsigned long long n = 0;
+        uint64_t n = 0;
         if (!strcmp(arg, "-h") || !strcmp(arg, "--help")) {
             serve_usage(stdout);
             *done = 1;
@@ -61,26 +48,16 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
         if (!strcmp(arg, "--host")) {
             a->host = value;
         } else if (!strcmp(arg, "--port")) {
-            if (parse_unsigned(value, 65535, &n)) {
-                fprintf(stderr, "nscatter serve: --port '%s' is not a port number 0-65535\n",
-                        value);
+            if (cli_parse_uint("nscatter serve", arg, value, 0, 65535, &n))
                 return 2;
-            }
             a->port = (unsigned)n;
         } else if (!strcmp(arg, "--queue")) {
-            if (parse_unsigned(value, 1024, &n) || n < 1) {
-                fprintf(stderr, "nscatter serve: --queue '%s' is not a number 1-1024\n", value);
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 1024, &n))
                 return 2;
-            }
             a->queue = (uint32_t)n;
         } else if (!strcmp(arg, "--max-body")) {
-            if (parse_unsigned(value, 1ull << 32, &n) || n < 1) {
-                fprintf(stderr,
-                        "nscatter serve: --max-body '%s' is not a byte count "
-                        "1-4294967296\n",
-                        value);
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 32, &n))
                 return 2;
-            }
             a->max_body = n;
         } else if (!strcmp(arg, "--assets")) {
             a->asset_dir = value;

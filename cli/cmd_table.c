@@ -66,23 +66,27 @@ static int parse_num(const char *name, const char *text, double lo, double hi, d
     return cli_parse_number("nscatter table", name, text, lo, hi, out);
 }
 
+static int parse_uint(const char *name, const char *text, uint64_t lo, uint64_t hi, uint64_t *out)
+{
+    return cli_parse_uint("nscatter table", name, text, lo, hi, out);
+}
+
 static int parse_stride(const char *text, ns_nn_sampling *s)
 {
-    unsigned v[4];
-    char tail;
-    if (sscanf(text, "%u,%u,%u,%u%c", &v[0], &v[1], &v[2], &v[3], &tail) != 4)
+    uint64_t v[4];
+    size_t count = 0;
+    if (cli_parse_uint_list("nscatter table", "--stride", text, 1, 16, v, 4, &count))
+        return 2;
+    if (count != 4)
         return usage_error("--stride: '%s' is not Z,R,T,P (four integers, 1 to 16)", text);
-    for (int a = 0; a < 4; a++) {
-        if (v[a] < 1 || v[a] > 16)
-            return usage_error("--stride: %u is outside 1 to 16", v[a]);
-        s->stride[a] = v[a];
-    }
+    for (int a = 0; a < 4; a++)
+        s->stride[a] = (uint32_t)v[a];
     return 0;
 }
 
 static int parse_value(table_options *o, const char *arg, const char *val)
 {
-    double v;
+    uint64_t u = 0;
     if (!strcmp(arg, "--source")) {
         if (strcmp(val, "nn") && strcmp(val, "mc"))
             return usage_error("--source: '%s' is not nn or mc", val);
@@ -109,24 +113,20 @@ static int parse_value(table_options *o, const char *arg, const char *val)
         o->mc_dir = val;
     else if (!strcmp(arg, "--materials"))
         o->materials = val;
-    else if (!strcmp(arg, "--photons")) {
-        if (parse_num(arg, val, 1, 1e13, &v))
-            return 2;
-        o->photons = (uint64_t)v;
-    } else if (!strcmp(arg, "--mc-collisions"))
+    else if (!strcmp(arg, "--photons"))
+        return parse_uint(arg, val, 1, (uint64_t)1e13, &o->photons);
+    else if (!strcmp(arg, "--mc-collisions"))
         return parse_num(arg, val, 1e4, 1e12, &o->mc_collisions);
-    else if (!strcmp(arg, "--seed")) {
-        if (parse_num(arg, val, 0, 9007199254740992.0, &v))
-            return 2;
-        o->seed = (uint64_t)v;
-    } else if (!strcmp(arg, "--stride")) {
+    else if (!strcmp(arg, "--seed"))
+        return parse_uint(arg, val, 0, 9007199254740992ull, &o->seed);
+    else if (!strcmp(arg, "--stride")) {
         return parse_stride(val, &o->sampling);
     } else if (!strcmp(arg, "--full-radius"))
         return parse_num(arg, val, 0, 1e6, &o->sampling.full_radius);
     else if (!strcmp(arg, "--runs")) {
-        if (parse_num(arg, val, 1, 100, &v))
+        if (parse_uint(arg, val, 1, 100, &u))
             return 2;
-        o->runs = (int)v;
+        o->runs = (int)u;
     } else
         return usage_error("unknown option '%s' (see nscatter table --help)", arg);
     return 0;
@@ -398,17 +398,23 @@ static int reference_table(const table_options *o, double g, double a, ns_order 
 
 static int parse_materials(const char *text, double (*m)[2], int cap, int *count)
 {
-    char buf[1024];
-    snprintf(buf, sizeof buf, "%s", text);
+    if (!*text)
+        return usage_error("--materials: empty list");
+    const char *cursor = text;
+    char item[64];
+    int r;
     *count = 0;
-    for (char *save = NULL, *tok = strtok_r(buf, ",", &save); tok;
-         tok = strtok_r(NULL, ",", &save)) {
-        if (*count >= cap || sscanf(tok, "%lf:%lf", &m[*count][0], &m[*count][1]) != 2 ||
-            !(m[*count][0] >= 0 && m[*count][0] < 1 && m[*count][1] >= 0 && m[*count][1] < 1))
-            return usage_error("--materials: '%s' is not G:A with G, A in [0, 1)", tok);
+    while ((r = cli_list_next(&cursor, item, sizeof item)) != 0) {
+        if (r < 0)
+            return usage_error("--materials: '%s' has an empty or overlong item", text);
+        if (*count >= cap)
+            return usage_error("--materials: '%s' has more than %d materials", text, cap);
+        double *g = &m[*count][0], *a = &m[*count][1];
+        if (cli_number_pair(item, ':', g, a) || !(*g >= 0 && *g < 1 && *a >= 0 && *a < 1))
+            return usage_error("--materials: '%s' is not G:A with G, A in [0, 1)", item);
         (*count)++;
     }
-    return *count ? 0 : usage_error("--materials: empty list");
+    return 0;
 }
 
 static int report_material(const table_options *o, nn_session *s, double g, double a)

@@ -33,6 +33,8 @@ static const char usage_text[] =
     "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
 
 #define usage_error(...) cli_usage_error("nscatter train", __VA_ARGS__)
+#define parse_number(...) cli_parse_number("nscatter train", __VA_ARGS__)
+#define parse_uint(...) cli_parse_uint("nscatter train", __VA_ARGS__)
 
 /* =======================================================================================
  * Options
@@ -40,7 +42,7 @@ static const char usage_text[] =
 
 static int parse_value(ns_train_options *o, const char *arg, const char *val)
 {
-    double v = 0;
+    uint64_t u = 0;
     int rc = 0;
     if (!strcmp(arg, "--data"))
         o->data = val;
@@ -70,35 +72,39 @@ static int parse_value(ns_train_options *o, const char *arg, const char *val)
             o->input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
         else
             return usage_error("--g-map: '%s' is not linear or log", val);
-    } else if (!strcmp(arg, "--epochs"))
-        rc = cli_parse_number("nscatter train", arg, val, 1, 1e6, &v), o->epochs = (int)v;
-    else if (!strcmp(arg, "--batch"))
-        rc = cli_parse_number("nscatter train", arg, val, 16, 1 << 20, &v), o->batch = (uint32_t)v;
-    else if (!strcmp(arg, "--samples-per-table"))
+    } else if (!strcmp(arg, "--epochs")) {
+        if (!(rc = parse_uint(arg, val, 1, 1000000, &u)))
+            o->epochs = (int)u;
+    } else if (!strcmp(arg, "--batch")) {
+        if (!(rc = parse_uint(arg, val, 16, 1u << 20, &u)))
+            o->batch = (uint32_t)u;
+    } else if (!strcmp(arg, "--samples-per-table")) {
         /* even: samples alternate uniform / energy-proportional (the calibration uses it) */
-        rc = cli_parse_number("nscatter train", arg, val, 100, 1e7, &v), o->samples_per_table = (uint32_t)v & ~1u;
-    else if (!strcmp(arg, "--lr"))
-        rc = cli_parse_number("nscatter train", arg, val, 1e-7, 1, &o->lr);
+        if (!(rc = parse_uint(arg, val, 100, 10000000, &u)))
+            o->samples_per_table = (uint32_t)u & ~1u;
+    } else if (!strcmp(arg, "--lr"))
+        rc = parse_number(arg, val, 1e-7, 1, &o->lr);
     else if (!strcmp(arg, "--eps"))
-        rc = cli_parse_number("nscatter train", arg, val, 1e-30, 1e-3, &o->eps);
+        rc = parse_number(arg, val, 1e-30, 1e-3, &o->eps);
     else if (!strcmp(arg, "--oversample-albedo")) {
-        char *end = NULL;
-        o->oversample_albedo = strtod(val, &end);
-        o->oversample_factor = end && *end == ':' ? strtod(end + 1, &end) : NAN;
-        if (!end || *end || !(o->oversample_albedo >= 0 && o->oversample_albedo <= 1) ||
-            !(o->oversample_factor >= 1 && o->oversample_factor <= 100))
+        double a = NAN, f = NAN;
+        if (cli_number_pair(val, ':', &a, &f) || !(a >= 0 && a <= 1) || !(f >= 1 && f <= 100))
             return usage_error("--oversample-albedo: '%s' is not A:F with A in [0, 1] and F in "
                                "[1, 100]",
                                val);
+        o->oversample_albedo = a;
+        o->oversample_factor = f;
     } else if (!strcmp(arg, "--zero-floor"))
-        rc = cli_parse_number("nscatter train", arg, val, 1, 1e6, &o->zero_floor);
+        rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);
     else if (!strcmp(arg, "--time-budget"))
-        rc = cli_parse_number("nscatter train", arg, val, 1, 1e7, &o->time_budget);
-    else if (!strcmp(arg, "--seed"))
-        rc = cli_parse_number("nscatter train", arg, val, 0, 9007199254740992.0, &v), o->seed = (uint64_t)v;
-    else if (!strcmp(arg, "--threads"))
-        rc = cli_parse_number("nscatter train", arg, val, 1, 256, &v), o->threads = (int)v;
-    else
+        rc = parse_number(arg, val, 1, 1e7, &o->time_budget);
+    else if (!strcmp(arg, "--seed")) {
+        if (!(rc = parse_uint(arg, val, 0, 9007199254740992ull, &u)))
+            o->seed = u;
+    } else if (!strcmp(arg, "--threads")) {
+        if (!(rc = parse_uint(arg, val, 1, 256, &u)))
+            o->threads = (int)u;
+    } else
         return usage_error("unknown option '%s' (see nscatter train --help)", arg);
     return rc;
 }

@@ -5,35 +5,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-const char *render_method_name(ns_method method)
-{
-    switch (method) {
-    case NS_METHOD_NN:
-        return "nn";
-    case NS_METHOD_TABLE:
-        return "table";
-    case NS_METHOD_VRL:
-        return "vrl";
-    case NS_METHOD_DIPOLE:
-        return "dipole";
-    case NS_METHOD_PT:
-        return "pt";
-    }
-    return "unknown";
-}
-
 void render_components_append(json_t *array, uint32_t components)
 {
-    static const struct {
-        uint32_t bit;
-        const char *name;
-    } names[] = {{NS_COMPONENT_SURFACE, "surface"},
-                 {NS_COMPONENT_SINGLE, "single"},
-                 {NS_COMPONENT_DOUBLE, "double"},
-                 {NS_COMPONENT_MULTIPLE, "multiple"}};
-    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
-        if (components & names[i].bit)
-            json_array_append_new(array, json_string(names[i].name));
+    for (int bit = 0; bit < NS_COMPONENT_COUNT; bit++)
+        if (components & (1u << bit))
+            json_array_append_new(array, json_string(ns_component_name(1u << bit)));
 }
 
 json_t *render_stats_stages_json(const ns_render_stats *stats)
@@ -87,7 +63,7 @@ json_t *render_settings_json(const ns_scene *scene, float exposure_stops)
     json_t *components = json_array();
     render_components_append(components, r->components);
     return json_pack("{s:s, s:o, s:I, s:I, s:I, s:f, s:I, s:I}", "method",
-                     render_method_name(r->method), "components", components, "spp",
+                     ns_method_name(r->method), "components", components, "spp",
                      (json_int_t)r->spp, "seed", (json_int_t)r->seed, "max_depth",
                      (json_int_t)r->max_depth, "exposure", (double)exposure_stops, "width",
                      (json_int_t)scene->camera.width, "height", (json_int_t)scene->camera.height);

@@ -24,9 +24,8 @@ json_t *render_stats_stages_json(const ns_render_stats *stats);
 /* {"method", "components", "spp", "seed", "max_depth", "exposure", "width", "height"}. */
 json_t *render_settings_json(const ns_scene *scene, float exposure_stops);
 
-/* Names used in scene JSON and /v1/info. */
-const char *render_method_name(ns_method method);
-/* Appends the names of the NS_COMPONENT_* bits set in `components` to `array`. */
+/* Appends the names (ns_component_name) of the NS_COMPONENT_* bits set in `components` to
+ * `array`, in bit order. */
 void render_components_append(json_t *array, uint32_t components);
 
 /* {"camera_segments", "vrl_count", "interactions", "table_bytes", ...}: every count and

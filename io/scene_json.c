@@ -1146,8 +1146,12 @@ static void parse_lights(parser *p, const json_t *v)
  * Render settings
  * ===================================================================================== */
 
-static const char *const component_names[] = {"surface", "single", "double", "multiple"};
-static const char *const method_names[] = {"nn", "table", "vrl", "dipole", "pt"};
+/* The names come from the render library's tables (nscatter.h); as_enum() takes them as an
+ * array, indexed by ns_method and by component bit number, to list them in its messages. */
+#define SCENE_X_NAME(code, value, name) [value] = name,
+static const char *const component_names[NS_COMPONENT_COUNT] = {NS_COMPONENTS(SCENE_X_NAME)};
+static const char *const method_names[NS_METHOD_COUNT] = {NS_METHODS(SCENE_X_NAME)};
+#undef SCENE_X_NAME
 
 /* Returns the component mask, 0 when the list is invalid (reported). */
 static uint32_t parse_components(parser *p, const json_t *v)
@@ -1165,7 +1169,7 @@ static uint32_t parse_components(parser *p, const json_t *v)
     json_array_foreach(v, i, c) {
         size_t saved = push_index(p, i);
         int index;
-        if (as_enum(p, c, component_names, 4, "component", &index)) {
+        if (as_enum(p, c, component_names, NS_COMPONENT_COUNT, "component", &index)) {
             if (mask & (1u << index)) {
                 report(p, "component \"%s\" is listed twice", component_names[index]);
                 ok = 0;
@@ -1187,12 +1191,12 @@ static void check_components_available(parser *p, const json_t *components, uint
     uint32_t missing = ns_unsupported_components(p->render.method, mask);
     if (!missing || !components)
         return;
-    const char *method = method_names[p->render.method];
+    const char *method = ns_method_name(p->render.method);
     size_t saved = push_key(p, "components");
     size_t i;
     const json_t *c;
     json_array_foreach(components, i, c) {
-        for (int bit = 0; bit < 4; bit++)
+        for (int bit = 0; bit < NS_COMPONENT_COUNT; bit++)
             if ((missing & (1u << bit)) && strcmp(json_string_value(c), component_names[bit]) == 0) {
                 size_t inner = push_index(p, i);
                 report(p, "component \"%s\" cannot be rendered alone with method \"%s\": its "
@@ -1229,7 +1233,8 @@ static void parse_render(parser *p, const json_t *v)
         check_keys(p, v, keys);
         int method;
         if (json_object_get(v, "method")) {
-            method_ok = field_enum(p, v, "method", 1, method_names, 5, "render method", &method);
+            method_ok = field_enum(p, v, "method", 1, method_names, NS_METHOD_COUNT,
+                                   "render method", &method);
             if (method_ok)
                 r->method = (ns_method)method;
         }

@@ -110,7 +110,7 @@ int ns_order_parse(const char *name, ns_order *out)
 }
 
 /* =======================================================================================
- * Atomic file writing: PATH.part, fsync, rename, fsync of the directory.
+ * Paths; each file is written atomically by ns_write_file_atomic_parts (nscatter.h).
  * ===================================================================================== */
 
 static int make_path(char *out, const char *prefix, const char *suffix, ns_error *err)
@@ -121,64 +121,14 @@ static int make_path(char *out, const char *prefix, const char *suffix, ns_error
     return NS_OK;
 }
 
-static void fsync_parent_dir(const char *path)
+/* Writes count parts to path atomically; a failure's message starts with --out, the option
+ * that named the path. */
+static int write_atomically(const char *path, const ns_file_part *parts, size_t count,
+                            ns_error *err)
 {
-    char dir[PATH_CAP];
-    snprintf(dir, sizeof dir, "%s", path);
-    char *slash = strrchr(dir, '/');
-    if (slash == dir)
-        slash[1] = '\0';
-    else if (slash)
-        *slash = '\0';
-    else
-        snprintf(dir, sizeof dir, ".");
-    int fd = open(dir, O_RDONLY | O_DIRECTORY);
-    if (fd >= 0) {
-        fsync(fd); /* best effort: the rename is what matters for completeness */
-        close(fd);
-    }
-}
-
-/* Writes count (pointer, length) parts to path atomically. */
-static int write_atomically(const char *path, const void *const *parts, const size_t *lengths,
-                            int count, ns_error *err)
-{
-    char tmp[PATH_CAP];
-    int rc = make_path(tmp, path, ".part", err);
-    if (rc)
-        return rc;
-    int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (fd < 0)
-        return ns_fail(err, NS_ERR_IO, "--out: cannot create '%s': %s", tmp, strerror(errno));
-    for (int i = 0; i < count; i++) {
-        const char *p = parts[i];
-        size_t left = lengths[i];
-        while (left > 0) {
-            ssize_t wrote = write(fd, p, left);
-            if (wrote < 0 && errno == EINTR)
-                continue;
-            if (wrote <= 0) {
-                int e = errno;
-                close(fd);
-                unlink(tmp);
-                return ns_fail(err, NS_ERR_IO, "--out: writing '%s' failed: %s", tmp, strerror(e));
-            }
-            p += wrote;
-            left -= (size_t)wrote;
-        }
-    }
-    if (fsync(fd) != 0 || close(fd) != 0) {
-        int e = errno;
-        unlink(tmp);
-        return ns_fail(err, NS_ERR_IO, "--out: flushing '%s' failed: %s", tmp, strerror(e));
-    }
-    if (rename(tmp, path) != 0) {
-        int e = errno;
-        unlink(tmp);
-        return ns_fail(err, NS_ERR_IO, "--out: renaming to '%s' failed: %s", path, strerror(e));
-    }
-    fsync_parent_dir(path);
-    return NS_OK;
+    ns_error write_err = {0};
+    int rc = ns_write_file_atomic_parts(path, parts, count, &write_err);
+    return rc ? ns_fail(err, rc, "--out: %s", write_err.message) : NS_OK;
 }
 
 int ns_table_check_writable(const char *prefix, ns_error *err)
@@ -292,18 +242,17 @@ int ns_table_write(const ns_table *t, const char *prefix, ns_error *err)
 
     char header[256];
     size_t header_len = npy_header(header, sizeof header, t->n);
-    const void *npy_parts[2] = {header, t->data};
-    size_t npy_lengths[2] = {header_len, ns_table_size(t) * sizeof(float)};
-    rc = write_atomically(npy_path, npy_parts, npy_lengths, 2, err);
+    const ns_file_part npy_parts[2] = {{header, header_len},
+                                       {t->data, ns_table_size(t) * sizeof(float)}};
+    rc = write_atomically(npy_path, npy_parts, 2, err);
     if (rc)
         return rc;
 
     char *text = table_json_text(t);
     if (!text)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "table: cannot serialise the JSON sidecar");
-    const void *json_parts[2] = {text, "\n"};
-    size_t json_lengths[2] = {strlen(text), 1};
-    rc = write_atomically(json_path, json_parts, json_lengths, 2, err);
+    const ns_file_part json_parts[2] = {{text, strlen(text)}, {"\n", 1}};
+    rc = write_atomically(json_path, json_parts, 2, err);
     free(text);
     return rc;
 }

@@ -7,9 +7,10 @@
  *   PREFIX.json  metadata: quantity, order, g, albedo, photons, seed, source, the four axes'
  *                bin edges, energy_captured, energy_expected.
  *
- * Writing is atomic: each file goes to PREFIX.*.part, is fsync'ed and renamed, the .json
- * last. A table counts as complete only when its .json exists (ns_table_is_complete), so a
- * run killed half-way never leaves something that looks finished.
+ * Writing is atomic (ns_write_file_atomic_parts): each file goes to a temporary file beside
+ * it (PREFIX.*.tmp.XXXXXX), is fsync'ed and renamed, the .json last. A table counts as complete
+ * only when its .json exists (ns_table_is_complete), so a run killed half-way never leaves
+ * something that looks finished.
  *
  * Ownership: ns_table_create/ns_table_read allocate the edges and the data; ns_table_free
  * releases them (and accepts a zeroed or already freed table). Results are 0 or a negative

@@ -277,15 +277,7 @@ static void checkpoint_path(const ns_train_options *o, ns_order order, char *out
 static int checkpoint_save(const char *path, checkpoint *c)
 {
     c->crc = ns_crc32(c, offsetof(checkpoint, crc));
-    char tmp[4300];
-    if (snprintf(tmp, sizeof tmp, "%s.part", path) >= (int)sizeof tmp)
-        return -1;
-    FILE *f = fopen(tmp, "wb");
-    if (!f)
-        return -1;
-    int ok = fwrite(c, sizeof *c, 1, f) == 1;
-    ok = fclose(f) == 0 && ok;
-    return ok && rename(tmp, path) == 0 ? 0 : -1;
+    return ns_write_file_atomic(path, c, sizeof *c, NULL) ? -1 : 0;
 }
 
 static int checkpoint_load(const char *path, checkpoint *c)

@@ -1,5 +1,5 @@
-/* common.c — status table, stage timings, the clock and the render settings' defaults:
- * small things every module uses. */
+/* common.c — status table, method and component names, the render settings' defaults,
+ * stage timings and the clock: small things every module uses. */
 #include <stdio.h>
 #include <string.h>
 #include <time.h>
@@ -97,4 +97,46 @@ ns_render_settings ns_render_settings_resolve(ns_render_settings r)
     if (!r.single_samples)
         r.single_samples = NS_DEFAULT_SINGLE_SAMPLES;
     return r;
+}
+
+static const char *const method_names[NS_METHOD_COUNT] = {
+#define NS_X_NAME(code, value, name) [value] = name,
+    NS_METHODS(NS_X_NAME)
+};
+static const char *const component_names[NS_COMPONENT_COUNT] = {
+    NS_COMPONENTS(NS_X_NAME)
+#undef NS_X_NAME
+};
+
+const char *ns_method_name(ns_method method)
+{
+    return (unsigned)method < NS_METHOD_COUNT ? method_names[method] : "unknown";
+}
+
+int ns_method_parse(const char *name, ns_method *out)
+{
+    for (int m = 0; name && m < NS_METHOD_COUNT; m++)
+        if (!strcmp(name, method_names[m])) {
+            *out = (ns_method)m;
+            return NS_OK;
+        }
+    return NS_ERR_INVALID_ARGUMENT;
+}
+
+const char *ns_component_name(uint32_t component)
+{
+    for (int bit = 0; bit < NS_COMPONENT_COUNT; bit++)
+        if (component == 1u << bit)
+            return component_names[bit];
+    return "unknown";
+}
+
+int ns_component_parse(const char *name, uint32_t *out)
+{
+    for (int bit = 0; name && bit < NS_COMPONENT_COUNT; bit++)
+        if (!strcmp(name, component_names[bit])) {
+            *out = 1u << bit;
+            return NS_OK;
+        }
+    return NS_ERR_INVALID_ARGUMENT;
 }

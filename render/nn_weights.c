@@ -6,7 +6,6 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "gpu.h" /* ns_fail */
 
@@ -147,19 +146,8 @@ int ns_nn_weights_save(ns_nn_weights *w, const char *path, ns_error *err)
 {
     w->h.payload_crc32 = ns_crc32(w->p, sizeof w->p);
     w->h.header_crc32 = ns_crc32(&w->h, offsetof(ns_nn_header, header_crc32));
-    char tmp[4096];
-    if (snprintf(tmp, sizeof tmp, "%s.part", path) >= (int)sizeof tmp)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "weights path too long");
-    FILE *f = fopen(tmp, "wb");
-    if (!f)
-        return ns_fail(err, NS_ERR_IO, "%s: %s", tmp, strerror(errno));
-    int ok = fwrite(&w->h, NS_NN_HEADER_SIZE, 1, f) == 1 && fwrite(w->p, sizeof w->p, 1, f) == 1;
-    ok = fclose(f) == 0 && ok;
-    if (!ok || rename(tmp, path) != 0) {
-        unlink(tmp);
-        return ns_fail(err, NS_ERR_IO, "%s: write failed: %s", path, strerror(errno));
-    }
-    return 0;
+    const ns_file_part parts[2] = {{&w->h, NS_NN_HEADER_SIZE}, {w->p, sizeof w->p}};
+    return ns_write_file_atomic_parts(path, parts, 2, err);
 }
 
 /* ---------------------------------------------------------------------------------------

@@ -39,12 +39,11 @@ static void job_free(ns_context *ctx, render_job *job)
 
 static void component_names(uint32_t bits, char *out, size_t size)
 {
-    static const char *names[] = {"surface", "single", "double", "multiple"};
     out[0] = '\0';
-    for (int i = 0; i < 4; i++)
+    for (int i = 0; i < NS_COMPONENT_COUNT; i++)
         if (bits & (1u << i)) {
             size_t used = strlen(out);
-            snprintf(out + used, size - used, "%s%s", used ? ", " : "", names[i]);
+            snprintf(out + used, size - used, "%s%s", used ? ", " : "", ns_component_name(1u << i));
         }
 }
 

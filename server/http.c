@@ -104,10 +104,15 @@ static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const 
     char *text = body ? json_dumps(body, JSON_INDENT(2) | JSON_REAL_PRECISION(6)) : NULL;
     json_decref(body);
     if (!text) {
-        static const char fallback[] = "{\"title\": \"Internal Server Error\", \"status\": 500, "
-                                       "\"code\": \"internal_error\"}\n";
-        return send_bytes(conn, 500, PROBLEM_CONTENT_TYPE, (void *)fallback, sizeof fallback - 1,
-                          MHD_RESPMEM_PERSISTENT, NULL);
+        /* Out of memory for the JSON itself: a short problem built without allocating. */
+        char fallback[160];
+        int fallback_status = problem_http_status(PROBLEM_STATUS_INTERNAL);
+        int n = snprintf(fallback, sizeof fallback,
+                         "{\"title\": \"%s\", \"status\": %d, \"code\": \"%s\"}\n",
+                         problem_title(PROBLEM_STATUS_INTERNAL), fallback_status,
+                         ns_status_name(NS_ERR_INTERNAL));
+        return send_bytes(conn, fallback_status, PROBLEM_CONTENT_TYPE, fallback, (size_t)n,
+                          MHD_RESPMEM_MUST_COPY, NULL);
     }
     size_t len = strlen(text);
     char *with_newline = realloc(text, len + 2);
@@ -126,20 +131,45 @@ static enum MHD_Result send_problem_json(struct MHD_Connection *conn, json_t *pr
     return send_json(conn, status ? status : 500, PROBLEM_CONTENT_TYPE, problem, headers);
 }
 
-static json_t *problemf(int status, const char *code, const char *fmt, ...)
+/* problem_new() and problem_from_status() with a printf-formatted detail. */
+static json_t *problemf(problem_kind kind, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+static json_t *problemf(problem_kind kind, const char *fmt, ...)
 {
     char detail[768];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(detail, sizeof detail, fmt, ap);
     va_end(ap);
-    return problem_new(status, code, detail);
+    return problem_new(kind, detail);
 }
 
-static enum MHD_Result send_problem(struct MHD_Connection *conn, int status, const char *code,
-                                    const char *detail, const char *const *headers)
+static json_t *status_problemf(problem_kind kind, int status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static json_t *status_problemf(problem_kind kind, int status, const char *fmt, ...)
 {
-    return send_problem_json(conn, problem_new(status, code, detail), headers);
+    char detail[768];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(detail, sizeof detail, fmt, ap);
+    va_end(ap);
+    return problem_from_status(kind, status, detail);
+}
+
+/* 503 with the reason the render context could not be made, from /readyz and from a render
+ * request alike: a client polling either learns the same code. */
+static json_t *no_context_problem(const http_server *srv)
+{
+    return status_problemf(PROBLEM_STATUS_UNAVAILABLE, srv->ctx_err.status,
+                           "render context not available: %s", srv->ctx_err.message);
+}
+
+static enum MHD_Result send_out_of_memory(struct MHD_Connection *conn)
+{
+    return send_problem_json(
+        conn,
+        problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY, "out of memory"),
+        NULL);
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -150,6 +180,36 @@ static const char *skip_space(const char *s)
     while (*s == ' ' || *s == '\t')
         s++;
     return s;
+}
+
+/* The HTTP layer's one number parser, for header values (Content-Length, the q of an Accept
+ * range): the whole of `text`, spaces and tabs around it allowed, as decimal digits and, when
+ * `fraction` is set, a '.' and more digits. No sign, exponent, hex, "inf" or "nan": no header
+ * grammar here has them, though strtoull and strtod would take some ("-5" as a huge length).
+ * Returns 0 with the integer part in *whole (saturated at UINT64_MAX, larger than any limit)
+ * and the value in *value (either may be NULL), or -1. */
+static int parse_header_number(const char *text, int fraction, uint64_t *whole, double *value)
+{
+    const char *s = skip_space(text);
+    uint64_t w = 0, frac = 0, scale = 1;
+    int digits = 0;
+    for (; *s >= '0' && *s <= '9'; s++, digits++) {
+        unsigned d = (unsigned)(*s - '0');
+        w = w > (UINT64_MAX - d) / 10 ? UINT64_MAX : w * 10 + d;
+    }
+    if (fraction && *s == '.')
+        for (s++; *s >= '0' && *s <= '9'; s++, digits++)
+            if (scale < 1000000000000000000ull) { /* later digits cannot change a double */
+                frac = frac * 10 + (uint64_t)(*s - '0');
+                scale *= 10;
+            }
+    if (!digits || *skip_space(s))
+        return -1;
+    if (whole)
+        *whole = w;
+    if (value)
+        *value = (double)w + (double)frac / (double)scale;
+    return 0;
 }
 
 /* Copies the token [s, end) trimmed and lower-cased into out. */
@@ -196,9 +256,7 @@ static int parse_media_range(const char *s, const char *end, media_range *m)
             value[vlen - 2] = 0;
         }
         if (!strcmp(name, "q")) {
-            char *q_end = NULL;
-            m->q = strtod(value, &q_end);
-            if (q_end == value || *q_end || !(m->q >= 0.0 && m->q <= 1.0))
+            if (parse_header_number(value, 1, NULL, &m->q) || !(m->q >= 0.0 && m->q <= 1.0))
                 return -1;
         } else if (!strcmp(name, "charset")) {
             snprintf(m->charset, sizeof m->charset, "%s", value);
@@ -288,17 +346,10 @@ static long long content_length(struct MHD_Connection *conn)
         MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_LENGTH);
     if (!v)
         return -1;
-    v = skip_space(v);
-    if (*v < '0' || *v > '9')
+    uint64_t n = 0;
+    if (parse_header_number(v, 0, &n, NULL))
         return -2;
-    errno = 0;
-    char *end = NULL;
-    unsigned long long n = strtoull(v, &end, 10);
-    if (errno == ERANGE || n > (unsigned long long)LLONG_MAX)
-        return LLONG_MAX; /* larger than any limit */
-    if (*skip_space(end))
-        return -2;
-    return (long long)n;
+    return n > (uint64_t)LLONG_MAX ? LLONG_MAX : (long long)n; /* larger than any limit */
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -306,19 +357,15 @@ static long long content_length(struct MHD_Connection *conn)
  * ------------------------------------------------------------------------------------- */
 static json_t *methods_json(void)
 {
-    static const ns_method methods[] = {NS_METHOD_NN, NS_METHOD_TABLE, NS_METHOD_VRL,
-                                        NS_METHOD_DIPOLE, NS_METHOD_PT};
-    const uint32_t all =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     json_t *list = json_array();
-    for (size_t i = 0; i < sizeof methods / sizeof methods[0]; i++) {
-        uint32_t missing = ns_unsupported_components(methods[i], all);
+    for (int m = 0; m < NS_METHOD_COUNT; m++) {
+        uint32_t missing = ns_unsupported_components((ns_method)m, NS_COMPONENT_ALL);
         json_t *available = json_array(), *unavailable = json_array();
-        render_components_append(available, all & ~missing);
+        render_components_append(available, NS_COMPONENT_ALL & ~missing);
         render_components_append(unavailable, missing);
         json_array_append_new(list, json_pack("{s:s, s:o, s:o}", "name",
-                                              render_method_name(methods[i]), "components",
-                                              available, "unavailable_components", unavailable));
+                                              ns_method_name((ns_method)m), "components", available,
+                                              "unavailable_components", unavailable));
     }
     return list;
 }
@@ -359,10 +406,7 @@ static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_ser
         return send_json(
             conn, 200, "application/json",
             json_pack("{s:s, s:s}", "status", "ready", "device", srv->device.device_name), NULL);
-    return send_problem_json(conn,
-                             problemf(503, ns_status_name(srv->ctx_err.status),
-                                      "render context not available: %s", srv->ctx_err.message),
-                             NULL);
+    return send_problem_json(conn, no_context_problem(srv), NULL);
 }
 
 /* GET / and GET /<file>: the embedded web page. */
@@ -371,7 +415,7 @@ static enum MHD_Result answer_web(struct MHD_Connection *conn, const char *url)
     const char *name = strcmp(url, "/") ? url + 1 : "index.html";
     const web_asset *asset = strchr(name, '/') ? NULL : web_asset_find(name);
     if (!asset)
-        return send_problem_json(conn, problemf(404, "not_found", "no resource at %s", url), NULL);
+        return send_problem_json(conn, problemf(PROBLEM_NOT_FOUND, "no resource at %s", url), NULL);
     static const char *const headers[] = {"Cache-Control", "no-cache", NULL};
     return send_bytes(conn, 200, asset->content_type, (void *)asset->data, asset->size,
                       MHD_RESPMEM_PERSISTENT, headers);
@@ -416,32 +460,30 @@ static json_t *check_render_headers(struct MHD_Connection *conn, const http_serv
     const char *type =
         MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
     if (!content_type_is_json(type))
-        return problemf(415, "unsupported_media_type",
+        return problemf(PROBLEM_UNSUPPORTED_MEDIA_TYPE,
                         "Content-Type must be application/json (charset utf-8), got '%.100s'",
                         type ? type : "(none)");
     const char *accept = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_ACCEPT);
     char exr_param[32];
     if (negotiate_format(accept, &req->format, exr_param, sizeof exr_param))
-        return problemf(406, "not_acceptable",
+        return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept '%.200s' allows neither image/png nor image/x-exr", accept);
     query_check query = {0};
     MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
     if (query.problem[0])
-        return problem_new(400, "bad_query", query.problem);
+        return problem_new(PROBLEM_BAD_QUERY, query.problem);
     if (exr_param[0] && strcmp(exr_param, "half") && strcmp(exr_param, "float"))
-        return problemf(406, "not_acceptable",
+        return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept image/x-exr; format=%s: use format=half or format=float",
                         exr_param);
     int half = query.has_format ? query.half : !strcmp(exr_param, "half");
     if ((query.has_format || exr_param[0]) && req->format == ENCODE_PNG)
-        return problem_new(400, "bad_query",
-                           "format=half|float applies to image/x-exr; the Accept header "
-                           "selected image/png");
+        return problem_new(PROBLEM_BAD_QUERY, "format=half|float applies to image/x-exr; the "
+                                              "Accept header selected image/png");
     if (req->format != ENCODE_PNG && half)
         req->format = ENCODE_EXR_HALF;
     if (!srv->ctx)
-        return problemf(503, ns_status_name(srv->ctx_err.status),
-                        "render context not available: %s", srv->ctx_err.message);
+        return no_context_problem(srv);
     return NULL;
 }
 
@@ -466,8 +508,9 @@ static void collect_body(const http_server *srv, http_request *req, const char *
             cap *= 2;
         char *grown = realloc(req->body, cap);
         if (!grown) {
-            req->early_problem = problem_new(503, "out_of_host_memory",
-                                             "out of memory while reading the request body");
+            req->early_problem =
+                problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY,
+                                    "out of memory while reading the request body");
             free(req->body);
             req->body = NULL;
             req->size = req->cap = 0;
@@ -492,7 +535,7 @@ static json_t *issues_problem(const scene_issues *issues)
         else
             snprintf(detail, sizeof detail, "line %d, column %d: %s", issues->line, issues->column,
                      what);
-        json_t *p = problem_new(400, "malformed_json", detail);
+        json_t *p = problem_new(PROBLEM_MALFORMED_JSON, detail);
         json_object_set_new(p, "line", json_integer(issues->line));
         json_object_set_new(p, "column", json_integer(issues->column));
         problem_add_error(p, issues->count ? issues->items[0].pointer : "", detail);
@@ -500,12 +543,12 @@ static json_t *issues_problem(const scene_issues *issues)
     }
     json_t *p;
     if (issues->count)
-        p = problemf(422, "invalid_scene", "the scene has %u problem%s; first: %s: %s",
+        p = problemf(PROBLEM_INVALID_SCENE, "the scene has %u problem%s; first: %s: %s",
                      issues->total, issues->total == 1 ? "" : "s",
                      issues->items[0].pointer[0] ? issues->items[0].pointer : "(document)",
                      issues->items[0].detail);
     else
-        p = problem_new(422, "invalid_scene", "the scene is not valid");
+        p = problem_new(PROBLEM_INVALID_SCENE, "the scene is not valid");
     for (uint32_t i = 0; i < issues->count && i < SCENE_MAX_ISSUES; i++)
         problem_add_error(p, issues->items[i].pointer, issues->items[i].detail);
     return p;
@@ -554,16 +597,15 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     double t0 = ns_now_ms();
     scene_issues *issues = calloc(1, sizeof *issues);
     if (!issues)
-        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+        return send_out_of_memory(conn);
     scene_doc *doc = NULL;
     int rc = scene_parse(req->body ? req->body : "", req->size,
                          &(scene_parse_options){.asset_dir = srv->asset_dir}, &doc, issues);
     ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
     if (rc) {
-        json_t *p =
-            rc == NS_ERR_INVALID_ARGUMENT
-                ? issues_problem(issues)
-                : problem_new(ns_status_http(rc), ns_status_name(rc), ns_status_message(rc));
+        json_t *p = rc == NS_ERR_INVALID_ARGUMENT ? issues_problem(issues)
+                                                  : problem_from_status(problem_kind_of_status(rc),
+                                                                        rc, ns_status_message(rc));
         free(issues);
         return send_problem_json(conn, p, NULL);
     }
@@ -577,7 +619,7 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     render_request *job = calloc(1, sizeof *job);
     if (!job) {
         scene_doc_free(doc);
-        return send_problem(conn, 503, "out_of_host_memory", "out of memory", NULL);
+        return send_out_of_memory(conn);
     }
     job->scene = scene;
     job->format = req->format;
@@ -597,7 +639,7 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
         char seconds[16];
         snprintf(seconds, sizeof seconds, "%u", retry_after);
         const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, seconds, NULL};
-        json_t *p = problemf(503, "queue_full",
+        json_t *p = problemf(PROBLEM_QUEUE_FULL,
                              "%u render%s already admitted (queue capacity); retry in %s s",
                              srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
         return send_problem_json(conn, p, headers);
@@ -609,9 +651,9 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     char device[256];
     header_safe(srv->device.device_name, device, sizeof device);
     if (job->status) {
-        json_t *p =
-            problemf(ns_status_http(job->status), ns_status_name(job->status), "%s",
-                     job->err.message[0] ? job->err.message : ns_status_message(job->status));
+        json_t *p = status_problemf(problem_kind_of_status(job->status), job->status, "%s",
+                                    job->err.message[0] ? job->err.message
+                                                        : ns_status_message(job->status));
         const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
         ret = send_problem_json(conn, p, headers);
     } else {
@@ -676,15 +718,15 @@ static json_t *check_route(http_route route, const char *url, const char *method
     int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
     *allow = NULL;
     if (route == ROUTE_NONE)
-        return problemf(404, "not_found", "no resource at %.200s", url);
+        return problemf(PROBLEM_NOT_FOUND, "no resource at %.200s", url);
     if (route != ROUTE_RENDERS && !is_get) {
         *allow = "GET, HEAD";
-        return problemf(405, "method_not_allowed", "%.16s is not allowed on %.200s; use GET",
+        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on %.200s; use GET",
                         method, url);
     }
     if (route == ROUTE_RENDERS && strcmp(method, MHD_HTTP_METHOD_POST)) {
         *allow = "POST";
-        return problemf(405, "method_not_allowed", "%.16s is not allowed on /v1/renders; use POST",
+        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on /v1/renders; use POST",
                         method);
     }
     return NULL;
@@ -702,7 +744,7 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
         (unsigned long long)length > srv->max_body)
         /* Without reading a byte of the body: MHD then closes the connection. */
         return send_problem_json(conn,
-                                 problemf(413, "body_too_large",
+                                 problemf(PROBLEM_BODY_TOO_LARGE,
                                           "Content-Length %lld is over the limit of %llu bytes",
                                           length, (unsigned long long)srv->max_body),
                                  NULL);
@@ -747,7 +789,7 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         return answer_get(conn, srv, req->route, url);
     if (req->too_large)
         return send_problem_json(conn,
-                                 problemf(413, "body_too_large",
+                                 problemf(PROBLEM_BODY_TOO_LARGE,
                                           "the request body is over the limit of %llu bytes",
                                           (unsigned long long)srv->max_body),
                                  NULL);

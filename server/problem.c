@@ -5,6 +5,50 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "nscatter.h"
+
+typedef struct {
+    int status;
+    const char *code;
+    const char *title;
+} problem_row;
+
+static const problem_row problem_rows[PROBLEM_COUNT] = {
+#define PROBLEM_X_ROW(name, status, code, title) [name] = {status, code, title},
+    PROBLEM_TABLE(PROBLEM_X_ROW)
+#undef PROBLEM_X_ROW
+};
+
+static const problem_row *row_of(problem_kind kind)
+{
+    return (unsigned)kind < PROBLEM_COUNT ? &problem_rows[kind]
+                                          : &problem_rows[PROBLEM_STATUS_INTERNAL];
+}
+
+int problem_http_status(problem_kind kind)
+{
+    return row_of(kind)->status;
+}
+
+const char *problem_code(problem_kind kind)
+{
+    return row_of(kind)->code;
+}
+
+const char *problem_title(problem_kind kind)
+{
+    return row_of(kind)->title;
+}
+
+problem_kind problem_kind_of_status(int status)
+{
+    int http = ns_status_http(status);
+    for (int k = 0; k < PROBLEM_COUNT; k++)
+        if (!problem_rows[k].code && problem_rows[k].status == http)
+            return (problem_kind)k;
+    return PROBLEM_STATUS_INTERNAL;
+}
+
 /* Details may quote what a client sent; a string that is not valid UTF-8 would make the
  * whole JSON body fail to build, so such bytes become '?' instead. */
 static json_t *problem_string(const char *text)
@@ -25,41 +69,26 @@ static json_t *problem_string(const char *text)
     return s;
 }
 
-const char *problem_title(int http_status)
-{
-    switch (http_status) {
-    case 400:
-        return "Bad Request";
-    case 404:
-        return "Not Found";
-    case 405:
-        return "Method Not Allowed";
-    case 406:
-        return "Not Acceptable";
-    case 408:
-        return "Request Timeout";
-    case 413:
-        return "Content Too Large";
-    case 415:
-        return "Unsupported Media Type";
-    case 422:
-        return "Unprocessable Content";
-    case 500:
-        return "Internal Server Error";
-    case 503:
-        return "Service Unavailable";
-    default:
-        return http_status >= 500 ? "Server Error" : "Client Error";
-    }
-}
-
-json_t *problem_new(int http_status, const char *code, const char *detail)
+static json_t *problem_make(const problem_row *row, const char *code, const char *detail)
 {
     char type[128];
     snprintf(type, sizeof type, "urn:nscatter:problem:%s", code);
-    return json_pack("{s:s, s:s, s:i, s:o, s:o, s:[]}", "type", type, "title",
-                     problem_title(http_status), "status", http_status, "detail",
-                     problem_string(detail), "code", problem_string(code), "errors");
+    return json_pack("{s:s, s:s, s:i, s:o, s:o, s:[]}", "type", type, "title", row->title, "status",
+                     row->status, "detail", problem_string(detail), "code", problem_string(code),
+                     "errors");
+}
+
+json_t *problem_new(problem_kind kind, const char *detail)
+{
+    const problem_row *row = row_of(kind);
+    if (!row->code)
+        return problem_from_status(kind, NS_ERR_INTERNAL, detail);
+    return problem_make(row, row->code, detail);
+}
+
+json_t *problem_from_status(problem_kind kind, int status, const char *detail)
+{
+    return problem_make(row_of(kind), ns_status_name(status), detail);
 }
 
 void problem_add_error(json_t *problem, const char *pointer, const char *detail)

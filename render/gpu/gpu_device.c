@@ -1,7 +1,6 @@
 /* gpu_device.c — instance, physical device choice, logical device and queue, the
  * validation messenger, debug labels and the pipeline cache. */
 #include <ctype.h>
-#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -464,13 +463,10 @@ int gpu_pipeline_cache_save(gpu_device *dev, const char *path, ns_error *err)
     status = gpu_check(vkGetPipelineCacheData(dev->device, dev->pipeline_cache, &size, data),
                        "vkGetPipelineCacheData", err);
     if (!status) {
-        char tmp[4096];
-        snprintf(tmp, sizeof tmp, "%s.tmp", path);
-        FILE *f = fopen(tmp, "wb");
-        if (!f || fwrite(data, 1, size, f) != size || fclose(f) != 0 || rename(tmp, path) != 0) {
-            int saved = errno;
-            status = ns_fail(err, NS_ERR_IO, "pipeline cache %s: %s", path, strerror(saved));
-        }
+        ns_error write_err = {0};
+        status = ns_write_file_atomic(path, data, size, &write_err);
+        if (status)
+            ns_fail(err, status, "pipeline cache: %s", write_err.message);
     }
     free(data);
     return status;

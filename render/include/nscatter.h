@@ -145,20 +145,55 @@ typedef struct ns_light {
     float color[3];
 } ns_light;
 
+/* Render methods and scattering components: one table each generates the values and the
+ * names that the scene JSON, the HTTP API and the command line use (ns_method_name,
+ * ns_component_name and their parse functions below), so a name is spelt once.
+ * X(NAME, value, "name"); a component's value is its bit number. */
+#define NS_METHODS(X)                                                                        \
+    X(NS_METHOD_NN, 0, "nn")         /* the paper's method: tables from the network */      \
+    X(NS_METHOD_TABLE, 1, "table")   /* same pipeline, Monte Carlo tables of the material */ \
+    X(NS_METHOD_VRL, 2, "vrl")       /* Novak et al. 2012 brute-force VRLs */                \
+    X(NS_METHOD_DIPOLE, 3, "dipole") /* Jensen et al. 2001 */                                \
+    X(NS_METHOD_PT, 4, "pt")         /* reference volumetric path tracer */
+
+#define NS_COMPONENTS(X)                                                                     \
+    X(NS_COMPONENT_SURFACE, 0, "surface")                                                    \
+    X(NS_COMPONENT_SINGLE, 1, "single")                                                      \
+    X(NS_COMPONENT_DOUBLE, 2, "double")                                                      \
+    X(NS_COMPONENT_MULTIPLE, 3, "multiple")
+
 typedef enum {
-    NS_METHOD_NN = 0,     /* the paper's method: tables from the network */
-    NS_METHOD_TABLE = 1,  /* same pipeline, Monte Carlo tables of the exact material */
-    NS_METHOD_VRL = 2,    /* Novak et al. 2012 brute-force VRLs */
-    NS_METHOD_DIPOLE = 3, /* Jensen et al. 2001 */
-    NS_METHOD_PT = 4,     /* reference volumetric path tracer */
+#define NS_X_METHOD(code, value, name) code = value,
+    NS_METHODS(NS_X_METHOD)
+#undef NS_X_METHOD
 } ns_method;
 
 enum {
-    NS_COMPONENT_SURFACE = 1u << 0,
-    NS_COMPONENT_SINGLE = 1u << 1,
-    NS_COMPONENT_DOUBLE = 1u << 2,
-    NS_COMPONENT_MULTIPLE = 1u << 3,
+#define NS_X_COMPONENT(code, bit, name) code = 1u << (bit),
+    NS_COMPONENTS(NS_X_COMPONENT)
+#undef NS_X_COMPONENT
 };
+
+/* How many methods and components there are, and every component bit together. */
+enum {
+#define NS_X_COUNT(code, value, name) +1
+    NS_METHOD_COUNT = 0 NS_METHODS(NS_X_COUNT),
+    NS_COMPONENT_COUNT = 0 NS_COMPONENTS(NS_X_COUNT),
+#undef NS_X_COUNT
+#define NS_X_BIT(code, bit, name) | code
+    NS_COMPONENT_ALL = 0 NS_COMPONENTS(NS_X_BIT),
+#undef NS_X_BIT
+};
+
+/* "nn", "table", ...; "unknown" for a value that is not a method. */
+const char *ns_method_name(ns_method method);
+/* The method called exactly `name` (case-sensitive, as in the scene JSON): 0 and *out, or
+ * NS_ERR_INVALID_ARGUMENT with *out untouched. */
+int ns_method_parse(const char *name, ns_method *out);
+/* "surface", "single", ... for one NS_COMPONENT_* bit; "unknown" for anything else. */
+const char *ns_component_name(uint32_t component);
+/* The NS_COMPONENT_* bit called exactly `name`: 0 and *out, or NS_ERR_INVALID_ARGUMENT. */
+int ns_component_parse(const char *name, uint32_t *out);
 
 /* How a camera segment reads the accumulated table: exactly, A(entry) - e^{-s Lc} A(exit)
  * (DESIGN.md section 2), or the paper's 5-mfp table with its length weight W (Eq. 5). */
@@ -174,8 +209,7 @@ typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams
 #define NS_MAX_SINGLE_SAMPLES 4096u
 
 /* The defaults of the render settings (docs/scene.md lists the same). */
-#define NS_DEFAULT_COMPONENTS \
-    (NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)
+#define NS_DEFAULT_COMPONENTS NS_COMPONENT_ALL
 #define NS_DEFAULT_SPP 1u
 #define NS_DEFAULT_SEED 1u
 #define NS_DEFAULT_MAX_DEPTH 8u
@@ -341,6 +375,27 @@ void ns_stats_add_stage(ns_render_stats *stats, const char *name, double ms);
 
 /* Monotonic clock in milliseconds, for stage timings. */
 double ns_now_ms(void);
+
+/* ---------------------------------------------------------------------------------------
+ * Files.
+ * ------------------------------------------------------------------------------------- */
+/* Replaces the file at path with `size` bytes of data, atomically: they go to a new
+ * temporary file beside it (PATH.tmp.XXXXXX, mode 0644), which is flushed to the disk
+ * (fsync) and renamed over path, and then the folder is flushed too. A reader sees the old
+ * file or the whole new one, never a part, also after a crash; on any failure the old file
+ * is left as it was and the temporary file is removed. Returns 0, or NS_ERR_IO with a
+ * message that names the path and errno as the failing call set it
+ * (NS_ERR_OUT_OF_HOST_MEMORY when out of memory). */
+int ns_write_file_atomic(const char *path, const void *data, size_t size, ns_error *err);
+
+/* The same for a file made of several pieces written one after the other (a header, then
+ * the data it describes), without copying them into one buffer first. */
+typedef struct ns_file_part {
+    const void *data;
+    size_t size;
+} ns_file_part;
+int ns_write_file_atomic_parts(const char *path, const ns_file_part *parts, size_t count,
+                               ns_error *err);
 
 #ifdef __cplusplus
 }
