@@ -1,7 +1,9 @@
 /* bench.h — `nscatter bench` (docs/bench.md): the paper's experiments (Ge et al. 2021,
  * Tables 2-4) on built-in scenes, against path-traced references cached outside git.
+ * bench.c defines what is measured (methods, reference sets, the paper's figures);
  * cmd_bench.c runs the renders and keeps the results in the structs below; bench_report.c
- * turns them into report.md and contact_sheet.png. Everything here is private to the bench.
+ * turns them into report.md and contact_sheet.png. Both use bench.c, and only cmd_bench.c
+ * calls bench_report.c. Everything here is private to the bench command.
  */
 #ifndef NS_BENCH_H
 #define NS_BENCH_H
@@ -25,6 +27,8 @@ typedef enum {
     BENCH_PT, /* a few short pt renders: the cost of pt's quality */
     BENCH_METHOD_COUNT
 } bench_method_id;
+
+#define BENCH_ALL NS_COMPONENT_ALL /* the full solution */
 
 typedef struct bench_method_info {
     const char *name;    /* --methods name and report label */
@@ -114,7 +118,7 @@ typedef struct bench_run {
 /* Writes DIR/report.md and DIR/contact_sheet.png. 0 or 1 after printing why. */
 int bench_write_report(const bench_run *run, const char *dir);
 
-/* Paper value at manifest path paper.<method>.<field>, NaN when absent. */
+/* Paper value at manifest path paper.<method>.<field>, NaN when absent (bench.c). */
 double bench_paper_value(const bench_scene *s, const char *method, const char *field);
 
 #endif

@@ -32,45 +32,9 @@
 #define NS_SOURCE_DIR "."
 #endif
 
-#define BENCH_ALL NS_COMPONENT_ALL
 #define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
-
-const bench_method_info bench_methods[BENCH_METHOD_COUNT] = {
-    [BENCH_NN_SURFACE] = {"nn_surface", NS_METHOD_NN, NS_COMPONENT_SURFACE, NULL, "nn, surface only"},
-    [BENCH_NN_MULTIPLE] = {"nn_multiple", NS_METHOD_NN, NS_COMPONENT_MULTIPLE, "multiple",
-                           "nn, multiple only"},
-    [BENCH_NN_DOUBLE] = {"nn_double", NS_METHOD_NN, NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
-                         "double", "nn, double + multiple"},
-    [BENCH_NN_FULL] = {"nn_full", NS_METHOD_NN, BENCH_ALL, "full", "nn, full solution"},
-    [BENCH_TABLE] = {"table", NS_METHOD_TABLE, BENCH_ALL, "full", "table (Monte Carlo, [WH17])"},
-    [BENCH_DIPOLE] = {"dipole", NS_METHOD_DIPOLE, BENCH_ALL, "full", "dipole"},
-    [BENCH_VRL] = {"vrl", NS_METHOD_VRL, BENCH_ALL, "full", "vrl at equal time"},
-    [BENCH_PT] = {"pt", NS_METHOD_PT, BENCH_ALL, NULL, "pt, short renders"},
-};
-
-const uint32_t bench_ref_components[BENCH_REF_SETS] = {
-    BENCH_ALL, NS_COMPONENT_MULTIPLE, NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE, NS_COMPONENT_SURFACE};
-
-int bench_ref_index(uint32_t components)
-{
-    for (int i = 0; i < BENCH_REF_SETS; i++)
-        if (bench_ref_components[i] == components)
-            return i;
-    return -1;
-}
-
-const char *bench_components_name(uint32_t components)
-{
-    switch (components) {
-    case BENCH_ALL: return "full";
-    case NS_COMPONENT_MULTIPLE: return ns_component_name(components);
-    case NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE: return "double+multiple";
-    case NS_COMPONENT_SURFACE: return ns_component_name(components);
-    default: return "other";
-    }
-}
 
 /* ---------------------------------------------------------------------------------------
  * Arguments.
@@ -396,12 +360,6 @@ static uint32_t manifest_vrls(const bench_scene *s, const char *key, double scal
     double n = json_is_number(v) ? json_number_value(v) : (double)NS_DEFAULT_VRLS;
     n = round(n * scale);
     return (uint32_t)fmin(fmax(n, 1.0), (double)NS_MAX_VRLS);
-}
-
-double bench_paper_value(const bench_scene *s, const char *method, const char *field)
-{
-    json_t *v = json_object_get(json_object_get(json_object_get(s->manifest, "paper"), method), field);
-    return json_is_number(v) ? json_number_value(v) : NAN;
 }
 
 /* Reads SCENE_DIR/<file>, applies --width/--height and checks that it parses. */

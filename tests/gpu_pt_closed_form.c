@@ -11,8 +11,7 @@ static ns_scene pt_scene(void)
 {
     ns_scene s = base_scene(SIDE, SIDE, 5);
     s.render.method = NS_METHOD_PT;
-    s.render.components =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    s.render.components = NS_COMPONENT_ALL;
     return s;
 }
 

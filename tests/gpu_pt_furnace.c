@@ -23,8 +23,7 @@ static ns_scene furnace_scene(ns_material *m, ns_object *o, ns_light *l, const d
     *l = light(NS_LIGHT_ENVIRONMENT, 1.0, 0.5, 0.25);
     scene_lists(&s, m, 1, o, 1, l, 1);
     s.render.method = NS_METHOD_PT;
-    s.render.components =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    s.render.components = NS_COMPONENT_ALL;
     s.render.spp = 8;
     return s;
 }
@@ -230,7 +229,7 @@ static void test_seed_determinism(void)
 static void test_max_events(void)
 {
     const uint32_t all =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+        NS_COMPONENT_ALL;
     CHECK_INT(ns_pt_max_events(all, 0), NS_NONE);
     CHECK_INT(ns_pt_max_events(all, 5), 5);
     CHECK_INT(ns_pt_max_events(NS_COMPONENT_SURFACE, 0), 0);

@@ -62,7 +62,7 @@ static void expect_issue(const char *render_json, const char *pointer, const cha
 static void test_max_scatter_values(void)
 {
     const uint32_t all =
-        NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+        NS_COMPONENT_ALL;
     expect_valid("\"method\": \"pt\"", 0, all);
     expect_valid("\"method\": \"pt\", \"max_scatter\": 0", 0, all);
     expect_valid("\"method\": \"pt\", \"max_scatter\": 2", 2, all);
