@@ -18,7 +18,7 @@
  * the codes, the titles and the HTTP statuses: X(NAME, status, "code", "Title").
  *
  * The PROBLEM_STATUS_* rows carry a failure of the render library: their code is NULL here
- * because it is the ns_status's own name (render/nscatter.h's status table), given to
+ * because it is the ns_status's own name (render/include/nscatter.h's status table), given to
  * problem_from_status(). There is one such row per HTTP status that table maps to, so that
  * each has its title here too; docs/http.md lists them all. */
 #define PROBLEM_TABLE(X)                                                                      \

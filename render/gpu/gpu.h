@@ -15,7 +15,7 @@
 #include "nscatter.h"
 
 
-/* Embedded SPIR-V (generated registry, build/shaders/shader_registry.c). */
+/* Embedded SPIR-V (generated registry: the build folder's shaders/shader_registry.c). */
 const uint32_t *ns_shader_code(const char *name, size_t *size_bytes);
 
 /* ---------------------------------------------------------------------------------------
