@@ -17,17 +17,7 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
     s->render.vrls = 1500;
     s->render.gather_tile = 1;
     s->render.single_samples = 16;
-    set3(s->camera.position, 0, 1, 5);
-    set3(s->camera.look_at, 0, 0, 0);
-    mats[0] = diffuse(0.5, 0.5, 0.5);
-    mats[1] = medium((double[3]){4, 3, 2}, (double[3]){0.1, 0.2, 0.3}, 1.4);
-    mats[1].g = 0.5f;
-    objs[0] = plane(-1, 0);
-    objs[1] = sphere(0, 0, 0, 1, 1);
-    lights[0] = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
-    set3(lights[0].direction, 0, -0.8, -0.6);
-    lights[1] = light(NS_LIGHT_ENVIRONMENT, 0.2, 0.2, 0.25);
-    scene_lists(s, mats, 2, objs, 2, lights, 2);
+    lit_medium_sphere(s, mats, objs, lights);
 }
 
 static void test_batches_equal_one_pass(void)
