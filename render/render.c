@@ -331,3 +331,11 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
 {
     return ns_render_ex(ctx, scene, out, stats, NULL, err);
 }
+
+/* Placeholder until progress and cancellation land: renders without them. */
+int ns_render_controlled(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
+                         ns_image *out, ns_render_stats *stats, ns_error *err)
+{
+    (void)control;
+    return ns_render_ex(ctx, scene, out, stats, NULL, err);
+}

@@ -35,7 +35,8 @@ extern "C" {
     X(NS_ERR_NO_DEVICE, -7, "no_device", "no suitable Vulkan device", 500)                    \
     X(NS_ERR_IO, -8, "io_error", "input/output error", 500)                                   \
     X(NS_ERR_LIMIT, -9, "limit_exceeded", "a size limit was exceeded", 422)                   \
-    X(NS_ERR_INTERNAL, -10, "internal_error", "internal error", 500)
+    X(NS_ERR_INTERNAL, -10, "internal_error", "internal error", 500)                           \
+    X(NS_ERR_CANCELLED, -11, "cancelled", "the render was cancelled", 409)
 
 typedef enum {
 #define NS_X_ENUM(code, value, name, message, http) code = value,
@@ -353,6 +354,11 @@ typedef struct ns_render_stats {
     uint64_t cells_represented;   /* hierarchy nodes replaced by their representative VRL */
     uint64_t weights_bytes;       /* network weights used (nn) */
     uint64_t table_bytes;         /* scattering tables held on the device for this render */
+    /* What this render took from the context's caches instead of making it again, so a
+     * sweep of materials over one geometry can say what it reused. */
+    uint64_t tables_reused;       /* scattering tables (A or J of one key) found in the cache */
+    uint64_t tables_made;         /* scattering tables reconstructed or accumulated */
+    uint32_t bvh_reused;          /* 1: the BVH of the same geometry was kept from an earlier render */
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Render settings left 0 take their defaults
@@ -362,6 +368,45 @@ typedef struct ns_render_stats {
  * with NS_ERR_NOT_AVAILABLE and a message naming them. stats may be NULL. */
 int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
               ns_error *err);
+
+/* Progress and cancellation of one render (ns_render_controlled).
+ *
+ * Progress reports come on the rendering thread, synchronously, in this order: a
+ * STAGE_START when a stage begins (stage names as in ns_render_stats: "bvh", "pt_pass",
+ * "single", "gather", ...; a stage that runs once per camera batch starts and ends once per
+ * batch), TICKs while a long stage runs (pt sample batches, resumed dispatch rounds, gather
+ * rounds, VRL batches: at least one per device submission of those stages), and a STAGE_END
+ * with the time of that run of the stage. `fraction` estimates the part of the whole render
+ * done: in [0, 1], never decreasing within a render, 1 after the last stage. The callback
+ * must be quick and must not call into the context. */
+typedef enum {
+    NS_PROGRESS_STAGE_START = 0,
+    NS_PROGRESS_STAGE_END = 1,
+    NS_PROGRESS_TICK = 2,
+} ns_progress_kind;
+
+typedef struct ns_progress {
+    ns_progress_kind kind;
+    const char *stage; /* valid during the call only */
+    double fraction;   /* of the whole render */
+    double stage_ms;   /* STAGE_END: how long this run of the stage took; else 0 */
+} ns_progress;
+
+typedef void (*ns_progress_fn)(void *user, const ns_progress *progress);
+
+typedef struct ns_render_control {
+    /* When not NULL and *cancel becomes nonzero (set from any thread; read with an atomic
+     * load), the render stops before its next device submission: nothing waits for the
+     * whole render, every buffer it made is freed, and it returns NS_ERR_CANCELLED. */
+    const int *cancel;
+    ns_progress_fn progress; /* NULL: no reports */
+    void *user;
+} ns_render_control;
+
+/* ns_render with progress reports and a cancellation flag; control may be NULL (then it is
+ * ns_render exactly). */
+int ns_render_controlled(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
+                         ns_image *out, ns_render_stats *stats, ns_error *err);
 
 /* Which of `components` (NS_COMPONENT_* bits) this build can render with `method`:
  * returns the subset it cannot (0 when all can be rendered). The parser uses it to reject
