@@ -101,6 +101,26 @@ const COUNT_ROWS = [
   { key: 'weights_bytes', label: 'network weights', bytes: true },
 ];
 const MEDIUM_FIELDS = ['albedo', 'mfp', 'sigma_s', 'sigma_a', 'g', 'ior', 'scale', 'preset'];
+
+/* The albedo and mean-free-path sliders (one per channel). An albedo slider's position is
+ * t = -log10(1 - albedo), 0 (albedo 0) ... 5 (albedo 0.99999): equal slider distances are
+ * equal ratios of 1 - albedo, so the travel is spent where the look changes (near 1). An
+ * mfp slider's position is log10(mfp), 0.001 ... 100 scene units. "Move together" shifts
+ * the other two channels by the same distance, which keeps the ratios of their
+ * 1 - albedo (or of their mfp). Written values keep 3 significant digits of 1 - albedo
+ * (0.962, 0.9985) and of the mfp. */
+const CHANNEL_FIELDS = {
+  albedo: {
+    toSlider: (a) => (a >= 1 ? Infinity : -Math.log10(1 - Math.max(0, a))),
+    fromSlider: (t) => (t <= 0 ? 0 : Number((1 - Number((10 ** -t).toPrecision(3))).toPrecision(12))),
+    display: (a) => (a >= 1 ? '1' : a.toFixed(Math.min(6, Math.max(3, Math.ceil(-Math.log10(1 - a)) + 2)))),
+  },
+  mfp: {
+    toSlider: (m) => Math.log10(m),
+    fromSlider: (t) => Number((10 ** t).toPrecision(3)),
+    display: (m) => String(Number(m.toPrecision(3))),
+  },
+};
 const HISTORY_LIMIT = 24;
 const STORAGE_KEY = 'nscatter.scene.v1';
 
@@ -338,6 +358,11 @@ const controls = {
   g: $('g'),
   ior: $('ior'),
   scale: $('scale'),
+  channels: {
+    albedo: { sliders: ['albedo-r', 'albedo-g', 'albedo-b'].map($), lock: $('albedo-lock'), base: null },
+    mfp: { sliders: ['mfp-r', 'mfp-g', 'mfp-b'].map($), lock: $('mfp-lock'), base: null },
+  },
+  swatch: $('albedo-swatch'),
   width: $('width'),
   height: $('height'),
   spp: $('spp'),
@@ -464,13 +489,97 @@ function applyMethods(methods) {
   readControls();
 }
 
+/* A colour field as the server reads it: [r, g, b] or one number meaning grey. */
+function asColor(value) {
+  if (typeof value === 'number' && Number.isFinite(value)) return [value, value, value];
+  if (Array.isArray(value) && value.length === 3 && value.every((v) => typeof v === 'number' && Number.isFinite(v))) return value.slice();
+  return null;
+}
+/* Three equal channels are written as one number (grey), as a person would. */
+const compactColor = (c) => (c[0] === c[1] && c[1] === c[2] ? c[0] : c);
+
+/* The material's albedo and mfp per channel as the server resolves them (docs/scene.md):
+ * the coefficient form (sigma_s + sigma_a) converted, else its own albedo / mfp, else the
+ * preset's. null where the text gives neither (the server will say what is missing). */
+function materialOptics(material) {
+  const preset = PRESETS[material.preset] || null;
+  const sigmaS = asColor(material.sigma_s);
+  const sigmaA = asColor(material.sigma_a);
+  if (sigmaS && sigmaA) {
+    const sigmaT = sigmaS.map((s, c) => s + sigmaA[c]);
+    return {
+      form: 'coefficients',
+      albedo: sigmaT.map((t, c) => (t > 0 ? sigmaS[c] / t : 1)),
+      mfp: sigmaT.map((t) => (t > 0 ? 1 / t : 100)),
+    };
+  }
+  return {
+    form: 'table',
+    albedo: asColor(material.albedo) || (preset ? preset.albedo.slice() : null),
+    mfp: asColor(material.mfp) || (preset ? preset.mfp.slice() : null),
+  };
+}
+
+/* Shows a channel field's values (or dashes when the text has none) and remembers them as
+ * the base that "move together" shifts from. */
+function readChannelControls(field, values) {
+  const set = controls.channels[field];
+  const spec = CHANNEL_FIELDS[field];
+  set.base = values;
+  set.sliders.forEach((slider, c) => {
+    if (!values) {
+      $(slider.id + '-out').textContent = '—';
+      slider.setAttribute('aria-valuetext', 'not set');
+      return;
+    }
+    setSlider(slider, spec.toSlider(values[c]), spec.display(values[c]));
+  });
+}
+
+/* The diffusion approximation's total diffuse reflectance R_d (Jensen et al. 2001, with
+ * the reduced albedo and the boundary's A from the ior) per channel, as an sRGB swatch: a
+ * hint of the colour the albedo gives a thick slab, since the single-scattering albedo is
+ * not itself the colour one sees. */
+function diffuseReflectance(albedo, g, ior) {
+  const eta = Math.max(1, ior);
+  const fdr = -1.44 / (eta * eta) + 0.71 / eta + 0.668 + 0.0636 * eta;
+  const A = (1 + fdr) / (1 - fdr);
+  return albedo.map((a) => {
+    const reduced = (a * (1 - g)) / (1 - a * g);
+    const s = Math.sqrt(3 * Math.max(0, 1 - reduced));
+    return (reduced / 2) * (1 + Math.exp((-4 / 3) * A * s)) * Math.exp(-s);
+  });
+}
+const linearToSrgb8 = (v) => {
+  if (!(v > 0)) return 0;
+  if (v >= 1) return 255;
+  const srgb = v <= 0.0031308 ? 12.92 * v : 1.055 * v ** (1 / 2.4) - 0.055;
+  return Math.min(255, Math.max(0, Math.floor(srgb * 255 + 0.5)));
+};
+
+function showSwatch(albedo, g, ior) {
+  if (!albedo) {
+    controls.swatch.style.background = 'none';
+    controls.swatch.setAttribute('aria-label', 'Approximate colour: no albedo');
+    return;
+  }
+  const rd = diffuseReflectance(albedo, g, ior);
+  const [r, gg, b] = rd.map(linearToSrgb8);
+  controls.swatch.style.background = `rgb(${r}, ${gg}, ${b})`;
+  controls.swatch.setAttribute('aria-label', `Approximate colour (diffuse reflectance R_d ${rd.map((v) => v.toFixed(3)).join(', ')})`);
+}
+
 function readMaterialControls(scene) {
   const name = controls.material.value;
   const material = name ? scene.materials[name] : null;
-  for (const input of [controls.preset, controls.g, controls.ior, controls.scale]) input.disabled = !material;
+  const channelSliders = [...controls.channels.albedo.sliders, ...controls.channels.mfp.sliders];
+  for (const input of [controls.preset, controls.g, controls.ior, controls.scale, ...channelSliders]) input.disabled = !material;
   if (!material) {
     controls.preset.value = '';
     for (const input of [controls.g, controls.ior, controls.scale]) $(input.id + '-out').textContent = '—';
+    readChannelControls('albedo', null);
+    readChannelControls('mfp', null);
+    showSwatch(null);
     return;
   }
   const preset = PRESETS[material.preset] || null;
@@ -481,6 +590,10 @@ function readMaterialControls(scene) {
   setSlider(controls.g, g, g.toFixed(2));
   setSlider(controls.ior, ior, ior.toFixed(2));
   setSlider(controls.scale, Math.log10(scale), String(Number(scale.toPrecision(3))));
+  const optics = materialOptics(material);
+  readChannelControls('albedo', optics.albedo);
+  readChannelControls('mfp', optics.mfp);
+  showSwatch(optics.albedo, g, ior);
 }
 
 /* Applies `change` to the parsed scene and writes it back formatted. */
@@ -520,6 +633,63 @@ function onPresetChange() {
       if (field !== 'preset' && own[field] !== undefined) material[field] = own[field];
     }
   });
+}
+
+/* The values a channel slider's release writes: the moved channel from its position, the
+ * others kept, or (moving together) shifted by the same slider distance. */
+function channelValues(field, moved) {
+  const set = controls.channels[field];
+  const spec = CHANNEL_FIELDS[field];
+  const min = Number(set.sliders[0].min);
+  const max = Number(set.sliders[0].max);
+  const position = Number(set.sliders[moved].value);
+  const base = set.base;
+  if (!base) return [0, 1, 2].map((c) => spec.fromSlider(c === moved ? position : Number(set.sliders[c].value)));
+  const delta = position - Math.min(max, Math.max(min, spec.toSlider(base[moved])));
+  return base.map((value, c) => {
+    if (c === moved) return spec.fromSlider(position);
+    if (!set.lock.checked) return value;
+    return spec.fromSlider(Math.min(max, Math.max(min, spec.toSlider(value) + delta)));
+  });
+}
+
+function onChannelInput(event) {
+  const input = event.target;
+  const field = input.dataset.field;
+  const moved = Number(input.dataset.channel);
+  const set = controls.channels[field];
+  const spec = CHANNEL_FIELDS[field];
+  const values = channelValues(field, moved);
+  set.sliders.forEach((slider, c) => {
+    if (c === moved) setSlider(slider, slider.value, spec.display(values[c]));
+    else setSlider(slider, Math.min(Number(slider.max), Math.max(Number(slider.min), spec.toSlider(values[c]))), spec.display(values[c]));
+  });
+}
+
+/* Writes materials/NAME/albedo or /mfp. A preset keeps supplying the other one (an
+ * override, docs/scene.md); a material in the coefficient form (sigma_s, sigma_a) is first
+ * converted to albedo + mfp, since the two forms cannot be mixed. */
+function onChannelChange(event) {
+  const input = event.target;
+  const field = input.dataset.field;
+  const values = channelValues(field, Number(input.dataset.channel));
+  editScene((scene) => {
+    const material = selectedMaterial(scene);
+    if (!material) return;
+    toTableForm(material);
+    material[field] = compactColor(values);
+  });
+}
+
+/* sigma_s + sigma_a -> albedo + mfp (same coefficients, rounded as the sliders write). */
+function toTableForm(material) {
+  const optics = materialOptics(material);
+  if (optics.form !== 'coefficients') return;
+  delete material.sigma_s;
+  delete material.sigma_a;
+  const round = (field, values) => values.map((v) => CHANNEL_FIELDS[field].fromSlider(CHANNEL_FIELDS[field].toSlider(v)));
+  material.albedo = compactColor(round('albedo', optics.albedo));
+  material.mfp = compactColor(round('mfp', optics.mfp));
 }
 
 function onSliderInput(event) {
@@ -1057,6 +1227,12 @@ function init() {
   for (const field of controls.scatterNumbers) field.input.addEventListener('change', () => onScatterNumberChange(field));
   controls.exposure.addEventListener('input', onSliderInput);
   controls.exposure.addEventListener('change', onExposureChange);
+  for (const set of Object.values(controls.channels)) {
+    for (const slider of set.sliders) {
+      slider.addEventListener('input', onChannelInput);
+      slider.addEventListener('change', onChannelChange);
+    }
+  }
 
   $('zoom').addEventListener('change', applyZoom);
   $('download-png').addEventListener('click', () => shownEntry && downloadBlob(shownEntry.blob, 'png'));
