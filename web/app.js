@@ -596,12 +596,14 @@ function readMaterialControls(scene) {
   showSwatch(optics.albedo, g, ior);
 }
 
-/* Applies `change` to the parsed scene and writes it back formatted. */
+/* Applies `change` to the parsed scene and writes it back formatted; every quick control
+ * goes through here, so a change re-renders by itself (when "Render on change" is on). */
 function editScene(change) {
   const scene = parseEditor();
   if (scene === null) return;
   change(scene);
   setEditorText(sceneText(scene), { keepControls: false });
+  scheduleAutoRender();
 }
 
 function selectedMaterial(scene) {
@@ -888,15 +890,63 @@ async function readProblem(response) {
 
 const renders = []; /* newest first */
 let shownEntry = null;
-let rendering = false;
 let nextId = 1;
 
-async function postScene(text, accept) {
-  return fetch('/v1/renders', {
-    method: 'POST',
-    headers: { 'Content-Type': 'application/json', Accept: accept },
-    body: text,
+/* A render runs as a background job (Prefer: respond-async, progress from its events)
+ * rather than as a direct answer when "Run as" says so, or on "auto" when it is long: the
+ * path tracer, or at least this many pixel samples (width x height x spp: 1024 x 1024 at
+ * 1 spp, 256 x 256 at 16). */
+const JOB_PIXEL_SAMPLES = 1 << 20;
+/* The preview: 1/4 of the width and height, 1/16 of the spp, 1/4 of the VRLs and single
+ * samples; images smaller than this on both sides get none. */
+const PREVIEW_DIVISOR = 4;
+const PREVIEW_MIN_SIDE = 64;
+/* A busy answer (503) to a render that follows a cancelled one (whose slot the server may
+ * still be freeing), to an automatic re-render or to a background request is retried, at
+ * most this long; an explicit render with nothing cancelled shows the busy message. */
+const BUSY_RETRY_LIMIT_MS = 120_000;
+const RECENT_CANCEL_MS = 10_000;
+/* Changes within this pause make one automatic re-render. */
+const AUTO_RENDER_DELAY_MS = 150;
+
+function postScene(text, accept, { signal, async = false, query = '' } = {}) {
+  const headers = { 'Content-Type': 'application/json', Accept: accept };
+  if (async) headers.Prefer = 'respond-async';
+  return fetch('/v1/renders' + query, { method: 'POST', headers, body: text, signal });
+}
+
+const messageOf = (error) => String(error && error.message ? error.message : error);
+const isAbort = (error) => error && error.name === 'AbortError';
+
+function sleep(ms, signal) {
+  return new Promise((resolve, reject) => {
+    if (signal && signal.aborted) { reject(new DOMException('Aborted', 'AbortError')); return; }
+    const timer = setTimeout(() => { if (signal) signal.removeEventListener('abort', onAbort); resolve(); }, ms);
+    const onAbort = () => { clearTimeout(timer); reject(new DOMException('Aborted', 'AbortError')); };
+    if (signal) signal.addEventListener('abort', onAbort, { once: true });
   });
+}
+
+function retryAfterSeconds(response) {
+  const retry = Number.parseInt(response.headers.get('Retry-After') || '', 10);
+  return Number.isFinite(retry) && retry >= 0 ? retry : 1;
+}
+
+let lastCancelAt = -Infinity;
+
+/* Sends a request; while the answer is 503 and retrying is allowed, waits (the server's
+ * Retry-After, between 0.25 and 1 s: the slot is often our own cancelled render's) and
+ * sends it again. */
+async function sendWithRetry(send, { retry, signal, onWait }) {
+  const started = performance.now();
+  for (;;) {
+    const response = await send();
+    if (response.status !== 503 || !retry || performance.now() - started > BUSY_RETRY_LIMIT_MS) return response;
+    const seconds = retryAfterSeconds(response);
+    await response.text().catch(() => '');
+    if (onWait) onWait(seconds);
+    await sleep(Math.min(1000, Math.max(250, seconds * 1000)), signal);
+  }
 }
 
 function describeScene(text) {
@@ -921,57 +971,348 @@ function describeScene(text) {
   return parts.join(' · ');
 }
 
-async function render() {
-  if (rendering) return;
-  rendering = true;
-  readControls(); /* the controls may still be waiting for the typing pause */
-  const button = $('render');
-  button.setAttribute('aria-busy', 'true');
-  button.disabled = true;
-  button.textContent = 'Rendering…';
-  setStatus('Rendering…', 'busy');
-  const text = editor.value;
-  const started = performance.now();
+function parseSceneText(text) {
   try {
-    const response = await postScene(text, 'image/png');
-    const roundTripMs = performance.now() - started;
-    if (!response.ok) {
-      const problem = await readProblem(response);
-      if (response.status === 503) {
-        const retry = Number.parseInt(response.headers.get('Retry-After') || '', 10);
-        showBusy(problem, Number.isFinite(retry) && retry >= 0 ? retry : 1);
-      } else {
-        showProblem(problem, response.status, text);
-        setStatus(`Render failed: ${problem.title || response.status}.`, 'error');
+    const scene = JSON.parse(text);
+    return scene && typeof scene === 'object' && !Array.isArray(scene) ? scene : null;
+  } catch {
+    return null;
+  }
+}
+
+/* Job or direct answer (see JOB_PIXEL_SAMPLES). Text that is not a scene object goes
+ * direct, so the server's error comes back at once. */
+function runsAsJob(scene) {
+  const mode = $('run-mode').value;
+  if (!scene || mode === 'sync') return false;
+  if (mode === 'job') return true;
+  const render = scene.render && typeof scene.render === 'object' ? scene.render : {};
+  if (render.method === 'pt') return true;
+  const camera = scene.camera && typeof scene.camera === 'object' ? scene.camera : {};
+  const spp = Number.isFinite(render.spp) ? render.spp : 1;
+  return Number.isFinite(camera.width) && Number.isFinite(camera.height) && camera.width * camera.height * spp >= JOB_PIXEL_SAMPLES;
+}
+
+/* The same scene, smaller and cheaper (see PREVIEW_DIVISOR); null when the image is
+ * already small or its size is not a pair of numbers. Only numbers are scaled: a field the
+ * server would reject is left as it is (the full render then reports it). */
+function previewScene(scene) {
+  const camera = scene.camera;
+  if (!camera || !Number.isInteger(camera.width) || !Number.isInteger(camera.height)) return null;
+  if (Math.max(camera.width, camera.height) < PREVIEW_MIN_SIDE) return null;
+  const copy = structuredClone(scene);
+  copy.camera.width = Math.max(1, Math.round(camera.width / PREVIEW_DIVISOR));
+  copy.camera.height = Math.max(1, Math.round(camera.height / PREVIEW_DIVISOR));
+  const render = copy.render && typeof copy.render === 'object' ? copy.render : (copy.render = {});
+  const cut = (key, fallback, divisor) => {
+    const value = render[key] === undefined ? fallback : render[key];
+    if (Number.isInteger(value) && value >= 1) render[key] = Math.max(1, Math.round(value / divisor));
+  };
+  cut('spp', 1, PREVIEW_DIVISOR * PREVIEW_DIVISOR);
+  cut('vrls', 10000, PREVIEW_DIVISOR);
+  cut('single_samples', 100, PREVIEW_DIVISOR);
+  return copy;
+}
+
+async function entryFromResponse(response, text, started, extra = {}) {
+  const blob = await response.blob();
+  return {
+    id: extra.preview ? 0 : nextId++,
+    sceneText: text,
+    blob,
+    url: URL.createObjectURL(blob),
+    timings: parseServerTiming(response.headers.get('Server-Timing')),
+    device: response.headers.get('X-Nscatter-Device') || '(not reported)',
+    counts: parseCounts(response.headers.get('X-Nscatter-Stats')),
+    roundTripMs: performance.now() - started,
+    caption: describeScene(text),
+    when: new Date(),
+    preview: extra.preview || null, /* {width, height} of the full image it stands for */
+    job: extra.job || null, /* {self, image, events}: the image can be fetched again (EXR) */
+    exr: null, /* the float EXR, once fetched (Reference, Download EXR) */
+  };
+}
+
+/* ------------------------------------------------------------------------------------
+ * Background jobs: a progress bar and its stage, fed by the job's Server-Sent Events
+ * ---------------------------------------------------------------------------------- */
+
+/* The box, its <progress> and its label (id prefix: "job", "ref", "sweep"). */
+function jobView(prefix) {
+  const box = $(prefix === 'job' ? 'job' : `${prefix}-job`);
+  const bar = $(`${prefix}-progress`);
+  const label = $(`${prefix}-label`);
+  let value = 0;
+  let stage = null;
+  const setValue = (p) => {
+    if (typeof p !== 'number' || !Number.isFinite(p)) return;
+    value = Math.max(value, Math.min(1, Math.max(0, p))); /* never goes back */
+    bar.value = value;
+  };
+  const percent = () => `${Math.floor(value * 100)}%`;
+  return {
+    start(text) {
+      value = 0;
+      stage = null;
+      bar.value = 0;
+      label.textContent = text || 'submitted';
+      box.hidden = false;
+    },
+    /* One event of the stream (name, parsed data); returns nothing. */
+    event(name, data, prefix = '') {
+      if (name === 'state') {
+        if (data.state === 'queued') {
+          const ahead = data.queue_position;
+          label.textContent = prefix + (Number.isInteger(ahead) ? (ahead === 0 ? 'queued, next' : `queued, ${ahead} ahead`) : 'queued');
+        } else label.textContent = prefix + String(data.state || '');
+        return;
       }
-      return;
+      if (typeof data.stage === 'string') stage = data.stage;
+      setValue(data.progress);
+      label.textContent = `${prefix}${stage || 'running'} · ${percent()}`;
+    },
+    text(text) { label.textContent = text; },
+    finish(p) { setValue(p); },
+    hide() { box.hidden = true; },
+    get value() { return value; },
+  };
+}
+
+const mainJob = jobView('job');
+
+/* Follows a job's event stream until its final event: resolves {event, job} with event
+ * done, failed or cancelled and the job JSON. The browser reconnects a dropped stream by
+ * itself (with Last-Event-ID); when the stream cannot be opened at all, the job itself is
+ * asked. `onEvent(name, data)` sees every other event. The signal closes the stream. */
+function followJob(urls, onEvent, signal) {
+  return new Promise((resolve, reject) => {
+    const source = new EventSource(urls.events);
+    let settled = false;
+    const onAbort = () => settle(() => reject(new DOMException('Aborted', 'AbortError')));
+    function settle(then) {
+      if (settled) return;
+      settled = true;
+      source.close();
+      signal.removeEventListener('abort', onAbort);
+      then();
     }
-    const blob = await response.blob();
-    const entry = {
-      id: nextId++,
-      sceneText: text,
-      blob,
-      url: URL.createObjectURL(blob),
-      timings: parseServerTiming(response.headers.get('Server-Timing')),
-      device: response.headers.get('X-Nscatter-Device') || '(not reported)',
-      counts: parseCounts(response.headers.get('X-Nscatter-Stats')),
-      roundTripMs,
-      caption: describeScene(text),
-      when: new Date(),
+    if (signal.aborted) { onAbort(); return; }
+    signal.addEventListener('abort', onAbort);
+    const parse = (event) => {
+      try { return JSON.parse(event.data) || {}; } catch { return {}; }
     };
-    clearProblem();
-    addToHistory(entry);
-    await showEntry(entry);
-    setStatus(`Rendered in ${formatMs(roundTripMs)} ms (round trip).`, 'ok');
+    for (const name of ['state', 'stage_start', 'progress', 'stage_end', 'variant_start', 'variant_end']) {
+      source.addEventListener(name, (event) => { if (!settled) onEvent(name, parse(event)); });
+    }
+    for (const name of ['done', 'failed', 'cancelled']) {
+      source.addEventListener(name, (event) => settle(() => resolve({ event: name, job: parse(event) })));
+    }
+    source.onerror = () => {
+      if (source.readyState !== EventSource.CLOSED) return; /* reconnecting by itself */
+      settle(async () => {
+        try {
+          const response = await fetch(urls.self, { headers: { Accept: 'application/json' }, signal });
+          if (!response.ok) {
+            const problem = await readProblem(response);
+            reject(Object.assign(new Error(problem.detail || problem.title || `HTTP ${response.status}`), { problem, status: response.status }));
+            return;
+          }
+          const job = await response.json();
+          if (['done', 'failed', 'cancelled'].includes(job.state)) resolve({ event: job.state, job });
+          else reject(new Error(`the job's event stream closed while it is ${job.state}`));
+        } catch (error) {
+          reject(error);
+        }
+      });
+    };
+  });
+}
+
+function jobUrls(response, job, collection = '/v1/renders') {
+  const links = job && job.links && typeof job.links === 'object' ? job.links : {};
+  const self = response.headers.get('Location') || links.self || `${collection}/${job.id}`;
+  return { id: job.id, self, events: links.events || `${self}/events`, image: links.image || `${self}/image`, sheet: links.sheet || `${self}/sheet.png` };
+}
+
+function deleteJob(url) {
+  return fetch(url, { method: 'DELETE' }).then((r) => r.status, () => 0);
+}
+
+/* ------------------------------------------------------------------------------------
+ * Render runs. One at a time: a newer run (a change of a control, Render, Ctrl+Enter)
+ * cancels the one in flight: its requests are aborted (the server cancels a direct render
+ * whose client went away) and its job is deleted.
+ * ---------------------------------------------------------------------------------- */
+
+let currentRun = null;
+let autoTimer = null;
+
+function setRunBusy(busy) {
+  const button = $('render');
+  if (busy) button.setAttribute('aria-busy', 'true');
+  else button.removeAttribute('aria-busy');
+  $('cancel').disabled = !busy;
+}
+
+/* Ends the run in flight without a word (a newer one takes over the status line). */
+function supersedeRun() {
+  const run = currentRun;
+  if (!run) return false;
+  currentRun = null;
+  lastCancelAt = performance.now();
+  run.controller.abort();
+  if (run.job && run.phase !== 'image') deleteJob(run.job.self);
+  setRunBusy(false);
+  mainJob.hide();
+  return true;
+}
+
+/* The Cancel button: a direct render is aborted at once; a job is deleted and followed
+ * until it says it stopped (a running job stops at its next dispatch boundary). */
+async function cancelRender() {
+  const run = currentRun;
+  if (!run) return;
+  if (!run.job || run.phase === 'image') {
+    supersedeRun();
+    setStatus('Cancelled.');
+    return;
+  }
+  $('cancel').disabled = true;
+  lastCancelAt = performance.now();
+  run.cancelRequested = true;
+  mainJob.text('cancelling…');
+  setStatus('Cancelling the job…', 'busy');
+  const status = await deleteJob(run.job.self);
+  if (currentRun !== run) return;
+  if (status === 202) setStatus('Cancelling: the job stops at its next dispatch boundary…', 'busy');
+  else if (status === 200) setStatus('Cancelling: the job left the queue…', 'busy');
+}
+
+/* A control changed the text: re-render by itself (when "Render on change" is on). The
+ * render in flight is stale at once, so it is cancelled now, not after the pause. */
+function scheduleAutoRender() {
+  if (!$('auto-render').checked) return;
+  supersedeRun();
+  clearTimeout(autoTimer);
+  autoTimer = setTimeout(() => startRender('auto'), AUTO_RENDER_DELAY_MS);
+}
+
+async function startRender(trigger) {
+  clearTimeout(autoTimer);
+  readControls(); /* the controls may still be waiting for the typing pause */
+  const superseded = supersedeRun();
+  const run = {
+    trigger,
+    text: editor.value,
+    controller: new AbortController(),
+    started: performance.now(),
+    /* 503 is retried after a cancel (our own render may still hold the slot) and for
+     * automatic renders; an explicit render otherwise shows the busy message. */
+    retryBusy: trigger === 'auto' || superseded || performance.now() - lastCancelAt < RECENT_CANCEL_MS,
+    job: null,
+    phase: 'post',
+  };
+  currentRun = run;
+  setRunBusy(true);
+  try {
+    await executeRun(run);
   } catch (error) {
-    showProblem({ title: 'Cannot reach the server', detail: String(error && error.message ? error.message : error) }, 0, text);
+    if (run.controller.signal.aborted || isAbort(error)) return; /* a newer run owns the page */
+    showProblem({ title: 'Cannot reach the server', detail: messageOf(error) }, 0, run.text);
     setStatus('Render failed: the server did not answer.', 'error');
   } finally {
-    rendering = false;
-    button.removeAttribute('aria-busy');
-    button.disabled = false;
-    button.textContent = 'Render';
+    if (currentRun === run) {
+      currentRun = null;
+      setRunBusy(false);
+      mainJob.hide();
+    }
   }
+}
+
+const live = (run) => currentRun === run && !run.controller.signal.aborted;
+
+async function executeRun(run) {
+  const scene = parseSceneText(run.text);
+  const asJob = runsAsJob(scene);
+  const preview = scene && $('preview-first').checked ? previewScene(scene) : null;
+  const onWait = (seconds) => { if (live(run)) setStatus(`Server busy (retry after ${seconds} s); waiting…`, 'busy'); };
+  const send = (text, options = {}) => sendWithRetry(
+    () => postScene(text, 'image/png', { signal: run.controller.signal, ...options }),
+    { retry: run.retryBusy, signal: run.controller.signal, onWait });
+
+  if (preview) {
+    setStatus('Rendering a preview (¼ size)…', 'busy');
+    run.started = performance.now();
+    const response = await send(JSON.stringify(preview));
+    if (response.status === 503) { await finishWithResponse(run, response); return; }
+    if (response.ok) {
+      const entry = await entryFromResponse(response, run.text, run.started, {
+        preview: { width: scene.camera.width, height: scene.camera.height },
+      });
+      if (!live(run)) { URL.revokeObjectURL(entry.url); return; }
+      await showEntry(entry);
+      setStatus(asJob ? 'Preview shown; the full image runs as a job…' : 'Preview shown; rendering the full image…', 'busy');
+    } else {
+      /* The full render reports the problem, against the exact text. */
+      await response.body?.cancel().catch(() => {});
+    }
+  } else setStatus(asJob ? 'Submitting a job…' : 'Rendering…', 'busy');
+
+  /* The round trip shown is the full image's own: from its request (or the job's
+   * submission) to its arrival. */
+  run.started = performance.now();
+  if (!asJob) {
+    await finishWithResponse(run, await send(run.text));
+    return;
+  }
+  const response = await send(run.text, { async: true });
+  if (response.status !== 202) {
+    /* A 200 here is a server without jobs answering directly (Prefer is only a wish). */
+    await finishWithResponse(run, response);
+    return;
+  }
+  const job = await response.json();
+  if (!live(run)) return;
+  run.job = jobUrls(response, job);
+  mainJob.start('queued');
+  mainJob.event('state', job);
+  if (!run.cancelRequested) setStatus('Rendering as a background job…', 'busy');
+  const final = await followJob(run.job, (name, data) => mainJob.event(name, data), run.controller.signal);
+  if (!live(run)) return;
+  if (final.event === 'done') {
+    mainJob.finish(1);
+    run.phase = 'image';
+    const image = await fetch(run.job.image, { headers: { Accept: 'image/png' }, signal: run.controller.signal });
+    await finishWithResponse(run, image, { job: run.job },
+      run.cancelRequested ? 'The job finished before the cancel reached it' : 'Rendered as a job');
+  } else if (final.event === 'failed') {
+    const problem = final.job.error && typeof final.job.error === 'object' ? final.job.error : { title: 'The job failed' };
+    showProblem(problem, problem.status || 500, run.text);
+    setStatus(`Render failed: ${problem.title || 'the job failed'}.`, 'error');
+  } else {
+    const spent = final.job && final.job.finished && final.job.started ? Date.parse(final.job.finished) - Date.parse(final.job.started) : NaN;
+    setStatus(Number.isFinite(spent) ? `Cancelled: the job stopped after ${formatMs(spent)} ms of rendering.` : 'Cancelled: the job stopped.');
+  }
+}
+
+/* Shows an answer: the image (history, viewer) or the problem. */
+async function finishWithResponse(run, response, extra = {}, how = 'Rendered') {
+  if (!response.ok) {
+    const problem = await readProblem(response);
+    if (!live(run)) return;
+    if (response.status === 503) showBusy(problem, retryAfterSeconds(response));
+    else {
+      showProblem(problem, response.status, run.text);
+      setStatus(`Render failed: ${problem.title || response.status}.`, 'error');
+    }
+    return;
+  }
+  const entry = await entryFromResponse(response, run.text, run.started, extra);
+  if (!live(run)) { URL.revokeObjectURL(entry.url); return; }
+  clearProblem();
+  addToHistory(entry);
+  await showEntry(entry);
+  setStatus(`${how} in ${formatMs(entry.roundTripMs)} ms (round trip).`, 'ok');
 }
 
 function addToHistory(entry) {
@@ -997,24 +1338,34 @@ function renderHistory() {
 }
 
 async function showEntry(entry) {
+  const previous = shownEntry;
   shownEntry = entry;
+  const preview = entry.preview;
   $('viewer').classList.remove('stale');
+  $('viewer').classList.toggle('preview', Boolean(preview));
   const image = $('image');
-  image.alt = `Render #${entry.id}: ${entry.caption}`;
+  image.alt = preview
+    ? `Preview at ¼ size of ${preview.width}×${preview.height}: ${entry.caption}`
+    : `Render #${entry.id}: ${entry.caption}`;
   const loaded = new Promise((resolve) => {
     image.onload = resolve;
     image.onerror = resolve;
   });
   image.src = entry.url;
+  image.dataset.kind = preview ? 'preview' : 'full';
   image.hidden = false;
   $('placeholder').hidden = true;
   await loaded;
-  $('image-meta').textContent = `#${entry.id} · ${image.naturalWidth}×${image.naturalHeight} · ${entry.caption}`;
+  /* A preview is not kept: its picture goes once something else is shown. */
+  if (previous && previous.preview && previous !== entry) URL.revokeObjectURL(previous.url);
+  $('image-meta').textContent = preview
+    ? `${image.naturalWidth}×${image.naturalHeight} shown at ${preview.width}×${preview.height} · ${entry.caption}`
+    : `#${entry.id} · ${image.naturalWidth}×${image.naturalHeight} · ${entry.caption}`;
   applyZoom();
   showTimings(entry);
   showCounts(entry);
   $('device').textContent = entry.device;
-  for (const id of ['download-png', 'download-exr', 'load-scene']) $(id).disabled = false;
+  for (const id of ['download-png', 'download-exr', 'load-scene', 'reference']) $(id).disabled = Boolean(preview);
   renderHistory();
 }
 
@@ -1100,44 +1451,635 @@ function applyZoom() {
   const zoom = $('zoom').value;
   wrap.classList.toggle('fit', zoom === 'fit');
   wrap.classList.toggle('zoomed', zoom !== 'fit');
-  image.style.width = zoom === 'fit' || !image.naturalWidth ? '' : `${image.naturalWidth * Number(zoom)}px`;
+  /* A preview is drawn at the size of the image it stands for. */
+  const width = shownEntry && shownEntry.preview ? shownEntry.preview.width : image.naturalWidth;
+  if (!image.naturalWidth) image.style.width = '';
+  else if (zoom === 'fit') image.style.width = shownEntry && shownEntry.preview ? `${width}px` : '';
+  else image.style.width = `${width * Number(zoom)}px`;
 }
 
-function downloadBlob(blob, extension) {
+function downloadBlob(blob, extension, what = '') {
   const stamp = new Date().toISOString().replace(/[:.]/g, '-').slice(0, 19);
-  const link = el('a', { href: URL.createObjectURL(blob), download: `nscatter-${stamp}.${extension}` });
+  const link = el('a', { href: URL.createObjectURL(blob), download: `nscatter-${stamp}${what ? '-' + what : ''}.${extension}` });
   document.body.append(link);
   link.click();
   link.remove();
   setTimeout(() => URL.revokeObjectURL(link.href), 10000);
 }
 
-/* EXR cannot be shown in a browser, so it is rendered on demand for the scene shown. */
+/* The entry's image as 32-bit float EXR (kept on the entry): fetched again from its job
+ * when it was one (and the server still has it), else the same scene rendered again
+ * directly with Accept: image/x-exr, as Download EXR always did. */
+async function entryExr(entry, { signal, retry = false, onWait } = {}) {
+  if (entry.exr) return entry.exr;
+  let response = null;
+  if (entry.job) {
+    response = await fetch(entry.job.image, { headers: { Accept: 'image/x-exr' }, signal });
+    if (!response.ok) {
+      await response.text().catch(() => '');
+      response = null; /* expired or discarded: render it again */
+    }
+  }
+  if (!response) response = await sendWithRetry(() => postScene(entry.sceneText, 'image/x-exr', { signal }), { retry, signal, onWait });
+  if (!response.ok) throw await problemError(response);
+  entry.exr = await response.blob();
+  return entry.exr;
+}
+
+async function problemError(response) {
+  const problem = await readProblem(response);
+  return Object.assign(new Error(problem.detail || problem.title || `HTTP ${response.status}`), {
+    problem, status: response.status, retryAfter: retryAfterSeconds(response),
+  });
+}
+
 async function downloadExr() {
-  if (!shownEntry) return;
+  const entry = shownEntry;
+  if (!entry || entry.preview) return;
   const button = $('download-exr');
   button.disabled = true;
   button.setAttribute('aria-busy', 'true');
-  setStatus('Rendering EXR…', 'busy');
+  if (!entry.exr) setStatus(entry.job ? 'Fetching the EXR…' : 'Rendering EXR…', 'busy');
   try {
-    const response = await postScene(shownEntry.sceneText, 'image/x-exr');
-    if (!response.ok) {
-      const problem = await readProblem(response);
-      if (response.status === 503) {
-        const retry = Number.parseInt(response.headers.get('Retry-After') || '', 10);
-        showBusy(problem, Number.isFinite(retry) ? retry : 1);
-      } else showProblem(problem, response.status, shownEntry.sceneText);
-      setStatus('EXR render failed.', 'error');
-      return;
-    }
-    downloadBlob(await response.blob(), 'exr');
+    downloadBlob(await entryExr(entry), 'exr');
     setStatus('EXR downloaded.', 'ok');
   } catch (error) {
-    showProblem({ title: 'Cannot reach the server', detail: String(error && error.message ? error.message : error) }, 0, shownEntry.sceneText);
-    setStatus('EXR render failed: the server did not answer.', 'error');
+    if (error.problem) {
+      if (error.status === 503) showBusy(error.problem, error.retryAfter);
+      else showProblem(error.problem, error.status, entry.sceneText);
+      setStatus('EXR render failed.', 'error');
+    } else {
+      showProblem({ title: 'Cannot reach the server', detail: messageOf(error) }, 0, entry.sceneText);
+      setStatus('EXR render failed: the server did not answer.', 'error');
+    }
   } finally {
-    button.disabled = false;
+    button.disabled = shownEntry ? Boolean(shownEntry.preview) : true;
     button.removeAttribute('aria-busy');
+  }
+}
+
+/* ------------------------------------------------------------------------------------
+ * OpenEXR reading, enough for the server's own files: scanline images, channels of 32-bit
+ * float or half, compression NONE, ZIPS or ZIP (zlib, inflated by the browser's
+ * DecompressionStream). Returns linear RGB as a Float32Array, row 0 at the top.
+ * ---------------------------------------------------------------------------------- */
+
+async function inflate(bytes) {
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('deflate'));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
+}
+
+/* ZIP(S) blocks store the bytes split in two interleaved halves after a delta predictor. */
+function unpredictZip(t) {
+  for (let i = 1; i < t.length; i++) t[i] = (t[i - 1] + t[i] - 128) & 255;
+  const out = new Uint8Array(t.length);
+  const half = (t.length + 1) >> 1;
+  for (let i = 0, a = 0, b = half; i < t.length;) {
+    out[i++] = t[a++];
+    if (i < t.length) out[i++] = t[b++];
+  }
+  return out;
+}
+
+function halfToFloat(h) {
+  const sign = h & 0x8000 ? -1 : 1;
+  const exponent = (h >> 10) & 31;
+  const fraction = h & 1023;
+  if (exponent === 0) return sign * 2 ** -14 * (fraction / 1024);
+  if (exponent === 31) return fraction ? NaN : sign * Infinity;
+  return sign * 2 ** (exponent - 15) * (1 + fraction / 1024);
+}
+
+async function decodeExr(buffer) {
+  const bytes = new Uint8Array(buffer);
+  const view = new DataView(buffer);
+  if (bytes.length < 8 || view.getUint32(0, true) !== 20000630) throw new Error('not an OpenEXR file');
+  if (view.getUint32(4, true) & 0x1a00) throw new Error('tiled, deep or multi-part EXR is not read here');
+  let pos = 8;
+  const text = (start, end) => String.fromCharCode(...bytes.subarray(start, end));
+  const readName = () => {
+    const end = bytes.indexOf(0, pos);
+    if (end < 0) throw new Error('EXR header is cut short');
+    const name = text(pos, end);
+    pos = end + 1;
+    return name;
+  };
+  const channels = [];
+  let compression = -1;
+  let dataWindow = null;
+  for (;;) {
+    const name = readName();
+    if (name === '') break;
+    const type = readName();
+    const size = view.getInt32(pos, true);
+    const start = pos + 4;
+    if (name === 'channels' && type === 'chlist') {
+      let p = start;
+      while (bytes[p] !== 0) {
+        const end = bytes.indexOf(0, p);
+        const channel = text(p, end);
+        p = end + 1;
+        channels.push({ name: channel, type: view.getInt32(p, true), xs: view.getInt32(p + 8, true), ys: view.getInt32(p + 12, true) });
+        p += 16;
+      }
+    } else if (name === 'compression') compression = bytes[start];
+    else if (name === 'dataWindow') dataWindow = [0, 1, 2, 3].map((k) => view.getInt32(start + 4 * k, true));
+    pos = start + size;
+  }
+  if (!dataWindow || channels.length === 0) throw new Error('EXR header lacks channels or dataWindow');
+  if (channels.some((c) => c.xs !== 1 || c.ys !== 1)) throw new Error('subsampled EXR channels are not read here');
+  const linesPerBlock = { 0: 1, 2: 1, 3: 16 }[compression];
+  if (!linesPerBlock) throw new Error(`EXR compression ${compression} is not read here (NONE, ZIPS and ZIP are)`);
+  const width = dataWindow[2] - dataWindow[0] + 1;
+  const height = dataWindow[3] - dataWindow[1] + 1;
+  const sampleBytes = (c) => (c.type === 1 ? 2 : 4);
+  const lineBytes = channels.reduce((n, c) => n + width * sampleBytes(c), 0);
+  const targets = channels.map((c) => ({ R: [0], G: [1], B: [2], Y: [0, 1, 2] }[c.name] || []));
+  const rgb = new Float32Array(width * height * 3);
+  const blocks = Math.ceil(height / linesPerBlock);
+  const offsets = Array.from({ length: blocks }, (_, k) => Number(view.getBigUint64(pos + 8 * k, true)));
+  await Promise.all(offsets.map(async (offset) => {
+    const y = view.getInt32(offset, true);
+    const stored = view.getInt32(offset + 4, true);
+    const lines = Math.min(linesPerBlock, dataWindow[3] - y + 1);
+    const expected = lines * lineBytes;
+    let data = bytes.subarray(offset + 8, offset + 8 + stored);
+    /* A block that did not shrink is stored as it is. */
+    if (compression !== 0 && stored < expected) data = unpredictZip(await inflate(data));
+    if (data.length < expected) throw new Error(`EXR block at line ${y} is cut short`);
+    const dv = new DataView(data.buffer, data.byteOffset, data.byteLength);
+    let p = 0;
+    for (let line = 0; line < lines; line++) {
+      const row = y - dataWindow[1] + line;
+      channels.forEach((channel, k) => {
+        for (let x = 0; x < width; x++) {
+          const v = channel.type === 2 ? dv.getFloat32(p, true) : channel.type === 1 ? halfToFloat(dv.getUint16(p, true)) : dv.getUint32(p, true);
+          p += sampleBytes(channel);
+          for (const t of targets[k]) rgb[(row * width + x) * 3 + t] = v;
+        }
+      });
+    }
+  }));
+  return { width, height, rgb };
+}
+
+/* ------------------------------------------------------------------------------------
+ * `nscatter compare`'s metrics (io/image_metrics.c), line for line: a is the image under
+ * test, b the reference; linear values; non-finite values are left out; peak = the
+ * reference's largest value over every pixel and channel; PSNR = 20 log10(peak / RMSE)
+ * per channel and overall with that one peak.
+ * ---------------------------------------------------------------------------------- */
+
+function compareImages(a, b) {
+  const sq = [0, 0, 0];
+  const rel = [0, 0, 0];
+  const counted = [0, 0, 0];
+  let peak = 0;
+  let maxAbs = 0;
+  let nonfinite = 0;
+  let identical = true;
+  const n = a.width * a.height;
+  for (let i = 0; i < n; i++) {
+    for (let c = 0; c < 3; c++) {
+      const va = a.rgb[3 * i + c];
+      const vb = b.rgb[3 * i + c];
+      if (!Number.isFinite(va) || !Number.isFinite(vb)) { nonfinite++; identical = false; continue; }
+      const d = va - vb;
+      if (d !== 0) identical = false;
+      sq[c] += d * d;
+      rel[c] += Math.abs(d) / (Math.abs(vb) + 0.01);
+      counted[c]++;
+      if (vb > peak) peak = vb;
+      if (Math.abs(d) > maxAbs) maxAbs = Math.abs(d);
+    }
+  }
+  const rmse = [0, 1, 2].map((c) => (counted[c] ? Math.sqrt(sq[c] / counted[c]) : NaN));
+  const relerr = [0, 1, 2].map((c) => (counted[c] ? rel[c] / counted[c] : NaN));
+  const all = counted[0] + counted[1] + counted[2];
+  rmse.push(all ? Math.sqrt((sq[0] + sq[1] + sq[2]) / all) : NaN);
+  relerr.push(all ? (rel[0] + rel[1] + rel[2]) / all : NaN);
+  const psnr = rmse.map((r) => (!(peak > 0) || Number.isNaN(r) ? NaN : r === 0 ? Infinity : 20 * Math.log10(peak / r)));
+  return { pixels: n, peak: all ? peak : NaN, rmse, psnr, relerr, maxAbs, nonfinite, identical: identical && n > 0 };
+}
+
+/* compare's colour ramp (image_ramp_srgb): t in [0, 1] -> sRGB in [0, 1]. */
+const RAMP = [[0.000, 0.000, 0.016], [0.258, 0.039, 0.406], [0.576, 0.149, 0.404], [0.865, 0.317, 0.226], [0.988, 0.645, 0.040], [0.988, 1.000, 0.645]];
+function rampSrgb(t) {
+  const last = RAMP.length - 1;
+  const x = Math.min(1, Math.max(0, t > 0 ? t : 0)) * last;
+  const i = Math.min(Math.floor(x), last - 1);
+  const f = x - i;
+  return [0, 1, 2].map((c) => RAMP[i][c] + f * (RAMP[i + 1][c] - RAMP[i][c]));
+}
+const srgbToLinear = (v) => (v <= 0.04045 ? v / 12.92 : ((v + 0.055) / 1.055) ** 2.4);
+
+/* compare --diff: the channel mean of |a - b| on the ramp, scaled to its largest value
+ * (non-finite differences at the top), written as its PNG would show it. */
+function drawDifference(canvas, a, b) {
+  const n = a.width * a.height;
+  const diff = new Float64Array(n);
+  let scale = 0;
+  for (let i = 0; i < n; i++) {
+    let d = 0;
+    for (let c = 0; c < 3; c++) d += Math.abs(a.rgb[3 * i + c] - b.rgb[3 * i + c]) / 3;
+    diff[i] = d;
+    if (Number.isFinite(d) && d > scale) scale = d;
+  }
+  if (!(scale > 0)) scale = 1;
+  const pixels = new ImageData(a.width, a.height);
+  for (let i = 0; i < n; i++) {
+    const srgb = rampSrgb(Number.isFinite(diff[i]) ? diff[i] / scale : 1);
+    for (let c = 0; c < 3; c++) pixels.data[4 * i + c] = linearToSrgb8(srgbToLinear(srgb[c]));
+    pixels.data[4 * i + 3] = 255;
+  }
+  canvas.width = a.width;
+  canvas.height = a.height;
+  canvas.getContext('2d').putImageData(pixels, 0, 0);
+  return scale;
+}
+
+/* A linear image as the server's PNG shows it: times 2^exposure, clamped, 8-bit sRGB. */
+function drawLinear(canvas, image, exposure) {
+  const scale = 2 ** exposure;
+  const pixels = new ImageData(image.width, image.height);
+  const n = image.width * image.height;
+  for (let i = 0; i < n; i++) {
+    for (let c = 0; c < 3; c++) pixels.data[4 * i + c] = linearToSrgb8(image.rgb[3 * i + c] * scale);
+    pixels.data[4 * i + 3] = 255;
+  }
+  canvas.width = image.width;
+  canvas.height = image.height;
+  canvas.getContext('2d').putImageData(pixels, 0, 0);
+}
+
+/* ------------------------------------------------------------------------------------
+ * Reference: the shown render's scene with the path tracer, as a background job, beside
+ * the fast image with compare's PSNR and difference image.
+ * ---------------------------------------------------------------------------------- */
+
+const refJob = jobView('ref');
+let referenceRun = null;
+let shownReference = null; /* {fast, reference}: the EXR blobs the shown numbers come from */
+
+function setRefStatus(text, kind = '') {
+  const status = $('ref-status');
+  status.textContent = text;
+  status.className = 'status' + (kind ? ' ' + kind : '');
+}
+
+/* The same scene with "method": "pt" and the reference spp; everything else kept (the
+ * components too, so like is compared with like). "vrl_beams": "bounded" is an nn/table
+ * setting the path tracer refuses, so it goes. */
+function referenceScene(scene, spp) {
+  const copy = structuredClone(scene);
+  const render = copy.render && typeof copy.render === 'object' ? copy.render : (copy.render = {});
+  render.method = 'pt';
+  render.spp = spp;
+  if (render.vrl_beams === 'bounded') delete render.vrl_beams;
+  return copy;
+}
+
+function cancelReference({ quiet = false } = {}) {
+  const run = referenceRun;
+  if (!run) return;
+  referenceRun = null;
+  run.controller.abort();
+  if (run.job) deleteJob(run.job.self);
+  refJob.hide();
+  $('ref-cancel').disabled = true;
+  if (!quiet) setRefStatus('Reference cancelled.');
+}
+
+async function startReference() {
+  const entry = shownEntry;
+  if (!entry || entry.preview) return;
+  const sppInput = $('ref-spp');
+  const spp = Number(sppInput.value);
+  if (!Number.isInteger(spp) || !sppInput.checkValidity()) {
+    sppInput.setAttribute('aria-invalid', 'true');
+    setRefStatus('The reference spp must be a whole number in range.', 'error');
+    return;
+  }
+  sppInput.removeAttribute('aria-invalid');
+  cancelReference({ quiet: true });
+  const scene = parseSceneText(entry.sceneText);
+  const run = { controller: new AbortController(), job: null, entry };
+  referenceRun = run;
+  const signal = run.controller.signal;
+  const current = () => referenceRun === run && !signal.aborted;
+  const onWait = (seconds) => { if (current()) setRefStatus(`Server busy (retry after ${seconds} s); waiting…`, 'busy'); };
+  $('ref-cancel').disabled = false;
+  $('ref-result').hidden = true;
+  try {
+    setRefStatus(entry.exr ? 'Submitting the reference…' : 'Getting the fast image as float EXR…', 'busy');
+    const fastBlob = await entryExr(entry, { signal, retry: true, onWait });
+    if (!current()) return;
+    setRefStatus(`Reference: pt at ${spp} spp, submitting…`, 'busy');
+    const refText = sceneText(referenceScene(scene, spp));
+    const response = await sendWithRetry(() => postScene(refText, 'image/x-exr', { signal, async: true }), { retry: true, signal, onWait });
+    let refBlob;
+    if (response.status === 202) {
+      const job = await response.json();
+      run.job = jobUrls(response, job);
+      refJob.start('queued');
+      refJob.event('state', job);
+      setRefStatus(`Reference: pt at ${spp} spp, running as a background job…`, 'busy');
+      const final = await followJob(run.job, (name, data) => refJob.event(name, data), signal);
+      if (!current()) return;
+      if (final.event !== 'done') {
+        const problem = final.job && final.job.error;
+        throw new Error(final.event === 'cancelled' ? 'the reference job was cancelled' : `the reference job failed: ${(problem && (problem.detail || problem.title)) || 'no reason given'}`);
+      }
+      refJob.finish(1);
+      const image = await fetch(run.job.image, { headers: { Accept: 'image/x-exr' }, signal });
+      if (!image.ok) throw await problemError(image);
+      refBlob = await image.blob();
+    } else if (response.ok) {
+      refBlob = await response.blob(); /* a server without jobs answered directly */
+    } else throw await problemError(response);
+    if (!current()) return;
+    setRefStatus('Comparing…', 'busy');
+    const [fast, reference] = await Promise.all([decodeExr(await fastBlob.arrayBuffer()), decodeExr(await refBlob.arrayBuffer())]);
+    if (!current()) return;
+    if (fast.width !== reference.width || fast.height !== reference.height) {
+      throw new Error(`sizes differ: fast ${fast.width}×${fast.height}, reference ${reference.width}×${reference.height}`);
+    }
+    shownReference = { fast: fastBlob, reference: refBlob };
+    showReference(entry, scene, spp, fast, reference);
+    setRefStatus(`Reference done: pt at ${spp} spp against render #${entry.id}.`, 'ok');
+  } catch (error) {
+    if (!current() || isAbort(error)) return;
+    const detail = error.problem ? `${error.problem.title || error.status}: ${error.problem.detail || ''}` : messageOf(error);
+    setRefStatus(`Reference failed: ${detail}`, 'error');
+  } finally {
+    if (referenceRun === run) {
+      referenceRun = null;
+      $('ref-cancel').disabled = true;
+      refJob.hide();
+    }
+  }
+}
+
+const formatDb = (v) => (v === Infinity ? '∞' : Number.isFinite(v) ? `${v.toFixed(2)} dB` : '—');
+const formatSig = (v) => (Number.isFinite(v) ? Number(v.toPrecision(4)).toString() : '—');
+
+function showReference(entry, scene, spp, fast, reference) {
+  const exposure = scene.render && Number.isFinite(scene.render.exposure) ? scene.render.exposure : 0;
+  $('ref-fast').src = entry.url;
+  $('ref-fast').alt = `The fast render #${entry.id}: ${entry.caption}`;
+  $('ref-fast-caption').textContent = `fast: #${entry.id} ${entry.caption}`;
+  drawLinear($('ref-image'), reference, exposure);
+  $('ref-image-caption').textContent = `reference: pt, ${spp} spp`;
+  const metrics = compareImages(fast, reference);
+  const scale = drawDifference($('ref-diff'), fast, reference);
+  $('ref-diff-caption').textContent = `|fast − reference|, channel mean, white = ${formatSig(scale)}`;
+  const rows = [
+    ['psnr', 'PSNR', metrics.psnr, formatDb],
+    ['rmse', 'RMSE', metrics.rmse, formatSig],
+    ['relerr', 'mean relative error', metrics.relerr, formatSig],
+  ];
+  const body = document.querySelector('#ref-metrics tbody');
+  body.replaceChildren(...rows.map(([key, label, values, format]) => {
+    const cells = [values[3], values[0], values[1], values[2]].map((v) => {
+      const td = el('td', { class: 'num', textContent: format(v) });
+      td.dataset.value = String(v);
+      return td;
+    });
+    const tr = el('tr', {}, el('th', { scope: 'row', textContent: label }), ...cells);
+    tr.dataset.key = key;
+    return tr;
+  }), el('tr', {}, el('th', { scope: 'row', textContent: 'peak (reference max) · max |diff|' }),
+    el('td', { class: 'num', colSpan: 4, textContent: `${formatSig(metrics.peak)} · ${formatSig(metrics.maxAbs)}` })));
+  $('ref-result').hidden = false;
+}
+
+/* ------------------------------------------------------------------------------------
+ * Sweeps: POST /v1/sweeps with a grid over one or two parameters of the chosen material,
+ * progress from its events, the contact sheet fetched again as variants finish.
+ * ---------------------------------------------------------------------------------- */
+
+const sweepJob = jobView('sweep');
+let sweepRun = null;
+let maxSweepVariants = 256;
+const SWEEP_LABELS = { g: 'g', ior: 'ior', albedo: 'albedo', mfp: 'mfp', scale: 'scale' };
+
+function setSweepStatus(text, kind = '') {
+  const status = $('sweep-status');
+  status.textContent = text;
+  status.className = 'status' + (kind ? ' ' + kind : '');
+}
+
+/* "0.2, 0.5 0.8" -> [0.2, 0.5, 0.8]; null when empty or when a part is not a number. */
+function parseValueList(text) {
+  const parts = text.split(/[\s,;]+/).filter(Boolean);
+  if (parts.length === 0) return null;
+  const values = parts.map(Number);
+  return values.every(Number.isFinite) ? values : null;
+}
+
+/* The chosen axes [{param, values, input}], the inputs marked; null when one is invalid. */
+function sweepAxes({ mark = true } = {}) {
+  const axes = [];
+  for (const k of [1, 2]) {
+    const param = $(`sweep-param-${k}`).value;
+    const input = $(`sweep-values-${k}`);
+    if (!param) { input.removeAttribute('aria-invalid'); continue; }
+    const values = parseValueList(input.value);
+    if (mark) {
+      if (values) input.removeAttribute('aria-invalid');
+      else input.setAttribute('aria-invalid', 'true');
+    }
+    if (!values) return null;
+    axes.push({ param, values, input });
+  }
+  if (axes.length === 2 && axes[0].param === axes[1].param) return null;
+  return axes;
+}
+
+function updateSweepCount() {
+  const axes = sweepAxes({ mark: false });
+  const note = $('sweep-count');
+  if (!axes) {
+    const same = $('sweep-param-1').value === $('sweep-param-2').value;
+    note.textContent = same ? 'choose two different parameters' : 'values: numbers separated by commas or spaces';
+    return;
+  }
+  const total = axes.reduce((n, a) => n * a.values.length, 1);
+  note.textContent = `${axes.map((a) => a.values.length).join(' × ')} = ${total} variant${total === 1 ? '' : 's'}`
+    + (total > maxSweepVariants ? ` (at most ${maxSweepVariants})` : '');
+}
+
+/* The JSON value a sweep writes for `param` = v: g, ior and scale as they are; albedo and
+ * mfp name the largest channel, and the other channels follow it as the sliders do with
+ * "move together" (same slider distance: ratios of 1 - albedo, or of mfp, kept). A value
+ * out of range is sent as it is, for the server to report. */
+function sweepOverride(param, v, material) {
+  if (param !== 'albedo' && param !== 'mfp') return v;
+  const base = materialOptics(material)[param];
+  if (!base) return v;
+  const top = base.indexOf(Math.max(...base));
+  if (param === 'albedo') {
+    if (!(v >= 0 && v < 1)) return v;
+    const spec = CHANNEL_FIELDS.albedo;
+    const slider = (a) => Math.min(5, spec.toSlider(a));
+    const delta = slider(v) - slider(base[top]);
+    return compactColor(base.map((b, c) => (c === top ? v : spec.fromSlider(Math.max(0, slider(b) + delta)))));
+  }
+  if (!(v > 0)) return v;
+  return compactColor(base.map((b, c) => (c === top ? v : Number(((b * v) / base[top]).toPrecision(3)))));
+}
+
+/* Fetches the sheet again (at most one fetch at a time; a request meanwhile makes one more
+ * afterwards) and shows it. The sheet is fetched, not given to <img> by address, so that no
+ * cache can show an old one. */
+function reloadSheet(run) {
+  if (run.sheetLoading) {
+    run.sheetAgain = true;
+    return run.sheetLoading;
+  }
+  run.sheetLoading = (async () => {
+    try {
+      do {
+        run.sheetAgain = false;
+        const response = await fetch(run.job.sheet, { cache: 'no-store', headers: { Accept: 'image/png' } });
+        if (!response.ok || sweepRun !== run) break;
+        const url = URL.createObjectURL(await response.blob());
+        const img = $('sweep-sheet');
+        const old = img.src;
+        await new Promise((resolve) => {
+          img.onload = resolve;
+          img.onerror = resolve;
+          img.src = url;
+          img.hidden = false;
+        });
+        if (old.startsWith('blob:')) URL.revokeObjectURL(old);
+        img.dataset.loads = String(Number(img.dataset.loads || 0) + 1);
+      } while (run.sheetAgain && sweepRun === run);
+    } catch { /* the next variant's sheet, or the last one, will do */ } finally {
+      run.sheetLoading = null;
+    }
+  })();
+  return run.sheetLoading;
+}
+
+/* The Cancel button (DELETE, then followed until the job says it stopped), or quietly
+ * when a newer sweep replaces it. */
+async function cancelSweep({ quiet = false } = {}) {
+  const run = sweepRun;
+  if (!run) return;
+  if (quiet || !run.job) {
+    sweepRun = null;
+    run.controller.abort();
+    if (run.job) deleteJob(run.job.self);
+    sweepJob.hide();
+    $('sweep-cancel').disabled = true;
+    if (!quiet) setSweepStatus('Sweep cancelled.');
+    return;
+  }
+  $('sweep-cancel').disabled = true;
+  sweepJob.text('cancelling…');
+  setSweepStatus('Cancelling the sweep…', 'busy');
+  await deleteJob(run.job.self);
+}
+
+function showSweepProblem(problem, status, run) {
+  const list = $('sweep-errors');
+  const errors = Array.isArray(problem.errors) ? problem.errors : [];
+  const labels = Object.fromEntries(run.pointers.map((pointer, k) => [escapePointerToken(pointer), run.axes[k]]));
+  list.replaceChildren(...errors.filter((e) => e && typeof e === 'object').map((error) => {
+    const pointer = typeof error.pointer === 'string' ? error.pointer : '';
+    const item = el('li');
+    const grid = /^\/grid\/([^/]+)\/(\d+)$/.exec(pointer);
+    if (pointer.startsWith('/scene/') || pointer === '/scene') {
+      item.append(pointerButton(pointer.slice('/scene'.length), run.text), ': ');
+    } else if (grid && labels[grid[1]]) {
+      const axis = labels[grid[1]];
+      item.append(el('span', { class: 'pointer-static', textContent: `${SWEEP_LABELS[axis.param]} value ${Number(grid[2]) + 1} (${axis.values[Number(grid[2])]})` }), ': ');
+    } else if (pointer) item.append(el('span', { class: 'pointer-static', textContent: pointer }), ': ');
+    item.append(String(error.detail || ''));
+    return item;
+  }));
+  setSweepStatus(`Sweep refused: ${problem.title || status}${problem.detail ? ` (${problem.detail})` : ''}.`, 'error');
+}
+
+async function startSweep() {
+  $('sweep-errors').replaceChildren();
+  const text = editor.value;
+  const scene = parseSceneText(text);
+  if (!scene) { setSweepStatus('The scene text is not valid JSON; fix it first.', 'error'); return; }
+  const name = controls.material.value;
+  const material = name && scene.materials && scene.materials[name];
+  if (!material || typeof material !== 'object') { setSweepStatus('Choose a medium material in the quick controls first.', 'error'); return; }
+  const axes = sweepAxes();
+  if (!axes) {
+    setSweepStatus($('sweep-param-1').value === $('sweep-param-2').value ? 'Choose two different parameters.' : 'The values must be numbers separated by commas or spaces.', 'error');
+    return;
+  }
+  const total = axes.reduce((n, a) => n * a.values.length, 1);
+  if (total > maxSweepVariants) { setSweepStatus(`${total} variants: the server takes at most ${maxSweepVariants}.`, 'error'); return; }
+  /* albedo and mfp cannot be mixed with sigma_s / sigma_a: convert, as the sliders do. */
+  if (axes.some((a) => a.param === 'albedo' || a.param === 'mfp')) toTableForm(material);
+  const grid = {};
+  for (const axis of axes) {
+    grid[`/materials/${escapePointerToken(name)}/${axis.param}`] = axis.values.map((v) => sweepOverride(axis.param, v, material));
+  }
+  await cancelSweep({ quiet: true });
+  const run = { controller: new AbortController(), job: null, axes, pointers: Object.keys(grid), total, finished: 0, text, started: performance.now() };
+  sweepRun = run;
+  const signal = run.controller.signal;
+  const current = () => sweepRun === run && !signal.aborted;
+  $('sweep-cancel').disabled = false;
+  setSweepStatus(`Submitting ${total} variant${total === 1 ? '' : 's'}…`, 'busy');
+  try {
+    const response = await sendWithRetry(() => fetch('/v1/sweeps', {
+      method: 'POST', headers: { 'Content-Type': 'application/json', Accept: 'application/json' }, body: JSON.stringify({ scene, grid }), signal,
+    }), { retry: true, signal, onWait: (s) => { if (current()) setSweepStatus(`Server busy (retry after ${s} s); waiting…`, 'busy'); } });
+    if (!current()) return;
+    if (response.status !== 202) {
+      const problem = await readProblem(response);
+      if (response.status === 404 || response.status === 405) setSweepStatus(`This server has no sweeps (POST /v1/sweeps: ${response.status}).`, 'error');
+      else showSweepProblem(problem, response.status, run);
+      return;
+    }
+    const job = await response.json();
+    run.job = jobUrls(response, job, '/v1/sweeps');
+    sweepJob.start('queued');
+    sweepJob.event('state', job);
+    setSweepStatus(`Sweep of ${total} running as a background job…`, 'busy');
+    reloadSheet(run);
+    let variant = null;
+    const final = await followJob(run.job, (event, data) => {
+      if (event === 'variant_start') {
+        variant = data.index;
+        return;
+      }
+      if (event === 'variant_end') {
+        run.finished++;
+        reloadSheet(run);
+        return;
+      }
+      const prefix = variant === null ? '' : `variant ${Math.min(run.finished + 1, total)}/${total} (#${variant}) · `;
+      sweepJob.event(event, data, prefix);
+    }, signal);
+    if (!current()) return;
+    sweepJob.finish(final.event === 'done' ? 1 : 0);
+    await reloadSheet(run);
+    const seconds = ((performance.now() - run.started) / 1000).toFixed(1);
+    if (final.event === 'done') setSweepStatus(`Sweep done: ${total} variant${total === 1 ? '' : 's'} in ${seconds} s.`, 'ok');
+    else if (final.event === 'cancelled') setSweepStatus(`Sweep cancelled after ${run.finished} of ${total} variants.`);
+    else {
+      const problem = final.job && final.job.error;
+      setSweepStatus(`Sweep failed: ${(problem && (problem.detail || problem.title)) || 'no reason given'}.`, 'error');
+    }
+  } catch (error) {
+    if (!current() || isAbort(error)) return;
+    setSweepStatus(`Sweep failed: ${messageOf(error)}`, 'error');
+  } finally {
+    if (sweepRun === run) {
+      sweepRun = null;
+      $('sweep-cancel').disabled = true;
+      sweepJob.hide();
+    }
   }
 }
 
@@ -1155,7 +2097,8 @@ function applyLimits(limits) {
   if (!limits || typeof limits !== 'object') return;
   const side = limits.max_image_side || limits.max_width;
   if (Number.isInteger(side)) { controls.width.max = side; controls.height.max = limits.max_height || side; }
-  if (Number.isInteger(limits.max_spp)) controls.spp.max = limits.max_spp;
+  if (Number.isInteger(limits.max_spp)) { controls.spp.max = limits.max_spp; $('ref-spp').max = limits.max_spp; }
+  if (Number.isInteger(limits.max_sweep_variants)) { maxSweepVariants = limits.max_sweep_variants; updateSweepCount(); }
 }
 
 async function loadInfo() {
@@ -1199,10 +2142,11 @@ function init() {
   document.addEventListener('keydown', (event) => {
     if ((event.ctrlKey || event.metaKey) && event.key === 'Enter') {
       event.preventDefault();
-      render();
+      startRender('key');
     }
   });
-  $('render').addEventListener('click', render);
+  $('render').addEventListener('click', () => startRender('button'));
+  $('cancel').addEventListener('click', cancelRender);
   $('reset').addEventListener('click', () => { setEditorText(sceneText(DEFAULT_SCENE)); clearProblem(); });
   $('format').addEventListener('click', () => {
     const scene = parseEditor();
@@ -1238,6 +2182,16 @@ function init() {
   $('download-png').addEventListener('click', () => shownEntry && downloadBlob(shownEntry.blob, 'png'));
   $('download-exr').addEventListener('click', downloadExr);
   $('load-scene').addEventListener('click', () => shownEntry && setEditorText(shownEntry.sceneText));
+  $('reference').addEventListener('click', startReference);
+  $('ref-cancel').addEventListener('click', () => cancelReference());
+  $('ref-download-fast').addEventListener('click', () => shownReference && downloadBlob(shownReference.fast, 'exr', 'fast'));
+  $('ref-download-reference').addEventListener('click', () => shownReference && downloadBlob(shownReference.reference, 'exr', 'reference'));
+  $('sweep-start').addEventListener('click', startSweep);
+  $('sweep-cancel').addEventListener('click', () => cancelSweep());
+  for (const id of ['sweep-param-1', 'sweep-param-2', 'sweep-values-1', 'sweep-values-2']) {
+    $(id).addEventListener(id.includes('values') ? 'input' : 'change', updateSweepCount);
+  }
+  updateSweepCount();
 
   loadInfo();
 }
