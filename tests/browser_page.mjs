@@ -9,7 +9,7 @@
 // Environment (set by ctest): NSCATTER_BIN (the binary), NSCATTER_SOURCE_DIR (the repo).
 // Needs Debian's chromium (/usr/bin/chromium, or NSCATTER_CHROMIUM) and web/node_modules
 // (`npm ci` in web/; scripts/setup.sh test does both).
-import { spawn } from 'node:child_process';
+import { execFileSync, spawn } from 'node:child_process';
 import { createRequire } from 'node:module';
 import fs from 'node:fs';
 import path from 'node:path';
@@ -96,7 +96,8 @@ async function historyCount(page) {
   return page.locator('#history li').count();
 }
 
-// Clicks Render and waits until the click has finished: a new history entry or an error.
+// Clicks Render and waits until the click has finished: a new history entry or an error,
+// and the run over (Render no longer aria-busy: the full image follows a preview).
 async function renderAndWait(page, { via = 'button' } = {}) {
   const before = await historyCount(page);
   if (via === 'button') await page.locator('#render').click();
@@ -109,7 +110,11 @@ async function renderAndWait(page, { via = 'button' } = {}) {
     before,
     { timeout: RENDER_TIMEOUT_MS },
   );
-  await page.waitForFunction(() => !document.getElementById('render').disabled, null, { timeout: RENDER_TIMEOUT_MS });
+  await waitIdle(page);
+}
+
+async function waitIdle(page) {
+  await page.waitForFunction(() => !document.getElementById('render').hasAttribute('aria-busy'), null, { timeout: RENDER_TIMEOUT_MS });
 }
 
 async function shownImageSize(page) {
@@ -291,6 +296,9 @@ async function run() {
     });
 
     await step('quick controls edit the JSON and the render follows', async () => {
+      // Many controls in a row: with "Render on change" each would start (and the next
+      // cancel) a render; this step counts renders, so it renders explicitly.
+      await page.locator('#auto-render').uncheck();
       const name = await page.locator('#material').inputValue();
       check('material select offers a medium', name.length > 0, 'no medium material in the default scene');
       await page.locator('#preset').selectOption('milk');
@@ -467,6 +475,207 @@ async function run() {
       const blocked = await blocker;
       check('the blocking render itself succeeded', blocked.status === 200, `status ${blocked.status}`);
       await blocked.arrayBuffer();
+    });
+
+    // ----------------------------------------------------------------------------------
+    // Issue 17: a change re-renders by itself (preview first, the render in flight
+    // cancelled), long renders as jobs with progress and Cancel, the reference view,
+    // sweeps. These need the server's jobs and sweeps (docs/http.md).
+    // ----------------------------------------------------------------------------------
+    const abortedRequests = [];
+    page.on('requestfailed', (req) => {
+      if (new URL(req.url()).pathname === '/v1/renders') abortedRequests.push(`${req.method()} ${req.failure() && req.failure().errorText}`);
+    });
+    const isRenderPost = (r) => r.method() === 'POST' && new URL(r.url()).pathname === '/v1/renders';
+    const isJobPost = (r) => isRenderPost(r) && /respond-async/.test(r.headers().prefer || '');
+    // Every load of the viewer's image: its kind (preview or full) and size.
+    const watchImage = () => page.evaluate(() => {
+      window.__imageLog = [];
+      if (window.__imageWatched) return;
+      window.__imageWatched = true;
+      const img = document.getElementById('image');
+      img.addEventListener('load', () => window.__imageLog.push({ kind: img.dataset.kind, width: img.naturalWidth, height: img.naturalHeight }));
+    });
+    const setAuto = async (on) => { if (on) await page.locator('#auto-render').check(); else await page.locator('#auto-render').uncheck(); };
+    const waitHistoryAbove = (n) => page.waitForFunction((k) => document.querySelectorAll('#history li').length > k, n, { timeout: RENDER_TIMEOUT_MS });
+
+    await step('a slider release re-renders by itself, a ¼-size preview first', async () => {
+      await page.locator('#reset').click();
+      await setAuto(false);
+      await typeNumber(page, '#width', '128');
+      await typeNumber(page, '#height', '96');
+      await setAuto(true);
+      await watchImage();
+      const before = await historyCount(page);
+      const renderClicks = [];
+      await page.exposeFunction('__renderClicked', () => renderClicks.push(1)).catch(() => {});
+      await page.evaluate(() => document.getElementById('render').addEventListener('click', () => window.__renderClicked()));
+      // Keyboard: an arrow step is a release (input and change), as a drag's end is.
+      await page.locator('#g').focus();
+      await page.keyboard.press('ArrowRight');
+      await waitHistoryAbove(before);
+      await waitIdle(page);
+      const scene = await editorScene(page);
+      const g = scene.materials[firstMediumName(scene)].g;
+      check('releasing the g slider writes g and renders by itself (no Render click)',
+        g === 0.81 && renderClicks.length === 0 && (await historyCount(page)) === before + 1 && (await page.locator('#problem').isHidden()),
+        `g ${g}, clicks ${renderClicks.length}, history ${await historyCount(page)} (was ${before})`);
+      const log = await page.evaluate(() => window.__imageLog);
+      const last = log[log.length - 1] || {};
+      check('a 32x24 preview shows first, then the 128x96 image replaces it',
+        log.length >= 2 && log[0].kind === 'preview' && log[0].width === 32 && log[0].height === 24
+        && last.kind === 'full' && last.width === 128 && last.height === 96, JSON.stringify(log));
+      check('the caption of the history entry names the new g', /g 0\.81/.test(await page.locator('#history li').first().innerText()),
+        await page.locator('#history li').first().innerText());
+    });
+
+    await step('a newer change cancels the render in flight', async () => {
+      const before = await historyCount(page);
+      const abortedBefore = abortedRequests.length;
+      const firstPost = page.waitForRequest(isRenderPost, { timeout: STEP_TIMEOUT_MS });
+      await page.locator('#g').press('ArrowRight');
+      await firstPost;
+      await page.locator('#g').press('ArrowRight');
+      await waitHistoryAbove(before);
+      await waitIdle(page);
+      const scene = await editorScene(page);
+      const g = scene.materials[firstMediumName(scene)].g;
+      const newest = await page.locator('#history li').first().innerText();
+      check('only the newer change\'s render arrives', g === 0.83 && (await historyCount(page)) === before + 1 && /g 0\.83/.test(newest),
+        `g ${g}, history ${await historyCount(page)} (was ${before}), newest "${newest}"`);
+      const aborted = abortedRequests.slice(abortedBefore);
+      check('the render in flight was aborted', aborted.some((a) => /^POST .*ABORTED/.test(a)), JSON.stringify(aborted));
+    });
+
+    let jobLocation = null;
+    await step('a pt render runs as a job: progress bar, stage, then the image', async () => {
+      await setAuto(false);
+      await typeNumber(page, '#width', '64');
+      await typeNumber(page, '#height', '64');
+      await typeNumber(page, '#spp', '128');
+      await watchImage();
+      await page.evaluate(() => {
+        window.__progress = [];
+        window.__labels = [];
+        const bar = document.getElementById('job-progress');
+        const label = document.getElementById('job-label');
+        new MutationObserver(() => window.__progress.push(Number(bar.value))).observe(bar, { attributes: true, attributeFilter: ['value'] });
+        new MutationObserver(() => window.__labels.push(label.textContent)).observe(label, { childList: true, characterData: true, subtree: true });
+      });
+      await setAuto(true);
+      const before = await historyCount(page);
+      const posted = page.waitForResponse((r) => isJobPost(r.request()), { timeout: RENDER_TIMEOUT_MS });
+      await page.locator('#method').selectOption('pt'); // a change: renders by itself
+      const response = await posted;
+      check('the pt render is posted with Prefer: respond-async and accepted (202, Location)',
+        response.status() === 202 && /^\/v1\/renders\/[0-9a-f]{32}$/.test(response.headers().location || ''),
+        `status ${response.status()}, Location ${response.headers().location}`);
+      jobLocation = response.headers().location || null;
+      await waitHistoryAbove(before);
+      await waitIdle(page);
+      const values = await page.evaluate(() => window.__progress);
+      const inside = values.filter((v) => v > 0 && v < 1);
+      const increasing = values.every((v, k) => k === 0 || v >= values[k - 1]);
+      check('the progress bar advances (several values between 0 and 1, never back, ending at 1)',
+        new Set(inside).size >= 2 && increasing && values[values.length - 1] === 1, JSON.stringify(values));
+      const labels = await page.evaluate(() => window.__labels);
+      check('the current stage is shown', labels.some((l) => /^[a-z_]+ · \d+%$/.test(l) && !/^running/.test(l)), JSON.stringify(labels.slice(0, 20)));
+      const log = await page.evaluate(() => window.__imageLog);
+      const last = log[log.length - 1] || {};
+      check('the job\'s image arrives (64x64, in the history)', last.kind === 'full' && last.width === 64 && last.height === 64
+        && /pt/.test(await page.locator('#history li').first().innerText()), JSON.stringify(log));
+      check('the job\'s progress bar is gone when it is done', await page.locator('#job').isHidden());
+    });
+
+    await step('Cancel stops a running job', async () => {
+      await setAuto(false);
+      await typeNumber(page, '#spp', '1024');
+      await page.locator('#preview-first').uncheck();
+      const posted = page.waitForResponse((r) => isJobPost(r.request()), { timeout: RENDER_TIMEOUT_MS });
+      await page.locator('#render').click();
+      const response = await posted;
+      const location = response.headers().location;
+      if (!check('the long pt render is accepted as a job (202)', response.status() === 202 && Boolean(location), `status ${response.status()}`)) {
+        await waitIdle(page);
+        return;
+      }
+      await page.waitForFunction(() => Number(document.getElementById('job-progress').value) > 0, null, { timeout: 60_000 });
+      await page.locator('#cancel').click();
+      await page.waitForFunction(() => /^Cancelled/.test(document.getElementById('status').textContent), null, { timeout: 60_000 });
+      const job = await (await fetch(`${base}${location}`)).json();
+      check('Cancel: the job is cancelled (DELETE), before the end', job.state === 'cancelled' && job.progress < 1,
+        `state ${job.state}, progress ${job.progress}`);
+      check('Cancel: the page shows it and is idle again', (await page.locator('#job').isHidden()) && (await page.locator('#cancel').isDisabled())
+        && !(await page.locator('#render').getAttribute('aria-busy')), await page.locator('#status').innerText());
+    });
+
+    await step('Reference: pt beside the fast image, PSNR as nscatter compare, difference image', async () => {
+      await page.locator('#preview-first').check();
+      await page.locator('#method').selectOption('nn');
+      await typeNumber(page, '#spp', '1');
+      await typeNumber(page, '#height', '48');
+      await renderAndWait(page);
+      const shown = await shownImageSize(page);
+      check('a fast nn image of 64x48 is shown', shown.width === 64 && shown.height === 48, JSON.stringify(shown));
+      await page.locator('#ref-spp').fill('16');
+      await page.locator('#reference').click();
+      await page.waitForFunction(() => /Reference (done|failed)/.test(document.getElementById('ref-status').textContent), null, { timeout: RENDER_TIMEOUT_MS });
+      const status = await page.locator('#ref-status').innerText();
+      check('the reference finishes', /Reference done/.test(status), status);
+      const psnrCell = page.locator('#ref-metrics tr[data-key="psnr"] td').first();
+      const psnr = Number(await psnrCell.getAttribute('data-value'));
+      check('PSNR is shown, in dB', Number.isFinite(psnr) && / dB$/.test(await psnrCell.innerText()), `${psnr} "${await psnrCell.innerText()}"`);
+      const drawn = await page.locator('#ref-diff').evaluate((c) => {
+        const data = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        let lit = 0;
+        for (let i = 0; i < data.length; i += 4) if (data[i] + data[i + 1] + data[i + 2] > 20) lit++;
+        return { width: c.width, height: c.height, lit };
+      });
+      check('the difference image is drawn (64x48, not all black)', drawn.width === 64 && drawn.height === 48 && drawn.lit > 0, JSON.stringify(drawn));
+      const reference = await page.locator('#ref-image').evaluate((c) => ({ width: c.width, height: c.height }));
+      check('the reference is shown beside the fast image', reference.width === 64 && reference.height === 48
+        && (await page.locator('#ref-fast').evaluate((i) => i.naturalWidth)) === 64, JSON.stringify(reference));
+      // The two EXRs the numbers come from (the page offers them), through `nscatter
+      // compare`: the page's PSNR must be its number.
+      const saved = {};
+      for (const [what, button] of [['fast', '#ref-download-fast'], ['reference', '#ref-download-reference']]) {
+        const download = page.waitForEvent('download');
+        await page.locator(button).click();
+        saved[what] = path.join(outDir, `browser_page_${what}.exr`);
+        await (await download).saveAs(saved[what]);
+      }
+      const cli = JSON.parse(execFileSync(binary, ['compare', saved.fast, saved.reference], { encoding: 'utf8' }));
+      check('the page\'s PSNR is nscatter compare\'s (same EXRs)', Math.abs(cli.psnr.all - psnr) < 1e-6, `page ${psnr}, compare ${cli.psnr.all}`);
+      const rmse = Number(await page.locator('#ref-metrics tr[data-key="rmse"] td').first().getAttribute('data-value'));
+      check('and so is its RMSE', Math.abs(cli.rmse.all - rmse) <= 1e-9 * Math.max(1, cli.rmse.all), `page ${rmse}, compare ${cli.rmse.all}`);
+      await page.screenshot({ path: path.join(outDir, 'browser_page_reference.png'), fullPage: true });
+    });
+
+    await step('a 2x2 sweep fills its contact sheet', async () => {
+      await page.locator('#sweep-param-1').selectOption('g');
+      await page.locator('#sweep-values-1').fill('0.3, 0.8');
+      await page.locator('#sweep-param-2').selectOption('ior');
+      await page.locator('#sweep-values-2').fill('1 1.5');
+      check('the variant count is shown', /2 × 2 = 4 variants/.test(await page.locator('#sweep-count').innerText()), await page.locator('#sweep-count').innerText());
+      const posted = page.waitForResponse((r) => r.request().method() === 'POST' && new URL(r.url()).pathname === '/v1/sweeps', { timeout: RENDER_TIMEOUT_MS });
+      await page.locator('#sweep-start').click();
+      const response = await posted;
+      const location = response.headers().location;
+      check('POST /v1/sweeps is accepted (202, Location)', response.status() === 202 && /^\/v1\/sweeps\/[0-9a-f]{32}$/.test(location || ''),
+        `status ${response.status()}, Location ${location}`);
+      await page.waitForFunction(() => /^(Sweep (done|failed|cancelled|refused)|This server)/.test(document.getElementById('sweep-status').textContent),
+        null, { timeout: RENDER_TIMEOUT_MS });
+      const status = await page.locator('#sweep-status').innerText();
+      check('the sweep finishes', /^Sweep done: 4 variants/.test(status), status);
+      const sheet = await page.locator('#sweep-sheet').evaluate((i) => ({ hidden: i.hidden, width: i.naturalWidth, loads: Number(i.dataset.loads || 0) }));
+      check('the contact sheet appears, fetched again as variants finished', !sheet.hidden && sheet.width > 0 && sheet.loads >= 3, JSON.stringify(sheet));
+      if (location) {
+        const sweep = await (await fetch(`${base}${location}`)).json();
+        const states = (sweep.variants || []).map((v) => v.state);
+        check('the server has the 4 variants done', sweep.state === 'done' && states.length === 4 && states.every((s) => s === 'done'), JSON.stringify({ state: sweep.state, states }));
+      }
+      await page.screenshot({ path: path.join(outDir, 'browser_page_sweep.png'), fullPage: true });
+      await setAuto(true);
     });
 
     await step('an edited scene survives a reload; Reset brings the default back', async () => {
