@@ -30,6 +30,7 @@ typedef struct job_result {
     ns_image image;
     ns_scene scene;
     json_t *error; /* problem+json when failed */
+    ns_error err;  /* the status and message behind it */
     double started_ms, finished_ms;
 } job_result;
 
@@ -428,9 +429,10 @@ static void render_into(job_store *store, job *j, const ns_scene *scene,
     progress_sink sink = {store, j, variant, base, span};
     ns_render_control control = {.cancel = &j->cancel, .progress = on_progress, .user = &sink};
     ns_render_stats stats = *before;
-    ns_error err = {0};
+    ns_error *err = &r->err;
     r->started_ms = ns_now_ms();
-    int rc = render_job_render(store->ctx, scene, &control, &stats, &r->image, &err);
+    int rc = render_job_render(store->ctx, scene, &control, &stats, &r->image, err);
+    err->status = rc;
     r->finished_ms = ns_now_ms();
     r->stats = stats;
     r->scene = (ns_scene){.camera = scene->camera, .render = scene->render};
@@ -439,7 +441,7 @@ static void render_into(job_store *store, job *j, const ns_scene *scene,
     } else if (rc) {
         r->state = JOB_FAILED;
         r->error = problem_from_status(problem_kind_of_status(rc), rc,
-                                       err.message[0] ? err.message : ns_status_message(rc));
+                                       err->message[0] ? err->message : ns_status_message(rc));
     } else {
         r->state = JOB_DONE;
     }
@@ -498,6 +500,7 @@ static void run_sweep(job_store *store, job *j)
         int rc = sweep_variant_scene(j->sweep, i, &doc, &err);
         if (rc) {
             r.state = JOB_FAILED;
+            r.err = err;
             r.error = problem_from_status(problem_kind_of_status(rc), rc, err.message);
         } else {
             render_into(store, j, scene_doc_scene(doc), k == 0 ? &before : &(ns_render_stats){0},
@@ -859,15 +862,8 @@ int job_take_sync_result(job_store *store, job *j, encode_buffer *image, ns_rend
         status = j->sync_status;
         *err = j->sync_err;
     } else {
-        json_t *detail = json_object_get(j->result.error, "detail");
-        json_t *code = json_object_get(j->result.error, "code");
-        status = NS_ERR_INTERNAL;
-        for (int s = 0; s >= -64; s--)
-            if (code && !strcmp(ns_status_name(s), json_string_value(code))) {
-                status = s;
-                break;
-            }
-        ns_fail(err, status, "%s", detail ? json_string_value(detail) : "render failed");
+        *err = j->result.err;
+        status = err->status ? err->status : NS_ERR_INTERNAL;
     }
     pthread_mutex_unlock(&store->lock);
     return status;
