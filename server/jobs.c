@@ -10,6 +10,7 @@
 #include <sys/random.h>
 #include <time.h>
 
+#include "contact_sheet.h"
 #include "problem.h"
 #include "render_job.h"
 #include "sweep.h"
@@ -896,12 +897,64 @@ int job_encode_image(job_store *store, job *j, int variant, encode_format format
                              stats, out, err);
 }
 
+/* A render's own time: its stages but parsing and waiting in the queue. */
+static double render_ms(const ns_render_stats *stats)
+{
+    double ms = 0;
+    for (uint32_t i = 0; i < stats->stage_count && i < NS_MAX_STAGES; i++)
+        if (strcmp(stats->stages[i].name, "parse") && strcmp(stats->stages[i].name, "queue"))
+            ms += stats->stages[i].ms;
+    return ms;
+}
+
+/* One cell per variant in index order: its image once done, else a placeholder with its
+ * state; under it the overrides ("g=0.5") and, once done, the render time. The images are
+ * read without the lock (a done variant's image never changes, and the caller holds the
+ * job); the labels are made under it. */
+#define SHEET_LINES 8u
 int job_sweep_sheet(job_store *store, job *j, encode_buffer *out, ns_error *err)
 {
-    (void)store;
-    (void)j;
-    (void)out;
-    return ns_fail(err, NS_ERR_NOT_AVAILABLE, "contact sheets are not available yet");
+    uint32_t n = sweep_variant_count(j->sweep);
+    contact_sheet_cell *cells = calloc(n, sizeof *cells);
+    char(*text)[SHEET_LINES][96] = calloc(n, sizeof *text);
+    const char *(*lines)[SHEET_LINES] = calloc(n, sizeof *lines);
+    if (!cells || !text || !lines) {
+        free(cells);
+        free(text);
+        free(lines);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "contact sheet: %u cells", n);
+    }
+    /* Every variant's camera is the base scene's unless an override changes it: the
+     * placeholders take the first variant's size, and the sheet its exposure. */
+    json_t *settings = j->render_settings;
+    uint32_t width = (uint32_t)json_integer_value(json_object_get(settings, "width"));
+    uint32_t height = (uint32_t)json_integer_value(json_object_get(settings, "height"));
+    float exposure = (float)json_number_value(json_object_get(settings, "exposure"));
+    pthread_mutex_lock(&store->lock);
+    for (uint32_t i = 0; i < n; i++) {
+        const job_result *r = &j->variants[i];
+        uint32_t count = sweep_label_lines(j->sweep, i, text[i], SHEET_LINES - 1);
+        if (r->state == JOB_DONE)
+            snprintf(text[i][count++], 96, "%.0f ms", render_ms(&r->stats));
+        for (uint32_t k = 0; k < count; k++)
+            lines[i][k] = text[i][k];
+        int done = r->state == JOB_DONE && r->image.rgb;
+        cells[i] = (contact_sheet_cell){.image = done ? &r->image : NULL,
+                                        .lines = lines[i],
+                                        .line_count = count,
+                                        .note = done ? NULL : job_state_name(r->state),
+                                        .width = width,
+                                        .height = height};
+    }
+    pthread_mutex_unlock(&store->lock);
+    int rc = contact_sheet_png(&(contact_sheet_desc){.cells = cells,
+                                                     .cell_count = n,
+                                                     .exposure_stops = exposure},
+                               out, err);
+    free(cells);
+    free(text);
+    free(lines);
+    return rc;
 }
 
 /* ---------------------------------------------------------------------------------------
