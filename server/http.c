@@ -11,6 +11,8 @@
 #include <limits.h>
 #include <math.h>
 #include <netdb.h>
+#include <fcntl.h>
+#include <poll.h>
 #include <pthread.h>
 #include <signal.h>
 #include <stdarg.h>
@@ -1259,7 +1261,35 @@ static void make_context(http_server *srv, const char *device)
  * (for at most HTTP_DRAIN_S, or until a second signal), then every connection is closed.
  * MHD_stop_daemon alone would shut the sockets of requests still waiting for a render. */
 #define HTTP_DRAIN_S 120
-static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv, const sigset_t *signals)
+/* SIGINT and SIGTERM. Threads that nscatter does not make (OpenBLAS starts its pool when the
+ * library loads, before http_serve runs) do not block them, and the kernel may deliver a
+ * process-directed signal to any thread that does not: so they get a handler, which only
+ * writes the signal to a pipe, wherever it runs, and the main thread waits on the pipe. */
+static int stop_pipe[2] = {-1, -1};
+
+static void on_stop_signal(int sig)
+{
+    unsigned char byte = (unsigned char)sig;
+    ssize_t written = write(stop_pipe[1], &byte, 1);
+    (void)written; /* a full pipe already holds a signal */
+}
+
+/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. */
+static int wait_stop_signal(int timeout_ms)
+{
+    struct pollfd fd = {.fd = stop_pipe[0], .events = POLLIN};
+    for (;;) {
+        int n = poll(&fd, 1, timeout_ms);
+        if (n < 0 && errno == EINTR)
+            continue; /* the handler ran on this thread: the byte is in the pipe */
+        unsigned char byte = 0;
+        if (n > 0 && read(stop_pipe[0], &byte, 1) == 1)
+            return byte;
+        return 0;
+    }
+}
+
+static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv)
 {
     MHD_socket listen_fd = MHD_quiesce_daemon(daemon);
     if (listen_fd != MHD_INVALID_SOCKET)
@@ -1268,9 +1298,8 @@ static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv, const si
      * streams end; synchronous renders are finished and answered. */
     job_store_shutdown(srv->jobs);
     double deadline = ns_now_ms() + HTTP_DRAIN_S * 1000.0;
-    const struct timespec tick = {0, 50 * 1000 * 1000};
     while (atomic_load(&srv->renders_in_flight) > 0 && ns_now_ms() < deadline) {
-        if (sigtimedwait(signals, NULL, &tick) >= 0) {
+        if (wait_stop_signal(50)) {
             fprintf(stderr, "nscatter serve: second signal, not waiting for renders\n");
             break;
         }
@@ -1291,8 +1320,22 @@ int http_serve(const http_serve_desc *desc)
     if (resolve_host(args.host, args.port, &addr))
         return 2;
 
-    /* Every thread made from here on inherits this mask, so the signals reach sigwait()
-     * below and nowhere else. A client that disconnects must not kill the process. */
+    if (stop_pipe[0] < 0) {
+        if (pipe(stop_pipe)) {
+            fprintf(stderr, "nscatter serve: pipe: %s\n", strerror(errno));
+            return 1;
+        }
+        for (int i = 0; i < 2; i++) {
+            fcntl(stop_pipe[i], F_SETFD, FD_CLOEXEC);
+            fcntl(stop_pipe[i], F_SETFL, O_NONBLOCK); /* the handler never blocks */
+        }
+    }
+    struct sigaction on_stop = {.sa_handler = on_stop_signal, .sa_flags = SA_RESTART};
+    sigemptyset(&on_stop.sa_mask);
+    sigaction(SIGINT, &on_stop, NULL);
+    sigaction(SIGTERM, &on_stop, NULL);
+    /* Every thread made from here on inherits this mask, so no render or connection thread
+     * is interrupted by them. A client that disconnects must not kill the process. */
     sigset_t stop_signals;
     sigemptyset(&stop_signals);
     sigaddset(&stop_signals, SIGINT);
@@ -1343,9 +1386,13 @@ int http_serve(const http_serve_desc *desc)
     fflush(stdout);
 
     int sig = 0;
-    sigwait(&stop_signals, &sig);
+    /* The main thread takes the signals now (the handler runs here or on a foreign thread,
+     * and either way the pipe has it); the threads nscatter made keep them blocked. */
+    pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
+    while (!(sig = wait_stop_signal(-1)))
+        ;
     fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
-    drain_and_stop(daemon, &srv, &stop_signals);
+    drain_and_stop(daemon, &srv);
     job_store_destroy(srv.jobs);
     ns_context_destroy(srv.ctx);
     return 0;
