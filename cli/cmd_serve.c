@@ -20,6 +20,11 @@ static void serve_usage(FILE *out)
             "  --assets DIR      folder of mesh assets scenes may name (\"asset\": \"x.glb\")\n"
             "  --device D        Vulkan device: index or name substring (default: lavapipe;\n"
             "                    also NSCATTER_DEVICE)\n"
+            "  --job-ttl S       keep finished asynchronous renders and sweeps S seconds\n"
+            "                    (default 3600); then they answer 410\n"
+            "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
+            "                    the oldest finished job goes first\n"
+            "  --sse-keepalive S comment on a quiet event stream every S seconds (default 15)\n"
             "\n"
             "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
             "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
@@ -63,6 +68,18 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             a->asset_dir = value;
         } else if (!strcmp(arg, "--device")) {
             a->device = value;
+        } else if (!strcmp(arg, "--job-ttl")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 30u * 24 * 3600, &n))
+                return 2;
+            a->job_ttl_s = (uint32_t)n;
+        } else if (!strcmp(arg, "--job-bytes")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 40, &n))
+                return 2;
+            a->job_bytes = n;
+        } else if (!strcmp(arg, "--sse-keepalive")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 3600, &n))
+                return 2;
+            a->sse_keepalive_s = (uint32_t)n;
         } else {
             fprintf(stderr, "nscatter serve: unknown option '%s'\n", arg);
             serve_usage(stderr);

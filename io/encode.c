@@ -185,6 +185,42 @@ static int png_insert_texts(encode_buffer *png, const encode_text *texts, size_t
     return 0;
 }
 
+int encode_exposure_scale(float exposure_stops, float *scale, ns_error *err)
+{
+    if (!isfinite(exposure_stops) || fabsf(exposure_stops) > 64.0f)
+        return encode_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "encode: exposure %g stops is not a finite number in [-64, 64]",
+                           (double)exposure_stops);
+    *scale = exp2f(exposure_stops);
+    return 0;
+}
+
+int encode_png_rgb8(const uint8_t *rgb, uint32_t width, uint32_t height, const encode_text *texts,
+                    size_t text_count, encode_buffer *out, ns_error *err)
+{
+    out->data = NULL;
+    out->size = 0;
+    if (!rgb || width == 0 || height == 0)
+        return encode_fail(err, NS_ERR_INVALID_ARGUMENT, "encode: empty picture %ux%u", width,
+                           height);
+    /* These limits also keep stb's int strides and buffer sizes far from overflow. */
+    if (width > ENCODE_RGB8_MAX_SIDE || height > ENCODE_RGB8_MAX_SIDE ||
+        (uint64_t)width * height > ENCODE_RGB8_MAX_PIXELS)
+        return encode_fail(err, NS_ERR_LIMIT, "encode: picture %ux%u over the size limits", width,
+                           height);
+    int len = 0;
+    unsigned char *png =
+        stbi_write_png_to_mem(rgb, (int)width * 3, (int)width, (int)height, 3, &len);
+    if (!png || len <= 0)
+        return encode_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "encode: PNG writer failed");
+    out->data = png;
+    out->size = (size_t)len;
+    int rc = png_insert_texts(out, texts, text_count, err);
+    if (rc)
+        encode_buffer_free(out);
+    return rc;
+}
+
 int encode_png(const ns_image *img, float exposure_stops, const encode_text *texts,
                size_t text_count, encode_buffer *out, ns_error *err)
 {
@@ -193,11 +229,10 @@ int encode_png(const ns_image *img, float exposure_stops, const encode_text *tex
     int rc = encode_check_image(img, err);
     if (rc)
         return rc;
-    if (!isfinite(exposure_stops) || fabsf(exposure_stops) > 64.0f)
-        return encode_fail(err, NS_ERR_INVALID_ARGUMENT,
-                           "encode: exposure %g stops is not a finite number in [-64, 64]",
-                           (double)exposure_stops);
-    float scale = exp2f(exposure_stops);
+    float scale = 1.0f;
+    rc = encode_exposure_scale(exposure_stops, &scale, err);
+    if (rc)
+        return rc;
     size_t count = (size_t)img->width * img->height;
     uint8_t *rgb8 = malloc(count * 3);
     if (!rgb8)
@@ -205,17 +240,8 @@ int encode_png(const ns_image *img, float exposure_stops, const encode_text *tex
                            count);
     for (size_t i = 0; i < count * 3; i++)
         rgb8[i] = encode_srgb8(img->rgb[i], scale);
-    int len = 0;
-    unsigned char *png = stbi_write_png_to_mem(rgb8, (int)img->width * 3, (int)img->width,
-                                               (int)img->height, 3, &len);
+    rc = encode_png_rgb8(rgb8, img->width, img->height, texts, text_count, out, err);
     free(rgb8);
-    if (!png || len <= 0)
-        return encode_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "encode: PNG writer failed");
-    out->data = png;
-    out->size = (size_t)len;
-    rc = png_insert_texts(out, texts, text_count, err);
-    if (rc)
-        encode_buffer_free(out);
     return rc;
 }
 

@@ -31,13 +31,30 @@ typedef struct encode_text {
 
 typedef enum { ENCODE_PNG = 0, ENCODE_EXR_FLOAT = 1, ENCODE_EXR_HALF = 2 } encode_format;
 
-/* Radiance times 2^exposure_stops, sRGB transfer, clamped to [0, 1], rounded to 8 bits.
- * NaN and negative values give 0, +Inf gives 255. Exposed for the tests. */
+/* The one conversion of linear radiance to what a PNG holds, used by every 8-bit output
+ * (encode_png, the contact sheet): radiance times `scale` (encode_exposure_scale), sRGB
+ * transfer, clamped to [0, 1], rounded to 8 bits. NaN and negative values give 0, +Inf
+ * gives 255. */
 uint8_t encode_srgb8(float linear, float scale);
 
-/* PNG: 8-bit RGB, deflated by zlib. */
+/* The scale 2^exposure_stops that encode_srgb8 takes. An exposure that is not a finite
+ * number in [-64, 64] is refused with NS_ERR_INVALID_ARGUMENT. */
+int encode_exposure_scale(float exposure_stops, float *scale, ns_error *err);
+
+/* PNG: 8-bit RGB (encode_srgb8 of every channel), deflated by zlib. */
 int encode_png(const ns_image *img, float exposure_stops, const encode_text *texts,
                size_t text_count, encode_buffer *out, ns_error *err);
+
+/* The largest picture encode_png_rgb8 writes: larger than a render may be
+ * (NS_MAX_IMAGE_SIDE, NS_MAX_PIXELS), since a contact sheet holds many renders. */
+#define ENCODE_RGB8_MAX_SIDE 16384u
+#define ENCODE_RGB8_MAX_PIXELS (64u * 1024u * 1024u)
+
+/* PNG of pixels already in 8-bit sRGB: `rgb` holds width*height*3 bytes, rows top down,
+ * no padding; the caller keeps it. Sizes of 0 or over the limits above are refused
+ * (NS_ERR_INVALID_ARGUMENT, NS_ERR_LIMIT). Metadata as encode_png. */
+int encode_png_rgb8(const uint8_t *rgb, uint32_t width, uint32_t height, const encode_text *texts,
+                    size_t text_count, encode_buffer *out, ns_error *err);
 
 /* EXR: linear R, G, B as 32-bit float (half = 0) or 16-bit half (half = 1), ZIP
  * compressed; exposure is not applied (EXR keeps the radiance the renderer produced).

@@ -87,14 +87,12 @@ static void render_meta_free(render_meta *meta)
     free(meta->counts);
 }
 
-static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene *scene,
+static void render_meta_build(render_meta *meta, const char *device, const ns_scene *scene,
                               float exposure_stops, const ns_render_stats *stats)
 {
     memset(meta, 0, sizeof *meta);
-    ns_device_info info;
-    ns_context_device_info(ctx, &info);
     snprintf(meta->software, sizeof meta->software, "nscatter %s", NS_VERSION);
-    snprintf(meta->device, sizeof meta->device, "%s", info.device_name);
+    snprintf(meta->device, sizeof meta->device, "%s", device ? device : "");
     json_t *settings = render_settings_json(scene, exposure_stops);
     json_t *stages = render_stats_stages_json(stats);
     json_t *counts = render_stats_counts_json(stats);
@@ -115,17 +113,15 @@ static void render_meta_build(render_meta *meta, ns_context *ctx, const ns_scene
         meta->texts[meta->count++] = (encode_text){"nscatter:counts", meta->counts};
 }
 
-int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
-                   float exposure_stops, ns_render_stats *stats, encode_buffer *out, ns_error *err)
+int render_job_render(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
+                      ns_render_stats *stats, ns_image *image, ns_error *err)
 {
-    out->data = NULL;
-    out->size = 0;
-    ns_image image = {0};
+    memset(image, 0, sizeof *image);
     /* The renderer fills its own stats (it may clear them first); merge them after the
      * caller's stages so "parse" stays first. */
     ns_render_stats render_stats;
     memset(&render_stats, 0, sizeof render_stats);
-    int rc = ns_render(ctx, scene, &image, &render_stats, err);
+    int rc = ns_render_controlled(ctx, scene, control, image, &render_stats, err);
     ns_render_stats callers = *stats;
     *stats = render_stats; /* the counts */
     stats->stage_count = 0;
@@ -133,25 +129,42 @@ int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
         ns_stats_add_stage(stats, callers.stages[i].name, callers.stages[i].ms);
     for (uint32_t i = 0; i < render_stats.stage_count && i < NS_MAX_STAGES; i++)
         ns_stats_add_stage(stats, render_stats.stages[i].name, render_stats.stages[i].ms);
-    if (rc) {
-        ns_image_free(&image);
-        return rc;
-    }
-    if (!image.rgb || image.width != scene->camera.width || image.height != scene->camera.height) {
-        ns_image_free(&image);
-        err->status = NS_ERR_INTERNAL;
-        snprintf(err->message, sizeof err->message,
-                 "renderer returned a %ux%u image for a %ux%u camera", image.width, image.height,
-                 scene->camera.width, scene->camera.height);
-        return NS_ERR_INTERNAL;
-    }
+    if (!rc && (!image->rgb || image->width != scene->camera.width ||
+                image->height != scene->camera.height))
+        rc = ns_fail(err, NS_ERR_INTERNAL, "renderer returned a %ux%u image for a %ux%u camera",
+                     image->width, image->height, scene->camera.width, scene->camera.height);
+    if (rc)
+        ns_image_free(image);
+    return rc;
+}
+
+int render_job_encode(const char *device, const ns_scene *scene, const ns_image *image,
+                      encode_format format, float exposure_stops, ns_render_stats *stats,
+                      encode_buffer *out, ns_error *err)
+{
     double t0 = ns_now_ms();
     render_meta meta;
-    render_meta_build(&meta, ctx, scene, exposure_stops, stats);
-    rc = encode_image(format, &image, exposure_stops, meta.texts, meta.count, out, err);
+    render_meta_build(&meta, device, scene, exposure_stops, stats);
+    int rc = encode_image(format, image, exposure_stops, meta.texts, meta.count, out, err);
     render_meta_free(&meta);
-    ns_image_free(&image);
     if (rc == 0)
         ns_stats_add_stage(stats, "encode", ns_now_ms() - t0);
+    return rc;
+}
+
+int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
+                   float exposure_stops, ns_render_stats *stats, encode_buffer *out, ns_error *err)
+{
+    out->data = NULL;
+    out->size = 0;
+    ns_image image;
+    int rc = render_job_render(ctx, scene, NULL, stats, &image, err);
+    if (rc)
+        return rc;
+    ns_device_info info;
+    ns_context_device_info(ctx, &info);
+    rc = render_job_encode(info.device_name, scene, &image, format, exposure_stops, stats, out,
+                           err);
+    ns_image_free(&image);
     return rc;
 }

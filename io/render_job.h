@@ -18,6 +18,20 @@
 int render_job_run(ns_context *ctx, const ns_scene *scene, encode_format format,
                    float exposure_stops, ns_render_stats *stats, encode_buffer *out, ns_error *err);
 
+/* The two halves of render_job_run, for a caller that keeps the image and encodes it later
+ * (the HTTP service's asynchronous jobs, once per format asked for).
+ * render_job_render: ns_render_controlled (control may be NULL), its stages appended to
+ * *stats after the caller's; *image holds the pixels on success (free with ns_image_free)
+ * and is empty on failure. */
+int render_job_render(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
+                      ns_render_stats *stats, ns_image *image, ns_error *err);
+/* Encodes a rendered image with the metadata render_job_run writes (render settings from
+ * scene, timings from *stats), then adds an "encode" stage to *stats. device names the
+ * device that rendered. */
+int render_job_encode(const char *device, const ns_scene *scene, const ns_image *image,
+                      encode_format format, float exposure_stops, ns_render_stats *stats,
+                      encode_buffer *out, ns_error *err);
+
 /* {"stage": ms, ...} in the order the stages ran; a repeated name adds up. New reference. */
 json_t *render_stats_stages_json(const ns_render_stats *stats);
 

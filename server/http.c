@@ -1,8 +1,9 @@
 /* http.c — the HTTP render service (libmicrohttpd) behind http_serve() (http.h).
  *
  * One thread per connection. The render context is made once, before the socket opens;
- * renders run one at a time on the render queue's worker (render_queue.h), and a full queue
- * answers 503 at once. Errors are RFC 9457 problem details (problem.h). Every request owns
+ * renders run one at a time as jobs on the job store's worker (jobs.h), and a full queue
+ * answers 503 at once. Asynchronous renders and sweeps are jobs kept under an id, with
+ * their status, Server-Sent Events, image and cancel routes. Errors are RFC 9457 problem details (problem.h). Every request owns
  * an http_request, made on the first callback and freed in the completion callback,
  * whatever happened in between (client gone, body too large, render failure).
  */
@@ -10,6 +11,8 @@
 #include <limits.h>
 #include <math.h>
 #include <netdb.h>
+#include <fcntl.h>
+#include <poll.h>
 #include <pthread.h>
 #include <signal.h>
 #include <stdarg.h>
@@ -19,6 +22,7 @@
 #include <string.h>
 #include <strings.h>
 #include <sys/socket.h>
+#include <sys/types.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -31,8 +35,9 @@
 #include "nscatter.h"
 #include "problem.h"
 #include "render_job.h"
-#include "render_queue.h"
+#include "jobs.h"
 #include "scene_json.h"
+#include "sweep.h"
 #include "web_assets.h"
 
 #define HTTP_MAX_CONNECTIONS 64u
@@ -45,9 +50,12 @@ typedef struct http_server {
     ns_context *ctx; /* NULL when the context could not be made: /readyz says 503 */
     ns_error ctx_err;
     ns_device_info device;
-    render_queue *queue;
+    job_store *jobs;
     uint64_t max_body;
     uint32_t queue_capacity;
+    uint32_t job_ttl_s;
+    uint64_t job_bytes;
+    uint32_t sse_keepalive_s;
     const char *asset_dir;
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
 } http_server;
@@ -57,13 +65,26 @@ typedef enum {
     ROUTE_LIVEZ,
     ROUTE_READYZ,
     ROUTE_INFO,
-    ROUTE_RENDERS,
+    ROUTE_RENDERS,        /* POST: a render; GET: the asynchronous renders */
+    ROUTE_RENDER_JOB,     /* /v1/renders/{id} */
+    ROUTE_RENDER_IMAGE,   /* /v1/renders/{id}/image */
+    ROUTE_RENDER_EVENTS,  /* /v1/renders/{id}/events */
+    ROUTE_SWEEPS,         /* POST: a sweep; GET: the sweeps */
+    ROUTE_SWEEP_JOB,      /* /v1/sweeps/{id} */
+    ROUTE_SWEEP_IMAGE,    /* /v1/sweeps/{id}/images/{n} */
+    ROUTE_SWEEP_SHEET,    /* /v1/sweeps/{id}/sheet.png */
+    ROUTE_SWEEP_MANIFEST, /* /v1/sweeps/{id}/manifest.json */
+    ROUTE_SWEEP_EVENTS,   /* /v1/sweeps/{id}/events */
     ROUTE_WEB,
 } http_route;
 
 /* Per request, made on the first callback, freed in http_request_completed(). */
 typedef struct http_request {
     http_route route;
+    char job_id[JOB_ID_CHARS + 8]; /* the {id} of a job route, as given (checked on lookup) */
+    int variant;                   /* the {n} of /images/{n} */
+    int async;                     /* POST /v1/renders with Prefer: respond-async */
+    uint64_t last_event_id;        /* Last-Event-ID or ?last_event_id= */
     const char *allow;     /* Allow header of a 405 */
     json_t *early_problem; /* answer decided before the body was read; the body is drained */
     int too_large;         /* the body grew past the limit (chunked or lying length) */
@@ -388,16 +409,26 @@ static json_t *device_json(const http_server *srv)
 static json_t *info_json(const http_server *srv)
 {
     json_t *limits = json_pack(
-        "{s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I}", "max_body_bytes",
+        "{s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I}", "max_body_bytes",
         (json_int_t)srv->max_body, "queue_capacity", (json_int_t)srv->queue_capacity,
         "max_image_side", (json_int_t)NS_MAX_IMAGE_SIDE, "max_pixels", (json_int_t)NS_MAX_PIXELS,
         "max_spp", (json_int_t)NS_MAX_SPP, "max_depth", (json_int_t)NS_MAX_DEPTH, "max_materials",
         (json_int_t)NS_MAX_MATERIALS, "max_objects", (json_int_t)NS_MAX_OBJECTS, "max_lights",
-        (json_int_t)NS_MAX_LIGHTS, "max_triangles", (json_int_t)NS_MAX_TRIANGLES);
-    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I}", "version", NS_VERSION, "ready",
+        (json_int_t)NS_MAX_LIGHTS, "max_triangles", (json_int_t)NS_MAX_TRIANGLES, "job_ttl_s",
+        (json_int_t)srv->job_ttl_s, "job_store_bytes", (json_int_t)srv->job_bytes,
+        "max_sweep_variants", (json_int_t)SWEEP_MAX_VARIANTS);
+    job_store_counts counts = {0};
+    if (srv->jobs)
+        job_store_count(srv->jobs, &counts);
+    json_t *jobs = json_object();
+    for (int st = 0; st < JOB_STATE_COUNT; st++)
+        json_object_set_new(jobs, job_state_name((job_state)st),
+                            json_integer(counts.by_state[st]));
+    json_object_set_new(jobs, "bytes", json_integer((json_int_t)counts.bytes));
+    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I, s:o}", "version", NS_VERSION, "ready",
                      srv->ctx != NULL, "device", device_json(srv), "limits", limits, "methods",
                      methods_json(), "formats", "image/png", "image/x-exr", "queue_length",
-                     (json_int_t)(srv->queue ? render_queue_length(srv->queue) : 0));
+                     (json_int_t)counts.admitted, "jobs", jobs);
 }
 
 static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_server *srv)
@@ -424,65 +455,137 @@ static enum MHD_Result answer_web(struct MHD_Connection *conn, const char *url)
 /* ---------------------------------------------------------------------------------------
  * POST /v1/renders.
  * ------------------------------------------------------------------------------------- */
-/* Collects the query's format=half|float into *half; unknown parameters are an error (a
- * misspelt option must not be ignored silently). */
+/* The query of a request: format=half|float where an image is answered, last_event_id=N
+ * on an event stream; any other parameter is an error (a misspelt option must not be
+ * ignored silently). */
 typedef struct query_check {
+    http_route route;
     int half, has_format;
+    int has_last_event_id;
+    uint64_t last_event_id;
     char problem[256];
 } query_check;
+
+static int route_has_image(http_route route)
+{
+    return route == ROUTE_RENDERS || route == ROUTE_RENDER_IMAGE || route == ROUTE_SWEEP_IMAGE;
+}
 
 static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const char *key,
                                        const char *value)
 {
+    (void)kind;
     query_check *q = cls;
-    if (!strcmp(key, "format") && value && (!strcmp(value, "half") || !strcmp(value, "float"))) {
-        q->half = !strcmp(value, "half");
-        q->has_format = 1;
+    if (q->problem[0])
         return MHD_YES;
-    }
-    if (!q->problem[0]) {
-        if (!strcmp(key, "format"))
+    int events = q->route == ROUTE_RENDER_EVENTS || q->route == ROUTE_SWEEP_EVENTS;
+    if (route_has_image(q->route) && !strcmp(key, "format")) {
+        if (value && (!strcmp(value, "half") || !strcmp(value, "float"))) {
+            q->half = !strcmp(value, "half");
+            q->has_format = 1;
+        } else {
             snprintf(q->problem, sizeof q->problem,
                      "query parameter format=%.64s: use format=half or format=float",
                      value ? value : "");
-        else
+        }
+    } else if (events && !strcmp(key, "last_event_id")) {
+        if (!value || parse_header_number(value, 0, &q->last_event_id, NULL))
             snprintf(q->problem, sizeof q->problem,
-                     "unknown query parameter '%.64s' (only format=half|float)", key);
+                     "query parameter last_event_id=%.64s: an event id is a whole number",
+                     value ? value : "");
+        q->has_last_event_id = 1;
+    } else {
+        snprintf(q->problem, sizeof q->problem, "unknown query parameter '%.64s'%s", key,
+                 route_has_image(q->route) ? " (only format=half|float)"
+                 : events                  ? " (only last_event_id=N)"
+                                           : " (this resource takes none)");
     }
     return MHD_YES;
 }
 
-/* Decides what the headers alone can: returns a problem to answer with, or NULL and the
- * output format in req->format. */
-static json_t *check_render_headers(struct MHD_Connection *conn, const http_server *srv,
-                                    http_request *req)
+/* "Prefer: respond-async" (RFC 7240): one of the comma-separated preferences, any case,
+ * possibly with parameters. */
+static int prefers_async(struct MHD_Connection *conn)
 {
-    const char *type =
-        MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
-    if (!content_type_is_json(type))
-        return problemf(PROBLEM_UNSUPPORTED_MEDIA_TYPE,
-                        "Content-Type must be application/json (charset utf-8), got '%.100s'",
-                        type ? type : "(none)");
+    const char *prefer = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Prefer");
+    for (const char *s = prefer; s && *s;) {
+        const char *comma = strchr(s, ',');
+        const char *end = comma ? comma : s + strlen(s);
+        const char *stop = end;
+        for (const char *c = s; c < end; c++)
+            if (*c == ';' || *c == '=') {
+                stop = c;
+                break;
+            }
+        char token[32];
+        copy_trimmed_lower(s, stop, token, sizeof token);
+        if (!strcmp(token, "respond-async"))
+            return 1;
+        s = comma ? comma + 1 : end;
+    }
+    return 0;
+}
+
+/* The image format from Accept and the query (shared by POST /v1/renders and the image
+ * routes of jobs): returns a problem, or NULL and *format. */
+static json_t *negotiate_image(struct MHD_Connection *conn, const query_check *query,
+                               encode_format *format)
+{
     const char *accept = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_ACCEPT);
     char exr_param[32];
-    if (negotiate_format(accept, &req->format, exr_param, sizeof exr_param))
+    if (negotiate_format(accept, format, exr_param, sizeof exr_param))
         return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept '%.200s' allows neither image/png nor image/x-exr", accept);
-    query_check query = {0};
-    MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
-    if (query.problem[0])
-        return problem_new(PROBLEM_BAD_QUERY, query.problem);
     if (exr_param[0] && strcmp(exr_param, "half") && strcmp(exr_param, "float"))
         return problemf(PROBLEM_NOT_ACCEPTABLE,
                         "Accept image/x-exr; format=%s: use format=half or format=float",
                         exr_param);
-    int half = query.has_format ? query.half : !strcmp(exr_param, "half");
-    if ((query.has_format || exr_param[0]) && req->format == ENCODE_PNG)
+    int half = query->has_format ? query->half : !strcmp(exr_param, "half");
+    if ((query->has_format || exr_param[0]) && *format == ENCODE_PNG)
         return problem_new(PROBLEM_BAD_QUERY, "format=half|float applies to image/x-exr; the "
                                               "Accept header selected image/png");
-    if (req->format != ENCODE_PNG && half)
-        req->format = ENCODE_EXR_HALF;
-    if (!srv->ctx)
+    if (*format != ENCODE_PNG && half)
+        *format = ENCODE_EXR_HALF;
+    return NULL;
+}
+
+/* Decides what the headers alone can: returns a problem to answer with, or NULL with the
+ * request's format, async flag and last event id filled. */
+static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv,
+                             http_request *req, const char *method)
+{
+    query_check query = {.route = req->route};
+    MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
+    int post = !strcmp(method, MHD_HTTP_METHOD_POST);
+    if (post) {
+        const char *type =
+            MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
+        if (!content_type_is_json(type))
+            return problemf(PROBLEM_UNSUPPORTED_MEDIA_TYPE,
+                            "Content-Type must be application/json (charset utf-8), got '%.100s'",
+                            type ? type : "(none)");
+        req->async = req->route == ROUTE_SWEEPS || prefers_async(conn);
+    }
+    if (query.problem[0])
+        return problem_new(PROBLEM_BAD_QUERY, query.problem);
+    if (req->route == ROUTE_RENDERS && post && req->async && query.has_format)
+        return problem_new(PROBLEM_BAD_QUERY, "format=half|float is chosen when the image of an "
+                                              "asynchronous render is fetched: "
+                                              "GET /v1/renders/{id}/image?format=half");
+    /* An image is negotiated where it is answered: a synchronous render, or a job's image. */
+    if ((req->route == ROUTE_RENDERS && post && !req->async) || req->route == ROUTE_RENDER_IMAGE ||
+        req->route == ROUTE_SWEEP_IMAGE) {
+        json_t *p = negotiate_image(conn, &query, &req->format);
+        if (p)
+            return p;
+    }
+    if (query.has_last_event_id)
+        req->last_event_id = query.last_event_id;
+    const char *last = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Last-Event-ID");
+    if (last && !query.has_last_event_id && parse_header_number(last, 0, &req->last_event_id, NULL))
+        return problemf(PROBLEM_BAD_QUERY, "Last-Event-ID '%.64s' is not an event id (a whole "
+                                           "number)", last);
+    if (post && !srv->ctx)
         return no_context_problem(srv);
     return NULL;
 }
@@ -490,7 +593,8 @@ static json_t *check_render_headers(struct MHD_Connection *conn, const http_serv
 /* Appends upload data; past the limit the body is dropped and the rest drained. */
 static void collect_body(const http_server *srv, http_request *req, const char *data, size_t n)
 {
-    if (req->early_problem || req->too_large || req->route != ROUTE_RENDERS) {
+    if (req->early_problem || req->too_large ||
+        (req->route != ROUTE_RENDERS && req->route != ROUTE_SWEEPS)) {
         req->drained += n;
         return;
     }
@@ -589,6 +693,68 @@ static void header_safe(const char *in, char *out, size_t cap)
     out[n] = 0;
 }
 
+/* The answer of a full queue: 503 with Retry-After. */
+static enum MHD_Result send_queue_full(struct MHD_Connection *conn, const http_server *srv,
+                                       uint32_t retry_after)
+{
+    char seconds[16];
+    snprintf(seconds, sizeof seconds, "%u", retry_after);
+    const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, seconds, NULL};
+    json_t *p = problemf(PROBLEM_QUEUE_FULL,
+                         "%u render%s already admitted (queue capacity); retry in %s s",
+                         srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
+    return send_problem_json(conn, p, headers);
+}
+
+/* An encoded image with the headers every image answer carries. */
+static enum MHD_Result send_image(struct MHD_Connection *conn, const http_server *srv,
+                                  encode_format format, encode_buffer *image,
+                                  const ns_render_stats *stats)
+{
+    char device[256], timing[1024];
+    header_safe(srv->device.device_name, device, sizeof device);
+    server_timing(stats, timing, sizeof timing);
+    json_t *counts_json = render_stats_counts_json(stats);
+    char *counts = json_dumps(counts_json, JSON_COMPACT);
+    json_decref(counts_json);
+    const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device, HTTP_STATS_HEADER,
+                             counts ? counts : "{}", "Cache-Control", "no-store", NULL};
+    /* MHD frees the image with free() once sent (or when the client is gone). */
+    enum MHD_Result ret = send_bytes(conn, 200, encode_mime_type(format), image->data, image->size,
+                                     MHD_RESPMEM_MUST_FREE, headers);
+    image->data = NULL;
+    free(counts);
+    return ret;
+}
+
+/* A synchronous render's client is gone when its socket reads end-of-file (or an error):
+ * peeked without consuming, so a pipelined next request stays where it is. */
+static int client_gone(void *user)
+{
+    struct MHD_Connection *conn = user;
+    const union MHD_ConnectionInfo *info =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CONNECTION_FD);
+    if (!info)
+        return 0;
+    char byte;
+    ssize_t n = recv(info->connect_fd, &byte, 1, MSG_PEEK | MSG_DONTWAIT);
+    return n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR);
+}
+
+/* A job's description, with Location when it was just made. */
+static enum MHD_Result send_job(struct MHD_Connection *conn, http_server *srv, job *j, int status,
+                                int created)
+{
+    json_t *body = job_json(srv->jobs, j);
+    const char *self = json_string_value(json_object_get(json_object_get(body, "links"), "self"));
+    char location[96];
+    snprintf(location, sizeof location, "%s", self ? self : "");
+    const char *headers[] = {MHD_HTTP_HEADER_LOCATION, location, "Preference-Applied",
+                             "respond-async", "Cache-Control", "no-store", NULL};
+    const char *plain[] = {"Cache-Control", "no-store", NULL};
+    return send_json(conn, status, "application/json", body, created ? headers : plain);
+}
+
 static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *srv,
                                      http_request *req)
 {
@@ -615,71 +781,239 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     req->body = NULL;
     req->size = req->cap = 0;
 
-    const ns_scene *scene = scene_doc_scene(doc);
-    render_request *job = calloc(1, sizeof *job);
-    if (!job) {
+    uint32_t retry_after = 1;
+    job *j = NULL;
+    /* A synchronous render counts until the completion callback, so shutdown can wait for
+     * the answer to be sent, not only rendered. Counted BEFORE the job becomes visible in
+     * the queue: a signal arriving between the two must not find an admitted render
+     * uncounted. */
+    if (!req->async) {
+        atomic_fetch_add(&srv->renders_in_flight, 1);
+        req->counted_in = srv;
+    }
+    rc = job_submit_render(srv->jobs, doc, req->async, req->format, &stats, &j, &retry_after);
+    if (rc) {
+        if (!req->async) {
+            atomic_fetch_sub(&srv->renders_in_flight, 1);
+            req->counted_in = NULL;
+        }
         scene_doc_free(doc);
+        if (rc == NS_ERR_LIMIT)
+            return send_queue_full(conn, srv, retry_after);
         return send_out_of_memory(conn);
     }
-    job->scene = scene;
-    job->format = req->format;
-    job->exposure_stops = scene->render.exposure;
-    job->stats = stats;
-    uint32_t retry_after = 1;
-    /* Counted until the completion callback, so shutdown can wait for the answer to be
-     * sent, not only rendered. Counted BEFORE the job becomes visible in the queue: a
-     * signal arriving between the two must not find an admitted render uncounted. */
-    atomic_fetch_add(&srv->renders_in_flight, 1);
-    req->counted_in = srv;
-    if (render_queue_submit(srv->queue, job, &retry_after) != 0) {
-        atomic_fetch_sub(&srv->renders_in_flight, 1);
-        req->counted_in = NULL;
-        scene_doc_free(doc);
-        free(job);
-        char seconds[16];
-        snprintf(seconds, sizeof seconds, "%u", retry_after);
-        const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, seconds, NULL};
-        json_t *p = problemf(PROBLEM_QUEUE_FULL,
-                             "%u render%s already admitted (queue capacity); retry in %s s",
-                             srv->queue_capacity, srv->queue_capacity == 1 ? "" : "s", seconds);
+    if (req->async) {
+        enum MHD_Result ret = send_job(conn, srv, j, 202, 1);
+        job_release(srv->jobs, j);
+        return ret;
+    }
+    job_wait(srv->jobs, j, client_gone, conn);
+    encode_buffer image = {0};
+    ns_error err = {0};
+    rc = job_take_sync_result(srv->jobs, j, &image, &stats, &err);
+    job_release(srv->jobs, j);
+    if (rc == NS_ERR_CANCELLED) /* nobody is there to answer */
+        return MHD_NO;
+    if (rc) {
+        char device[256];
+        header_safe(srv->device.device_name, device, sizeof device);
+        json_t *p = status_problemf(problem_kind_of_status(rc), rc, "%s",
+                                    err.message[0] ? err.message : ns_status_message(rc));
+        const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
         return send_problem_json(conn, p, headers);
     }
-    render_queue_wait(srv->queue, job);
-    scene_doc_free(doc);
+    return send_image(conn, srv, req->format, &image, &stats);
+}
 
-    enum MHD_Result ret;
-    char device[256];
-    header_safe(srv->device.device_name, device, sizeof device);
-    if (job->status) {
-        json_t *p = status_problemf(problem_kind_of_status(job->status), job->status, "%s",
-                                    job->err.message[0] ? job->err.message
-                                                        : ns_status_message(job->status));
-        const char *headers[] = {HTTP_DEVICE_HEADER, device, NULL};
-        ret = send_problem_json(conn, p, headers);
-    } else {
-        char timing[1024];
-        server_timing(&job->stats, timing, sizeof timing);
-        json_t *counts_json = render_stats_counts_json(&job->stats);
-        char *counts = json_dumps(counts_json, JSON_COMPACT);
-        json_decref(counts_json);
-        const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device,
-                                 HTTP_STATS_HEADER, counts ? counts : "{}", "Cache-Control", "no-store",
-                                 NULL};
-        /* MHD frees the image with free() once sent (or when the client is gone). */
-        ret = send_bytes(conn, 200, encode_mime_type(job->format), job->image.data, job->image.size,
-                         MHD_RESPMEM_MUST_FREE, headers);
-        job->image.data = NULL;
-        free(counts);
+/* ---------------------------------------------------------------------------------------
+ * Sweeps and the routes of jobs.
+ * ------------------------------------------------------------------------------------- */
+static enum MHD_Result answer_sweep_post(struct MHD_Connection *conn, http_server *srv,
+                                         http_request *req)
+{
+    ns_render_stats stats;
+    memset(&stats, 0, sizeof stats);
+    double t0 = ns_now_ms();
+    sweep *sw = NULL;
+    json_t *problem = NULL;
+    sweep_parse(req->body, req->size, &(scene_parse_options){.asset_dir = srv->asset_dir}, &sw,
+                &problem);
+    ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
+    if (!sw)
+        return send_problem_json(conn, problem, NULL);
+    free(req->body);
+    req->body = NULL;
+    req->size = req->cap = 0;
+    uint32_t retry_after = 1;
+    job *j = NULL;
+    int rc = job_submit_sweep(srv->jobs, sw, &stats, &j, &retry_after);
+    if (rc) {
+        sweep_free(sw);
+        return rc == NS_ERR_LIMIT ? send_queue_full(conn, srv, retry_after)
+                                  : send_out_of_memory(conn);
     }
-    encode_buffer_free(&job->image);
-    free(job);
+    enum MHD_Result ret = send_job(conn, srv, j, 202, 1);
+    job_release(srv->jobs, j);
+    return ret;
+}
+
+/* The event stream of one job (text/event-stream), read by MHD from its connection thread:
+ * it blocks there until events come, sending a keep-alive comment after a quiet while. */
+typedef struct event_stream {
+    job_store *store;
+    job *job;
+    uint64_t last;
+    double keepalive_ms;
+    char *pending;
+    size_t pending_size, pending_sent;
+    int ended;
+} event_stream;
+
+static ssize_t event_stream_read(void *cls, uint64_t pos, char *buf, size_t max)
+{
+    (void)pos;
+    event_stream *es = cls;
+    while (es->pending_sent == es->pending_size) {
+        free(es->pending);
+        es->pending = NULL;
+        es->pending_size = es->pending_sent = 0;
+        if (es->ended)
+            return MHD_CONTENT_READER_END_OF_STREAM;
+        char *text = NULL;
+        if (job_events_wait(es->store, es->job, es->last, es->keepalive_ms, &text, &es->last,
+                            &es->ended))
+            return MHD_CONTENT_READER_END_WITH_ERROR;
+        if (!text[0] && !es->ended) {
+            free(text);
+            text = strdup(": keep-alive\n\n");
+            if (!text)
+                return MHD_CONTENT_READER_END_WITH_ERROR;
+        }
+        es->pending = text;
+        es->pending_size = strlen(text);
+    }
+    size_t n = es->pending_size - es->pending_sent;
+    n = n < max ? n : max;
+    memcpy(buf, es->pending + es->pending_sent, n);
+    es->pending_sent += n;
+    return (ssize_t)n;
+}
+
+static void event_stream_free(void *cls)
+{
+    event_stream *es = cls;
+    job_release(es->store, es->job);
+    free(es->pending);
+    free(es);
+}
+
+static enum MHD_Result answer_events(struct MHD_Connection *conn, http_server *srv, job *j,
+                                     uint64_t after)
+{
+    event_stream *es = calloc(1, sizeof *es);
+    if (!es) {
+        job_release(srv->jobs, j);
+        return send_out_of_memory(conn);
+    }
+    *es = (event_stream){.store = srv->jobs,
+                         .job = j,
+                         .last = after,
+                         .keepalive_ms = srv->sse_keepalive_s * 1000.0};
+    struct MHD_Response *resp = MHD_create_response_from_callback(
+        MHD_SIZE_UNKNOWN, 16 * 1024, event_stream_read, es, event_stream_free);
+    if (!resp) {
+        event_stream_free(es);
+        return MHD_NO;
+    }
+    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, "text/event-stream");
+    MHD_add_response_header(resp, "Cache-Control", "no-store");
+    MHD_add_response_header(resp, "X-Content-Type-Options", "nosniff");
+    /* nginx and other proxies: pass events on as they come. */
+    MHD_add_response_header(resp, "X-Accel-Buffering", "no");
+    enum MHD_Result ret = MHD_queue_response(conn, 200, resp);
+    MHD_destroy_response(resp);
+    return ret;
+}
+
+static enum MHD_Result answer_job_route(struct MHD_Connection *conn, http_server *srv,
+                                        http_request *req, const char *method)
+{
+    if (!srv->jobs)
+        return send_problem_json(conn, no_context_problem(srv), NULL);
+    int sweep_route = req->route >= ROUTE_SWEEP_JOB && req->route <= ROUTE_SWEEP_EVENTS;
+    const char *what = sweep_route ? "sweep" : "render";
+    int gone = 0;
+    job *j = job_find(srv->jobs, req->job_id, sweep_route ? JOB_SWEEP : JOB_RENDER, &gone);
+    if (!j)
+        return send_problem_json(
+            conn,
+            gone ? problemf(PROBLEM_JOB_GONE,
+                            "the %s %.40s has expired or was deleted; its results are gone", what,
+                            req->job_id)
+                 : problemf(PROBLEM_NOT_FOUND, "no %s with id %.40s", what, req->job_id),
+            NULL);
+    enum MHD_Result ret;
+    if (req->route == ROUTE_RENDER_EVENTS || req->route == ROUTE_SWEEP_EVENTS)
+        return answer_events(conn, srv, j, req->last_event_id); /* it keeps the reference */
+    if ((req->route == ROUTE_RENDER_JOB || req->route == ROUTE_SWEEP_JOB) &&
+        !strcmp(method, MHD_HTTP_METHOD_DELETE)) {
+        job_cancel_result result = job_cancel(srv->jobs, j);
+        if (result == JOB_DISCARDED)
+            ret = send_bytes(conn, 204, "application/json", "", 0, MHD_RESPMEM_PERSISTENT, NULL);
+        else
+            ret = send_job(conn, srv, j, result == JOB_CANCELLED_QUEUED ? 200 : 202, 0);
+    } else if (req->route == ROUTE_RENDER_JOB || req->route == ROUTE_SWEEP_JOB) {
+        ret = send_job(conn, srv, j, 200, 0);
+    } else if (req->route == ROUTE_SWEEP_MANIFEST) {
+        ret = send_json(conn, 200, "application/json", job_manifest_json(srv->jobs, j), NULL);
+    } else if (req->route == ROUTE_SWEEP_SHEET) {
+        encode_buffer sheet = {0};
+        ns_error err = {0};
+        int rc = job_sweep_sheet(srv->jobs, j, &sheet, &err);
+        static const char *const headers[] = {"Cache-Control", "no-store", NULL};
+        ret = rc ? send_problem_json(conn,
+                                     status_problemf(problem_kind_of_status(rc), rc, "%s",
+                                                     err.message),
+                                     NULL)
+                 : send_bytes(conn, 200, "image/png", sheet.data, sheet.size, MHD_RESPMEM_MUST_FREE,
+                              headers);
+    } else { /* an image */
+        encode_buffer image = {0};
+        ns_render_stats stats;
+        memset(&stats, 0, sizeof stats);
+        job_state state = JOB_QUEUED;
+        ns_error err = {0};
+        int variant = req->route == ROUTE_SWEEP_IMAGE ? req->variant : -1;
+        int rc = job_encode_image(srv->jobs, j, variant, req->format, &image, &stats, &state, &err);
+        if (rc == NS_ERR_NOT_AVAILABLE)
+            ret = send_problem_json(
+                conn,
+                problemf(PROBLEM_JOB_NOT_DONE, "the %s%s is %s: its image %s", what,
+                         variant >= 0 ? "'s variant" : "", job_state_name(state),
+                         state == JOB_QUEUED || state == JOB_RUNNING
+                             ? "is not ready yet; follow its events or poll its status"
+                             : "does not exist"),
+                NULL);
+        else if (rc == NS_ERR_INVALID_ARGUMENT)
+            ret = send_problem_json(conn,
+                                    problemf(PROBLEM_NOT_FOUND, "the sweep %.40s has no variant %d",
+                                             req->job_id, variant),
+                                    NULL);
+        else if (rc)
+            ret = send_problem_json(
+                conn, status_problemf(problem_kind_of_status(rc), rc, "%s", err.message), NULL);
+        else
+            ret = send_image(conn, srv, req->format, &image, &stats);
+    }
+    job_release(srv->jobs, j);
     return ret;
 }
 
 /* ---------------------------------------------------------------------------------------
  * Routing and the MHD callbacks.
  * ------------------------------------------------------------------------------------- */
-static http_route route_for(const char *url)
+/* Splits "/v1/renders/ID/rest" style paths. Returns the route; fills req's id and variant. */
+static http_route route_for(const char *url, http_request *req)
 {
     if (!strcmp(url, "/livez"))
         return ROUTE_LIVEZ;
@@ -689,6 +1023,43 @@ static http_route route_for(const char *url)
         return ROUTE_INFO;
     if (!strcmp(url, "/v1/renders"))
         return ROUTE_RENDERS;
+    if (!strcmp(url, "/v1/sweeps"))
+        return ROUTE_SWEEPS;
+    const char *rest = NULL;
+    int sweep_route = 0;
+    if (!strncmp(url, "/v1/renders/", 12))
+        rest = url + 12;
+    else if (!strncmp(url, "/v1/sweeps/", 11))
+        rest = url + 11, sweep_route = 1;
+    if (rest) {
+        const char *slash = strchr(rest, '/');
+        size_t len = slash ? (size_t)(slash - rest) : strlen(rest);
+        if (len == 0 || len >= sizeof req->job_id)
+            return ROUTE_NONE;
+        memcpy(req->job_id, rest, len);
+        req->job_id[len] = 0;
+        const char *tail = slash ? slash : "";
+        if (!*tail)
+            return sweep_route ? ROUTE_SWEEP_JOB : ROUTE_RENDER_JOB;
+        if (!strcmp(tail, "/events"))
+            return sweep_route ? ROUTE_SWEEP_EVENTS : ROUTE_RENDER_EVENTS;
+        if (!sweep_route)
+            return !strcmp(tail, "/image") ? ROUTE_RENDER_IMAGE : ROUTE_NONE;
+        if (!strcmp(tail, "/sheet.png"))
+            return ROUTE_SWEEP_SHEET;
+        if (!strcmp(tail, "/manifest.json"))
+            return ROUTE_SWEEP_MANIFEST;
+        if (!strncmp(tail, "/images/", 8)) {
+            uint64_t n = 0;
+            const char *digits = tail + 8;
+            if (*digits < '0' || *digits > '9' || parse_header_number(digits, 0, &n, NULL) ||
+                strchr(digits, ' ') || n > 1000000)
+                return ROUTE_NONE;
+            req->variant = (int)n;
+            return ROUTE_SWEEP_IMAGE;
+        }
+        return ROUTE_NONE;
+    }
     if (url[0] == '/' && !strchr(url + 1, '/'))
         return ROUTE_WEB;
     return ROUTE_NONE;
@@ -705,8 +1076,32 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
         return answer_readyz(conn, srv);
     case ROUTE_INFO:
         return send_json(conn, 200, "application/json", info_json(srv), NULL);
+    case ROUTE_RENDERS:
+    case ROUTE_SWEEPS:
+        if (!srv->jobs)
+            return send_problem_json(conn, no_context_problem(srv), NULL);
+        return send_json(conn, 200, "application/json",
+                         json_pack("{s:o}", route == ROUTE_RENDERS ? "renders" : "sweeps",
+                                   job_list_json(srv->jobs,
+                                                 route == ROUTE_RENDERS ? JOB_RENDER : JOB_SWEEP)),
+                         NULL);
     default:
         return answer_web(conn, url);
+    }
+}
+
+/* The methods each route takes, as its Allow header says. */
+static const char *route_allow(http_route route)
+{
+    switch (route) {
+    case ROUTE_RENDERS:
+    case ROUTE_SWEEPS:
+        return "GET, HEAD, POST";
+    case ROUTE_RENDER_JOB:
+    case ROUTE_SWEEP_JOB:
+        return "GET, HEAD, DELETE";
+    default:
+        return "GET, HEAD";
     }
 }
 
@@ -715,21 +1110,18 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
 static json_t *check_route(http_route route, const char *url, const char *method,
                            const char **allow)
 {
-    int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
     *allow = NULL;
     if (route == ROUTE_NONE)
         return problemf(PROBLEM_NOT_FOUND, "no resource at %.200s", url);
-    if (route != ROUTE_RENDERS && !is_get) {
-        *allow = "GET, HEAD";
-        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on %.200s; use GET",
-                        method, url);
-    }
-    if (route == ROUTE_RENDERS && strcmp(method, MHD_HTTP_METHOD_POST)) {
-        *allow = "POST";
-        return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on /v1/renders; use POST",
-                        method);
-    }
-    return NULL;
+    const char *methods = route_allow(route);
+    int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
+    int allowed = is_get || (!strcmp(method, MHD_HTTP_METHOD_POST) && strstr(methods, "POST")) ||
+                  (!strcmp(method, MHD_HTTP_METHOD_DELETE) && strstr(methods, "DELETE"));
+    if (allowed)
+        return NULL;
+    *allow = methods;
+    return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on %.200s; use %s", method,
+                    url, methods);
 }
 
 /* The first callback of a request: everything the request line and headers decide. The
@@ -738,24 +1130,28 @@ static json_t *check_route(http_route route, const char *url, const char *method
 static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv, const char *url,
                                   const char *method, void **con_cls)
 {
-    http_route route = route_for(url);
+    http_request *req = calloc(1, sizeof *req);
+    if (!req)
+        return MHD_NO;
+    http_route route = route_for(url, req);
     long long length = content_length(conn);
-    if (route == ROUTE_RENDERS && !strcmp(method, MHD_HTTP_METHOD_POST) && length > 0 &&
-        (unsigned long long)length > srv->max_body)
+    int post = !strcmp(method, MHD_HTTP_METHOD_POST);
+    if ((route == ROUTE_RENDERS || route == ROUTE_SWEEPS) && post && length > 0 &&
+        (unsigned long long)length > srv->max_body) {
+        free(req);
         /* Without reading a byte of the body: MHD then closes the connection. */
         return send_problem_json(conn,
                                  problemf(PROBLEM_BODY_TOO_LARGE,
                                           "Content-Length %lld is over the limit of %llu bytes",
                                           length, (unsigned long long)srv->max_body),
                                  NULL);
-    http_request *req = calloc(1, sizeof *req);
-    if (!req)
-        return MHD_NO;
+    }
     req->route = route;
     req->started_ms = ns_now_ms();
     req->early_problem = check_route(route, url, method, &req->allow);
-    if (!req->early_problem && route == ROUTE_RENDERS)
-        req->early_problem = check_render_headers(conn, srv, req);
+    if (!req->early_problem && route != ROUTE_WEB && route != ROUTE_LIVEZ &&
+        route != ROUTE_READYZ && route != ROUTE_INFO)
+        req->early_problem = check_headers(conn, srv, req, method);
     *con_cls = req;
     return MHD_YES;
 }
@@ -765,6 +1161,7 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
                                     const char *upload_data, size_t *upload_data_size,
                                     void **con_cls)
 {
+    (void)version;
     http_server *srv = cls;
     http_request *req = *con_cls;
     if (!req)
@@ -785,20 +1182,29 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         const char *allow[] = {MHD_HTTP_HEADER_ALLOW, req->allow, NULL};
         return send_problem_json(conn, p, req->allow ? allow : NULL);
     }
-    if (req->route != ROUTE_RENDERS)
-        return answer_get(conn, srv, req->route, url);
-    if (req->too_large)
+    int post = !strcmp(method, MHD_HTTP_METHOD_POST);
+    if (post && req->too_large)
         return send_problem_json(conn,
                                  problemf(PROBLEM_BODY_TOO_LARGE,
                                           "the request body is over the limit of %llu bytes",
                                           (unsigned long long)srv->max_body),
                                  NULL);
-    return answer_render(conn, srv, req);
+    if (post && req->route == ROUTE_RENDERS)
+        return answer_render(conn, srv, req);
+    if (post && req->route == ROUTE_SWEEPS)
+        return answer_sweep_post(conn, srv, req);
+    if (req->route >= ROUTE_RENDER_JOB && req->route <= ROUTE_SWEEP_EVENTS &&
+        req->route != ROUTE_SWEEPS)
+        return answer_job_route(conn, srv, req, method);
+    return answer_get(conn, srv, req->route, url);
 }
 
 static void http_request_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
                                    enum MHD_RequestTerminationCode toe)
 {
+    (void)cls;
+    (void)conn;
+    (void)toe;
     http_request *req = *con_cls;
     if (!req)
         return;
@@ -855,15 +1261,45 @@ static void make_context(http_server *srv, const char *device)
  * (for at most HTTP_DRAIN_S, or until a second signal), then every connection is closed.
  * MHD_stop_daemon alone would shut the sockets of requests still waiting for a render. */
 #define HTTP_DRAIN_S 120
-static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv, const sigset_t *signals)
+/* SIGINT and SIGTERM. Threads that nscatter does not make (OpenBLAS starts its pool when the
+ * library loads, before http_serve runs) do not block them, and the kernel may deliver a
+ * process-directed signal to any thread that does not: so they get a handler, which only
+ * writes the signal to a pipe, wherever it runs, and the main thread waits on the pipe. */
+static int stop_pipe[2] = {-1, -1};
+
+static void on_stop_signal(int sig)
+{
+    unsigned char byte = (unsigned char)sig;
+    ssize_t written = write(stop_pipe[1], &byte, 1);
+    (void)written; /* a full pipe already holds a signal */
+}
+
+/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. */
+static int wait_stop_signal(int timeout_ms)
+{
+    struct pollfd fd = {.fd = stop_pipe[0], .events = POLLIN};
+    for (;;) {
+        int n = poll(&fd, 1, timeout_ms);
+        if (n < 0 && errno == EINTR)
+            continue; /* the handler ran on this thread: the byte is in the pipe */
+        unsigned char byte = 0;
+        if (n > 0 && read(stop_pipe[0], &byte, 1) == 1)
+            return byte;
+        return 0;
+    }
+}
+
+static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv)
 {
     MHD_socket listen_fd = MHD_quiesce_daemon(daemon);
     if (listen_fd != MHD_INVALID_SOCKET)
         close(listen_fd);
+    /* Asynchronous jobs are cancelled (their results would die with the process) and event
+     * streams end; synchronous renders are finished and answered. */
+    job_store_shutdown(srv->jobs);
     double deadline = ns_now_ms() + HTTP_DRAIN_S * 1000.0;
-    const struct timespec tick = {0, 50 * 1000 * 1000};
     while (atomic_load(&srv->renders_in_flight) > 0 && ns_now_ms() < deadline) {
-        if (sigtimedwait(signals, NULL, &tick) >= 0) {
+        if (wait_stop_signal(50)) {
             fprintf(stderr, "nscatter serve: second signal, not waiting for renders\n");
             break;
         }
@@ -884,8 +1320,22 @@ int http_serve(const http_serve_desc *desc)
     if (resolve_host(args.host, args.port, &addr))
         return 2;
 
-    /* Every thread made from here on inherits this mask, so the signals reach sigwait()
-     * below and nowhere else. A client that disconnects must not kill the process. */
+    if (stop_pipe[0] < 0) {
+        if (pipe(stop_pipe)) {
+            fprintf(stderr, "nscatter serve: pipe: %s\n", strerror(errno));
+            return 1;
+        }
+        for (int i = 0; i < 2; i++) {
+            fcntl(stop_pipe[i], F_SETFD, FD_CLOEXEC);
+            fcntl(stop_pipe[i], F_SETFL, O_NONBLOCK); /* the handler never blocks */
+        }
+    }
+    struct sigaction on_stop = {.sa_handler = on_stop_signal, .sa_flags = SA_RESTART};
+    sigemptyset(&on_stop.sa_mask);
+    sigaction(SIGINT, &on_stop, NULL);
+    sigaction(SIGTERM, &on_stop, NULL);
+    /* Every thread made from here on inherits this mask, so no render or connection thread
+     * is interrupted by them. A client that disconnects must not kill the process. */
     sigset_t stop_signals;
     sigemptyset(&stop_signals);
     sigaddset(&stop_signals, SIGINT);
@@ -893,10 +1343,20 @@ int http_serve(const http_serve_desc *desc)
     pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
     signal(SIGPIPE, SIG_IGN);
 
-    http_server srv = {
-        .max_body = args.max_body, .queue_capacity = args.queue, .asset_dir = args.asset_dir};
+    http_server srv = {.max_body = args.max_body,
+                       .queue_capacity = args.queue,
+                       .asset_dir = args.asset_dir,
+                       .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
+                       .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
+                       .sse_keepalive_s =
+                           args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S};
     make_context(&srv, args.device);
-    if (srv.ctx && render_queue_create(srv.ctx, args.queue, &srv.queue, &srv.ctx_err)) {
+    if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
+                                                      .capacity = args.queue,
+                                                      .ttl_s = srv.job_ttl_s,
+                                                      .max_bytes = srv.job_bytes,
+                                                      .asset_dir = args.asset_dir},
+                                    &srv.jobs, &srv.ctx_err)) {
         fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
         ns_context_destroy(srv.ctx);
         return 1;
@@ -915,7 +1375,7 @@ int http_serve(const http_serve_desc *desc)
     if (!daemon) {
         fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
                 strerror(errno));
-        render_queue_destroy(srv.queue);
+        job_store_destroy(srv.jobs);
         ns_context_destroy(srv.ctx);
         return 1;
     }
@@ -926,10 +1386,14 @@ int http_serve(const http_serve_desc *desc)
     fflush(stdout);
 
     int sig = 0;
-    sigwait(&stop_signals, &sig);
+    /* The main thread takes the signals now (the handler runs here or on a foreign thread,
+     * and either way the pipe has it); the threads nscatter made keep them blocked. */
+    pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
+    while (!(sig = wait_stop_signal(-1)))
+        ;
     fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
-    drain_and_stop(daemon, &srv, &stop_signals);
-    render_queue_destroy(srv.queue);
+    drain_and_stop(daemon, &srv);
+    job_store_destroy(srv.jobs);
     ns_context_destroy(srv.ctx);
     return 0;
 }

@@ -218,9 +218,17 @@ def test_not_found_404_and_method_405(t, srv):
                  "/missing.js", "/web/index.html"):
         status, h, data = srv.request("GET", path)
         check_problem(t, status, h, data, 404, "not_found")
-    status, h, data = srv.request("GET", "/v1/renders")
+    for path in ("/v1/renders", "/v1/sweeps"):
+        status, h, data = srv.request("PUT", path, b"{}", {"Content-Type": "application/json"})
+        check_problem(t, status, h, data, 405, "method_not_allowed")
+        t.equal(h.get("allow"), "GET, HEAD, POST", f"Allow on {path}")
+    for path in ("/v1/renders/" + "0" * 32, "/v1/sweeps/" + "0" * 32):
+        status, h, data = srv.request("POST", path, b"{}", {"Content-Type": "application/json"})
+        check_problem(t, status, h, data, 405, "method_not_allowed")
+        t.equal(h.get("allow"), "GET, HEAD, DELETE", f"Allow on {path}")
+    status, h, data = srv.request("DELETE", "/v1/renders/" + "0" * 32 + "/image")
     check_problem(t, status, h, data, 405, "method_not_allowed")
-    t.equal(h.get("allow"), "POST", "Allow on /v1/renders")
+    t.equal(h.get("allow"), "GET, HEAD", "Allow on a job's image")
     for method in ("PUT", "DELETE", "POST"):
         status, h, data = srv.request(method, "/livez", b"{}", {"Content-Type": "application/json"})
         check_problem(t, status, h, data, 405, "method_not_allowed")

@@ -7,6 +7,7 @@
 
 #define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
 #define HTTP_DEFAULT_QUEUE 4u
+#define HTTP_DEFAULT_SSE_KEEPALIVE_S 15u
 
 /* Zero means "default" in every field but port (0 picks a free port). */
 typedef struct http_serve_desc {
@@ -16,6 +17,9 @@ typedef struct http_serve_desc {
     uint64_t max_body;     /* largest request body in bytes; 0: 64 MiB */
     const char *asset_dir; /* folder of mesh assets scenes may name; NULL: none */
     const char *device;    /* Vulkan device, index or name part; NULL: NSCATTER_DEVICE, lavapipe */
+    uint32_t job_ttl_s;    /* finished asynchronous jobs are kept this long; 0: 3600 */
+    uint64_t job_bytes;    /* results of jobs kept at most; 0: 1 GiB */
+    uint32_t sse_keepalive_s; /* a quiet event stream gets a comment this often; 0: 15 */
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
