@@ -1064,7 +1064,7 @@ function jobView(prefix) {
         if (data.state === 'queued') {
           const ahead = data.queue_position;
           label.textContent = prefix + (Number.isInteger(ahead) ? (ahead === 0 ? 'queued, next' : `queued, ${ahead} ahead`) : 'queued');
-        } else label.textContent = prefix + String(data.state || '');
+        } else label.textContent = prefix + (data.cancel_requested ? 'cancelling…' : String(data.state || ''));
         return;
       }
       if (typeof data.stage === 'string') stage = data.stage;
