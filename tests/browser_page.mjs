@@ -599,10 +599,13 @@ async function run() {
         await waitIdle(page);
         return;
       }
-      await page.waitForFunction(() => Number(document.getElementById('job-progress').value) > 0, null, { timeout: 60_000 });
+      // Running: its state event (or a stage) is shown.
+      await page.waitForFunction(() => /^(running|[a-z_]+ · \d+%)$/.test(document.getElementById('job-label').textContent), null, { timeout: 60_000 });
       await page.locator('#cancel').click();
-      await page.waitForFunction(() => /^Cancelled/.test(document.getElementById('status').textContent), null, { timeout: 60_000 });
+      await waitIdle(page);
+      const shown = await page.locator('#status').innerText();
       const job = await (await fetch(`${base}${location}`)).json();
+      check('Cancel: the page says the job stopped', /^Cancelled: the job stopped/.test(shown), shown);
       check('Cancel: the job is cancelled (DELETE), before the end', job.state === 'cancelled' && job.progress < 1,
         `state ${job.state}, progress ${job.progress}`);
       check('Cancel: the page shows it and is idle again', (await page.locator('#job').isHidden()) && (await page.locator('#cancel').isDisabled())
