@@ -381,6 +381,41 @@ async function run() {
       check('EXR file name ends in .exr', download.suggestedFilename().endsWith('.exr'), download.suggestedFilename());
     });
 
+    await step('albedo and mfp sliders write the material (move together keeps the ratios)', async () => {
+      // "Render on change" is still off (the quick-controls step): these only edit the text.
+      await page.locator('#preset').selectOption('candle');
+      const shown = await page.locator('#albedo-set output').allInnerTexts();
+      check('the albedo sliders show the preset\'s albedo', JSON.stringify(shown) === JSON.stringify(['0.9800', '0.9620', '0.750']), JSON.stringify(shown));
+      await page.locator('#albedo-r').focus();
+      await page.keyboard.press('ArrowRight');
+      let scene = await editorScene(page);
+      let wax = scene.materials[firstMediumName(scene)];
+      const a = Array.isArray(wax.albedo) ? wax.albedo : [];
+      const ratio = (x) => (1 - x[1]) / (1 - x[0]);
+      check('moving R with "move together" writes an albedo override beside the preset, every channel moved, 1 - albedo ratios kept',
+        wax.preset === 'candle' && wax.mfp === undefined && a.length === 3 && a[0] > 0.98 && a[1] > 0.962 && a[2] > 0.75
+        && Math.abs(ratio(a) / ratio([0.98, 0.962]) - 1) < 0.01, JSON.stringify(wax));
+      await page.locator('#mfp-lock').uncheck();
+      await page.locator('#mfp-g').focus();
+      await page.keyboard.press('ArrowLeft');
+      scene = await editorScene(page);
+      wax = scene.materials[firstMediumName(scene)];
+      check('moving mfp G alone writes mfp with R and B as the preset\'s', Array.isArray(wax.mfp) && wax.mfp[0] === 0.65 && wax.mfp[2] === 0.59
+        && wax.mfp[1] < 0.63 && wax.mfp[1] > 0.62, JSON.stringify(wax.mfp));
+      await page.locator('#mfp-lock').check();
+      // The coefficient form becomes albedo + mfp (the same coefficients) when a slider moves.
+      scene.materials[firstMediumName(scene)] = { type: 'medium', sigma_s: [1, 1, 1], sigma_a: [0.01, 0.02, 0.1], g: 0.5, ior: 1.3 };
+      await setEditor(page, JSON.stringify(scene, null, 2));
+      await page.waitForFunction(() => document.getElementById('albedo-b-out').textContent === '0.9091', null, { timeout: 5000 });
+      await page.locator('#albedo-g').focus();
+      await page.keyboard.press('ArrowRight');
+      scene = await editorScene(page);
+      wax = scene.materials[firstMediumName(scene)];
+      check('a slider on a sigma_s/sigma_a material rewrites it as albedo + mfp',
+        wax.sigma_s === undefined && wax.sigma_a === undefined && JSON.stringify(wax.mfp) === '[0.99,0.98,0.909]'
+        && Array.isArray(wax.albedo) && wax.albedo[0] > 0.9901 && wax.albedo[1] > 0.9804 && wax.albedo[2] > 0.9091, JSON.stringify(wax));
+    });
+
     await step('JSON syntax error shows line and column', async () => {
       expectedStatuses.add(400);
       // A stray token at the start of line 5 (1-based) of the pretty-printed default scene.
