@@ -424,11 +424,12 @@ static json_t *info_json(const http_server *srv)
     for (int st = 0; st < JOB_STATE_COUNT; st++)
         json_object_set_new(jobs, job_state_name((job_state)st),
                             json_integer(counts.by_state[st]));
-    json_object_set_new(jobs, "bytes", json_integer((json_int_t)counts.bytes));
-    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I, s:o}", "version", NS_VERSION, "ready",
-                     srv->ctx != NULL, "device", device_json(srv), "limits", limits, "methods",
-                     methods_json(), "formats", "image/png", "image/x-exr", "queue_length",
-                     (json_int_t)counts.admitted, "jobs", jobs);
+
+    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I, s:o, s:I}", "version", NS_VERSION,
+                     "ready", srv->ctx != NULL, "device", device_json(srv), "limits", limits,
+                     "methods", methods_json(), "formats", "image/png", "image/x-exr",
+                     "queue_length", (json_int_t)counts.admitted, "jobs", jobs, "job_store_bytes_used",
+                     (json_int_t)counts.bytes);
 }
 
 static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_server *srv)
@@ -1081,7 +1082,7 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
         if (!srv->jobs)
             return send_problem_json(conn, no_context_problem(srv), NULL);
         return send_json(conn, 200, "application/json",
-                         json_pack("{s:o}", route == ROUTE_RENDERS ? "renders" : "sweeps",
+                         json_pack("{s:o}", "jobs",
                                    job_list_json(srv->jobs,
                                                  route == ROUTE_RENDERS ? JOB_RENDER : JOB_SWEEP)),
                          NULL);
