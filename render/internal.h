@@ -10,6 +10,64 @@
 #include "pipelines.h"
 #include "shared.h"
 
+/* ---------------------------------------------------------------------------------------
+ * Progress reports and cancellation of the render in progress (render/progress.c).
+ *
+ * The fraction of the whole render done is planned top down: the code running now stands for
+ * a span [lo, hi] of it; a stage or a part of one takes a part [a, b] of the span it runs in
+ * (ns_progress_push, ns_stage_begin) and gives it back when done (ns_progress_pop,
+ * ns_stage_end), which moves the fraction to the end of that part. A TICK reports a part of
+ * the current span done. The fraction reported never decreases: a part that is run again (a
+ * camera batch that overflowed, a pass restarted with a smaller budget) waits until it has
+ * passed where it was. Every stage that ns_render_stats lists is timed with ns_stage_begin /
+ * ns_stage_end, so that its reports and its time come from the same two calls.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_span {
+    double lo, hi;
+} ns_span;
+
+typedef struct ns_run {
+    const ns_render_control *control; /* NULL: no render, or one without control */
+    uint64_t serial;                  /* counts renders (the table cache's counts per render) */
+    double done;                      /* reported so far, or due at the next report */
+    ns_span span;                     /* what the code running now stands for */
+    const char *stage;                /* the stage open now; NULL between stages */
+    const char *last;                 /* the stage that ended last */
+    char where[64];                   /* where a cancellation was noticed: "during pt_pass" */
+} ns_run;
+
+typedef struct ns_stage {
+    const char *name;
+    double t0;
+    ns_span outer;
+    int reported; /* its START was reported: its END is too */
+} ns_stage;
+
+/* Begins and ends a render's run (render.c, with the context's lock held): the cancellation
+ * flag goes to the device for the render's duration and is cleared on every path. ns_run_end
+ * returns the render's status, NS_ERR_CANCELLED when the render was cancelled, with the
+ * message naming the stage ("cancelled during pt_pass"). */
+void ns_run_begin(ns_context *ctx, const ns_render_control *control);
+int ns_run_end(ns_context *ctx, int status, ns_error *err);
+/* A cancellation point between stages (a device submission is one by itself). */
+int ns_run_check(ns_context *ctx, ns_error *err);
+/* Narrows the current span to its part [a, b] (0 <= a <= b <= 1) and returns the span to
+ * give back to ns_progress_pop, which restores it with the part done. */
+ns_span ns_progress_push(ns_context *ctx, double a, double b);
+void ns_progress_pop(ns_context *ctx, ns_span outer);
+/* Restores outer without marking the part done: it will be run again (a camera batch whose
+ * segments overflowed). */
+void ns_progress_restore(ns_context *ctx, ns_span outer);
+/* Whether TICKs are wanted now: a progress callback, and no cancellation seen. A caller
+ * whose estimate costs something (pt's sum over pixels) asks first. */
+int ns_progress_wanted(ns_context *ctx);
+/* A TICK: `part` (clamped to [0, 1]) of the current span is done. */
+void ns_progress_tick(ns_context *ctx, double part);
+/* A stage that takes the part [a, b] of the current span: a START now, and at ns_stage_end an
+ * END with its time, which ns_stage_end returns for ns_render_stats. Stages do not nest. */
+ns_stage ns_stage_begin(ns_context *ctx, const char *name, double a, double b);
+double ns_stage_end(ns_context *ctx, const ns_stage *stage);
+
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
 struct ns_table_cache; /* render/scatter_tables.c */
 struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeline */
@@ -26,6 +84,7 @@ struct ns_context {
     uint64_t table_cache_bytes;
     pthread_mutex_t lock;
     char *pipeline_cache_path;
+    ns_run run;          /* the render in progress: its control, its progress */
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);
@@ -108,6 +167,14 @@ typedef struct ns_resume_desc {
      * the round with that status (a pass's own counters, such as pt's truncated paths). */
     int (*check)(const uint32_t *counters, void *user, ns_error *err);
     void *user;
+    /* Progress: after every submission the round reports a TICK (ns_progress_tick) with the
+     * part of the round done: done(done_user) when given (pt: its samples finished), else
+     * dispatches run / expected_dispatches when that is known, else 1 - 1 / (1 + submissions)
+     * (each submission is twice as long as the last); 1 after a round without a work-left
+     * counter, which one submission finishes. Asked only when a progress callback wants it. */
+    double (*done)(void *done_user);
+    void *done_user;
+    uint64_t expected_dispatches;
 } ns_resume_desc;
 
 /* ns_resume_dispatch's answers besides NS_OK and the (negative) ns_status errors; err is
