@@ -68,6 +68,25 @@ void ns_progress_tick(ns_context *ctx, double part);
 ns_stage ns_stage_begin(ns_context *ctx, const char *name, double a, double b);
 double ns_stage_end(ns_context *ctx, const ns_stage *stage);
 
+/* ---------------------------------------------------------------------------------------
+ * The last BVH (render/scene_gpu.c): one entry, the scene's BVH primitives in tree order,
+ * its nodes and the permutation from the scene's order, so that a render of the same
+ * geometry with other materials, lights or camera skips the build.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_bvh_keep {
+    GpuNode *nodes;
+    uint32_t node_count;
+    GpuPrim *prims;  /* tree order; only kind and numbers are compared (info.y/z: the
+                        building render's material and object) */
+    uint32_t *order; /* prims[i] is the scene's BVH primitive order[i] */
+    uint32_t count;
+} ns_bvh_keep;
+
+/* A BVH above this many bytes (nodes, primitives and order together) is not kept. */
+#define NS_BVH_KEEP_BYTES_MAX (256ull << 20)
+
+void ns_bvh_keep_free(ns_bvh_keep *keep);
+
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
 struct ns_table_cache; /* render/scatter_tables.c */
 struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeline */
@@ -85,6 +104,7 @@ struct ns_context {
     pthread_mutex_t lock;
     char *pipeline_cache_path;
     ns_run run;          /* the render in progress: its control, its progress */
+    ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);
@@ -111,6 +131,13 @@ typedef struct ns_gpu_scene {
 /* Builds the GPU form of a validated scene (including the BVH). Free with
  * ns_gpu_scene_free, also after a failure. */
 int ns_gpu_scene_build(const ns_scene *scene, ns_gpu_scene *out, ns_error *err);
+/* The same, taking the BVH from keep when it holds the same BVH primitives (compared whole,
+ * bit for bit, in scene order: kind, centre and radius, corners, vertices; not materials or
+ * objects, which the BVH does not depend on), and keeping the BVH it built otherwise. keep
+ * NULL: no reuse. *reused (may be NULL) = 1 when the BVH was taken from keep. The result is
+ * the same, bit for bit, either way. */
+int ns_gpu_scene_build_reusing(const ns_scene *scene, ns_bvh_keep *keep, ns_gpu_scene *out,
+                               int *reused, ns_error *err);
 void ns_gpu_scene_free(ns_gpu_scene *gs);
 
 /* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this

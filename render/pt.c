@@ -292,15 +292,18 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     }
     if (!status)
         status = ns_run_check(ctx, err);
+    /* Always a stage of its own, also when the BVH was kept (render.c says the same). */
     ns_stage stage = ns_stage_begin(ctx, "bvh", 0.02, 0.03);
+    int reused = 0;
     if (!status)
-        status = ns_gpu_scene_build(scene, &job.scene, err);
+        status = ns_gpu_scene_build_reusing(scene, &ctx->bvh, &job.scene, &reused, err);
     if (!status) {
         /* No limit inside the traversal: pt yields between path steps instead (push). */
         job.scene.params.limits[0] = 0;
         if (stats) {
             stats->bvh_nodes = job.scene.node_count;
             stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
+            stats->bvh_reused = (uint32_t)reused;
         }
     }
     ns_stats_add_stage(stats, "bvh", ns_stage_end(ctx, &stage));

@@ -256,14 +256,18 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
 {
     render_job job;
     memset(&job, 0, sizeof job);
+    /* Always a stage of its own, also when the BVH was kept from an earlier render (its time
+     * is then that of converting the scene and comparing it with the kept one). */
     ns_stage stage = ns_stage_begin(ctx, "bvh", 0.0, 0.01);
-    int status = ns_gpu_scene_build(scene, &job.scene, err);
+    int reused = 0;
+    int status = ns_gpu_scene_build_reusing(scene, &ctx->bvh, &job.scene, &reused, err);
     if (!status) {
         job.scene.params.counts[2] = job.scene.has_media ? segment_capacity(ctx, scene, debug) : 0;
         job.scene.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
         if (stats) {
             stats->bvh_nodes = job.scene.node_count;
             stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
+            stats->bvh_reused = (uint32_t)reused;
         }
     }
     ns_stats_add_stage(stats, "bvh", ns_stage_end(ctx, &stage));

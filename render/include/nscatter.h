@@ -359,7 +359,11 @@ typedef struct ns_render_stats {
      * render, however many gather rounds or camera batches ask for it. */
     uint64_t tables_reused;       /* scattering tables (A or J of one key) found in the cache */
     uint64_t tables_made;         /* scattering tables reconstructed or accumulated */
-    uint32_t bvh_reused;          /* 1: the BVH of the same geometry was kept from an earlier render */
+    /* 1: the BVH of the same geometry (the spheres', boxes' and triangles' numbers, bit for
+     * bit; materials, lights, camera and planes may differ) was kept from the context's last
+     * render that built one. The stage "bvh" is still listed, with the time of the
+     * comparison. The image is the same either way. */
+    uint32_t bvh_reused;
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Render settings left 0 take their defaults
