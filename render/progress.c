@@ -139,7 +139,10 @@ void ns_progress_tick(ns_context *ctx, double part)
     if (!reporting(ctx))
         return;
     const ns_run *run = &ctx->run;
-    report(ctx, NS_PROGRESS_TICK, run->stage ? run->stage : run->last ? run->last : "",
+    report(ctx, NS_PROGRESS_TICK,
+           run->stage  ? run->stage
+           : run->last ? run->last
+                       : "",
            span_at(run->span, part), 0.0);
 }
 

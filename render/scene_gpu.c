@@ -281,8 +281,8 @@ int ns_gpu_scene_build(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
     return ns_gpu_scene_build_reusing(s, NULL, gs, NULL, err);
 }
 
-int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *gs,
-                               int *reused, ns_error *err)
+int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *gs, int *reused,
+                               ns_error *err)
 {
     int reused_here = 0;
     if (!reused)

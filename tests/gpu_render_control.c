@@ -38,8 +38,8 @@ typedef struct recorder {
     /* Cancel when a report of this kind for this stage comes (stage NULL: never). */
     ns_progress_kind cancel_kind;
     const char *cancel_stage;
-    uint32_t cancelled_at;           /* index of that report; UINT32_MAX: not yet */
-    uint64_t submissions_at_cancel;  /* the device's submissions when the flag was set */
+    uint32_t cancelled_at;          /* index of that report; UINT32_MAX: not yet */
+    uint64_t submissions_at_cancel; /* the device's submissions when the flag was set */
     const gpu_device *dev;
 } recorder;
 
@@ -180,8 +180,8 @@ static void check_well_formed(const recorder *r, const ns_render_stats *stats, i
 
 /* After a cancellation: nothing but ENDs reported after the flag was set, no submission, the
  * status and message, the buffers freed. */
-static void check_cancelled(const recorder *r, int status, const ns_error *err,
-                            const char *message, uint32_t buffers_before)
+static void check_cancelled(const recorder *r, int status, const ns_error *err, const char *message,
+                            uint32_t buffers_before)
 {
     CHECK_INT(status, NS_ERR_CANCELLED);
     CHECK_INT(err->status, NS_ERR_CANCELLED);
@@ -277,7 +277,7 @@ static void test_pt_progress(void)
     printf("pt_pass: %u ticks, fraction %.3f -> %.3f\n", ticks, first, last);
     CHECK(ticks >= 3);
     CHECK(last > first);
-    CHECK(first < 0.9); /* the first submission does not finish the samples */
+    CHECK(first < 0.9);           /* the first submission does not finish the samples */
     CHECK_NEAR(last, 0.99, 1e-9); /* every sample done: the end of pt_pass's part */
     CHECK(same_image(&img, &fresh_pt));
     ns_image_free(&img);
@@ -309,8 +309,8 @@ static void test_vrl_and_dipole_progress(void)
         check_well_formed(r, &stats, 1);
         uint32_t gather_ticks = 0;
         for (uint32_t i = 0; i < r->count; i++)
-            gather_ticks += r->events[i].kind == NS_PROGRESS_TICK &&
-                            strcmp(r->events[i].stage, "gather") == 0;
+            gather_ticks +=
+                r->events[i].kind == NS_PROGRESS_TICK && strcmp(r->events[i].stage, "gather") == 0;
         CHECK(gather_ticks >= 1);
         ns_image_free(&img);
         free(r);
@@ -379,8 +379,8 @@ static void test_nn_cancel_during_accumulate(void)
     status = render_with(ctx, &s, r, &img, &stats, &err);
     CHECK_INT(status, NS_OK);
     check_well_formed(r, &stats, 1);
-    CHECK_INT(stats.tables_made, 1);   /* A */
-    CHECK(stats.tables_reused >= 1);   /* J of the cancelled render */
+    CHECK_INT(stats.tables_made, 1); /* A */
+    CHECK(stats.tables_reused >= 1); /* J of the cancelled render */
     CHECK(same_image(&img, &fresh_nn));
     CHECK_INT(ctx->dev.live_buffers, buffers);
     double ms;
