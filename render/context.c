@@ -65,6 +65,7 @@ void ns_context_destroy(ns_context *ctx)
     if (ctx->dev.device)
         ns_pipelines_destroy(ctx);
     gpu_device_destroy(&ctx->dev);
+    ns_bvh_keep_free(&ctx->bvh);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);
     free(ctx);

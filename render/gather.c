@@ -225,8 +225,16 @@ int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline
         i++;
     if (i == sizeof gather_forms / sizeof gather_forms[0])
         return ns_fail(err, NS_ERR_INTERNAL, "gather: no shader for mode %u", mode);
-    /* The default form is made at start-up, the others by their first gather (pipelines.c). */
-    return ns_pipeline(ctx, gather_forms[i].pipeline, pipeline, made_ms, err);
+    /* The default form is made at start-up, the others by their first gather (pipelines.c):
+     * then a stage of its own (progress; the caller adds *made_ms to the stats), taking no
+     * part of the render's fraction. */
+    ns_pipeline_id id = gather_forms[i].pipeline;
+    if (ctx->pipelines[id].pipeline)
+        return ns_pipeline(ctx, id, pipeline, made_ms, err);
+    ns_stage stage = ns_stage_begin(ctx, "gather_pipeline", 0.0, 0.0);
+    int status = ns_pipeline(ctx, id, pipeline, made_ms, err);
+    *made_ms = ns_stage_end(ctx, &stage); /* the time reported is the time in the stats */
+    return status;
 }
 
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,

@@ -10,6 +10,83 @@
 #include "pipelines.h"
 #include "shared.h"
 
+/* ---------------------------------------------------------------------------------------
+ * Progress reports and cancellation of the render in progress (render/progress.c).
+ *
+ * The fraction of the whole render done is planned top down: the code running now stands for
+ * a span [lo, hi] of it; a stage or a part of one takes a part [a, b] of the span it runs in
+ * (ns_progress_push, ns_stage_begin) and gives it back when done (ns_progress_pop,
+ * ns_stage_end), which moves the fraction to the end of that part. A TICK reports a part of
+ * the current span done. The fraction reported never decreases: a part that is run again (a
+ * camera batch that overflowed, a pass restarted with a smaller budget) waits until it has
+ * passed where it was. Every stage that ns_render_stats lists is timed with ns_stage_begin /
+ * ns_stage_end, so that its reports and its time come from the same two calls.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_span {
+    double lo, hi;
+} ns_span;
+
+typedef struct ns_run {
+    const ns_render_control *control; /* NULL: no render, or one without control */
+    uint64_t serial;                  /* counts renders (the table cache's counts per render) */
+    double done;                      /* reported so far, or due at the next report */
+    ns_span span;                     /* what the code running now stands for */
+    const char *stage;                /* the stage open now; NULL between stages */
+    const char *last;                 /* the stage that ended last */
+    char where[64];                   /* where a cancellation was noticed: "during pt_pass" */
+} ns_run;
+
+typedef struct ns_stage {
+    const char *name;
+    double t0;
+    ns_span outer;
+    int reported; /* its START was reported: its END is too */
+} ns_stage;
+
+/* Begins and ends a render's run (render.c, with the context's lock held): the cancellation
+ * flag goes to the device for the render's duration and is cleared on every path. ns_run_end
+ * returns the render's status, NS_ERR_CANCELLED when the render was cancelled, with the
+ * message naming the stage ("cancelled during pt_pass"). */
+void ns_run_begin(ns_context *ctx, const ns_render_control *control);
+int ns_run_end(ns_context *ctx, int status, ns_error *err);
+/* A cancellation point between stages (a device submission is one by itself). */
+int ns_run_check(ns_context *ctx, ns_error *err);
+/* Narrows the current span to its part [a, b] (0 <= a <= b <= 1) and returns the span to
+ * give back to ns_progress_pop, which restores it with the part done. */
+ns_span ns_progress_push(ns_context *ctx, double a, double b);
+void ns_progress_pop(ns_context *ctx, ns_span outer);
+/* Restores outer without marking the part done: it will be run again (a camera batch whose
+ * segments overflowed). */
+void ns_progress_restore(ns_context *ctx, ns_span outer);
+/* Whether TICKs are wanted now: a progress callback, and no cancellation seen. A caller
+ * whose estimate costs something (pt's sum over pixels) asks first. */
+int ns_progress_wanted(ns_context *ctx);
+/* A TICK: `part` (clamped to [0, 1]) of the current span is done. */
+void ns_progress_tick(ns_context *ctx, double part);
+/* A stage that takes the part [a, b] of the current span: a START now, and at ns_stage_end an
+ * END with its time, which ns_stage_end returns for ns_render_stats. Stages do not nest. */
+ns_stage ns_stage_begin(ns_context *ctx, const char *name, double a, double b);
+double ns_stage_end(ns_context *ctx, const ns_stage *stage);
+
+/* ---------------------------------------------------------------------------------------
+ * The last BVH (render/scene_gpu.c): one entry, the scene's BVH primitives in tree order,
+ * its nodes and the permutation from the scene's order, so that a render of the same
+ * geometry with other materials, lights or camera skips the build.
+ * ------------------------------------------------------------------------------------- */
+typedef struct ns_bvh_keep {
+    GpuNode *nodes;
+    uint32_t node_count;
+    GpuPrim *prims;  /* tree order; only kind and numbers are compared (info.y/z: the
+                        building render's material and object) */
+    uint32_t *order; /* prims[i] is the scene's BVH primitive order[i] */
+    uint32_t count;
+} ns_bvh_keep;
+
+/* A BVH above this many bytes (nodes, primitives and order together) is not kept. */
+#define NS_BVH_KEEP_BYTES_MAX (256ull << 20)
+
+void ns_bvh_keep_free(ns_bvh_keep *keep);
+
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
 struct ns_table_cache; /* render/scatter_tables.c */
 struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeline */
@@ -26,6 +103,8 @@ struct ns_context {
     uint64_t table_cache_bytes;
     pthread_mutex_t lock;
     char *pipeline_cache_path;
+    ns_run run;          /* the render in progress: its control, its progress */
+    ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);
@@ -52,6 +131,13 @@ typedef struct ns_gpu_scene {
 /* Builds the GPU form of a validated scene (including the BVH). Free with
  * ns_gpu_scene_free, also after a failure. */
 int ns_gpu_scene_build(const ns_scene *scene, ns_gpu_scene *out, ns_error *err);
+/* The same, taking the BVH from keep when it holds the same BVH primitives (compared whole,
+ * bit for bit, in scene order: kind, centre and radius, corners, vertices; not materials or
+ * objects, which the BVH does not depend on), and keeping the BVH it built otherwise. keep
+ * NULL: no reuse. *reused (may be NULL) = 1 when the BVH was taken from keep. The result is
+ * the same, bit for bit, either way. */
+int ns_gpu_scene_build_reusing(const ns_scene *scene, ns_bvh_keep *keep, ns_gpu_scene *out,
+                               int *reused, ns_error *err);
 void ns_gpu_scene_free(ns_gpu_scene *gs);
 
 /* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this
@@ -108,6 +194,14 @@ typedef struct ns_resume_desc {
      * the round with that status (a pass's own counters, such as pt's truncated paths). */
     int (*check)(const uint32_t *counters, void *user, ns_error *err);
     void *user;
+    /* Progress: after every submission the round reports a TICK (ns_progress_tick) with the
+     * part of the round done: done(done_user) when given (pt: its samples finished), else
+     * dispatches run / expected_dispatches when that is known, else 1 - 1 / (1 + submissions)
+     * (each submission is twice as long as the last); 1 after a round without a work-left
+     * counter, which one submission finishes. Asked only when a progress callback wants it. */
+    double (*done)(void *done_user);
+    void *done_user;
+    uint64_t expected_dispatches;
 } ns_resume_desc;
 
 /* ns_resume_dispatch's answers besides NS_OK and the (negative) ns_status errors; err is

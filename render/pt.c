@@ -183,6 +183,23 @@ static int pt_check_counters(const uint32_t *counters, void *user, ns_error *err
     return NS_OK;
 }
 
+/* The part of the pass done, for the progress TICK after each submission: the samples
+ * finished over all of them. Each pixel's saved path holds its next sample index
+ * (GpuPtPath.progress.y) and whether that sample's path is still under way (progress.z). */
+typedef struct pt_samples {
+    const GpuPtPath *paths;
+    uint32_t pixels, spp;
+} pt_samples;
+
+static double pt_samples_done(void *user)
+{
+    const pt_samples *p = user;
+    uint64_t done = 0;
+    for (uint32_t i = 0; i < p->pixels; i++)
+        done += p->paths[i].progress[1] - (p->paths[i].progress[2] != 0u);
+    return (double)done / ((double)p->pixels * p->spp);
+}
+
 /* Submissions of 1, 2, 4, ... 16 dispatches (ns_resume_dispatch) until the last dispatch of
  * one finds every pixel done: a pixel's samples may need many dispatches when its paths are
  * long (each dispatch yields after NS_PT_YIELD_LAVAPIPE counted iterations on lavapipe). */
@@ -203,6 +220,9 @@ static int pt_dispatch(ns_context *ctx, const gpu_pipeline *pipeline, pt_job *jo
         .yield_after = ctx->dev.loop_limited ? NS_PT_YIELD_LAVAPIPE : 1u << 24,
     };
     *dispatched = 0;
+    pt_samples samples = {.paths = job->buffers[PT_PATHS].mapped,
+                          .pixels = cam->width * cam->height,
+                          .spp = scene->render.spp};
     /* An invocation that lavapipe cut short anyway is an error here (pt_check_counters's
      * first check), not a reason to start again with a smaller budget as in the vrl method. */
     int status = ns_resume_dispatch(
@@ -222,6 +242,8 @@ static int pt_dispatch(ns_context *ctx, const gpu_pipeline *pipeline, pt_job *jo
             .max_batch = 16,
             .max_dispatches = NS_PT_MAX_DISPATCHES,
             .check = pt_check_counters,
+            .done = pt_samples_done,
+            .done_user = &samples,
         },
         dispatched, err);
     if (status == NS_RESUME_GAVE_UP)
@@ -246,6 +268,8 @@ static int pt_read_back(pt_job *job, const ns_camera *cam, ns_image *out, ns_err
     return NS_OK;
 }
 
+/* Progress (internal.h): pt_pipeline 0-2% (the context's first pt render only), bvh 2-3%,
+ * upload 3-4%, pt_pass 4-99% by the samples finished, readback 99-100%. */
 int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
                  ns_error *err)
 {
@@ -258,36 +282,50 @@ int ns_pt_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
     memset(&job, 0, sizeof job);
     /* Made by the first pt render of this context (the caller holds its lock) and kept. */
     gpu_pipeline *pipeline = NULL;
-    double made_ms = 0;
-    int status = ns_pipeline(ctx, NS_PIPELINE_PT, &pipeline, &made_ms, err);
-    if (made_ms > 0)
-        ns_stats_add_stage(stats, "pt_pipeline", made_ms);
-    double t1 = ns_now_ms();
+    int status = NS_OK;
+    if (ctx->pipelines[NS_PIPELINE_PT].pipeline) {
+        status = ns_pipeline(ctx, NS_PIPELINE_PT, &pipeline, NULL, err);
+    } else {
+        ns_stage stage = ns_stage_begin(ctx, "pt_pipeline", 0.0, 0.02);
+        status = ns_pipeline(ctx, NS_PIPELINE_PT, &pipeline, NULL, err);
+        ns_stats_add_stage(stats, "pt_pipeline", ns_stage_end(ctx, &stage));
+    }
     if (!status)
-        status = ns_gpu_scene_build(scene, &job.scene, err);
+        status = ns_run_check(ctx, err);
+    /* Always a stage of its own, also when the BVH was kept (render.c says the same). */
+    ns_stage stage = ns_stage_begin(ctx, "bvh", 0.02, 0.03);
+    int reused = 0;
+    if (!status)
+        status = ns_gpu_scene_build_reusing(scene, &ctx->bvh, &job.scene, &reused, err);
     if (!status) {
         /* No limit inside the traversal: pt yields between path steps instead (push). */
         job.scene.params.limits[0] = 0;
         if (stats) {
             stats->bvh_nodes = job.scene.node_count;
             stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
+            stats->bvh_reused = (uint32_t)reused;
         }
     }
-    double t2 = ns_now_ms();
-    ns_stats_add_stage(stats, "bvh", t2 - t1);
+    ns_stats_add_stage(stats, "bvh", ns_stage_end(ctx, &stage));
+    if (!status)
+        status = ns_run_check(ctx, err);
+    stage = ns_stage_begin(ctx, "upload", 0.03, 0.04);
     if (!status)
         status = pt_upload(ctx, &job, scene->camera.width * scene->camera.height, err);
-    double t3 = ns_now_ms();
-    ns_stats_add_stage(stats, "upload", t3 - t2);
+    ns_stats_add_stage(stats, "upload", ns_stage_end(ctx, &stage));
     uint32_t dispatched = 0;
+    stage = ns_stage_begin(ctx, "pt_pass", 0.04, 0.99);
     if (!status)
         status = pt_dispatch(ctx, pipeline, &job, scene, &plan, &dispatched, err);
-    double t4 = ns_now_ms();
-    ns_stats_add_stage(stats, "pt_pass", t4 - t3);
+    ns_stats_add_stage(stats, "pt_pass", ns_stage_end(ctx, &stage));
     (void)dispatched; /* not in ns_render_stats (a shared struct); measured by the tests */
+    /* The work is done; a cancellation that comes now still cancels (no image). */
+    if (!status)
+        status = ns_run_check(ctx, err);
+    stage = ns_stage_begin(ctx, "readback", 0.99, 1.0);
     if (!status)
         status = pt_read_back(&job, &scene->camera, out, err);
-    ns_stats_add_stage(stats, "readback", ns_now_ms() - t4);
+    ns_stats_add_stage(stats, "readback", ns_stage_end(ctx, &stage));
     for (int i = 0; i < PT_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &job.buffers[i]);
     ns_gpu_scene_free(&job.scene);

@@ -1,5 +1,9 @@
 /* render.c — one render job: validate, build the GPU scene (BVH), upload, run the camera
- * pass, read back. The job owns every buffer it creates and frees them on every path. */
+ * pass, read back. The job owns every buffer it creates and frees them on every path.
+ *
+ * Progress (internal.h): bvh 0-1%, upload 1-2%, the camera pass and the scattering stages
+ * 2-99% (shared out among the camera batches by their samples, and within a batch as
+ * ns_batch_shares says), readback 99-100%. pt.c plans its own stages the same way. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -195,18 +199,25 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "camera pass: %u pixels", pixels);
     int status = NS_OK;
     uint32_t first = 0, batch = spp;
+    double shares[2];
+    ns_batch_shares(scene, shares);
     while (!status && first < spp) {
         uint32_t count = spp - first < batch ? spp - first : batch;
         if (first > 0)
             memcpy(saved, job->buffers[B_PIXELS].mapped, pixel_bytes);
-        double t0 = ns_now_ms();
+        /* The batch's part of the render: its share of the samples. */
+        ns_span outer = ns_progress_push(ctx, (double)first / spp, (double)(first + count) / spp);
+        ns_stage stage = ns_stage_begin(ctx, "ray_pass", 0.0, shares[0]);
         status = dispatch_camera(ctx, job, scene, first, count, err);
-        ns_stats_add_stage(stats, "ray_pass", ns_now_ms() - t0);
-        if (status)
+        ns_stats_add_stage(stats, "ray_pass", ns_stage_end(ctx, &stage));
+        if (status) {
+            ns_progress_pop(ctx, outer);
             break;
+        }
         const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
         uint64_t attempted = counters[NS_COUNTER_SEGMENTS];
         if (counters[NS_COUNTER_OVERFLOW]) {
+            ns_progress_restore(ctx, outer); /* run again, smaller */
             if (first > 0)
                 memcpy(job->buffers[B_PIXELS].mapped, saved, pixel_bytes);
             if (count > 1) {
@@ -233,6 +244,7 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
                                 .segment_count = (uint32_t)attempted,
                                 .pixels = scattered};
         status = ns_scatter_render(ctx, &in, stats, err);
+        ns_progress_pop(ctx, outer);
         first += count;
     }
     free(saved);
@@ -244,22 +256,27 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
 {
     render_job job;
     memset(&job, 0, sizeof job);
-    double t0 = ns_now_ms();
-    int status = ns_gpu_scene_build(scene, &job.scene, err);
+    /* Always a stage of its own, also when the BVH was kept from an earlier render (its time
+     * is then that of converting the scene and comparing it with the kept one). */
+    ns_stage stage = ns_stage_begin(ctx, "bvh", 0.0, 0.01);
+    int reused = 0;
+    int status = ns_gpu_scene_build_reusing(scene, &ctx->bvh, &job.scene, &reused, err);
     if (!status) {
         job.scene.params.counts[2] = job.scene.has_media ? segment_capacity(ctx, scene, debug) : 0;
         job.scene.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
         if (stats) {
             stats->bvh_nodes = job.scene.node_count;
             stats->primitives = job.scene.bvh_prim_count + job.scene.plane_count;
+            stats->bvh_reused = (uint32_t)reused;
         }
     }
-    double t1 = ns_now_ms();
-    ns_stats_add_stage(stats, "bvh", t1 - t0);
+    ns_stats_add_stage(stats, "bvh", ns_stage_end(ctx, &stage));
+    if (!status)
+        status = ns_run_check(ctx, err);
+    stage = ns_stage_begin(ctx, "upload", 0.01, 0.02);
     if (!status)
         status = upload(ctx, &job, scene->camera.width * scene->camera.height, err);
-    double t2 = ns_now_ms();
-    ns_stats_add_stage(stats, "upload", t2 - t1);
+    ns_stats_add_stage(stats, "upload", ns_stage_end(ctx, &stage));
     /* A debug caller that reads the segments back gets the camera pass alone. */
     int scattering = job.scene.has_media && !(debug && debug->segments) &&
                      (scene->render.components & ~(uint32_t)NS_COMPONENT_SURFACE);
@@ -268,15 +285,21 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
         !(scattered = calloc((size_t)scene->camera.width * scene->camera.height * 3, sizeof(float))))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scattering image");
     if (!status && scattering) {
+        ns_span outer = ns_progress_push(ctx, 0.02, 0.99);
         status = camera_and_scattering(ctx, &job, scene, scattered, stats, err);
+        ns_progress_pop(ctx, outer);
     } else if (!status) {
+        stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.99);
         status = dispatch_camera(ctx, &job, scene, 0, scene->render.spp, err);
-        ns_stats_add_stage(stats, "ray_pass", ns_now_ms() - t2);
+        ns_stats_add_stage(stats, "ray_pass", ns_stage_end(ctx, &stage));
     }
-    double t3 = ns_now_ms();
+    /* The work is done; a cancellation that comes now still cancels (no image). */
+    if (!status)
+        status = ns_run_check(ctx, err);
+    stage = ns_stage_begin(ctx, "readback", 0.99, 1.0);
     if (!status)
         status = read_back(&job, &scene->camera, out, stats, debug, err);
-    ns_stats_add_stage(stats, "readback", ns_now_ms() - t3);
+    ns_stats_add_stage(stats, "readback", ns_stage_end(ctx, &stage));
     /* The camera pass always shades surfaces; a render without them starts from black. */
     if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
         memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);
@@ -288,8 +311,9 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     return status;
 }
 
-int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
-                 ns_render_debug *debug, ns_error *err)
+static int render_run(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
+                      ns_image *out, ns_render_stats *stats, ns_render_debug *debug,
+                      ns_error *err)
 {
     if (!out)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_render: out is NULL");
@@ -316,26 +340,34 @@ int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_rende
                        names);
     }
     pthread_mutex_lock(&ctx->lock);
-    if (scene->render.method == NS_METHOD_PT)
+    ns_run_begin(ctx, control);
+    /* A flag set before the render began cancels it before any work. */
+    status = ns_run_check(ctx, err);
+    if (!status && scene->render.method == NS_METHOD_PT)
         status = ns_pt_render(ctx, scene, out, stats, err); /* render/pt.c */
-    else
+    else if (!status)
         status = render_locked(ctx, scene, out, stats, debug, err);
+    status = ns_run_end(ctx, status, err);
     pthread_mutex_unlock(&ctx->lock);
     if (status)
         ns_image_free(out);
     return status;
 }
 
+int ns_render_ex(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
+                 ns_render_debug *debug, ns_error *err)
+{
+    return render_run(ctx, scene, NULL, out, stats, debug, err);
+}
+
 int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
               ns_error *err)
 {
-    return ns_render_ex(ctx, scene, out, stats, NULL, err);
+    return render_run(ctx, scene, NULL, out, stats, NULL, err);
 }
 
-/* Placeholder until progress and cancellation land: renders without them. */
 int ns_render_controlled(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
                          ns_image *out, ns_render_stats *stats, ns_error *err)
 {
-    (void)control;
-    return ns_render_ex(ctx, scene, out, stats, NULL, err);
+    return render_run(ctx, scene, control, out, stats, NULL, err);
 }

@@ -20,6 +20,19 @@ static int check_desc(const ns_resume_desc *d, ns_error *err)
     return NS_OK;
 }
 
+/* The part of the round done after `submissions` submissions of `round` dispatches in all
+ * (internal.h, ns_resume_desc.done). */
+static double round_done(const ns_resume_desc *d, uint64_t round, uint32_t submissions)
+{
+    if (d->done)
+        return d->done(d->done_user);
+    if (d->unfinished == NS_NONE)
+        return 1.0;
+    if (d->expected_dispatches)
+        return (double)round / (double)d->expected_dispatches;
+    return 1.0 - 1.0 / (1.0 + submissions);
+}
+
 int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *d, uint32_t *dispatches,
                        ns_error *err)
 {
@@ -75,6 +88,8 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *d, uint32_t *dispa
             status = NS_RESUME_CUT;
         if (!status && d->check)
             status = d->check(d->counters, d->user, err);
+        if (!status && ns_progress_wanted(ctx))
+            ns_progress_tick(ctx, round_done(d, round, submissions + 1));
         if (status || d->unfinished == NS_NONE || d->counters[d->unfinished] == 0)
             break;
         /* More work than the last submission finished: make the next one longer. */

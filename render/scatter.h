@@ -40,14 +40,22 @@ typedef struct ns_scatter_tables {
 typedef struct ns_table_stats {
     double reconstruct_ms; /* network or Monte Carlo; 0 on a cache hit */
     double accumulate_ms;  /* 0 on a cache hit */
+    int reconstructed;     /* some channel's J was made now (the stage "reconstruct" ran) */
+    int accumulated;       /* A was accumulated now (the stage "accumulate" ran) */
     int cache_hit;
     uint64_t weights_bytes;
+    /* Tables (A of the key, J of each distinct channel albedo) found in the cache and made
+     * now; each table counts once per render (ns_run.serial), however often it is asked for. */
+    uint32_t tables_reused, tables_made;
 } ns_table_stats;
 
 /* Returns the tables for key, computing and caching them when absent. The pointer stays
  * valid until the next call (the context lock is held by the caller throughout a render).
  * NS_METHOD_TABLE needs ctx's Monte Carlo provider (ns_context_desc.mc_tables), else
- * NS_ERR_NOT_AVAILABLE. */
+ * NS_ERR_NOT_AVAILABLE. Only whole tables enter the cache: a J or A whose making failed or
+ * was cancelled is never cached. Inside a render the stages "reconstruct" and "accumulate"
+ * report progress and take halves of the current span; the render's cancellation is checked
+ * before each Monte Carlo channel (the provider runs on the CPU). */
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err);
 
@@ -278,5 +286,10 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
 
 int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                       ns_error *err);
+
+/* How a camera batch's part of the render's progress is shared out (scatter_render.c, by
+ * nominal costs): the ray pass [0, shares[0]], single scattering [shares[0], shares[1]],
+ * double and multiple [shares[1], 1]. ns_scatter_render is called in the batch's span. */
+void ns_batch_shares(const ns_scene *scene, double shares[2]);
 
 #endif

@@ -350,23 +350,76 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
 }
 
 /* ---------------------------------------------------------------------------------------
- * Timings and counts of the stages, added to the render's stats once at the end.
+ * Timings of the stages, added to the render's stats once at the end, in this order. Each
+ * run of a stage is timed by ns_stage_begin / ns_stage_end, which also report it (progress);
+ * a stage appears in the stats when it ran.
  * ------------------------------------------------------------------------------------- */
+enum { T_RECONSTRUCT, T_ACCUMULATE, T_VRL, T_GRID, T_GATHER, T_SINGLE, T_COMPOSITE, T_COUNT };
+
+static const char *const stage_names[T_COUNT] = {"reconstruct", "accumulate", "vrl", "grid",
+                                                 "gather",      "single",     "composite"};
+
 typedef struct scatter_times {
-    double reconstruct, accumulate, vrl, grid, gather, single, composite;
+    double ms[T_COUNT];
+    uint8_t ran[T_COUNT];
 } scatter_times;
+
+/* Stage `which` takes the part [a, b] of the current progress span. */
+static ns_stage stage_begin(ns_context *ctx, int which, double a, double b)
+{
+    return ns_stage_begin(ctx, stage_names[which], a, b);
+}
+
+static void stage_end(ns_context *ctx, scatter_times *t, int which, const ns_stage *stage)
+{
+    t->ms[which] += ns_stage_end(ctx, stage);
+    t->ran[which] = 1;
+}
 
 static void add_times(ns_render_stats *stats, const scatter_times *t)
 {
-    const struct {
-        const char *name;
-        double ms;
-    } rows[] = {{"reconstruct", t->reconstruct}, {"accumulate", t->accumulate}, {"vrl", t->vrl},
-                {"grid", t->grid},               {"gather", t->gather},         {"single", t->single},
-                {"composite", t->composite}};
-    for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)
-        if (rows[i].ms > 0)
-            ns_stats_add_stage(stats, rows[i].name, rows[i].ms);
+    for (int i = 0; i < T_COUNT; i++)
+        if (t->ran[i])
+            ns_stats_add_stage(stats, stage_names[i], t->ms[i]);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Progress (internal.h): how a camera batch's part of the render is shared out, by nominal
+ * relative costs. With the material's tables cached, as in a sweep, single scattering is
+ * typically 70-87% of a full nn render on lavapipe (docs/scattering.md, docs/bench.md), and
+ * the ray pass and the gather share the rest; the vrl method's brute-force gather costs more
+ * than its single scattering. A part the render does not run weighs nothing. Within the
+ * double and multiple part: the VRLs take 10% of the first round that gathers; the rounds of
+ * the adaptive gather share it by the tiles each examines (4^-L of them on the coarsest
+ * lattice L, 3 * 4^-(l+1) on lattice l < L); a round shares its part among the media by
+ * their segments, and a medium's part goes 5% to its grid, 25% to its tables
+ * (reconstruct, then accumulate; nothing when cached) and the rest to its gather. The
+ * composite stages (CPU bookkeeping between them) take no part of their own.
+ * ------------------------------------------------------------------------------------- */
+static const struct {
+    double ray, single, scattered;
+} batch_costs[NS_METHOD_COUNT] = {
+    [NS_METHOD_NN] = {0.10, 0.75, 0.15},
+    [NS_METHOD_TABLE] = {0.10, 0.75, 0.15},
+    [NS_METHOD_VRL] = {0.05, 0.35, 0.60},
+    [NS_METHOD_DIPOLE] = {0.10, 0.80, 0.10},
+    [NS_METHOD_PT] = {1.0, 0.0, 0.0}, /* pt.c plans its own */
+};
+
+#define VRL_SHARE 0.10
+#define GRID_SHARE 0.05
+#define TABLES_SHARE 0.25
+
+void ns_batch_shares(const ns_scene *scene, double shares[2])
+{
+    ns_method method = (unsigned)scene->render.method < NS_METHOD_COUNT ? scene->render.method : NS_METHOD_NN;
+    uint32_t components = scene->render.components;
+    double ray = batch_costs[method].ray;
+    double single = components & NS_COMPONENT_SINGLE ? batch_costs[method].single : 0.0;
+    double scattered = components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE) ? batch_costs[method].scattered : 0.0;
+    double total = ray + single + scattered;
+    shares[0] = ray / total;
+    shares[1] = (ray + single) / total;
 }
 
 /* Radiance inside a medium reaches vacuum divided by ior^2 (see the top of this file). */
@@ -379,13 +432,16 @@ static float exit_factor(const GpuMaterial *m)
 /* ---------------------------------------------------------------------------------------
  * Single scattering: every segment, full resolution.
  * ------------------------------------------------------------------------------------- */
-static int render_single(ns_context *ctx, const ns_scatter_inputs *in, scatter_times *times, ns_error *err)
+static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a, double b,
+                         scatter_times *times, ns_error *err)
 {
-    double t0 = ns_now_ms();
+    ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
-    if (!kept)
+    if (!kept) {
+        stage_end(ctx, times, T_SINGLE, &stage);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
+    }
     uint32_t n = 0;
     for (uint32_t i = 0; i < in->segment_count; i++)
         if (visible(&all[i]))
@@ -419,7 +475,7 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, scatter_t
     gpu_buffer_destroy(&ctx->dev, &segments);
     gpu_buffer_destroy(&ctx->dev, &out);
     free(kept);
-    times->single += ns_now_ms() - t0;
+    stage_end(ctx, times, T_SINGLE, &stage);
     return status;
 }
 
@@ -544,13 +600,13 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     v->table_bytes = calloc(materials, sizeof *v->table_bytes);
     if (!v->grids || !v->grid_built || !v->table_bytes)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
-    double t0 = ns_now_ms();
+    ns_stage stage = stage_begin(ctx, T_VRL, 0.0, 1.0);
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
      * VRLs of their own. */
     uint32_t chain = scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED ? NS_VRL_MAX_CHAIN : 1;
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  chain, scene->render.seed, &v->set, err);
-    times->vrl += ns_now_ms() - t0;
+    stage_end(ctx, times, T_VRL, &stage);
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
@@ -566,21 +622,31 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
     const ns_scene *scene = in->scene;
     ns_method method = scene->render.method;
     uint32_t orders = scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
-    int status = source->ready ? NS_OK : vrl_source_init(ctx, in, source, stats, times, err);
+    int status = NS_OK;
+    double start = 0.0; /* of this round's part, after the VRLs */
+    if (!source->ready) {
+        ns_span outer = ns_progress_push(ctx, 0.0, VRL_SHARE);
+        status = vrl_source_init(ctx, in, source, stats, times, err);
+        ns_progress_pop(ctx, outer);
+        start = VRL_SHARE;
+    }
     for (uint32_t m = 0; m < in->gs->material_count && !status; m++) {
         uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
         if (!count)
             continue;
+        /* This medium's part of the round: its share of the segments. */
+        double part = (1.0 - start) / list->count;
+        ns_span medium = ns_progress_push(ctx, start + part * first, start + part * (first + count));
         const GpuMaterial *mat = &in->gs->materials[m];
         ns_vrl_grid *grid = &source->grids[m];
         if (!source->grid_built[m]) {
             float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
-            double t1 = ns_now_ms();
+            ns_stage stage = stage_begin(ctx, T_GRID, 0.0, GRID_SHARE);
             /* Representatives pay off only with small leaves (docs/scattering.md). */
             uint32_t leaf_fill = scene->render.cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
             status = ns_vrl_grid_build(&source->set, m, s_max > 0 ? 1.0f / s_max : INFINITY,
                                        leaf_fill, grid, err);
-            times->grid += ns_now_ms() - t1;
+            stage_end(ctx, times, T_GRID, &stage);
             source->grid_built[m] = !status;
         }
         const ns_scatter_tables *tables = NULL;
@@ -589,9 +655,19 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
             ns_table_key key;
             ns_table_key_for(mat, scene, orders, &key);
             ns_table_stats ts = {0};
+            /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks
+             * the tables. */
+            ns_span outer = ns_progress_push(ctx, GRID_SHARE, GRID_SHARE + TABLES_SHARE);
             status = ns_tables_get(ctx, &key, &tables, &ts, err);
-            times->reconstruct += ts.reconstruct_ms;
-            times->accumulate += ts.accumulate_ms;
+            ns_progress_pop(ctx, outer);
+            times->ms[T_RECONSTRUCT] += ts.reconstruct_ms;
+            times->ms[T_ACCUMULATE] += ts.accumulate_ms;
+            times->ran[T_RECONSTRUCT] |= (uint8_t)ts.reconstructed;
+            times->ran[T_ACCUMULATE] |= (uint8_t)ts.accumulated;
+            if (stats) {
+                stats->tables_reused += ts.tables_reused;
+                stats->tables_made += ts.tables_made;
+            }
             if (!status) {
                 if (stats)
                     stats->weights_bytes = ts.weights_bytes;
@@ -600,6 +676,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
             mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                       : NS_GATHER_MODE_EXACT;
         }
+        ns_span gathering = ns_progress_push(ctx, GRID_SHARE + TABLES_SHARE, 1.0);
         if (!status && grid->vrl_count) {
             ns_gather_desc desc = {.segments = seg_buf,
                                    .first_segment = first,
@@ -609,7 +686,8 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                                    .out = out};
             ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle,
                              scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED);
-            /* A form other than the default compiles its shader on first use: its own stage. */
+            /* A form other than the default compiles its shader on first use: its own stage
+             * "gather_pipeline" (ns_gather_pipeline reports it). */
             gpu_pipeline *unused;
             double made_ms;
             status = ns_gather_pipeline(ctx, mode, desc.params.table_map[3] > 0.0f, &unused,
@@ -617,10 +695,12 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
             if (made_ms > 0 && stats)
                 ns_stats_add_stage(stats, "gather_pipeline", made_ms);
             ns_gather_counts counts;
-            double t2 = ns_now_ms();
+            ns_stage stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
             if (!status)
                 status = ns_gather_run(ctx, &desc, &counts, err);
-            times->gather += ns_now_ms() - t2;
+            if (!status) /* one submission per medium and round */
+                ns_progress_tick(ctx, 1.0);
+            stage_end(ctx, times, T_GATHER, &stage);
             if (!status && stats) {
                 stats->interactions += counts.interactions;
                 stats->cells_culled += counts.cells_culled;
@@ -629,6 +709,8 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
         } else if (!status) {
             memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
         }
+        ns_progress_pop(ctx, gathering);
+        ns_progress_pop(ctx, medium);
     }
     return status;
 }
@@ -684,13 +766,14 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
                         vrl_source *source, ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
     const ns_scene *scene = in->scene;
-    double t0 = ns_now_ms();
+    ns_stage stage = stage_begin(ctx, T_COMPOSITE, 0.0, 0.0);
     gather_list list;
-    if (gather_list_build(t, in->segments->mapped, scene->render.method, round, &list)) {
+    int built = gather_list_build(t, in->segments->mapped, scene->render.method, round, &list);
+    stage_end(ctx, times, T_COMPOSITE, &stage);
+    if (built) {
         free(list.segments);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
     }
-    times->composite += ns_now_ms() - t0;
     if (stats)
         stats->gather_segments += list.count;
     gpu_buffer seg_buf = {0}, out[2] = {{0}};
@@ -710,10 +793,11 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
     }
     if (!status && list.count) {
         if (scene->render.method == NS_METHOD_VRL) {
-            double t1 = ns_now_ms();
+            /* Light paths and gather in one stage; vrl_method.c shares its part out. */
+            stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
             status = ns_vrl_method_gather(ctx, scene, in->gs, in->scene_buffers, &seg_buf, list.count,
                                           &out[0], &out[1], stats, err);
-            times->gather += ns_now_ms() - t1;
+            stage_end(ctx, times, T_GATHER, &stage);
             if (!status) {
                 /* Keep the orders asked for, summed into out[0]. */
                 float(*d)[4] = out[0].mapped;
@@ -729,9 +813,9 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
         }
     }
     if (!status) {
-        double t2 = ns_now_ms();
+        stage = stage_begin(ctx, T_COMPOSITE, 1.0, 1.0);
         store_round(in, t, &list, round, list.count ? out[0].mapped : NULL);
-        times->composite += ns_now_ms() - t2;
+        stage_end(ctx, times, T_COMPOSITE, &stage);
     }
     gpu_buffer_destroy(&ctx->dev, &seg_buf);
     gpu_buffer_destroy(&ctx->dev, &out[0]);
@@ -744,29 +828,38 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
                                   scatter_times *times, ns_error *err)
 {
     const ns_scene *scene = in->scene;
-    double t0 = ns_now_ms();
+    ns_stage stage = stage_begin(ctx, T_COMPOSITE, 0.0, 0.0);
     tile_plan plan = {0};
     vrl_source source = {0};
     uint8_t *round = malloc((size_t)scene->camera.width * scene->camera.height + 1);
     int status = NS_OK;
     if (!round || tile_plan_build(scene, in->segments->mapped, in->segment_count, &plan))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
-    times->composite += ns_now_ms() - t0;
+    stage_end(ctx, times, T_COMPOSITE, &stage);
     uint64_t interpolated = 0;
     /* The rounds of the adaptive gather, coarsest lattice first (a single round, every tile,
      * without render.gather_levels): each gathers what plan_round marked before the next,
-     * finer round interpolates from it. */
+     * finer round interpolates from it. Each round's part of the progress: the tiles it
+     * examines (the top of the file's progress section). */
+    double at = 0.0;
     for (int level = (int)plan.levels; level >= 0 && !status; level--) {
-        double t1 = ns_now_ms();
+        double part = level == (int)plan.levels ? pow(0.25, level) : 3.0 * pow(0.25, level + 1);
+        status = ns_run_check(ctx, err);
+        if (status)
+            break;
+        stage = stage_begin(ctx, T_COMPOSITE, at, at);
         uint32_t marked = plan_round(&plan, (uint32_t)level, round, &interpolated);
-        times->composite += ns_now_ms() - t1;
+        stage_end(ctx, times, T_COMPOSITE, &stage);
+        ns_span outer = ns_progress_push(ctx, at, at + part);
         if (marked)
             status = gather_round(ctx, in, &plan, round, &source, stats, times, err);
+        ns_progress_pop(ctx, outer);
+        at += part;
     }
     if (!status) {
-        double t2 = ns_now_ms();
+        stage = stage_begin(ctx, T_COMPOSITE, 1.0, 1.0);
         compose(in, &plan);
-        times->composite += ns_now_ms() - t2;
+        stage_end(ctx, times, T_COMPOSITE, &stage);
     }
     if (stats) {
         stats->tiles_interpolated += interpolated;
@@ -787,10 +880,18 @@ int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_st
     uint32_t components = in->scene->render.components;
     scatter_times times = {0};
     int status = NS_OK;
+    /* This call stands for a camera batch; its ray pass took the batch's first share. */
+    double shares[2];
+    ns_batch_shares(in->scene, shares);
     if (in->segment_count && (components & NS_COMPONENT_SINGLE))
-        status = render_single(ctx, in, &times, err);
-    if (!status && in->segment_count && (components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)))
-        status = render_double_multiple(ctx, in, stats, &times, err);
+        status = render_single(ctx, in, shares[0], shares[1], &times, err);
+    if (!status && in->segment_count && (components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE))) {
+        status = ns_run_check(ctx, err);
+        ns_span outer = ns_progress_push(ctx, shares[1], 1.0);
+        if (!status)
+            status = render_double_multiple(ctx, in, stats, &times, err);
+        ns_progress_pop(ctx, outer);
+    }
     add_times(stats, &times);
     return status;
 }

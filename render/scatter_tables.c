@@ -42,6 +42,7 @@ typedef struct cache_entry {
     ns_scatter_tables a; /* A */
     uint64_t bytes;
     uint64_t last_use;
+    uint64_t counted; /* ns_run.serial of the render that last counted it made or reused */
 } cache_entry;
 
 struct ns_table_cache {
@@ -50,11 +51,6 @@ struct ns_table_cache {
     uint64_t bytes;
     uint64_t clock;
 };
-
-static double table_ms_since(double t0)
-{
-    return ns_now_ms() - t0;
-}
 
 /* ---------------------------------------------------------------------------------------
  * Grid
@@ -358,13 +354,32 @@ const float *ns_tables_cached_j(const ns_context *ctx, ns_method source, float g
 }
 
 /* ---------------------------------------------------------------------------------------
+ * What a render took from the cache and what it made (ns_render_stats.tables_reused and
+ * tables_made): each table counts once per render, however many rounds and batches ask.
+ * ------------------------------------------------------------------------------------- */
+static void count_reused(const ns_context *ctx, cache_entry *e, ns_table_stats *stats)
+{
+    if (e->counted == ctx->run.serial)
+        return; /* made or counted already by this render */
+    e->counted = ctx->run.serial;
+    stats->tables_reused++;
+}
+
+static void count_made(const ns_context *ctx, cache_entry *e, ns_table_stats *stats)
+{
+    e->counted = ctx->run.serial;
+    stats->tables_made++;
+}
+
+/* ---------------------------------------------------------------------------------------
  * J: from the networks or the Monte Carlo provider, one cache entry per distinct albedo
  * ------------------------------------------------------------------------------------- */
 static const uint64_t j_entry_bytes = 2ull * NS_TABLE_CELLS * sizeof(float);
 
-/* Channels of key whose J is missing, each distinct albedo once. */
-static uint32_t missing_albedos(struct ns_table_cache *cache, const ns_table_key *key,
-                                float albedo[3])
+/* Channels of key whose J is missing, each distinct albedo once; the others are counted as
+ * reused. */
+static uint32_t missing_albedos(ns_context *ctx, const ns_table_key *key, float albedo[3],
+                                ns_table_stats *stats)
 {
     uint32_t n = 0;
     for (int c = 0; c < 3; c++) {
@@ -372,7 +387,12 @@ static uint32_t missing_albedos(struct ns_table_cache *cache, const ns_table_key
         int listed = 0;
         for (uint32_t k = 0; k < n; k++)
             listed |= same_albedo(albedo[k], a);
-        if (!listed && !find_j(cache, key->source, key->g, a))
+        if (listed)
+            continue;
+        cache_entry *e = find_j(ctx->tables, key->source, key->g, a);
+        if (e)
+            count_reused(ctx, e, stats);
+        else
             albedo[n++] = a;
     }
     return n;
@@ -396,17 +416,20 @@ static int alloc_j_entry(cache_entry *e, const ns_table_key *key, float albedo, 
     return NS_OK;
 }
 
-static int insert_j_entry(struct ns_table_cache *cache, cache_entry *e, ns_error *err)
+static int insert_j_entry(ns_context *ctx, cache_entry *e, ns_table_stats *stats, ns_error *err)
 {
-    if (insert(cache, e))
+    e->counted = ctx->run.serial;
+    if (insert(ctx->tables, e)) {
+        stats->tables_made++;
         return NS_OK;
+    }
     free(e->j[0]);
     free(e->j[1]);
     return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
 }
 
 static int network_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
-                     ns_error *err)
+                     ns_table_stats *stats, ns_error *err)
 {
     struct ns_nn_state *nn = ctx->nn;
     if (!nn->nets_ok)
@@ -436,7 +459,7 @@ static int network_j(ns_context *ctx, const ns_table_key *key, const float *albe
             break;
         for (int o = 0; o < 2; o++)
             memcpy(e.j[o], out + ((size_t)o * 3 + c) * cells, cells * sizeof(float));
-        status = insert_j_entry(ctx->tables, &e, err);
+        status = insert_j_entry(ctx, &e, stats, err);
     }
     free(out);
     return status;
@@ -456,13 +479,20 @@ static int check_j_pair(float *const j[2], float albedo, ns_error *err)
 }
 
 static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
-                         ns_error *err)
+                         ns_table_stats *stats, ns_error *err)
 {
     if (!ctx->mc_tables)
         return ns_fail(err, NS_ERR_NOT_AVAILABLE,
                        "method table: this context has no Monte Carlo table provider");
     int status = NS_OK;
     for (uint32_t c = 0; c < n && !status; c++) {
+        /* The provider runs on the CPU, seconds per channel, and cannot be stopped: the
+         * render's cancellation is checked before each (the channels done stay cached). */
+        status = ns_run_check(ctx, err);
+        if (status)
+            break;
+        if (c > 0)
+            ns_progress_tick(ctx, (double)c / n);
         cache_entry e;
         status = alloc_j_entry(&e, key, albedo[c], err);
         if (status)
@@ -475,17 +505,18 @@ static int monte_carlo_j(ns_context *ctx, const ns_table_key *key, const float *
             free(e.j[1]);
             break;
         }
-        status = insert_j_entry(ctx->tables, &e, err);
+        status = insert_j_entry(ctx, &e, stats, err);
     }
     return status;
 }
 
-/* J of each channel for key: the network's or the provider's, computed once per albedo. */
-static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruct_ms, ns_error *err)
+/* J of each channel for key: the network's or the provider's, computed once per albedo (the
+ * stage "reconstruct", the first half of the current span). */
+static int ensure_j(ns_context *ctx, const ns_table_key *key, ns_table_stats *stats, ns_error *err)
 {
     float albedo[3];
-    uint32_t n = missing_albedos(ctx->tables, key, albedo);
-    *reconstruct_ms = 0.0;
+    uint32_t n = missing_albedos(ctx, key, albedo, stats);
+    stats->reconstruct_ms = 0.0;
     /* Albedo 0 (clear glass, a pure absorber) emits nothing after the first event: J is 0
      * exactly, with no network or simulation to run. */
     for (uint32_t c = 0; c < n; c++) {
@@ -496,7 +527,7 @@ static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruc
         if (!status) {
             memset(e.j[0], 0, NS_TABLE_CELLS * sizeof(float));
             memset(e.j[1], 0, NS_TABLE_CELLS * sizeof(float));
-            status = insert_j_entry(ctx->tables, &e, err);
+            status = insert_j_entry(ctx, &e, stats, err);
         }
         if (status)
             return status;
@@ -504,10 +535,11 @@ static int ensure_j(ns_context *ctx, const ns_table_key *key, double *reconstruc
     }
     if (!n)
         return NS_OK;
-    double t0 = ns_now_ms();
-    int status = key->source == NS_METHOD_NN ? network_j(ctx, key, albedo, n, err)
-                                             : monte_carlo_j(ctx, key, albedo, n, err);
-    *reconstruct_ms = table_ms_since(t0);
+    ns_stage stage = ns_stage_begin(ctx, "reconstruct", 0.0, 0.5);
+    int status = key->source == NS_METHOD_NN ? network_j(ctx, key, albedo, n, stats, err)
+                                             : monte_carlo_j(ctx, key, albedo, n, stats, err);
+    stats->reconstruct_ms = ns_stage_end(ctx, &stage);
+    stats->reconstructed = 1;
     return status;
 }
 
@@ -585,18 +617,21 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     if (hit) {
         touch(cache, hit);
         stats->cache_hit = 1;
+        count_reused(ctx, hit, stats);
         *out = &hit->a;
         return NS_OK;
     }
-    status = ensure_j(ctx, key, &stats->reconstruct_ms, err);
+    status = ensure_j(ctx, key, stats, err);
     float *j = NULL;
     if (!status)
         status = sum_orders(ctx, key, &j, err);
     cache_entry e = {.kind = ENTRY_A, .key = *key};
-    double t0 = ns_now_ms();
-    if (!status)
+    if (!status) {
+        ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
         status = ns_tables_accumulate(ctx, j, key->accumulation, &e.a, NULL, err);
-    stats->accumulate_ms = table_ms_since(t0);
+        stats->accumulate_ms = ns_stage_end(ctx, &stage);
+        stats->accumulated = 1;
+    }
     free(j);
     if (status) {
         /* J made before the failure stays cached; keep the bound anyway. */
@@ -611,6 +646,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
         destroy_kept_buffer(&ctx->dev, &e.a.a);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
     }
+    count_made(ctx, slot, stats);
     slot = evict(ctx, cache, slot);
     *out = &slot->a;
     return NS_OK;

@@ -1,5 +1,7 @@
 /* scene_gpu.c — a validated ns_scene in the shaders' layout (shaders/shared.h): camera
- * frame, primitives in BVH order followed by the planes, materials, lights. */
+ * frame, primitives in BVH order followed by the planes, materials, lights; and the last BVH
+ * kept in the context for the next render of the same geometry (a sweep of materials,
+ * lights or cameras over one scene builds it once). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -73,7 +75,88 @@ static GpuPrim object_prim(const ns_object *o, uint32_t index)
     return p;
 }
 
-static int convert_geometry(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
+/* =======================================================================================
+ * The kept BVH (internal.h, ns_bvh_keep).
+ *
+ * The builder reads the BVH primitives' kind and numbers (sphere centre and radius, box
+ * corners, triangle vertices) in scene order, nothing else (not their materials, not their
+ * objects), and only reorders them: prims[i] = input[order[i]]. So when a scene's primitives
+ * equal the kept ones in kind and numbers, bit for bit and position for position, the kept
+ * nodes and order are exactly what a build would give; the primitives are taken from the new
+ * scene in that order, so they carry its materials and objects. Planes never enter the BVH
+ * and are converted every time.
+ * ===================================================================================== */
+static int same_geometry(const GpuPrim *a, const GpuPrim *b)
+{
+    return a->info[0] == b->info[0] && memcmp(a->a, b->a, sizeof a->a) == 0 &&
+           memcmp(a->b, b->b, sizeof a->b) == 0 && memcmp(a->c, b->c, sizeof a->c) == 0;
+}
+
+static int keep_matches(const ns_bvh_keep *keep, const GpuPrim *input, uint32_t count)
+{
+    if (!keep || !keep->nodes || keep->count != count || count == 0)
+        return 0;
+    for (uint32_t i = 0; i < count; i++)
+        if (!same_geometry(&keep->prims[i], &input[keep->order[i]]))
+            return 0;
+    return 1;
+}
+
+void ns_bvh_keep_free(ns_bvh_keep *keep)
+{
+    free(keep->nodes);
+    free(keep->prims);
+    free(keep->order);
+    memset(keep, 0, sizeof *keep);
+}
+
+/* Keeps a copy of bvh in place of what keep held, when it fits the bound (else keep stays as
+ * it was: it may still serve the render after next). Out of memory keeps nothing. */
+static void keep_bvh(ns_bvh_keep *keep, const ns_bvh *bvh)
+{
+    uint64_t bytes = (uint64_t)bvh->node_count * sizeof(GpuNode) +
+                     (uint64_t)bvh->prim_count * (sizeof(GpuPrim) + sizeof(uint32_t));
+    if (!bvh->prim_count || bytes > NS_BVH_KEEP_BYTES_MAX)
+        return;
+    ns_bvh_keep_free(keep);
+    keep->nodes = malloc(sizeof *keep->nodes * bvh->node_count);
+    keep->prims = malloc(sizeof *keep->prims * bvh->prim_count);
+    keep->order = malloc(sizeof *keep->order * bvh->prim_count);
+    if (!keep->nodes || !keep->prims || !keep->order) {
+        ns_bvh_keep_free(keep);
+        return;
+    }
+    memcpy(keep->nodes, bvh->nodes, sizeof *keep->nodes * bvh->node_count);
+    memcpy(keep->prims, bvh->prims, sizeof *keep->prims * bvh->prim_count);
+    memcpy(keep->order, bvh->order, sizeof *keep->order * bvh->prim_count);
+    keep->node_count = bvh->node_count;
+    keep->count = bvh->prim_count;
+}
+
+/* The BVH of input[0..n) from keep: nodes copied, primitives in the kept order. */
+static int reuse_bvh(const ns_bvh_keep *keep, const GpuPrim *input, uint32_t n, ns_bvh *out,
+                     ns_error *err)
+{
+    memset(out, 0, sizeof *out);
+    out->nodes = malloc(sizeof *out->nodes * keep->node_count);
+    out->prims = malloc(sizeof *out->prims * n);
+    if (!out->nodes || !out->prims) {
+        ns_bvh_free(out);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scene: BVH of %u primitives", n);
+    }
+    memcpy(out->nodes, keep->nodes, sizeof *out->nodes * keep->node_count);
+    for (uint32_t i = 0; i < n; i++)
+        out->prims[i] = input[keep->order[i]];
+    out->node_count = keep->node_count;
+    out->prim_count = n;
+    return NS_OK;
+}
+
+/* =======================================================================================
+ * Conversion
+ * ===================================================================================== */
+static int convert_geometry(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *gs, int *reused,
+                            ns_error *err)
 {
     uint64_t bvh_count = 0, plane_count = 0;
     for (uint32_t i = 0; i < s->object_count; i++) {
@@ -119,7 +202,15 @@ static int convert_geometry(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
         }
     }
     ns_bvh bvh;
-    int status = ns_bvh_build(input, n, &bvh, err);
+    int status;
+    if (keep_matches(keep, input, n)) {
+        status = reuse_bvh(keep, input, n, &bvh, err);
+        *reused = !status;
+    } else {
+        status = ns_bvh_build(input, n, &bvh, err);
+        if (!status && keep)
+            keep_bvh(keep, &bvh);
+    }
     free(input);
     if (status) {
         free(planes);
@@ -187,8 +278,18 @@ static int convert_materials_and_lights(const ns_scene *s, ns_gpu_scene *gs, ns_
 
 int ns_gpu_scene_build(const ns_scene *s, ns_gpu_scene *gs, ns_error *err)
 {
+    return ns_gpu_scene_build_reusing(s, NULL, gs, NULL, err);
+}
+
+int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *gs, int *reused,
+                               ns_error *err)
+{
+    int reused_here = 0;
+    if (!reused)
+        reused = &reused_here;
+    *reused = 0;
     memset(gs, 0, sizeof *gs);
-    int status = convert_geometry(s, gs, err);
+    int status = convert_geometry(s, keep, gs, reused, err);
     if (!status)
         status = convert_materials_and_lights(s, gs, err);
     if (status)

@@ -128,14 +128,17 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
         free(push);
         return status;
     }
-    /* Sample 0 alone measures the cost of one sample. */
+    /* Sample 0 alone measures the cost of one sample (and is its share of the progress). */
+    ns_span outer = ns_progress_push(ctx, 0.0, 1.0 / samples);
     status = run_chunks(ctx, pipeline, bound, segment_count, 0, 1, samples, 1, push, err);
+    ns_progress_pop(ctx, outer);
     if (status == NS_RESUME_CUT)
         status = cut_short_error(counters, err);
     uint32_t cost = ((const uint32_t *)counters->mapped)[COUNTER_MAX_LOOPS];
     uint32_t per_dispatch = budget / (SINGLE_COST_FACTOR * (cost ? cost : 1));
     per_dispatch = per_dispatch ? per_dispatch : 1;
     uint32_t first = 1;
+    outer = ns_progress_push(ctx, 1.0 / samples, 1.0);
     while (!status && samples > 1) {
         status = run_chunks(ctx, pipeline, bound, segment_count, first, samples, samples,
                             per_dispatch, push, err);
@@ -151,6 +154,7 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
         first = 0;
         status = NS_OK;
     }
+    ns_progress_pop(ctx, outer);
     free(push);
     return status;
 }

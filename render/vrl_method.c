@@ -281,8 +281,12 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     uint32_t *offsets = status ? NULL : malloc(sizeof *offsets * paths);
     if (!status && !offsets)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u paths", paths);
+    /* Progress: the count pass is the first half of the trace's part, the write pass the
+     * second. */
+    ns_span outer = ns_progress_push(ctx, 0.0, 0.5);
     if (!status)
         status = trace_pass(ctx, scene_buffers, own, &push, NULL, restarts, err);
+    ns_progress_pop(ctx, outer);
     /* The reference path tracer refuses the same (pt.c): a trapped path's flux is lost. */
     const uint32_t *counters = own[T_COUNTERS].mapped;
     if (!status && counters[NS_VRL_TRACE_TRUNCATED])
@@ -302,8 +306,10 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
                                    err);
         push.write = 1;
         push.vrl_capacity = total;
+        outer = ns_progress_push(ctx, 0.5, 1.0);
         if (!status)
             status = trace_pass(ctx, scene_buffers, own, &push, offsets, restarts, err);
+        ns_progress_pop(ctx, outer);
     }
     /* The write pass must have made exactly the counted VRLs (same random numbers). */
     const GpuVrlWalk *walks = own[T_WALKS].mapped;
@@ -408,6 +414,7 @@ static int gather_material(ns_context *ctx, gpu_buffer **bound, gpu_buffer *coun
                 .first_batch = per_batch,
                 .max_batch = MAX_PER_BATCH,
                 .max_submissions = MAX_BATCHES,
+                .expected_dispatches = yield ? per_batch : 0,
             },
             dispatches, err);
         if (status != NS_RESUME_CUT)
@@ -477,13 +484,22 @@ static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_s
         }
     if (!per_material)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: materials");
+    /* Progress: each material's part is its share of the (segment, VRL) pairs. */
+    double pairs = 0.0, done = 0.0;
+    for (uint32_t m = 0; !status && m < gs->material_count; m++)
+        if (used[m])
+            pairs += (double)per_material[m] * (first[m + 1] - first[m]);
     for (uint32_t m = 0; !status && m < gs->material_count; m++) {
         if (!used[m] || first[m + 1] == first[m])
             continue;
+        double share = (double)per_material[m] * (first[m + 1] - first[m]);
+        ns_span outer = ns_progress_push(ctx, done / pairs, (done + share) / pairs);
         status =
             gather_material(ctx, bound, &own[G_COUNTERS], segment_count, m, first[m], first[m + 1],
                             seed, visibility && visibility[m], ctx->dev.loop_limited,
                             &counts->dispatches, &counts->restarts, err);
+        ns_progress_pop(ctx, outer);
+        done += share;
         counts->interactions += per_material[m] * (first[m + 1] - first[m]);
     }
     if (!status)
@@ -626,15 +642,20 @@ int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_sc
     if (status)
         return status;
     ns_vrl_set set = {0};
+    /* Progress: the light paths are the first tenth of this stage, the gather the rest. */
+    ns_span outer = ns_progress_push(ctx, 0.0, 0.1);
     status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls,
                                  scene->render.seed, &set, NULL, err);
+    ns_progress_pop(ctx, outer);
     uint8_t visibility[NS_MAX_MATERIALS];
     visibility_per_material(scene, visibility);
     ns_vrl_gather_counts counts = {0};
+    outer = ns_progress_push(ctx, 0.1, 1.0);
     if (!status)
         status = ns_vrl_method_gather_vrls(ctx, scene_buffers, gs, segments, segment_count,
                                            set.vrls, set.count, scene->render.seed ^ 0x9e3779b9u,
                                            visibility, out_double, out_multiple, &counts, err);
+    ns_progress_pop(ctx, outer);
     if (stats) {
         stats->vrl_paths = set.paths;
         stats->vrl_count = set.count;

@@ -51,6 +51,16 @@ typedef struct gpu_device {
     char last_validation_message[384];
     /* Buffers alive right now: a finished render must bring it back to where it was. */
     uint32_t live_buffers;
+    /* Cancellation of the render in progress (ns_render_controlled sets it for the render's
+     * duration and clears it on every path; NULL otherwise): while *cancel is nonzero
+     * (written by another thread, read with an acquire load) gpu_cancel_check fails, and so
+     * does every gpu_dispatch_many before it submits anything. `cancelled` records that the
+     * flag was seen set (by a check, or by the render's progress reports), so that the render
+     * reports nothing new after it and ends cancelled; the render clears it. */
+    const int *cancel;
+    int cancelled;
+    /* vkQueueSubmit calls made so far (the tests count what a cancelled render submitted). */
+    uint64_t submissions;
 } gpu_device;
 
 int gpu_device_create(gpu_device *dev, const gpu_device_desc *desc, ns_error *err);
@@ -59,6 +69,10 @@ void gpu_device_destroy(gpu_device *dev);
 /* Maps a VkResult to ns_status and fills err with "<what>: VK_ERROR_...". VK_SUCCESS is 0. */
 int gpu_check(VkResult result, const char *what, ns_error *err);
 const char *gpu_result_name(VkResult result);
+
+/* NS_ERR_CANCELLED (and dev->cancelled = 1) when dev->cancel is set and *dev->cancel is
+ * nonzero; NS_OK otherwise. The message says only "cancelled": the render names the stage. */
+int gpu_cancel_check(gpu_device *dev, ns_error *err);
 
 /* Attaches a debug label to a Vulkan object when VK_EXT_debug_utils is available. */
 void gpu_set_label(const gpu_device *dev, VkObjectType type, uint64_t handle, const char *label);
@@ -128,7 +142,9 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
 void gpu_pipeline_destroy(gpu_device *dev, gpu_pipeline *pipe);
 
 /* Records one dispatch of pipe over groups[0..2] with buffers bound in order, submits it and
- * waits. Owns (and always frees) its descriptor pool, command buffer and fence. */
+ * waits. Owns (and always frees) its descriptor pool, command buffer and fence. Fails with
+ * NS_ERR_CANCELLED, having made and submitted nothing, when gpu_cancel_check does: the one
+ * point where a render's cancellation stops the device work. */
 int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
                  uint32_t buffer_count, const uint32_t groups[3], ns_error *err);
 

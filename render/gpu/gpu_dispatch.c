@@ -119,6 +119,14 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
     return gpu_check(vkEndCommandBuffer(o->cmd), "vkEndCommandBuffer", err);
 }
 
+int gpu_cancel_check(gpu_device *dev, ns_error *err)
+{
+    if (!dev->cancel || !__atomic_load_n(dev->cancel, __ATOMIC_ACQUIRE))
+        return NS_OK;
+    dev->cancelled = 1;
+    return ns_fail(err, NS_ERR_CANCELLED, "cancelled");
+}
+
 int gpu_dispatch(gpu_device *dev, const gpu_pipeline *pipe, gpu_buffer *const *buffers,
                  uint32_t buffer_count, const uint32_t groups[3], ns_error *err)
 {
@@ -146,11 +154,16 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
             return ns_fail(err, NS_ERR_LIMIT,
                            "dispatch of %s: %u groups in dimension %d (device allows %u)",
                            pipe->name, groups[i], i, max_groups[i]);
+    /* Every device submission of a render comes through here: a cancelled render stops
+     * before its next one, with nothing made that would need freeing. */
+    int status = gpu_cancel_check(dev, err);
+    if (status)
+        return status;
     uint32_t validation_before = gpu_validation_count(dev);
     dispatch_objects o;
     memset(&o, 0, sizeof o);
     VkDescriptorSet set = VK_NULL_HANDLE;
-    int status = write_descriptors(dev, pipe, &o, buffers, &set, err);
+    status = write_descriptors(dev, pipe, &o, buffers, &set, err);
     if (!status)
         status = record(dev, desc, &o, set, err);
     VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
@@ -164,6 +177,8 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
             .pCommandBuffers = &o.cmd,
         };
         status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o.fence), "vkQueueSubmit", err);
+        if (!status)
+            dev->submissions++;
         /* No timeout: the buffers may not be freed while the device could still use them. */
         if (!status)
             status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),

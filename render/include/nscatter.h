@@ -355,10 +355,15 @@ typedef struct ns_render_stats {
     uint64_t weights_bytes;       /* network weights used (nn) */
     uint64_t table_bytes;         /* scattering tables held on the device for this render */
     /* What this render took from the context's caches instead of making it again, so a
-     * sweep of materials over one geometry can say what it reused. */
+     * sweep of materials over one geometry can say what it reused. A table counts once per
+     * render, however many gather rounds or camera batches ask for it. */
     uint64_t tables_reused;       /* scattering tables (A or J of one key) found in the cache */
     uint64_t tables_made;         /* scattering tables reconstructed or accumulated */
-    uint32_t bvh_reused;          /* 1: the BVH of the same geometry was kept from an earlier render */
+    /* 1: the BVH of the same geometry (the spheres', boxes' and triangles' numbers, bit for
+     * bit; materials, lights, camera and planes may differ) was kept from the context's last
+     * render that built one. The stage "bvh" is still listed, with the time of the
+     * comparison. The image is the same either way. */
+    uint32_t bvh_reused;
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Render settings left 0 take their defaults
@@ -372,13 +377,18 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
 /* Progress and cancellation of one render (ns_render_controlled).
  *
  * Progress reports come on the rendering thread, synchronously, in this order: a
- * STAGE_START when a stage begins (stage names as in ns_render_stats: "bvh", "pt_pass",
- * "single", "gather", ...; a stage that runs once per camera batch starts and ends once per
- * batch), TICKs while a long stage runs (pt sample batches, resumed dispatch rounds, gather
- * rounds, VRL batches: at least one per device submission of those stages), and a STAGE_END
- * with the time of that run of the stage. `fraction` estimates the part of the whole render
- * done: in [0, 1], never decreasing within a render, 1 after the last stage. The callback
- * must be quick and must not call into the context. */
+ * STAGE_START when a stage begins (stage names as in ns_render_stats: "pt_pipeline", "bvh",
+ * "upload", "ray_pass", "pt_pass", "single", "vrl", "grid", "reconstruct", "accumulate",
+ * "gather_pipeline", "gather", "composite", "readback"; a stage that runs once per camera
+ * batch, medium or gather round starts and ends each time), TICKs while a long stage runs
+ * (after every submission of pt_pass, single and the vrl method's gather, after each gather
+ * submission, between Monte Carlo table channels), and a STAGE_END with the time of that run
+ * of the stage; the END times of a stage add up to its time in ns_render_stats, and every
+ * stage listed there is reported. Stages do not nest. `fraction` estimates the part of the
+ * whole render done: in [0, 1], never decreasing within a render, exactly 1 at the last
+ * STAGE_END ("readback"); pt's counts the samples finished, the other methods' come from
+ * nominal shares (docs/rendering.md). The callback must be quick and must not call into the
+ * context. */
 typedef enum {
     NS_PROGRESS_STAGE_START = 0,
     NS_PROGRESS_STAGE_END = 1,
@@ -395,16 +405,22 @@ typedef struct ns_progress {
 typedef void (*ns_progress_fn)(void *user, const ns_progress *progress);
 
 typedef struct ns_render_control {
-    /* When not NULL and *cancel becomes nonzero (set from any thread; read with an atomic
-     * load), the render stops before its next device submission: nothing waits for the
-     * whole render, every buffer it made is freed, and it returns NS_ERR_CANCELLED. */
+    /* When not NULL and *cancel becomes nonzero (set from any thread, and left set; read
+     * with an acquire load), the render stops before its next device submission (or at the
+     * next check between stages): nothing waits for the whole render, every buffer it made
+     * is freed, nothing half made enters the context's caches, and it returns
+     * NS_ERR_CANCELLED with a message naming where ("cancelled during pt_pass", "cancelled
+     * after bvh", "cancelled before the first stage"). From the moment the render sees the
+     * flag it reports only the STAGE_ENDs of the stages it leaves. A flag set after the
+     * render's last check leaves the render to finish normally. The context stays usable:
+     * the next render is the same as on a fresh context. */
     const int *cancel;
     ns_progress_fn progress; /* NULL: no reports */
     void *user;
 } ns_render_control;
 
-/* ns_render with progress reports and a cancellation flag; control may be NULL (then it is
- * ns_render exactly). */
+/* ns_render with progress reports and a cancellation flag; control may be NULL, or have
+ * every field 0 (then it is ns_render exactly: the same image, bit for bit). */
 int ns_render_controlled(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
                          ns_image *out, ns_render_stats *stats, ns_error *err);
 

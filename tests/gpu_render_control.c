@@ -1,0 +1,569 @@
+/* gpu_render_control.c — ns_render_controlled: progress reports, cancellation and what a
+ * render takes from the context's caches (docs/rendering.md, "Progress, cancellation and
+ * reuse").
+ *
+ *   - progress of a pt and an nn render: every START has its END with the same name, stages
+ *     do not nest, TICKs come inside a stage, the names are the stats' stages and the END
+ *     times add up to the stats' times, the fraction never decreases, stays in [0, 1] and is
+ *     exactly 1 at the last END; pt_pass ticks several times with a growing fraction;
+ *   - cancellation from inside the callback (pt at the first pt_pass tick; nn at the START of
+ *     "accumulate", at the first "single" tick and at the first "gather" tick), and with the
+ *     flag set before the render: NS_ERR_CANCELLED naming the stage, no submission after the
+ *     flag was set, nothing but ENDs reported after it, every buffer freed, and the next
+ *     render on that context equal, float for float, to a render on a context that never saw
+ *     a cancellation; a table whose accumulation was cancelled is made again, not taken from
+ *     the cache;
+ *   - reuse: tables_made then tables_reused for a material, nothing made the second time;
+ *     bvh_reused 0, then 1 for the same geometry with other materials (images equal to a
+ *     render that built its BVH), 0 after a geometry change;
+ *   - a zeroed control renders what ns_render renders.
+ * Small images (16 x 12): a few seconds on lavapipe. */
+#include "gpu_util.h"
+
+/* ---------------------------------------------------------------------------------------
+ * The recorder: every report, and a cancellation when a chosen report comes.
+ * ------------------------------------------------------------------------------------- */
+#define MAX_EVENTS 4096
+
+typedef struct event {
+    ns_progress_kind kind;
+    char stage[32];
+    double fraction, stage_ms;
+} event;
+
+typedef struct recorder {
+    event events[MAX_EVENTS];
+    uint32_t count, overflow;
+    int cancel; /* the flag the render reads */
+    /* Cancel when a report of this kind for this stage comes (stage NULL: never). */
+    ns_progress_kind cancel_kind;
+    const char *cancel_stage;
+    uint32_t cancelled_at;          /* index of that report; UINT32_MAX: not yet */
+    uint64_t submissions_at_cancel; /* the device's submissions when the flag was set */
+    const gpu_device *dev;
+} recorder;
+
+static void on_progress(void *user, const ns_progress *p)
+{
+    recorder *r = user;
+    if (r->count == MAX_EVENTS) {
+        r->overflow++;
+        return;
+    }
+    event *e = &r->events[r->count];
+    e->kind = p->kind;
+    snprintf(e->stage, sizeof e->stage, "%s", p->stage ? p->stage : "(null)");
+    e->fraction = p->fraction;
+    e->stage_ms = p->stage_ms;
+    if (r->cancel_stage && r->cancelled_at == UINT32_MAX && p->kind == r->cancel_kind &&
+        strcmp(p->stage, r->cancel_stage) == 0) {
+        __atomic_store_n(&r->cancel, 1, __ATOMIC_RELEASE);
+        r->cancelled_at = r->count;
+        r->submissions_at_cancel = r->dev->submissions;
+    }
+    r->count++;
+}
+
+static recorder *recorder_new(ns_context *ctx, ns_progress_kind kind, const char *stage)
+{
+    recorder *r = calloc(1, sizeof *r);
+    if (!r) {
+        fprintf(stderr, "out of memory\n");
+        exit(1);
+    }
+    r->cancel_kind = kind;
+    r->cancel_stage = stage;
+    r->cancelled_at = UINT32_MAX;
+    r->dev = &ctx->dev;
+    return r;
+}
+
+static int render_with(ns_context *ctx, const ns_scene *s, recorder *r, ns_image *img,
+                       ns_render_stats *stats, ns_error *err)
+{
+    ns_render_control control = {.cancel = &r->cancel, .progress = on_progress, .user = r};
+    return ns_render_controlled(ctx, s, &control, img, stats, err);
+}
+
+/* ns_render, which must succeed. */
+static int plain(ns_context *ctx, const ns_scene *s, ns_image *img, ns_render_stats *stats)
+{
+    ns_error err = {0};
+    int status = ns_render(ctx, s, img, stats, &err);
+    if (status)
+        fprintf(stderr, "ns_render: %s (%s)\n", err.message, ns_status_name(status));
+    CHECK_INT(status, NS_OK);
+    return status == NS_OK;
+}
+
+static int same_image(const ns_image *a, const ns_image *b)
+{
+    return a->rgb && b->rgb && a->width == b->width && a->height == b->height &&
+           memcmp(a->rgb, b->rgb, sizeof(float) * 3 * a->width * a->height) == 0;
+}
+
+static int is_stats_stage(const ns_render_stats *stats, const char *name, double *ms)
+{
+    for (uint32_t i = 0; i < stats->stage_count; i++)
+        if (strcmp(stats->stages[i].name, name) == 0) {
+            *ms = stats->stages[i].ms;
+            return 1;
+        }
+    return 0;
+}
+
+/* The reports are well formed: START/END pairs of one name that do not nest, TICKs inside a
+ * stage, times only on ENDs, the fraction in [0, 1] and never decreasing. With `complete`
+ * (a render that finished): the names are the stats' stages, each stage's END times add up
+ * to its time there, and the last report is an END at exactly 1. */
+static void check_well_formed(const recorder *r, const ns_render_stats *stats, int complete)
+{
+    CHECK_INT(r->overflow, 0);
+    CHECK(r->count > 0);
+    const char *open = NULL;
+    double last = 0.0;
+    int nested = 0, unmatched = 0, stray_ticks = 0, bad_times = 0, decreasing = 0, outside = 0;
+    for (uint32_t i = 0; i < r->count; i++) {
+        const event *e = &r->events[i];
+        if (e->kind == NS_PROGRESS_STAGE_START) {
+            nested += open != NULL;
+            open = e->stage;
+        } else if (e->kind == NS_PROGRESS_STAGE_END) {
+            unmatched += !open || strcmp(open, e->stage) != 0;
+            open = NULL;
+        } else {
+            stray_ticks += !open || strcmp(open, e->stage) != 0;
+        }
+        bad_times += e->kind == NS_PROGRESS_STAGE_END ? !(e->stage_ms >= 0) : e->stage_ms != 0;
+        outside += !(e->fraction >= 0.0 && e->fraction <= 1.0);
+        decreasing += e->fraction < last;
+        last = e->fraction;
+    }
+    CHECK_INT(nested, 0);
+    CHECK_INT(unmatched, 0);
+    CHECK(open == NULL); /* the last START was ended */
+    CHECK_INT(stray_ticks, 0);
+    CHECK_INT(bad_times, 0);
+    CHECK_INT(outside, 0);
+    CHECK_INT(decreasing, 0);
+    if (!complete)
+        return;
+    const event *end = &r->events[r->count - 1];
+    CHECK_INT(end->kind, NS_PROGRESS_STAGE_END);
+    CHECK(end->fraction == 1.0);
+    /* Every stage of the stats was reported, with the same time in all. */
+    for (uint32_t s = 0; s < stats->stage_count; s++) {
+        const char *name = stats->stages[s].name;
+        double sum = 0.0;
+        int starts = 0;
+        for (uint32_t i = 0; i < r->count; i++)
+            if (strcmp(r->events[i].stage, name) == 0) {
+                starts += r->events[i].kind == NS_PROGRESS_STAGE_START;
+                sum += r->events[i].kind == NS_PROGRESS_STAGE_END ? r->events[i].stage_ms : 0.0;
+            }
+        if (!starts)
+            fprintf(stderr, "stage %s of the stats was never reported\n", name);
+        CHECK(starts > 0);
+        CHECK_NEAR(sum, stats->stages[s].ms, 1e-6 * (1.0 + stats->stages[s].ms));
+    }
+    /* ... and nothing else. */
+    int foreign = 0;
+    for (uint32_t i = 0; i < r->count; i++) {
+        double ms;
+        if (!is_stats_stage(stats, r->events[i].stage, &ms)) {
+            fprintf(stderr, "reported stage %s is not in the stats\n", r->events[i].stage);
+            foreign++;
+        }
+    }
+    CHECK_INT(foreign, 0);
+}
+
+/* After a cancellation: nothing but ENDs reported after the flag was set, no submission, the
+ * status and message, the buffers freed. */
+static void check_cancelled(const recorder *r, int status, const ns_error *err, const char *message,
+                            uint32_t buffers_before)
+{
+    CHECK_INT(status, NS_ERR_CANCELLED);
+    CHECK_INT(err->status, NS_ERR_CANCELLED);
+    CHECK_STR_CONTAINS(err->message, message);
+    CHECK(r->cancelled_at != UINT32_MAX);
+    if (r->cancelled_at == UINT32_MAX)
+        return;
+    int reported = 0;
+    for (uint32_t i = r->cancelled_at + 1; i < r->count; i++)
+        reported += r->events[i].kind != NS_PROGRESS_STAGE_END;
+    CHECK_INT(reported, 0);
+    CHECK_INT(r->dev->submissions, r->submissions_at_cancel);
+    CHECK_INT(r->dev->live_buffers, buffers_before);
+    check_well_formed(r, NULL, 0);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Scenes
+ * ------------------------------------------------------------------------------------- */
+static ns_material mats[2];
+static ns_object objs[2];
+static ns_light lights[2];
+
+static ns_scene pt_scene(void)
+{
+    ns_scene s = base_scene(16, 12, 35);
+    lit_medium_sphere(&s, mats, objs, lights);
+    s.render.method = NS_METHOD_PT;
+    s.render.components = NS_COMPONENT_ALL;
+    s.render.spp = 128; /* the pass takes several submissions on lavapipe */
+    return s;
+}
+
+/* Every component of the default method, with a medium whose tables no other render of
+ * this program asks for before the cancellation tests (their cache state matters). */
+static ns_material nn_mats[2];
+
+static ns_scene nn_scene(void)
+{
+    ns_scene s = base_scene(16, 12, 35);
+    lit_medium_sphere(&s, mats, objs, lights);
+    memcpy(nn_mats, mats, sizeof nn_mats);
+    nn_mats[1].g = 0.3f;
+    s.materials = nn_mats;
+    s.render.method = NS_METHOD_NN;
+    s.render.components = NS_COMPONENT_ALL;
+    s.render.spp = 1;
+    return s;
+}
+
+/* The reference: a context that never saw a cancellation, and its images. */
+static ns_context *fresh;
+static ns_image fresh_pt, fresh_nn;
+
+static void make_references(void)
+{
+    ns_error err = {0};
+    int status = ns_context_create(&(ns_context_desc){0}, &fresh, &err);
+    if (status) {
+        fprintf(stderr, "ns_context_create: %s\n", err.message);
+        exit(1);
+    }
+    ns_scene pt = pt_scene(), nn = nn_scene();
+    plain(fresh, &pt, &fresh_pt, NULL);
+    plain(fresh, &nn, &fresh_nn, NULL);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Progress
+ * ------------------------------------------------------------------------------------- */
+static void test_pt_progress(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = pt_scene();
+    recorder *r = recorder_new(ctx, 0, NULL);
+    ns_image img = {0};
+    ns_render_stats stats = {0};
+    ns_error err = {0};
+    int status = render_with(ctx, &s, r, &img, &stats, &err);
+    CHECK_INT(status, NS_OK);
+    check_well_formed(r, &stats, 1);
+    /* The first pt render of the context makes the pipeline: the first stage. */
+    CHECK(r->count > 0 && strcmp(r->events[0].stage, "pt_pipeline") == 0);
+    /* Ticks after the pt pass's submissions, by the samples finished. */
+    uint32_t ticks = 0;
+    double first = -1, last = -1;
+    for (uint32_t i = 0; i < r->count; i++)
+        if (r->events[i].kind == NS_PROGRESS_TICK && strcmp(r->events[i].stage, "pt_pass") == 0) {
+            if (!ticks++)
+                first = r->events[i].fraction;
+            last = r->events[i].fraction;
+        }
+    printf("pt_pass: %u ticks, fraction %.3f -> %.3f\n", ticks, first, last);
+    CHECK(ticks >= 3);
+    CHECK(last > first);
+    CHECK(first < 0.9);           /* the first submission does not finish the samples */
+    CHECK_NEAR(last, 0.99, 1e-9); /* every sample done: the end of pt_pass's part */
+    CHECK(same_image(&img, &fresh_pt));
+    ns_image_free(&img);
+    free(r);
+}
+
+/* The other methods' stages: the vrl method's gather (resumed dispatches), the dipole's
+ * rounds of the adaptive gather. Few light paths: well formed is all that is checked. */
+static void test_vrl_and_dipole_progress(void)
+{
+    ns_context *ctx = test_context();
+    const ns_method methods[] = {NS_METHOD_VRL, NS_METHOD_DIPOLE};
+    for (size_t m = 0; m < sizeof methods / sizeof methods[0]; m++) {
+        ns_scene s = nn_scene();
+        s.render.method = methods[m];
+        s.render.vrls = 300;
+        if (methods[m] == NS_METHOD_DIPOLE) {
+            s.render.gather_levels = 2;
+            s.render.gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE;
+        }
+        recorder *r = recorder_new(ctx, 0, NULL);
+        ns_image img = {0};
+        ns_render_stats stats = {0};
+        ns_error err = {0};
+        int status = render_with(ctx, &s, r, &img, &stats, &err);
+        if (status)
+            fprintf(stderr, "%s: %s\n", ns_method_name(methods[m]), err.message);
+        CHECK_INT(status, NS_OK);
+        check_well_formed(r, &stats, 1);
+        uint32_t gather_ticks = 0;
+        for (uint32_t i = 0; i < r->count; i++)
+            gather_ticks +=
+                r->events[i].kind == NS_PROGRESS_TICK && strcmp(r->events[i].stage, "gather") == 0;
+        CHECK(gather_ticks >= 1);
+        ns_image_free(&img);
+        free(r);
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Cancellation
+ * ------------------------------------------------------------------------------------- */
+static void test_pt_cancel_at_first_tick(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = pt_scene();
+    uint32_t buffers = ctx->dev.live_buffers;
+    recorder *r = recorder_new(ctx, NS_PROGRESS_TICK, "pt_pass");
+    ns_image img = {0};
+    ns_error err = {0};
+    int status = render_with(ctx, &s, r, &img, NULL, &err);
+    check_cancelled(r, status, &err, "cancelled during pt_pass", buffers);
+    CHECK(img.rgb == NULL);
+    /* The context goes on as if nothing happened. */
+    ns_image again = {0};
+    if (plain(ctx, &s, &again, NULL))
+        CHECK(same_image(&again, &fresh_pt));
+    ns_image_free(&again);
+    free(r);
+}
+
+static void test_cancel_before_the_render(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = nn_scene();
+    uint32_t buffers = ctx->dev.live_buffers;
+    uint64_t submissions = ctx->dev.submissions;
+    recorder *r = recorder_new(ctx, 0, NULL);
+    r->cancel = 1;
+    ns_image img = {0};
+    ns_error err = {0};
+    int status = render_with(ctx, &s, r, &img, NULL, &err);
+    CHECK_INT(status, NS_ERR_CANCELLED);
+    CHECK_STR_CONTAINS(err.message, "cancelled before the first stage");
+    CHECK_INT(ctx->dev.submissions, submissions);
+    CHECK_INT(r->count, 0);
+    CHECK_INT(ctx->dev.live_buffers, buffers);
+    CHECK(img.rgb == NULL);
+    free(r);
+}
+
+/* The START of "accumulate": J was made, A was not; the next render makes A (and only A),
+ * and its image is the fresh context's. */
+static void test_nn_cancel_during_accumulate(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = nn_scene();
+    uint32_t buffers = ctx->dev.live_buffers;
+    recorder *r = recorder_new(ctx, NS_PROGRESS_STAGE_START, "accumulate");
+    ns_image img = {0};
+    ns_error err = {0};
+    int status = render_with(ctx, &s, r, &img, NULL, &err);
+    check_cancelled(r, status, &err, "cancelled during accumulate", buffers);
+    free(r);
+
+    /* Then the progress of a whole nn render, which takes J from the cache and makes A. */
+    r = recorder_new(ctx, 0, NULL);
+    ns_render_stats stats = {0};
+    status = render_with(ctx, &s, r, &img, &stats, &err);
+    CHECK_INT(status, NS_OK);
+    check_well_formed(r, &stats, 1);
+    CHECK_INT(stats.tables_made, 1); /* A */
+    CHECK(stats.tables_reused >= 1); /* J of the cancelled render */
+    CHECK(same_image(&img, &fresh_nn));
+    CHECK_INT(ctx->dev.live_buffers, buffers);
+    double ms;
+    CHECK(is_stats_stage(&stats, "accumulate", &ms));
+    CHECK(!is_stats_stage(&stats, "reconstruct", &ms));
+    ns_image_free(&img);
+    free(r);
+}
+
+static void test_nn_cancel_at_first_tick(const char *stage)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = nn_scene();
+    uint32_t buffers = ctx->dev.live_buffers;
+    recorder *r = recorder_new(ctx, NS_PROGRESS_TICK, stage);
+    ns_image img = {0};
+    ns_error err = {0};
+    int status = render_with(ctx, &s, r, &img, NULL, &err);
+    char message[64];
+    snprintf(message, sizeof message, "cancelled during %s", stage);
+    check_cancelled(r, status, &err, message, buffers);
+    ns_render_stats stats = {0};
+    if (plain(ctx, &s, &img, &stats)) {
+        CHECK(same_image(&img, &fresh_nn));
+        CHECK_INT(stats.tables_made, 0);
+        CHECK(stats.tables_reused >= 1);
+    }
+    ns_image_free(&img);
+    free(r);
+}
+
+static void test_nn_cancel_at_first_single_tick(void)
+{
+    test_nn_cancel_at_first_tick("single");
+}
+
+static void test_nn_cancel_at_first_gather_tick(void)
+{
+    test_nn_cancel_at_first_tick("gather");
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Reuse
+ * ------------------------------------------------------------------------------------- */
+static void test_tables_counted(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = nn_scene();
+    ns_material swept[2];
+    memcpy(swept, s.materials, sizeof swept);
+    swept[1].sigma_s[0] = 2.5f; /* a material no render asked for yet */
+    s.materials = swept;
+    ns_image img = {0};
+    ns_render_stats first = {0}, second = {0};
+    if (plain(ctx, &s, &img, &first)) {
+        printf("new material: %llu tables made, %llu reused\n",
+               (unsigned long long)first.tables_made, (unsigned long long)first.tables_reused);
+        CHECK(first.tables_made >= 2); /* J of the new albedo, A */
+    }
+    ns_image_free(&img);
+    if (plain(ctx, &s, &img, &second)) {
+        CHECK_INT(second.tables_made, 0);
+        CHECK_INT(second.tables_reused, 1); /* A, found whole */
+    }
+    ns_image_free(&img);
+}
+
+/* Three diffuse objects and the medium sphere: a BVH of four primitives. */
+static ns_object g_objs[5];
+static ns_material g_mats[4];
+
+static ns_scene geometry_scene(int variant)
+{
+    ns_scene s = base_scene(16, 12, 35);
+    lit_medium_sphere(&s, mats, objs, lights);
+    g_mats[0] = mats[0];
+    g_mats[1] = mats[1];
+    g_mats[2] = diffuse(0.8, 0.2, 0.1);
+    g_mats[3] = diffuse(0.1, 0.7, 0.3);
+    g_objs[0] = objs[0];
+    g_objs[1] = objs[1];
+    g_objs[2] = sphere(-1.6, -0.5, 0.5, 0.5, 2);
+    g_objs[3] = sphere(1.5, -0.6, 0.2, 0.4, 3);
+    memset(&g_objs[4], 0, sizeof g_objs[4]);
+    g_objs[4].shape = NS_SHAPE_BOX;
+    set3(g_objs[4].min, -0.5, -1, -2.5);
+    set3(g_objs[4].max, 0.5, -0.2, -1.5);
+    g_objs[4].material = 2;
+    if (variant == 1) { /* other materials, and objects that swap theirs */
+        g_mats[1].sigma_s[1] = 1.0f;
+        g_mats[2] = diffuse(0.3, 0.3, 0.9);
+        g_objs[2].material = 3;
+        g_objs[3].material = 2;
+    } else if (variant == 2) { /* the geometry moves */
+        g_objs[3].center[0] = 1.4f;
+    }
+    s.materials = g_mats;
+    s.material_count = 4;
+    s.objects = g_objs;
+    s.object_count = 5;
+    s.render.components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE;
+    return s;
+}
+
+static void test_bvh_reused(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene g0 = geometry_scene(0);
+    ns_image img = {0}, built = {0};
+    ns_render_stats stats = {0};
+    if (plain(ctx, &g0, &img, &stats)) {
+        CHECK_INT(stats.bvh_reused, 0); /* this context's last geometry was another */
+        CHECK_INT(stats.primitives, 5);
+    }
+    ns_image_free(&img);
+    ns_scene g1 = geometry_scene(1);
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &g1, &img, &stats)) {
+        CHECK_INT(stats.bvh_reused, 1);
+        double ms;
+        CHECK(is_stats_stage(&stats, "bvh", &ms)); /* still a stage, of the comparison */
+    }
+    /* The same scene on a context whose last BVH was another: built, the same image. */
+    ns_render_stats fresh_stats = {0};
+    if (plain(fresh, &g1, &built, &fresh_stats)) {
+        CHECK_INT(fresh_stats.bvh_reused, 0);
+        CHECK(same_image(&img, &built));
+        CHECK_INT(stats.bvh_nodes, fresh_stats.bvh_nodes);
+    }
+    ns_image_free(&img);
+    ns_image_free(&built);
+    /* The geometry moves: built again, then kept again. */
+    ns_scene g2 = geometry_scene(2);
+    for (int i = 0; i < 2; i++) {
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &g2, &img, &stats))
+            CHECK_INT(stats.bvh_reused, (uint32_t)i);
+        ns_image_free(&img);
+    }
+    /* pt takes it too, and renders what it would have built. */
+    ns_scene pt = geometry_scene(0);
+    pt.render.method = NS_METHOD_PT;
+    pt.render.spp = 2;
+    memset(&stats, 0, sizeof stats);
+    ns_render_stats pt_stats = {0};
+    if (plain(ctx, &pt, &img, &stats) && plain(ctx, &pt, &built, &pt_stats)) {
+        CHECK_INT(stats.bvh_reused, 0);
+        CHECK_INT(pt_stats.bvh_reused, 1);
+        CHECK(same_image(&img, &built));
+    }
+    ns_image_free(&img);
+    ns_image_free(&built);
+}
+
+static void test_zeroed_control_is_ns_render(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene s = nn_scene();
+    ns_image a = {0}, b = {0};
+    ns_error err = {0};
+    CHECK_INT(ns_render_controlled(ctx, &s, &(ns_render_control){0}, &a, NULL, &err), NS_OK);
+    CHECK_INT(ns_render_controlled(ctx, &s, NULL, &b, NULL, &err), NS_OK);
+    CHECK(same_image(&a, &fresh_nn));
+    CHECK(same_image(&b, &fresh_nn));
+    ns_image_free(&a);
+    ns_image_free(&b);
+}
+
+int main(void)
+{
+    make_references();
+    RUN(test_pt_progress);
+    RUN(test_vrl_and_dipole_progress);
+    RUN(test_pt_cancel_at_first_tick);
+    RUN(test_cancel_before_the_render);
+    RUN(test_nn_cancel_during_accumulate);
+    RUN(test_nn_cancel_at_first_single_tick);
+    RUN(test_nn_cancel_at_first_gather_tick);
+    RUN(test_tables_counted);
+    RUN(test_bvh_reused);
+    RUN(test_zeroed_control_is_ns_render);
+    ns_image_free(&fresh_pt);
+    ns_image_free(&fresh_nn);
+    ns_context_destroy(fresh);
+    return harness_report();
+}
