@@ -1299,6 +1299,32 @@ static void parse_render(parser *p, const json_t *v)
     pop(p, saved);
 }
 
+/* A medium that the method cannot render (outside the network's domain, for "nn") is an
+ * error at the material, before anything renders, when an object uses it and the scattering
+ * components that need its tables are asked for. */
+static void check_media_for_method(parser *p)
+{
+    uint32_t components = ns_render_settings_resolve(p->render).components;
+    if (!p->materials_known ||
+        !(components & (NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)))
+        return;
+    for (uint32_t i = 0; i < p->material_count; i++) {
+        int used = 0;
+        for (uint32_t o = 0; o < p->object_count && !used; o++)
+            used = p->objects[o].material == i;
+        const char *field = NULL;
+        ns_error err = {0};
+        if (!used || !ns_material_supported(p->render.method, &p->materials[i], &field, &err))
+            continue;
+        size_t saved = push_key(p, "materials");
+        push_key(p, p->materials[i].name);
+        push_key(p, field ? field : "");
+        report(p, "%s", err.message);
+        pop(p, saved);
+    }
+}
+
+
 /* =======================================================================================
  * Where jansson stopped: the JSON pointer at a byte offset
  *
@@ -1448,6 +1474,7 @@ static void parse_root(parser *p, const json_t *root)
         pop(p, saved);
     }
     parse_render(p, json_object_get(root, "render"));
+    check_media_for_method(p);
 }
 
 static void free_parser_arrays(parser *p)

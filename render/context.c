@@ -80,6 +80,11 @@ void ns_context_device_info(const ns_context *ctx, ns_device_info *out)
     *out = ctx->dev.info;
 }
 
+uint32_t ns_context_live_buffers(const ns_context *ctx)
+{
+    return ctx ? __atomic_load_n(&ctx->dev.live_buffers, __ATOMIC_SEQ_CST) : 0;
+}
+
 void ns_image_free(ns_image *img)
 {
     if (!img)

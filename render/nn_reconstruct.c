@@ -293,17 +293,46 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
     return status;
 }
 
+/* The network's domain: the media it was trained on (DESIGN.md). */
+static int network_covers(double g, const double albedo[3], const char **field, ns_error *err)
+{
+    *field = "g";
+    if (!(g >= 0 && g < 1))
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "g %g is outside the network's [0, 1) (method \"nn\"; method \"table\" "
+                       "takes any g)",
+                       g);
+    *field = "albedo";
+    for (int c = 0; c < 3; c++)
+        if (!(albedo[c] >= 0 && albedo[c] < 1))
+            return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                           "albedo[%d] %g is outside the network's [0, 1) (method \"nn\")", c,
+                           albedo[c]);
+    *field = NULL;
+    return 0;
+}
+
+int ns_material_supported(ns_method method, const ns_material *m, const char **field,
+                          ns_error *err)
+{
+    *field = NULL;
+    if (method != NS_METHOD_NN || m->type != NS_MATERIAL_MEDIUM)
+        return 0;
+    double albedo[3];
+    for (int c = 0; c < 3; c++) {
+        double t = (double)m->sigma_s[c] + m->sigma_a[c];
+        albedo[c] = t > 0 ? m->sigma_s[c] / t : 0;
+    }
+    return network_covers(m->g, albedo, field, err);
+}
+
 static int check_material(const ns_nn_reconstruct_desc *desc, uint32_t channels, ns_error *err)
 {
     if (channels > 3)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "channels: %u (1 to 3)", channels);
-    if (!(desc->g >= 0 && desc->g < 1))
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "g: %g outside the network's [0, 1)", desc->g);
-    for (int c = 0; c < 3; c++)
-        if (!(desc->albedo[c] >= 0 && desc->albedo[c] < 1))
-            return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "albedo[%d]: %g outside [0, 1)", c,
-                           desc->albedo[c]);
-    return 0;
+    const double albedo[3] = {desc->albedo[0], desc->albedo[1], desc->albedo[2]};
+    const char *field;
+    return network_covers(desc->g, albedo, &field, err);
 }
 
 /* Energy of each table and, if asked, the rescaling to the exact E_k. */

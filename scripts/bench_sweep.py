@@ -66,7 +66,7 @@ def main():
     scene["camera"]["width"] = scene["camera"]["height"] = args.size
     n = args.n
     albedos = [[round(0.9 + 0.099 * i / max(n - 1, 1), 4)] * 3 for i in range(n)]
-    gs = [round(-0.2 + 1.0 * i / max(n - 1, 1), 3) for i in range(n)]
+    gs = [round(0.0 + 0.8 * i / max(n - 1, 1), 3) for i in range(n)]
     base = f"/materials/{args.material}"
     grid = {f"{base}/albedo": albedos, f"{base}/g": gs, f"{base}/ior": [1.3, 1.5]}
 

@@ -400,10 +400,10 @@ static json_t *device_json(const http_server *srv)
     char api[32];
     snprintf(api, sizeof api, "%u.%u.%u", d->api_version >> 22, (d->api_version >> 12) & 0x3ffu,
              d->api_version & 0xfffu);
-    return json_pack("{s:s, s:s, s:s, s:s, s:I, s:I, s:b}", "name", d->device_name, "driver",
+    return json_pack("{s:s, s:s, s:s, s:s, s:I, s:I, s:b, s:I}", "name", d->device_name, "driver",
                      d->driver_name, "driver_info", d->driver_info, "api_version", api, "vendor_id",
                      (json_int_t)d->vendor_id, "device_id", (json_int_t)d->device_id, "is_cpu",
-                     d->is_cpu);
+                     d->is_cpu, "live_buffers", (json_int_t)ns_context_live_buffers(srv->ctx));
 }
 
 static json_t *info_json(const http_server *srv)

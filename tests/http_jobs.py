@@ -451,7 +451,13 @@ def test_delete_queued(t, srv, rate):
         finish(srv, blocker)
 
 
+def live_buffers(srv):
+    return (info(srv).get("device") or {}).get("live_buffers")
+
+
 def test_delete_running(t, srv, rate):
+    buffers_before = live_buffers(srv)
+    t.check(isinstance(buffers_before, int), f"info.device.live_buffers: {buffers_before!r}")
     blocker = start_blocker(t, srv, rate)
     nxt = None
     try:
@@ -484,6 +490,8 @@ def test_delete_running(t, srv, rate):
         t.equal(done.get("state"), "done", "the next job starts and completes")
         t.check(took < CANCEL_WITHIN_S + 3, f"without waiting for the blocker's {BLOCKER_S} s: "
                 f"{took:.2f} s")
+        # The cancelled pt render freed every device buffer it made (pt caches nothing).
+        t.equal(live_buffers(srv), buffers_before, "device buffers back after the cancel")
     finally:
         finish(srv, blocker)
 

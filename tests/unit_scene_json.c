@@ -702,6 +702,34 @@ static void run_bad_case(const bad_case *c, size_t index)
     free(text);
 }
 
+/* A medium outside the network's domain (g < 0 for method nn) is refused at the material
+ * before anything renders, and only when the network would be asked for its tables. */
+static void test_network_domain(void)
+{
+    const char *negative_g = MAT("{\"type\":\"medium\",\"preset\":\"candle\",\"g\":-0.3}");
+    char *text = make_scene(NULL, negative_g, NULL, NULL, "{\"components\":[\"multiple\"]}");
+    scene_doc *doc = NULL;
+    scene_issues issues;
+    int rc = parse_text(text, NULL, &doc, &issues);
+    CHECK_INT(rc, NS_ERR_INVALID_ARGUMENT);
+    const scene_issue *it = find_issue(&issues, "/materials/wax/g");
+    CHECK(it && strstr(it->detail, "outside the network's [0, 1)"));
+    if (!rc)
+        scene_doc_free(doc);
+    free(text);
+    const char *fine[][2] = {
+        {"{\"method\":\"table\",\"components\":[\"multiple\"]}", NULL}, /* any g */
+        {"{\"components\":[\"surface\"]}", NULL},                        /* no tables */
+        {"{\"components\":[\"multiple\"]}",                              /* not used */
+         "[{\"shape\":\"plane\",\"point\":[0,-1,0],\"normal\":[0,1,0],\"material\":\"floor\"}]"},
+    };
+    for (size_t k = 0; k < sizeof fine / sizeof fine[0]; k++) {
+        text = make_scene(NULL, negative_g, fine[k][1], NULL, fine[k][0]);
+        scene_doc_free(parse_ok(text, NULL));
+        free(text);
+    }
+}
+
 static void test_bad_scenes(void)
 {
     for (size_t i = 0; i < sizeof bad_cases / sizeof bad_cases[0]; i++)
@@ -938,6 +966,7 @@ int main(void)
     RUN(test_normalisation);
     RUN(test_mesh_data_uri_and_asset);
     RUN(test_bad_scenes);
+    RUN(test_network_domain);
     RUN(test_syntax_errors_have_line_and_column);
     RUN(test_deep_nesting);
     RUN(test_many_issues);

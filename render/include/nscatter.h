@@ -322,6 +322,11 @@ typedef struct ns_device_info {
 
 void ns_context_device_info(const ns_context *ctx, ns_device_info *out);
 
+/* Device buffers alive now that a render made (buffers the context keeps on purpose, such as
+ * cached tables, are not counted): every finished, failed or cancelled render brings it back
+ * to where it was, so a service can watch for leaks. Safe to call while a render runs. */
+uint32_t ns_context_live_buffers(const ns_context *ctx);
+
 /* ---------------------------------------------------------------------------------------
  * Rendering.
  * ------------------------------------------------------------------------------------- */
@@ -423,6 +428,13 @@ typedef struct ns_render_control {
  * every field 0 (then it is ns_render exactly: the same image, bit for bit). */
 int ns_render_controlled(ns_context *ctx, const ns_scene *scene, const ns_render_control *control,
                          ns_image *out, ns_render_stats *stats, ns_error *err);
+
+/* Whether `method` can render medium material m at all: the network of method "nn" covers g
+ * in [0, 1) and single-scattering albedo in [0, 1). Returns 0, or NS_ERR_INVALID_ARGUMENT
+ * with *field the parameter at fault ("g" or "albedo") and err saying why. The parser uses it
+ * to refuse such a scene with a pointer to the material before anything renders. */
+int ns_material_supported(ns_method method, const ns_material *m, const char **field,
+                          ns_error *err);
 
 /* Which of `components` (NS_COMPONENT_* bits) this build can render with `method`:
  * returns the subset it cannot (0 when all can be rendered). The parser uses it to reject
