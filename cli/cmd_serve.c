@@ -24,7 +24,8 @@ static void serve_usage(FILE *out)
             "                    (default 3600); then they answer 410\n"
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
-            "  --sse-keepalive S comment on a quiet event stream every S seconds (default 15)\n"
+            "  --sse-keepalive S comment on a quiet event stream every S seconds (1-50,\n"
+            "                    default 15)\n"
             "\n"
             "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
             "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
@@ -77,7 +78,8 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
                 return 2;
             a->job_bytes = n;
         } else if (!strcmp(arg, "--sse-keepalive")) {
-            if (cli_parse_uint("nscatter serve", arg, value, 1, 3600, &n))
+            /* Below the 60 s after which a connection without traffic is closed. */
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 50, &n))
                 return 2;
             a->sse_keepalive_s = (uint32_t)n;
         } else {

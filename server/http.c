@@ -58,6 +58,7 @@ typedef struct http_server {
     uint32_t sse_keepalive_s;
     const char *asset_dir;
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
+    atomic_int event_streams;     /* open event streams (each holds a connection) */
 } http_server;
 
 typedef enum {
@@ -454,22 +455,44 @@ static enum MHD_Result answer_web(struct MHD_Connection *conn, const char *url)
 }
 
 /* ---------------------------------------------------------------------------------------
- * POST /v1/renders.
+ * What the request line and headers decide: query, Prefer, Accept, Content-Type.
  * ------------------------------------------------------------------------------------- */
-/* The query of a request: format=half|float where an image is answered, last_event_id=N
- * on an event stream; any other parameter is an error (a misspelt option must not be
- * ignored silently). */
+/* The query of a render or job request: format=half|float where an image is answered,
+ * last_event_id=N on an event stream; any other parameter is an error there (a misspelt
+ * option must not be ignored silently). The health, info and web routes do not look. */
 typedef struct query_check {
     http_route route;
+    int post;
     int half, has_format;
     int has_last_event_id;
     uint64_t last_event_id;
     char problem[256];
 } query_check;
 
-static int route_has_image(http_route route)
+/* Routes that answer an image: a synchronous render, a job's image. */
+static int route_has_image(http_route route, int post)
 {
-    return route == ROUTE_RENDERS || route == ROUTE_RENDER_IMAGE || route == ROUTE_SWEEP_IMAGE;
+    return (route == ROUTE_RENDERS && post) || route == ROUTE_RENDER_IMAGE ||
+           route == ROUTE_SWEEP_IMAGE;
+}
+
+static int route_is_events(http_route route)
+{
+    return route == ROUTE_RENDER_EVENTS || route == ROUTE_SWEEP_EVENTS;
+}
+
+/* The routes of one job: /v1/renders/{id}... and /v1/sweeps/{id}... */
+static int route_is_job(http_route route)
+{
+    return route == ROUTE_RENDER_JOB || route == ROUTE_RENDER_IMAGE ||
+           route == ROUTE_RENDER_EVENTS || route == ROUTE_SWEEP_JOB || route == ROUTE_SWEEP_IMAGE ||
+           route == ROUTE_SWEEP_SHEET || route == ROUTE_SWEEP_MANIFEST || route == ROUTE_SWEEP_EVENTS;
+}
+
+static int route_is_sweep_job(http_route route)
+{
+    return route == ROUTE_SWEEP_JOB || route == ROUTE_SWEEP_IMAGE || route == ROUTE_SWEEP_SHEET ||
+           route == ROUTE_SWEEP_MANIFEST || route == ROUTE_SWEEP_EVENTS;
 }
 
 static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const char *key,
@@ -479,8 +502,9 @@ static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const
     query_check *q = cls;
     if (q->problem[0])
         return MHD_YES;
-    int events = q->route == ROUTE_RENDER_EVENTS || q->route == ROUTE_SWEEP_EVENTS;
-    if (route_has_image(q->route) && !strcmp(key, "format")) {
+    int events = route_is_events(q->route);
+    int image = route_has_image(q->route, q->post);
+    if (image && !strcmp(key, "format")) {
         if (value && (!strcmp(value, "half") || !strcmp(value, "float"))) {
             q->half = !strcmp(value, "half");
             q->has_format = 1;
@@ -497,9 +521,9 @@ static enum MHD_Result check_query_arg(void *cls, enum MHD_ValueKind kind, const
         q->has_last_event_id = 1;
     } else {
         snprintf(q->problem, sizeof q->problem, "unknown query parameter '%.64s'%s", key,
-                 route_has_image(q->route) ? " (only format=half|float)"
-                 : events                  ? " (only last_event_id=N)"
-                                           : " (this resource takes none)");
+                 image    ? " (only format=half|float)"
+                 : events ? " (only last_event_id=N)"
+                          : " (this resource takes none)");
     }
     return MHD_YES;
 }
@@ -555,9 +579,9 @@ static json_t *negotiate_image(struct MHD_Connection *conn, const query_check *q
 static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv,
                              http_request *req, const char *method)
 {
-    query_check query = {.route = req->route};
-    MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
     int post = !strcmp(method, MHD_HTTP_METHOD_POST);
+    query_check query = {.route = req->route, .post = post};
+    MHD_get_connection_values(conn, MHD_GET_ARGUMENT_KIND, check_query_arg, &query);
     if (post) {
         const char *type =
             MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_CONTENT_TYPE);
@@ -574,15 +598,16 @@ static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv
                                               "asynchronous render is fetched: "
                                               "GET /v1/renders/{id}/image?format=half");
     /* An image is negotiated where it is answered: a synchronous render, or a job's image. */
-    if ((req->route == ROUTE_RENDERS && post && !req->async) || req->route == ROUTE_RENDER_IMAGE ||
-        req->route == ROUTE_SWEEP_IMAGE) {
+    if (route_has_image(req->route, post) && !(req->route == ROUTE_RENDERS && req->async)) {
         json_t *p = negotiate_image(conn, &query, &req->format);
         if (p)
             return p;
     }
     if (query.has_last_event_id)
         req->last_event_id = query.last_event_id;
-    const char *last = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Last-Event-ID");
+    const char *last = route_is_events(req->route)
+                           ? MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "Last-Event-ID")
+                           : NULL;
     if (last && !query.has_last_event_id && parse_header_number(last, 0, &req->last_event_id, NULL))
         return problemf(PROBLEM_BAD_QUERY, "Last-Event-ID '%.64s' is not an event id (a whole "
                                            "number)", last);
@@ -756,6 +781,19 @@ static enum MHD_Result send_job(struct MHD_Connection *conn, http_server *srv, j
     return send_json(conn, status, "application/json", body, created ? headers : plain);
 }
 
+/* An asynchronous result is kept as linear float RGB; one larger than the store's whole
+ * byte budget would be dropped the moment it finished, so it is refused up front. */
+static json_t *over_job_budget(const http_server *srv, uint64_t pixels, const char *what)
+{
+    uint64_t bytes = pixels * 3 * sizeof(float);
+    if (bytes <= srv->job_bytes)
+        return NULL;
+    return status_problemf(problem_kind_of_status(NS_ERR_LIMIT), NS_ERR_LIMIT,
+                           "%s would keep %llu bytes of images, more than the service keeps for "
+                           "all jobs together (%llu, --job-bytes); render fewer or smaller images",
+                           what, (unsigned long long)bytes, (unsigned long long)srv->job_bytes);
+}
+
 static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *srv,
                                      http_request *req)
 {
@@ -782,6 +820,15 @@ static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *s
     req->body = NULL;
     req->size = req->cap = 0;
 
+    const ns_scene *scene = scene_doc_scene(doc);
+    json_t *over = req->async ? over_job_budget(srv, (uint64_t)scene->camera.width *
+                                                         scene->camera.height,
+                                                "the render")
+                              : NULL;
+    if (over) {
+        scene_doc_free(doc);
+        return send_problem_json(conn, over, NULL);
+    }
     uint32_t retry_after = 1;
     job *j = NULL;
     /* A synchronous render counts until the completion callback, so shutdown can wait for
@@ -842,6 +889,11 @@ static enum MHD_Result answer_sweep_post(struct MHD_Connection *conn, http_serve
     ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
     if (!sw)
         return send_problem_json(conn, problem, NULL);
+    json_t *over = over_job_budget(srv, sweep_pixels(sw), "the sweep");
+    if (over) {
+        sweep_free(sw);
+        return send_problem_json(conn, over, NULL);
+    }
     free(req->body);
     req->body = NULL;
     req->size = req->cap = 0;
@@ -859,12 +911,15 @@ static enum MHD_Result answer_sweep_post(struct MHD_Connection *conn, http_serve
 }
 
 /* The event stream of one job (text/event-stream), read by MHD from its connection thread:
- * it blocks there until events come, sending a keep-alive comment after a quiet while. */
+ * it blocks there until events come, sending a keep-alive comment after a quiet while, and
+ * looks at the socket every second so that a client that went away frees its connection
+ * (and thread) then, not at the next write. */
+#define HTTP_MAX_EVENT_STREAMS (HTTP_MAX_CONNECTIONS / 2) /* the rest stay for renders */
 typedef struct event_stream {
-    job_store *store;
+    http_server *srv;
+    struct MHD_Connection *conn;
     job *job;
     uint64_t last;
-    double keepalive_ms;
     char *pending;
     size_t pending_size, pending_sent;
     int ended;
@@ -874,6 +929,7 @@ static ssize_t event_stream_read(void *cls, uint64_t pos, char *buf, size_t max)
 {
     (void)pos;
     event_stream *es = cls;
+    double quiet_since = ns_now_ms();
     while (es->pending_sent == es->pending_size) {
         free(es->pending);
         es->pending = NULL;
@@ -881,13 +937,17 @@ static ssize_t event_stream_read(void *cls, uint64_t pos, char *buf, size_t max)
         if (es->ended)
             return MHD_CONTENT_READER_END_OF_STREAM;
         char *text = NULL;
-        if (job_events_wait(es->store, es->job, es->last, es->keepalive_ms, &text, &es->last,
+        if (job_events_wait(es->srv->jobs, es->job, es->last, 1000.0, &text, &es->last,
                             &es->ended))
             return MHD_CONTENT_READER_END_WITH_ERROR;
         if (!text[0] && !es->ended) {
             free(text);
-            text = strdup(": keep-alive\n\n");
-            if (!text)
+            text = NULL;
+            if (client_gone(es->conn))
+                return MHD_CONTENT_READER_END_WITH_ERROR;
+            if (ns_now_ms() - quiet_since < es->srv->sse_keepalive_s * 1000.0)
+                continue;
+            if (!(text = strdup(": keep-alive\n\n")))
                 return MHD_CONTENT_READER_END_WITH_ERROR;
         }
         es->pending = text;
@@ -903,7 +963,8 @@ static ssize_t event_stream_read(void *cls, uint64_t pos, char *buf, size_t max)
 static void event_stream_free(void *cls)
 {
     event_stream *es = cls;
-    job_release(es->store, es->job);
+    atomic_fetch_sub(&es->srv->event_streams, 1);
+    job_release(es->srv->jobs, es->job);
     free(es->pending);
     free(es);
 }
@@ -911,15 +972,35 @@ static void event_stream_free(void *cls)
 static enum MHD_Result answer_events(struct MHD_Connection *conn, http_server *srv, job *j,
                                      uint64_t after)
 {
+    /* A finished job whose every event the client has seen: 204, which tells an
+     * EventSource to stop reconnecting (an empty 200 would start it again and again). */
+    char *text = NULL;
+    uint64_t last = after;
+    int ended = 0;
+    if (job_events_wait(srv->jobs, j, after, 0, &text, &last, &ended) == 0 && !text[0] && ended) {
+        free(text);
+        job_release(srv->jobs, j);
+        return send_bytes(conn, 204, "text/event-stream", "", 0, MHD_RESPMEM_PERSISTENT, NULL);
+    }
+    free(text);
+    if (atomic_fetch_add(&srv->event_streams, 1) >= (int)HTTP_MAX_EVENT_STREAMS) {
+        atomic_fetch_sub(&srv->event_streams, 1);
+        job_release(srv->jobs, j);
+        const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, "5", NULL};
+        return send_problem_json(conn,
+                                 problemf(PROBLEM_TOO_MANY_STREAMS,
+                                          "%u event streams are open, the most this service "
+                                          "keeps; poll the job instead, or retry",
+                                          HTTP_MAX_EVENT_STREAMS),
+                                 headers);
+    }
     event_stream *es = calloc(1, sizeof *es);
     if (!es) {
+        atomic_fetch_sub(&srv->event_streams, 1);
         job_release(srv->jobs, j);
         return send_out_of_memory(conn);
     }
-    *es = (event_stream){.store = srv->jobs,
-                         .job = j,
-                         .last = after,
-                         .keepalive_ms = srv->sse_keepalive_s * 1000.0};
+    *es = (event_stream){.srv = srv, .conn = conn, .job = j, .last = after};
     struct MHD_Response *resp = MHD_create_response_from_callback(
         MHD_SIZE_UNKNOWN, 16 * 1024, event_stream_read, es, event_stream_free);
     if (!resp) {
@@ -941,7 +1022,7 @@ static enum MHD_Result answer_job_route(struct MHD_Connection *conn, http_server
 {
     if (!srv->jobs)
         return send_problem_json(conn, no_context_problem(srv), NULL);
-    int sweep_route = req->route >= ROUTE_SWEEP_JOB && req->route <= ROUTE_SWEEP_EVENTS;
+    int sweep_route = route_is_sweep_job(req->route);
     const char *what = sweep_route ? "sweep" : "render";
     int gone = 0;
     job *j = job_find(srv->jobs, req->job_id, sweep_route ? JOB_SWEEP : JOB_RENDER, &gone);
@@ -954,7 +1035,7 @@ static enum MHD_Result answer_job_route(struct MHD_Connection *conn, http_server
                  : problemf(PROBLEM_NOT_FOUND, "no %s with id %.40s", what, req->job_id),
             NULL);
     enum MHD_Result ret;
-    if (req->route == ROUTE_RENDER_EVENTS || req->route == ROUTE_SWEEP_EVENTS)
+    if (route_is_events(req->route))
         return answer_events(conn, srv, j, req->last_event_id); /* it keeps the reference */
     if ((req->route == ROUTE_RENDER_JOB || req->route == ROUTE_SWEEP_JOB) &&
         !strcmp(method, MHD_HTTP_METHOD_DELETE)) {
@@ -1053,8 +1134,9 @@ static http_route route_for(const char *url, http_request *req)
         if (!strncmp(tail, "/images/", 8)) {
             uint64_t n = 0;
             const char *digits = tail + 8;
-            if (*digits < '0' || *digits > '9' || parse_header_number(digits, 0, &n, NULL) ||
-                strchr(digits, ' ') || n > 1000000)
+            size_t count = strspn(digits, "0123456789");
+            if (count == 0 || count > 6 || digits[count] ||
+                parse_header_number(digits, 0, &n, NULL))
                 return ROUTE_NONE;
             req->variant = (int)n;
             return ROUTE_SWEEP_IMAGE;
@@ -1194,8 +1276,7 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         return answer_render(conn, srv, req);
     if (post && req->route == ROUTE_SWEEPS)
         return answer_sweep_post(conn, srv, req);
-    if (req->route >= ROUTE_RENDER_JOB && req->route <= ROUTE_SWEEP_EVENTS &&
-        req->route != ROUTE_SWEEPS)
+    if (route_is_job(req->route))
         return answer_job_route(conn, srv, req, method);
     return answer_get(conn, srv, req->route, url);
 }

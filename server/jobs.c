@@ -88,7 +88,9 @@ struct job_store {
     uint32_t table_count, table_cap;
     char (*tombstones)[JOB_ID_CHARS + 1];
     uint32_t tombstone_next;
-    int stopping, streams_closed;
+    int stopping;       /* the worker ends once the queue is empty */
+    int closing;        /* job_store_shutdown ran: nothing new is admitted */
+    int streams_closed; /* event streams end */
     double average_ms; /* moving average of a job's duration, for Retry-After */
 };
 
@@ -206,6 +208,27 @@ static uint32_t queue_position(const job_store *store, const job *j)
     for (const job *q = store->head; q && q != j; q = q->next)
         ahead++;
     return ahead;
+}
+
+/* Tells the streams of every queued job where it now stands. Lock held. */
+static void announce_positions_locked(job_store *store)
+{
+    for (job *q = store->head; q; q = q->next)
+        add_event(store, q, "state",
+                  json_pack("{s:s, s:I}", "state", "queued", "queue_position",
+                            (json_int_t)queue_position(store, q)),
+                  0);
+}
+
+/* An absolute CLOCK_REALTIME time ms from now, for pthread_cond_timedwait. */
+static struct timespec deadline_in(double ms)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_REALTIME, &t);
+    double ns = (double)t.tv_nsec + ms * 1e6;
+    t.tv_sec += (time_t)(ns / 1e9);
+    t.tv_nsec = (long)fmod(ns, 1e9);
+    return t;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -526,11 +549,14 @@ static void run_sweep(job_store *store, job *j)
     for (uint32_t i = 0; i < n; i++)
         if (j->variants[i].state == JOB_QUEUED || j->variants[i].state == JOB_RUNNING)
             j->variants[i].state = JOB_CANCELLED;
-    /* The sweep's own result: the state, and the first failure's problem. */
-    j->result.state = __atomic_load_n(&j->cancel, __ATOMIC_ACQUIRE) ? JOB_CANCELLED
-                      : failed                                       ? JOB_FAILED
-                                                                     : JOB_DONE;
-    for (uint32_t i = 0; i < n && failed && !j->result.error; i++)
+    /* The sweep's own result: cancelled when a DELETE left variants unrendered (one that
+     * came after the last variant changes nothing), else failed with the first failure's
+     * problem when one failed, else done. */
+    int cancelled = 0;
+    for (uint32_t i = 0; i < n; i++)
+        cancelled |= j->variants[i].state == JOB_CANCELLED;
+    j->result.state = cancelled ? JOB_CANCELLED : failed ? JOB_FAILED : JOB_DONE;
+    for (uint32_t i = 0; i < n && !cancelled && failed && !j->result.error; i++)
         if (j->variants[i].error)
             j->result.error = json_incref(j->variants[i].error);
     pthread_mutex_unlock(&store->lock);
@@ -575,12 +601,7 @@ static void *worker_main(void *arg)
         j->started_wall = wall_now();
         ns_stats_add_stage(&j->live_stats, "queue", ns_now_ms() - j->submitted_ms);
         add_event(store, j, "state", json_pack("{s:s}", "state", "running"), 0);
-        /* The jobs behind it moved up: their streams hear of it. */
-        for (job *q = store->head; q; q = q->next)
-            add_event(store, q, "state",
-                      json_pack("{s:s, s:I}", "state", "queued", "queue_position",
-                                (json_int_t)queue_position(store, q)),
-                      0);
+        announce_positions_locked(store); /* the jobs behind it moved up */
         pthread_mutex_unlock(&store->lock);
 
         double start = ns_now_ms();
@@ -622,7 +643,7 @@ static int new_id(char out[JOB_ID_CHARS + 1])
 static int admit(job_store *store, job *j, uint32_t *retry_after_s)
 {
     pthread_mutex_lock(&store->lock);
-    if (store->admitted >= store->capacity || store->stopping) {
+    if (store->admitted >= store->capacity || store->stopping || store->closing) {
         /* Everything admitted must finish before a slot opens; assume the running one is
          * half done. */
         double wait_s = store->average_ms * ((double)store->admitted - 0.5) / 1000.0;
@@ -773,13 +794,7 @@ void job_wait(job_store *store, job *j, int (*client_gone)(void *user), void *us
 {
     pthread_mutex_lock(&store->lock);
     while (!finished(j->state)) {
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        until.tv_nsec += 100 * 1000 * 1000;
-        if (until.tv_nsec >= 1000000000) {
-            until.tv_sec++;
-            until.tv_nsec -= 1000000000;
-        }
+        struct timespec until = deadline_in(100);
         pthread_cond_timedwait(&store->changed, &store->lock, &until);
         if (!finished(j->state) && !j->cancel_requested && client_gone) {
             pthread_mutex_unlock(&store->lock);
@@ -827,11 +842,7 @@ job_cancel_result job_cancel(job_store *store, job *j)
                 j->variants[i].state = JOB_CANCELLED;
         j->result.state = JOB_CANCELLED;
         finish_locked(store, j, JOB_CANCELLED);
-        for (job *q = store->head; q; q = q->next)
-            add_event(store, q, "state",
-                      json_pack("{s:s, s:I}", "state", "queued", "queue_position",
-                                (json_int_t)queue_position(store, q)),
-                      0);
+        announce_positions_locked(store);
         unref_locked(j); /* the queue's reference; the caller still holds one */
         result = JOB_CANCELLED_QUEUED;
     } else {
@@ -925,7 +936,8 @@ int job_sweep_sheet(job_store *store, job *j, encode_buffer *out, ns_error *err)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "contact sheet: %u cells", n);
     }
     /* Every variant's camera is the base scene's unless an override changes it: the
-     * placeholders take the first variant's size, and the sheet its exposure. */
+     * placeholders take the size of the variant that renders first (render_settings), and
+     * the sheet its exposure. */
     json_t *settings = j->render_settings;
     uint32_t width = (uint32_t)json_integer_value(json_object_get(settings, "width"));
     uint32_t height = (uint32_t)json_integer_value(json_object_get(settings, "height"));
@@ -1003,11 +1015,7 @@ int job_events_wait(job_store *store, job *j, uint64_t after, double timeout_ms,
         double left = deadline - ns_now_ms();
         if (left <= 0)
             break;
-        struct timespec until;
-        clock_gettime(CLOCK_REALTIME, &until);
-        double ns = until.tv_nsec + fmin(left, 1000.0) * 1e6;
-        until.tv_sec += (time_t)(ns / 1e9);
-        until.tv_nsec = (long)fmod(ns, 1e9);
+        struct timespec until = deadline_in(fmin(left, 1000.0));
         pthread_cond_timedwait(&store->changed, &store->lock, &until);
     }
     int status = NS_OK;
@@ -1028,6 +1036,10 @@ int job_events_wait(job_store *store, job *j, uint64_t after, double timeout_ms,
     pthread_mutex_unlock(&store->lock);
     if (!status && !*text && !(*text = calloc(1, 1)))
         status = NS_ERR_OUT_OF_HOST_MEMORY;
+    if (status) {
+        free(*text);
+        *text = NULL;
+    }
     return status;
 }
 
@@ -1073,6 +1085,8 @@ void job_store_shutdown(job_store *store)
     if (!store)
         return;
     pthread_mutex_lock(&store->lock);
+    store->closing = 1;
+    /* At most `capacity` jobs are unfinished, and `nscatter serve --queue` is at most 1024. */
     job *cancel[1024];
     uint32_t n = 0;
     for (uint32_t i = 0; i < store->table_count && n < 1024; i++)

@@ -49,9 +49,9 @@ typedef struct job_store_desc {
 } job_store_desc;
 
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);
-/* Before the daemon stops: cancels every asynchronous job (queued ones at once, running
- * ones at their next dispatch) and ends every event stream, so no connection thread waits
- * on the store any more. Synchronous jobs still finish. */
+/* When the service begins to stop: admits nothing new, cancels every asynchronous job
+ * (queued ones at once, running ones at their next dispatch) and ends every event stream.
+ * Synchronous jobs already admitted still finish, and their connections still wait. */
 void job_store_shutdown(job_store *store);
 /* Joins the worker and frees everything; every connection must be gone. NULL allowed. */
 void job_store_destroy(job_store *store);
@@ -72,9 +72,9 @@ int job_submit_sweep(job_store *store, struct sweep *sweep, const ns_render_stat
 job *job_find(job_store *store, const char *id, job_kind kind, int *gone);
 void job_release(job_store *store, job *job);
 
-/* Waits until the job has finished. Every 100 ms `client_gone` (may be NULL) is asked
- * whether the client is still there; when it says 1, the job is cancelled and still waited
- * for (the device is free again when this returns). */
+/* Waits until the job has finished. At least every 100 ms (and whenever a job changes)
+ * `client_gone` (may be NULL) is asked whether the client is still there; when it says 1,
+ * the job is cancelled and still waited for (the device is free again when this returns). */
 void job_wait(job_store *store, job *job, int (*client_gone)(void *user), void *user);
 
 typedef enum {

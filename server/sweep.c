@@ -17,6 +17,7 @@ struct sweep {
     json_t *grid_pointers; /* grid: the pointers in body order (array of strings) */
     json_t *grid_values;   /* grid: the body's grid object */
     uint32_t *order;
+    uint64_t pixels; /* over every variant's image */
     scene_parse_options opts;
     char *asset_dir;
 };
@@ -44,6 +45,11 @@ const json_t *sweep_overrides(const sweep *sw, uint32_t i)
     return json_array_get(sw->variants, i);
 }
 
+uint64_t sweep_pixels(const sweep *sw)
+{
+    return sw->pixels;
+}
+
 const uint32_t *sweep_order(const sweep *sw)
 {
     return sw->order;
@@ -69,9 +75,11 @@ static void pointer_append(char *out, size_t cap, const char *token)
     out[n < cap ? n : cap - 1] = 0;
 }
 
-/* Sets the value at `pointer` in `doc` (value referenced, not stolen): the parent must
- * exist; an object's key is replaced or added, an array's element replaced (or appended at
- * its size or "-"). Returns 0, or -1 with `why` filled. */
+/* Sets a copy of `value` at `pointer` in `doc`: the parent must exist; an object's key is
+ * replaced or added, an array's element replaced (or appended at its size or "-"). A copy,
+ * because a later override may point inside this one: it must change the variant's scene,
+ * never the override kept for the manifest and the labels. Returns 0, or -1 with `why`
+ * filled. */
 static int pointer_set(json_t *doc, const char *pointer, json_t *value, char *why, size_t cap)
 {
     if (pointer[0] != '/') {
@@ -85,6 +93,10 @@ static int pointer_set(json_t *doc, const char *pointer, json_t *value, char *wh
         size_t len = slash ? (size_t)(slash - p) : strlen(p);
         char token[256];
         size_t t = 0;
+        if (len >= sizeof token) {
+            snprintf(why, cap, "a key of more than %zu characters", sizeof token - 1);
+            return -1;
+        }
         for (size_t i = 0; i < len && t + 1 < sizeof token; i++) {
             if (p[i] == '~' && i + 1 < len && (p[i + 1] == '0' || p[i + 1] == '1')) {
                 token[t++] = p[i + 1] == '0' ? '~' : '/';
@@ -100,7 +112,9 @@ static int pointer_set(json_t *doc, const char *pointer, json_t *value, char *wh
         int last = slash == NULL;
         if (json_is_object(node)) {
             if (last)
-                return json_object_set(node, token, value) ? (snprintf(why, cap, "out of memory"), -1) : 0;
+                return json_object_set_new(node, token, json_deep_copy(value))
+                           ? (snprintf(why, cap, "out of memory"), -1)
+                           : 0;
             json_t *next = json_object_get(node, token);
             if (!next) {
                 snprintf(why, cap, "the scene has no '%s' here, so nothing under it can be set",
@@ -110,9 +124,11 @@ static int pointer_set(json_t *doc, const char *pointer, json_t *value, char *wh
             node = next;
         } else if (json_is_array(node)) {
             size_t size = json_array_size(node);
-            char *end = NULL;
-            unsigned long index = strcmp(token, "-") ? strtoul(token, &end, 10) : size;
-            if (strcmp(token, "-") && (!token[0] || *end || (token[0] == '0' && token[1]))) {
+            int dash = !strcmp(token, "-");
+            unsigned long index = dash ? size : strtoul(token, NULL, 10);
+            /* RFC 6901: "0", or digits without a leading zero; nothing else (no sign). */
+            if (!dash && (!token[0] || strspn(token, "0123456789") != strlen(token) ||
+                          (token[0] == '0' && token[1]) || strlen(token) > 9)) {
                 snprintf(why, cap, "'%s' is not an array index", token);
                 return -1;
             }
@@ -121,8 +137,8 @@ static int pointer_set(json_t *doc, const char *pointer, json_t *value, char *wh
                 return -1;
             }
             if (last)
-                return (index == size ? json_array_append(node, value)
-                                      : json_array_set(node, index, value))
+                return (index == size ? json_array_append_new(node, json_deep_copy(value))
+                                      : json_array_set_new(node, index, json_deep_copy(value)))
                            ? (snprintf(why, cap, "out of memory"), -1)
                            : 0;
             node = json_array_get(node, index);
@@ -162,48 +178,52 @@ static void body_pointer(const sweep *sw, uint32_t i, const char *pointer, char 
     snprintf(out + len, cap - len, "/%zu", index);
 }
 
-static json_t *variant_document(const sweep *sw, uint32_t i, char *why, size_t cap,
-                                const char **failed_pointer)
+/* Variant i's scene: the base with its overrides set, parsed. Returns 0 and *out; or
+ * NS_ERR_INVALID_ARGUMENT with *failed the override that could not be set (and why), or with
+ * *failed NULL and the parser's issues; or NS_ERR_OUT_OF_HOST_MEMORY. */
+static int parse_variant(const sweep *sw, uint32_t i, scene_doc **out, scene_issues *issues,
+                         char *why, size_t cap, const char **failed)
 {
+    *out = NULL;
+    *failed = NULL;
     json_t *doc = json_deep_copy(sw->scene);
-    if (!doc) {
-        snprintf(why, cap, "out of memory");
-        return NULL;
-    }
+    if (!doc)
+        return NS_ERR_OUT_OF_HOST_MEMORY;
     const char *pointer;
     json_t *value;
     json_object_foreach((json_t *)sweep_overrides(sw, i), pointer, value)
     {
         if (pointer_set(doc, pointer, value, why, cap)) {
-            *failed_pointer = pointer;
             json_decref(doc);
-            return NULL;
+            if (!strcmp(why, "out of memory"))
+                return NS_ERR_OUT_OF_HOST_MEMORY;
+            *failed = pointer;
+            return NS_ERR_INVALID_ARGUMENT;
         }
     }
-    return doc;
+    char *text = json_dumps(doc, JSON_COMPACT | JSON_REAL_PRECISION(17));
+    json_decref(doc);
+    if (!text)
+        return NS_ERR_OUT_OF_HOST_MEMORY;
+    int rc = scene_parse(text, strlen(text), &sw->opts, out, issues);
+    free(text);
+    return rc;
 }
 
 int sweep_variant_scene(const sweep *sw, uint32_t i, scene_doc **out, ns_error *err)
 {
-    *out = NULL;
     char why[256];
     const char *failed = NULL;
-    json_t *doc = variant_document(sw, i, why, sizeof why, &failed);
-    if (!doc)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "variant %u: %s: %s", i, failed ? failed : "",
-                       why);
-    char *text = json_dumps(doc, JSON_COMPACT | JSON_REAL_PRECISION(17));
-    json_decref(doc);
-    if (!text)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "variant %u: out of memory", i);
     scene_issues *issues = calloc(1, sizeof *issues);
-    int rc = issues ? scene_parse(text, strlen(text), &sw->opts, out, issues)
+    int rc = issues ? parse_variant(sw, i, out, issues, why, sizeof why, &failed)
                     : NS_ERR_OUT_OF_HOST_MEMORY;
-    free(text);
-    if (rc)
-        ns_fail(err, rc, "variant %u: %s: %s", i,
-                issues && issues->count ? issues->items[0].pointer : "",
-                issues && issues->count ? issues->items[0].detail : ns_status_message(rc));
+    if (rc == NS_ERR_OUT_OF_HOST_MEMORY)
+        ns_fail(err, rc, "variant %u: out of memory", i);
+    else if (rc && failed)
+        ns_fail(err, rc, "variant %u: %s: %s", i, failed, why);
+    else if (rc)
+        ns_fail(err, rc, "variant %u: %s: %s", i, issues->count ? issues->items[0].pointer : "",
+                issues->count ? issues->items[0].detail : ns_status_message(rc));
     free(issues);
     return rc;
 }
@@ -250,30 +270,31 @@ static int check_variant(sweep *sw, uint32_t i, json_t **problem, char *key, siz
 {
     char why[512], at[512];
     const char *failed = NULL;
-    json_t *doc = variant_document(sw, i, why, sizeof why, &failed);
-    if (!doc && !failed)
-        return NS_ERR_OUT_OF_HOST_MEMORY;
+    scene_issues *issues = calloc(1, sizeof *issues);
+    scene_doc *parsed = NULL;
+    int rc = issues ? parse_variant(sw, i, &parsed, issues, why, sizeof why, &failed)
+                    : NS_ERR_OUT_OF_HOST_MEMORY;
+    if (rc == 0) {
+        const ns_scene *scene = scene_doc_scene(parsed);
+        table_key(scene, key, key_cap);
+        sw->pixels += (uint64_t)scene->camera.width * scene->camera.height;
+        scene_doc_free(parsed);
+        free(issues);
+        return NS_OK;
+    }
+    if (rc == NS_ERR_OUT_OF_HOST_MEMORY) {
+        free(issues);
+        return rc;
+    }
     if (!*problem)
         *problem = problem_new(PROBLEM_INVALID_SWEEP, "");
-    if (!doc) {
+    if (failed) {
         body_pointer(sw, i, failed, at, sizeof at);
         char detail[900];
         snprintf(detail, sizeof detail, "variant %u: %s: %s", i, failed, why);
         add_error(*problem, at, detail);
-        return NS_ERR_INVALID_ARGUMENT;
-    }
-    char *text = json_dumps(doc, JSON_COMPACT | JSON_REAL_PRECISION(17));
-    json_decref(doc);
-    scene_issues *issues = text ? calloc(1, sizeof *issues) : NULL;
-    scene_doc *parsed = NULL;
-    int rc = issues ? scene_parse(text, strlen(text), &sw->opts, &parsed, issues)
-                    : NS_ERR_OUT_OF_HOST_MEMORY;
-    free(text);
-    if (rc == 0) {
-        table_key(scene_doc_scene(parsed), key, key_cap);
-        scene_doc_free(parsed);
         free(issues);
-        return NS_OK;
+        return NS_ERR_INVALID_ARGUMENT;
     }
     for (uint32_t k = 0; rc == NS_ERR_INVALID_ARGUMENT && k < issues->count; k++) {
         const scene_issue *is = &issues->items[k];
@@ -490,6 +511,8 @@ int sweep_parse(const char *body, size_t size, const scene_parse_options *opts, 
         int status = check_variant(sw, i, problem, keys[i], sizeof keys[i]);
         if (status == NS_ERR_OUT_OF_HOST_MEMORY) {
             free(keys);
+            json_decref(*problem); /* an answer about memory, not about the variants */
+            *problem = NULL;
             rc = status;
             goto done;
         }

@@ -37,8 +37,10 @@ const json_t *sweep_overrides(const sweep *sweep, uint32_t i);
 const uint32_t *sweep_order(const sweep *sweep);
 /* The scene of variant i, parsed again (the caller frees it). */
 int sweep_variant_scene(const sweep *sweep, uint32_t i, scene_doc **out, ns_error *err);
+/* The pixels of every variant's image together (what the sweep's results will hold). */
+uint64_t sweep_pixels(const sweep *sweep);
 /* One line per override, "g=0.5", for the contact sheet: at most `max` lines written into
- * lines[k] (each `cap` bytes). Returns the number written. */
+ * lines[k] (96 bytes each). Returns the number written. */
 uint32_t sweep_label_lines(const sweep *sweep, uint32_t i, char (*lines)[96], uint32_t max);
 
 #endif

@@ -355,7 +355,8 @@ def test_events_live_replay_and_resume(t, srv, rate):
                 f"{how} {third}: exactly the events after it")
         t.check(s.closed, f"{how}: closes")
     s = read_events(srv, path, headers={"Last-Event-ID": replay.events[-1].id}, timeout=30)
-    t.equal((s.status, s.events, s.closed), (200, [], True), "resuming after the last event")
+    # Nothing left to send of a finished job: 204, which stops an EventSource reconnecting.
+    t.equal((s.status, s.events, s.closed), (204, [], True), "resuming after the last event")
 
     # A live stream dropped after three events, resumed with the third's id.
     scene, expected_s = rate.scene(1.5, seed=2)
@@ -676,10 +677,50 @@ def test_job_bytes_eviction(t):
         status, headers, raw = srv.request("GET", job_path(older))
         check_problem(t, status, headers, raw, 410, "job_gone", "the older job is evicted")
         t.equal(srv.request("GET", job_path(newer, "/image"))[0], 200, "the newer job is kept")
+        # An image over the whole budget would be dropped as it finished: refused up front.
+        before = info(srv).get("jobs", {})
+        status, headers, job, raw = post_async(srv, small_scene(128, 128))
+        check_problem(t, status, headers, raw, 422, "limit_exceeded", "a render over --job-bytes")
+        t.equal(info(srv).get("jobs", {}), before, "nothing admitted for it")
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit (status {code})")
         if t.failed:
             print(srv.log_text()[-3000:], file=sys.stderr)
+
+
+def test_event_stream_limit(t, srv, rate):
+    """32 open streams at most; streams whose clients hung up free their places (the server
+    looks at each quiet stream's socket every second)."""
+    blocker = start_blocker(t, srv, rate)
+    queued = submit(t, srv, small_scene(8, 8), "a job waiting behind the blocker")
+    socks = []
+    try:
+        if not (blocker and queued):
+            return
+        path = job_path(queued, "/events")
+        for _ in range(32):
+            sock = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+            sock.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+            socks.append(sock)
+        for sock in socks:  # each one answered (200, streaming) before the next check
+            t.check(sock.recv(64).startswith(b"HTTP/1.1 200"), "a stream opens")
+        s = read_events(srv, path, timeout=10)
+        check_problem(t, s.status, s.headers, s.body, 503, "too_many_streams", "stream 33")
+        t.check(s.headers.get("retry-after"), "with Retry-After")
+        for sock in socks:
+            sock.close()
+        socks = []
+        deadline = time.monotonic() + 5
+        status = None
+        while time.monotonic() < deadline and status != 200:
+            time.sleep(0.5)
+            status = read_events(srv, path, timeout=2, max_events=1).status
+        t.equal(status, 200, "the closed streams' places are free again within 5 s")
+    finally:
+        for sock in socks:
+            sock.close()
+        finish(srv, blocker)
+        finish(srv, queued)
 
 
 def main():
@@ -697,7 +738,7 @@ def main():
             t.run(test, srv)
         for test in (test_queued_running_done, test_queue_full, test_events_live_replay_and_resume,
                      test_keepalive_comments, test_delete_queued, test_delete_running,
-                     test_sync_disconnect_cancels):
+                     test_sync_disconnect_cancels, test_event_stream_limit):
             t.run(test, srv, rate)
             wait_idle(srv, 60)
         t.current = "end"

@@ -170,6 +170,25 @@ static void test_overrides_add_and_arrays(void)
     done(&p);
 }
 
+/* An override inside another's value changes the variant's scene, never the value kept
+ * for the manifest and the labels (nor the other variants that share it). */
+static void test_nested_overrides_stay_apart(void)
+{
+    parsed p = parse("{\"scene\": " SCENE ", \"grid\": {\"/materials/wax\": [{\"type\": "
+                     "\"medium\", \"albedo\": [0.9, 0.9, 0.9], \"mfp\": [0.1, 0.1, 0.1], "
+                     "\"g\": 0.1, \"ior\": 1}], \"/materials/wax/g\": [0.2, 0.8]}}");
+    CHECK_INT(p.rc, 0);
+    if (!p.sw)
+        return;
+    CHECK_NEAR(variant_g(p.sw, 0), 0.2, 1e-6);
+    CHECK_NEAR(variant_g(p.sw, 1), 0.8, 1e-6);
+    for (uint32_t i = 0; i < 2; i++) {
+        const json_t *wax = json_object_get(sweep_overrides(p.sw, i), "/materials/wax");
+        CHECK_NEAR(json_real_value(json_object_get(wax, "g")), 0.1, 1e-12);
+    }
+    done(&p);
+}
+
 static void test_errors_point_into_the_body(void)
 {
     parsed p = parse("{\"scene\": " SCENE ", \"variants\": ["
@@ -297,6 +316,7 @@ int main(void)
     RUN(test_variant_list_and_order);
     RUN(test_grid_first_pointer_slowest);
     RUN(test_overrides_add_and_arrays);
+    RUN(test_nested_overrides_stay_apart);
     RUN(test_errors_point_into_the_body);
     RUN(test_refused_bodies);
     RUN(test_limits);
