@@ -24,6 +24,7 @@ static void serve_usage(FILE *out)
             "                    (default 3600); then they answer 410\n"
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
+            "  --access-log on|off  one JSON line per request on stderr (default on)\n"
             "  --sse-keepalive S comment on a quiet event stream every S seconds (1-50,\n"
             "                    default 15)\n"
             "\n"
@@ -77,6 +78,12 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 40, &n))
                 return 2;
             a->job_bytes = n;
+        } else if (!strcmp(arg, "--access-log")) {
+            if (strcmp(value, "on") && strcmp(value, "off")) {
+                fprintf(stderr, "nscatter serve: --access-log on|off, got '%s'\n", value);
+                return 2;
+            }
+            a->no_access_log = !strcmp(value, "off");
         } else if (!strcmp(arg, "--sse-keepalive")) {
             /* Below the 60 s after which a connection without traffic is closed. */
             if (cli_parse_uint("nscatter serve", arg, value, 1, 50, &n))

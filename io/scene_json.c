@@ -489,6 +489,24 @@ static const preset presets[] = {
 };
 #define PRESET_COUNT (sizeof presets / sizeof presets[0])
 
+uint32_t scene_preset_count(void)
+{
+    return (uint32_t)PRESET_COUNT;
+}
+
+int scene_preset_get(uint32_t index, scene_preset *out)
+{
+    if (index >= PRESET_COUNT)
+        return NS_ERR_INVALID_ARGUMENT;
+    const preset *p = &presets[index];
+    out->name = p->name;
+    memcpy(out->albedo, p->albedo, sizeof out->albedo);
+    memcpy(out->mfp, p->mfp, sizeof out->mfp);
+    out->g = p->g;
+    out->ior = p->ior;
+    return NS_OK;
+}
+
 static const preset *find_preset(parser *p, const json_t *m)
 {
     const char *names[PRESET_COUNT];

@@ -45,6 +45,16 @@ typedef struct scene_doc scene_doc;
 int scene_parse(const char *json, size_t length, const scene_parse_options *opts, scene_doc **out,
                 scene_issues *issues);
 const ns_scene *scene_doc_scene(const scene_doc *doc);
+
+/* The material presets a medium may name ("preset": "candle"; docs/scene.md): the paper's
+ * Table 1, mfp in scene units. */
+typedef struct scene_preset {
+    const char *name;
+    double albedo[3], mfp[3], g, ior;
+} scene_preset;
+uint32_t scene_preset_count(void);
+/* 0 and *out for index < scene_preset_count(), else NS_ERR_INVALID_ARGUMENT. */
+int scene_preset_get(uint32_t index, scene_preset *out);
 void scene_doc_free(scene_doc *doc); /* NULL is allowed */
 
 #endif

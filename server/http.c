@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/random.h>
 #include <sys/socket.h>
 #include <sys/types.h>
 #include <time.h>
@@ -59,6 +60,8 @@ typedef struct http_server {
     const char *asset_dir;
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
     atomic_int event_streams;     /* open event streams (each holds a connection) */
+    atomic_int stopping;          /* a stop signal came: /readyz and new renders answer 503 */
+    int access_log;               /* one JSON line per request on stderr */
 } http_server;
 
 typedef enum {
@@ -67,6 +70,8 @@ typedef enum {
     ROUTE_READYZ,
     ROUTE_INFO,
     ROUTE_RENDERS,        /* POST: a render; GET: the asynchronous renders */
+    ROUTE_VALIDATE,       /* POST /v1/renders/validate: the checks of a render, no render */
+    ROUTE_MATERIALS,      /* GET /v1/materials: the presets */
     ROUTE_RENDER_JOB,     /* /v1/renders/{id} */
     ROUTE_RENDER_IMAGE,   /* /v1/renders/{id}/image */
     ROUTE_RENDER_EVENTS,  /* /v1/renders/{id}/events */
@@ -95,11 +100,41 @@ typedef struct http_request {
     uint64_t drained;        /* bytes read and thrown away after an early decision */
     http_server *counted_in; /* set while this request counts in renders_in_flight */
     double started_ms;
+    /* For the access log and X-Request-Id. */
+    char request_id[130];
+    char method[16];
+    char path[256];
+    int status;
+    uint64_t bytes;
+    json_t *stages; /* a render's stage times, when one was answered */
+    int answered;   /* answered in the first callback, without reading the body */
 } http_request;
+
+/* The request this connection thread is answering (libmicrohttpd runs one thread per
+ * connection, and every callback of a request runs on it): what every answer reads its
+ * X-Request-Id from and writes its status and size into, without threading the request
+ * through every send function. */
+static _Thread_local http_request *current_request;
 
 /* ---------------------------------------------------------------------------------------
  * Responses.
  * ------------------------------------------------------------------------------------- */
+/* Queues resp (and releases it) with the request's X-Request-Id; notes status and size for
+ * the access log. Every answer goes through here. */
+static enum MHD_Result queue_answer(struct MHD_Connection *conn, int status,
+                                    struct MHD_Response *resp, uint64_t size)
+{
+    http_request *req = current_request;
+    if (req) {
+        MHD_add_response_header(resp, "X-Request-Id", req->request_id);
+        req->status = status;
+        req->bytes = size;
+    }
+    enum MHD_Result ret = MHD_queue_response(conn, (unsigned)status, resp);
+    MHD_destroy_response(resp);
+    return ret;
+}
+
 static enum MHD_Result send_bytes(struct MHD_Connection *conn, int status, const char *type,
                                   void *data, size_t size, enum MHD_ResponseMemoryMode mode,
                                   const char *const *headers)
@@ -110,13 +145,12 @@ static enum MHD_Result send_bytes(struct MHD_Connection *conn, int status, const
             free(data);
         return MHD_NO;
     }
-    MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, type);
+    if (status != 204 || size)
+        MHD_add_response_header(resp, MHD_HTTP_HEADER_CONTENT_TYPE, type);
     MHD_add_response_header(resp, "X-Content-Type-Options", "nosniff");
     for (size_t i = 0; headers && headers[i]; i += 2)
         MHD_add_response_header(resp, headers[i], headers[i + 1]);
-    enum MHD_Result ret = MHD_queue_response(conn, (unsigned)status, resp);
-    MHD_destroy_response(resp);
-    return ret;
+    return queue_answer(conn, status, resp, size);
 }
 
 /* Sends `body` (consumed) as JSON. headers: NULL-terminated name/value pairs or NULL. */
@@ -149,6 +183,8 @@ static enum MHD_Result send_json(struct MHD_Connection *conn, int status, const 
 static enum MHD_Result send_problem_json(struct MHD_Connection *conn, json_t *problem,
                                          const char *const *headers)
 {
+    if (problem && current_request)
+        json_object_set_new(problem, "request_id", json_string(current_request->request_id));
     int status = (int)json_integer_value(json_object_get(problem, "status"));
     return send_json(conn, status ? status : 500, PROBLEM_CONTENT_TYPE, problem, headers);
 }
@@ -392,6 +428,22 @@ static json_t *methods_json(void)
     return list;
 }
 
+/* GET /v1/materials: the presets a medium may name, with what they stand for. */
+static json_t *materials_json(void)
+{
+    json_t *list = json_array();
+    for (uint32_t i = 0; i < scene_preset_count(); i++) {
+        scene_preset p;
+        if (scene_preset_get(i, &p))
+            continue;
+        json_array_append_new(
+            list, json_pack("{s:s, s:s, s:[fff], s:[fff], s:f, s:f}", "name", p.name, "type",
+                            "medium", "albedo", p.albedo[0], p.albedo[1], p.albedo[2], "mfp",
+                            p.mfp[0], p.mfp[1], p.mfp[2], "g", p.g, "ior", p.ior));
+    }
+    return json_pack("{s:o}", "materials", list);
+}
+
 static json_t *device_json(const http_server *srv)
 {
     if (!srv->ctx)
@@ -433,8 +485,12 @@ static json_t *info_json(const http_server *srv)
                      (json_int_t)counts.bytes);
 }
 
-static enum MHD_Result answer_readyz(struct MHD_Connection *conn, const http_server *srv)
+static enum MHD_Result send_shutting_down(struct MHD_Connection *conn);
+
+static enum MHD_Result answer_readyz(struct MHD_Connection *conn, http_server *srv)
 {
+    if (atomic_load(&srv->stopping))
+        return send_shutting_down(conn);
     if (srv->ctx)
         return send_json(
             conn, 200, "application/json",
@@ -468,6 +524,12 @@ typedef struct query_check {
     uint64_t last_event_id;
     char problem[256];
 } query_check;
+
+/* Routes whose POST carries a scene (or a sweep) to read. */
+static int route_takes_body(http_route route)
+{
+    return route == ROUTE_RENDERS || route == ROUTE_SWEEPS || route == ROUTE_VALIDATE;
+}
 
 /* Routes that answer an image: a synchronous render, a job's image. */
 static int route_has_image(http_route route, int post)
@@ -589,7 +651,7 @@ static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv
             return problemf(PROBLEM_UNSUPPORTED_MEDIA_TYPE,
                             "Content-Type must be application/json (charset utf-8), got '%.100s'",
                             type ? type : "(none)");
-        req->async = req->route == ROUTE_SWEEPS || prefers_async(conn);
+        req->async = req->route == ROUTE_SWEEPS || (req->route == ROUTE_RENDERS && prefers_async(conn));
     }
     if (query.problem[0])
         return problem_new(PROBLEM_BAD_QUERY, query.problem);
@@ -619,8 +681,7 @@ static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv
 /* Appends upload data; past the limit the body is dropped and the rest drained. */
 static void collect_body(const http_server *srv, http_request *req, const char *data, size_t n)
 {
-    if (req->early_problem || req->too_large ||
-        (req->route != ROUTE_RENDERS && req->route != ROUTE_SWEEPS)) {
+    if (req->early_problem || req->too_large || !route_takes_body(req->route)) {
         req->drained += n;
         return;
     }
@@ -732,6 +793,17 @@ static enum MHD_Result send_queue_full(struct MHD_Connection *conn, const http_s
     return send_problem_json(conn, p, headers);
 }
 
+/* A stop signal came: no new renders (docs/http.md, "Running the service"). */
+static enum MHD_Result send_shutting_down(struct MHD_Connection *conn)
+{
+    const char *headers[] = {MHD_HTTP_HEADER_RETRY_AFTER, "5", NULL};
+    return send_problem_json(conn,
+                             problemf(PROBLEM_SHUTTING_DOWN,
+                                      "the service is stopping: it finishes what it admitted "
+                                      "and takes nothing new; retry on another instance"),
+                             headers);
+}
+
 /* An encoded image with the headers every image answer carries. */
 static enum MHD_Result send_image(struct MHD_Connection *conn, const http_server *srv,
                                   encode_format format, encode_buffer *image,
@@ -745,6 +817,8 @@ static enum MHD_Result send_image(struct MHD_Connection *conn, const http_server
     json_decref(counts_json);
     const char *headers[] = {"Server-Timing", timing, HTTP_DEVICE_HEADER, device, HTTP_STATS_HEADER,
                              counts ? counts : "{}", "Cache-Control", "no-store", NULL};
+    if (current_request && !current_request->stages)
+        current_request->stages = render_stats_stages_json(stats);
     /* MHD frees the image with free() once sent (or when the client is gone). */
     enum MHD_Result ret = send_bytes(conn, 200, encode_mime_type(format), image->data, image->size,
                                      MHD_RESPMEM_MUST_FREE, headers);
@@ -794,32 +868,62 @@ static json_t *over_job_budget(const http_server *srv, uint64_t pixels, const ch
                            what, (unsigned long long)bytes, (unsigned long long)srv->job_bytes);
 }
 
+/* Parses the request's scene (timed as the "parse" stage into *stats) and drops the body,
+ * which should not sit in memory while the render waits. Returns NULL and *doc, or the
+ * problem to answer with. */
+static json_t *parse_scene_body(http_server *srv, http_request *req, scene_doc **doc,
+                                ns_render_stats *stats)
+{
+    memset(stats, 0, sizeof *stats);
+    *doc = NULL;
+    double t0 = ns_now_ms();
+    scene_issues *issues = calloc(1, sizeof *issues);
+    if (!issues)
+        return problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY,
+                                   "out of memory");
+    int rc = scene_parse(req->body ? req->body : "", req->size,
+                         &(scene_parse_options){.asset_dir = srv->asset_dir}, doc, issues);
+    ns_stats_add_stage(stats, "parse", ns_now_ms() - t0);
+    json_t *p = NULL;
+    if (rc)
+        p = rc == NS_ERR_INVALID_ARGUMENT ? issues_problem(issues)
+                                          : problem_from_status(problem_kind_of_status(rc), rc,
+                                                                ns_status_message(rc));
+    free(issues);
+    free(req->body);
+    req->body = NULL;
+    req->size = req->cap = 0;
+    return p;
+}
+
+/* POST /v1/renders/validate: every check a render makes before it renders, and nothing
+ * more: 204, or the problem the render would have answered with. */
+static enum MHD_Result answer_validate(struct MHD_Connection *conn, http_server *srv,
+                                       http_request *req)
+{
+    ns_render_stats stats;
+    scene_doc *doc = NULL;
+    json_t *p = parse_scene_body(srv, req, &doc, &stats);
+    scene_doc_free(doc);
+    if (p)
+        return send_problem_json(conn, p, NULL);
+    return send_bytes(conn, 204, "application/json", "", 0, MHD_RESPMEM_PERSISTENT, NULL);
+}
+
 static enum MHD_Result answer_render(struct MHD_Connection *conn, http_server *srv,
                                      http_request *req)
 {
     ns_render_stats stats;
-    memset(&stats, 0, sizeof stats);
-    double t0 = ns_now_ms();
-    scene_issues *issues = calloc(1, sizeof *issues);
-    if (!issues)
-        return send_out_of_memory(conn);
     scene_doc *doc = NULL;
-    int rc = scene_parse(req->body ? req->body : "", req->size,
-                         &(scene_parse_options){.asset_dir = srv->asset_dir}, &doc, issues);
-    ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
-    if (rc) {
-        json_t *p = rc == NS_ERR_INVALID_ARGUMENT ? issues_problem(issues)
-                                                  : problem_from_status(problem_kind_of_status(rc),
-                                                                        rc, ns_status_message(rc));
-        free(issues);
-        return send_problem_json(conn, p, NULL);
-    }
-    free(issues);
-    /* The body is not needed any more; a large one should not sit in memory while queued. */
-    free(req->body);
-    req->body = NULL;
-    req->size = req->cap = 0;
+    json_t *problem = parse_scene_body(srv, req, &doc, &stats);
+    if (problem)
+        return send_problem_json(conn, problem, NULL);
+    int rc;
 
+    if (atomic_load(&srv->stopping)) {
+        scene_doc_free(doc);
+        return send_shutting_down(conn);
+    }
     const ns_scene *scene = scene_doc_scene(doc);
     json_t *over = req->async ? over_job_budget(srv, (uint64_t)scene->camera.width *
                                                          scene->camera.height,
@@ -1012,9 +1116,7 @@ static enum MHD_Result answer_events(struct MHD_Connection *conn, http_server *s
     MHD_add_response_header(resp, "X-Content-Type-Options", "nosniff");
     /* nginx and other proxies: pass events on as they come. */
     MHD_add_response_header(resp, "X-Accel-Buffering", "no");
-    enum MHD_Result ret = MHD_queue_response(conn, 200, resp);
-    MHD_destroy_response(resp);
-    return ret;
+    return queue_answer(conn, 200, resp, 0);
 }
 
 static enum MHD_Result answer_job_route(struct MHD_Connection *conn, http_server *srv,
@@ -1107,6 +1209,10 @@ static http_route route_for(const char *url, http_request *req)
         return ROUTE_RENDERS;
     if (!strcmp(url, "/v1/sweeps"))
         return ROUTE_SWEEPS;
+    if (!strcmp(url, "/v1/renders/validate"))
+        return ROUTE_VALIDATE;
+    if (!strcmp(url, "/v1/materials"))
+        return ROUTE_MATERIALS;
     const char *rest = NULL;
     int sweep_route = 0;
     if (!strncmp(url, "/v1/renders/", 12))
@@ -1159,6 +1265,8 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
         return answer_readyz(conn, srv);
     case ROUTE_INFO:
         return send_json(conn, 200, "application/json", info_json(srv), NULL);
+    case ROUTE_MATERIALS:
+        return send_json(conn, 200, "application/json", materials_json(), NULL);
     case ROUTE_RENDERS:
     case ROUTE_SWEEPS:
         if (!srv->jobs)
@@ -1183,9 +1291,46 @@ static const char *route_allow(http_route route)
     case ROUTE_RENDER_JOB:
     case ROUTE_SWEEP_JOB:
         return "GET, HEAD, DELETE";
+    case ROUTE_VALIDATE:
+        return "POST";
     default:
         return "GET, HEAD";
     }
+}
+
+/* The route as a template, for logs and metrics: never the id itself. */
+static const char *route_name(http_route route)
+{
+    static const char *const names[] = {
+        [ROUTE_NONE] = "other",
+        [ROUTE_LIVEZ] = "/livez",
+        [ROUTE_READYZ] = "/readyz",
+        [ROUTE_INFO] = "/v1/info",
+        [ROUTE_RENDERS] = "/v1/renders",
+        [ROUTE_VALIDATE] = "/v1/renders/validate",
+        [ROUTE_MATERIALS] = "/v1/materials",
+        [ROUTE_RENDER_JOB] = "/v1/renders/{id}",
+        [ROUTE_RENDER_IMAGE] = "/v1/renders/{id}/image",
+        [ROUTE_RENDER_EVENTS] = "/v1/renders/{id}/events",
+        [ROUTE_SWEEPS] = "/v1/sweeps",
+        [ROUTE_SWEEP_JOB] = "/v1/sweeps/{id}",
+        [ROUTE_SWEEP_IMAGE] = "/v1/sweeps/{id}/images/{n}",
+        [ROUTE_SWEEP_SHEET] = "/v1/sweeps/{id}/sheet.png",
+        [ROUTE_SWEEP_MANIFEST] = "/v1/sweeps/{id}/manifest.json",
+        [ROUTE_SWEEP_EVENTS] = "/v1/sweeps/{id}/events",
+        [ROUTE_WEB] = "/{file}",
+    };
+    return (unsigned)route < sizeof names / sizeof names[0] && names[route] ? names[route] : "other";
+}
+
+/* Whether `method` is one of the comma-separated `methods`. */
+static int method_listed(const char *methods, const char *method)
+{
+    size_t n = strlen(method);
+    for (const char *s = methods; (s = strstr(s, method)); s += n)
+        if ((s == methods || s[-1] == ' ') && (s[n] == 0 || s[n] == ','))
+            return 1;
+    return 0;
 }
 
 /* Decides what the request line alone can: a problem (404, 405) with its Allow header, or
@@ -1197,10 +1342,7 @@ static json_t *check_route(http_route route, const char *url, const char *method
     if (route == ROUTE_NONE)
         return problemf(PROBLEM_NOT_FOUND, "no resource at %.200s", url);
     const char *methods = route_allow(route);
-    int is_get = !strcmp(method, MHD_HTTP_METHOD_GET) || !strcmp(method, MHD_HTTP_METHOD_HEAD);
-    int allowed = is_get || (!strcmp(method, MHD_HTTP_METHOD_POST) && strstr(methods, "POST")) ||
-                  (!strcmp(method, MHD_HTTP_METHOD_DELETE) && strstr(methods, "DELETE"));
-    if (allowed)
+    if (method_listed(methods, method))
         return NULL;
     *allow = methods;
     return problemf(PROBLEM_METHOD_NOT_ALLOWED, "%.16s is not allowed on %.200s; use %s", method,
@@ -1210,18 +1352,56 @@ static json_t *check_route(http_route route, const char *url, const char *method
 /* The first callback of a request: everything the request line and headers decide. The
  * answer itself waits for the last callback (after any body has been read and dropped), so
  * the connection stays usable; only a body declared too large is refused at once. */
+/* X-Request-Id: the client's when it is a plain token (1 to 128 of A-Z a-z 0-9 . _ : -),
+ * so that one id follows a request through proxies and logs; else 128 random bits. */
+static void request_id_of(struct MHD_Connection *conn, char *out, size_t cap)
+{
+    const char *given = MHD_lookup_connection_value(conn, MHD_HEADER_KIND, "X-Request-Id");
+    size_t n = given ? strlen(given) : 0;
+    if (n >= 1 && n <= 128 && n < cap &&
+        strspn(given, "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._:-") == n) {
+        memcpy(out, given, n + 1);
+        return;
+    }
+    unsigned char bytes[16] = {0};
+    size_t got = 0;
+    while (got < sizeof bytes) {
+        ssize_t r = getrandom(bytes + got, sizeof bytes - got, 0);
+        if (r <= 0)
+            break; /* an id of zeros, still an id */
+        got += (size_t)r;
+    }
+    for (size_t i = 0; i < sizeof bytes && 2 * i + 2 < cap; i++)
+        snprintf(out + 2 * i, 3, "%02x", bytes[i]);
+}
+
+/* The first callback of a request: everything the request line and headers decide. The
+ * answer itself waits for the last callback (after any body has been read and dropped), so
+ * the connection stays usable; only what must not read the body is answered at once: a body
+ * declared too large, and a render or sweep that the service cannot admit now (stopping, or
+ * the queue full), so that a client is not made to upload a large scene to hear 503. */
 static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv, const char *url,
                                   const char *method, void **con_cls)
 {
     http_request *req = calloc(1, sizeof *req);
     if (!req)
         return MHD_NO;
+    *con_cls = req;
+    current_request = req;
+    req->started_ms = ns_now_ms();
+    request_id_of(conn, req->request_id, sizeof req->request_id);
+    snprintf(req->method, sizeof req->method, "%s", method);
+    snprintf(req->path, sizeof req->path, "%s", url);
     http_route route = route_for(url, req);
-    long long length = content_length(conn);
+    req->route = route;
+    req->early_problem = check_route(route, url, method, &req->allow);
+    if (req->early_problem)
+        return MHD_YES;
     int post = !strcmp(method, MHD_HTTP_METHOD_POST);
-    if ((route == ROUTE_RENDERS || route == ROUTE_SWEEPS) && post && length > 0 &&
+    long long length = content_length(conn);
+    if (route_takes_body(route) && post && length > 0 &&
         (unsigned long long)length > srv->max_body) {
-        free(req);
+        req->answered = 1;
         /* Without reading a byte of the body: MHD then closes the connection. */
         return send_problem_json(conn,
                                  problemf(PROBLEM_BODY_TOO_LARGE,
@@ -1229,14 +1409,55 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
                                           length, (unsigned long long)srv->max_body),
                                  NULL);
     }
-    req->route = route;
-    req->started_ms = ns_now_ms();
-    req->early_problem = check_route(route, url, method, &req->allow);
-    if (!req->early_problem && route != ROUTE_WEB && route != ROUTE_LIVEZ &&
-        route != ROUTE_READYZ && route != ROUTE_INFO)
+    if (post && (route == ROUTE_RENDERS || route == ROUTE_SWEEPS) && srv->jobs) {
+        uint32_t retry_after = 1;
+        if (atomic_load(&srv->stopping)) {
+            req->answered = 1;
+            return send_shutting_down(conn);
+        }
+        if (job_store_full(srv->jobs, &retry_after)) {
+            req->answered = 1;
+            return send_queue_full(conn, srv, retry_after);
+        }
+    }
+    if (route != ROUTE_WEB && route != ROUTE_LIVEZ && route != ROUTE_READYZ &&
+        route != ROUTE_INFO && route != ROUTE_MATERIALS)
         req->early_problem = check_headers(conn, srv, req, method);
-    *con_cls = req;
     return MHD_YES;
+}
+
+/* One JSON line per request on stderr, written with one write() so that lines of
+ * concurrent requests do not interleave. */
+static void access_log(const http_request *req)
+{
+    struct timespec now;
+    clock_gettime(CLOCK_REALTIME, &now);
+    struct tm tm;
+    gmtime_r(&now.tv_sec, &tm);
+    char when[40];
+    size_t n = strftime(when, sizeof when, "%Y-%m-%dT%H:%M:%S", &tm);
+    snprintf(when + n, sizeof when - n, ".%03ldZ", now.tv_nsec / 1000000);
+    json_t *line = json_pack("{s:s, s:s, s:s, s:s, s:s, s:i, s:I, s:f}", "time", when,
+                             "request_id", req->request_id, "method", req->method, "path",
+                             req->path, "route", route_name(req->route), "status", req->status,
+                             "bytes", (json_int_t)req->bytes, "duration_ms",
+                             ns_now_ms() - req->started_ms);
+    if (line && req->stages)
+        json_object_set(line, "stages", req->stages);
+    char *text = line ? json_dumps(line, JSON_COMPACT | JSON_REAL_PRECISION(6)) : NULL;
+    json_decref(line);
+    if (!text)
+        return;
+    size_t len = strlen(text);
+    char *with_newline = realloc(text, len + 2);
+    if (with_newline) {
+        text = with_newline;
+        text[len++] = '\n';
+        text[len] = 0;
+        ssize_t written = write(STDERR_FILENO, text, len);
+        (void)written; /* nothing to do about a log that cannot be written */
+    }
+    free(text);
 }
 
 static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, const char *url,
@@ -1249,6 +1470,11 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
     http_request *req = *con_cls;
     if (!req)
         return first_call(conn, srv, url, method, con_cls);
+    current_request = req;
+    if (req->answered) { /* answered without its body, which is not read */
+        *upload_data_size = 0;
+        return MHD_YES;
+    }
     if (*upload_data_size) {
         collect_body(srv, req, upload_data, *upload_data_size);
         *upload_data_size = 0;
@@ -1276,6 +1502,8 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         return answer_render(conn, srv, req);
     if (post && req->route == ROUTE_SWEEPS)
         return answer_sweep_post(conn, srv, req);
+    if (post && req->route == ROUTE_VALIDATE)
+        return answer_validate(conn, srv, req);
     if (route_is_job(req->route))
         return answer_job_route(conn, srv, req, method);
     return answer_get(conn, srv, req->route, url);
@@ -1284,14 +1512,18 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
 static void http_request_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
                                    enum MHD_RequestTerminationCode toe)
 {
-    (void)cls;
     (void)conn;
     (void)toe;
     http_request *req = *con_cls;
     if (!req)
         return;
+    http_server *srv = cls;
+    if (srv->access_log)
+        access_log(req);
+    current_request = NULL;
     if (req->counted_in)
         atomic_fetch_sub(&req->counted_in->renders_in_flight, 1);
+    json_decref(req->stages);
     json_decref(req->early_problem);
     free(req->body);
     free(req);
@@ -1373,6 +1605,7 @@ static int wait_stop_signal(int timeout_ms)
 
 static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv)
 {
+    atomic_store(&srv->stopping, 1); /* /readyz and new renders answer 503 from now on */
     MHD_socket listen_fd = MHD_quiesce_daemon(daemon);
     if (listen_fd != MHD_INVALID_SOCKET)
         close(listen_fd);
@@ -1431,7 +1664,8 @@ int http_serve(const http_serve_desc *desc)
                        .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
                        .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
                        .sse_keepalive_s =
-                           args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S};
+                           args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S,
+                       .access_log = !args.no_access_log};
     make_context(&srv, args.device);
     if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
                                                       .capacity = args.queue,

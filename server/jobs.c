@@ -644,12 +644,8 @@ static int admit(job_store *store, job *j, uint32_t *retry_after_s)
 {
     pthread_mutex_lock(&store->lock);
     if (store->admitted >= store->capacity || store->stopping || store->closing) {
-        /* Everything admitted must finish before a slot opens; assume the running one is
-         * half done. */
-        double wait_s = store->average_ms * ((double)store->admitted - 0.5) / 1000.0;
         pthread_mutex_unlock(&store->lock);
-        double rounded = ceil(wait_s);
-        *retry_after_s = rounded < 1.0 ? 1u : rounded > 3600.0 ? 3600u : (uint32_t)rounded;
+        job_store_full(store, retry_after_s);
         return NS_ERR_LIMIT;
     }
     if (j->async) {
@@ -684,6 +680,19 @@ static int admit(job_store *store, job *j, uint32_t *retry_after_s)
     pthread_cond_signal(&store->work);
     pthread_mutex_unlock(&store->lock);
     return NS_OK;
+}
+
+/* Everything admitted must finish before a slot opens; the running one is taken as half
+ * done. */
+int job_store_full(job_store *store, uint32_t *retry_after_s)
+{
+    pthread_mutex_lock(&store->lock);
+    int full = store->admitted >= store->capacity || store->closing;
+    double wait_s = store->average_ms * ((double)store->admitted - 0.5) / 1000.0;
+    pthread_mutex_unlock(&store->lock);
+    double rounded = ceil(wait_s);
+    *retry_after_s = rounded < 1.0 ? 1u : rounded > 3600.0 ? 3600u : (uint32_t)rounded;
+    return full;
 }
 
 static job *job_new(job_kind kind, int async, const ns_render_stats *stats)

@@ -67,6 +67,11 @@ int job_submit_render(job_store *store, scene_doc *doc, int async, encode_format
 int job_submit_sweep(job_store *store, struct sweep *sweep, const ns_render_stats *stats,
                      job **out, uint32_t *retry_after_s);
 
+/* 1 when a job submitted now would be refused (the queue full, or the service stopping),
+ * with *retry_after_s an estimate of when a slot frees up (whole seconds, >= 1): lets the
+ * service answer 503 before reading a request's body. */
+int job_store_full(job_store *store, uint32_t *retry_after_s);
+
 /* The job with this id and kind, with a reference for the caller, or NULL: *gone is 1 when
  * the id was a job's that has expired or was discarded (410), 0 when it never was (404). */
 job *job_find(job_store *store, const char *id, job_kind kind, int *gone);

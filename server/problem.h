@@ -32,6 +32,7 @@
     X(PROBLEM_INVALID_SCENE, 422, "invalid_scene", "Unprocessable Content")                   \
     X(PROBLEM_QUEUE_FULL, 503, "queue_full", "Service Unavailable")                           \
     X(PROBLEM_TOO_MANY_STREAMS, 503, "too_many_streams", "Service Unavailable")               \
+    X(PROBLEM_SHUTTING_DOWN, 503, "shutting_down", "Service Unavailable")                     \
     X(PROBLEM_JOB_NOT_DONE, 409, "job_not_done", "Conflict")                                  \
     X(PROBLEM_JOB_GONE, 410, "job_gone", "Gone")                                              \
     X(PROBLEM_INVALID_SWEEP, 422, "invalid_sweep", "Unprocessable Content")                   \

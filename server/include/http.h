@@ -20,6 +20,7 @@ typedef struct http_serve_desc {
     uint32_t job_ttl_s;    /* finished asynchronous jobs are kept this long; 0: 3600 */
     uint64_t job_bytes;    /* results of jobs kept at most; 0: 1 GiB */
     uint32_t sse_keepalive_s; /* a quiet event stream gets a comment this often; 0: 15 */
+    int no_access_log;        /* 1: no JSON line per request on stderr */
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
