@@ -6,6 +6,7 @@
 #include "args.h"
 #include "commands.h"
 #include "http.h"
+#include "nscatter.h"
 
 static void serve_usage(FILE *out)
 {
@@ -25,6 +26,8 @@ static void serve_usage(FILE *out)
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
             "  --access-log on|off  one JSON line per request on stderr (default on)\n"
+            "  --max-deadline-ms N  longest render.deadline_ms, and the deadline of renders\n"
+            "                    that name none (default: none)\n"
             "  --sse-keepalive S comment on a quiet event stream every S seconds (1-50,\n"
             "                    default 15)\n"
             "\n"
@@ -78,6 +81,10 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 40, &n))
                 return 2;
             a->job_bytes = n;
+        } else if (!strcmp(arg, "--max-deadline-ms")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 1, NS_MAX_DEADLINE_MS, &n))
+                return 2;
+            a->max_deadline_ms = (uint32_t)n;
         } else if (!strcmp(arg, "--access-log")) {
             if (strcmp(value, "on") && strcmp(value, "off")) {
                 fprintf(stderr, "nscatter serve: --access-log on|off, got '%s'\n", value);

@@ -1230,7 +1230,7 @@ static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
-                                       "gather_tolerance", "single_samples", "accumulation",
+                                       "gather_tolerance", "single_samples", "deadline_ms", "accumulation",
                                        "vrl_beams", "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
     static const char *const beam_names[] = {"endless", "bounded"};
@@ -1268,6 +1268,8 @@ static void parse_render(parser *p, const json_t *v)
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
         field_uint(p, v, "vrls", 0, 1, NS_MAX_VRLS, "vrls (light paths traced towards the media)", &r->vrls);
+        field_uint(p, v, "deadline_ms", 0, 1, NS_MAX_DEADLINE_MS,
+                   "deadline_ms (milliseconds the render may take)", &r->deadline_ms);
         field_uint(p, v, "gather_tile", 0, 1, NS_MAX_GATHER_TILE,
                    "gather_tile (one gathered pixel per tile x tile block)", &r->gather_tile);
         field_uint(p, v, "gather_levels", 0, 0, NS_MAX_GATHER_LEVELS,

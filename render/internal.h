@@ -34,6 +34,7 @@ typedef struct ns_run {
     const char *stage;                /* the stage open now; NULL between stages */
     const char *last;                 /* the stage that ended last */
     char where[64];                   /* where a cancellation was noticed: "during pt_pass" */
+    uint32_t deadline_ms;             /* render.deadline_ms, for its message */
 } ns_run;
 
 typedef struct ns_stage {
@@ -47,7 +48,7 @@ typedef struct ns_stage {
  * flag goes to the device for the render's duration and is cleared on every path. ns_run_end
  * returns the render's status, NS_ERR_CANCELLED when the render was cancelled, with the
  * message naming the stage ("cancelled during pt_pass"). */
-void ns_run_begin(ns_context *ctx, const ns_render_control *control);
+void ns_run_begin(ns_context *ctx, const ns_render_control *control, uint32_t deadline_ms);
 int ns_run_end(ns_context *ctx, int status, ns_error *err);
 /* A cancellation point between stages (a device submission is one by itself). */
 int ns_run_check(ns_context *ctx, ns_error *err);

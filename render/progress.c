@@ -46,7 +46,9 @@ static int cancel_seen(ns_context *ctx)
 {
     if (ctx->dev.cancelled)
         return 1;
-    if (!ctx->dev.cancel || !__atomic_load_n(ctx->dev.cancel, __ATOMIC_ACQUIRE))
+    if (ctx->dev.deadline_ms > 0 && ns_now_ms() >= ctx->dev.deadline_ms)
+        ctx->dev.deadline_hit = 1;
+    else if (!ctx->dev.cancel || !__atomic_load_n(ctx->dev.cancel, __ATOMIC_ACQUIRE))
         return 0;
     ctx->dev.cancelled = 1;
     note_cancel(&ctx->run);
@@ -71,7 +73,7 @@ static void report(ns_context *ctx, ns_progress_kind kind, const char *stage, do
     (void)cancel_seen(ctx);
 }
 
-void ns_run_begin(ns_context *ctx, const ns_render_control *control)
+void ns_run_begin(ns_context *ctx, const ns_render_control *control, uint32_t deadline_ms)
 {
     ns_run *run = &ctx->run;
     uint64_t serial = run->serial + 1;
@@ -81,6 +83,9 @@ void ns_run_begin(ns_context *ctx, const ns_render_control *control)
     run->span = (ns_span){0.0, 1.0};
     ctx->dev.cancel = control ? control->cancel : NULL;
     ctx->dev.cancelled = 0;
+    run->deadline_ms = deadline_ms;
+    ctx->dev.deadline_ms = deadline_ms ? ns_now_ms() + deadline_ms : 0;
+    ctx->dev.deadline_hit = 0;
 }
 
 int ns_run_end(ns_context *ctx, int status, ns_error *err)
@@ -92,10 +97,19 @@ int ns_run_end(ns_context *ctx, int status, ns_error *err)
         status = NS_ERR_CANCELLED;
     if (status == NS_ERR_CANCELLED) {
         note_cancel(run);
-        ns_fail(err, NS_ERR_CANCELLED, "cancelled %s", run->where);
+        /* A deadline stops the render the way a cancellation does; the caller hears which. */
+        if (ctx->dev.deadline_hit)
+            status = ns_fail(err, NS_ERR_DEADLINE,
+                             "render.deadline_ms: the render ran past its deadline of %u ms and "
+                             "stopped %s",
+                             run->deadline_ms, run->where);
+        else
+            ns_fail(err, NS_ERR_CANCELLED, "cancelled %s", run->where);
     }
     ctx->dev.cancel = NULL;
     ctx->dev.cancelled = 0;
+    ctx->dev.deadline_ms = 0;
+    ctx->dev.deadline_hit = 0;
     run->control = NULL;
     run->stage = run->last = NULL;
     return status;

@@ -340,7 +340,7 @@ static int render_run(ns_context *ctx, const ns_scene *scene, const ns_render_co
                        names);
     }
     pthread_mutex_lock(&ctx->lock);
-    ns_run_begin(ctx, control);
+    ns_run_begin(ctx, control, scene->render.deadline_ms);
     /* A flag set before the render began cancels it before any work. */
     status = ns_run_check(ctx, err);
     if (!status && scene->render.method == NS_METHOD_PT)

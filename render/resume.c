@@ -7,6 +7,9 @@
 
 #include "internal.h"
 
+/* A submission of resumed dispatches grows while it takes less than this. */
+#define NS_RESUME_SUBMISSION_MS 250.0
+
 static int check_desc(const ns_resume_desc *d, ns_error *err)
 {
     uint32_t size = d->pipeline->push_constant_size;
@@ -67,6 +70,7 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *d, uint32_t *dispa
         }
         /* The previous submission has completed (gpu_dispatch_many waits for its fence), and
          * the next one makes these host writes visible to the shader. */
+        double submitted_ms = ns_now_ms();
         if (d->unfinished != NS_NONE)
             d->counters[d->unfinished] = 0;
         if (d->cut != NS_NONE)
@@ -92,8 +96,15 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *d, uint32_t *dispa
             ns_progress_tick(ctx, round_done(d, round, submissions + 1));
         if (status || d->unfinished == NS_NONE || d->counters[d->unfinished] == 0)
             break;
-        /* More work than the last submission finished: make the next one longer. */
-        batch = 2 * batch < d->max_batch ? 2 * batch : d->max_batch;
+        /* More work than the last submission finished: make the next one longer, but only
+         * while a submission stays short, so that a cancellation or a deadline (checked
+         * before each submission) is seen within about NS_RESUME_SUBMISSION_MS. How the
+         * dispatches are grouped into submissions changes nothing they compute. */
+        double took_ms = ns_now_ms() - submitted_ms;
+        if (took_ms < NS_RESUME_SUBMISSION_MS)
+            batch = 2 * batch < d->max_batch ? 2 * batch : d->max_batch;
+        else if (took_ms > 2 * NS_RESUME_SUBMISSION_MS && batch > 1)
+            batch /= 2;
     }
     free(blocks);
     return status;

@@ -135,6 +135,8 @@ static int check_render(const ns_render_settings *r, ns_error *err)
         return BAD("render.max_depth: %u over %d", r->max_depth, NS_MAX_DEPTH);
     if ((unsigned)r->method > NS_METHOD_PT)
         return BAD("render.method: unknown method %d", (int)r->method);
+    if (r->deadline_ms > NS_MAX_DEADLINE_MS)
+        return BAD("render.deadline_ms: %u over %u", r->deadline_ms, NS_MAX_DEADLINE_MS);
     if (r->components == 0)
         return BAD("render.components: none requested");
     if (r->components & ~(uint32_t)(NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE |

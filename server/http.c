@@ -57,6 +57,7 @@ typedef struct http_server {
     uint32_t job_ttl_s;
     uint64_t job_bytes;
     uint32_t sse_keepalive_s;
+    uint32_t max_deadline_ms;
     const char *asset_dir;
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
     atomic_int event_streams;     /* open event streams (each holds a connection) */
@@ -470,6 +471,8 @@ static json_t *info_json(const http_server *srv)
         (json_int_t)NS_MAX_LIGHTS, "max_triangles", (json_int_t)NS_MAX_TRIANGLES, "job_ttl_s",
         (json_int_t)srv->job_ttl_s, "job_store_bytes", (json_int_t)srv->job_bytes,
         "max_sweep_variants", (json_int_t)SWEEP_MAX_VARIANTS);
+    json_object_set_new(limits, "max_deadline_ms",
+                        srv->max_deadline_ms ? json_integer(srv->max_deadline_ms) : json_null());
     job_store_counts counts = {0};
     if (srv->jobs)
         job_store_count(srv->jobs, &counts);
@@ -1665,13 +1668,15 @@ int http_serve(const http_serve_desc *desc)
                        .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
                        .sse_keepalive_s =
                            args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S,
-                       .access_log = !args.no_access_log};
+                       .access_log = !args.no_access_log,
+                       .max_deadline_ms = args.max_deadline_ms};
     make_context(&srv, args.device);
     if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
                                                       .capacity = args.queue,
                                                       .ttl_s = srv.job_ttl_s,
                                                       .max_bytes = srv.job_bytes,
-                                                      .asset_dir = args.asset_dir},
+                                                      .asset_dir = args.asset_dir,
+                                                      .max_deadline_ms = args.max_deadline_ms},
                                     &srv.jobs, &srv.ctx_err)) {
         fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
         ns_context_destroy(srv.ctx);

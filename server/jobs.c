@@ -78,6 +78,7 @@ struct job_store {
     uint32_t capacity, ttl_s;
     uint64_t max_bytes, bytes;
     const char *asset_dir;
+    uint32_t max_deadline_ms;
     pthread_mutex_t lock;
     pthread_cond_t work;    /* a job arrived, or stopping */
     pthread_cond_t changed; /* any job changed: waiters and event streams look again */
@@ -453,6 +454,12 @@ static void render_into(job_store *store, job *j, const ns_scene *scene,
     progress_sink sink = {store, j, variant, base, span};
     ns_render_control control = {.cancel = &j->cancel, .progress = on_progress, .user = &sink};
     ns_render_stats stats = *before;
+    /* The service's cap on the render's deadline (--max-deadline-ms). */
+    ns_scene capped = *scene;
+    uint32_t cap = store->max_deadline_ms, asked = scene->render.deadline_ms;
+    if (cap && (!asked || asked > cap))
+        capped.render.deadline_ms = cap;
+    scene = &capped;
     ns_error *err = &r->err;
     r->started_ms = ns_now_ms();
     int rc = render_job_render(store->ctx, scene, &control, &stats, &r->image, err);
@@ -1073,6 +1080,7 @@ int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err)
     store->ttl_s = desc->ttl_s ? desc->ttl_s : JOB_DEFAULT_TTL_S;
     store->max_bytes = desc->max_bytes ? desc->max_bytes : JOB_DEFAULT_STORE_BYTES;
     store->asset_dir = desc->asset_dir;
+    store->max_deadline_ms = desc->max_deadline_ms;
     pthread_mutex_init(&store->lock, NULL);
     pthread_cond_init(&store->work, NULL);
     /* Waits on `changed` use CLOCK_REALTIME deadlines (the default clock). */

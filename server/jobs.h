@@ -46,6 +46,9 @@ typedef struct job_store_desc {
     uint32_t ttl_s;        /* finished jobs are kept this long; 0: JOB_DEFAULT_TTL_S */
     uint64_t max_bytes;    /* results kept at most; 0: JOB_DEFAULT_STORE_BYTES */
     const char *asset_dir; /* for the scenes of sweep variants, parsed when they render */
+    /* Longest render.deadline_ms a render gets, and the deadline of one that names none
+     * (0: no cap, and no deadline unless the scene names one). */
+    uint32_t max_deadline_ms;
 } job_store_desc;
 
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);

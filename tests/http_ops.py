@@ -203,12 +203,52 @@ def test_stop_signal(t):
         t.equal(code, 0, "exit 0")
 
 
+def test_deadline(t):
+    """render.deadline_ms, capped by --max-deadline-ms (also the deadline of a render that
+    names none): past it the render stops at its next submission and the answer says so."""
+    with Server("--max-deadline-ms", "1500") as srv:
+        limits = json.loads(srv.request("GET", "/v1/info")[2]).get("limits", {})
+        t.equal(limits.get("max_deadline_ms"), 1500, "limits.max_deadline_ms")
+        rate = PtRate(srv)
+        buffers = json.loads(srv.request("GET", "/v1/info")[2])["device"].get("live_buffers")
+        long_scene, expected = rate.scene(30)
+        start = time.monotonic()
+        status, h, body = srv.render(long_scene)
+        took = time.monotonic() - start
+        p = problem(body)
+        t.equal((status, p.get("code")), (503, "deadline_exceeded"), "the server's cap applies")
+        t.check("1500 ms" in p.get("detail", ""), f"the detail names the limit: {p.get('detail')}")
+        t.check(took < min(expected, 15), f"stopped early: {took:.1f} s of ~{expected:.0f} s")
+        asked = json.loads(json.dumps(long_scene))
+        asked["render"]["deadline_ms"] = 300
+        status, h, body = srv.render(asked)
+        t.check(status == 503 and "300 ms" in problem(body).get("detail", ""),
+                f"a shorter deadline of the scene's own: {problem(body).get('detail')}")
+        status, headers, job, raw = post_async(srv, asked)
+        if t.equal(status, 202, "an async job with a deadline"):
+            done = wait_state(srv, job_path(job["id"]), ("done", "failed", "cancelled"), 60)
+            t.equal((done.get("state"), (done.get("error") or {}).get("code")),
+                    ("failed", "deadline_exceeded"), "the job fails with the deadline")
+        after = json.loads(srv.request("GET", "/v1/info")[2])["device"].get("live_buffers")
+        t.equal(after, buffers, "every buffer freed")
+        small = small_scene(8, 8)
+        small["render"] = {"deadline_ms": 60000, "components": ["surface"]}
+        t.equal(srv.render(small)[0], 200, "a render within its deadline is answered")
+        bad = small_scene(8, 8)
+        bad["render"] = {"deadline_ms": 0}
+        status, h, body = json_post(srv, "/v1/renders/validate", bad)
+        t.check(status == 422 and any(e.get("pointer") == "/render/deadline_ms"
+                                      for e in problem(body).get("errors", [])),
+                "deadline_ms 0 is refused at its pointer")
+
+
 def main():
     t = Checks()
     with Server() as srv:
         for test in (test_request_ids, test_access_log, test_validate, test_materials):
             t.run(test, srv)
     t.run(test_full_queue_before_the_body)
+    t.run(test_deadline)
     t.run(test_stop_signal)
     return t.report()
 

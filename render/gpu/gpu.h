@@ -59,6 +59,10 @@ typedef struct gpu_device {
      * reports nothing new after it and ends cancelled; the render clears it. */
     const int *cancel;
     int cancelled;
+    /* The render's deadline on ns_now_ms()'s clock (0: none): past it gpu_cancel_check fails
+     * as for a cancellation, and deadline_hit says why. */
+    double deadline_ms;
+    int deadline_hit;
     /* vkQueueSubmit calls made so far (the tests count what a cancelled render submitted). */
     uint64_t submissions;
 } gpu_device;
@@ -71,7 +75,9 @@ int gpu_check(VkResult result, const char *what, ns_error *err);
 const char *gpu_result_name(VkResult result);
 
 /* NS_ERR_CANCELLED (and dev->cancelled = 1) when dev->cancel is set and *dev->cancel is
- * nonzero; NS_OK otherwise. The message says only "cancelled": the render names the stage. */
+ * nonzero, or dev->deadline_ms has passed (dev->deadline_hit = 1), or either was seen
+ * before; NS_OK otherwise. The message says only "cancelled": the render names the stage
+ * and tells a deadline from a cancellation. */
 int gpu_cancel_check(gpu_device *dev, ns_error *err);
 
 /* Attaches a debug label to a Vulkan object when VK_EXT_debug_utils is available. */

@@ -121,9 +121,15 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
 
 int gpu_cancel_check(gpu_device *dev, ns_error *err)
 {
-    if (!dev->cancel || !__atomic_load_n(dev->cancel, __ATOMIC_ACQUIRE))
-        return NS_OK;
-    dev->cancelled = 1;
+    /* Once seen (here, or by a progress report), it stays seen: a passed deadline has no
+     * flag of its own that would be read again. */
+    if (!dev->cancelled) {
+        if (dev->deadline_ms > 0 && ns_now_ms() >= dev->deadline_ms)
+            dev->deadline_hit = 1;
+        else if (!dev->cancel || !__atomic_load_n(dev->cancel, __ATOMIC_ACQUIRE))
+            return NS_OK;
+        dev->cancelled = 1;
+    }
     return ns_fail(err, NS_ERR_CANCELLED, "cancelled");
 }
 

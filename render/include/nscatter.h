@@ -36,7 +36,8 @@ extern "C" {
     X(NS_ERR_IO, -8, "io_error", "input/output error", 500)                                   \
     X(NS_ERR_LIMIT, -9, "limit_exceeded", "a size limit was exceeded", 422)                   \
     X(NS_ERR_INTERNAL, -10, "internal_error", "internal error", 500)                           \
-    X(NS_ERR_CANCELLED, -11, "cancelled", "the render was cancelled", 409)
+    X(NS_ERR_CANCELLED, -11, "cancelled", "the render was cancelled", 409)                    \
+    X(NS_ERR_DEADLINE, -12, "deadline_exceeded", "the render ran past its deadline", 503)
 
 typedef enum {
 #define NS_X_ENUM(code, value, name, message, http) code = value,
@@ -208,6 +209,7 @@ typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams
 #define NS_MAX_GATHER_TILE 16u
 #define NS_MAX_GATHER_LEVELS 4u
 #define NS_MAX_SINGLE_SAMPLES 4096u
+#define NS_MAX_DEADLINE_MS 86400000u /* render.deadline_ms: a day */
 
 /* The defaults of the render settings (docs/scene.md lists the same). */
 #define NS_DEFAULT_COMPONENTS NS_COMPONENT_ALL
@@ -260,6 +262,10 @@ typedef struct ns_render_settings {
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
     float cull_solid_angle; /* sr; 0 = exact, the default (only cells beyond the table's reach
                                are culled) */
+    /* Milliseconds the render may take, from when it starts (waiting for the context does
+     * not count); past it the render stops before its next device submission, frees what it
+     * made and returns NS_ERR_DEADLINE. 0: no deadline, the default. */
+    uint32_t deadline_ms;
 } ns_render_settings;
 
 /* `settings` with each field left 0 replaced by its default (ns_render_settings above says

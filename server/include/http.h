@@ -21,6 +21,8 @@ typedef struct http_serve_desc {
     uint64_t job_bytes;    /* results of jobs kept at most; 0: 1 GiB */
     uint32_t sse_keepalive_s; /* a quiet event stream gets a comment this often; 0: 15 */
     int no_access_log;        /* 1: no JSON line per request on stderr */
+    uint32_t max_deadline_ms; /* cap on render.deadline_ms, and the deadline of a render that
+                                 names none; 0: none */
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
