@@ -48,7 +48,7 @@ typedef struct cache_entry {
 struct ns_table_cache {
     cache_entry *entries;
     uint32_t count, capacity;
-    uint64_t bytes;
+    uint64_t bytes; /* changed atomically: ns_context_table_cache_bytes reads it anywhere */
     uint64_t clock;
 };
 
@@ -291,7 +291,7 @@ static uint32_t lru_index(const struct ns_table_cache *cache)
 
 static void remove_entry(ns_context *ctx, struct ns_table_cache *cache, uint32_t index)
 {
-    cache->bytes -= cache->entries[index].bytes;
+    __atomic_sub_fetch(&cache->bytes, cache->entries[index].bytes, __ATOMIC_RELAXED);
     free_entry(ctx, &cache->entries[index]);
     cache->entries[index] = cache->entries[--cache->count];
 }
@@ -309,7 +309,7 @@ static cache_entry *insert(struct ns_table_cache *cache, const cache_entry *e)
     }
     cache_entry *slot = &cache->entries[cache->count++];
     *slot = *e;
-    cache->bytes += e->bytes;
+    __atomic_add_fetch(&cache->bytes, e->bytes, __ATOMIC_RELAXED);
     touch(cache, slot);
     return slot;
 }
@@ -342,6 +342,11 @@ void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *ent
     const struct ns_table_cache *cache = ctx->tables;
     *bytes = cache ? cache->bytes : 0;
     *entries = cache ? cache->count : 0;
+}
+
+uint64_t ns_context_table_cache_bytes(const ns_context *ctx)
+{
+    return ctx && ctx->tables ? __atomic_load_n(&ctx->tables->bytes, __ATOMIC_RELAXED) : 0;
 }
 
 const float *ns_tables_cached_j(const ns_context *ctx, ns_method source, float g, float albedo,

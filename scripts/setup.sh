@@ -21,9 +21,10 @@ BUILD_PACKAGES=(
   libopenblas-dev
   glmark2-data # the Stanford bunny of `nscatter bench` (read from /usr/share/glmark2/models)
 )
-# What only the tests need: validation layers, python3 for the HTTP tests, Chromium and
-# Node.js for the browser test.
-TEST_PACKAGES=(vulkan-validationlayers python3 chromium)
+# What only the tests need: validation layers, python3 for the HTTP tests (and the
+# Prometheus client library, whose parser reads /metrics in tests/http_metrics.py), Chromium
+# and Node.js for the browser test.
+TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client chromium)
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 

@@ -37,6 +37,7 @@
 #include "problem.h"
 #include "render_job.h"
 #include "jobs.h"
+#include "metrics.h"
 #include "scene_json.h"
 #include "sweep.h"
 #include "web_assets.h"
@@ -70,6 +71,7 @@ typedef enum {
     ROUTE_LIVEZ,
     ROUTE_READYZ,
     ROUTE_INFO,
+    ROUTE_METRICS,        /* GET: the Prometheus text exposition (metrics.h) */
     ROUTE_RENDERS,        /* POST: a render; GET: the asynchronous renders */
     ROUTE_VALIDATE,       /* POST /v1/renders/validate: the checks of a render, no render */
     ROUTE_MATERIALS,      /* GET /v1/materials: the presets */
@@ -499,6 +501,23 @@ static enum MHD_Result answer_readyz(struct MHD_Connection *conn, http_server *s
             conn, 200, "application/json",
             json_pack("{s:s, s:s}", "status", "ready", "device", srv->device.device_name), NULL);
     return send_problem_json(conn, no_context_problem(srv), NULL);
+}
+
+/* GET /metrics: the registry's counters and the gauges of this moment (metrics.h). */
+static enum MHD_Result answer_metrics(struct MHD_Connection *conn, http_server *srv)
+{
+    metrics_scrape_desc desc = {.ctx = srv->ctx,
+                                .device = srv->ctx ? &srv->device : NULL,
+                                .jobs = srv->jobs,
+                                .queue_capacity = srv->queue_capacity,
+                                .job_store_capacity_bytes = srv->job_bytes,
+                                .event_streams = (uint32_t)atomic_load(&srv->event_streams)};
+    char *text = NULL;
+    size_t size = 0;
+    if (metrics_render_text(&desc, &text, &size))
+        return send_out_of_memory(conn);
+    static const char *const headers[] = {"Cache-Control", "no-store", NULL};
+    return send_bytes(conn, 200, METRICS_CONTENT_TYPE, text, size, MHD_RESPMEM_MUST_FREE, headers);
 }
 
 /* GET / and GET /<file>: the embedded web page. */
@@ -1208,6 +1227,8 @@ static http_route route_for(const char *url, http_request *req)
         return ROUTE_READYZ;
     if (!strcmp(url, "/v1/info"))
         return ROUTE_INFO;
+    if (!strcmp(url, "/metrics"))
+        return ROUTE_METRICS;
     if (!strcmp(url, "/v1/renders"))
         return ROUTE_RENDERS;
     if (!strcmp(url, "/v1/sweeps"))
@@ -1270,6 +1291,8 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
         return send_json(conn, 200, "application/json", info_json(srv), NULL);
     case ROUTE_MATERIALS:
         return send_json(conn, 200, "application/json", materials_json(), NULL);
+    case ROUTE_METRICS:
+        return answer_metrics(conn, srv);
     case ROUTE_RENDERS:
     case ROUTE_SWEEPS:
         if (!srv->jobs)
@@ -1309,6 +1332,7 @@ static const char *route_name(http_route route)
         [ROUTE_LIVEZ] = "/livez",
         [ROUTE_READYZ] = "/readyz",
         [ROUTE_INFO] = "/v1/info",
+        [ROUTE_METRICS] = "/metrics",
         [ROUTE_RENDERS] = "/v1/renders",
         [ROUTE_VALIDATE] = "/v1/renders/validate",
         [ROUTE_MATERIALS] = "/v1/materials",
@@ -1524,6 +1548,11 @@ static void http_request_completed(void *cls, struct MHD_Connection *conn, void 
     if (srv->access_log)
         access_log(req);
     current_request = NULL;
+    /* A one-segment path is a file of the page or nothing: a 404 there is no route. */
+    metrics_request_done(req->route == ROUTE_WEB && req->status == 404 ? METRICS_OTHER
+                                                                        : route_name(req->route),
+                         req->method, req->status > 0 ? (unsigned)req->status : 0,
+                         (ns_now_ms() - req->started_ms) / 1000.0);
     if (req->counted_in)
         atomic_fetch_sub(&req->counted_in->renders_in_flight, 1);
     json_decref(req->stages);

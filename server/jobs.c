@@ -11,6 +11,7 @@
 #include <time.h>
 
 #include "contact_sheet.h"
+#include "metrics.h"
 #include "problem.h"
 #include "render_job.h"
 #include "sweep.h"
@@ -498,6 +499,7 @@ static void run_render(job_store *store, job *j)
         if (j->sync_status)
             r.state = JOB_FAILED;
     }
+    metrics_render_done(scene_doc_scene(j->doc)->render.method, r.state, &r.stats);
     pthread_mutex_lock(&store->lock);
     scene_doc_free(j->doc);
     j->doc = NULL;
@@ -536,6 +538,7 @@ static void run_sweep(job_store *store, job *j)
         } else {
             render_into(store, j, scene_doc_scene(doc), k == 0 ? &before : &(ns_render_stats){0},
                         (int)i, (double)k / n, 1.0 / n, &r);
+            metrics_render_done(scene_doc_scene(doc)->render.method, r.state, &r.stats);
         }
         scene_doc_free(doc);
         pthread_mutex_lock(&store->lock);

@@ -333,6 +333,11 @@ void ns_context_device_info(const ns_context *ctx, ns_device_info *out);
  * to where it was, so a service can watch for leaks. Safe to call while a render runs. */
 uint32_t ns_context_live_buffers(const ns_context *ctx);
 
+/* Bytes the context's table cache holds now (the J tables in host memory and the A tables
+ * on the device), at most ns_context_desc.table_cache_bytes but for one table larger than
+ * that alone. Safe to call while a render runs; 0 for NULL. */
+uint64_t ns_context_table_cache_bytes(const ns_context *ctx);
+
 /* ---------------------------------------------------------------------------------------
  * Rendering.
  * ------------------------------------------------------------------------------------- */
