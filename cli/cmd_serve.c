@@ -26,6 +26,8 @@ static void serve_usage(FILE *out)
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
             "  --access-log on|off  one JSON line per request on stderr (default on)\n"
+            "  --instance NAME   prefix of job ids (NAME-<32 hex>), so a load balancer can\n"
+            "                    route a job's requests to this instance (a-z, 0-9, 1-16)\n"
             "  --max-deadline-ms N  longest render.deadline_ms, and the deadline of renders\n"
             "                    that name none (default: none)\n"
             "  --sse-keepalive S comment on a quiet event stream every S seconds (1-50,\n"
@@ -81,6 +83,15 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 40, &n))
                 return 2;
             a->job_bytes = n;
+        } else if (!strcmp(arg, "--instance")) {
+            size_t len = strlen(value);
+            if (len < 1 || len > 16 ||
+                strspn(value, "abcdefghijklmnopqrstuvwxyz0123456789") != len) {
+                fprintf(stderr, "nscatter serve: --instance: 1 to 16 of a-z and 0-9, got '%s'\n",
+                        value);
+                return 2;
+            }
+            a->instance = value;
         } else if (!strcmp(arg, "--max-deadline-ms")) {
             if (cli_parse_uint("nscatter serve", arg, value, 1, NS_MAX_DEADLINE_MS, &n))
                 return 2;

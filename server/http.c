@@ -90,7 +90,7 @@ typedef enum {
 /* Per request, made on the first callback, freed in http_request_completed(). */
 typedef struct http_request {
     http_route route;
-    char job_id[JOB_ID_CHARS + 8]; /* the {id} of a job route, as given (checked on lookup) */
+    char job_id[JOB_ID_MAX + 8]; /* the {id} of a job route, as given (checked on lookup) */
     int variant;                   /* the {n} of /images/{n} */
     int async;                     /* POST /v1/renders with Prefer: respond-async */
     uint64_t last_event_id;        /* Last-Event-ID or ?last_event_id= */
@@ -1705,7 +1705,8 @@ int http_serve(const http_serve_desc *desc)
                                                       .ttl_s = srv.job_ttl_s,
                                                       .max_bytes = srv.job_bytes,
                                                       .asset_dir = args.asset_dir,
-                                                      .max_deadline_ms = args.max_deadline_ms},
+                                                      .max_deadline_ms = args.max_deadline_ms,
+                                                      .instance = args.instance},
                                     &srv.jobs, &srv.ctx_err)) {
         fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
         ns_context_destroy(srv.ctx);

@@ -37,7 +37,7 @@ typedef struct job_result {
 } job_result;
 
 struct job {
-    char id[JOB_ID_CHARS + 1];
+    char id[JOB_ID_MAX + 1];
     job_kind kind;
     int async;
     int refs;
@@ -80,6 +80,7 @@ struct job_store {
     uint64_t max_bytes, bytes;
     const char *asset_dir;
     uint32_t max_deadline_ms;
+    char instance[JOB_INSTANCE_MAX + 1];
     pthread_mutex_t lock;
     pthread_cond_t work;    /* a job arrived, or stopping */
     pthread_cond_t changed; /* any job changed: waiters and event streams look again */
@@ -88,7 +89,7 @@ struct job_store {
     uint32_t admitted;
     job **table; /* asynchronous jobs, in creation order */
     uint32_t table_count, table_cap;
-    char (*tombstones)[JOB_ID_CHARS + 1];
+    char (*tombstones)[JOB_ID_MAX + 1];
     uint32_t tombstone_next;
     int stopping;       /* the worker ends once the queue is empty */
     int closing;        /* job_store_shutdown ran: nothing new is admitted */
@@ -360,7 +361,7 @@ json_t *job_list_json(job_store *store, job_kind kind)
  * ------------------------------------------------------------------------------------- */
 static void remember_gone(job_store *store, const char *id)
 {
-    memcpy(store->tombstones[store->tombstone_next], id, JOB_ID_CHARS + 1);
+    snprintf(store->tombstones[store->tombstone_next], JOB_ID_MAX + 1, "%s", id);
     store->tombstone_next = (store->tombstone_next + 1) % TOMBSTONES;
 }
 
@@ -635,8 +636,14 @@ static void *worker_main(void *arg)
 /* ---------------------------------------------------------------------------------------
  * Admission.
  * ------------------------------------------------------------------------------------- */
-static int new_id(char out[JOB_ID_CHARS + 1])
+static int new_id(const char *instance, char out[JOB_ID_MAX + 1])
 {
+    if (instance && *instance) {
+        size_t n = strlen(instance);
+        memcpy(out, instance, n);
+        out[n] = '-';
+        out += n + 1;
+    }
     unsigned char bytes[JOB_ID_CHARS / 2];
     size_t got = 0;
     while (got < sizeof bytes) {
@@ -705,12 +712,12 @@ int job_store_full(job_store *store, uint32_t *retry_after_s)
     return full;
 }
 
-static job *job_new(job_kind kind, int async, const ns_render_stats *stats)
+static job *job_new(const job_store *store, job_kind kind, int async, const ns_render_stats *stats)
 {
     job *j = calloc(1, sizeof *j);
     if (!j)
         return NULL;
-    if (new_id(j->id)) {
+    if (new_id(store->instance, j->id)) {
         free(j);
         return NULL;
     }
@@ -727,7 +734,7 @@ int job_submit_render(job_store *store, scene_doc *doc, int async, encode_format
                       const ns_render_stats *stats, job **out, uint32_t *retry_after_s)
 {
     *out = NULL;
-    job *j = job_new(JOB_RENDER, async, stats);
+    job *j = job_new(store, JOB_RENDER, async, stats);
     if (j)
         j->sync_format = sync_format;
     const ns_scene *scene = scene_doc_scene(doc);
@@ -753,7 +760,7 @@ int job_submit_sweep(job_store *store, sweep *sw, const ns_render_stats *stats, 
                      uint32_t *retry_after_s)
 {
     *out = NULL;
-    job *j = job_new(JOB_SWEEP, 1, stats);
+    job *j = job_new(store, JOB_SWEEP, 1, stats);
     uint32_t n = sweep_variant_count(sw);
     if (j) {
         j->variants = calloc(n, sizeof *j->variants);
@@ -789,7 +796,12 @@ int job_submit_sweep(job_store *store, sweep *sw, const ns_render_stats *stats, 
 job *job_find(job_store *store, const char *id, job_kind kind, int *gone)
 {
     *gone = 0;
-    if (strlen(id) != JOB_ID_CHARS || strspn(id, "0123456789abcdef") != JOB_ID_CHARS)
+    /* Ours: our instance's prefix, then 32 lower-case hex digits. */
+    size_t prefix = store->instance[0] ? strlen(store->instance) + 1 : 0;
+    if (prefix && (strncmp(id, store->instance, prefix - 1) || id[prefix - 1] != '-'))
+        return NULL;
+    if (strlen(id + prefix) != JOB_ID_CHARS ||
+        strspn(id + prefix, "0123456789abcdef") != JOB_ID_CHARS)
         return NULL;
     pthread_mutex_lock(&store->lock);
     purge_locked(store);
@@ -1084,6 +1096,7 @@ int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err)
     store->max_bytes = desc->max_bytes ? desc->max_bytes : JOB_DEFAULT_STORE_BYTES;
     store->asset_dir = desc->asset_dir;
     store->max_deadline_ms = desc->max_deadline_ms;
+    snprintf(store->instance, sizeof store->instance, "%s", desc->instance ? desc->instance : "");
     pthread_mutex_init(&store->lock, NULL);
     pthread_cond_init(&store->work, NULL);
     /* Waits on `changed` use CLOCK_REALTIME deadlines (the default clock). */

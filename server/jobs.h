@@ -25,6 +25,10 @@
 #include "scene_json.h"
 
 #define JOB_ID_CHARS 32 /* 128 random bits as lower-case hex */
+/* An instance's name (serve --instance) goes before them, "name-<32 hex>", so that a load
+ * balancer can send a job's requests to the instance that holds it (deploy/nginx.conf). */
+#define JOB_INSTANCE_MAX 16
+#define JOB_ID_MAX (JOB_INSTANCE_MAX + 1 + JOB_ID_CHARS)
 #define JOB_DEFAULT_TTL_S 3600u
 #define JOB_DEFAULT_STORE_BYTES (1ull << 30)
 #define JOB_MAX_STORED 4096u    /* finished jobs kept at most, whatever their size */
@@ -49,6 +53,8 @@ typedef struct job_store_desc {
     /* Longest render.deadline_ms a render gets, and the deadline of one that names none
      * (0: no cap, and no deadline unless the scene names one). */
     uint32_t max_deadline_ms;
+    /* 1..JOB_INSTANCE_MAX of [a-z0-9], the prefix of every id; NULL: ids without one. */
+    const char *instance;
 } job_store_desc;
 
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);

@@ -242,6 +242,25 @@ def test_deadline(t):
                 "deadline_ms 0 is refused at its pointer")
 
 
+def test_instance_ids(t):
+    """serve --instance NAME: job ids name their instance, so a load balancer can route them;
+    an id of another instance (or without the prefix) is not found here."""
+    with Server("--instance", "b7") as srv:
+        status, headers, job, raw = post_async(srv, small_scene(8, 8))
+        jid = job.get("id", "")
+        t.check(status == 202 and re.match(r"^b7-[0-9a-f]{32}$", jid), f"an id of b7: {jid!r}")
+        t.equal(headers.get("location"), f"/v1/renders/{jid}", "Location carries it")
+        t.equal(wait_state(srv, job_path(jid), ("done", "failed")).get("state"), "done",
+                "the job is found by its id")
+        for other in ("c7-" + jid[3:], jid[3:], "b7" + jid[3:]):
+            status, h, body = srv.request("GET", job_path(other))
+            check_problem(t, status, h, body, 404, "not_found", f"{other[:8]}...: not ours")
+    for bad in ("B7", "with-dash", "x" * 17):
+        proc = __import__("subprocess").run([os.environ["NSCATTER_BIN"], "serve", "--instance", bad],
+                                            capture_output=True, text=True, timeout=30)
+        t.check(proc.returncode == 2 and "--instance" in proc.stderr, f"--instance {bad} refused")
+
+
 def main():
     t = Checks()
     with Server() as srv:
@@ -249,6 +268,7 @@ def main():
             t.run(test, srv)
     t.run(test_full_queue_before_the_body)
     t.run(test_deadline)
+    t.run(test_instance_ids)
     t.run(test_stop_signal)
     return t.report()
 

@@ -23,6 +23,7 @@ typedef struct http_serve_desc {
     int no_access_log;        /* 1: no JSON line per request on stderr */
     uint32_t max_deadline_ms; /* cap on render.deadline_ms, and the deadline of a render that
                                  names none; 0: none */
+    const char *instance;     /* 1-16 of [a-z0-9]: the prefix of job ids; NULL: none */
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
