@@ -26,6 +26,8 @@ static void serve_usage(FILE *out)
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
             "  --access-log on|off  one JSON line per request on stderr (default on)\n"
+            "  --max-pixels N, --max-spp N, --max-vrls N, --max-triangles N\n"
+            "                    this service's limits of a render, below the hard ones\n"
             "  --instance NAME   prefix of job ids (NAME-<32 hex>), so a load balancer can\n"
             "                    route a job's requests to this instance (a-z, 0-9, 1-16)\n"
             "  --max-deadline-ms N  longest render.deadline_ms, and the deadline of renders\n"
@@ -83,6 +85,23 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, 1ull << 40, &n))
                 return 2;
             a->job_bytes = n;
+        } else if (!strcmp(arg, "--max-pixels") || !strcmp(arg, "--max-spp") ||
+                   !strcmp(arg, "--max-vrls") || !strcmp(arg, "--max-triangles")) {
+            /* The service's own limits, at most the hard ones (render/include/nscatter.h). */
+            const struct {
+                const char *name;
+                uint32_t hard;
+                uint32_t *field;
+            } limits[] = {{"--max-pixels", NS_MAX_PIXELS, &a->max_pixels},
+                          {"--max-spp", NS_MAX_SPP, &a->max_spp},
+                          {"--max-vrls", NS_MAX_VRLS, &a->max_vrls},
+                          {"--max-triangles", NS_MAX_TRIANGLES, &a->max_triangles}};
+            for (size_t k = 0; k < sizeof limits / sizeof limits[0]; k++)
+                if (!strcmp(arg, limits[k].name)) {
+                    if (cli_parse_uint("nscatter serve", arg, value, 1, limits[k].hard, &n))
+                        return 2;
+                    *limits[k].field = (uint32_t)n;
+                }
         } else if (!strcmp(arg, "--instance")) {
             size_t len = strlen(value);
             if (len < 1 || len > 16 ||

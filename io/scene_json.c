@@ -50,7 +50,14 @@ typedef struct parser {
     ns_light *lights;
     uint32_t light_count;
     ns_render_settings render;
+    int vrls_given; /* render.vrls was written (else its default applies) */
 } parser;
+
+/* A service's limit (0: none) within the hard one. */
+static uint32_t limit(uint32_t service, uint32_t hard)
+{
+    return service && service < hard ? service : hard;
+}
 
 /* Appends "/key" (RFC 6901: '~' as "~0", '/' as "~1") and returns the previous length,
  * which pop() restores. A pointer longer than the buffer is cut, never overrun. */
@@ -440,9 +447,10 @@ static void parse_camera(parser *p, const json_t *v)
     int have_w = field_uint(p, v, "width", 1, 1, NS_MAX_IMAGE_SIDE, "width (pixels)", &c->width);
     int have_h = field_uint(p, v, "height", 1, 1, NS_MAX_IMAGE_SIDE, "height (pixels)", &c->height);
 
-    if (have_w && have_h && (uint64_t)c->width * c->height > NS_MAX_PIXELS)
+    uint32_t max_pixels = limit(p->opts ? p->opts->max_pixels : 0, NS_MAX_PIXELS);
+    if (have_w && have_h && (uint64_t)c->width * c->height > max_pixels)
         report_at(p, "height", "width x height = %llu pixels is over the limit of %u pixels",
-                  (unsigned long long)c->width * c->height, (unsigned)NS_MAX_PIXELS);
+                  (unsigned long long)c->width * c->height, (unsigned)max_pixels);
 
     double dir[3] = {0, 0, 0};
     int have_dir = 0;
@@ -978,12 +986,14 @@ static void parse_mesh(parser *p, const json_t *o, ns_object *out)
     float *pos = NULL;
     size_t count = 0;
     char err[400];
-    int rc = gltf_load(bytes, len, NS_MAX_TRIANGLES - p->triangle_count, &pos, &count, err, sizeof err);
+    uint32_t max_triangles = limit(p->opts ? p->opts->max_triangles : 0, NS_MAX_TRIANGLES);
+    size_t room = p->triangle_count < max_triangles ? max_triangles - p->triangle_count : 0;
+    int rc = gltf_load(bytes, len, room, &pos, &count, err, sizeof err);
     free(bytes);
     if (rc == NS_ERR_OUT_OF_HOST_MEMORY) {
         p->oom = 1;
     } else if (rc == NS_ERR_LIMIT) {
-        report(p, "%s; a scene holds at most %u triangles in all", err, (unsigned)NS_MAX_TRIANGLES);
+        report(p, "%s; a scene holds at most %u triangles in all", err, (unsigned)max_triangles);
     } else if (rc != 0) {
         report_at(p, source, "%s", err);
     } else if (transform_ok) {
@@ -1263,11 +1273,14 @@ static void parse_render(parser *p, const json_t *v)
             components_ok = r->components != 0;
             pop(p, inner);
         }
-        field_uint(p, v, "spp", 0, 1, NS_MAX_SPP, "spp (samples per pixel)", &r->spp);
+        field_uint(p, v, "spp", 0, 1, limit(p->opts ? p->opts->max_spp : 0, NS_MAX_SPP),
+                   "spp (samples per pixel)", &r->spp);
         field_uint(p, v, "seed", 0, 0, UINT32_MAX, "seed", &r->seed);
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
-        field_uint(p, v, "vrls", 0, 1, NS_MAX_VRLS, "vrls (light paths traced towards the media)", &r->vrls);
+        p->vrls_given = json_object_get(v, "vrls") != NULL;
+        field_uint(p, v, "vrls", 0, 1, limit(p->opts ? p->opts->max_vrls : 0, NS_MAX_VRLS),
+                   "vrls (light paths traced towards the media)", &r->vrls);
         field_uint(p, v, "deadline_ms", 0, 1, NS_MAX_DEADLINE_MS,
                    "deadline_ms (milliseconds the render may take)", &r->deadline_ms);
         field_uint(p, v, "gather_tile", 0, 1, NS_MAX_GATHER_TILE,
@@ -1324,7 +1337,17 @@ static void parse_render(parser *p, const json_t *v)
  * components that need its tables are asked for. */
 static void check_media_for_method(parser *p)
 {
-    uint32_t components = ns_render_settings_resolve(p->render).components;
+    ns_render_settings resolved = ns_render_settings_resolve(p->render);
+    uint32_t max_vrls = limit(p->opts ? p->opts->max_vrls : 0, NS_MAX_VRLS);
+    if (resolved.vrls > max_vrls && !p->vrls_given &&
+        (resolved.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)) &&
+        resolved.method != NS_METHOD_PT) {
+        size_t saved = push_key(p, "render");
+        report_at(p, "vrls", "the default of %u VRLs is over the limit of %u; set render.vrls",
+                  resolved.vrls, max_vrls);
+        pop(p, saved);
+    }
+    uint32_t components = resolved.components;
     if (!p->materials_known ||
         !(components & (NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)))
         return;

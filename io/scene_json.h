@@ -36,6 +36,10 @@ typedef struct scene_parse_options {
     /* Folder holding named mesh assets ("asset": "bunny.glb"); NULL: assets are refused.
      * Names only: anything with a path separator or starting with '.' is refused. */
     const char *asset_dir;
+    /* A service's own limits, below the hard ones of nscatter.h (0: the hard one): image
+     * pixels (width x height), render.spp, render.vrls, triangles of all meshes together. A
+     * scene over one is refused at the field's pointer, naming the limit. */
+    uint32_t max_pixels, max_spp, max_vrls, max_triangles;
 } scene_parse_options;
 
 typedef struct scene_doc scene_doc;

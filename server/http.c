@@ -60,6 +60,7 @@ typedef struct http_server {
     uint32_t sse_keepalive_s;
     uint32_t max_deadline_ms;
     const char *asset_dir;
+    scene_parse_options parse_opts; /* asset folder and the service's limits */
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
     atomic_int event_streams;     /* open event streams (each holds a connection) */
     atomic_int stopping;          /* a stop signal came: /readyz and new renders answer 503 */
@@ -462,17 +463,27 @@ static json_t *device_json(const http_server *srv)
                      d->is_cpu, "live_buffers", (json_int_t)ns_context_live_buffers(srv->ctx));
 }
 
+/* A service limit (0: none) within the hard one, as the parser applies it. */
+static json_int_t effective_limit(uint32_t service, uint32_t hard)
+{
+    return service && service < hard ? service : hard;
+}
+
 static json_t *info_json(const http_server *srv)
 {
+    const scene_parse_options *o = &srv->parse_opts;
     json_t *limits = json_pack(
         "{s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I, s:I}", "max_body_bytes",
         (json_int_t)srv->max_body, "queue_capacity", (json_int_t)srv->queue_capacity,
-        "max_image_side", (json_int_t)NS_MAX_IMAGE_SIDE, "max_pixels", (json_int_t)NS_MAX_PIXELS,
-        "max_spp", (json_int_t)NS_MAX_SPP, "max_depth", (json_int_t)NS_MAX_DEPTH, "max_materials",
-        (json_int_t)NS_MAX_MATERIALS, "max_objects", (json_int_t)NS_MAX_OBJECTS, "max_lights",
-        (json_int_t)NS_MAX_LIGHTS, "max_triangles", (json_int_t)NS_MAX_TRIANGLES, "job_ttl_s",
+        "max_image_side", (json_int_t)NS_MAX_IMAGE_SIDE, "max_pixels",
+        effective_limit(o->max_pixels, NS_MAX_PIXELS), "max_spp",
+        effective_limit(o->max_spp, NS_MAX_SPP), "max_depth", (json_int_t)NS_MAX_DEPTH,
+        "max_materials", (json_int_t)NS_MAX_MATERIALS, "max_objects", (json_int_t)NS_MAX_OBJECTS,
+        "max_lights", (json_int_t)NS_MAX_LIGHTS, "max_triangles",
+        effective_limit(o->max_triangles, NS_MAX_TRIANGLES), "job_ttl_s",
         (json_int_t)srv->job_ttl_s, "job_store_bytes", (json_int_t)srv->job_bytes,
         "max_sweep_variants", (json_int_t)SWEEP_MAX_VARIANTS);
+    json_object_set_new(limits, "max_vrls", json_integer(effective_limit(o->max_vrls, NS_MAX_VRLS)));
     json_object_set_new(limits, "max_deadline_ms",
                         srv->max_deadline_ms ? json_integer(srv->max_deadline_ms) : json_null());
     job_store_counts counts = {0};
@@ -904,7 +915,7 @@ static json_t *parse_scene_body(http_server *srv, http_request *req, scene_doc *
         return problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY,
                                    "out of memory");
     int rc = scene_parse(req->body ? req->body : "", req->size,
-                         &(scene_parse_options){.asset_dir = srv->asset_dir}, doc, issues);
+                         &srv->parse_opts, doc, issues);
     ns_stats_add_stage(stats, "parse", ns_now_ms() - t0);
     json_t *p = NULL;
     if (rc)
@@ -1010,7 +1021,7 @@ static enum MHD_Result answer_sweep_post(struct MHD_Connection *conn, http_serve
     double t0 = ns_now_ms();
     sweep *sw = NULL;
     json_t *problem = NULL;
-    sweep_parse(req->body, req->size, &(scene_parse_options){.asset_dir = srv->asset_dir}, &sw,
+    sweep_parse(req->body, req->size, &srv->parse_opts, &sw,
                 &problem);
     ns_stats_add_stage(&stats, "parse", ns_now_ms() - t0);
     if (!sw)
@@ -1698,7 +1709,12 @@ int http_serve(const http_serve_desc *desc)
                        .sse_keepalive_s =
                            args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S,
                        .access_log = !args.no_access_log,
-                       .max_deadline_ms = args.max_deadline_ms};
+                       .max_deadline_ms = args.max_deadline_ms,
+                       .parse_opts = {.asset_dir = args.asset_dir,
+                                      .max_pixels = args.max_pixels,
+                                      .max_spp = args.max_spp,
+                                      .max_vrls = args.max_vrls,
+                                      .max_triangles = args.max_triangles}};
     make_context(&srv, args.device);
     if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
                                                       .capacity = args.queue,

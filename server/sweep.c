@@ -419,6 +419,10 @@ int sweep_parse(const char *body, size_t size, const scene_parse_options *opts, 
                                        "out of memory");
         return NS_ERR_OUT_OF_HOST_MEMORY;
     }
+    if (opts) {
+        sw->opts = *opts; /* the service's limits too */
+        sw->opts.asset_dir = NULL;
+    }
     if (opts && opts->asset_dir) {
         sw->asset_dir = strdup(opts->asset_dir);
         sw->opts.asset_dir = sw->asset_dir;

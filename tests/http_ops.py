@@ -261,6 +261,36 @@ def test_instance_ids(t):
         t.check(proc.returncode == 2 and "--instance" in proc.stderr, f"--instance {bad} refused")
 
 
+def test_service_limits(t):
+    """serve --max-pixels/--max-spp/--max-vrls: a scene over one is refused at its pointer,
+    naming the limit, before anything is queued; /v1/info reports the limits in force."""
+    with Server("--max-pixels", "4096", "--max-spp", "8", "--max-vrls", "2000") as srv:
+        limits = json.loads(srv.request("GET", "/v1/info")[2]).get("limits", {})
+        t.equal((limits.get("max_pixels"), limits.get("max_spp"), limits.get("max_vrls")),
+                (4096, 8, 2000), "limits in /v1/info")
+        cases = (({"camera": {"width": 128, "height": 64}}, "/camera/height", "4096"),
+                 ({"render": {"spp": 9}}, "/render/spp", "8"),
+                 ({"render": {"vrls": 2001}}, "/render/vrls", "2000"),
+                 ({"render": {"components": ["multiple"]}}, "/render/vrls", "2000"))
+        for change, pointer, number in cases:
+            scene = small_scene(8, 8)
+            for key, value in change.items():
+                scene.setdefault(key, {}).update(value)
+            status, h, body = json_post(srv, "/v1/renders", scene)
+            p = problem(body)
+            hit = [e for e in p.get("errors", []) if e.get("pointer") == pointer]
+            t.check(status == 422 and hit and number in hit[0].get("detail", ""),
+                    f"{pointer} over the service's limit: {status} {p.get('errors')}")
+        ok = small_scene(64, 64)
+        ok["render"] = {"spp": 8, "components": ["surface"]}
+        t.equal(json_post(srv, "/v1/renders", ok)[0], 200, "at the limits: rendered")
+        sweep = {"scene": small_scene(8, 8), "variants": [{"/render/spp": 4}, {"/render/spp": 16}]}
+        status, h, body = json_post(srv, "/v1/sweeps", sweep)
+        t.check(status == 422 and any(e.get("pointer") == "/variants/1/~1render~1spp"
+                                      for e in problem(body).get("errors", [])),
+                f"a sweep variant over the limit is named: {problem(body).get('errors')}")
+
+
 def main():
     t = Checks()
     with Server() as srv:
@@ -269,6 +299,7 @@ def main():
     t.run(test_full_queue_before_the_body)
     t.run(test_deadline)
     t.run(test_instance_ids)
+    t.run(test_service_limits)
     t.run(test_stop_signal)
     return t.report()
 

@@ -24,6 +24,8 @@ typedef struct http_serve_desc {
     uint32_t max_deadline_ms; /* cap on render.deadline_ms, and the deadline of a render that
                                  names none; 0: none */
     const char *instance;     /* 1-16 of [a-z0-9]: the prefix of job ids; NULL: none */
+    /* Limits of a render below the hard ones (docs/http.md); 0: the hard one. */
+    uint32_t max_pixels, max_spp, max_vrls, max_triangles;
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
