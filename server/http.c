@@ -38,6 +38,7 @@
 #include "render_job.h"
 #include "jobs.h"
 #include "metrics.h"
+#include "openapi.h"
 #include "scene_json.h"
 #include "sweep.h"
 #include "web_assets.h"
@@ -73,6 +74,7 @@ typedef enum {
     ROUTE_READYZ,
     ROUTE_INFO,
     ROUTE_METRICS,        /* GET: the Prometheus text exposition (metrics.h) */
+    ROUTE_OPENAPI,        /* GET /openapi.json: the API's description (openapi.h) */
     ROUTE_RENDERS,        /* POST: a render; GET: the asynchronous renders */
     ROUTE_VALIDATE,       /* POST /v1/renders/validate: the checks of a render, no render */
     ROUTE_MATERIALS,      /* GET /v1/materials: the presets */
@@ -529,6 +531,15 @@ static enum MHD_Result answer_metrics(struct MHD_Connection *conn, http_server *
         return send_out_of_memory(conn);
     static const char *const headers[] = {"Cache-Control", "no-store", NULL};
     return send_bytes(conn, 200, METRICS_CONTENT_TYPE, text, size, MHD_RESPMEM_MUST_FREE, headers);
+}
+
+/* GET /openapi.json: the embedded OpenAPI document. It changes only with the binary, so a
+ * client may keep it and revalidate (no-cache), as for the page. */
+static enum MHD_Result answer_openapi(struct MHD_Connection *conn)
+{
+    static const char *const headers[] = {"Cache-Control", "no-cache", NULL};
+    return send_bytes(conn, 200, OPENAPI_CONTENT_TYPE, (void *)openapi_json, openapi_json_size,
+                      MHD_RESPMEM_PERSISTENT, headers);
 }
 
 /* GET / and GET /<file>: the embedded web page. */
@@ -1240,6 +1251,8 @@ static http_route route_for(const char *url, http_request *req)
         return ROUTE_INFO;
     if (!strcmp(url, "/metrics"))
         return ROUTE_METRICS;
+    if (!strcmp(url, "/openapi.json"))
+        return ROUTE_OPENAPI;
     if (!strcmp(url, "/v1/renders"))
         return ROUTE_RENDERS;
     if (!strcmp(url, "/v1/sweeps"))
@@ -1304,6 +1317,8 @@ static enum MHD_Result answer_get(struct MHD_Connection *conn, http_server *srv,
         return send_json(conn, 200, "application/json", materials_json(), NULL);
     case ROUTE_METRICS:
         return answer_metrics(conn, srv);
+    case ROUTE_OPENAPI:
+        return answer_openapi(conn);
     case ROUTE_RENDERS:
     case ROUTE_SWEEPS:
         if (!srv->jobs)
@@ -1344,6 +1359,7 @@ static const char *route_name(http_route route)
         [ROUTE_READYZ] = "/readyz",
         [ROUTE_INFO] = "/v1/info",
         [ROUTE_METRICS] = "/metrics",
+        [ROUTE_OPENAPI] = "/openapi.json",
         [ROUTE_RENDERS] = "/v1/renders",
         [ROUTE_VALIDATE] = "/v1/renders/validate",
         [ROUTE_MATERIALS] = "/v1/materials",
