@@ -527,18 +527,51 @@ static const preset *find_preset(parser *p, const json_t *m)
 }
 
 /* Writes scale * coefficient into out, refusing results a float cannot hold. */
+/* The floats are chosen so that sigma_s + sigma_a, added as floats (as the GPU scene does),
+ * is exactly the extinction rounded to a float. Rounding each part on its own would move
+ * that sum by an ulp for about one albedo in six, so a sweep of albedo at one mean free path
+ * would see a different extinction, and trace the camera pass again (render/camera_keep.c),
+ * for no physical reason. The smaller part carries the albedo's precision (milk's sigma_a is
+ * a thousandth of sigma_t), so it is rounded as usual, or moved by a few of its own ulps
+ * where the float sum would otherwise tie between two floats; the larger is the extinction
+ * minus it, moved by an ulp. Should no such pair exist, the larger part rounded and the
+ * smaller the exact rest (Sterbenz: the larger is at least half the extinction) always
+ * sum exactly. */
+static void split_extinction(double s, double a, float *sigma_s, float *sigma_a)
+{
+    float extinction = (float)(s + a);
+    float nearest = (float)(s < a ? s : a), smaller = nearest, larger = 0.0f;
+    int found = 0;
+    for (int k = 0; k < 9 && !found; k++) { /* nearest, +1, -1, +2, -2 ... of its ulps */
+        smaller = nearest;
+        for (int j = 0; j < (k + 1) / 2; j++)
+            smaller = nextafterf(smaller, k % 2 ? INFINITY : 0.0f);
+        larger = extinction - smaller;
+        for (int step = 0; step < 3 && !found; step++) {
+            found = larger + smaller == extinction && smaller >= 0.0f && larger >= smaller;
+            if (!found)
+                larger = nextafterf(larger, larger + smaller < extinction ? INFINITY : 0.0f);
+        }
+    }
+    if (!found) {
+        larger = (float)(s < a ? a : s);
+        smaller = extinction - larger;
+    }
+    *sigma_s = s < a ? smaller : larger;
+    *sigma_a = s < a ? larger : smaller;
+}
+
 static int store_coefficients(parser *p, const double sigma_s[3], const double sigma_a[3], double scale,
                               ns_material *out)
 {
     for (int i = 0; i < 3; i++) {
         double s = sigma_s[i] * scale, a = sigma_a[i] * scale;
-        if (!(s <= FLT_MAX) || !(a <= FLT_MAX)) {
+        if (!(s + a <= FLT_MAX)) {
             report(p, "the resolved coefficients (sigma_s, sigma_a = %g, %g per scene unit) "
                       "overflow a 32-bit float; use a larger mfp or a smaller scale", s, a);
             return 0;
         }
-        out->sigma_s[i] = (float)s;
-        out->sigma_a[i] = (float)a;
+        split_extinction(s, a, &out->sigma_s[i], &out->sigma_a[i]);
     }
     return 1;
 }
