@@ -380,6 +380,12 @@ typedef struct ns_render_stats {
      * render that built one. The stage "bvh" is still listed, with the time of the
      * comparison. The image is the same either way. */
     uint32_t bvh_reused;
+    /* 1: the camera pass (surface image and segments) was kept from the context's last
+     * render, which made the same one: same geometry, camera, lights, planes, samples and
+     * seed, and media that differ at most in what the camera pass does not read (sigma_s
+     * and g: albedo at a fixed extinction, and g). No stage "ray_pass" is listed then. The
+     * image is the same, bit for bit (render/camera_keep.c). */
+    uint32_t camera_reused;
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Render settings left 0 take their defaults
