@@ -6,7 +6,10 @@
 # The build stage uses the same scripts/setup.sh as the README, so the image is built the
 # way a developer builds; the runtime stage holds only the binary, the example scenes and
 # the shared libraries it links, and renders on Mesa's lavapipe (CPU Vulkan) by default.
-# See docs/container.md.
+#
+#   docker build --target test .     # the HTTP and CLI integration tests, in the image
+#
+# The runtime stage is the last one, so it stays the default target. See docs/container.md.
 
 # ---------------------------------------------------------------------------------------
 # build: compilers, headers, glslang; produces /src/build/nscatter
@@ -18,6 +21,35 @@ COPY scripts/setup.sh scripts/setup.sh
 RUN scripts/setup.sh deps && rm -rf /var/lib/apt/lists/*
 COPY . .
 RUN scripts/setup.sh build
+
+# ---------------------------------------------------------------------------------------
+# test: the HTTP and CLI integration tests (ctest -L 'http|cli') against /src/build/nscatter,
+# the very file the runtime stage copies. Built only on request (--target test); any failed
+# test fails the build.
+# ---------------------------------------------------------------------------------------
+# From the build stage, not the runtime one: the tests need the source tree (the test
+# programs, scenes/, deploy/, the headers and sources some of them read) and CTest's files,
+# which name /src/build; the build stage has both, and its libraries are the same Debian
+# packages' (the runtime stage checks its own with ldd and `nscatter info`).
+FROM build AS test
+# The HTTP tests' packages (python3 and its prometheus-client, jsonschema and yaml modules,
+# nginx-light for http_scaleout) and Node.js with web/'s npm packages, whose OpenAPI validator
+# http_openapi runs: `npm ci` needs the npm registry (registry.npmjs.org) during the build.
+# No Chromium and no validation layers: the browser and GPU tests are not run here.
+RUN scripts/setup.sh http-test-deps && rm -rf /var/lib/apt/lists/* /root/.npm
+# CMake looks for python3 again (the build stage may have configured without it); this
+# rewrites CTest's files only and rebuilds nothing.
+RUN cmake -S . -B build >/dev/null
+# As the runtime stage's user (uid 10001, its home for Mesa's shader cache), owning only what
+# the tests write: CTest's log and the tests' table cache in build/. Temporary files go to
+# /tmp.
+RUN useradd --system --user-group --uid 10001 --home-dir /var/lib/nscatter --create-home \
+      --shell /usr/sbin/nologin nscatter \
+ && chown -R nscatter:nscatter build
+USER nscatter
+# --no-tests=error: a test list that matched nothing (a missing python3 at configure time)
+# fails rather than passing empty.
+RUN cd build && ctest -L 'http|cli' --output-on-failure --no-tests=error --timeout 900
 
 # ---------------------------------------------------------------------------------------
 # runtime: shared libraries only, non-root

@@ -7,6 +7,9 @@
 #                           every test (ctest), then the sanitizer build's tests
 #   scripts/setup.sh deps   only install what is missing
 #   scripts/setup.sh build  install and build build/nscatter
+#   scripts/setup.sh http-test-deps
+#                           only install what the HTTP and CLI tests need (ctest -L 'http|cli'),
+#                           Node.js and web/'s npm packages included: the Dockerfile's test stage
 #
 # Works as root on a fresh Debian 12 (bookworm); as another user it uses sudo for apt.
 set -euo pipefail
@@ -27,8 +30,10 @@ BUILD_PACKAGES=(
 # for the browser test, nginx in front of three instances (tests/http_scaleout.py runs
 # deploy/nginx.conf) and PyYAML, which reads the Kubernetes manifests of deploy/k8s/
 # (tests/http_k8s.py).
-TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client python3-jsonschema chromium
-               nginx-light python3-yaml)
+# HTTP_TEST_PACKAGES are the ones the HTTP and CLI tests need (the Dockerfile's test stage
+# installs these and Node.js, through `http-test-deps`); the GPU and browser tests add the rest.
+HTTP_TEST_PACKAGES=(python3 python3-prometheus-client python3-jsonschema nginx-light python3-yaml)
+TEST_PACKAGES=(vulkan-validationlayers chromium "${HTTP_TEST_PACKAGES[@]}")
 # Test packages not every Debian release has, installed where the archive has them:
 # python3-openapi-spec-validator (tests/http_openapi.py) is in Debian from trixie on; where it
 # is missing that test relies on the npm validator alone (web/package.json,
@@ -89,6 +94,11 @@ case "$mode" in
     echo "setup: rendered out/default.png; serving http://127.0.0.1:8080/ (Ctrl-C stops)"
     exec ./build/nscatter serve --host 127.0.0.1 --port 8080
     ;;
+  http-test-deps)
+    install_missing "${HTTP_TEST_PACKAGES[@]}"
+    install_available "${OPTIONAL_TEST_PACKAGES[@]}"
+    install_node
+    ;;
   test)
     install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}"
     install_available "${OPTIONAL_TEST_PACKAGES[@]}"
@@ -101,7 +111,7 @@ case "$mode" in
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http|cli')
     ;;
   *)
-    echo "usage: scripts/setup.sh run|test|deps|build" >&2
+    echo "usage: scripts/setup.sh run|test|deps|build|http-test-deps" >&2
     exit 2
     ;;
 esac

@@ -119,8 +119,12 @@ def test_consistent(t, docs):
     # The image: its user and paths.
     with open(os.path.join(SOURCE, "Dockerfile")) as f:
         dockerfile = f.read()
-    uid = re.search(r"--uid (\d+)", dockerfile).group(1)
+    # The runtime stage's user; the test stage runs the tests as the same one.
+    runtime = re.split(r"(?m)^FROM \S+ AS runtime$", dockerfile)[-1]
+    uid = re.search(r"--uid (\d+)", runtime).group(1)
     t.equal(str(spec["securityContext"]["runAsUser"]), uid, "runs as the image's user")
+    t.equal(sorted(set(re.findall(r"--uid (\d+)", dockerfile))), [uid],
+            "every stage's user is the runtime's")
     script = container["command"][-1]
     for path in re.findall(r"/usr/share/nscatter/\S+", script):
         t.check("/usr/share/nscatter/scenes" in dockerfile and path.startswith(
