@@ -12,6 +12,8 @@ top of CMakeLists.txt), read from the source tree itself:
        render  -> render, render/gpu, render/include, shaders
        shaders -> shaders, render/include
        tests   -> everything
+       bench   -> bench, io, offline, render (its internals, as the GPU tests), render/gpu,
+                  render/include, shaders: the benchmarks, never the cli or the server
      A quoted include is resolved the way the compiler does it: beside the including file
      first, then anywhere in the tree (every header name is unique, so the folder is known).
      A name found nowhere in the tree (a generated *_spv.h, a third-party header) is listed
@@ -32,7 +34,7 @@ import sys
 # The folders whose includes are checked, finest first: a file belongs to the first one its
 # path lies in.
 UNITS = ["render/gpu", "render/include", "server/include", "cli", "server", "io", "offline",
-         "render", "shaders", "tests"]
+         "render", "shaders", "tests", "bench"]
 
 # What each layer (top-level folder, all of its subfolders) may include. None: anything.
 ALLOWED = {
@@ -43,6 +45,7 @@ ALLOWED = {
     "render": {"render", "render/gpu", "render/include", "shaders"},
     "shaders": {"shaders", "render/include"},
     "tests": None,
+    "bench": {"bench", "io", "offline", "render", "render/gpu", "render/include", "shaders"},
 }
 
 SOURCE_EXTENSIONS = (".c", ".h", ".cpp", ".cc", ".hpp", ".hh", ".comp", ".glsl", ".c.in",
