@@ -4,24 +4,37 @@
  * The rays: the bench's bunny (io/bench_mesh from glmark2-data's OBJ) placed as
  * scenes/bench/bunny.json places it, on that scene's floor plane, seen by that scene's
  * pinhole camera at WIDTHxHEIGHT (512² by default): one primary ray through every pixel
- * centre, then for every primary hit one shadow ray towards a directional light.
+ * centre (row by row), then for every primary hit one shadow ray towards a directional
+ * light (from the hit point moved off the surface by the renderer's ray_epsilon, to infinity;
+ * made once from Embree's primary hits, untimed, so that both sides trace the same shadow
+ * rays).
  *
  *   nscatter  ns_trace_rays_timed (render/trace_rays.c): the real traversal (trace.glsl's
  *             trace_scene, through shaders/trace_test.comp), nearest hit for every ray,
- *             shadow rays included, as the renderer traces them. Timed by two timestamp
- *             queries around the dispatch (device time only: no BVH build, no upload, no
- *             readback); the host time from recording to the fence is printed beside it.
+ *             shadow rays included, as the renderer traces them (it has no any-hit query).
+ *             Timed by two timestamp queries around the dispatch (device time only: no BVH
+ *             build, no upload, no readback); the host time from recording to the fence is
+ *             printed beside it.
  *   Embree    rtcIntersect1 for primary rays and rtcOccluded1 for shadow rays on T threads
  *             (pthreads, each taking chunks of CHUNK consecutive rays from a shared counter),
  *             T = the threads lavapipe uses (LP_NUM_THREADS, else the online CPUs); also
  *             rtcIntersect16 / rtcOccluded16 on 16 consecutive rays, reported apart. Timed
- *             by the wall clock from starting the threads to joining them.
+ *             by the wall clock from starting the threads to joining them (thread start
+ *             included, tens of microseconds). The scene is built once (untimed).
+ *
+ * Every measurement is one warm-up and then --repeat timed runs, best and median reported;
+ * each repetition runs nscatter's dispatch, then Embree scalar, then Embree packets, back to
+ * back (ns_trace_timing.between), so that on a shared machine both sides see the same load;
+ * the ratio is given from the medians and as the median of the per-repetition ratios. Three
+ * sets: all rays in one dispatch / one run (the headline), the primary rays alone, the
+ * shadow rays alone.
  *
  * The floor: nscatter traces it as the renderer does, an infinite plane kept outside the BVH
  * and tested by every ray. Embree has no infinite plane, so its floor is a square of two
  * triangles in the plane, centred on the scene's point, whose half side is a power of two
  * at least twice the farthest floor hit of any primary ray (computed from the rays): every
  * ray of the set that meets the plane meets the square, so both sides see the same surface.
+ * --floor quad gives nscatter the same two triangles in its BVH instead.
  *
  * Honesty check: each side's hits are compared (primary: same triangle or both the floor or
  * both nothing, and hit distance within 1e-4 relative; shadow: same occluded or not), and
@@ -62,6 +75,7 @@ typedef struct args {
     uint32_t width, height, repeat, threads;
     double light[3];
     int no_packets;
+    int floor_quad; /* nscatter's floor: 0 its plane (as the renderer), 1 Embree's square */
 } args;
 
 static void usage(FILE *f)
@@ -78,6 +92,9 @@ static void usage(FILE *f)
             "                  the threads lavapipe uses)\n"
             "  --light X,Y,Z   direction towards the directional light (default 3,5,3)\n"
             "  --no-packets    skip the rtcIntersect16/rtcOccluded16 runs\n"
+            "  --floor F       nscatter's floor: plane (default: an infinite plane outside the\n"
+            "                  BVH, as the renderer traces a plane) or quad (Embree's square, its\n"
+            "                  two triangles built into nscatter's BVH with the bunny)\n"
             "  --device D      Vulkan device (index or name part; default lavapipe)\n");
 }
 
@@ -126,6 +143,13 @@ static int parse_args(int argc, char **argv, args *a)
             a->bunny = v;
         } else if (!strcmp(o, "--device")) {
             a->device = v;
+        } else if (!strcmp(o, "--floor")) {
+            if (!strcmp(v, "plane") || !strcmp(v, "quad")) {
+                a->floor_quad = !strcmp(v, "quad");
+            } else {
+                fprintf(stderr, "bench_rays: --floor: '%s' is neither plane nor quad\n", v);
+                return 2;
+            }
         } else if (!strcmp(o, "--repeat")) {
             rc = parse_u32(o, v, 1, 1000, &a->repeat);
         } else if (!strcmp(o, "--threads")) {
@@ -499,6 +523,21 @@ static double embree_run(embree_job *job, uint32_t threads)
     return now_ms() - start;
 }
 
+/* The Embree runs made between nscatter's dispatches (ns_trace_timing.between). */
+typedef struct interleave {
+    embree_job scalar, packet;
+    uint32_t threads;
+    double *scalar_ms, *packet_ms; /* packet_ms NULL: no packet runs */
+} interleave;
+
+static void interleave_run(void *user, uint32_t r)
+{
+    interleave *il = user;
+    il->scalar_ms[r] = embree_run(&il->scalar, il->threads);
+    if (il->packet_ms)
+        il->packet_ms[r] = embree_run(&il->packet, il->threads);
+}
+
 static void embree_error(void *user, enum RTCError code, const char *str)
 {
     (void)user;
@@ -687,9 +726,12 @@ int main(int argc, char **argv)
     unsigned *fi = rtcSetNewGeometryBuffer(floor_geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                            3 * sizeof(unsigned), 2);
     static const double corner[4][2] = {{-1, -1}, {1, -1}, {1, 1}, {-1, 1}};
+    float floor_v[12];
     for (int c = 0; c < 4; c++)
         for (int k = 0; k < 3; k++)
-            fv[3 * c + k] = (float)(s.floor_point[k] + half * (corner[c][0] * t1[k] + corner[c][1] * t2[k]));
+            floor_v[3 * c + k] =
+                (float)(s.floor_point[k] + half * (corner[c][0] * t1[k] + corner[c][1] * t2[k]));
+    memcpy(fv, floor_v, sizeof floor_v);
     static const unsigned quad[6] = {0, 1, 2, 0, 2, 3};
     memcpy(fi, quad, sizeof quad);
     rtcCommitGeometry(floor_geom);
@@ -748,7 +790,7 @@ int main(int argc, char **argv)
     }
     ns_device_info info;
     ns_context_device_info(ctx, &info);
-    GpuPrim *prims = calloc(tris, sizeof *prims), plane;
+    GpuPrim *prims = calloc((size_t)tris + 2, sizeof *prims), plane;
     for (uint32_t i = 0; i < tris; i++) {
         prims[i].info[0] = NS_PRIM_TRIANGLE;
         prims[i].info[2] = 1;
@@ -764,12 +806,28 @@ int main(int argc, char **argv)
         plane.a[k] = (float)s.floor_point[k];
         plane.b[k] = (float)s.floor_normal[k];
     }
+    /* --floor quad: Embree's two triangles, same vertices, after the bunny's in the BVH. */
+    for (uint32_t q = 0; q < 2; q++) {
+        GpuPrim *p = &prims[tris + q];
+        p->info[0] = NS_PRIM_TRIANGLE;
+        p->info[2] = 0;
+        for (int k = 0; k < 3; k++) {
+            p->a[k] = floor_v[3 * quad[3 * q] + k];
+            p->b[k] = floor_v[3 * quad[3 * q + 1] + k];
+            p->c[k] = floor_v[3 * quad[3 * q + 2] + k];
+        }
+    }
+    uint32_t ns_prims = a.floor_quad ? tris + 2 : tris, ns_planes = a.floor_quad ? 0 : 1;
 
     double load_start[3];
     loadavg(load_start);
     uint32_t runs = a.repeat + 1; /* the first of each set is a warm-up, never counted */
-    double *dev_ms = malloc(sizeof *dev_ms * runs), *wall_ms = malloc(sizeof *wall_ms * runs);
+    double *dev_ms = malloc(sizeof *dev_ms * runs), *wall_ms = malloc(sizeof *wall_ms * runs),
+           *scalar_ms = malloc(sizeof *scalar_ms * runs), *packet_ms = malloc(sizeof *packet_ms * runs),
+           *pair_ratio = malloc(sizeof *pair_ratio * runs);
     GpuHit *hits = malloc(sizeof *hits * (size_t)total);
+    uint32_t *p_prim = malloc(sizeof *p_prim * (size_t)total);
+    float *p_t = malloc(sizeof *p_t * (size_t)total);
     side_result ns_dev, ns_wall, em_scalar, em_packet;
     memset(&em_packet, 0, sizeof em_packet);
     struct {
@@ -781,36 +839,46 @@ int main(int argc, char **argv)
         {primary, shadow, &ns_dev.shadow, &ns_wall.shadow, &em_scalar.shadow, &em_packet.shadow},
     };
     int timestamps = 1;
+    timing pair = {0, 0};
     agreement agree = {0, 0}, agree_packet = {0, 0};
     for (int set = 0; set < 3; set++) {
+        /* Embree's runs of the same rays, scalar then packets, interleaved with nscatter's
+         * dispatches (one of each per repetition) so that both sides see the same load. */
+        interleave il = {.scalar = job, .threads = a.threads, .scalar_ms = scalar_ms,
+                         .packet_ms = a.no_packets ? NULL : packet_ms};
+        il.scalar.rays = rays + sets[set].first;
+        il.scalar.first_shadow = set == 2 ? 0 : set == 1 ? sets[set].count : primary;
+        il.scalar.count = sets[set].count;
+        il.packet = il.scalar;
+        il.packet.mode = EMBREE_PACKET16;
+        il.packet.prim = p_prim;
+        il.packet.t = p_t;
         /* nscatter: one BVH and one upload, then `runs` dispatches of the same rays. */
-        rc = ns_trace_rays_timed(ctx, prims, tris, &plane, 1, rays + sets[set].first,
-                                 sets[set].count, hits, runs, dev_ms, wall_ms, &err);
+        rc = ns_trace_rays_timed(ctx, prims, ns_prims, &plane, ns_planes, rays + sets[set].first,
+                                 sets[set].count, hits,
+                                 &(ns_trace_timing){.repeats = runs, .device_ms = dev_ms,
+                                                    .wall_ms = wall_ms, .between = interleave_run,
+                                                    .user = &il},
+                                 &err);
         if (rc) {
             fprintf(stderr, "bench_rays: ns_trace_rays_timed: %s\n", err.message);
             return 1;
         }
         if (dev_ms[1] < 0)
             timestamps = 0;
-        *sets[set].dev = summarize(timestamps ? dev_ms + 1 : wall_ms + 1, a.repeat);
+        const double *ns_ms = timestamps ? dev_ms : wall_ms;
+        *sets[set].dev = summarize(ns_ms + 1, a.repeat);
         *sets[set].wall = summarize(wall_ms + 1, a.repeat);
-        /* Embree, scalar then packets, the same rays. */
-        embree_job j = job;
-        j.rays = rays + sets[set].first;
-        j.first_shadow = set == 2 ? 0 : set == 1 ? sets[set].count : primary;
-        j.count = sets[set].count;
-        for (int mode = 0; mode < (a.no_packets ? 1 : 2); mode++) {
-            j.mode = mode;
-            for (uint32_t r = 0; r < runs; r++)
-                wall_ms[r] = embree_run(&j, a.threads);
-            *(mode ? sets[set].packet : sets[set].scalar) = summarize(wall_ms + 1, a.repeat);
-            if (set == 0) {
-                agreement g = compare(hits, e_prim, e_t, primary, total, tris, mode == 0);
-                if (mode)
-                    agree_packet = g;
-                else
-                    agree = g;
-            }
+        *sets[set].scalar = summarize(scalar_ms + 1, a.repeat);
+        if (!a.no_packets)
+            *sets[set].packet = summarize(packet_ms + 1, a.repeat);
+        if (set == 0) {
+            for (uint32_t r = 1; r < runs; r++)
+                pair_ratio[r] = ns_ms[r] > 0 ? scalar_ms[r] / ns_ms[r] : 0;
+            pair = summarize(pair_ratio + 1, a.repeat);
+            agree = compare(hits, e_prim, e_t, primary, total, tris, 1);
+            if (!a.no_packets)
+                agree_packet = compare(hits, p_prim, p_t, primary, total, tris, 0);
         }
     }
     double load_end[3];
@@ -825,8 +893,9 @@ int main(int argc, char **argv)
     double agree_fraction = 1.0 - (double)differ / total;
     double ratio = ns_dev.all.median > 0 ? em_scalar.all.median / ns_dev.all.median : 0;
     printf("bench_rays: %s, %u triangles on a floor (Embree: a %.0f x %.0f square, nscatter: "
-           "its plane), %ux%u, 1 spp\n",
-           obj, tris, 2 * half, 2 * half, a.width, a.height);
+           "%s), %ux%u, 1 spp\n",
+           obj, tris, 2 * half, 2 * half, a.floor_quad ? "the same square in its BVH" : "its plane",
+           a.width, a.height);
     printf("rays: %u = %u primary + %u shadow (light towards %.3f,%.3f,%.3f)\n", total, primary,
            shadow, light[0], light[1], light[2]);
     printf("device: %s (%s; %s), %u thread(s) for Embree; CPU %s\n", info.device_name,
@@ -848,8 +917,10 @@ int main(int argc, char **argv)
         snprintf(how, sizeof how, "rtcIntersect16/rtcOccluded16, %u thr", a.threads);
         print_row("embree packets16", how, &em_packet, total, primary, shadow);
     }
-    printf("\nnscatter / embree scalar throughput (medians): %.4f (1/%.1f); issue 16's target >= 1/3\n",
-           ratio, ratio > 0 ? 1 / ratio : 0);
+    printf("\nnscatter / embree scalar throughput: %.4f (1/%.1f) from the medians, %.4f (1/%.1f) "
+           "median of the %u back-to-back pairs; issue 16's target >= 1/3\n",
+           ratio, ratio > 0 ? 1 / ratio : 0, pair.median, pair.median > 0 ? 1 / pair.median : 0,
+           a.repeat);
     printf("agreement: %llu of %u rays differ (%llu primary, %llu shadow): %.4f%% agree "
            "(needs >= %.1f%%)",
            (unsigned long long)differ, total, (unsigned long long)agree.primary_differ,
@@ -862,17 +933,18 @@ int main(int argc, char **argv)
     printf("{\"bench\":\"rays\",\"width\":%u,\"height\":%u,\"triangles\":%u,\"rays\":%u,"
            "\"primary\":%u,\"shadow\":%u,\"repeat\":%u,\"threads\":%u,\"device\":\"%s\","
            "\"driver\":\"%s\",\"cpu\":\"%s\",\"embree\":\"%s\",\"nscatter_timing\":\"%s\","
-           "\"load_start\":%.2f,\"load_end\":%.2f,",
+           "\"floor\":\"%s\",\"load_start\":%.2f,\"load_end\":%.2f,",
            a.width, a.height, tris, total, primary, shadow, a.repeat, a.threads, info.device_name,
-           info.driver_info, cpu, eversion, timestamps ? "timestamps" : "host", load_start[0],
+           info.driver_info, cpu, eversion, timestamps ? "timestamps" : "host",
+           a.floor_quad ? "quad" : "plane", load_start[0],
            load_end[0]);
     json_side("nscatter", &ns_dev, total, primary, shadow, 0);
     json_side("nscatter_host", &ns_wall, total, primary, shadow, 0);
     json_side("embree_scalar", &em_scalar, total, primary, shadow, 0);
     if (!a.no_packets)
         json_side("embree_packet16", &em_packet, total, primary, shadow, 0);
-    printf("\"ratio\":%.5f,\"differ_primary\":%llu,\"differ_shadow\":%llu,\"agree\":%.6f}\n", ratio,
-           (unsigned long long)agree.primary_differ, (unsigned long long)agree.shadow_differ,
+    printf("\"ratio\":%.5f,\"ratio_pairs_median\":%.5f,\"differ_primary\":%llu,\"differ_shadow\":%llu,\"agree\":%.6f}\n", ratio,
+           pair.median, (unsigned long long)agree.primary_differ, (unsigned long long)agree.shadow_differ,
            agree_fraction);
 
     int ok = agree_fraction >= AGREE_MIN;
@@ -883,6 +955,11 @@ int main(int argc, char **argv)
     free(hits);
     free(dev_ms);
     free(wall_ms);
+    free(scalar_ms);
+    free(packet_ms);
+    free(pair_ratio);
+    free(p_prim);
+    free(p_t);
     free(prims);
     free(e_prim);
     free(e_t);

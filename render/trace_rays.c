@@ -14,16 +14,15 @@ int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, co
                   ns_error *err)
 {
     return ns_trace_rays_timed(ctx, prims, prim_count, planes, plane_count, rays, ray_count, hits,
-                               1, NULL, NULL, err);
+                               &(ns_trace_timing){.repeats = 1}, err);
 }
 
 int ns_trace_rays_timed(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count,
                         const GpuPrim *planes, uint32_t plane_count, const GpuRay *rays,
-                        uint32_t ray_count, GpuHit *hits, uint32_t repeats, double *device_ms,
-                        double *wall_ms, ns_error *err)
+                        uint32_t ray_count, GpuHit *hits, const ns_trace_timing *timing,
+                        ns_error *err)
 {
-    if (repeats == 0)
-        repeats = 1;
+    uint32_t repeats = timing->repeats ? timing->repeats : 1;
     ns_bvh bvh;
     int status = ns_bvh_build(prims, prim_count, &bvh, err);
     GpuPrim *all = status ? NULL : malloc(sizeof *all * ((size_t)prim_count + plane_count + 1));
@@ -77,10 +76,12 @@ int ns_trace_rays_timed(ns_context *ctx, const GpuPrim *prims, uint32_t prim_cou
                     .buffers = bound,
                     .buffer_count = 5,
                     .groups = {(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1},
-                    .device_ms = device_ms ? &device_ms[r] : NULL},
+                    .device_ms = timing->device_ms ? &timing->device_ms[r] : NULL},
                 err);
-            if (wall_ms)
-                wall_ms[r] = ns_now_ms() - start;
+            if (timing->wall_ms)
+                timing->wall_ms[r] = ns_now_ms() - start;
+            if (!status && timing->between)
+                timing->between(timing->user, r);
         }
         pthread_mutex_unlock(&ctx->lock);
     }

@@ -7,6 +7,10 @@
 #                           every test (ctest), then the sanitizer build's tests
 #   scripts/setup.sh deps   only install what is missing
 #   scripts/setup.sh build  install and build build/nscatter
+#   scripts/setup.sh bench-deps
+#                           install the benchmarks' outside libraries (Embree 3, for
+#                           bench/rays.c), then build build/bench/bench_rays: optional,
+#                           never needed by the build, the tests or CI
 #
 # Works as root on a fresh Debian 12 (bookworm); as another user it uses sudo for apt.
 set -euo pipefail
@@ -34,6 +38,11 @@ TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client python3
 # is missing that test relies on the npm validator alone (web/package.json,
 # tests/openapi_validate.mjs), which it always runs.
 OPTIONAL_TEST_PACKAGES=(python3-openapi-spec-validator)
+# What only the benchmarks of bench/ need (`scripts/setup.sh bench-deps`): Embree 3, the CPU
+# ray tracer bench_rays compares nscatter's traversal with (docs/bench.md, "Ray throughput
+# against Embree"). Never in the lists above: the renderer stays Vulkan, and the build and
+# the tests must not need it.
+BENCH_PACKAGES=(libembree-dev)
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
@@ -81,6 +90,11 @@ case "$mode" in
     install_missing "${BUILD_PACKAGES[@]}"
     build build
     ;;
+  bench-deps)
+    install_missing "${BUILD_PACKAGES[@]}" "${BENCH_PACKAGES[@]}"
+    build build
+    echo "setup: built build/bench/bench_rays (docs/bench.md, \"Ray throughput against Embree\")"
+    ;;
   run)
     install_missing "${BUILD_PACKAGES[@]}"
     build build
@@ -101,7 +115,7 @@ case "$mode" in
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http|cli')
     ;;
   *)
-    echo "usage: scripts/setup.sh run|test|deps|build" >&2
+    echo "usage: scripts/setup.sh run|test|deps|build|bench-deps" >&2
     exit 2
     ;;
 esac
