@@ -107,8 +107,8 @@ static int parse_u32(const char *name, const char *text, uint32_t lo, uint32_t h
     char *end;
     unsigned long v = strtoul(text, &end, 10);
     if (!*text || *end || text[0] == '-' || v < lo || v > hi) {
-        fprintf(stderr, "bench_rays: %s: '%s' is not a whole number in [%u, %u]\n", name, text,
-                lo, hi);
+        fprintf(stderr, "bench_rays: %s: '%s' is not a whole number in [%u, %u]\n", name, text, lo,
+                hi);
         return 2;
     }
     *out = (uint32_t)v;
@@ -261,8 +261,9 @@ static int read_setup(const char *path, setup *s)
             {
                 (void)value;
                 if (strcmp(key, "translate")) {
-                    fprintf(stderr, "bench_rays: %s: mesh transform \"%s\": only translate is "
-                                    "supported here\n",
+                    fprintf(stderr,
+                            "bench_rays: %s: mesh transform \"%s\": only translate is "
+                            "supported here\n",
                             path, key);
                     rc = 2;
                 }
@@ -277,8 +278,9 @@ static int read_setup(const char *path, setup *s)
                 planes, meshes);
         rc = 2;
     }
-    double n = sqrt(s->floor_normal[0] * s->floor_normal[0] + s->floor_normal[1] * s->floor_normal[1] +
-                    s->floor_normal[2] * s->floor_normal[2]);
+    double n =
+        sqrt(s->floor_normal[0] * s->floor_normal[0] + s->floor_normal[1] * s->floor_normal[1] +
+             s->floor_normal[2] * s->floor_normal[2]);
     if (!rc && !(n > 0)) {
         fprintf(stderr, "bench_rays: %s: the plane's normal is zero\n", path);
         rc = 2;
@@ -577,8 +579,9 @@ static agreement compare(const GpuHit *ns, const uint32_t *e_prim, const float *
             if (same && cls != NS_NONE)
                 same = fabs((double)ns[i].t - e_t[i]) <= T_TOLERANCE * fabs((double)e_t[i]);
             if (!same && a.primary_differ++ < 5 && verbose)
-                fprintf(stderr, "  primary ray %u: nscatter prim %d t %.7g, Embree prim %d t %.7g\n",
-                        i, (int)cls, (double)ns[i].t, (int)e_prim[i], (double)e_t[i]);
+                fprintf(stderr,
+                        "  primary ray %u: nscatter prim %d t %.7g, Embree prim %d t %.7g\n", i,
+                        (int)cls, (double)ns[i].t, (int)e_prim[i], (double)e_t[i]);
         } else {
             uint32_t occluded = np != NS_NONE;
             if (occluded != e_prim[i] && a.shadow_differ++ < 5 && verbose)
@@ -636,13 +639,10 @@ static double mrays(uint32_t rays, double ms)
     return ms > 0 ? rays / (ms * 1e3) : 0;
 }
 
-static void print_row(const char *name, const char *how, const side_result *r, uint32_t rays,
-                      uint32_t primary, uint32_t shadow)
+static void print_row(const char *name, const char *how, const side_result *r, uint32_t rays)
 {
     printf("%-22s %-34s %9.2f %9.2f %8.2f | %8.2f %8.2f\n", name, how, r->all.best, r->all.median,
            mrays(rays, r->all.median), r->primary.median, r->shadow.median);
-    (void)primary;
-    (void)shadow;
 }
 
 static void json_side(const char *name, const side_result *r, uint32_t rays, uint32_t primary,
@@ -675,7 +675,8 @@ int main(int argc, char **argv)
     bench_mesh mesh;
     ns_error err = {0};
     if (bench_mesh_load_obj(obj, &mesh, &err)) {
-        fprintf(stderr, "bench_rays: %s (the bunny comes from Debian's glmark2-data)\n", err.message);
+        fprintf(stderr, "bench_rays: %s (the bunny comes from Debian's glmark2-data)\n",
+                err.message);
         return 2;
     }
     for (uint32_t v = 0; v < mesh.vertex_count; v++)
@@ -709,7 +710,8 @@ int main(int argc, char **argv)
     double half = exp2(ceil(log2(2 * far_hit)));
     double t1[3], t2[3];
     {
-        double helper[3] = {fabs(s.floor_normal[0]) < 0.9 ? 1 : 0, fabs(s.floor_normal[0]) < 0.9 ? 0 : 1, 0};
+        double helper[3] = {fabs(s.floor_normal[0]) < 0.9 ? 1 : 0,
+                            fabs(s.floor_normal[0]) < 0.9 ? 0 : 1, 0};
         cross3(s.floor_normal, helper, t1);
         normalize3(t1);
         cross3(s.floor_normal, t1, t2);
@@ -836,7 +838,8 @@ int main(int argc, char **argv)
     loadavg(load_start);
     uint32_t runs = a.repeat + 1; /* the first of each set is a warm-up, never counted */
     double *dev_ms = malloc(sizeof *dev_ms * runs), *wall_ms = malloc(sizeof *wall_ms * runs),
-           *scalar_ms = malloc(sizeof *scalar_ms * runs), *packet_ms = malloc(sizeof *packet_ms * runs),
+           *scalar_ms = malloc(sizeof *scalar_ms * runs),
+           *packet_ms = malloc(sizeof *packet_ms * runs),
            *pair_ratio = malloc(sizeof *pair_ratio * runs);
     GpuHit *hits = malloc(sizeof *hits * (size_t)total);
     uint32_t *p_prim = malloc(sizeof *p_prim * (size_t)total);
@@ -857,7 +860,9 @@ int main(int argc, char **argv)
     for (int set = 0; set < 3; set++) {
         /* Embree's runs of the same rays, scalar then packets, interleaved with nscatter's
          * dispatches (one of each per repetition) so that both sides see the same load. */
-        interleave il = {.scalar = job, .threads = a.threads, .scalar_ms = scalar_ms,
+        interleave il = {.scalar = job,
+                         .threads = a.threads,
+                         .scalar_ms = scalar_ms,
                          .packet_ms = a.no_packets ? NULL : packet_ms};
         il.scalar.rays = rays + sets[set].first;
         il.scalar.first_shadow = set == 2 ? 0 : set == 1 ? sets[set].count : primary;
@@ -869,8 +874,10 @@ int main(int argc, char **argv)
         /* nscatter: one BVH and one upload, then `runs` dispatches of the same rays. */
         rc = ns_trace_rays_timed(ctx, prims, ns_prims, &plane, ns_planes, rays + sets[set].first,
                                  sets[set].count, hits,
-                                 &(ns_trace_timing){.repeats = runs, .device_ms = dev_ms,
-                                                    .wall_ms = wall_ms, .between = interleave_run,
+                                 &(ns_trace_timing){.repeats = runs,
+                                                    .device_ms = dev_ms,
+                                                    .wall_ms = wall_ms,
+                                                    .between = interleave_run,
                                                     .user = &il},
                                  &err);
         if (rc) {
@@ -918,17 +925,17 @@ int main(int argc, char **argv)
     printf("timed runs: %u per side and set, after one warm-up; nscatter = %s\n\n", a.repeat,
            timestamps ? "device time between two timestamp queries around the dispatch"
                       : "host time from recording to the fence (the queue has no timestamps)");
-    printf("%-22s %-34s %9s %9s %8s | %8s %8s\n", "side", "how", "best ms", "median ms",
-           "Mrays/s", "prim ms", "shadow ms");
+    printf("%-22s %-34s %9s %9s %8s | %8s %8s\n", "side", "how", "best ms", "median ms", "Mrays/s",
+           "prim ms", "shadow ms");
     print_row("nscatter", timestamps ? "trace_test.comp, timestamps" : "trace_test.comp, host",
-              &ns_dev, total, primary, shadow);
-    print_row("nscatter (host)", "record + submit + fence", &ns_wall, total, primary, shadow);
+              &ns_dev, total);
+    print_row("nscatter (host)", "record + submit + fence", &ns_wall, total);
     char how[64];
     snprintf(how, sizeof how, "rtcIntersect1/rtcOccluded1, %u thr", a.threads);
-    print_row("embree scalar", how, &em_scalar, total, primary, shadow);
+    print_row("embree scalar", how, &em_scalar, total);
     if (!a.no_packets) {
         snprintf(how, sizeof how, "rtcIntersect16/rtcOccluded16, %u thr", a.threads);
-        print_row("embree packets16", how, &em_packet, total, primary, shadow);
+        print_row("embree packets16", how, &em_packet, total);
     }
     printf("\nnscatter / embree scalar throughput: %.4f (1/%.1f) from the medians, %.4f (1/%.1f) "
            "median of the %u back-to-back pairs; issue 16's target >= 1/3\n",
@@ -949,21 +956,22 @@ int main(int argc, char **argv)
            "\"floor\":\"%s\",\"load_start\":%.2f,\"load_end\":%.2f,",
            a.width, a.height, tris, total, primary, shadow, a.repeat, a.threads, info.device_name,
            info.driver_info, cpu, eversion, timestamps ? "timestamps" : "host",
-           a.floor_quad ? "quad" : "plane", load_start[0],
-           load_end[0]);
+           a.floor_quad ? "quad" : "plane", load_start[0], load_end[0]);
     json_side("nscatter", &ns_dev, total, primary, shadow, 0);
     json_side("nscatter_host", &ns_wall, total, primary, shadow, 0);
     json_side("embree_scalar", &em_scalar, total, primary, shadow, 0);
     if (!a.no_packets)
         json_side("embree_packet16", &em_packet, total, primary, shadow, 0);
-    printf("\"ratio\":%.5f,\"ratio_pairs_median\":%.5f,\"differ_primary\":%llu,\"differ_shadow\":%llu,\"agree\":%.6f}\n", ratio,
-           pair.median, (unsigned long long)agree.primary_differ, (unsigned long long)agree.shadow_differ,
-           agree_fraction);
+    printf("\"ratio\":%.5f,\"ratio_pairs_median\":%.5f,\"differ_primary\":%llu,\"differ_shadow\":%"
+           "llu,\"agree\":%.6f}\n",
+           ratio, pair.median, (unsigned long long)agree.primary_differ,
+           (unsigned long long)agree.shadow_differ, agree_fraction);
 
     int ok = agree_fraction >= AGREE_MIN;
     if (!ok)
-        fprintf(stderr, "bench_rays: the sides disagree on %.3f%% of the rays: not a fair "
-                        "comparison\n",
+        fprintf(stderr,
+                "bench_rays: the sides disagree on %.3f%% of the rays: not a fair "
+                "comparison\n",
                 100 * (1 - agree_fraction));
     free(hits);
     free(dev_ms);
