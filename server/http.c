@@ -416,6 +416,56 @@ static long long content_length(struct MHD_Connection *conn)
     return n > (uint64_t)LLONG_MAX ? LLONG_MAX : (long long)n; /* larger than any limit */
 }
 
+/* Counts the Content-Length headers and whether their values differ. */
+typedef struct framing_scan {
+    unsigned lengths;
+    int differ;
+    const char *first;
+} framing_scan;
+
+static enum MHD_Result scan_framing(void *cls, enum MHD_ValueKind kind, const char *key,
+                                    const char *value)
+{
+    (void)kind;
+    framing_scan *f = cls;
+    if (key && !strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH)) {
+        if (f->lengths++ == 0)
+            f->first = value;
+        else if (strcmp(skip_space(value ? value : ""), skip_space(f->first ? f->first : "")))
+            f->differ = 1;
+    }
+    return MHD_YES;
+}
+
+/* A request whose body length is ambiguous (RFC 9112 6.1, 6.3): Transfer-Encoding together
+ * with Content-Length, Content-Length given twice with different values, or a transfer
+ * coding other than chunked alone (which libmicrohttpd would read until the connection
+ * closes). Such requests are how bodies are smuggled past proxies: the answer is 400 and the
+ * connection is closed without reading the body. NULL when the framing is plain. */
+static json_t *framing_problem(struct MHD_Connection *conn)
+{
+    framing_scan f = {0};
+    MHD_get_connection_values(conn, MHD_HEADER_KIND, scan_framing, &f);
+    const char *te =
+        MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+    if (te && f.lengths)
+        return problemf(PROBLEM_BAD_FRAMING, "Transfer-Encoding and Content-Length together "
+                                             "make the body's length ambiguous; send one");
+    if (f.differ)
+        return problemf(PROBLEM_BAD_FRAMING, "%u Content-Length headers with different values",
+                        f.lengths);
+    if (te) {
+        const char *v = skip_space(te);
+        size_t n = strlen(v);
+        while (n && (v[n - 1] == ' ' || v[n - 1] == '\t'))
+            n--;
+        if (n != 7 || strncasecmp(v, "chunked", 7))
+            return problemf(PROBLEM_BAD_FRAMING, "Transfer-Encoding '%.64s' is not supported; "
+                                                 "send the body as is or as 'chunked'", te);
+    }
+    return NULL;
+}
+
 /* ---------------------------------------------------------------------------------------
  * GET endpoints.
  * ------------------------------------------------------------------------------------- */
@@ -1448,6 +1498,12 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
     snprintf(req->path, sizeof req->path, "%s", url);
     http_route route = route_for(url, req);
     req->route = route;
+    json_t *framing = framing_problem(conn);
+    if (framing) {
+        req->answered = 1;
+        /* Without reading the body, whose end is not known: MHD then closes the connection. */
+        return send_problem_json(conn, framing, NULL);
+    }
     req->early_problem = check_route(route, url, method, &req->allow);
     if (req->early_problem)
         return MHD_YES;

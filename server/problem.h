@@ -24,6 +24,7 @@
 #define PROBLEM_TABLE(X)                                                                      \
     X(PROBLEM_BAD_QUERY, 400, "bad_query", "Bad Request")                                     \
     X(PROBLEM_MALFORMED_JSON, 400, "malformed_json", "Bad Request")                           \
+    X(PROBLEM_BAD_FRAMING, 400, "bad_framing", "Bad Request")                                 \
     X(PROBLEM_NOT_FOUND, 404, "not_found", "Not Found")                                       \
     X(PROBLEM_METHOD_NOT_ALLOWED, 405, "method_not_allowed", "Method Not Allowed")            \
     X(PROBLEM_NOT_ACCEPTABLE, 406, "not_acceptable", "Not Acceptable")                        \
