@@ -284,10 +284,12 @@ static void guard_sweep(const http_server *srv)
             }
         }
     }
-    /* Nearly full: idle connections make room, the oldest first (the list is newest first). */
+    /* Nearly full (7/8): idle connections make room, the oldest first (the list is newest
+     * first), down to 3/4, so that clients waiting in the listen backlog get in. */
     unsigned high = srv->max_connections - srv->max_connections / 8;
+    unsigned low = srv->max_connections - srv->max_connections / 4;
     if (guard_count >= high && idle) {
-        unsigned excess = guard_count - high + 1;
+        unsigned excess = guard_count - low;
         conn_entry *last = guard_head;
         while (last && last->next)
             last = last->next;

@@ -540,7 +540,7 @@ def test_slow_headers(t, srv):
     data = b"GET /readyz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 200 + b"\r\n\r\n"
     status, headers, body, took, sent = slow(srv, data, 1.0, REQUEST_TIMEOUT_S + 15)
     check_answer(t, "headers a byte a second", (status, headers, body), 408, "request_timeout")
-    t.check(REQUEST_TIMEOUT_S - 0.5 <= took <= REQUEST_TIMEOUT_S + 3,
+    t.check(REQUEST_TIMEOUT_S - 0.5 <= took <= REQUEST_TIMEOUT_S + 5,
             f"408 about --request-timeout after the first byte: {took:.1f} s, {sent} bytes sent")
     ready(t, srv, "headers a byte a second")
 
@@ -575,7 +575,7 @@ def test_slow_body(t, srv):
         t.check(False, f"body a byte a second: no answer in {took:.1f} s")
         return
     check_answer(t, "body a byte a second", (status, headers, body), 408, "request_timeout")
-    t.check(took <= REQUEST_TIMEOUT_S + 3, f"408 within --request-timeout: {took:.1f} s")
+    t.check(took <= REQUEST_TIMEOUT_S + 5, f"408 within --request-timeout: {took:.1f} s")
     ready(t, srv, "body a byte a second")
 
 
@@ -591,7 +591,7 @@ def test_idle_connections(t, srv):
         status = srv.request("GET", "/readyz", timeout=10)[0]
         took = time.monotonic() - start
         t.equal(status, 200, f"/readyz with {IDLE_CONNECTIONS} idle connections open")
-        t.check(took < 2, f"answered at once: {took:.2f} s")
+        t.check(took < 5, f"answered at once: {took:.2f} s")
         status, h, body = post(srv, scene(8, 8))
         t.check(status == 200 and body.startswith(PNG_SIGNATURE),
                 f"a render with {IDLE_CONNECTIONS} idle connections open: {status}")
@@ -619,6 +619,30 @@ def test_idle_connections(t, srv):
     ready(t, srv, "hundreds of idle connections")
 
 
+def test_idle_eviction(t):
+    """More idle connections than --max-connections: the guard closes the oldest idle ones
+    to make room, so a real client still gets in quickly (no 60 s wait for a free slot)."""
+    with Server("--max-connections", "32", "--access-log", "off") as small:
+        socks = []
+        try:
+            for _ in range(100):
+                socks.append(socket.create_connection(("127.0.0.1", small.port), timeout=5))
+            time.sleep(1.0)
+            start = time.monotonic()
+            status = small.request("GET", "/readyz", timeout=15)[0]
+            took = time.monotonic() - start
+            t.equal(status, 200, "/readyz with 100 idle connections and --max-connections 32")
+            t.check(took < 5, f"answered within seconds: {took:.2f} s")
+            print(f"  /readyz behind 100 idle connections: {took:.2f} s", file=sys.stderr)
+            status, h, body = post(small, scene(8, 8))
+            t.equal(status, 200, "a render gets through too")
+            info = json.loads(small.request("GET", "/v1/info")[2])
+            t.equal(info.get("limits", {}).get("max_connections"), 32, "limits.max_connections")
+        finally:
+            for s in socks:
+                s.close()
+
+
 def test_idle_and_slow_flood(t, srv):
     """Many slow-header clients at once (a slowloris): /readyz is still answered, and each of
     them gets its 408."""
@@ -638,7 +662,7 @@ def test_idle_and_slow_flood(t, srv):
     start = time.monotonic()
     status = srv.request("GET", "/readyz", timeout=10)[0]
     t.equal(status, 200, "/readyz during a slowloris")
-    t.check(time.monotonic() - start < 2, "answered at once")
+    t.check(time.monotonic() - start < 5, "answered at once")
     for th in threads:
         th.join(REQUEST_TIMEOUT_S + 20)
     t.equal(sorted(set(results)), [408], f"every slow client got 408 ({len(results)} answers)")
@@ -688,11 +712,16 @@ def main():
                      test_idle_and_slow_flood, test_still_renders):
             t.run(test, srv)
         t.current = "end"
+        info = json.loads(srv.request("GET", "/v1/info")[2]).get("limits", {})
+        t.equal((info.get("request_timeout_s"), info.get("idle_timeout_s"),
+                 info.get("max_connections")), (REQUEST_TIMEOUT_S, IDLE_TIMEOUT_S, 512),
+                "the connection limits in /v1/info")
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code}, own leaks "
                 f"{srv.own_leaks()[:2]})")
         if t.failed:
             print(srv.log_text()[-3000:], file=sys.stderr)
+    t.run(test_idle_eviction)
     return t.report()
 
 
