@@ -92,8 +92,8 @@ typedef struct http_server {
  * arriving past --request-timeout (plus one second per 64 KiB received), is answered
  * 408 request_timeout and shut down. A WAITING connection that sent nothing is idle: its
  * client is not doing anything wrong; libmicrohttpd closes it after --idle-timeout, and
- * when the connections open reach 7/8 of --max-connections the guard closes the idle ones
- * first, the oldest first, so that idle sockets never keep real clients out.
+ * when the connections open reach 7/8 of --max-connections the guard closes idle ones, the
+ * oldest first, down to 3/4, so that idle sockets never keep real clients out.
  *
  * The guard writes on a socket only while its connection's own thread is reading (WAITING or
  * BODY): libmicrohttpd writes nothing then. The entry's lock is held from the decision to
@@ -117,8 +117,6 @@ typedef struct conn_entry {
 static pthread_mutex_t guard_lock = PTHREAD_MUTEX_INITIALIZER;
 static conn_entry *guard_head;
 static unsigned guard_count;
-static atomic_ullong guard_timeouts; /* 408s the guard sent */
-static atomic_ullong guard_idle_closed;
 
 /* The kernel's count of bytes received on a TCP socket; 0 where it is not known. */
 static uint64_t tcp_bytes_received(int fd)
@@ -244,7 +242,7 @@ static void guard_cut(conn_entry *e, const char *detail)
     }
     shutdown(e->fd, SHUT_RDWR);
     e->cut = 1;
-    atomic_fetch_add(&guard_timeouts, 1);
+    /* Counted as a request of no route (its line may never have arrived). */
     metrics_request_done(METRICS_OTHER, "other", 408, 0);
 }
 
@@ -298,7 +296,6 @@ static void guard_sweep(const http_server *srv)
                 shutdown(e->fd, SHUT_RDWR);
                 e->cut = 1;
                 excess--;
-                atomic_fetch_add(&guard_idle_closed, 1);
             }
     }
     pthread_mutex_unlock(&guard_lock);
