@@ -53,8 +53,9 @@ USER nscatter
 WORKDIR /var/lib/nscatter
 
 EXPOSE 8080
-# Liveness, not readiness: /readyz may answer 503 while the render queue is full, and a
-# busy service is not an unhealthy one. Load balancers should poll /readyz themselves.
+# Liveness, not readiness: /readyz answers 503 without a render device and once a stop
+# signal came (draining), and a draining service is not an unhealthy one. Load balancers
+# poll /readyz themselves (deploy/nginx.conf retries a 503 elsewhere; deploy/k8s).
 HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
   CMD curl -fsS -o /dev/null http://127.0.0.1:8080/livez || exit 1
 # --assets: the meshes that scenes/*.json name ("asset": "octahedron.glb").

@@ -240,9 +240,8 @@ def main():
     sweep = json.loads(answer)
     url = at(server, headers.get("Location") or sweep["links"]["self"])
     overrides = {v["index"]: v["overrides"] for v in sweep["variants"]}
-    print(f"sweep {sweep['id']}: {len(overrides)} variants, {url}", flush=True)
-
-    try:
+    try:  # from here on, Ctrl-C cancels the sweep: the id is printed inside
+        print(f"sweep {sweep['id']}: {len(overrides)} variants, {url}", flush=True)
         final = None
         for event in events(at(server, sweep["links"]["events"])):
             data = json.loads(event.data) if event.data else {}

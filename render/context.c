@@ -62,8 +62,10 @@ void ns_context_destroy(ns_context *ctx)
         return;
     if (ctx->dev.device)
         ns_tables_destroy(ctx);
-    if (ctx->dev.device)
+    if (ctx->dev.device) {
         ns_pipelines_destroy(ctx);
+        ns_camera_keep_free(&ctx->dev, &ctx->camera);
+    }
     gpu_device_destroy(&ctx->dev);
     ns_bvh_keep_free(&ctx->bvh);
     pthread_mutex_destroy(&ctx->lock);

@@ -83,6 +83,16 @@ typedef struct ns_bvh_keep {
     uint32_t count;
 } ns_bvh_keep;
 
+/* The surface image and segments of the last render's camera pass (render/camera_keep.c),
+ * kept with the bytes they were made from: the scene buffers with every material's sigma_s
+ * cleared, which camera.comp never reads. */
+typedef struct ns_camera_keep {
+    unsigned char *signature; /* NULL: nothing kept */
+    size_t signature_bytes;
+    gpu_buffer pixels, segments;
+    uint32_t segment_count;
+} ns_camera_keep;
+
 /* A BVH above this many bytes (nodes, primitives and order together) is not kept. */
 #define NS_BVH_KEEP_BYTES_MAX (256ull << 20)
 
@@ -106,6 +116,7 @@ struct ns_context {
     char *pipeline_cache_path;
     ns_run run;          /* the render in progress: its control, its progress */
     ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
+    ns_camera_keep camera; /* the last camera pass, for the next render that makes the same */
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);
@@ -140,6 +151,19 @@ int ns_gpu_scene_build(const ns_scene *scene, ns_gpu_scene *out, ns_error *err);
 int ns_gpu_scene_build_reusing(const ns_scene *scene, ns_bvh_keep *keep, ns_gpu_scene *out,
                                int *reused, ns_error *err);
 void ns_gpu_scene_free(ns_gpu_scene *gs);
+
+/* The bytes the camera pass depends on (NULL when out of memory: then nothing is reused). */
+unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes);
+/* When the kept pass has this signature: replaces *pixels and *segments (destroyed) by the
+ * kept buffers, which the caller then owns, sets *segment_count and returns 1; else 0. */
+int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t bytes,
+                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count);
+/* Keeps the buffers (zeroed in the caller) and the signature (owned from now on) in place of
+ * what was kept, when they fit the bound; otherwise keeps nothing and frees the signature,
+ * leaving the buffers with the caller. */
+void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
+                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t segment_count);
+void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
 
 /* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this
  * order: params (uniform), BVH nodes, primitives, materials, lights. */

@@ -184,9 +184,14 @@ static int resize_segments(ns_context *ctx, render_job *job, uint64_t capacity, 
  * the samples they are given, so the samples go in batches whose segments fit the buffer:
  * all of them at first; when a batch overflows, its surface light is taken back (the pixels
  * are restored) and it is run again smaller, or with the buffer grown to what one sample
- * needs, up to the device's limit. Each batch's scattering adds into `scattered`. */
+ * needs, up to the device's limit. Each batch's scattering adds into `scattered`.
+ * kept: the segment count of a camera pass taken from the context (ns_camera_keep_take) and
+ * already in the job's buffers, or -1. *single_pass = 1 when the whole sample range went
+ * through one camera pass with nothing retried, the only pass a later render may reuse;
+ * *segment_count is then its segments'. */
 static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scene *scene,
-                                 float *scattered, ns_render_stats *stats, ns_error *err)
+                                 int64_t kept, float *scattered, int *single_pass,
+                                 uint32_t *segment_count, ns_render_stats *stats, ns_error *err)
 {
     uint32_t spp = scene->render.spp, pixels = scene->camera.width * scene->camera.height;
     uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
@@ -201,22 +206,33 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
     uint32_t first = 0, batch = spp;
     double shares[2];
     ns_batch_shares(scene, shares);
+    *single_pass = 1;
     while (!status && first < spp) {
         uint32_t count = spp - first < batch ? spp - first : batch;
         if (first > 0)
             memcpy(saved, job->buffers[B_PIXELS].mapped, pixel_bytes);
         /* The batch's part of the render: its share of the samples. */
         ns_span outer = ns_progress_push(ctx, (double)first / spp, (double)(first + count) / spp);
-        ns_stage stage = ns_stage_begin(ctx, "ray_pass", 0.0, shares[0]);
-        status = dispatch_camera(ctx, job, scene, first, count, err);
-        ns_stats_add_stage(stats, "ray_pass", ns_stage_end(ctx, &stage));
-        if (status) {
-            ns_progress_pop(ctx, outer);
-            break;
+        uint64_t attempted = 0;
+        int overflow = 0;
+        if (kept >= 0) { /* the whole range, traced by an earlier render */
+            attempted = (uint64_t)kept;
+            kept = -1;
+        } else {
+            ns_stage stage = ns_stage_begin(ctx, "ray_pass", 0.0, shares[0]);
+            status = dispatch_camera(ctx, job, scene, first, count, err);
+            ns_stats_add_stage(stats, "ray_pass", ns_stage_end(ctx, &stage));
+            if (status) {
+                ns_progress_pop(ctx, outer);
+                break;
+            }
+            const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+            attempted = counters[NS_COUNTER_SEGMENTS];
+            overflow = counters[NS_COUNTER_OVERFLOW] != 0;
         }
-        const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
-        uint64_t attempted = counters[NS_COUNTER_SEGMENTS];
-        if (counters[NS_COUNTER_OVERFLOW]) {
+        if (overflow || count < spp)
+            *single_pass = 0;
+        if (overflow) {
             ns_progress_restore(ctx, outer); /* run again, smaller */
             if (first > 0)
                 memcpy(job->buffers[B_PIXELS].mapped, saved, pixel_bytes);
@@ -246,6 +262,8 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
         status = ns_scatter_render(ctx, &in, stats, err);
         ns_progress_pop(ctx, outer);
         first += count;
+        if (!status)
+            *segment_count = (uint32_t)attempted;
     }
     free(saved);
     return status;
@@ -284,9 +302,25 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     if (!status && scattering &&
         !(scattered = calloc((size_t)scene->camera.width * scene->camera.height * 3, sizeof(float))))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "scattering image");
+    /* The camera pass of the last render is taken when it is the one this render would make
+     * (render/camera_keep.c); a debug caller gets a pass of its own. */
+    unsigned char *signature = NULL;
+    size_t signature_bytes = 0;
+    int64_t kept = -1;
+    int single_pass = 0;
+    uint32_t segment_count = 0;
+    if (!status && scattering && !debug &&
+        (signature = ns_camera_signature(&job.scene, &signature_bytes)) &&
+        ns_camera_keep_take(ctx, signature, signature_bytes, &job.buffers[B_PIXELS],
+                            &job.buffers[B_SEGMENTS], &segment_count)) {
+        kept = segment_count;
+        if (stats)
+            stats->camera_reused = 1;
+    }
     if (!status && scattering) {
         ns_span outer = ns_progress_push(ctx, 0.02, 0.99);
-        status = camera_and_scattering(ctx, &job, scene, scattered, stats, err);
+        status = camera_and_scattering(ctx, &job, scene, kept, scattered, &single_pass,
+                                       &segment_count, stats, err);
         ns_progress_pop(ctx, outer);
     } else if (!status) {
         stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.99);
@@ -300,6 +334,12 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     if (!status)
         status = read_back(&job, &scene->camera, out, stats, debug, err);
     ns_stats_add_stage(stats, "readback", ns_stage_end(ctx, &stage));
+    if (!status && signature && single_pass) {
+        ns_camera_keep_put(ctx, signature, signature_bytes, &job.buffers[B_PIXELS],
+                           &job.buffers[B_SEGMENTS], segment_count);
+        signature = NULL;
+    }
+    free(signature);
     /* The camera pass always shades surfaces; a render without them starts from black. */
     if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
         memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);

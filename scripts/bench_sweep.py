@@ -1,12 +1,16 @@
 #!/usr/bin/env python3
 """What a sweep saves (docs/bench.md, "Sweeps"): a grid of albedo x g x ior over one scene,
-rendered as one sweep (POST /v1/sweeps) on a fresh server, against the same albedo x g
-variants as independent synchronous requests (POST /v1/renders), one after the other, on
-another fresh server.
+rendered as one sweep (POST /v1/sweeps) on a fresh server; the albedo x g grid at one ior as
+one sweep on another fresh server; and the same albedo x g variants as independent
+synchronous requests (POST /v1/renders), one after the other, on a third fresh server.
 
 The ior axis has two values so that every material (g, albedo: the tables' key) renders
-twice in the sweep: its first render pays for the tables, the second finds them cached.
-Times are the server's own (Server-Timing / timings_ms, no network); medians per kind.
+twice in the first sweep: its first render pays for the tables, the second finds them
+cached; consecutive variants there differ in ior or in the material's tables, so the camera
+pass is traced every time. In the albedo x g sweep at one ior every variant makes new tables
+and every variant after the first keeps the camera pass (albedo at a fixed mean free path
+and g are what it does not read). Times are the server's own (Server-Timing / timings_ms, no
+network); medians per kind.
 
     python3 scripts/bench_sweep.py --bin build/nscatter [--size 256] [--n 5]
 
@@ -70,8 +74,7 @@ def main():
     base = f"/materials/{args.material}"
     grid = {f"{base}/albedo": albedos, f"{base}/g": gs, f"{base}/ior": [1.3, 1.5]}
 
-    proc, host, port = start(args.bin)
-    try:
+    def run_sweep(host, port, grid):
         t0 = time.time()
         status, h, data = request(host, port, "POST", "/v1/sweeps", json.dumps(
             {"scene": scene, "grid": grid}), {"Content-Type": "application/json"})
@@ -82,14 +85,25 @@ def main():
             status, _, data = request(host, port, "GET", path)
             sweep = json.loads(data)
             if sweep["state"] not in ("queued", "running"):
-                break
+                return sweep, time.time() - t0
             time.sleep(0.5)
-        sweep_wall = time.time() - t0
+
+    def variant_ms(v):
+        return sum(t for k, t in v["timings_ms"].items() if k not in ("parse", "queue"))
+
+    proc, host, port = start(args.bin)
+    try:
+        sweep, sweep_wall = run_sweep(host, port, grid)
         first, repeat = [], []
         for v in sweep["variants"]:
-            ms = sum(t for k, t in v["timings_ms"].items() if k not in ("parse", "queue"))
-            (repeat if "tables" in v["reused"] else first).append((ms, v["reused"]))
-        # A fresh server, so the independent renders find no table the sweep made.
+            (repeat if "tables" in v["reused"] else first).append((variant_ms(v), v["reused"]))
+        # Fresh servers, so that nothing finds a table an earlier run made.
+        proc.terminate()
+        proc.wait(timeout=60)
+        proc, host, port = start(args.bin)
+        one_ior = {f"{base}/albedo": albedos, f"{base}/g": gs, f"{base}/ior": [1.3]}
+        camera_sweep, camera_wall = run_sweep(host, port, one_ior)
+        camera_kept = [variant_ms(v) for v in camera_sweep["variants"] if "camera" in v["reused"]]
         proc.terminate()
         proc.wait(timeout=60)
         proc, host, port = start(args.bin)
@@ -117,10 +131,16 @@ def main():
     print(f"  first render of a material:    median {med(first):8.0f} ms  ({len(first)} variants;"
           f" bvh reused in {sum('bvh' in r for _, r in first)})")
     print(f"  repeated material (tables hit): median {med(repeat):8.0f} ms  ({len(repeat)} variants)")
+    print(f"albedo x g sweep at ior 1.3, {len(camera_sweep['variants'])} variants, state "
+          f"{camera_sweep['state']}, wall {camera_wall:.1f} s")
+    print(f"  new material, camera pass kept: median {med(camera_kept):8.0f} ms  "
+          f"({len(camera_kept)} variants)")
     print(f"{n * n} independent synchronous renders (ior 1.3): median {med(independent):8.0f} ms,"
           f" wall {independent_wall:.1f} s")
     print(json.dumps({"size": args.size, "variants": len(sweep["variants"]),
                       "first_ms": med(first), "repeat_ms": med(repeat),
+                      "camera_kept_ms": med(camera_kept), "camera_kept_variants": len(camera_kept),
+                      "camera_sweep_wall_s": camera_wall,
                       "independent_ms": med(independent), "sweep_wall_s": sweep_wall,
                       "independent_wall_s": independent_wall}))
 

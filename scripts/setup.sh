@@ -24,8 +24,11 @@ BUILD_PACKAGES=(
 # What only the tests need: validation layers, python3 for the HTTP tests (and the
 # Prometheus client library, whose parser reads /metrics in tests/http_metrics.py; jsonschema,
 # which checks answers against /openapi.json in tests/http_openapi.py), Chromium and Node.js
-# for the browser test.
-TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client python3-jsonschema chromium)
+# for the browser test, nginx in front of three instances (tests/http_scaleout.py runs
+# deploy/nginx.conf) and PyYAML, which reads the Kubernetes manifests of deploy/k8s/
+# (tests/http_k8s.py).
+TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client python3-jsonschema chromium
+               nginx-light python3-yaml)
 # Test packages not every Debian release has, installed where the archive has them:
 # python3-openapi-spec-validator (tests/http_openapi.py) is in Debian from trixie on; where it
 # is missing that test relies on the npm validator alone (web/package.json,

@@ -53,6 +53,7 @@
 #define HTTP_DEVICE_HEADER "X-Nscatter-Device"
 /* Counts and memory of the render (VRLs, interactions, table bytes...) as compact JSON. */
 #define HTTP_STATS_HEADER "X-Nscatter-Stats"
+#define HTTP_INSTANCE_HEADER "X-Nscatter-Instance"
 
 typedef struct http_server {
     ns_context *ctx; /* NULL when the context could not be made: /readyz says 503 */
@@ -66,6 +67,7 @@ typedef struct http_server {
     uint32_t sse_keepalive_s;
     uint32_t max_deadline_ms;
     const char *asset_dir;
+    const char *instance;           /* serve --instance NAME, or NULL: X-Nscatter-Instance */
     scene_parse_options parse_opts; /* asset folder and the service's limits */
     atomic_int renders_in_flight; /* admitted renders whose response is not yet sent */
     atomic_int event_streams;     /* open event streams (each holds a connection) */
@@ -339,7 +341,8 @@ typedef struct http_request {
     uint64_t drained;        /* bytes read and thrown away after an early decision */
     http_server *counted_in; /* set while this request counts in renders_in_flight */
     double started_ms;
-    /* For the access log and X-Request-Id. */
+    /* For the access log, X-Request-Id and X-Nscatter-Instance. */
+    const char *instance; /* the server's --instance, or NULL */
     char request_id[130];
     char method[16];
     char path[256];
@@ -358,14 +361,17 @@ static _Thread_local http_request *current_request;
 /* ---------------------------------------------------------------------------------------
  * Responses.
  * ------------------------------------------------------------------------------------- */
-/* Queues resp (and releases it) with the request's X-Request-Id; notes status and size for
- * the access log. Every answer goes through here. */
+/* Queues resp (and releases it) with the request's X-Request-Id (and X-Nscatter-Instance
+ * under --instance, so that a client behind a load balancer sees which instance answered);
+ * notes status and size for the access log. Every answer goes through here. */
 static enum MHD_Result queue_answer(struct MHD_Connection *conn, int status,
                                     struct MHD_Response *resp, uint64_t size)
 {
     http_request *req = current_request;
     if (req) {
         MHD_add_response_header(resp, "X-Request-Id", req->request_id);
+        if (req->instance)
+            MHD_add_response_header(resp, HTTP_INSTANCE_HEADER, req->instance);
         req->status = status;
         req->bytes = size;
     }
@@ -782,11 +788,15 @@ static json_t *info_json(const http_server *srv)
         json_object_set_new(jobs, job_state_name((job_state)st),
                             json_integer(counts.by_state[st]));
 
-    return json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I, s:o, s:I}", "version", NS_VERSION,
-                     "ready", srv->ctx != NULL, "device", device_json(srv), "limits", limits,
-                     "methods", methods_json(), "formats", "image/png", "image/x-exr",
-                     "queue_length", (json_int_t)counts.admitted, "jobs", jobs, "job_store_bytes_used",
-                     (json_int_t)counts.bytes);
+    json_t *info = json_pack("{s:s, s:b, s:o, s:o, s:o, s:[ss], s:I, s:o, s:I}", "version",
+                             NS_VERSION, "ready", srv->ctx != NULL, "device", device_json(srv),
+                             "limits", limits, "methods", methods_json(), "formats", "image/png",
+                             "image/x-exr", "queue_length", (json_int_t)counts.admitted, "jobs",
+                             jobs, "job_store_bytes_used", (json_int_t)counts.bytes);
+    if (info)
+        json_object_set_new(info, "instance",
+                            srv->instance ? json_string(srv->instance) : json_null());
+    return info;
 }
 
 static enum MHD_Result send_shutting_down(struct MHD_Connection *conn);
@@ -1729,6 +1739,7 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
     *con_cls = req;
     current_request = req;
     req->started_ms = ns_now_ms();
+    req->instance = srv->instance;
     request_id_of(conn, req->request_id, sizeof req->request_id);
     snprintf(req->method, sizeof req->method, "%s", method);
     snprintf(req->path, sizeof req->path, "%s", url);
@@ -2020,6 +2031,7 @@ int http_serve(const http_serve_desc *desc)
     http_server srv = {.max_body = args.max_body,
                        .queue_capacity = args.queue,
                        .asset_dir = args.asset_dir,
+                       .instance = args.instance && *args.instance ? args.instance : NULL,
                        .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
                        .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
                        .sse_keepalive_s =

@@ -52,6 +52,7 @@ NS_CONST(uint, NS_PRIM_SPHERE, 0);
 NS_CONST(uint, NS_PRIM_BOX, 1);
 NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
 NS_CONST(uint, NS_PRIM_PLANE, 3);
+NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w */
 
 /* Light kinds in GpuLight.info.x (same values as ns_light_type). */
 NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);
@@ -128,7 +129,8 @@ struct GpuNode {
 
 /* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
  * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
- * info = kind, material index, object index, unused. */
+ * info = kind, material index, object index, flags (NS_PRIM_SMOOTH: a triangle whose a.w,
+ * b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16 bits; scene_gpu.c). */
 struct GpuPrim {
     ns_vec4 a;
     ns_vec4 b;

@@ -15,7 +15,10 @@
  *     the cache;
  *   - reuse: tables_made then tables_reused for a material, nothing made the second time;
  *     bvh_reused 0, then 1 for the same geometry with other materials (images equal to a
- *     render that built its BVH), 0 after a geometry change;
+ *     render that built its BVH), 0 after a geometry change; camera_reused 1 for another
+ *     albedo and g at the same extinction (the image equal, bit for bit, to a render that
+ *     traced), 0 after an extinction one ulp away, an ior or a light changed and for pt,
+ *     the kept buffers not counted as live;
  *   - a zeroed control renders what ns_render renders.
  * Small images (16 x 12): a few seconds on lavapipe. */
 #include "gpu_util.h"
@@ -535,6 +538,92 @@ static void test_bvh_reused(void)
     ns_image_free(&built);
 }
 
+/* The nn scene's sphere with extinction (4, 3, 2) exactly in floats, split as asked. */
+static ns_material camera_mats[2];
+
+static ns_scene camera_scene(const float sigma_s[3], const float sigma_a[3], float g, float ior)
+{
+    ns_scene s = nn_scene();
+    memcpy(camera_mats, nn_mats, sizeof camera_mats);
+    memcpy(camera_mats[1].sigma_s, sigma_s, sizeof camera_mats[1].sigma_s);
+    memcpy(camera_mats[1].sigma_a, sigma_a, sizeof camera_mats[1].sigma_a);
+    camera_mats[1].g = g;
+    camera_mats[1].ior = ior;
+    s.materials = camera_mats;
+    return s;
+}
+
+static int has_stage(const ns_render_stats *stats, const char *name)
+{
+    double ms;
+    return is_stats_stage(stats, name, &ms);
+}
+
+static void test_camera_reused(void)
+{
+    ns_context *ctx = test_context();
+    const float sa[3] = {3.5f, 2.5f, 1.5f}, aa[3] = {0.5f, 0.5f, 0.5f};
+    const float sb[3] = {3.75f, 2.25f, 1.25f}, ab[3] = {0.25f, 0.75f, 0.75f};
+    /* One ulp more extinction in red: 4 + 2^-21. */
+    const float ac[3] = {0.5f + 0x1p-21f, 0.5f, 0.5f};
+    ns_scene a = camera_scene(sa, aa, 0.3f, 1.4f), b, c, d;
+    ns_image img = {0}, built = {0};
+    ns_render_stats stats = {0}, fresh_stats = {0};
+    uint32_t buffers = ctx->dev.live_buffers;
+    if (plain(ctx, &a, &img, &stats)) {
+        CHECK_INT(stats.camera_reused, 0); /* this context's last pass was another */
+        CHECK(has_stage(&stats, "ray_pass"));
+    }
+    ns_image_free(&img);
+    CHECK_INT(ctx->dev.live_buffers, buffers); /* what is kept is not counted */
+    /* Another albedo and g at the same extinction: kept, the image the one a pass gives. */
+    b = camera_scene(sb, ab, 0.6f, 1.4f);
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &b, &img, &stats)) {
+        CHECK_INT(stats.camera_reused, 1);
+        CHECK_INT(stats.bvh_reused, 1);
+        CHECK(!has_stage(&stats, "ray_pass"));
+        CHECK(stats.camera_segments > 0);
+    }
+    CHECK_INT(ctx->dev.live_buffers, buffers);
+    if (plain(fresh, &b, &built, &fresh_stats)) {
+        CHECK_INT(fresh_stats.camera_reused, 0);
+        CHECK(same_image(&img, &built));
+        CHECK_INT(stats.camera_segments, fresh_stats.camera_segments);
+    }
+    ns_image_free(&img);
+    ns_image_free(&built);
+    /* A new ior refracts elsewhere: traced again. */
+    d = camera_scene(sb, ab, 0.6f, 1.3f);
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &d, &img, &stats))
+        CHECK_INT(stats.camera_reused, 0);
+    ns_image_free(&img);
+    /* An extinction one ulp away: traced (the bytes are compared whole). */
+    c = camera_scene(sa, ac, 0.3f, 1.4f);
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &c, &img, &stats))
+        CHECK_INT(stats.camera_reused, 0);
+    ns_image_free(&img);
+    /* A light that moves, and pt: traced. */
+    ns_scene moved = camera_scene(sa, ac, 0.3f, 1.4f);
+    ns_light moved_lights[2];
+    memcpy(moved_lights, moved.lights, sizeof moved_lights);
+    moved_lights[0].direction[0] = 0.1f;
+    moved.lights = moved_lights;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &moved, &img, &stats))
+        CHECK_INT(stats.camera_reused, 0);
+    ns_image_free(&img);
+    ns_scene pt = moved;
+    pt.render.method = NS_METHOD_PT;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &pt, &img, &stats))
+        CHECK_INT(stats.camera_reused, 0);
+    ns_image_free(&img);
+    CHECK_INT(ctx->dev.live_buffers, buffers);
+}
+
 static void test_zeroed_control_is_ns_render(void)
 {
     ns_context *ctx = test_context();
@@ -561,6 +650,7 @@ int main(void)
     RUN(test_nn_cancel_at_first_gather_tick);
     RUN(test_tables_counted);
     RUN(test_bvh_reused);
+    RUN(test_camera_reused);
     RUN(test_zeroed_control_is_ns_render);
     ns_image_free(&fresh_pt);
     ns_image_free(&fresh_nn);

@@ -242,6 +242,13 @@ def test_deadline(t):
                 "deadline_ms 0 is refused at its pointer")
 
 
+def test_no_instance(t, srv):
+    """Without --instance: no X-Nscatter-Instance header, /v1/info instance null."""
+    status, h, body = srv.request("GET", "/v1/info")
+    t.equal((status, "x-nscatter-instance" in h, json.loads(body).get("instance", "missing")),
+            (200, False, None), "no instance")
+
+
 def test_instance_ids(t):
     """serve --instance NAME: job ids name their instance, so a load balancer can route them;
     an id of another instance (or without the prefix) is not found here."""
@@ -250,6 +257,11 @@ def test_instance_ids(t):
         jid = job.get("id", "")
         t.check(status == 202 and re.match(r"^b7-[0-9a-f]{32}$", jid), f"an id of b7: {jid!r}")
         t.equal(headers.get("location"), f"/v1/renders/{jid}", "Location carries it")
+        t.equal(headers.get("x-nscatter-instance"), "b7", "X-Nscatter-Instance names it")
+        status, h, body = srv.request("GET", "/nope")
+        t.equal((status, h.get("x-nscatter-instance")), (404, "b7"), "also on a problem")
+        t.equal(json.loads(srv.request("GET", "/v1/info")[2]).get("instance"), "b7",
+                "/v1/info instance")
         t.equal(wait_state(srv, job_path(jid), ("done", "failed")).get("state"), "done",
                 "the job is found by its id")
         for other in ("c7-" + jid[3:], jid[3:], "b7" + jid[3:]):
@@ -294,7 +306,8 @@ def test_service_limits(t):
 def main():
     t = Checks()
     with Server() as srv:
-        for test in (test_request_ids, test_access_log, test_validate, test_materials):
+        for test in (test_request_ids, test_access_log, test_validate, test_materials,
+                     test_no_instance):
             t.run(test, srv)
     t.run(test_full_queue_before_the_body)
     t.run(test_deadline)

@@ -92,7 +92,8 @@ def check_sweep_json(t, sweep, overrides, what):
                 f"{what}: variant {i} state {v.get('state')!r}")
         t.equal(v.get("image"), sweep_path(sid, f"/images/{i}"), f"{what}: variant {i} image link")
         t.check(isinstance(v.get("timings_ms"), dict), f"{what}: variant {i} timings_ms")
-        t.check(isinstance(v.get("reused"), list) and set(v["reused"]) <= {"bvh", "tables"},
+        t.check(isinstance(v.get("reused"), list) and
+                set(v["reused"]) <= {"bvh", "camera", "tables"},
                 f"{what}: variant {i} reused {v.get('reused')!r}")
     order = sweep.get("order")
     t.check(isinstance(order, list) and sorted(order) == list(range(len(overrides))),
@@ -271,6 +272,33 @@ def expect_invalid(t, srv, body, pointer, detail_prefix, what):
     after = info(srv)
     t.equal((after.get("jobs"), after.get("queue_length")),
             (before.get("jobs"), before.get("queue_length")), f"{what}: nothing queued")
+
+
+def test_albedo_g_grid_keeps_the_camera_pass(t, srv):
+    """Albedo (at the scene's mean free path) and g are what the camera pass does not read:
+    every variant after the first keeps it, and its image is still the synchronous one; a
+    variant that changes the ior traces again."""
+    base = sweep_scene()
+    albedos = [[0.9, 0.9, 0.9], [0.97, 0.95, 0.71]]
+    overrides = [{ALBEDO: a, G: g} for a in albedos for g in (0.3, 0.6)] + [{IOR: 1.3}]
+    job = submit(t, srv, {"scene": base, "variants": overrides}, "albedo x g sweep")
+    if not job:
+        return
+    sweep = wait_state(srv, sweep_path(job["id"]), FINISHED, 300)
+    if check_sweep_json(t, sweep, overrides, "albedo x g sweep") != "done":
+        t.check(False, f"albedo x g sweep done: {sweep!r:.500}")
+        return
+    order = sweep["order"]
+    reused = {v["index"]: v.get("reused") or [] for v in sweep["variants"]}
+    t.check("camera" not in reused[order[0]], f"the first variant traces: {reused[order[0]]}")
+    for k, i in enumerate(order[1:], 1):
+        want = "ior" not in json.dumps(overrides[i]) and "ior" not in json.dumps(
+            overrides[order[k - 1]])
+        t.equal("camera" in reused[i], want,
+                f"variant {i} after {order[k - 1]} keeps the camera pass: {reused[i]}")
+        timings = next(v for v in sweep["variants"] if v["index"] == i).get("timings_ms") or {}
+        t.equal("ray_pass" in timings, not want, f"variant {i} lists ray_pass: {timings}")
+    check_images_match_sync(t, srv, sweep, base, "albedo x g sweep")
 
 
 def test_refusals(t, srv):
@@ -503,7 +531,12 @@ def test_example_script_ctrl_c(t, srv, rate):
             code = proc.wait(30)
             t.equal(code, 130, "Ctrl-C exits with 130")
             sweep = wait_state(srv, sweep_path(sid), FINISHED, 30)
-            t.equal(sweep.get("state"), "cancelled", "and cancels the sweep on the server")
+            if not t.equal(sweep.get("state"), "cancelled", "and cancels the sweep on the server"):
+                proc.wait(10)
+                print(f"sweep.py said: {proc.stderr.read().decode(errors='replace')[-2000:]}",
+                      file=sys.stderr)
+                deletes = [line for line in srv.log_text().splitlines() if '"DELETE"' in line]
+                print(f"the server's DELETEs: {deletes[-3:]}", file=sys.stderr)
             t.check(not os.path.exists(os.path.join(d, "out", "sheet.png")),
                     "nothing saved after Ctrl-C")
         finally:
@@ -518,7 +551,8 @@ def main():
         rate = PtRate(srv)
         t.current = "pt rate"
         t.check(rate.ok, "a pt render to measure the rate")
-        for test in (test_info_limit, test_variants_form, test_grid_form, test_refusals,
+        for test in (test_info_limit, test_variants_form, test_grid_form,
+                     test_albedo_g_grid_keeps_the_camera_pass, test_refusals,
                      test_sheet_grows_and_256_variants, test_unknown_sweep_and_methods,
                      test_example_script):
             t.run(test, srv)
