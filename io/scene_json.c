@@ -1657,6 +1657,12 @@ static void report_load_error(const char *json, size_t length, const json_error_
     }
 }
 
+void scene_json_load_error(const char *json, size_t length, const void *e, scene_issues *issues)
+{
+    memset(issues, 0, sizeof *issues);
+    report_load_error(json ? json : "", length, e, issues);
+}
+
 /* =======================================================================================
  * Entry points
  * ===================================================================================== */

@@ -22,6 +22,15 @@ typedef uint32_t ns_uvec4[4];
 #define ns_uint uint
 #define ns_uvec4 uvec4
 #define NS_CONST(type, name, value) const type name = value
+/* Zero, in a form no compiler can see through. Every uniform and push-constant block is
+ * declared as an array of one and read at index NS_OPAQUE_ZERO (`#define params
+ * ns_params[NS_OPAQUE_ZERO]`), so that no load from it has a constant offset. Mesa 22.3's
+ * lavapipe (Debian 12's) "inlines uniforms": a compute shader with an `if` or a loop bound on
+ * a value loaded at a constant offset is compiled again, with those values as constants, at
+ * every bind of its pipeline, and the compiled variant is never freed: about 2 MiB of
+ * process memory for every render, without end (tests/http_load.py found it; docs/http.md,
+ * "Load and soak"). Same values, same pixels; the one extra integer compare is free. */
+#define NS_OPAQUE_ZERO uint(gl_NumWorkGroups.x == 0u)
 #endif
 
 /* Workgroup shape of the camera pass (one invocation per pixel) and of the BVH test. */

@@ -2,7 +2,8 @@
 // camera pass and the BVH test shader. Needs shared.h included first. Declares bindings
 // 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives).
 
-layout(std140, binding = 0) uniform ParamsBlock { GpuParams params; };
+layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
+#define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 layout(std430, binding = 1) readonly buffer NodeBlock { GpuNode nodes[]; };
 layout(std430, binding = 2) readonly buffer PrimBlock { GpuPrim prims[]; };
 

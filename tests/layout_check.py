@@ -21,6 +21,10 @@ top of CMakeLists.txt), read from the source tree itself:
   3. No include cycle between folders (render/gpu and render/include counting as folders of
      their own, so that a private render header included back from render/gpu is one).
   4. No "../" in any include: a header is found through its folder's include directory.
+  5. Every uniform and push-constant block of a shader (shaders/*.comp, *.glsl) declares its
+     member as an array of one, read at NS_OPAQUE_ZERO (shaders/shared.h): lavapipe 22.3
+     compiles a kernel again at every bind, and keeps every copy, when it reads such a block
+     at a constant offset (docs/rendering.md, "lavapipe's uniform inlining").
 
 Every violation is printed with its file and line; the exit status is 1 if there was any,
 or if the tree did not look like nscatter's source at all (a check that read nothing would
@@ -52,6 +56,8 @@ SOURCE_EXTENSIONS = (".c", ".h", ".cpp", ".cc", ".hpp", ".hh", ".comp", ".glsl",
                      ".h.in")
 INCLUDE = re.compile(r'^[ \t]*#[ \t]*include[ \t]*([<"])([^>"\n]*)[>"]', re.M)
 VULKAN_CALL = re.compile(r"\b(vk[A-Z]\w*)\s*\(")
+UNIFORM_BLOCK = re.compile(r"\buniform\s+(\w+)\s*\{([^}]*)\}")
+ARRAY_OF_ONE = re.compile(r"^\s*\w+\s+\w+\s*\[\s*1\s*\]\s*;\s*$")
 
 
 def strip(text):
@@ -212,6 +218,16 @@ def main():
                                  f"calls the Vulkan function {m.group(1)}(); only render/gpu/ "
                                  "may call Vulkan"))
 
+        if rel.endswith((".comp", ".glsl")):
+            for m in UNIFORM_BLOCK.finditer(bare):
+                members = [x for x in m.group(2).split(";") if x.strip()]
+                if len(members) != 1 or not ARRAY_OF_ONE.match(members[0] + ";"):
+                    problems.append((rel, line_of(bare, m.start()),
+                                     f"uniform block {m.group(1)} is not one member declared as "
+                                     "an array of one (read it at NS_OPAQUE_ZERO, shaders/shared.h"
+                                     "; lavapipe recompiles and keeps a kernel that reads a "
+                                     "block at a constant offset)"))
+
         for m in INCLUDE.finditer(code):
             include_count += 1
             line = line_of(code, m.start())
@@ -281,7 +297,7 @@ def main():
         print(f"{len(problems)} layout violation{'s' if len(problems) != 1 else ''}")
         return 1
     print("layout ok: Vulkan only in render/gpu/, every include within its folder's reach, "
-          "no cycle between folders, no relative include")
+          "no cycle between folders, no relative include, every shader block an array of one")
     return 0
 
 

@@ -8,6 +8,9 @@
 #define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
 #define HTTP_DEFAULT_QUEUE 4u
 #define HTTP_DEFAULT_SSE_KEEPALIVE_S 15u
+#define HTTP_DEFAULT_REQUEST_TIMEOUT_S 30u
+#define HTTP_DEFAULT_IDLE_TIMEOUT_S 60u
+#define HTTP_DEFAULT_MAX_CONNECTIONS 512u
 
 /* Zero means "default" in every field but port (0 picks a free port). */
 typedef struct http_serve_desc {
@@ -26,6 +29,10 @@ typedef struct http_serve_desc {
     const char *instance;     /* 1-16 of [a-z0-9]: the prefix of job ids; NULL: none */
     /* Limits of a render below the hard ones (docs/http.md); 0: the hard one. */
     uint32_t max_pixels, max_spp, max_vrls, max_triangles;
+    /* Slow and idle clients (docs/http.md, "Slow and idle clients"); 0: the default. */
+    uint32_t request_timeout_s; /* a request's headers and body must arrive within it: 30 */
+    uint32_t idle_timeout_s;    /* a connection silent this long is closed: 60 */
+    uint32_t max_connections;   /* open at once (one thread each): 512 */
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
