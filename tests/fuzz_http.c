@@ -14,8 +14,10 @@
  *
  * Besides ASan, UBSan and LeakSanitizer, every input must give an answer that parses as
  * a sequence of HTTP/1.1 responses (status line, headers, a body framed by its
- * Content-Length or chunks) with no 5xx other than 503, and the server must close the
- * connection after the client's end of file within a few seconds. */
+ * Content-Length or chunks) with no 5xx from nscatter other than 503 (libmicrohttpd's own
+ * refusals of what it cannot parse, 505 for HTTP/9.9 and the like, are told apart by their
+ * lack of X-Request-Id: check_answer), and the server must close the connection after the
+ * client's end of file within a few seconds. */
 #include <arpa/inet.h>
 #include <errno.h>
 #include <netinet/in.h>
@@ -152,8 +154,6 @@ static void check_answer(const char *a, size_t len)
               p[11] <= '9' && p[12] == ' '))
             fail("not an HTTP/1.1 status line", a, len);
         int status = (p[9] - '0') * 100 + (p[10] - '0') * 10 + (p[11] - '0');
-        if (status >= 500 && status != 503)
-            fail("a 5xx other than 503", a, len);
         const char *head_end = NULL;
         for (const char *q = p; q + 3 < end; q++)
             if (!memcmp(q, "\r\n\r\n", 4)) {
@@ -163,9 +163,21 @@ static void check_answer(const char *a, size_t len)
         if (!head_end)
             fail("a response's headers never end", a, len);
         p = head_end;
+        size_t vlen = 0;
+        /* Every answer of server/http.c carries X-Request-Id; those without are
+         * libmicrohttpd's own, sent before the request reaches nscatter: 100 Continue and
+         * its refusals of a request it cannot parse (400, 413, 414, 431, 501 for a
+         * transfer coding it does not implement, 505 for an HTTP version it does not
+         * speak). A server fault (500, 502, 504...) is never a right answer. */
+        if (header_value(start, head_end, "X-Request-Id", &vlen)) {
+            if (status >= 500 && status != 503)
+                fail("nscatter answered a 5xx other than 503", a, len);
+        } else if (!(status == 100 || status == 400 || status == 413 || status == 414 ||
+                     status == 431 || status == 501 || status == 505)) {
+            fail("libmicrohttpd answered a status outside its refusals", a, len);
+        }
         if (status < 200 || status == 204 || status == 304)
             continue; /* no body */
-        size_t vlen = 0;
         const char *te = header_value(start, head_end, "Transfer-Encoding", &vlen);
         if (te && vlen == 7 && !strncasecmp(te, "chunked", 7)) {
             p = skip_chunks(p, end);
