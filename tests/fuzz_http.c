@@ -18,6 +18,7 @@
  * refusals of what it cannot parse, 505 for HTTP/9.9 and the like, are told apart by their
  * lack of X-Request-Id: check_answer), and the server must close the connection after the
  * client's end of file within a few seconds. */
+#define _GNU_SOURCE /* memmem */
 #include <arpa/inet.h>
 #include <errno.h>
 #include <netinet/in.h>
@@ -45,13 +46,40 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 #define FUZZ_ANSWER_S 5.0
 #define FUZZ_ANSWER_MAX (1u << 20)
 
+static const char *header_value(const char *h, const char *end, const char *name, size_t *vlen);
+
 static http_service *service;
 static unsigned service_port;
+/* What the inputs got, printed at exit: shows which parts of the path a run reached (a
+ * run whose every answer is libmicrohttpd's 400 never reached nscatter's code). */
+static unsigned long answers_by_class[6], answers_mhd, answers_none, answers_204;
 
 static void stop_service(void)
 {
+    fprintf(stderr,
+            "fuzz_http: first answers: none %lu, libmicrohttpd's own %lu, nscatter's 1xx %lu, "
+            "2xx %lu (204 %lu), 3xx %lu, 4xx %lu, 503 %lu\n",
+            answers_none, answers_mhd, answers_by_class[1], answers_by_class[2], answers_204,
+            answers_by_class[3], answers_by_class[4], answers_by_class[5]);
     http_stop(service);
     service = NULL;
+}
+
+/* Counts the first response of an answer checked by check_answer. */
+static void count_answer(const char *a, size_t len)
+{
+    if (len < 13) {
+        answers_none++;
+        return;
+    }
+    int status = (a[9] - '0') * 100 + (a[10] - '0') * 10 + (a[11] - '0');
+    const char *head_end = memmem(a, len, "\r\n\r\n", 4);
+    size_t vlen;
+    if (!head_end || !header_value(a, head_end, "X-Request-Id", &vlen))
+        answers_mhd++;
+    else
+        answers_by_class[status / 100]++;
+    answers_204 += status == 204;
 }
 
 int LLVMFuzzerInitialize(int *argc, char ***argv)
@@ -258,6 +286,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         fail("the server neither closed the connection nor stopped answering in time", answer,
              len);
     check_answer(answer, len);
+    count_answer(answer, len);
     free(answer);
     /* The connection's thread ends after its socket closes: wait for it, so that this
      * input's work (the completion callback, the access log's bookkeeping) is over before
