@@ -283,8 +283,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     }
     close(fd);
     if (!closed)
-        fail("the server neither closed the connection nor stopped answering in time", answer,
-             len);
+        fail("the server neither closed the connection nor stopped answering in time", answer, len);
     check_answer(answer, len);
     count_answer(answer, len);
     free(answer);
