@@ -20,8 +20,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    /* Service limits, so that small inputs reach the limit paths of variants. */
-    static const scene_parse_options opts = {.max_pixels = 1u << 20, .max_spp = 4096};
+    /* As fuzz_scene: the repository's asset folder, and service limits so that small inputs
+     * reach the limit paths of variants. */
+    static const scene_parse_options opts = {.asset_dir = NS_SOURCE_DIR "/scenes/assets",
+                                             .max_pixels = 1u << 20,
+                                             .max_spp = 4096,
+                                             .max_vrls = 1u << 16,
+                                             .max_triangles = 1u << 16};
     sweep *sw = NULL;
     json_t *problem = NULL;
     int rc = sweep_parse((const char *)data, size, &opts, &sw, &problem);

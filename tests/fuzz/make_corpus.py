@@ -121,6 +121,15 @@ SMALL_SCENE = {
 
 
 def sweep_seeds():
+    # Every example scene as a base, so that overrides meet meshes, presets and every light.
+    for name in sorted(os.listdir(os.path.join(ROOT, "scenes"))):
+        if name.endswith(".json"):
+            base = json.loads(read(os.path.join("scenes", name)))
+            first = sorted(base.get("materials", {}))[:1]
+            variants = [{"/camera/width": 64, "/camera/height": 48}, {"/render/spp": 2}]
+            if first:
+                variants.append({"/materials/%s/ior" % first[0]: 1.3})
+            write("sweep", "scene_" + name, json.dumps({"scene": base, "variants": variants}))
     write("sweep", "list.json", json.dumps(
         {"scene": SMALL_SCENE, "variants": [{"/materials/wax/g": 0.5},
                                             {"/materials/wax/g": 0.8, "/materials/wax/ior": 1.3}]}))
