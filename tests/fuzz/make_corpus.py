@@ -183,6 +183,9 @@ def http_seeds():
     write("http", "method_not_allowed", req("PUT", "/v1/renders", [json_type], "{}"))
     write("http", "validate", req("POST", "/v1/renders/validate",
                                   [json_type + "; charset=utf-8", "X-Request-Id: seed-1"], scene))
+    for name in ("default.json", "mesh_inline.json", "presets.json"):
+        write("http", "validate_" + name[:-5], req("POST", "/v1/renders/validate", [json_type],
+                                                  read(os.path.join("scenes", name))))
     write("http", "validate_invalid", req("POST", "/v1/renders/validate", [json_type],
                                           '{"version": 1, "camera": {"fov": 1e400}}'))
     write("http", "validate_chunked", req("POST", "/v1/renders/validate",
