@@ -4,7 +4,8 @@
 #   scripts/setup.sh run    install, build, render scenes/default.json to out/default.png,
 #                           then serve the web page and API on http://127.0.0.1:8080
 #   scripts/setup.sh test   install (test tools too), build with warnings as errors, run
-#                           every test (ctest), then the sanitizer build's tests
+#                           every test (ctest), then the sanitizer build's tests, then
+#                           each libFuzzer target for a bounded time (scripts/fuzz.sh)
 #   scripts/setup.sh deps   only install what is missing
 #   scripts/setup.sh build  install and build build/nscatter
 #   scripts/setup.sh bench-deps
@@ -33,6 +34,9 @@ BUILD_PACKAGES=(
 # (tests/http_k8s.py).
 TEST_PACKAGES=(vulkan-validationlayers python3 python3-prometheus-client python3-jsonschema chromium
                nginx-light python3-yaml)
+# The fuzz step (scripts/fuzz.sh): clang and its libFuzzer runtime (libclang_rt.fuzzer,
+# with the sanitizers' runtimes, is in libclang-rt-14-dev on Debian 12).
+FUZZ_PACKAGES=(clang libclang-rt-14-dev)
 # Test packages not every Debian release has, installed where the archive has them:
 # python3-openapi-spec-validator (tests/http_openapi.py) is in Debian from trixie on; where it
 # is missing that test relies on the npm validator alone (web/package.json,
@@ -104,7 +108,7 @@ case "$mode" in
     exec ./build/nscatter serve --host 127.0.0.1 --port 8080
     ;;
   test)
-    install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}"
+    install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}" "${FUZZ_PACKAGES[@]}"
     install_available "${OPTIONAL_TEST_PACKAGES[@]}"
     install_node
     build build -DNS_WERROR=ON
@@ -113,6 +117,9 @@ case "$mode" in
     # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http|cli')
+    # The parsers that read untrusted bytes, fuzzed: 40 s per target, 160 s for the four
+    # (docs/development.md, "Fuzzing"); any crash, leak, UB report or timeout fails.
+    scripts/fuzz.sh 40
     ;;
   *)
     echo "usage: scripts/setup.sh run|test|deps|build|bench-deps" >&2

@@ -1013,7 +1013,8 @@ static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv
     if (last && !query.has_last_event_id && parse_header_number(last, 0, &req->last_event_id, NULL))
         return problemf(PROBLEM_BAD_QUERY, "Last-Event-ID '%.64s' is not an event id (a whole "
                                            "number)", last);
-    if (post && !srv->ctx)
+    /* Validation renders nothing, so it answers without a render context too. */
+    if (post && !srv->ctx && req->route != ROUTE_VALIDATE)
         return no_context_problem(srv);
     return NULL;
 }
@@ -1958,7 +1959,9 @@ static void on_stop_signal(int sig)
     (void)written; /* a full pipe already holds a signal */
 }
 
-/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. */
+/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. Without
+ * the pipe (a service started with http_start, outside http_serve) it only waits: poll()
+ * ignores a negative descriptor. */
 static int wait_stop_signal(int timeout_ms)
 {
     struct pollfd fd = {.fd = stop_pipe[0], .events = POLLIN};
@@ -1992,8 +1995,15 @@ static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv)
     MHD_stop_daemon(daemon);
 }
 
-int http_serve(const http_serve_desc *desc)
+/* A running service: what http_start made and http_stop ends. */
+struct http_service {
+    http_server srv;
+    struct MHD_Daemon *daemon;
+};
+
+int http_start(const http_serve_desc *desc, http_service **out, unsigned *port_out)
 {
+    *out = NULL;
     http_serve_desc args = *desc;
     if (!args.host)
         args.host = "127.0.0.1";
@@ -2005,6 +2015,100 @@ int http_serve(const http_serve_desc *desc)
     if (resolve_host(args.host, args.port, &addr))
         return 2;
 
+    /* On the heap: the daemon's threads keep pointing at it after this function returns. */
+    http_service *svc = calloc(1, sizeof *svc);
+    if (!svc) {
+        fprintf(stderr, "nscatter serve: out of memory\n");
+        return 1;
+    }
+    http_server *srv = &svc->srv;
+    *srv = (http_server){.max_body = args.max_body,
+                         .queue_capacity = args.queue,
+                         .asset_dir = args.asset_dir,
+                         .instance = args.instance && *args.instance ? args.instance : NULL,
+                         .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
+                         .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
+                         .sse_keepalive_s = args.sse_keepalive_s ? args.sse_keepalive_s
+                                                                 : HTTP_DEFAULT_SSE_KEEPALIVE_S,
+                         .access_log = !args.no_access_log,
+                         .max_deadline_ms = args.max_deadline_ms,
+                         .request_timeout_s = args.request_timeout_s ? args.request_timeout_s
+                                                                     : HTTP_DEFAULT_REQUEST_TIMEOUT_S,
+                         .idle_timeout_s = args.idle_timeout_s ? args.idle_timeout_s
+                                                               : HTTP_DEFAULT_IDLE_TIMEOUT_S,
+                         .max_connections = args.max_connections ? args.max_connections
+                                                                 : HTTP_DEFAULT_MAX_CONNECTIONS,
+                         .parse_opts = {.asset_dir = args.asset_dir,
+                                        .max_pixels = args.max_pixels,
+                                        .max_spp = args.max_spp,
+                                        .max_vrls = args.max_vrls,
+                                        .max_triangles = args.max_triangles}};
+    /* An event stream with nothing to say must speak before the idle timeout cuts it. */
+    if (srv->sse_keepalive_s >= srv->idle_timeout_s)
+        srv->sse_keepalive_s = srv->idle_timeout_s > 1 ? srv->idle_timeout_s / 2 : 1;
+    if (args.no_device) /* the state of a device that could not be made, without Vulkan */
+        ns_fail(&srv->ctx_err, NS_ERR_NO_DEVICE, "the service was started without a render device");
+    else
+        make_context(srv, args.device);
+    if (srv->ctx && job_store_create(&(job_store_desc){.ctx = srv->ctx,
+                                                       .capacity = args.queue,
+                                                       .ttl_s = srv->job_ttl_s,
+                                                       .max_bytes = srv->job_bytes,
+                                                       .asset_dir = args.asset_dir,
+                                                       .max_deadline_ms = args.max_deadline_ms,
+                                                       .instance = args.instance},
+                                     &srv->jobs, &srv->ctx_err)) {
+        fprintf(stderr, "nscatter serve: %s\n", srv->ctx_err.message);
+        ns_context_destroy(srv->ctx);
+        free(svc);
+        return 1;
+    }
+
+    /* ITC lets MHD_quiesce_daemon wake the polling thread at shutdown. */
+    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
+                     MHD_USE_ERROR_LOG | MHD_USE_ITC;
+    if (addr.ss_family == AF_INET6)
+        flags |= MHD_USE_IPv6;
+    svc->daemon = MHD_start_daemon(
+        flags, (uint16_t)args.port, NULL, NULL, http_handler, srv, MHD_OPTION_SOCK_ADDR,
+        (struct sockaddr *)&addr, MHD_OPTION_NOTIFY_COMPLETED, http_request_completed, srv,
+        MHD_OPTION_NOTIFY_CONNECTION, guard_notify, NULL, MHD_OPTION_CONNECTION_LIMIT,
+        srv->max_connections, MHD_OPTION_CONNECTION_TIMEOUT, srv->idle_timeout_s,
+        MHD_OPTION_END);
+    if (!svc->daemon) {
+        fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
+                strerror(errno));
+        job_store_destroy(srv->jobs);
+        ns_context_destroy(srv->ctx);
+        free(svc);
+        return 1;
+    }
+    const union MHD_DaemonInfo *bound =
+        MHD_get_daemon_info(svc->daemon, MHD_DAEMON_INFO_BIND_PORT);
+    *port_out = bound && bound->port ? bound->port : args.port;
+    *out = svc;
+    return 0;
+}
+
+void http_stop(http_service *svc)
+{
+    if (!svc)
+        return;
+    drain_and_stop(svc->daemon, &svc->srv);
+    job_store_destroy(svc->srv.jobs);
+    ns_context_destroy(svc->srv.ctx);
+    free(svc);
+}
+
+unsigned http_connections(const http_service *svc)
+{
+    const union MHD_DaemonInfo *info =
+        MHD_get_daemon_info(svc->daemon, MHD_DAEMON_INFO_CURRENT_CONNECTIONS);
+    return info ? info->num_connections : 0;
+}
+
+int http_serve(const http_serve_desc *desc)
+{
     if (stop_pipe[0] < 0) {
         if (pipe(stop_pipe)) {
             fprintf(stderr, "nscatter serve: pipe: %s\n", strerror(errno));
@@ -2028,66 +2132,16 @@ int http_serve(const http_serve_desc *desc)
     pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
     signal(SIGPIPE, SIG_IGN);
 
-    http_server srv = {.max_body = args.max_body,
-                       .queue_capacity = args.queue,
-                       .asset_dir = args.asset_dir,
-                       .instance = args.instance && *args.instance ? args.instance : NULL,
-                       .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
-                       .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
-                       .sse_keepalive_s =
-                           args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S,
-                       .access_log = !args.no_access_log,
-                       .max_deadline_ms = args.max_deadline_ms,
-                       .request_timeout_s = args.request_timeout_s ? args.request_timeout_s
-                                                                   : HTTP_DEFAULT_REQUEST_TIMEOUT_S,
-                       .idle_timeout_s = args.idle_timeout_s ? args.idle_timeout_s
-                                                             : HTTP_DEFAULT_IDLE_TIMEOUT_S,
-                       .max_connections = args.max_connections ? args.max_connections
-                                                               : HTTP_DEFAULT_MAX_CONNECTIONS,
-                       .parse_opts = {.asset_dir = args.asset_dir,
-                                      .max_pixels = args.max_pixels,
-                                      .max_spp = args.max_spp,
-                                      .max_vrls = args.max_vrls,
-                                      .max_triangles = args.max_triangles}};
-    /* An event stream with nothing to say must speak before the idle timeout cuts it. */
-    if (srv.sse_keepalive_s >= srv.idle_timeout_s)
-        srv.sse_keepalive_s = srv.idle_timeout_s > 1 ? srv.idle_timeout_s / 2 : 1;
-    make_context(&srv, args.device);
-    if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
-                                                      .capacity = args.queue,
-                                                      .ttl_s = srv.job_ttl_s,
-                                                      .max_bytes = srv.job_bytes,
-                                                      .asset_dir = args.asset_dir,
-                                                      .max_deadline_ms = args.max_deadline_ms,
-                                                      .instance = args.instance},
-                                    &srv.jobs, &srv.ctx_err)) {
-        fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
-        ns_context_destroy(srv.ctx);
-        return 1;
+    http_service *svc = NULL;
+    unsigned port = 0;
+    int rc = http_start(desc, &svc, &port);
+    if (rc) {
+        pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
+        return rc;
     }
-
-    /* ITC lets MHD_quiesce_daemon wake the polling thread at shutdown. */
-    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
-                     MHD_USE_ERROR_LOG | MHD_USE_ITC;
-    if (addr.ss_family == AF_INET6)
-        flags |= MHD_USE_IPv6;
-    struct MHD_Daemon *daemon = MHD_start_daemon(
-        flags, (uint16_t)args.port, NULL, NULL, http_handler, &srv, MHD_OPTION_SOCK_ADDR,
-        (struct sockaddr *)&addr, MHD_OPTION_NOTIFY_COMPLETED, http_request_completed, &srv,
-        MHD_OPTION_NOTIFY_CONNECTION, guard_notify, NULL, MHD_OPTION_CONNECTION_LIMIT,
-        srv.max_connections, MHD_OPTION_CONNECTION_TIMEOUT, srv.idle_timeout_s,
-        MHD_OPTION_END);
-    if (!daemon) {
-        fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
-                strerror(errno));
-        job_store_destroy(srv.jobs);
-        ns_context_destroy(srv.ctx);
-        return 1;
-    }
-    const union MHD_DaemonInfo *bound = MHD_get_daemon_info(daemon, MHD_DAEMON_INFO_BIND_PORT);
-    unsigned port = bound && bound->port ? bound->port : args.port;
-    int v6 = strchr(args.host, ':') != NULL; /* an IPv6 literal needs brackets in a URL */
-    printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", args.host, v6 ? "]" : "", port);
+    const char *host = desc->host ? desc->host : "127.0.0.1";
+    int v6 = strchr(host, ':') != NULL; /* an IPv6 literal needs brackets in a URL */
+    printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", host, v6 ? "]" : "", port);
     fflush(stdout);
 
     int sig = 0;
@@ -2095,10 +2149,8 @@ int http_serve(const http_serve_desc *desc)
      * and either way the pipe has it); the threads nscatter made keep them blocked. */
     pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
     while (!(sig = wait_stop_signal(HTTP_GUARD_PERIOD_MS)))
-        guard_sweep(&srv);
+        guard_sweep(&svc->srv);
     fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
-    drain_and_stop(daemon, &srv);
-    job_store_destroy(srv.jobs);
-    ns_context_destroy(srv.ctx);
+    http_stop(svc);
     return 0;
 }
