@@ -28,23 +28,33 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 static void load_and_check(const void *bytes, size_t len)
 {
-    float *positions = NULL;
+    float *positions = NULL, *normals = NULL;
     size_t triangles = 0;
     char err[256] = "";
-    int rc = gltf_load(bytes, len, FUZZ_MAX_TRIANGLES, &positions, &triangles, err, sizeof err);
+    /* With the normals: the NORMAL path is the positions' plus its own checks. */
+    int rc = gltf_load_shaded(bytes, len, FUZZ_MAX_TRIANGLES, &positions, &normals, &triangles,
+                              err, sizeof err);
     if (rc == 0) {
         if (!positions || triangles == 0 || triangles > FUZZ_MAX_TRIANGLES)
             abort();
         for (size_t i = 0; i < 9 * triangles; i++)
             if (!isfinite(positions[i]))
                 abort();
-    } else if (positions || !err[0] ||
+        /* Each corner's normal is a unit vector, or zero for a primitive without NORMAL. */
+        for (size_t c = 0; normals && c < 3 * triangles; c++) {
+            const float *n = normals + 3 * c;
+            double len2 = (double)n[0] * n[0] + (double)n[1] * n[1] + (double)n[2] * n[2];
+            if (!(len2 == 0.0 || fabs(len2 - 1.0) < 1e-5))
+                abort();
+        }
+    } else if (positions || normals || !err[0] ||
                !(rc == NS_ERR_INVALID_ARGUMENT || rc == NS_ERR_LIMIT ||
                  rc == NS_ERR_OUT_OF_HOST_MEMORY)) {
         fprintf(stderr, "fuzz_gltf: status %d, message '%s'\n", rc, err);
         abort();
     }
     free(positions);
+    free(normals);
 }
 
 static void put_u32(unsigned char *p, uint32_t v)

@@ -47,11 +47,13 @@ def glb_pack(js, binary=None):
     return b"glTF" + struct.pack("<II", 2, 12 + len(out)) + out
 
 
-def mesh_gltf(index_ctype=5123, mode=None, node="", uri=None):
-    """(json text, bin bytes) of the tetrahedron; uri: a data URI buffer instead of GLB."""
+def mesh_gltf(index_ctype=5123, mode=None, node="", uri=None, normals=False):
+    """(json text, bin bytes) of the tetrahedron; uri: a data URI buffer instead of GLB;
+    normals: a NORMAL attribute too (after the indices)."""
     pos = struct.pack("<12f", *TETRA)
     fmt = {5121: "B", 5123: "H", 5125: "I"}.get(index_ctype)
     idx = struct.pack("<%d%s" % (len(TETRA_IDX), fmt), *TETRA_IDX) if fmt else b""
+    idx += b"\0" * (-len(idx) % 4)
     binary = pos + idx
     prim = {"attributes": {"POSITION": 0}}
     accessors = [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3",
@@ -62,6 +64,14 @@ def mesh_gltf(index_ctype=5123, mode=None, node="", uri=None):
         accessors.append({"bufferView": 1, "componentType": index_ctype,
                           "count": len(TETRA_IDX), "type": "SCALAR"})
         views.append({"buffer": 0, "byteOffset": len(pos), "byteLength": len(idx)})
+    if normals:
+        r = 3 ** -0.5
+        nrm = struct.pack("<12f", -r, -r, -r, 1, 0, 0, 0, 1, 0, 0, 0, 1)
+        prim["attributes"]["NORMAL"] = len(accessors)
+        accessors.append({"bufferView": len(views), "componentType": 5126, "count": 4,
+                          "type": "VEC3"})
+        views.append({"buffer": 0, "byteOffset": len(binary), "byteLength": len(nrm)})
+        binary += nrm
     if mode is not None:
         prim["mode"] = mode
     buf = {"byteLength": len(binary)}
@@ -85,6 +95,11 @@ def gltf_seeds():
     write("gltf", "tetra_matrix.glb", glb_pack(js, b))
     js, b = mesh_gltf(mode=1)
     write("gltf", "tetra_lines.glb", glb_pack(js, b))
+    # Vertex normals (the NORMAL path), also under a mirroring, non-uniform node transform.
+    js, b = mesh_gltf(normals=True)
+    write("gltf", "tetra_normals.glb", glb_pack(js, b))
+    js, b = mesh_gltf(normals=True, node='"scale":[-2,1,0.5]')
+    write("gltf", "tetra_normals_mirror.glb", glb_pack(js, b))
     # glTF JSON with a data: URI buffer (the shim's second form).
     js, _ = mesh_gltf(uri=True)
     write("gltf", "tetra_data_uri.gltf", js)
