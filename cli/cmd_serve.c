@@ -34,6 +34,11 @@ static void serve_usage(FILE *out)
             "                    that name none (default: none)\n"
             "  --sse-keepalive S comment on a quiet event stream every S seconds (1-50,\n"
             "                    default 15)\n"
+            "  --request-timeout S  a request's headers and body must arrive within S\n"
+            "                    seconds (plus 1 s per 64 KiB of body), else 408 (default 30)\n"
+            "  --idle-timeout S  close a connection silent for S seconds (default 60)\n"
+            "  --max-connections N  connections open at once, one thread each (default 512);\n"
+            "                    near the limit, idle ones are closed first"
             "\n"
             "The first line on stdout is `listening on http://HOST:PORT` once the render\n"
             "context is ready and the socket is open. SIGINT/SIGTERM stop it cleanly.\n");
@@ -121,6 +126,15 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
                 return 2;
             }
             a->no_access_log = !strcmp(value, "off");
+        } else if (!strcmp(arg, "--request-timeout") || !strcmp(arg, "--idle-timeout")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 1, 3600, &n))
+                return 2;
+            *(!strcmp(arg, "--request-timeout") ? &a->request_timeout_s : &a->idle_timeout_s) =
+                (uint32_t)n;
+        } else if (!strcmp(arg, "--max-connections")) {
+            if (cli_parse_uint("nscatter serve", arg, value, 16, 4096, &n))
+                return 2;
+            a->max_connections = (uint32_t)n;
         } else if (!strcmp(arg, "--sse-keepalive")) {
             /* Below the 60 s after which a connection without traffic is closed. */
             if (cli_parse_uint("nscatter serve", arg, value, 1, 50, &n))

@@ -270,6 +270,19 @@ double det3(const Mat4 &a)
            m[8] * (m[1] * m[6] - m[5] * m[2]);
 }
 
+// The inverse transpose of the upper 3x3, up to a positive factor, column-major as out[3c + r]:
+// its cofactor matrix, times the sign of the determinant so that a mirroring transform keeps
+// outward normals outward. Normals carried by it are normalised afterwards.
+void cofactor3(const Mat4 &a, double out[9])
+{
+    auto at = [&](int r, int c) { return a.m[c * 4 + r]; };
+    double sign = det3(a) < 0 ? -1.0 : 1.0;
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            out[3 * c + r] = sign * (at((r + 1) % 3, (c + 1) % 3) * at((r + 2) % 3, (c + 2) % 3) -
+                                     at((r + 1) % 3, (c + 2) % 3) * at((r + 2) % 3, (c + 1) % 3));
+}
+
 // ---------------------------------------------------------------------------------------
 // Flattening primitives into world-space triangles.
 // ---------------------------------------------------------------------------------------
@@ -323,6 +336,9 @@ struct Flattener {
     size_t max_triangles;
     FloatBuffer out; // 9 floats per triangle
     std::vector<char> visited;
+    bool want_normals;
+    FloatBuffer normals; // 9 floats per triangle (zero where a primitive has no NORMAL)
+    bool any_normals;
 
     void add_primitive(const tinygltf::Primitive &prim, const Mat4 &world, size_t mesh_index)
     {
@@ -357,10 +373,30 @@ struct Flattener {
         if (tris > max_triangles || have > max_triangles - tris)
             fail(NS_ERR_LIMIT, "the mesh has more than " + std::to_string(max_triangles) +
                                    " triangles (the limit left for this scene)");
+        // Vertex normals, when asked for and given: VEC3 FLOAT, one per vertex, carried to
+        // world space by the inverse transpose of the node transform (its cofactor matrix,
+        // whose scale does not matter: each is normalised).
+        AccessorView nrm{};
+        bool has_normals = false;
+        auto nrm_it = prim.attributes.find("NORMAL");
+        if (want_normals && nrm_it != prim.attributes.end()) {
+            nrm = view_accessor(model, nrm_it->second, TINYGLTF_TYPE_VEC3, "NORMAL");
+            if (nrm.count != pos.count)
+                fail(NS_ERR_INVALID_ARGUMENT, where + ": NORMAL has " + std::to_string(nrm.count) +
+                                                  " elements for " + std::to_string(pos.count) +
+                                                  " vertices");
+            if (nrm.count > 0 && nrm.component_type != TINYGLTF_COMPONENT_TYPE_FLOAT)
+                fail(NS_ERR_INVALID_ARGUMENT, where + ": NORMAL must be FLOAT");
+            has_normals = nrm.count > 0;
+        }
+        double cof[9];
+        cofactor3(world, cof);
         // A mirroring transform turns counter-clockwise into clockwise; swap two corners
         // so that the outside stays outside.
         bool mirrored = det3(world) < 0;
         out.reserve_more(tris * 9);
+        if (want_normals)
+            normals.reserve_more(tris * 9);
         for (size_t t = 0; t < tris; t++) {
             for (int c = 0; c < 3; c++) {
                 int corner = mirrored && c > 0 ? 3 - c : c;
@@ -380,6 +416,26 @@ struct Flattener {
                                                           " is not finite after its node transform");
                     out.push(float(w));
                 }
+                if (!want_normals)
+                    continue;
+                float n[3] = {0, 0, 0};
+                if (has_normals) {
+                    std::memcpy(n, nrm.base + vi * nrm.stride, sizeof n);
+                    double w[3], len2 = 0;
+                    for (int a = 0; a < 3; a++) {
+                        w[a] = cof[a] * n[0] + cof[3 + a] * n[1] + cof[6 + a] * n[2];
+                        len2 += w[a] * w[a];
+                    }
+                    if (!(len2 > 1e-30) || !std::isfinite(len2))
+                        fail(NS_ERR_INVALID_ARGUMENT, where + ": NORMAL of vertex " +
+                                                          std::to_string(vi) +
+                                                          " is not a direction (zero or not finite)");
+                    for (int a = 0; a < 3; a++)
+                        n[a] = float(w[a] / std::sqrt(len2));
+                    any_normals = true;
+                }
+                for (int a = 0; a < 3; a++)
+                    normals.push(n[a]);
             }
         }
     }
@@ -450,8 +506,9 @@ std::string one_line(std::string s)
     return s;
 }
 
-// Returns the malloc'd triangles; *count is their number.
-float *load(const unsigned char *b, size_t len, size_t max_triangles, size_t *count)
+// Returns the malloc'd triangles; *count is their number. normals: NULL, or where the
+// malloc'd vertex normals go (NULL when no primitive has any).
+float *load(const unsigned char *b, size_t len, size_t max_triangles, size_t *count, float **normals)
 {
     if (len > GLTF_MAX_BYTES)
         fail(NS_ERR_LIMIT, "glTF data of " + std::to_string(len) + " bytes is over the " +
@@ -477,9 +534,17 @@ float *load(const unsigned char *b, size_t len, size_t max_triangles, size_t *co
     if (!ok)
         fail(NS_ERR_INVALID_ARGUMENT,
              "invalid glTF: " + one_line(err.empty() ? std::string("tinygltf refused it") : err));
-    Flattener f{model, max_triangles, {}, {}};
+    Flattener f{model, max_triangles, {}, {}, normals != nullptr, {}, false};
     f.run();
     *count = f.out.size / 9;
+    if (normals) {
+        float *kept = f.normals.release();
+        if (f.any_normals) {
+            *normals = kept;
+        } else {
+            std::free(kept);
+        }
+    }
     return f.out.release();
 }
 
@@ -491,12 +556,14 @@ void copy_message(char *dst, size_t cap, const std::string &msg)
 
 } // namespace
 
-extern "C" int gltf_load(const void *bytes, size_t len, size_t max_triangles,
-                         float **positions_out, size_t *triangle_count, char *err,
-                         size_t errlen)
+extern "C" int gltf_load_shaded(const void *bytes, size_t len, size_t max_triangles,
+                                float **positions_out, float **normals_out,
+                                size_t *triangle_count, char *err, size_t errlen)
 {
     if (positions_out)
         *positions_out = nullptr;
+    if (normals_out)
+        *normals_out = nullptr;
     if (triangle_count)
         *triangle_count = 0;
     if (!bytes || !positions_out || !triangle_count) {
@@ -505,7 +572,8 @@ extern "C" int gltf_load(const void *bytes, size_t len, size_t max_triangles,
     }
     try {
         size_t count = 0;
-        *positions_out = load(static_cast<const unsigned char *>(bytes), len, max_triangles, &count);
+        *positions_out = load(static_cast<const unsigned char *>(bytes), len, max_triangles,
+                              &count, normals_out);
         *triangle_count = count;
         copy_message(err, errlen, "");
         return 0;
@@ -522,4 +590,12 @@ extern "C" int gltf_load(const void *bytes, size_t len, size_t max_triangles,
         copy_message(err, errlen, "invalid glTF: unexpected error");
         return NS_ERR_INVALID_ARGUMENT;
     }
+}
+
+extern "C" int gltf_load(const void *bytes, size_t len, size_t max_triangles,
+                         float **positions_out, size_t *triangle_count, char *err,
+                         size_t errlen)
+{
+    return gltf_load_shaded(bytes, len, max_triangles, positions_out, nullptr, triangle_count,
+                            err, errlen);
 }

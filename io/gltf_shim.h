@@ -37,6 +37,15 @@ extern "C" {
 int gltf_load(const void *bytes, size_t len, size_t max_triangles, float **positions_out,
               size_t *triangle_count, char *err, size_t errlen);
 
+/* The same, with the vertex normals (the NORMAL attribute) when normals_out is not NULL:
+ * *normals_out then points to 9 * *triangle_count floats (malloc'd; three unit xyz normals
+ * per triangle, in its corners' order, carried by the inverse transpose of the node
+ * transforms; zero for the triangles of a primitive without NORMAL), or is NULL when no
+ * primitive has NORMAL. NORMAL must be VEC3 FLOAT with one element per vertex, each a
+ * direction (not zero, finite); otherwise the file is refused. */
+int gltf_load_shaded(const void *bytes, size_t len, size_t max_triangles, float **positions_out,
+                     float **normals_out, size_t *triangle_count, char *err, size_t errlen);
+
 #ifdef __cplusplus
 }
 #endif

@@ -919,7 +919,20 @@ static int parse_transform(parser *p, const json_t *t, xform *out)
     return 1;
 }
 
-static int append_triangles(parser *p, const float *pos, size_t count, const xform *x)
+/* The inverse transpose of x's 3x3 part, up to a positive factor (its cofactor matrix: x has
+ * no mirroring, its scales are positive), for carrying normals. */
+static void normal_matrix(const xform *x, double out[3][3])
+{
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 3; c++)
+            out[r][c] = x->m[(r + 1) % 3][(c + 1) % 3] * x->m[(r + 2) % 3][(c + 2) % 3] -
+                        x->m[(r + 1) % 3][(c + 2) % 3] * x->m[(r + 2) % 3][(c + 1) % 3];
+}
+
+/* Appends count triangles (9 floats each) moved by x; normals (9 floats each, or NULL: flat)
+ * moved by x's normal matrix and normalised, a triangle with all-zero normals staying flat. */
+static int append_triangles(parser *p, const float *pos, const float *normals, size_t count,
+                            const xform *x)
 {
     if (p->triangle_count + count > p->triangle_cap) {
         size_t cap = p->triangle_cap ? p->triangle_cap : 64;
@@ -933,8 +946,11 @@ static int append_triangles(parser *p, const float *pos, size_t count, const xfo
         p->triangles = grown;
         p->triangle_cap = cap;
     }
+    double nm[3][3];
+    normal_matrix(x, nm);
     for (size_t t = 0; t < count; t++) {
         ns_triangle *tri = &p->triangles[p->triangle_count + t];
+        memset(tri, 0, sizeof *tri);
         for (int v = 0; v < 3; v++) {
             const float *in = pos + t * 9 + v * 3;
             for (int a = 0; a < 3; a++) {
@@ -946,8 +962,125 @@ static int append_triangles(parser *p, const float *pos, size_t count, const xfo
                 tri->v[v][a] = (float)w;
             }
         }
+        const float *n = normals ? normals + t * 9 : NULL;
+        int given = 0;
+        for (int k = 0; n && k < 9; k++)
+            given |= n[k] != 0.0f;
+        for (int v = 0; given && v < 3; v++) {
+            double w[3], len = 0;
+            for (int a = 0; a < 3; a++) {
+                w[a] = nm[a][0] * n[v * 3] + nm[a][1] * n[v * 3 + 1] + nm[a][2] * n[v * 3 + 2];
+                len += w[a] * w[a];
+            }
+            len = sqrt(len);
+            for (int a = 0; a < 3; a++)
+                tri->n[v][a] = len > 0 ? (float)(w[a] / len) : 0.0f;
+        }
     }
     p->triangle_count += (uint32_t)count;
+    return 1;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * Generated normals ("normals": "smooth" on a mesh without NORMAL)
+ * ------------------------------------------------------------------------------------- */
+
+/* Faces that meet at more than this angle keep their shared edge sharp. */
+#define SMOOTH_CREASE_COS 0.5 /* 60 degrees */
+
+typedef struct corner_ref {
+    float position[3];
+    uint32_t triangle, corner;
+} corner_ref;
+
+static int compare_corners(const void *a, const void *b)
+{
+    const corner_ref *x = a, *y = b;
+    for (int k = 0; k < 3; k++)
+        if (x->position[k] != y->position[k])
+            return x->position[k] < y->position[k] ? -1 : 1;
+    return 0;
+}
+
+/* Unit face normal times the corner's angle (the angle-weighted vertex normal of Thürmer and
+ * Wüthrich 1998, which does not depend on how a surface is split into triangles); zero for a
+ * degenerate triangle. unit_face: the face normal alone. */
+static void corner_weighted_normal(const ns_triangle *t, int corner, double out[3], double unit_face[3])
+{
+    double e1[3], e2[3], f[3];
+    for (int k = 0; k < 3; k++) {
+        e1[k] = (double)t->v[1][k] - t->v[0][k];
+        e2[k] = (double)t->v[2][k] - t->v[0][k];
+    }
+    f[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    f[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    f[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double len = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    double a[3], b[3], la = 0, lb = 0, dot = 0;
+    for (int k = 0; k < 3; k++) {
+        a[k] = (double)t->v[(corner + 1) % 3][k] - t->v[corner][k];
+        b[k] = (double)t->v[(corner + 2) % 3][k] - t->v[corner][k];
+        la += a[k] * a[k];
+        lb += b[k] * b[k];
+        dot += a[k] * b[k];
+    }
+    double angle = la > 0 && lb > 0 ? acos(fmax(-1.0, fmin(1.0, dot / sqrt(la * lb)))) : 0.0;
+    for (int k = 0; k < 3; k++) {
+        unit_face[k] = len > 0 ? f[k] / len : 0.0;
+        out[k] = unit_face[k] * angle;
+    }
+}
+
+/* Shading normals for triangles [first, first + count): at each corner, the angle-weighted
+ * normals of the triangles that share its position (exactly, after the transform) and whose
+ * faces are within the crease angle of its own. A corner whose sum vanishes, or a degenerate
+ * triangle, leaves its triangle flat. */
+static int generate_normals(parser *p, uint32_t first, size_t count)
+{
+    size_t corners = count * 3;
+    corner_ref *refs = malloc(sizeof *refs * (corners ? corners : 1));
+    if (!refs) {
+        p->oom = 1;
+        return 0;
+    }
+    ns_triangle *tris = p->triangles + first;
+    for (size_t i = 0; i < corners; i++) {
+        refs[i].triangle = (uint32_t)(i / 3);
+        refs[i].corner = (uint32_t)(i % 3);
+        memcpy(refs[i].position, tris[i / 3].v[i % 3], sizeof refs[i].position);
+    }
+    qsort(refs, corners, sizeof *refs, compare_corners);
+    for (size_t start = 0; start < corners;) {
+        size_t end = start + 1;
+        while (end < corners && compare_corners(&refs[start], &refs[end]) == 0)
+            end++;
+        for (size_t i = start; i < end; i++) {
+            double own[3], own_face[3], sum[3] = {0, 0, 0};
+            corner_weighted_normal(&tris[refs[i].triangle], (int)refs[i].corner, own, own_face);
+            for (size_t j = start; j < end; j++) {
+                double w[3], face[3];
+                corner_weighted_normal(&tris[refs[j].triangle], (int)refs[j].corner, w, face);
+                if (face[0] * own_face[0] + face[1] * own_face[1] + face[2] * own_face[2] >=
+                    SMOOTH_CREASE_COS)
+                    for (int k = 0; k < 3; k++)
+                        sum[k] += w[k];
+            }
+            double len = sqrt(sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]);
+            float *n = tris[refs[i].triangle].n[refs[i].corner];
+            for (int k = 0; k < 3; k++)
+                n[k] = len > 0 ? (float)(sum[k] / len) : 0.0f;
+        }
+        start = end;
+    }
+    free(refs);
+    /* A triangle with a corner left without a normal stays flat as a whole. */
+    for (size_t t = 0; t < count; t++) {
+        int missing = 0;
+        for (int v = 0; v < 3; v++)
+            missing |= tris[t].n[v][0] == 0.0f && tris[t].n[v][1] == 0.0f && tris[t].n[v][2] == 0.0f;
+        if (missing)
+            memset(tris[t].n, 0, sizeof tris[t].n);
+    }
     return 1;
 }
 
@@ -986,6 +1119,8 @@ static int mesh_bytes(parser *p, const json_t *o, const char *key, unsigned char
     return rc;
 }
 
+enum { MESH_AUTO, MESH_FLAT, MESH_SMOOTH };
+
 static void parse_mesh(parser *p, const json_t *o, ns_object *out)
 {
     static const char *const sources[] = {"glb_base64", "uri", "asset"};
@@ -1004,6 +1139,13 @@ static void parse_mesh(parser *p, const json_t *o, ns_object *out)
                   "\"uri\" (a data: URI) or \"asset\" (a file name in the server's asset folder)");
         return;
     }
+    /* "normals": the file's NORMAL where given, else flat (auto); never (flat); the file's,
+     * else generated (smooth). */
+    static const char *const shading_names[] = {"auto", "flat", "smooth"};
+    int shading = MESH_AUTO;
+    if (json_object_get(o, "normals") &&
+        !field_enum(p, o, "normals", 0, shading_names, 3, "shading normals", &shading))
+        shading = MESH_AUTO; /* reported; the rest of the mesh is still checked */
     xform x = {{{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}}};
     const json_t *t = json_object_get(o, "transform");
     int transform_ok = 1;
@@ -1016,12 +1158,13 @@ static void parse_mesh(parser *p, const json_t *o, ns_object *out)
     size_t len = 0;
     if (mesh_bytes(p, o, source, &bytes, &len) != 0)
         return;
-    float *pos = NULL;
+    float *pos = NULL, *normals = NULL;
     size_t count = 0;
     char err[400];
     uint32_t max_triangles = limit(p->opts ? p->opts->max_triangles : 0, NS_MAX_TRIANGLES);
     size_t room = p->triangle_count < max_triangles ? max_triangles - p->triangle_count : 0;
-    int rc = gltf_load(bytes, len, room, &pos, &count, err, sizeof err);
+    int rc = gltf_load_shaded(bytes, len, room, &pos, shading == MESH_FLAT ? NULL : &normals,
+                              &count, err, sizeof err);
     free(bytes);
     if (rc == NS_ERR_OUT_OF_HOST_MEMORY) {
         p->oom = 1;
@@ -1031,10 +1174,12 @@ static void parse_mesh(parser *p, const json_t *o, ns_object *out)
         report_at(p, source, "%s", err);
     } else if (transform_ok) {
         out->first_triangle = p->triangle_count;
-        if (append_triangles(p, pos, count, &x))
+        if (append_triangles(p, pos, normals, count, &x) &&
+            (shading != MESH_SMOOTH || normals || generate_normals(p, out->first_triangle, count)))
             out->triangle_count = (uint32_t)count;
     }
     free(pos);
+    free(normals);
 }
 
 static uint32_t find_material(const parser *p, const char *name)
@@ -1074,7 +1219,7 @@ static void parse_object(parser *p, const json_t *o, ns_object *out)
     static const char *const sphere_keys[] = {"shape", "material", "center", "radius", NULL};
     static const char *const plane_keys[] = {"shape", "material", "point", "normal", NULL};
     static const char *const box_keys[] = {"shape", "material", "min", "max", NULL};
-    static const char *const mesh_keys[] = {"shape", "material", "glb_base64", "uri", "asset", "transform", NULL};
+    static const char *const mesh_keys[] = {"shape", "material", "glb_base64", "uri", "asset", "transform", "normals", NULL};
     static const char *const *const keys[] = {sphere_keys, plane_keys, box_keys, mesh_keys};
     if (!expect_object(p, o, "an object"))
         return;
@@ -1510,6 +1655,12 @@ static void report_load_error(const char *json, size_t length, const json_error_
         add_issue(issues, "", detail);
         break;
     }
+}
+
+void scene_json_load_error(const char *json, size_t length, const void *e, scene_issues *issues)
+{
+    memset(issues, 0, sizeof *issues);
+    report_load_error(json ? json : "", length, e, issues);
 }
 
 /* =======================================================================================

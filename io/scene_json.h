@@ -44,6 +44,14 @@ typedef struct scene_parse_options {
 
 typedef struct scene_doc scene_doc;
 
+/* Why jansson could not load `json` (json_loadb's error `e`, passed as a pointer to it),
+ * classified as scene_parse classifies it, into issues (one item): a duplicate key, a number
+ * that overflows and nesting deeper than jansson's 2048 levels are not syntax errors but
+ * an invalid document, reported at the field's pointer (the duplicate key, the number; ""
+ * for the nesting); anything else is a syntax error (issues->syntax_error, line, column).
+ * The sweep parser (server/sweep.c) reads its bodies with the same rules. */
+void scene_json_load_error(const char *json, size_t length, const void *e, scene_issues *issues);
+
 /* Returns 0 and *out on success; NS_ERR_INVALID_ARGUMENT (and *out NULL) with issues
  * filled otherwise; NS_ERR_OUT_OF_HOST_MEMORY when allocation fails. */
 int scene_parse(const char *json, size_t length, const scene_parse_options *opts, scene_doc **out,

@@ -250,5 +250,24 @@ int ns_resume_dispatch(ns_context *ctx, const ns_resume_desc *desc, uint32_t *di
 int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, const GpuPrim *planes,
                   uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
                   ns_error *err);
+/* The same, with the dispatch made timing->repeats times (0: once) on one BVH and one set of
+ * buffers (the ray benchmark, bench/rays.c): device_ms[r] (NULL: not asked) is dispatch r's
+ * device time from two timestamp queries around it, -1 where the queue has no timestamps;
+ * wall_ms[r] (NULL: not asked) its host time from recording to the fence. Neither includes
+ * the BVH build, the uploads or the readback. `between` (NULL: none) is called after
+ * dispatch r with (user, r), so that a benchmark can interleave the runs it compares under
+ * the same load; the context's lock is held meanwhile. hits are the last dispatch's. */
+typedef struct ns_trace_timing {
+    uint32_t repeats;
+    double *device_ms;
+    double *wall_ms;
+    void (*between)(void *user, uint32_t r);
+    void *user;
+} ns_trace_timing;
+
+int ns_trace_rays_timed(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count,
+                        const GpuPrim *planes, uint32_t plane_count, const GpuRay *rays,
+                        uint32_t ray_count, GpuHit *hits, const ns_trace_timing *timing,
+                        ns_error *err);
 
 #endif

@@ -197,9 +197,20 @@ int ns_scene_validate(const ns_scene *s, ns_error *err)
         status = check_object(s, &s->objects[i], i, err);
     for (uint32_t i = 0; i < s->light_count && !status; i++)
         status = check_light(&s->lights[i], i, err);
-    for (uint32_t i = 0; i < s->triangle_count && !status; i++)
+    for (uint32_t i = 0; i < s->triangle_count && !status; i++) {
+        const ns_triangle *t = &s->triangles[i];
         for (int v = 0; v < 3 && !status; v++)
-            if (!finite3(s->triangles[i].v[v]))
+            if (!finite3(t->v[v]))
                 status = BAD("triangles[%u].v[%d]: must be finite", i, v);
+        if (!status && ns_triangle_is_smooth(t))
+            for (int v = 0; v < 3 && !status; v++) {
+                double len = sqrt((double)t->n[v][0] * t->n[v][0] + (double)t->n[v][1] * t->n[v][1] +
+                                  (double)t->n[v][2] * t->n[v][2]);
+                if (!finite3(t->n[v]) || !(fabs(len - 1.0) <= 1e-3))
+                    status = BAD("triangles[%u].n[%d]: must be a unit vector, or all three "
+                                 "normals zero (a flat triangle)",
+                                 i, v);
+            }
+    }
     return status;
 }

@@ -16,6 +16,27 @@ static void normalize3(float v[3])
         v[k] = (float)(v[k] / n);
 }
 
+/* A unit normal in 32 bits, octahedral (Cigolle et al. 2014, "A Survey of Efficient
+ * Representations for Independent Unit Vectors"), as GLSL's packSnorm2x16 lays it out (x in
+ * the low half); trace.glsl's decode_normal reads it back, within about 1e-4 rad. Stored in
+ * the w of a triangle's vertex, which nothing else uses, so smooth meshes need no buffer of
+ * their own. The bits go in by memcpy: they are not a float's value. */
+static void store_normal(float *slot, const float n[3])
+{
+    double ax = fabs(n[0]) + fabs(n[1]) + fabs(n[2]);
+    double x = n[0] / ax, y = n[1] / ax;
+    if (n[2] < 0) {
+        double fx = (1.0 - fabs(y)) * (x >= 0 ? 1.0 : -1.0);
+        double fy = (1.0 - fabs(x)) * (y >= 0 ? 1.0 : -1.0);
+        x = fx;
+        y = fy;
+    }
+    int16_t qx = (int16_t)lround(fmax(-1.0, fmin(1.0, x)) * 32767.0);
+    int16_t qy = (int16_t)lround(fmax(-1.0, fmin(1.0, y)) * 32767.0);
+    uint32_t bits = (uint32_t)(uint16_t)qx | (uint32_t)(uint16_t)qy << 16;
+    memcpy(slot, &bits, sizeof bits);
+}
+
 static void cross3(const float a[3], const float b[3], float out[3])
 {
     out[0] = a[1] * b[2] - a[2] * b[1];
@@ -196,6 +217,12 @@ static int convert_geometry(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *
                 set4(p->a, tri->v[0], 0.0f);
                 set4(p->b, tri->v[1], 0.0f);
                 set4(p->c, tri->v[2], 0.0f);
+                if (ns_triangle_is_smooth(tri)) {
+                    p->info[3] = NS_PRIM_SMOOTH;
+                    store_normal(&p->a[3], tri->n[0]);
+                    store_normal(&p->b[3], tri->n[1]);
+                    store_normal(&p->c[3], tri->n[2]);
+                }
             }
         } else {
             input[n++] = object_prim(o, i);

@@ -1,7 +1,8 @@
-/* trace_rays.c — the BVH test path (tests only): rays against primitives through
- * shaders/trace_test.comp, without a scene or a camera. Kept apart from render.c so that
- * render.c shows the render's main path alone; its pipeline is made by the first call and
- * kept (render/pipelines.c), so a service that never traces test rays never compiles it. */
+/* trace_rays.c — the BVH test path (tests and the ray benchmark only): rays against
+ * primitives through shaders/trace_test.comp, without a scene or a camera. Kept apart from
+ * render.c so that render.c shows the render's main path alone; its pipeline is made by the
+ * first call and kept (render/pipelines.c), so a service that never traces test rays never
+ * compiles it. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -12,6 +13,16 @@ int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, co
                   uint32_t plane_count, const GpuRay *rays, uint32_t ray_count, GpuHit *hits,
                   ns_error *err)
 {
+    return ns_trace_rays_timed(ctx, prims, prim_count, planes, plane_count, rays, ray_count, hits,
+                               &(ns_trace_timing){.repeats = 1}, err);
+}
+
+int ns_trace_rays_timed(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count,
+                        const GpuPrim *planes, uint32_t plane_count, const GpuRay *rays,
+                        uint32_t ray_count, GpuHit *hits, const ns_trace_timing *timing,
+                        ns_error *err)
+{
+    uint32_t repeats = timing->repeats ? timing->repeats : 1;
     ns_bvh bvh;
     int status = ns_bvh_build(prims, prim_count, &bvh, err);
     GpuPrim *all = status ? NULL : malloc(sizeof *all * ((size_t)prim_count + plane_count + 1));
@@ -55,10 +66,23 @@ int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, co
         pthread_mutex_lock(&ctx->lock);
         gpu_pipeline *pipeline = NULL;
         status = ns_pipeline(ctx, NS_PIPELINE_TRACE_TEST, &pipeline, NULL, err);
-        if (!status)
-            status = gpu_dispatch(
-                &ctx->dev, pipeline, bound, 5,
-                (uint32_t[3]){(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1}, err);
+        /* The same rays again on the same buffers: every dispatch writes every hit. */
+        for (uint32_t r = 0; r < repeats && !status; r++) {
+            double start = ns_now_ms();
+            status = gpu_dispatch_many(
+                &ctx->dev,
+                &(gpu_dispatch_desc){
+                    .pipeline = pipeline,
+                    .buffers = bound,
+                    .buffer_count = 5,
+                    .groups = {(ray_count + NS_TRACE_GROUP - 1) / NS_TRACE_GROUP, 1, 1},
+                    .device_ms = timing->device_ms ? &timing->device_ms[r] : NULL},
+                err);
+            if (timing->wall_ms)
+                timing->wall_ms[r] = ns_now_ms() - start;
+            if (!status && timing->between)
+                timing->between(timing->user, r);
+        }
         pthread_mutex_unlock(&ctx->lock);
     }
     if (!status) {

@@ -4,12 +4,17 @@
 #   scripts/setup.sh run    install, build, render scenes/default.json to out/default.png,
 #                           then serve the web page and API on http://127.0.0.1:8080
 #   scripts/setup.sh test   install (test tools too), build with warnings as errors, run
-#                           every test (ctest), then the sanitizer build's tests
+#                           every test (ctest), then the sanitizer build's tests, then
+#                           each libFuzzer target for a bounded time (scripts/fuzz.sh)
 #   scripts/setup.sh deps   only install what is missing
 #   scripts/setup.sh build  install and build build/nscatter
 #   scripts/setup.sh http-test-deps
 #                           only install what the HTTP and CLI tests need (ctest -L 'http|cli'),
 #                           Node.js and web/'s npm packages included: the Dockerfile's test stage
+#   scripts/setup.sh bench-deps
+#                           install the benchmarks' outside libraries (Embree 3, for
+#                           bench/rays.c), then build build/bench/bench_rays: optional,
+#                           never needed by the build, the tests or CI
 #
 # Works as root on a fresh Debian 12 (bookworm); as another user it uses sudo for apt.
 set -euo pipefail
@@ -34,11 +39,19 @@ BUILD_PACKAGES=(
 # installs these and Node.js, through `http-test-deps`); the GPU and browser tests add the rest.
 HTTP_TEST_PACKAGES=(python3 python3-prometheus-client python3-jsonschema nginx-light python3-yaml)
 TEST_PACKAGES=(vulkan-validationlayers chromium "${HTTP_TEST_PACKAGES[@]}")
+# The fuzz step (scripts/fuzz.sh): clang and its libFuzzer runtime (libclang_rt.fuzzer,
+# with the sanitizers' runtimes, is in libclang-rt-14-dev on Debian 12).
+FUZZ_PACKAGES=(clang libclang-rt-14-dev)
 # Test packages not every Debian release has, installed where the archive has them:
 # python3-openapi-spec-validator (tests/http_openapi.py) is in Debian from trixie on; where it
 # is missing that test relies on the npm validator alone (web/package.json,
 # tests/openapi_validate.mjs), which it always runs.
 OPTIONAL_TEST_PACKAGES=(python3-openapi-spec-validator)
+# What only the benchmarks of bench/ need (`scripts/setup.sh bench-deps`): Embree 3, the CPU
+# ray tracer bench_rays compares nscatter's traversal with (docs/bench.md, "Ray throughput
+# against Embree"). Never in the lists above: the renderer stays Vulkan, and the build and
+# the tests must not need it.
+BENCH_PACKAGES=(libembree-dev)
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
@@ -86,6 +99,11 @@ case "$mode" in
     install_missing "${BUILD_PACKAGES[@]}"
     build build
     ;;
+  bench-deps)
+    install_missing "${BUILD_PACKAGES[@]}" "${BENCH_PACKAGES[@]}"
+    build build
+    echo "setup: built build/bench/bench_rays (docs/bench.md, \"Ray throughput against Embree\")"
+    ;;
   run)
     install_missing "${BUILD_PACKAGES[@]}"
     build build
@@ -100,7 +118,7 @@ case "$mode" in
     install_node
     ;;
   test)
-    install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}"
+    install_missing "${BUILD_PACKAGES[@]}" "${TEST_PACKAGES[@]}" "${FUZZ_PACKAGES[@]}"
     install_available "${OPTIONAL_TEST_PACKAGES[@]}"
     install_node
     build build -DNS_WERROR=ON
@@ -109,9 +127,12 @@ case "$mode" in
     # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -L 'unit|http|cli')
+    # The parsers that read untrusted bytes, fuzzed: 40 s per target, 160 s for the four
+    # (docs/development.md, "Fuzzing"); any crash, leak, UB report or timeout fails.
+    scripts/fuzz.sh 40
     ;;
   *)
-    echo "usage: scripts/setup.sh run|test|deps|build|http-test-deps" >&2
+    echo "usage: scripts/setup.sh run|test|deps|build|bench-deps|http-test-deps" >&2
     exit 2
     ;;
 esac

@@ -27,6 +27,9 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <linux/tcp.h> /* struct tcp_info: tcpi_bytes_received */
+#include <netinet/in.h>
+
 #include <jansson.h>
 #include <microhttpd.h>
 
@@ -43,8 +46,10 @@
 #include "sweep.h"
 #include "web_assets.h"
 
-#define HTTP_MAX_CONNECTIONS 64u
-#define HTTP_IDLE_TIMEOUT_S 60u
+/* How often the connection guard looks at the open connections (guard_sweep). */
+#define HTTP_GUARD_PERIOD_MS 200
+/* A body that is still arriving gets one more second per this many bytes received. */
+#define HTTP_BODY_BYTES_PER_S 65536u
 #define HTTP_DEVICE_HEADER "X-Nscatter-Device"
 /* Counts and memory of the render (VRLs, interactions, table bytes...) as compact JSON. */
 #define HTTP_STATS_HEADER "X-Nscatter-Stats"
@@ -68,7 +73,235 @@ typedef struct http_server {
     atomic_int event_streams;     /* open event streams (each holds a connection) */
     atomic_int stopping;          /* a stop signal came: /readyz and new renders answer 503 */
     int access_log;               /* one JSON line per request on stderr */
+    uint32_t request_timeout_s;   /* a request must arrive whole within this (408) */
+    uint32_t idle_timeout_s;      /* a silent connection is closed after this */
+    uint32_t max_connections;     /* connections open at once */
 } http_server;
+
+/* ---------------------------------------------------------------------------------------
+ * The connection guard.
+ *
+ * libmicrohttpd's own timeout counts inactivity: a client that sends a byte a second never
+ * reaches it and holds its connection (and thread) for ever. The guard bounds the whole
+ * arrival of a request instead. Every connection has an entry (made and dropped through
+ * MHD_OPTION_NOTIFY_CONNECTION) that says what it is doing:
+ *   WAITING  between requests: no request line and headers yet
+ *   BODY     headers done, the body arriving
+ *   BUSY     the service is answering (a render waits, an event stream runs)
+ * Every HTTP_GUARD_PERIOD_MS the main thread looks at them all (guard_sweep): a WAITING
+ * connection whose client has sent bytes of a request (the kernel's count of bytes received,
+ * TCP_INFO) that did not become whole headers within --request-timeout, or a body still
+ * arriving past --request-timeout (plus one second per 64 KiB received), is answered
+ * 408 request_timeout and shut down. A WAITING connection that sent nothing is idle: its
+ * client is not doing anything wrong; libmicrohttpd closes it after --idle-timeout, and
+ * when the connections open reach 7/8 of --max-connections the guard closes idle ones, the
+ * oldest first, down to 3/4, so that idle sockets never keep real clients out.
+ *
+ * The guard writes on a socket only while its connection's own thread is reading (WAITING or
+ * BODY): libmicrohttpd writes nothing then. The entry's lock is held from the decision to
+ * the shutdown, and libmicrohttpd reports a connection closed (dropping its entry under the
+ * lock) before it closes the socket, so the guard never touches a socket that was reused.
+ * ------------------------------------------------------------------------------------- */
+typedef enum { CONN_WAITING, CONN_BODY, CONN_BUSY } conn_phase;
+
+typedef struct conn_entry {
+    struct conn_entry *prev, *next;
+    int fd;
+    conn_phase phase;
+    double since_ms;       /* when this phase began */
+    double first_byte_ms;  /* WAITING: when bytes of a new request were first seen; 0: none */
+    uint64_t rx_mark;      /* WAITING: the bytes received when it began */
+    uint64_t body_bytes;   /* BODY: received so far */
+    int cut;               /* the guard shut it down */
+    int linked;            /* in the guard's list */
+} conn_entry;
+
+static pthread_mutex_t guard_lock = PTHREAD_MUTEX_INITIALIZER;
+static conn_entry *guard_head;
+static unsigned guard_count;
+
+/* The kernel's count of bytes received on a TCP socket; 0 where it is not known. */
+static uint64_t tcp_bytes_received(int fd)
+{
+    struct tcp_info info;
+    socklen_t len = sizeof info;
+    memset(&info, 0, sizeof info);
+    if (getsockopt(fd, IPPROTO_TCP, TCP_INFO, &info, &len) ||
+        len < offsetof(struct tcp_info, tcpi_bytes_received) + sizeof info.tcpi_bytes_received)
+        return 0;
+    return info.tcpi_bytes_received;
+}
+
+static void guard_notify(void *cls, struct MHD_Connection *conn, void **socket_context,
+                         enum MHD_ConnectionNotificationCode code)
+{
+    (void)cls;
+    if (code == MHD_CONNECTION_NOTIFY_STARTED) {
+        const union MHD_ConnectionInfo *info =
+            MHD_get_connection_info(conn, MHD_CONNECTION_INFO_CONNECTION_FD);
+        conn_entry *e = calloc(1, sizeof *e);
+        *socket_context = e;
+        if (!e || !info)
+            return; /* unguarded: libmicrohttpd's own timeout still applies */
+        e->fd = info->connect_fd;
+        e->phase = CONN_WAITING;
+        e->since_ms = ns_now_ms();
+        pthread_mutex_lock(&guard_lock);
+        e->linked = 1;
+        e->next = guard_head;
+        if (guard_head)
+            guard_head->prev = e;
+        guard_head = e;
+        guard_count++;
+        pthread_mutex_unlock(&guard_lock);
+        return;
+    }
+    conn_entry *e = *socket_context;
+    *socket_context = NULL;
+    if (!e)
+        return;
+    pthread_mutex_lock(&guard_lock);
+    if (e->linked) {
+        if (e->prev)
+            e->prev->next = e->next;
+        else if (guard_head == e)
+            guard_head = e->next;
+        if (e->next)
+            e->next->prev = e->prev;
+        guard_count--;
+    }
+    pthread_mutex_unlock(&guard_lock);
+    free(e);
+}
+
+static conn_entry *guard_entry(struct MHD_Connection *conn)
+{
+    const union MHD_ConnectionInfo *info =
+        MHD_get_connection_info(conn, MHD_CONNECTION_INFO_SOCKET_CONTEXT);
+    return info ? info->socket_context : NULL;
+}
+
+/* The connection moves to `phase` (the request's headers arrived: BODY; it is answered: BUSY;
+ * its answer is sent: WAITING for the next). */
+static void guard_phase(struct MHD_Connection *conn, conn_phase phase)
+{
+    conn_entry *e = guard_entry(conn);
+    if (!e)
+        return;
+    pthread_mutex_lock(&guard_lock);
+    if (e->phase != phase) {
+        e->phase = phase;
+        e->since_ms = ns_now_ms();
+        e->first_byte_ms = 0;
+        e->body_bytes = 0;
+        if (phase == CONN_WAITING)
+            e->rx_mark = tcp_bytes_received(e->fd);
+    }
+    pthread_mutex_unlock(&guard_lock);
+}
+
+static void guard_body_bytes(struct MHD_Connection *conn, size_t n)
+{
+    conn_entry *e = guard_entry(conn);
+    if (!e)
+        return;
+    pthread_mutex_lock(&guard_lock);
+    e->body_bytes += n;
+    pthread_mutex_unlock(&guard_lock);
+}
+
+/* 408 with its problem body, written straight on the socket, then the socket shut down; the
+ * connection's thread sees it closed and ends. Called with guard_lock held. */
+static void guard_cut(conn_entry *e, const char *detail)
+{
+    char id[40];
+    unsigned char bytes[16] = {0};
+    if (getrandom(bytes, sizeof bytes, GRND_NONBLOCK) != (ssize_t)sizeof bytes)
+        memset(bytes, 0, sizeof bytes);
+    for (size_t i = 0; i < sizeof bytes; i++)
+        snprintf(id + 2 * i, 3, "%02x", bytes[i]);
+    json_t *p = problem_new(PROBLEM_REQUEST_TIMEOUT, detail);
+    char *body = NULL;
+    if (p) {
+        json_object_set_new(p, "request_id", json_string(id));
+        body = json_dumps(p, JSON_INDENT(2));
+        json_decref(p);
+    }
+    if (body) {
+        char head[512];
+        size_t len = strlen(body);
+        int n = snprintf(head, sizeof head,
+                         "HTTP/1.1 408 Request Timeout\r\nConnection: close\r\n"
+                         "Content-Type: " PROBLEM_CONTENT_TYPE "\r\n"
+                         "X-Content-Type-Options: nosniff\r\nX-Request-Id: %s\r\n"
+                         "Content-Length: %zu\r\n\r\n",
+                         id, len + 1);
+        /* Non-blocking: a client that reads nothing only misses its answer. */
+        if (n > 0 && send(e->fd, head, (size_t)n, MSG_NOSIGNAL | MSG_DONTWAIT) == n &&
+            send(e->fd, body, len, MSG_NOSIGNAL | MSG_DONTWAIT) == (ssize_t)len)
+            (void)!send(e->fd, "\n", 1, MSG_NOSIGNAL | MSG_DONTWAIT);
+        free(body);
+    }
+    shutdown(e->fd, SHUT_RDWR);
+    e->cut = 1;
+    /* Counted as a request of no route (its line may never have arrived). */
+    metrics_request_done(METRICS_OTHER, "other", 408, 0);
+}
+
+/* One look at every connection (the main thread, every HTTP_GUARD_PERIOD_MS). */
+static void guard_sweep(const http_server *srv)
+{
+    double now = ns_now_ms();
+    double limit_ms = srv->request_timeout_s * 1000.0;
+    pthread_mutex_lock(&guard_lock);
+    unsigned idle = 0;
+    for (conn_entry *e = guard_head; e; e = e->next) {
+        if (e->cut)
+            continue;
+        if (e->phase == CONN_WAITING) {
+            if (!e->first_byte_ms && tcp_bytes_received(e->fd) > e->rx_mark)
+                e->first_byte_ms = now;
+            if (!e->first_byte_ms) {
+                idle++;
+                continue;
+            }
+            if (now - e->first_byte_ms > limit_ms) {
+                char detail[200];
+                snprintf(detail, sizeof detail,
+                         "the request line and headers did not arrive within %u s "
+                         "(--request-timeout)", srv->request_timeout_s);
+                guard_cut(e, detail);
+            }
+        } else if (e->phase == CONN_BODY) {
+            double allowed = limit_ms + 1000.0 * (double)(e->body_bytes / HTTP_BODY_BYTES_PER_S);
+            if (now - e->since_ms > allowed) {
+                char detail[200];
+                snprintf(detail, sizeof detail,
+                         "the request body did not arrive within %u s (--request-timeout; "
+                         "%llu bytes came)", srv->request_timeout_s,
+                         (unsigned long long)e->body_bytes);
+                guard_cut(e, detail);
+            }
+        }
+    }
+    /* Nearly full (7/8): idle connections make room, the oldest first (the list is newest
+     * first), down to 3/4, so that clients waiting in the listen backlog get in. */
+    unsigned high = srv->max_connections - srv->max_connections / 8;
+    unsigned low = srv->max_connections - srv->max_connections / 4;
+    if (guard_count >= high && idle) {
+        unsigned excess = guard_count - low;
+        conn_entry *last = guard_head;
+        while (last && last->next)
+            last = last->next;
+        for (conn_entry *e = last; e && excess; e = e->prev)
+            if (!e->cut && e->phase == CONN_WAITING && !e->first_byte_ms) {
+                shutdown(e->fd, SHUT_RDWR);
+                e->cut = 1;
+                excess--;
+            }
+    }
+    pthread_mutex_unlock(&guard_lock);
+}
 
 typedef enum {
     ROUTE_NONE = 0,
@@ -422,6 +655,56 @@ static long long content_length(struct MHD_Connection *conn)
     return n > (uint64_t)LLONG_MAX ? LLONG_MAX : (long long)n; /* larger than any limit */
 }
 
+/* Counts the Content-Length headers and whether their values differ. */
+typedef struct framing_scan {
+    unsigned lengths;
+    int differ;
+    const char *first;
+} framing_scan;
+
+static enum MHD_Result scan_framing(void *cls, enum MHD_ValueKind kind, const char *key,
+                                    const char *value)
+{
+    (void)kind;
+    framing_scan *f = cls;
+    if (key && !strcasecmp(key, MHD_HTTP_HEADER_CONTENT_LENGTH)) {
+        if (f->lengths++ == 0)
+            f->first = value;
+        else if (strcmp(skip_space(value ? value : ""), skip_space(f->first ? f->first : "")))
+            f->differ = 1;
+    }
+    return MHD_YES;
+}
+
+/* A request whose body length is ambiguous (RFC 9112 6.1, 6.3): Transfer-Encoding together
+ * with Content-Length, Content-Length given twice with different values, or a transfer
+ * coding other than chunked alone (which libmicrohttpd would read until the connection
+ * closes). Such requests are how bodies are smuggled past proxies: the answer is 400 and the
+ * connection is closed without reading the body. NULL when the framing is plain. */
+static json_t *framing_problem(struct MHD_Connection *conn)
+{
+    framing_scan f = {0};
+    MHD_get_connection_values(conn, MHD_HEADER_KIND, scan_framing, &f);
+    const char *te =
+        MHD_lookup_connection_value(conn, MHD_HEADER_KIND, MHD_HTTP_HEADER_TRANSFER_ENCODING);
+    if (te && f.lengths)
+        return problemf(PROBLEM_BAD_FRAMING, "Transfer-Encoding and Content-Length together "
+                                             "make the body's length ambiguous; send one");
+    if (f.differ)
+        return problemf(PROBLEM_BAD_FRAMING, "%u Content-Length headers with different values",
+                        f.lengths);
+    if (te) {
+        const char *v = skip_space(te);
+        size_t n = strlen(v);
+        while (n && (v[n - 1] == ' ' || v[n - 1] == '\t'))
+            n--;
+        if (n != 7 || strncasecmp(v, "chunked", 7))
+            return problemf(PROBLEM_BAD_FRAMING, "Transfer-Encoding '%.64s' is not supported; "
+                                                 "send the body as is or as 'chunked'", te);
+    }
+    return NULL;
+}
+
 /* ---------------------------------------------------------------------------------------
  * GET endpoints.
  * ------------------------------------------------------------------------------------- */
@@ -494,6 +777,9 @@ static json_t *info_json(const http_server *srv)
     json_object_set_new(limits, "max_vrls", json_integer(effective_limit(o->max_vrls, NS_MAX_VRLS)));
     json_object_set_new(limits, "max_deadline_ms",
                         srv->max_deadline_ms ? json_integer(srv->max_deadline_ms) : json_null());
+    json_object_set_new(limits, "request_timeout_s", json_integer(srv->request_timeout_s));
+    json_object_set_new(limits, "idle_timeout_s", json_integer(srv->idle_timeout_s));
+    json_object_set_new(limits, "max_connections", json_integer(srv->max_connections));
     job_store_counts counts = {0};
     if (srv->jobs)
         job_store_count(srv->jobs, &counts);
@@ -727,7 +1013,8 @@ static json_t *check_headers(struct MHD_Connection *conn, const http_server *srv
     if (last && !query.has_last_event_id && parse_header_number(last, 0, &req->last_event_id, NULL))
         return problemf(PROBLEM_BAD_QUERY, "Last-Event-ID '%.64s' is not an event id (a whole "
                                            "number)", last);
-    if (post && !srv->ctx)
+    /* Validation renders nothing, so it answers without a render context too. */
+    if (post && !srv->ctx && req->route != ROUTE_VALIDATE)
         return no_context_problem(srv);
     return NULL;
 }
@@ -1072,7 +1359,7 @@ static enum MHD_Result answer_sweep_post(struct MHD_Connection *conn, http_serve
  * it blocks there until events come, sending a keep-alive comment after a quiet while, and
  * looks at the socket every second so that a client that went away frees its connection
  * (and thread) then, not at the next write. */
-#define HTTP_MAX_EVENT_STREAMS (HTTP_MAX_CONNECTIONS / 2) /* the rest stay for renders */
+#define HTTP_MAX_EVENT_STREAMS 32u /* of --max-connections: the rest stay for renders */
 typedef struct event_stream {
     http_server *srv;
     struct MHD_Connection *conn;
@@ -1459,6 +1746,12 @@ static enum MHD_Result first_call(struct MHD_Connection *conn, http_server *srv,
     snprintf(req->path, sizeof req->path, "%s", url);
     http_route route = route_for(url, req);
     req->route = route;
+    json_t *framing = framing_problem(conn);
+    if (framing) {
+        req->answered = 1;
+        /* Without reading the body, whose end is not known: MHD then closes the connection. */
+        return send_problem_json(conn, framing, NULL);
+    }
     req->early_problem = check_route(route, url, method, &req->allow);
     if (req->early_problem)
         return MHD_YES;
@@ -1533,14 +1826,21 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
     (void)version;
     http_server *srv = cls;
     http_request *req = *con_cls;
-    if (!req)
-        return first_call(conn, srv, url, method, con_cls);
+    if (!req) {
+        guard_phase(conn, CONN_BODY);
+        enum MHD_Result ret = first_call(conn, srv, url, method, con_cls);
+        req = *con_cls;
+        if (req && req->answered)
+            guard_phase(conn, CONN_BUSY);
+        return ret;
+    }
     current_request = req;
     if (req->answered) { /* answered without its body, which is not read */
         *upload_data_size = 0;
         return MHD_YES;
     }
     if (*upload_data_size) {
+        guard_body_bytes(conn, *upload_data_size);
         collect_body(srv, req, upload_data, *upload_data_size);
         *upload_data_size = 0;
         /* Draining is bounded too: a client that keeps sending past twice the limit after
@@ -1550,6 +1850,7 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
         return MHD_YES;
     }
     /* The whole body has arrived. */
+    guard_phase(conn, CONN_BUSY);
     if (req->early_problem) {
         json_t *p = req->early_problem;
         req->early_problem = NULL;
@@ -1577,8 +1878,8 @@ static enum MHD_Result http_handler(void *cls, struct MHD_Connection *conn, cons
 static void http_request_completed(void *cls, struct MHD_Connection *conn, void **con_cls,
                                    enum MHD_RequestTerminationCode toe)
 {
-    (void)conn;
     (void)toe;
+    guard_phase(conn, CONN_WAITING);
     http_request *req = *con_cls;
     if (!req)
         return;
@@ -1658,7 +1959,9 @@ static void on_stop_signal(int sig)
     (void)written; /* a full pipe already holds a signal */
 }
 
-/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. */
+/* The next stop signal, waiting up to timeout_ms (-1: for ever); 0 when none came. Without
+ * the pipe (a service started with http_start, outside http_serve) it only waits: poll()
+ * ignores a negative descriptor. */
 static int wait_stop_signal(int timeout_ms)
 {
     struct pollfd fd = {.fd = stop_pipe[0], .events = POLLIN};
@@ -1692,8 +1995,15 @@ static void drain_and_stop(struct MHD_Daemon *daemon, http_server *srv)
     MHD_stop_daemon(daemon);
 }
 
-int http_serve(const http_serve_desc *desc)
+/* A running service: what http_start made and http_stop ends. */
+struct http_service {
+    http_server srv;
+    struct MHD_Daemon *daemon;
+};
+
+int http_start(const http_serve_desc *desc, http_service **out, unsigned *port_out)
 {
+    *out = NULL;
     http_serve_desc args = *desc;
     if (!args.host)
         args.host = "127.0.0.1";
@@ -1705,6 +2015,100 @@ int http_serve(const http_serve_desc *desc)
     if (resolve_host(args.host, args.port, &addr))
         return 2;
 
+    /* On the heap: the daemon's threads keep pointing at it after this function returns. */
+    http_service *svc = calloc(1, sizeof *svc);
+    if (!svc) {
+        fprintf(stderr, "nscatter serve: out of memory\n");
+        return 1;
+    }
+    http_server *srv = &svc->srv;
+    *srv = (http_server){.max_body = args.max_body,
+                         .queue_capacity = args.queue,
+                         .asset_dir = args.asset_dir,
+                         .instance = args.instance && *args.instance ? args.instance : NULL,
+                         .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
+                         .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
+                         .sse_keepalive_s = args.sse_keepalive_s ? args.sse_keepalive_s
+                                                                 : HTTP_DEFAULT_SSE_KEEPALIVE_S,
+                         .access_log = !args.no_access_log,
+                         .max_deadline_ms = args.max_deadline_ms,
+                         .request_timeout_s = args.request_timeout_s ? args.request_timeout_s
+                                                                     : HTTP_DEFAULT_REQUEST_TIMEOUT_S,
+                         .idle_timeout_s = args.idle_timeout_s ? args.idle_timeout_s
+                                                               : HTTP_DEFAULT_IDLE_TIMEOUT_S,
+                         .max_connections = args.max_connections ? args.max_connections
+                                                                 : HTTP_DEFAULT_MAX_CONNECTIONS,
+                         .parse_opts = {.asset_dir = args.asset_dir,
+                                        .max_pixels = args.max_pixels,
+                                        .max_spp = args.max_spp,
+                                        .max_vrls = args.max_vrls,
+                                        .max_triangles = args.max_triangles}};
+    /* An event stream with nothing to say must speak before the idle timeout cuts it. */
+    if (srv->sse_keepalive_s >= srv->idle_timeout_s)
+        srv->sse_keepalive_s = srv->idle_timeout_s > 1 ? srv->idle_timeout_s / 2 : 1;
+    if (args.no_device) /* the state of a device that could not be made, without Vulkan */
+        ns_fail(&srv->ctx_err, NS_ERR_NO_DEVICE, "the service was started without a render device");
+    else
+        make_context(srv, args.device);
+    if (srv->ctx && job_store_create(&(job_store_desc){.ctx = srv->ctx,
+                                                       .capacity = args.queue,
+                                                       .ttl_s = srv->job_ttl_s,
+                                                       .max_bytes = srv->job_bytes,
+                                                       .asset_dir = args.asset_dir,
+                                                       .max_deadline_ms = args.max_deadline_ms,
+                                                       .instance = args.instance},
+                                     &srv->jobs, &srv->ctx_err)) {
+        fprintf(stderr, "nscatter serve: %s\n", srv->ctx_err.message);
+        ns_context_destroy(srv->ctx);
+        free(svc);
+        return 1;
+    }
+
+    /* ITC lets MHD_quiesce_daemon wake the polling thread at shutdown. */
+    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
+                     MHD_USE_ERROR_LOG | MHD_USE_ITC;
+    if (addr.ss_family == AF_INET6)
+        flags |= MHD_USE_IPv6;
+    svc->daemon = MHD_start_daemon(
+        flags, (uint16_t)args.port, NULL, NULL, http_handler, srv, MHD_OPTION_SOCK_ADDR,
+        (struct sockaddr *)&addr, MHD_OPTION_NOTIFY_COMPLETED, http_request_completed, srv,
+        MHD_OPTION_NOTIFY_CONNECTION, guard_notify, NULL, MHD_OPTION_CONNECTION_LIMIT,
+        srv->max_connections, MHD_OPTION_CONNECTION_TIMEOUT, srv->idle_timeout_s,
+        MHD_OPTION_END);
+    if (!svc->daemon) {
+        fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
+                strerror(errno));
+        job_store_destroy(srv->jobs);
+        ns_context_destroy(srv->ctx);
+        free(svc);
+        return 1;
+    }
+    const union MHD_DaemonInfo *bound =
+        MHD_get_daemon_info(svc->daemon, MHD_DAEMON_INFO_BIND_PORT);
+    *port_out = bound && bound->port ? bound->port : args.port;
+    *out = svc;
+    return 0;
+}
+
+void http_stop(http_service *svc)
+{
+    if (!svc)
+        return;
+    drain_and_stop(svc->daemon, &svc->srv);
+    job_store_destroy(svc->srv.jobs);
+    ns_context_destroy(svc->srv.ctx);
+    free(svc);
+}
+
+unsigned http_connections(const http_service *svc)
+{
+    const union MHD_DaemonInfo *info =
+        MHD_get_daemon_info(svc->daemon, MHD_DAEMON_INFO_CURRENT_CONNECTIONS);
+    return info ? info->num_connections : 0;
+}
+
+int http_serve(const http_serve_desc *desc)
+{
     if (stop_pipe[0] < 0) {
         if (pipe(stop_pipe)) {
             fprintf(stderr, "nscatter serve: pipe: %s\n", strerror(errno));
@@ -1728,67 +2132,25 @@ int http_serve(const http_serve_desc *desc)
     pthread_sigmask(SIG_BLOCK, &stop_signals, NULL);
     signal(SIGPIPE, SIG_IGN);
 
-    http_server srv = {.max_body = args.max_body,
-                       .queue_capacity = args.queue,
-                       .asset_dir = args.asset_dir,
-                       .instance = args.instance && *args.instance ? args.instance : NULL,
-                       .job_ttl_s = args.job_ttl_s ? args.job_ttl_s : JOB_DEFAULT_TTL_S,
-                       .job_bytes = args.job_bytes ? args.job_bytes : JOB_DEFAULT_STORE_BYTES,
-                       .sse_keepalive_s =
-                           args.sse_keepalive_s ? args.sse_keepalive_s : HTTP_DEFAULT_SSE_KEEPALIVE_S,
-                       .access_log = !args.no_access_log,
-                       .max_deadline_ms = args.max_deadline_ms,
-                       .parse_opts = {.asset_dir = args.asset_dir,
-                                      .max_pixels = args.max_pixels,
-                                      .max_spp = args.max_spp,
-                                      .max_vrls = args.max_vrls,
-                                      .max_triangles = args.max_triangles}};
-    make_context(&srv, args.device);
-    if (srv.ctx && job_store_create(&(job_store_desc){.ctx = srv.ctx,
-                                                      .capacity = args.queue,
-                                                      .ttl_s = srv.job_ttl_s,
-                                                      .max_bytes = srv.job_bytes,
-                                                      .asset_dir = args.asset_dir,
-                                                      .max_deadline_ms = args.max_deadline_ms,
-                                                      .instance = args.instance},
-                                    &srv.jobs, &srv.ctx_err)) {
-        fprintf(stderr, "nscatter serve: %s\n", srv.ctx_err.message);
-        ns_context_destroy(srv.ctx);
-        return 1;
+    http_service *svc = NULL;
+    unsigned port = 0;
+    int rc = http_start(desc, &svc, &port);
+    if (rc) {
+        pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
+        return rc;
     }
-
-    /* ITC lets MHD_quiesce_daemon wake the polling thread at shutdown. */
-    unsigned flags = MHD_USE_THREAD_PER_CONNECTION | MHD_USE_INTERNAL_POLLING_THREAD |
-                     MHD_USE_ERROR_LOG | MHD_USE_ITC;
-    if (addr.ss_family == AF_INET6)
-        flags |= MHD_USE_IPv6;
-    struct MHD_Daemon *daemon = MHD_start_daemon(
-        flags, (uint16_t)args.port, NULL, NULL, http_handler, &srv, MHD_OPTION_SOCK_ADDR,
-        (struct sockaddr *)&addr, MHD_OPTION_NOTIFY_COMPLETED, http_request_completed, &srv,
-        MHD_OPTION_CONNECTION_LIMIT, HTTP_MAX_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
-        HTTP_IDLE_TIMEOUT_S, MHD_OPTION_END);
-    if (!daemon) {
-        fprintf(stderr, "nscatter serve: cannot listen on %s:%u: %s\n", args.host, args.port,
-                strerror(errno));
-        job_store_destroy(srv.jobs);
-        ns_context_destroy(srv.ctx);
-        return 1;
-    }
-    const union MHD_DaemonInfo *bound = MHD_get_daemon_info(daemon, MHD_DAEMON_INFO_BIND_PORT);
-    unsigned port = bound && bound->port ? bound->port : args.port;
-    int v6 = strchr(args.host, ':') != NULL; /* an IPv6 literal needs brackets in a URL */
-    printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", args.host, v6 ? "]" : "", port);
+    const char *host = desc->host ? desc->host : "127.0.0.1";
+    int v6 = strchr(host, ':') != NULL; /* an IPv6 literal needs brackets in a URL */
+    printf("listening on http://%s%s%s:%u\n", v6 ? "[" : "", host, v6 ? "]" : "", port);
     fflush(stdout);
 
     int sig = 0;
     /* The main thread takes the signals now (the handler runs here or on a foreign thread,
      * and either way the pipe has it); the threads nscatter made keep them blocked. */
     pthread_sigmask(SIG_UNBLOCK, &stop_signals, NULL);
-    while (!(sig = wait_stop_signal(-1)))
-        ;
+    while (!(sig = wait_stop_signal(HTTP_GUARD_PERIOD_MS)))
+        guard_sweep(&svc->srv);
     fprintf(stderr, "nscatter serve: %s, shutting down\n", sig == SIGINT ? "SIGINT" : "SIGTERM");
-    drain_and_stop(daemon, &srv);
-    job_store_destroy(srv.jobs);
-    ns_context_destroy(srv.ctx);
+    http_stop(svc);
     return 0;
 }

@@ -24,9 +24,11 @@
 #define PROBLEM_TABLE(X)                                                                      \
     X(PROBLEM_BAD_QUERY, 400, "bad_query", "Bad Request")                                     \
     X(PROBLEM_MALFORMED_JSON, 400, "malformed_json", "Bad Request")                           \
+    X(PROBLEM_BAD_FRAMING, 400, "bad_framing", "Bad Request")                                 \
     X(PROBLEM_NOT_FOUND, 404, "not_found", "Not Found")                                       \
     X(PROBLEM_METHOD_NOT_ALLOWED, 405, "method_not_allowed", "Method Not Allowed")            \
     X(PROBLEM_NOT_ACCEPTABLE, 406, "not_acceptable", "Not Acceptable")                        \
+    X(PROBLEM_REQUEST_TIMEOUT, 408, "request_timeout", "Request Timeout")                     \
     X(PROBLEM_BODY_TOO_LARGE, 413, "body_too_large", "Content Too Large")                     \
     X(PROBLEM_UNSUPPORTED_MEDIA_TYPE, 415, "unsupported_media_type", "Unsupported Media Type") \
     X(PROBLEM_INVALID_SCENE, 422, "invalid_scene", "Unprocessable Content")                   \

@@ -403,13 +403,31 @@ int sweep_parse(const char *body, size_t size, const scene_parse_options *opts, 
     json_error_t jerr;
     json_t *root = json_loadb(body ? body : "", size, JSON_REJECT_DUPLICATES, &jerr);
     if (!root) {
-        *problem = sweep_problem(PROBLEM_MALFORMED_JSON, "",
-                                 "JSON syntax error at line %d, column %d: %s", jerr.line,
-                                 jerr.column, jerr.text);
-        if (*problem) {
-            json_object_set_new(*problem, "line", json_integer(jerr.line));
-            json_object_set_new(*problem, "column", json_integer(jerr.column));
+        if (json_error_code(&jerr) == json_error_out_of_memory) {
+            *problem = problem_from_status(PROBLEM_STATUS_UNAVAILABLE, NS_ERR_OUT_OF_HOST_MEMORY,
+                                           "out of memory");
+            return NS_ERR_OUT_OF_HOST_MEMORY;
         }
+        /* As a scene's: a duplicate key, a number that overflows or nesting too deep is an
+         * invalid sweep at the field's pointer (422), anything else a syntax error (400). */
+        scene_issues *issues = calloc(1, sizeof *issues);
+        if (issues)
+            scene_json_load_error(body ? body : "", size, &jerr, issues);
+        if (issues && !issues->syntax_error && issues->count) {
+            *problem = sweep_problem(PROBLEM_INVALID_SWEEP, issues->items[0].pointer, "%s%s%s",
+                                     issues->items[0].pointer,
+                                     issues->items[0].pointer[0] ? ": " : "",
+                                     issues->items[0].detail);
+        } else {
+            *problem = sweep_problem(PROBLEM_MALFORMED_JSON, "",
+                                     "JSON syntax error at line %d, column %d: %s", jerr.line,
+                                     jerr.column, jerr.text);
+            if (*problem) {
+                json_object_set_new(*problem, "line", json_integer(jerr.line));
+                json_object_set_new(*problem, "column", json_integer(jerr.column));
+            }
+        }
+        free(issues);
         return NS_ERR_INVALID_ARGUMENT;
     }
     sweep *sw = calloc(1, sizeof *sw);

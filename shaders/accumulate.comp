@@ -38,11 +38,13 @@
 
 layout(local_size_x = NS_ACCUMULATE_GROUP) in;
 
-layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams params; };
+layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams ns_params[1]; };
+#define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 layout(std430, binding = 1) readonly buffer JBlock { float j[]; };
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuAccumulatePush push; };
+layout(push_constant) uniform PushBlock { GpuAccumulatePush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO]
 
 #include "common.glsl"
 const float ANGLE_STEP = PI / float(NS_TABLE_NTHETA); // theta and phi bins: 10 degrees

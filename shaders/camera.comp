@@ -19,7 +19,8 @@ layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
 layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
 layout(std430, binding = 6) writeonly buffer SegmentBlock { GpuSegment segments[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuSamplePush push; };
+layout(push_constant) uniform PushBlock { GpuSamplePush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #define NS_COMMON_TRACE
 #define NS_COMMON_LIGHTS

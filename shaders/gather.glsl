@@ -26,7 +26,8 @@
 
 layout(local_size_x = NS_GATHER_GROUP) in;
 
-layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams params; };
+layout(std140, binding = 0) uniform ParamBlock { GpuGatherParams ns_params[1]; };
+#define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 layout(std430, binding = 1) readonly buffer SegmentBlock { GpuSegment segments[]; };
 layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
 // GpuVrl read as three vec4 (origin + length, direction + material, power + events), as in
@@ -36,7 +37,8 @@ layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
 layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
 layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuGatherPush push; };
+layout(push_constant) uniform PushBlock { GpuGatherPush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO]
 
 #include "common.glsl"
 

@@ -16,7 +16,8 @@
 
 layout(local_size_x = NS_NN_GROUP) in;
 
-layout(std140, binding = 0) uniform NnBlock { GpuNnParams P; };
+layout(std140, binding = 0) uniform NnBlock { GpuNnParams ns_nn[1]; };
+#define P ns_nn[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 layout(std430, binding = 1) writeonly buffer OutBlock { float outv[]; };
 layout(std430, binding = 2) readonly buffer NodeBlock { float node_t[]; };
 

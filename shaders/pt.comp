@@ -36,7 +36,8 @@ layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
 layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
 layout(std430, binding = 6) buffer CounterBlock { uint counters[]; };
 layout(std430, binding = 7) buffer PathBlock { GpuPtPath paths[]; };
-layout(push_constant) uniform PushBlock { GpuPtPush push; };
+layout(push_constant) uniform PushBlock { GpuPtPush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #define NS_COMMON_TRACE
 #define NS_COMMON_LIGHTS

@@ -22,6 +22,15 @@ typedef uint32_t ns_uvec4[4];
 #define ns_uint uint
 #define ns_uvec4 uvec4
 #define NS_CONST(type, name, value) const type name = value
+/* Zero, in a form no compiler can see through. Every uniform and push-constant block is
+ * declared as an array of one and read at index NS_OPAQUE_ZERO (`#define params
+ * ns_params[NS_OPAQUE_ZERO]`), so that no load from it has a constant offset. Mesa 22.3's
+ * lavapipe (Debian 12's) "inlines uniforms": a compute shader with an `if` or a loop bound on
+ * a value loaded at a constant offset is compiled again, with those values as constants, at
+ * every bind of its pipeline, and the compiled variant is never freed: about 2 MiB of
+ * process memory for every render, without end (tests/http_load.py found it; docs/http.md,
+ * "Load and soak"). Same values, same pixels; the one extra integer compare is free. */
+#define NS_OPAQUE_ZERO uint(gl_NumWorkGroups.x == 0u)
 #endif
 
 /* Workgroup shape of the camera pass (one invocation per pixel) and of the BVH test. */
@@ -43,6 +52,7 @@ NS_CONST(uint, NS_PRIM_SPHERE, 0);
 NS_CONST(uint, NS_PRIM_BOX, 1);
 NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
 NS_CONST(uint, NS_PRIM_PLANE, 3);
+NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w */
 
 /* Light kinds in GpuLight.info.x (same values as ns_light_type). */
 NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);
@@ -119,7 +129,8 @@ struct GpuNode {
 
 /* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
  * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
- * info = kind, material index, object index, unused. */
+ * info = kind, material index, object index, flags (NS_PRIM_SMOOTH: a triangle whose a.w,
+ * b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16 bits; scene_gpu.c). */
 struct GpuPrim {
     ns_vec4 a;
     ns_vec4 b;

@@ -36,7 +36,8 @@ layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 // one dispatch, which render/single.c uses to size the next dispatches.
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 // GpuSinglePush (shared.h): which samples this dispatch takes.
-layout(push_constant) uniform PushBlock { GpuSinglePush push; };
+layout(push_constant) uniform PushBlock { GpuSinglePush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #define NS_COMMON_TRACE
 #include "common.glsl"

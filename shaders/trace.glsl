@@ -2,7 +2,8 @@
 // camera pass and the BVH test shader. Needs shared.h included first. Declares bindings
 // 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives).
 
-layout(std140, binding = 0) uniform ParamsBlock { GpuParams params; };
+layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
+#define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 layout(std430, binding = 1) readonly buffer NodeBlock { GpuNode nodes[]; };
 layout(std430, binding = 2) readonly buffer PrimBlock { GpuPrim prims[]; };
 
@@ -20,8 +21,9 @@ bool out_of_budget()
 struct Hit {
     float t;
     uint prim;     // index into prims[]
-    vec3 normal;   // outward geometric normal at the hit (unit)
-    bool front;    // the ray arrived from the outside (against the outward normal)
+    vec3 normal;   // outward normal at the hit (unit): the shading normal of a smooth
+                   // triangle where it is consistent with the geometry, else the geometric one
+    bool front;    // the ray arrived from the outside (against the outward geometric normal)
 };
 
 // Nearest sphere root in (tmin, tmax), or -1. d is unit length. The discriminant is taken
@@ -129,6 +131,46 @@ vec3 outward_normal(uint i, vec3 pos)
     return p.b.xyz;
 }
 
+// A unit normal stored by scene_gpu.c's store_normal (octahedral, 2 x 16 bits).
+vec3 decode_normal(float stored)
+{
+    vec2 e = unpackSnorm2x16(floatBitsToUint(stored));
+    vec3 v = vec3(e, 1.0 - abs(e.x) - abs(e.y));
+    if (v.z < 0.0)
+        v.xy = (1.0 - abs(v.yx)) * vec2(v.x >= 0.0 ? 1.0 : -1.0, v.y >= 0.0 ? 1.0 : -1.0);
+    return normalize(v);
+}
+
+// The shading normal of smooth triangle p at pos: its vertex normals blended by the
+// barycentric coordinates of pos.
+vec3 blended_normal(GpuPrim p, vec3 pos)
+{
+    vec3 e1 = p.b.xyz - p.a.xyz, e2 = p.c.xyz - p.a.xyz, q = pos - p.a.xyz;
+    vec3 n = cross(e1, e2);
+    float inv = 1.0 / dot(n, n);
+    float wb = dot(cross(q, e2), n) * inv, wc = dot(cross(e1, q), n) * inv;
+    vec3 s = (1.0 - wb - wc) * decode_normal(p.a.w) + wb * decode_normal(p.b.w) +
+             wc * decode_normal(p.c.w);
+    float len = length(s);
+    return len > 1e-6 ? s / len : vec3(0.0);
+}
+
+// The normal a hit reports: a smooth triangle's blended normal, unless it would contradict
+// the geometry for this ray (Veach's shading-normal problem): it must face the ray as the
+// geometric normal does, and the mirror direction about it must leave on the ray's side of
+// the surface. Otherwise the geometric normal, as for a flat triangle.
+vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
+{
+    GpuPrim p = prims[i];
+    if (p.info.x != NS_PRIM_TRIANGLE || p.info.w != NS_PRIM_SMOOTH)
+        return geometric;
+    vec3 s = blended_normal(p, pos);
+    float side = dot(d, geometric) < 0.0 ? 1.0 : -1.0; // facing the ray: side * normal
+    bool faces_ray = dot(d, side * s) < 0.0;
+    bool mirror_stays_out = dot(reflect(d, side * s), side * geometric) > 0.0;
+    return faces_ray && mirror_stays_out ? s : geometric;
+}
+
 // Nearest hit in (tmin, tmax) over the BVH primitives and the planes.
 bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 {
@@ -185,7 +227,8 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     hit.front = true;
     if (best_prim == NS_NONE)
         return false;
-    hit.normal = outward_normal(best_prim, o + best * d);
-    hit.front = dot(d, hit.normal) < 0.0;
+    vec3 geometric = outward_normal(best_prim, o + best * d);
+    hit.front = dot(d, geometric) < 0.0;
+    hit.normal = hit_normal(best_prim, d, o + best * d, geometric);
     return true;
 }

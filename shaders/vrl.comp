@@ -31,7 +31,8 @@ layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
 layout(std430, binding = 5) readonly buffer StratumBlock { GpuVrlStratum strata[]; };
 layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuVrlPush push; };
+layout(push_constant) uniform PushBlock { GpuVrlPush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #include "common.glsl"
 

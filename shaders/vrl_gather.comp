@@ -46,7 +46,8 @@ Vrl load_vrl(uint k)
 }
 layout(std430, binding = 6) buffer ResultBlock { GpuVrlResult results[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuVrlGatherPush push; };
+layout(push_constant) uniform PushBlock { GpuVrlGatherPush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #include "common.glsl"
 

@@ -31,7 +31,8 @@ layout(std430, binding = 4) readonly buffer EmitterBlock { GpuVrlEmitter emitter
 layout(std430, binding = 5) buffer WalkBlock { GpuVrlWalk walks[]; };
 layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
-layout(push_constant) uniform PushBlock { GpuVrlTracePush push; };
+layout(push_constant) uniform PushBlock { GpuVrlTracePush ns_push[1]; };
+#define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
 #define NS_COMMON_TRACE
 #include "common.glsl"

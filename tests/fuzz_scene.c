@@ -1,41 +1,39 @@
-/* fuzz_scene.c — libFuzzer target for the scene parser and the glTF shim (built only with
- * -DNS_FUZZ=ON and clang; see docs/development.md or docs/scene.md):
- *
- *   CC=clang CXX=clang++ cmake -S . -B build-fuzz -DNS_FUZZ=ON -DNS_TESTS=OFF
- *   cmake --build build-fuzz --target fuzz_scene
- *   ./build-fuzz/fuzz_scene -max_total_time=60 -max_len=65536 build-fuzz/corpus scenes/
+/* fuzz_scene.c — libFuzzer target for the scene parser (io/scene_json.h), meshes included
+ * (inline glTF as data: URIs, named assets of scenes/assets/, generated shapes). Built only
+ * with -DNS_FUZZ=ON and clang; run by scripts/fuzz.sh (docs/development.md, "Fuzzing").
+ * The glTF shim on its own is fuzz_gltf's.
  *
  * Any input must end in a scene or in issues, never in a crash, a leak or undefined
- * behaviour (the target is built with ASan and UBSan). */
+ * behaviour (the target is built with ASan and UBSan). The asset folder is the repository's
+ * scenes/assets, so that names that try to leave it ("../", "/etc/passwd") meet the real
+ * check; a service's limits are set, so that the limit paths are reached by small inputs. */
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
 
-#include "gltf_shim.h"
 #include "scene_json.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    static const scene_parse_options opts = {.asset_dir = NS_SOURCE_DIR "/scenes/assets",
+                                             .max_pixels = 1u << 20,
+                                             .max_spp = 4096,
+                                             .max_vrls = 1u << 16,
+                                             .max_triangles = 1u << 16};
     scene_doc *doc = NULL;
     scene_issues issues;
-    if (scene_parse((const char *)data, size, NULL, &doc, &issues) == 0) {
+    int rc = scene_parse((const char *)data, size, &opts, &doc, &issues);
+    if (rc == 0) {
         const ns_scene *s = scene_doc_scene(doc);
         /* A parsed scene must satisfy the contract the renderer relies on. */
         for (uint32_t i = 0; i < s->object_count; i++)
             if (s->objects[i].material >= s->material_count)
                 abort();
         scene_doc_free(doc);
-    } else if (doc != NULL || issues.count == 0) {
+    } else if (doc != NULL || (rc == NS_ERR_INVALID_ARGUMENT && issues.count == 0)) {
         abort();
     }
-    /* The same bytes as a glTF file, straight into the shim. */
-    float *positions = NULL;
-    size_t triangles = 0;
-    char err[256];
-    if (gltf_load(data, size, 1u << 16, &positions, &triangles, err, sizeof err) == 0 && triangles == 0)
-        abort();
-    free(positions);
     return 0;
 }

@@ -92,6 +92,52 @@ static unsigned char *glb_mesh(const float *pos, size_t vertex_count, const uint
     return glb;
 }
 
+/* One mesh with POSITION and, when normals is not NULL, NORMAL (normal_count elements, so a
+ * count that does not match can be written), u32 indices, on one node with node_fields. */
+static unsigned char *glb_mesh_shaded(const float *pos, size_t vertex_count, const float *normals,
+                                      size_t normal_count, const uint32_t *idx, size_t index_count,
+                                      const char *node_fields, size_t *out_len)
+{
+    size_t pos_bytes = vertex_count * 12, nrm_bytes = normals ? normal_count * 12 : 0;
+    size_t idx_bytes = index_count * 4, bin_len = pos_bytes + nrm_bytes + idx_bytes;
+    unsigned char *bin = calloc(1, bin_len + 4);
+    char *json = malloc(4096);
+    if (!bin || !json) {
+        free(bin);
+        free(json);
+        return NULL;
+    }
+    memcpy(bin, pos, pos_bytes);
+    if (normals)
+        memcpy(bin + pos_bytes, normals, nrm_bytes);
+    for (size_t i = 0; i < index_count; i++)
+        glb_put_u32(bin + pos_bytes + nrm_bytes + 4 * i, idx[i]);
+    char nrm_attr[32] = "", nrm_acc[128] = "", nrm_view[128] = "";
+    if (normals) {
+        snprintf(nrm_attr, sizeof nrm_attr, ",\"NORMAL\":2");
+        snprintf(nrm_acc, sizeof nrm_acc,
+                 ",{\"bufferView\":2,\"componentType\":5126,\"count\":%zu,\"type\":\"VEC3\"}",
+                 normal_count);
+        snprintf(nrm_view, sizeof nrm_view, ",{\"buffer\":0,\"byteOffset\":%zu,\"byteLength\":%zu}",
+                 pos_bytes, nrm_bytes);
+    }
+    snprintf(json, 4096,
+             "{\"asset\":{\"version\":\"2.0\"},\"scene\":0,\"scenes\":[{\"nodes\":[0]}],"
+             "\"nodes\":[{%s\"mesh\":0}],"
+             "\"meshes\":[{\"primitives\":[{\"attributes\":{\"POSITION\":0%s},\"indices\":1}]}],"
+             "\"accessors\":[{\"bufferView\":0,\"componentType\":5126,\"count\":%zu,\"type\":\"VEC3\"},"
+             "{\"bufferView\":1,\"componentType\":5125,\"count\":%zu,\"type\":\"SCALAR\"}%s],"
+             "\"bufferViews\":[{\"buffer\":0,\"byteOffset\":0,\"byteLength\":%zu},"
+             "{\"buffer\":0,\"byteOffset\":%zu,\"byteLength\":%zu}%s],"
+             "\"buffers\":[{\"byteLength\":%zu}]}",
+             node_fields ? node_fields : "", nrm_attr, vertex_count, index_count, nrm_acc, pos_bytes,
+             pos_bytes + nrm_bytes, idx_bytes, nrm_view, bin_len);
+    unsigned char *glb = glb_pack(json, bin, bin_len, out_len);
+    free(bin);
+    free(json);
+    return glb;
+}
+
 static char *base64_encode(const unsigned char *b, size_t n)
 {
     static const char alphabet[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";

@@ -190,7 +190,7 @@ static void cube_triangles(double h, ns_triangle tris[12])
 static void test_glass_box_and_cube_mesh(void)
 {
     const double ior = 1.5, h = 0.8, sigma_s[3] = {0, 0, 0}, sigma_a[3] = {0.1, 0.5, 2.0};
-    ns_triangle tris[12];
+    ns_triangle tris[12] = {0};
     cube_triangles(h, tris);
     for (int mesh = 0; mesh < 2; mesh++) {
         ns_material m = medium(sigma_s, sigma_a, ior);

@@ -127,7 +127,7 @@ static void test_unavailable_components(void)
 /* A sheet of `count` small triangles in front of the camera; NULL when out of memory. */
 static ns_triangle *triangle_sheet(uint64_t count)
 {
-    ns_triangle *tris = malloc(sizeof *tris * count);
+    ns_triangle *tris = calloc(count, sizeof *tris);
     for (uint64_t i = 0; tris && i < count; i++) {
         float x = (float)(i % 2048) * 0.01f, y = (float)(i / 2048) * 0.01f;
         set3(tris[i].v[0], x, y, -3);

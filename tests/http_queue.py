@@ -114,6 +114,14 @@ def test_no_device(t):
         p = problem(body)
         t.check(p.get("code") not in (None, "", "queue_full"), f"names the status: {p}")
         t.check(p.get("detail"), "explains why")
+        # Validation renders nothing: it answers without a device, as with one.
+        status, headers, body = srv.render(small_scene(8, 8), path="/v1/renders/validate")
+        t.equal(status, 204, "validate without a device: a good scene")
+        bad = small_scene(8, 8)
+        bad["camera"]["fov"] = 500
+        status, headers, body = srv.render(bad, path="/v1/renders/validate")
+        t.equal(status, 422, "validate without a device: a bad scene")
+        t.equal(problem(body).get("code"), "invalid_scene", "the render's problem")
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit (status {code}, own leaks "
                 f"{srv.own_leaks()[:2]})")

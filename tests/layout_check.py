@@ -12,6 +12,8 @@ top of CMakeLists.txt), read from the source tree itself:
        render  -> render, render/gpu, render/include, shaders
        shaders -> shaders, render/include
        tests   -> everything
+       bench   -> bench, io, offline, render (its internals, as the GPU tests), render/gpu,
+                  render/include, shaders: the benchmarks, never the cli or the server
      A quoted include is resolved the way the compiler does it: beside the including file
      first, then anywhere in the tree (every header name is unique, so the folder is known).
      A name found nowhere in the tree (a generated *_spv.h, a third-party header) is listed
@@ -19,6 +21,10 @@ top of CMakeLists.txt), read from the source tree itself:
   3. No include cycle between folders (render/gpu and render/include counting as folders of
      their own, so that a private render header included back from render/gpu is one).
   4. No "../" in any include: a header is found through its folder's include directory.
+  5. Every uniform and push-constant block of a shader (shaders/*.comp, *.glsl) declares its
+     member as an array of one, read at NS_OPAQUE_ZERO (shaders/shared.h): lavapipe 22.3
+     compiles a kernel again at every bind, and keeps every copy, when it reads such a block
+     at a constant offset (docs/rendering.md, "lavapipe's uniform inlining").
 
 Every violation is printed with its file and line; the exit status is 1 if there was any,
 or if the tree did not look like nscatter's source at all (a check that read nothing would
@@ -32,7 +38,7 @@ import sys
 # The folders whose includes are checked, finest first: a file belongs to the first one its
 # path lies in.
 UNITS = ["render/gpu", "render/include", "server/include", "cli", "server", "io", "offline",
-         "render", "shaders", "tests"]
+         "render", "shaders", "tests", "bench"]
 
 # What each layer (top-level folder, all of its subfolders) may include. None: anything.
 ALLOWED = {
@@ -43,12 +49,15 @@ ALLOWED = {
     "render": {"render", "render/gpu", "render/include", "shaders"},
     "shaders": {"shaders", "render/include"},
     "tests": None,
+    "bench": {"bench", "io", "offline", "render", "render/gpu", "render/include", "shaders"},
 }
 
 SOURCE_EXTENSIONS = (".c", ".h", ".cpp", ".cc", ".hpp", ".hh", ".comp", ".glsl", ".c.in",
                      ".h.in")
 INCLUDE = re.compile(r'^[ \t]*#[ \t]*include[ \t]*([<"])([^>"\n]*)[>"]', re.M)
 VULKAN_CALL = re.compile(r"\b(vk[A-Z]\w*)\s*\(")
+UNIFORM_BLOCK = re.compile(r"\buniform\s+(\w+)\s*\{([^}]*)\}")
+ARRAY_OF_ONE = re.compile(r"^\s*\w+\s+\w+\s*\[\s*1\s*\]\s*;\s*$")
 
 
 def strip(text):
@@ -209,6 +218,16 @@ def main():
                                  f"calls the Vulkan function {m.group(1)}(); only render/gpu/ "
                                  "may call Vulkan"))
 
+        if rel.endswith((".comp", ".glsl")):
+            for m in UNIFORM_BLOCK.finditer(bare):
+                members = [x for x in m.group(2).split(";") if x.strip()]
+                if len(members) != 1 or not ARRAY_OF_ONE.match(members[0] + ";"):
+                    problems.append((rel, line_of(bare, m.start()),
+                                     f"uniform block {m.group(1)} is not one member declared as "
+                                     "an array of one (read it at NS_OPAQUE_ZERO, shaders/shared.h"
+                                     "; lavapipe recompiles and keeps a kernel that reads a "
+                                     "block at a constant offset)"))
+
         for m in INCLUDE.finditer(code):
             include_count += 1
             line = line_of(code, m.start())
@@ -278,7 +297,7 @@ def main():
         print(f"{len(problems)} layout violation{'s' if len(problems) != 1 else ''}")
         return 1
     print("layout ok: Vulkan only in render/gpu/, every include within its folder's reach, "
-          "no cycle between folders, no relative include")
+          "no cycle between folders, no relative include, every shader block an array of one")
     return 0
 
 

@@ -1,7 +1,9 @@
 /* unit_gltf.c — the tinygltf shim: real GLB files built in memory, node transforms with
  * closed-form results, winding kept outward, and hostile input (truncation at every
  * length, random corruption, wrong modes, out-of-range indices) refused without a crash. */
+#include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "glb_build.h"
 #include "gltf_shim.h"
@@ -373,6 +375,88 @@ static void test_gltf_json_with_data_uri(void)
     free(b64);
 }
 
+/* Vertex normals: read, carried to world space by the inverse transpose of the node
+ * transform (a non-uniform scale bends them; a mirror keeps them outward), kept with their
+ * corner when mirroring swaps corners; absent NORMAL gives no normals; a NORMAL of the
+ * wrong count or a zero normal is refused. */
+static const float tetra_normals[12] = {-0.57735027f, -0.57735027f, -0.57735027f, 1, 0, 0,
+                                        0,            1,            0,            0, 0, 1};
+
+static void check_normals(const char *node_fields, const double scale[3])
+{
+    size_t len, count = 0;
+    unsigned char *glb = glb_mesh_shaded(tetra_positions, 4, tetra_normals, 4, tetra_indices, 12,
+                                         node_fields, &len);
+    float *pos = NULL, *nrm = NULL;
+    char err[256];
+    CHECK_INT(gltf_load_shaded(glb, len, 1000, &pos, &nrm, &count, err, sizeof err), 0);
+    CHECK_INT(count, 4);
+    CHECK(nrm != NULL);
+    for (size_t c = 0; nrm && pos && c < count * 3; c++) {
+        /* The source vertex of this corner: the one the scale maps onto its position. */
+        int found = -1;
+        for (int v = 0; v < 4; v++) {
+            int same = 1;
+            for (int a = 0; a < 3; a++)
+                same &= fabs(tetra_positions[v * 3 + a] * scale[a] - pos[c * 3 + a]) < 1e-6;
+            if (same)
+                found = v;
+        }
+        CHECK(found >= 0);
+        if (found < 0)
+            continue;
+        double want[3], len2 = 0;
+        for (int a = 0; a < 3; a++) {
+            want[a] = tetra_normals[found * 3 + a] / scale[a]; /* diag(s)^-T n */
+            len2 += want[a] * want[a];
+        }
+        for (int a = 0; a < 3; a++)
+            CHECK_NEAR(nrm[c * 3 + a], want[a] / sqrt(len2), 1e-6);
+    }
+    free(pos);
+    free(nrm);
+    free(glb);
+}
+
+static void test_vertex_normals(void)
+{
+    check_normals(NULL, (const double[3]){1, 1, 1});
+    check_normals("\"scale\":[2,1,0.5],", (const double[3]){2, 1, 0.5});
+    check_normals("\"scale\":[-1,1,1],", (const double[3]){-1, 1, 1});
+
+    size_t len, count;
+    float *pos = NULL, *nrm = (float *)1;
+    char err[256];
+    /* No NORMAL: no normals, and the positions as gltf_load gives them. */
+    unsigned char *glb = glb_mesh_shaded(tetra_positions, 4, NULL, 0, tetra_indices, 12, NULL, &len);
+    CHECK_INT(gltf_load_shaded(glb, len, 1000, &pos, &nrm, &count, err, sizeof err), 0);
+    CHECK(nrm == NULL);
+    CHECK_INT(count, 4);
+    free(pos);
+    free(glb);
+    /* NORMAL present but not asked for: gltf_load reads the positions alone. */
+    glb = glb_mesh_shaded(tetra_positions, 4, tetra_normals, 4, tetra_indices, 12, NULL, &len);
+    CHECK_INT(gltf_load(glb, len, 1000, &pos, &count, err, sizeof err), 0);
+    free(pos);
+    free(glb);
+    /* A NORMAL of three elements for four vertices. */
+    glb = glb_mesh_shaded(tetra_positions, 4, tetra_normals, 3, tetra_indices, 12, NULL, &len);
+    CHECK_INT(gltf_load_shaded(glb, len, 1000, &pos, &nrm, &count, err, sizeof err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err, "NORMAL") != NULL);
+    CHECK(pos == NULL && nrm == NULL);
+    free(glb);
+    /* A zero normal. */
+    float zero[12];
+    memcpy(zero, tetra_normals, sizeof zero);
+    zero[3] = 0.0f;
+    glb = glb_mesh_shaded(tetra_positions, 4, zero, 4, tetra_indices, 12, NULL, &len);
+    CHECK_INT(gltf_load_shaded(glb, len, 1000, &pos, &nrm, &count, err, sizeof err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err, "NORMAL of vertex 1") != NULL);
+    free(glb);
+}
+
 int main(void)
 {
     RUN(test_indexed_tetrahedron);
@@ -390,5 +474,6 @@ int main(void)
     RUN(test_random_corruption);
     RUN(test_garbage);
     RUN(test_gltf_json_with_data_uri);
+    RUN(test_vertex_normals);
     return harness_report();
 }

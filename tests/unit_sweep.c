@@ -254,7 +254,14 @@ static void test_refused_bodies(void)
         {"{\"scene\": " SCENE ", \"variants\": [{}], \"colour\": 1}", "invalid_sweep", "/colour"},
         {"{\"scene\": " SCENE ", \"variants\": [{\"/materials/wax/g\": 0.1, "
          "\"/materials/wax/g\": 0.2}]}",
-         "malformed_json", ""},
+         "invalid_sweep", "/variants/0/~1materials~1wax~1g"},
+        /* Valid grammar, invalid sweep, as in a scene: at the field's pointer (422). */
+        {"{\"scene\": " SCENE ", \"scene\": " SCENE ", \"variants\": [{}]}", "invalid_sweep",
+         "/scene"},
+        {"{\"scene\": " SCENE ", \"variants\": [{\"/materials/wax/g\": 1e400}]}",
+         "invalid_sweep", "/variants/0/~1materials~1wax~1g"},
+        {"{\"scene\": " SCENE ", \"grid\": {\"/materials/wax/g\": [0.1, -1e999]}}",
+         "invalid_sweep", "/grid/~1materials~1wax~1g/1"},
         {"{\"scene\": " SCENE ", \"variants\": [{\"/materials~2/g\": 0.1}]}", "invalid_sweep",
          "/variants/0/~1materials~02~1g"},
     };

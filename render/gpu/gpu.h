@@ -34,6 +34,7 @@ typedef struct gpu_device {
     VkDevice device;
     VkQueue queue;
     uint32_t queue_family;
+    uint32_t timestamp_bits; /* the queue family's timestampValidBits: 0 = no timestamps */
     VkCommandPool command_pool;
     VkPipelineCache pipeline_cache;
     VkPhysicalDeviceProperties properties;
@@ -164,6 +165,10 @@ typedef struct gpu_dispatch_desc {
     uint32_t groups[3];
     const void *push;
     uint32_t dispatch_count; /* 0 means 1 */
+    /* Not NULL: set to the device time in ms from before the first dispatch to after the
+     * last, read from two timestamp queries around them (benchmarks: bench/rays.c), or to
+     * -1 where the queue has no timestamps. NULL (every render): no queries. */
+    double *device_ms;
 } gpu_dispatch_desc;
 
 int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *err);

@@ -242,7 +242,8 @@ static int is_decimal(const char *s)
     return 1;
 }
 
-static int compute_queue_family(VkPhysicalDevice physical, uint32_t *family)
+static int compute_queue_family(VkPhysicalDevice physical, uint32_t *family,
+                                uint32_t *timestamp_bits)
 {
     uint32_t count = 0;
     vkGetPhysicalDeviceQueueFamilyProperties(physical, &count, NULL);
@@ -253,6 +254,8 @@ static int compute_queue_family(VkPhysicalDevice physical, uint32_t *family)
     for (uint32_t i = 0; i < count; i++) {
         if (families[i].queueFlags & VK_QUEUE_COMPUTE_BIT) {
             *family = i;
+            if (timestamp_bits)
+                *timestamp_bits = families[i].timestampValidBits;
             return 1;
         }
     }
@@ -279,7 +282,7 @@ static int usable(VkPhysicalDevice physical)
     VkPhysicalDeviceProperties props;
     vkGetPhysicalDeviceProperties(physical, &props);
     uint32_t family;
-    return props.apiVersion >= VK_API_VERSION_1_1 && compute_queue_family(physical, &family) &&
+    return props.apiVersion >= VK_API_VERSION_1_1 && compute_queue_family(physical, &family, NULL) &&
            compute_subgroup_size(physical) > 0;
 }
 
@@ -330,7 +333,7 @@ static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err
                        "ballots in compute shaders among %u device(s)",
                        count);
     dev->physical = devices[chosen];
-    compute_queue_family(dev->physical, &dev->queue_family);
+    compute_queue_family(dev->physical, &dev->queue_family, &dev->timestamp_bits);
     vkGetPhysicalDeviceProperties(dev->physical, &dev->properties);
     vkGetPhysicalDeviceMemoryProperties(dev->physical, &dev->memory);
     return NS_OK;

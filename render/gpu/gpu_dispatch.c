@@ -9,6 +9,7 @@ typedef struct dispatch_objects {
     VkDescriptorPool pool;
     VkCommandBuffer cmd;
     VkFence fence;
+    VkQueryPool timestamps; /* two, around the dispatches, when the caller asks for the time */
 } dispatch_objects;
 
 static void destroy_objects(gpu_device *dev, dispatch_objects *o)
@@ -19,6 +20,45 @@ static void destroy_objects(gpu_device *dev, dispatch_objects *o)
         vkFreeCommandBuffers(dev->device, dev->command_pool, 1, &o->cmd);
     if (o->pool)
         vkDestroyDescriptorPool(dev->device, o->pool, NULL); /* frees its sets */
+    if (o->timestamps)
+        vkDestroyQueryPool(dev->device, o->timestamps, NULL);
+}
+
+/* The two timestamps' query pool, made only when the caller asks for the device time and
+ * the queue has timestamps. */
+static int make_timestamps(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o,
+                           ns_error *err)
+{
+    if (!desc->device_ms || !dev->timestamp_bits)
+        return NS_OK;
+    VkQueryPoolCreateInfo info = {
+        .sType = VK_STRUCTURE_TYPE_QUERY_POOL_CREATE_INFO,
+        .queryType = VK_QUERY_TYPE_TIMESTAMP,
+        .queryCount = 2,
+    };
+    return gpu_check(vkCreateQueryPool(dev->device, &info, NULL, &o->timestamps),
+                     "vkCreateQueryPool", err);
+}
+
+/* After the fence: the device time between the two timestamps, in ms. */
+static int read_timestamps(gpu_device *dev, const dispatch_objects *o, double *device_ms,
+                           ns_error *err)
+{
+    if (!o->timestamps) {
+        *device_ms = -1.0;
+        return NS_OK;
+    }
+    uint64_t ticks[2] = {0, 0};
+    int status = gpu_check(vkGetQueryPoolResults(dev->device, o->timestamps, 0, 2, sizeof ticks,
+                                                 ticks, sizeof ticks[0],
+                                                 VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT),
+                           "vkGetQueryPoolResults", err);
+    if (status)
+        return status;
+    uint64_t mask = dev->timestamp_bits >= 64 ? ~0ull : (1ull << dev->timestamp_bits) - 1;
+    uint64_t elapsed = ((ticks[1] & mask) - (ticks[0] & mask)) & mask;
+    *device_ms = (double)elapsed * dev->properties.limits.timestampPeriod * 1e-6;
+    return NS_OK;
 }
 
 static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o,
@@ -91,6 +131,10 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
     vkCmdBindPipeline(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->pipeline);
     vkCmdBindDescriptorSets(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->layout, 0, 1, &set, 0,
                             NULL);
+    if (o->timestamps) {
+        vkCmdResetQueryPool(o->cmd, o->timestamps, 0, 2);
+        vkCmdWriteTimestamp(o->cmd, VK_PIPELINE_STAGE_TOP_OF_PIPE_BIT, o->timestamps, 0);
+    }
     /* Dispatches that follow one another read what the previous one wrote. */
     VkMemoryBarrier between = {
         .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
@@ -108,6 +152,8 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
                                (const uint8_t *)desc->push + (size_t)i * pipe->push_constant_size);
         vkCmdDispatch(o->cmd, desc->groups[0], desc->groups[1], desc->groups[2]);
     }
+    if (o->timestamps)
+        vkCmdWriteTimestamp(o->cmd, VK_PIPELINE_STAGE_BOTTOM_OF_PIPE_BIT, o->timestamps, 1);
     /* Make the shader's writes visible to the host reads that follow the fence. */
     VkMemoryBarrier barrier = {
         .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
@@ -171,6 +217,8 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
     VkDescriptorSet set = VK_NULL_HANDLE;
     status = write_descriptors(dev, pipe, &o, buffers, &set, err);
     if (!status)
+        status = make_timestamps(dev, desc, &o, err);
+    if (!status)
         status = record(dev, desc, &o, set, err);
     VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     if (!status)
@@ -189,6 +237,8 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
         if (!status)
             status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),
                                "vkWaitForFences", err);
+        if (!status && desc->device_ms)
+            status = read_timestamps(dev, &o, desc->device_ms, err);
     }
     destroy_objects(dev, &o);
     if (!status)

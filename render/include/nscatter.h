@@ -128,7 +128,23 @@ typedef struct ns_object {
 
 typedef struct ns_triangle {
     float v[3][3]; /* world-space vertices, counter-clockwise seen from outside */
+    /* Shading normals at the vertices (unit, outward), blended across the triangle for
+     * shading, reflection and refraction: a smooth mesh. All nine zero: flat, the geometric
+     * normal everywhere. Where the blended normal faces away from the ray while the
+     * geometric one faces it, or would mirror the ray into the surface, the geometric normal
+     * is used (docs/rendering.md, "Smooth meshes"). */
+    float n[3][3];
 } ns_triangle;
+
+/* 1 when the triangle carries shading normals (any component not zero). */
+static inline int ns_triangle_is_smooth(const ns_triangle *t)
+{
+    for (int v = 0; v < 3; v++)
+        for (int k = 0; k < 3; k++)
+            if (t->n[v][k] != 0.0f)
+                return 1;
+    return 0;
+}
 
 typedef enum {
     NS_LIGHT_DIRECTIONAL = 0,

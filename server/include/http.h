@@ -8,6 +8,9 @@
 #define HTTP_DEFAULT_MAX_BODY (64ull * 1024 * 1024)
 #define HTTP_DEFAULT_QUEUE 4u
 #define HTTP_DEFAULT_SSE_KEEPALIVE_S 15u
+#define HTTP_DEFAULT_REQUEST_TIMEOUT_S 30u
+#define HTTP_DEFAULT_IDLE_TIMEOUT_S 60u
+#define HTTP_DEFAULT_MAX_CONNECTIONS 512u
 
 /* Zero means "default" in every field but port (0 picks a free port). */
 typedef struct http_serve_desc {
@@ -26,11 +29,35 @@ typedef struct http_serve_desc {
     const char *instance;     /* 1-16 of [a-z0-9]: the prefix of job ids; NULL: none */
     /* Limits of a render below the hard ones (docs/http.md); 0: the hard one. */
     uint32_t max_pixels, max_spp, max_vrls, max_triangles;
+    /* Slow and idle clients (docs/http.md, "Slow and idle clients"); 0: the default. */
+    uint32_t request_timeout_s; /* a request's headers and body must arrive within it: 30 */
+    uint32_t idle_timeout_s;    /* a connection silent this long is closed: 60 */
+    uint32_t max_connections;   /* open at once (one thread each): 512 */
+    /* 1: make no render context (no Vulkan at all): the service answers as it does when its
+     * device could not be made (/readyz, renders and sweeps 503 no_device; validation, info
+     * and the rest as usual). For the HTTP fuzz target (tests/fuzz_http.c), which needs the
+     * request path, not a device. */
+    int no_device;
 } http_serve_desc;
 
 /* Makes the render context, opens the socket, prints `listening on http://HOST:PORT` on
  * stdout and serves until SIGINT or SIGTERM, then drains admitted renders and returns the
- * process exit status: 0 stopped cleanly, 1 could not listen, 2 bad host. */
+ * process exit status: 0 stopped cleanly, 1 could not listen, 2 bad host. It is
+ * http_start, a wait for a stop signal, and http_stop. */
 int http_serve(const http_serve_desc *desc);
+
+/* The same service for a program that serves in-process (tests/fuzz_http.c): no signal
+ * handling, no output but errors on stderr. http_start makes the context and starts
+ * listening on *port (the bound one when desc->port is 0); returns 0 and *svc, or the
+ * status http_serve would exit with. http_stop drains as http_serve does after a signal and
+ * frees everything. The caller ignores SIGPIPE (a client that disconnects must not kill
+ * the process). */
+typedef struct http_service http_service;
+int http_start(const http_serve_desc *desc, http_service **svc, unsigned *port);
+void http_stop(http_service *svc);
+/* Connections open now, counted until each is closed and its request's memory freed (the
+ * fuzz target waits for 0 between inputs, so that one input's work never runs into the
+ * next's). */
+unsigned http_connections(const http_service *svc);
 
 #endif
