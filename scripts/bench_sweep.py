@@ -104,6 +104,9 @@ def main():
         one_ior = {f"{base}/albedo": albedos, f"{base}/g": gs, f"{base}/ior": [1.3]}
         camera_sweep, camera_wall = run_sweep(host, port, one_ior)
         camera_kept = [variant_ms(v) for v in camera_sweep["variants"] if "camera" in v["reused"]]
+        # What keeping the camera pass saves: the ray_pass stage of the variants that traced.
+        ray_pass = [v["timings_ms"]["ray_pass"] for v in sweep["variants"]
+                    if "ray_pass" in v["timings_ms"]]
         proc.terminate()
         proc.wait(timeout=60)
         proc, host, port = start(args.bin)
@@ -134,12 +137,14 @@ def main():
     print(f"albedo x g sweep at ior 1.3, {len(camera_sweep['variants'])} variants, state "
           f"{camera_sweep['state']}, wall {camera_wall:.1f} s")
     print(f"  new material, camera pass kept: median {med(camera_kept):8.0f} ms  "
-          f"({len(camera_kept)} variants)")
+          f"({len(camera_kept)} variants; the camera pass, where traced: median "
+          f"{med(ray_pass):.0f} ms)")
     print(f"{n * n} independent synchronous renders (ior 1.3): median {med(independent):8.0f} ms,"
           f" wall {independent_wall:.1f} s")
     print(json.dumps({"size": args.size, "variants": len(sweep["variants"]),
                       "first_ms": med(first), "repeat_ms": med(repeat),
                       "camera_kept_ms": med(camera_kept), "camera_kept_variants": len(camera_kept),
+                      "ray_pass_ms": med(ray_pass),
                       "camera_sweep_wall_s": camera_wall,
                       "independent_ms": med(independent), "sweep_wall_s": sweep_wall,
                       "independent_wall_s": independent_wall}))
