@@ -163,13 +163,21 @@ def test_full_queue_before_the_body(t):
 
 def test_stop_signal(t):
     """SIGTERM: /readyz and new renders answer 503 at once on a kept-alive connection, the
-    render admitted before is still answered, and the process exits 0."""
+    asynchronous job running at that moment is cancelled at its next submission (its result
+    would die with the process) rather than waited for, the synchronous render admitted
+    behind it is still rendered and answered, and the process exits 0 long before the
+    cancelled job would have finished."""
     with Server() as srv:
         rate = PtRate(srv)
+        long_scene, long_expected = rate.scene(60)
         scene, expected = rate.scene(6)
         keep = srv.connection()
         keep.request("GET", "/livez")
         t.equal(keep.getresponse().read() and 200, 200, "a kept-alive connection")
+        status, _, job, _ = post_async(srv, long_scene)
+        if not t.equal(status, 202, "a long asynchronous job"):
+            return
+        wait_state(srv, job_path(job["id"]), ("running",), 30)
         answer = {}
 
         def render():
@@ -179,9 +187,10 @@ def test_stop_signal(t):
         worker.start()
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
-            if json.loads(srv.request("GET", "/v1/info")[2]).get("queue_length") == 1:
+            if json.loads(srv.request("GET", "/v1/info")[2]).get("queue_length") == 2:
                 break
             time.sleep(0.05)
+        signalled = time.monotonic()
         srv.proc.send_signal(signal.SIGTERM)
         time.sleep(0.3)
         keep.request("GET", "/readyz")
@@ -189,6 +198,18 @@ def test_stop_signal(t):
         body = resp.read()
         t.equal((resp.status, problem(body).get("code")), (503, "shutting_down"),
                 "/readyz: 503 once stopping")
+        # The running asynchronous job: cancelled, not waited for.
+        state = None
+        until = time.monotonic() + 15
+        while time.monotonic() < until:
+            keep.request("GET", job_path(job["id"]))
+            resp = keep.getresponse()
+            state = json.loads(resp.read() or b"{}").get("state")
+            if state in ("cancelled", "done", "failed"):
+                break
+            time.sleep(0.1)
+        t.equal(state, "cancelled", "the running asynchronous job is cancelled by the stop")
+        # Last: the refusal closes the connection (the body is not read).
         keep.request("POST", "/v1/renders", json.dumps(small_scene(8, 8)),
                      {"Content-Type": "application/json"})
         resp = keep.getresponse()
@@ -198,9 +219,12 @@ def test_stop_signal(t):
         t.check(resp.getheader("Retry-After"), "with Retry-After")
         keep.close()
         worker.join(120 + 10 * expected)
-        t.equal(answer.get("status"), 200, "the admitted render is answered")
+        t.equal(answer.get("status"), 200, "the admitted synchronous render is answered")
         code = srv.proc.wait(60)
         t.equal(code, 0, "exit 0")
+        took = time.monotonic() - signalled
+        t.check(took < long_expected / 2,
+                f"exit {took:.1f} s after SIGTERM, not after the ~{long_expected:.0f} s job")
 
 
 def test_deadline(t):
