@@ -11,20 +11,16 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "fuzz_options.h"
 #include "scene_json.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    static const scene_parse_options opts = {.asset_dir = NS_SOURCE_DIR "/scenes/assets",
-                                             .max_pixels = 1u << 20,
-                                             .max_spp = 4096,
-                                             .max_vrls = 1u << 16,
-                                             .max_triangles = 1u << 16};
     scene_doc *doc = NULL;
     scene_issues issues;
-    int rc = scene_parse((const char *)data, size, &opts, &doc, &issues);
+    int rc = scene_parse((const char *)data, size, &fuzz_parse_options, &doc, &issues);
     if (rc == 0) {
         const ns_scene *s = scene_doc_scene(doc);
         /* A parsed scene must satisfy the contract the renderer relies on. */

@@ -14,22 +14,16 @@
 
 #include <jansson.h>
 
+#include "fuzz_options.h"
 #include "sweep.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    /* As fuzz_scene: the repository's asset folder, and service limits so that small inputs
-     * reach the limit paths of variants. */
-    static const scene_parse_options opts = {.asset_dir = NS_SOURCE_DIR "/scenes/assets",
-                                             .max_pixels = 1u << 20,
-                                             .max_spp = 4096,
-                                             .max_vrls = 1u << 16,
-                                             .max_triangles = 1u << 16};
     sweep *sw = NULL;
     json_t *problem = NULL;
-    int rc = sweep_parse((const char *)data, size, &opts, &sw, &problem);
+    int rc = sweep_parse((const char *)data, size, &fuzz_parse_options, &sw, &problem);
     if (rc) {
         json_int_t status = json_integer_value(json_object_get(problem, "status"));
         if (sw || !problem || !(status == 400 || status == 422 || status == 503))

@@ -26,7 +26,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from nstest_http import (PNG_SIGNATURE, Checks, Server, parse_raw_response,  # noqa: E402
-                         small_scene)
+                         response_complete, small_scene)
 
 MAX_BODY = 1 << 20          # --max-body: small, so over-limit bodies stay cheap to send
 REQUEST_TIMEOUT_S = 3       # --request-timeout: how long a request may take to arrive
@@ -147,7 +147,7 @@ def read_answer(s, read_timeout):
         try:
             chunk = s.recv(65536)
         except socket.timeout:
-            if complete(out):
+            if response_complete(out):
                 break
             continue
         except (ConnectionResetError, BrokenPipeError):
@@ -157,7 +157,7 @@ def read_answer(s, read_timeout):
             closed = True
             break
         out += chunk
-        if complete(out):
+        if response_complete(out):
             # Whether the server closes after it: look a little longer.
             try:
                 s.settimeout(0.3)
@@ -172,17 +172,6 @@ def read_answer(s, read_timeout):
     status, headers, body = parse_raw_response(out)
     headers["_closed"] = closed
     return status, headers, body
-
-
-def complete(data):
-    head, sep, body = data.partition(b"\r\n\r\n")
-    if not sep:
-        return False
-    for line in head.split(b"\r\n")[1:]:
-        name, _, value = line.partition(b":")
-        if name.strip().lower() == b"content-length":
-            return len(body) >= int(value.strip())
-    return False
 
 
 def slow(srv, data, per_byte_s=1.0, give_up_s=30):
@@ -205,7 +194,7 @@ def slow(srv, data, per_byte_s=1.0, give_up_s=30):
                 if not chunk:
                     break
                 got += chunk
-                if complete(got):
+                if response_complete(got):
                     break
             except socket.timeout:
                 continue
@@ -563,7 +552,7 @@ def test_slow_body(t, srv):
                 continue
             got = chunk
             s.settimeout(2)
-            while not complete(got):
+            while not response_complete(got):
                 more = s.recv(65536)
                 if not more:
                     break
