@@ -834,6 +834,23 @@ static double angle_to_radial(const ns_triangle *t, int c)
     return angle_between(p, t->n[c]);
 }
 
+/* How many of s's triangles carry normals, and the worst angle between a corner's normal
+ * and the radial direction, over corners with |y| < max_y (the UV sphere's normal). */
+static int radial_error(const ns_scene *s, double max_y, double *worst)
+{
+    int smooth = 0;
+    *worst = 0;
+    for (uint32_t t = 0; t < s->triangle_count; t++) {
+        if (!ns_triangle_is_smooth(&s->triangles[t]))
+            continue;
+        smooth++;
+        for (int c = 0; c < 3; c++)
+            if (fabs(s->triangles[t].v[c][1]) < max_y)
+                *worst = fmax(*worst, angle_to_radial(&s->triangles[t], c));
+    }
+    return smooth;
+}
+
 /* "normals": auto takes NORMAL, flat drops it, smooth generates where the file has none
  * (a UV sphere within a degree and a half of its analytic normals; a cube's edges stay sharp
  * at the 60-degree crease), a transform's scale bends them as the inverse transpose does,
@@ -851,13 +868,8 @@ static void test_mesh_normals(void)
         if (!doc)
             continue;
         const ns_scene *s = scene_doc_scene(doc);
-        double worst = 0;
-        int smooth = 0;
-        for (uint32_t t = 0; t < s->triangle_count; t++) {
-            smooth += ns_triangle_is_smooth(&s->triangles[t]);
-            for (int c = 0; c < 3 && ns_triangle_is_smooth(&s->triangles[t]); c++)
-                worst = fmax(worst, angle_to_radial(&s->triangles[t], c));
-        }
+        double worst;
+        int smooth = radial_error(s, 2.0, &worst);
         CHECK_INT(smooth, m == 3 ? 0 : (int)s->triangle_count);
         CHECK(worst < 1e-5); /* the file's normals, read back */
         scene_doc_free(doc);
@@ -883,30 +895,22 @@ static void test_mesh_normals(void)
 
     /* Without NORMAL: auto is flat, smooth generates. */
     unsigned char *without = uv_sphere_glb(16, 32, 0, &len);
+    const char *without_modes[] = {modes[0], modes[2], modes[3]}; /* default, smooth, flat */
     for (int m = 0; m < 3; m++) {
-        text = mesh_scene(without, len, modes[m == 2 ? 3 : m == 1 ? 2 : 0]);
+        text = mesh_scene(without, len, without_modes[m]);
         doc = parse_ok(text, NULL);
         free(text);
         if (!doc)
             continue;
         const ns_scene *s = scene_doc_scene(doc);
-        int smooth = 0;
-        double worst = 0;
-        for (uint32_t t = 0; t < s->triangle_count; t++) {
-            smooth += ns_triangle_is_smooth(&s->triangles[t]);
-            for (int c = 0; c < 3 && ns_triangle_is_smooth(&s->triangles[t]); c++)
-                worst = fmax(worst, angle_to_radial(&s->triangles[t], c));
-        }
+        double worst, middle;
+        int smooth = radial_error(s, 2.0, &worst);
         CHECK_INT(smooth, m == 1 ? (int)s->triangle_count : 0);
         if (m == 1) {
             /* The generator's own error on this mesh (rings 11.25 degrees apart): next to a
              * pole the faces above and below a vertex differ in shape, so its weighted
              * normal leans a little there; elsewhere it is closer. */
-            double middle = 0;
-            for (uint32_t t = 0; t < s->triangle_count; t++)
-                for (int c = 0; c < 3; c++)
-                    if (fabs(s->triangles[t].v[c][1]) < 0.9)
-                        middle = fmax(middle, angle_to_radial(&s->triangles[t], c));
+            radial_error(s, 0.9, &middle);
             fprintf(stderr, "generated normals: worst %.3f degrees, %.3f degrees where |y| < 0.9\n",
                     worst * 180 / M_PI, middle * 180 / M_PI);
             CHECK(worst < 1.0 * M_PI / 180);
