@@ -1,5 +1,6 @@
 /* gpu_invalid_scene.c — ns_render never trusts its caller: out-of-range indices, NaN,
- * bad counts and unavailable components are refused with a message naming the field, and
+ * bad counts, shading normals that are not unit vectors and unavailable components are
+ * refused with a message naming the field, and
  * a failing render leaves no buffer behind (also on the path that fails after uploading). */
 #include "gpu_util.h"
 
@@ -149,6 +150,30 @@ static ns_scene mesh_scene(const ns_triangle *tris, uint32_t count)
     return s;
 }
 
+/* Shading normals must be unit vectors, or all nine zero (a flat triangle): a normal that is
+ * not a unit vector, or NaN, or one zero corner among given ones, is refused at its field. */
+static void test_bad_shading_normals(void)
+{
+    ns_triangle tri[1];
+    memset(tri, 0, sizeof tri);
+    set3(tri[0].v[0], -1, -1, 0);
+    set3(tri[0].v[1], 1, -1, 0);
+    set3(tri[0].v[2], 0, 1, 0);
+    ns_scene s = mesh_scene(tri, 1);
+    for (int c = 0; c < 3; c++)
+        set3(tri[0].n[c], 0, 0, 1);
+    ns_image img = {0};
+    if (render_ok(&s, &img, NULL)) /* unit normals: a smooth triangle renders */
+        ns_image_free(&img);
+    set3(tri[0].n[1], 0, 0, 2);
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "triangles[0].n[1]");
+    set3(tri[0].n[1], 0, 0, 0); /* one corner without a normal */
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "triangles[0].n[1]");
+    tri[0].n[2][0] = NAN;
+    set3(tri[0].n[1], 0, 0, 1);
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "triangles[0].n[2]");
+}
+
 /* The size gpu_buffer_create gives the scene buffer labelled `label` (rounded up to 16). */
 static uint64_t scene_buffer_bytes(const gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT],
                                    const char *label)
@@ -239,6 +264,7 @@ int main(void)
     RUN(test_infinite_light);
     RUN(test_bad_numbers);
     RUN(test_bad_counts_and_ranges);
+    RUN(test_bad_shading_normals);
     RUN(test_unavailable_components);
     RUN(test_failure_after_upload_frees_buffers);
     RUN(test_scene_beyond_the_device_limit);
