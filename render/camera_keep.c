@@ -31,7 +31,10 @@ static void append(unsigned char **at, const void *data, size_t bytes)
 }
 
 /* The signature: counts, params, nodes, primitives, materials with sigma_s (and g) cleared,
- * lights. */
+ * lights. Its cost is a copy and a compare of the scene buffers, 96 bytes a triangle (the
+ * bench bunny: 6.7 MB, a few milliseconds, against a render of seconds); nodes and
+ * primitives are also in the kept BVH, but that one compares geometry alone, without the
+ * materials' indices, so the camera keep holds its own copy rather than share it. */
 unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes)
 {
     size_t prims = gs->bvh_prim_count + gs->plane_count;
