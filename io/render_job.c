@@ -35,6 +35,7 @@ json_t *render_stats_counts_json(const ns_render_stats *stats)
         {"primitives", stats->primitives},
         {"vrl_paths", stats->vrl_paths},
         {"vrl_count", stats->vrl_count},
+        {"boundary_sources", stats->boundary_sources},
         {"gather_segments", stats->gather_segments},
         {"tiles_interpolated", stats->tiles_interpolated},
         {"interactions", stats->interactions},

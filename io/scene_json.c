@@ -1419,9 +1419,10 @@ static void parse_render(parser *p, const json_t *v)
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
                                        "gather_tolerance", "single_samples", "deadline_ms", "accumulation",
-                                       "vrl_beams", "cull_solid_angle", NULL};
+                                       "vrl_beams", "boundary", "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
     static const char *const beam_names[] = {"endless", "bounded"};
+    static const char *const boundary_names[] = {"off", "walks"};
     ns_render_settings *r = &p->render;
     /* An absent key is left 0, which the render library reads as its default (resolved at
      * the end). Not so for seed and gather_tolerance: 0 is a value of their own there, which
@@ -1482,6 +1483,18 @@ static void parse_render(parser *p, const json_t *v)
                 r->method != NS_METHOD_TABLE) {
                 size_t inner = push_key(p, "vrl_beams");
                 report(p, "vrl_beams \"bounded\" applies to methods \"nn\" and \"table\" only");
+                pop(p, inner);
+            }
+        }
+        int boundary;
+        if (json_object_get(v, "boundary") &&
+            field_enum(p, v, "boundary", 0, boundary_names, 2, "boundary", &boundary)) {
+            r->boundary = (ns_boundary)boundary;
+            /* Like vrl_beams: only the table methods gather through tables. */
+            if (r->boundary != NS_BOUNDARY_OFF && method_ok && r->method != NS_METHOD_NN &&
+                r->method != NS_METHOD_TABLE) {
+                size_t inner = push_key(p, "boundary");
+                report(p, "boundary \"walks\" applies to methods \"nn\" and \"table\" only");
                 pop(p, inner);
             }
         }

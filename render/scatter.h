@@ -21,11 +21,16 @@
  * Tables (scatter_tables.c): the accumulated camera-side tables A of one material, for the
  * three channels, cached in the context (least recently used, bounded bytes).
  * ------------------------------------------------------------------------------------- */
+/* A table order beyond the components: the blurred first order of the boundary correction
+ * (boundary.h), for light that has left a source unscattered. */
+#define NS_TABLE_FIRST_BLURRED (1u << 16)
+
 typedef struct ns_table_key {
     ns_method source;     /* NS_METHOD_NN (network) or NS_METHOD_TABLE (Monte Carlo) */
     float g;              /* shared by the channels */
     float albedo[3];      /* per channel */
-    uint32_t orders;      /* NS_COMPONENT_DOUBLE and/or NS_COMPONENT_MULTIPLE (summed) */
+    uint32_t orders;      /* NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE and/or
+                             NS_TABLE_FIRST_BLURRED (summed) */
     ns_accumulation accumulation; /* exact: A to infinity; paper: A over 5 mfp */
 } ns_table_key;
 

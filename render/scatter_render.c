@@ -25,7 +25,9 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "boundary.h"
 #include "scatter.h"
+#include "vrl_method.h"
 #include "vrl_shared.h"
 
 /* Two pixels see "the same surface" when their first stretches are in the same medium and
@@ -354,9 +356,9 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
  * run of a stage is timed by ns_stage_begin / ns_stage_end, which also report it (progress);
  * a stage appears in the stats when it ran.
  * ------------------------------------------------------------------------------------- */
-enum { T_RECONSTRUCT, T_ACCUMULATE, T_VRL, T_GRID, T_GATHER, T_SINGLE, T_COMPOSITE, T_COUNT };
+enum { T_RECONSTRUCT, T_ACCUMULATE, T_VRL, T_BOUNDARY, T_GRID, T_GATHER, T_SINGLE, T_COMPOSITE, T_COUNT };
 
-static const char *const stage_names[T_COUNT] = {"reconstruct", "accumulate", "vrl", "grid",
+static const char *const stage_names[T_COUNT] = {"reconstruct", "accumulate", "vrl",    "boundary", "grid",
                                                  "gather",      "single",     "composite"};
 
 typedef struct scatter_times {
@@ -574,18 +576,60 @@ typedef struct vrl_source {
     ns_vrl_set set;
     ns_vrl_grid *grids;       /* per material */
     uint8_t *grid_built;      /* per material */
-    uint64_t *table_bytes;    /* per material, 0 until its tables were used */
+    uint64_t *table_bytes;    /* per (grid slot, material): 0 until its tables were used */
+    /* render.boundary: the sources by group, and per (group, material) their grid. */
+    ns_boundary_groups boundary;
+    ns_vrl_grid *boundary_grids;  /* [group * materials + material] */
+    uint8_t *boundary_grid_built; /* same index */
 } vrl_source;
 
 static void vrl_source_free(vrl_source *v, uint32_t material_count)
 {
     for (uint32_t m = 0; v->grids && m < material_count; m++)
         ns_vrl_grid_free(&v->grids[m]);
+    for (uint32_t i = 0; v->boundary_grids && i < NS_BOUNDARY_GROUPS * material_count; i++)
+        ns_vrl_grid_free(&v->boundary_grids[i]);
     free(v->grids);
     free(v->grid_built);
     free(v->table_bytes);
+    free(v->boundary_grids);
+    free(v->boundary_grid_built);
+    ns_boundary_groups_free(&v->boundary);
     ns_vrl_set_free(&v->set);
     memset(v, 0, sizeof *v);
+}
+
+/* The beams end at their exit: asked for, or implied by the boundary correction, whose
+ * unscattered part they are. */
+static int bounded_beams(const ns_scene *scene)
+{
+    return scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED || scene->render.boundary != NS_BOUNDARY_OFF;
+}
+
+/* render.boundary: the light's walks inside the objects (the `vrl` method's paths, as many
+ * as render.vrls, on a seed of their own), turned into grouped sources (boundary.c). */
+static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *v,
+                                 ns_render_stats *stats, ns_error *err)
+{
+    const ns_scene *scene = in->scene;
+    ns_vrl_set walks;
+    int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
+                                     scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
+    if (status)
+        return status;
+    GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count ? walks.count : 1));
+    if (!sources) {
+        ns_vrl_set_free(&walks);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
+    }
+    uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 1, sources);
+    ns_vrl_set_free(&walks);
+    status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
+    free(sources);
+    if (!status && stats)
+        for (uint32_t g = 0; g < v->boundary.count; g++)
+            stats->boundary_sources += v->boundary.group[g].set.count;
+    return status;
 }
 
 static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *v,
@@ -597,13 +641,16 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     v->ready = 1;
     v->grids = calloc(materials, sizeof *v->grids);
     v->grid_built = calloc(materials, 1);
-    v->table_bytes = calloc(materials, sizeof *v->table_bytes);
-    if (!v->grids || !v->grid_built || !v->table_bytes)
+    v->table_bytes = calloc((1 + NS_BOUNDARY_GROUPS) * materials, sizeof *v->table_bytes);
+    v->boundary_grids = calloc(NS_BOUNDARY_GROUPS * materials, sizeof *v->boundary_grids);
+    v->boundary_grid_built = calloc(NS_BOUNDARY_GROUPS * materials, 1);
+    if (!v->grids || !v->grid_built || !v->table_bytes || !v->boundary_grids || !v->boundary_grid_built)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
-    ns_stage stage = stage_begin(ctx, T_VRL, 0.0, 1.0);
+    int boundary = scene->render.boundary != NS_BOUNDARY_OFF;
+    ns_stage stage = stage_begin(ctx, T_VRL, 0.0, boundary ? 0.5 : 1.0);
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
      * VRLs of their own. */
-    uint32_t chain = scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED ? NS_VRL_MAX_CHAIN : 1;
+    uint32_t chain = bounded_beams(scene) ? NS_VRL_MAX_CHAIN : 1;
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  chain, scene->render.seed, &v->set, err);
     stage_end(ctx, times, T_VRL, &stage);
@@ -611,17 +658,117 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
     }
+    if (!status && boundary) {
+        stage = stage_begin(ctx, T_BOUNDARY, 0.5, 1.0);
+        status = boundary_sources_make(ctx, in, v, stats, err);
+        stage_end(ctx, times, T_BOUNDARY, &stage);
+    }
     return status;
 }
 
-/* Table and dipole methods: one round's segments, per medium its grid, tables and gather. */
-static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source,
-                            const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
-                            ns_render_stats *stats, scatter_times *times, ns_error *err)
+/* One grid of medium m (its VRLs, or one group of boundary sources) gathered over the medium's
+ * segments of the round into out (overwritten there), through the tables of `orders`
+ * (slot: where their bytes are counted). Progress: the current span, 5% to the grid's build
+ * (done by the caller), 25% to the tables, the rest to the gather. */
+static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source, uint32_t m,
+                       uint32_t slot, const ns_vrl_grid *grid, uint32_t orders, int bounded,
+                       const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
+                       ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
     const ns_scene *scene = in->scene;
-    ns_method method = scene->render.method;
+    const GpuMaterial *mat = &in->gs->materials[m];
+    uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
+    const ns_scatter_tables *tables = NULL;
+    uint32_t mode = NS_GATHER_MODE_DIPOLE;
+    int status = NS_OK;
+    if (scene->render.method != NS_METHOD_DIPOLE) {
+        ns_table_key key;
+        ns_table_key_for(mat, scene, orders, &key);
+        ns_table_stats ts = {0};
+        /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks the
+         * tables. */
+        ns_span outer = ns_progress_push(ctx, GRID_SHARE, GRID_SHARE + TABLES_SHARE);
+        status = ns_tables_get(ctx, &key, &tables, &ts, err);
+        ns_progress_pop(ctx, outer);
+        times->ms[T_RECONSTRUCT] += ts.reconstruct_ms;
+        times->ms[T_ACCUMULATE] += ts.accumulate_ms;
+        times->ran[T_RECONSTRUCT] |= (uint8_t)ts.reconstructed;
+        times->ran[T_ACCUMULATE] |= (uint8_t)ts.accumulated;
+        if (stats) {
+            stats->tables_reused += ts.tables_reused;
+            stats->tables_made += ts.tables_made;
+        }
+        if (!status) {
+            if (stats)
+                stats->weights_bytes = ts.weights_bytes;
+            source->table_bytes[slot * in->gs->material_count + m] = tables->bytes;
+        }
+        mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
+                                                                  : NS_GATHER_MODE_EXACT;
+    }
+    ns_span gathering = ns_progress_push(ctx, GRID_SHARE + TABLES_SHARE, 1.0);
+    if (!status && grid->vrl_count) {
+        ns_gather_desc desc = {.segments = seg_buf,
+                               .first_segment = first,
+                               .segment_count = count,
+                               .grid = grid,
+                               .table = tables ? &tables->a : NULL,
+                               .out = out};
+        ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle, bounded);
+        /* A form other than the default compiles its shader on first use: its own stage
+         * "gather_pipeline" (ns_gather_pipeline reports it). */
+        gpu_pipeline *unused;
+        double made_ms;
+        status = ns_gather_pipeline(ctx, mode, desc.params.table_map[3] > 0.0f, &unused, &made_ms, err);
+        if (made_ms > 0 && stats)
+            ns_stats_add_stage(stats, "gather_pipeline", made_ms);
+        ns_gather_counts counts;
+        ns_stage stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
+        if (!status)
+            status = ns_gather_run(ctx, &desc, &counts, err);
+        if (!status) /* one submission per grid and round */
+            ns_progress_tick(ctx, 1.0);
+        stage_end(ctx, times, T_GATHER, &stage);
+        if (!status && stats) {
+            stats->interactions += counts.interactions;
+            stats->cells_culled += counts.cells_culled;
+            stats->cells_represented += counts.cells_represented;
+        }
+    } else if (!status) {
+        memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
+    }
+    ns_progress_pop(ctx, gathering);
+    return status;
+}
+
+/* Builds a grid of medium m's VRLs in set, once (built[0] says). */
+static int grid_once(ns_context *ctx, const ns_vrl_set *set, const GpuMaterial *mat, uint32_t m,
+                     float cull_solid_angle, ns_vrl_grid *grid, uint8_t *built, scatter_times *times,
+                     ns_error *err)
+{
+    if (*built)
+        return NS_OK;
+    float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
+    ns_stage stage = stage_begin(ctx, T_GRID, 0.0, GRID_SHARE);
+    /* Representatives pay off only with small leaves (docs/scattering.md). */
+    uint32_t leaf_fill = cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
+    int status = ns_vrl_grid_build(set, m, s_max > 0 ? 1.0f / s_max : INFINITY, leaf_fill, grid, err);
+    stage_end(ctx, times, T_GRID, &stage);
+    *built = !status;
+    return status;
+}
+
+/* Table and dipole methods: one round's segments, per medium its grid, tables and gather;
+ * with render.boundary, then each group of boundary sources of the medium, gathered into
+ * scratch and added. */
+static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source,
+                            const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
+                            gpu_buffer *scratch, ns_render_stats *stats, scatter_times *times,
+                            ns_error *err)
+{
+    const ns_scene *scene = in->scene;
     uint32_t orders = scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
+    uint32_t materials = in->gs->material_count;
     int status = NS_OK;
     double start = 0.0; /* of this round's part, after the VRLs */
     if (!source->ready) {
@@ -630,86 +777,42 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
         ns_progress_pop(ctx, outer);
         start = VRL_SHARE;
     }
-    for (uint32_t m = 0; m < in->gs->material_count && !status; m++) {
+    for (uint32_t m = 0; m < materials && !status; m++) {
         uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
         if (!count)
             continue;
-        /* This medium's part of the round: its share of the segments. */
+        /* This medium's part of the round: its share of the segments, shared equally by its
+         * VRLs' grid and its groups of boundary sources. */
         double part = (1.0 - start) / list->count;
         ns_span medium = ns_progress_push(ctx, start + part * first, start + part * (first + count));
         const GpuMaterial *mat = &in->gs->materials[m];
-        ns_vrl_grid *grid = &source->grids[m];
-        if (!source->grid_built[m]) {
-            float s_max = fmaxf(mat->sigma_t[0], fmaxf(mat->sigma_t[1], mat->sigma_t[2]));
-            ns_stage stage = stage_begin(ctx, T_GRID, 0.0, GRID_SHARE);
-            /* Representatives pay off only with small leaves (docs/scattering.md). */
-            uint32_t leaf_fill = scene->render.cull_solid_angle > 0 ? NS_VRL_LEAF_FILL_REPRESENTED : 0;
-            status = ns_vrl_grid_build(&source->set, m, s_max > 0 ? 1.0f / s_max : INFINITY,
-                                       leaf_fill, grid, err);
-            stage_end(ctx, times, T_GRID, &stage);
-            source->grid_built[m] = !status;
-        }
-        const ns_scatter_tables *tables = NULL;
-        uint32_t mode = NS_GATHER_MODE_DIPOLE;
-        if (!status && method != NS_METHOD_DIPOLE) {
-            ns_table_key key;
-            ns_table_key_for(mat, scene, orders, &key);
-            ns_table_stats ts = {0};
-            /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks
-             * the tables. */
-            ns_span outer = ns_progress_push(ctx, GRID_SHARE, GRID_SHARE + TABLES_SHARE);
-            status = ns_tables_get(ctx, &key, &tables, &ts, err);
-            ns_progress_pop(ctx, outer);
-            times->ms[T_RECONSTRUCT] += ts.reconstruct_ms;
-            times->ms[T_ACCUMULATE] += ts.accumulate_ms;
-            times->ran[T_RECONSTRUCT] |= (uint8_t)ts.reconstructed;
-            times->ran[T_ACCUMULATE] |= (uint8_t)ts.accumulated;
-            if (stats) {
-                stats->tables_reused += ts.tables_reused;
-                stats->tables_made += ts.tables_made;
+        uint32_t grids = 1 + source->boundary.count;
+        ns_span one = ns_progress_push(ctx, 0.0, 1.0 / grids);
+        status = grid_once(ctx, &source->set, mat, m, scene->render.cull_solid_angle, &source->grids[m],
+                           &source->grid_built[m], times, err);
+        if (!status)
+            status = gather_grid(ctx, in, source, m, 0, &source->grids[m], orders, bounded_beams(scene),
+                                 list, seg_buf, out, stats, times, err);
+        ns_progress_pop(ctx, one);
+        for (uint32_t g = 0; g < source->boundary.count && !status; g++) {
+            const ns_source_group *group = &source->boundary.group[g];
+            uint32_t at = g * materials + m;
+            one = ns_progress_push(ctx, (1.0 + g) / grids, (2.0 + g) / grids);
+            status = grid_once(ctx, &group->set, mat, m, scene->render.cull_solid_angle,
+                               &source->boundary_grids[at], &source->boundary_grid_built[at], times, err);
+            /* Sources are endless beams: the walk accounts for where each one ends. */
+            if (!status && source->boundary_grids[at].vrl_count)
+                status = gather_grid(ctx, in, source, m, 1 + g, &source->boundary_grids[at], group->orders,
+                                     0, list, seg_buf, scratch, stats, times, err);
+            if (!status && source->boundary_grids[at].vrl_count) {
+                float(*sum)[4] = out->mapped;
+                const float(*add)[4] = scratch->mapped;
+                for (uint32_t i = first; i < first + count; i++)
+                    for (int c = 0; c < 3; c++)
+                        sum[i][c] += add[i][c];
             }
-            if (!status) {
-                if (stats)
-                    stats->weights_bytes = ts.weights_bytes;
-                source->table_bytes[m] = tables->bytes;
-            }
-            mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
-                                                                      : NS_GATHER_MODE_EXACT;
+            ns_progress_pop(ctx, one);
         }
-        ns_span gathering = ns_progress_push(ctx, GRID_SHARE + TABLES_SHARE, 1.0);
-        if (!status && grid->vrl_count) {
-            ns_gather_desc desc = {.segments = seg_buf,
-                                   .first_segment = first,
-                                   .segment_count = count,
-                                   .grid = grid,
-                                   .table = tables ? &tables->a : NULL,
-                                   .out = out};
-            ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle,
-                             scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED);
-            /* A form other than the default compiles its shader on first use: its own stage
-             * "gather_pipeline" (ns_gather_pipeline reports it). */
-            gpu_pipeline *unused;
-            double made_ms;
-            status = ns_gather_pipeline(ctx, mode, desc.params.table_map[3] > 0.0f, &unused,
-                                        &made_ms, err);
-            if (made_ms > 0 && stats)
-                ns_stats_add_stage(stats, "gather_pipeline", made_ms);
-            ns_gather_counts counts;
-            ns_stage stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
-            if (!status)
-                status = ns_gather_run(ctx, &desc, &counts, err);
-            if (!status) /* one submission per medium and round */
-                ns_progress_tick(ctx, 1.0);
-            stage_end(ctx, times, T_GATHER, &stage);
-            if (!status && stats) {
-                stats->interactions += counts.interactions;
-                stats->cells_culled += counts.cells_culled;
-                stats->cells_represented += counts.cells_represented;
-            }
-        } else if (!status) {
-            memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
-        }
-        ns_progress_pop(ctx, gathering);
         ns_progress_pop(ctx, medium);
     }
     return status;
@@ -728,10 +831,15 @@ static void store_round(const ns_scatter_inputs *in, tile_plan *t, const gather_
         for (int c = 0; c < 3; c++)
             t->radiance[s->pixel][c] += s->throughput[c] * radiance[i][c] * f;
     }
+    /* With the boundary correction ghost sources subtract: the pixel's total, never a
+     * source's or a segment's part, is kept from going negative by their noise. */
+    int clamp = scene->render.boundary != NS_BOUNDARY_OFF;
     for (uint32_t p = 0; p < t->width * t->height; p++)
         if (round[p])
-            for (int c = 0; c < 3; c++)
-                t->radiance[p][c] = t->keys[p].weight[c] > 0 ? t->radiance[p][c] / t->keys[p].weight[c] : 0.0f;
+            for (int c = 0; c < 3; c++) {
+                float v = t->keys[p].weight[c] > 0 ? t->radiance[p][c] / t->keys[p].weight[c] : 0.0f;
+                t->radiance[p][c] = clamp ? fmaxf(v, 0.0f) : v;
+            }
 }
 
 /* Pixels take their own Lbar (gathered or interpolated) or the mix of their tiles'. */
@@ -809,7 +917,7 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
                         d[i][c] = (want_double ? d[i][c] : 0.0f) + (want_multiple ? mult[i][c] : 0.0f);
             }
         } else {
-            status = gather_from_vrls(ctx, in, source, &list, &seg_buf, &out[0], stats, times, err);
+            status = gather_from_vrls(ctx, in, source, &list, &seg_buf, &out[0], &out[1], stats, times, err);
         }
     }
     if (!status) {
@@ -864,8 +972,8 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     if (stats) {
         stats->tiles_interpolated += interpolated;
         uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
-        for (uint32_t m = 0; source.table_bytes && m < in->gs->material_count; m++)
-            table_bytes += source.table_bytes[m];
+        for (uint32_t i = 0; source.table_bytes && i < (1 + NS_BOUNDARY_GROUPS) * in->gs->material_count; i++)
+            table_bytes += source.table_bytes[i];
         if (table_bytes > stats->table_bytes)
             stats->table_bytes = table_bytes;
     }

@@ -13,6 +13,7 @@
 #include <string.h>
 
 #include "accumulate_shared.h"
+#include "boundary.h"
 #include "nn_reconstruct.h"
 #include "scatter.h"
 
@@ -557,10 +558,19 @@ static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
     int want_double = (key->orders & NS_COMPONENT_DOUBLE) != 0;
     int want_multiple = (key->orders & NS_COMPONENT_MULTIPLE) != 0;
+    float *blurred = NULL;
+    if (key->orders & NS_TABLE_FIRST_BLURRED) {
+        blurred = malloc(cells * sizeof(float));
+        if (!blurred) {
+            free(j);
+            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+        }
+    }
     for (int c = 0; c < 3; c++) {
         cache_entry *e = find_j(ctx->tables, key->source, key->g, key->albedo[c]);
         if (!e) { /* ensure_j put every channel there just before */
             free(j);
+            free(blurred);
             return ns_fail(err, NS_ERR_INTERNAL, "tables: J of albedo %g vanished from the cache",
                            (double)key->albedo[c]);
         }
@@ -568,7 +578,13 @@ static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_
         float *dst = j + c * cells;
         for (size_t i = 0; i < cells; i++)
             dst[i] = (want_double ? e->j[0][i] : 0.0f) + (want_multiple ? e->j[1][i] : 0.0f);
+        if (blurred) {
+            ns_blurred_first_order(key->albedo[c], key->g, blurred);
+            for (size_t i = 0; i < cells; i++)
+                dst[i] += blurred[i];
+        }
     }
+    free(blurred);
     *out = j;
     return NS_OK;
 }
@@ -588,10 +604,11 @@ static int check_key(const ns_table_key *key, ns_error *err)
                            "material albedo[%d]: %g outside [0, 1) (multiple scattering of a "
                            "medium that absorbs nothing has no finite table)",
                            c, (double)key->albedo[c]);
-    uint32_t orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    uint32_t orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE | NS_TABLE_FIRST_BLURRED;
     if (!key->orders || (key->orders & ~orders))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                       "tables: orders 0x%x (double and/or multiple only)", key->orders);
+                       "tables: orders 0x%x (double, multiple and/or the blurred first order only)",
+                       key->orders);
     if (key->accumulation != NS_ACCUMULATION_EXACT && key->accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)key->accumulation);

@@ -161,6 +161,11 @@ static int check_render(const ns_render_settings *r, ns_error *err)
         if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && r->method != NS_METHOD_NN &&
             r->method != NS_METHOD_TABLE)
             return BAD("render.vrl_beams: bounded beams apply to methods nn and table");
+        if ((unsigned)r->boundary > NS_BOUNDARY_WALKS)
+            return BAD("render.boundary: %d is not a boundary model", (int)r->boundary);
+        if (r->boundary != NS_BOUNDARY_OFF && r->method != NS_METHOD_NN &&
+            r->method != NS_METHOD_TABLE)
+            return BAD("render.boundary: the boundary correction applies to methods nn and table");
         if ((unsigned)r->accumulation > NS_ACCUMULATION_PAPER)
             return BAD("render.accumulation: unknown value %d", (int)r->accumulation);
         if (!(r->cull_solid_angle >= 0.0f && r->cull_solid_angle <= 12.57f))

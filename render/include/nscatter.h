@@ -221,6 +221,13 @@ typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumul
  * of their own). docs/scattering.md. */
 typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams;
 
+/* The boundary-crossing correction of double and multiple scattering (render.boundary; nn and
+ * table only; docs/scattering.md, "The object's boundary"): off, the paper's infinite-medium
+ * model (with render.vrl_beams); walks, light walks inside the object add a negative source
+ * where scattered light leaves it and a positive one where the boundary reflects it back,
+ * each gathered through the tables with its orders shifted. Walks imply bounded beams. */
+typedef enum { NS_BOUNDARY_OFF = 0, NS_BOUNDARY_WALKS = 1 } ns_boundary;
+
 #define NS_MAX_VRLS 1000000u
 #define NS_MAX_GATHER_TILE 16u
 #define NS_MAX_GATHER_LEVELS 4u
@@ -241,7 +248,7 @@ typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
- * max_scatter, gather_levels, accumulation, vrl_beams, cull_solid_angle) nothing needs
+ * max_scatter, gather_levels, accumulation, vrl_beams, boundary, cull_solid_angle) nothing needs
  * replacing. Two fields are exceptions, because 0 is a value of their own there: seed and
  * gather_tolerance keep a 0 as given, and their defaults (NS_DEFAULT_SEED,
  * NS_DEFAULT_GATHER_TOLERANCE) are applied by the scene parser, which knows whether the key
@@ -276,6 +283,7 @@ typedef struct ns_render_settings {
     uint32_t single_samples;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
+    ns_boundary boundary;         /* nn and table only; 0: NS_BOUNDARY_OFF, the default */
     float cull_solid_angle; /* sr; 0 = exact, the default (only cells beyond the table's reach
                                are culled) */
     /* Milliseconds the render may take, from when it starts (waiting for the context does
@@ -379,6 +387,7 @@ typedef struct ns_render_stats {
     /* Scattering stages (0 when not run). */
     uint64_t vrl_paths;           /* light paths traced */
     uint64_t vrl_count;           /* VRLs stored */
+    uint64_t boundary_sources;    /* render.boundary: sources (ghost and reflected beams) gathered */
     uint64_t gather_segments;     /* camera segments gathered (after tiling) */
     uint64_t tiles_interpolated;  /* tiles interpolated from coarser ones (render.gather_levels) */
     uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */

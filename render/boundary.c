@@ -1,0 +1,210 @@
+/* boundary.c — the boundary-crossing correction of double and multiple scattering
+ * (render.boundary; docs/scattering.md, "The object's boundary"; the estimator is
+ * shared/boundary/README.md's).
+ *
+ * The tables describe an infinite medium: past the point where the real light first reaches
+ * the object's boundary, they go on scattering light that has left, and never see the light
+ * the boundary reflects back. With T(b, w; k) = what the tables give for a beam from b along
+ * w whose light has already scattered k times (orders shifted by k),
+ *
+ *     B = T(VRL) + sum over the boundary events i of the light's real walk inside the object
+ *             W_i [ - T(b_i, w_i; k_i) + 1{reflected} T(b_i, w_i^r; k_i) ]
+ *
+ * is exact in expectation. The unscattered part (k = 0) is the bounded beams' (vrl.comp's
+ * reflected stretches, gather.glsl's subtraction past a VRL's exit). For k >= 1 the walks are
+ * the `vrl` method's light paths (vrl_trace.comp: free flights, Henyey-Greenstein, Fresnel
+ * and total internal reflection with the Fresnel probability, Russian roulette), which
+ * return every stretch of every path inside a medium: origin, direction, the distance L to
+ * the boundary ahead, the flux at its origin and the events before it. Each stretch gives
+ *   - a ghost: -e^{-s L} flux at origin + L d along d, the expected weight with which the
+ *     walk reaches that boundary (deterministic per stretch: the walk's own free flight
+ *     decides only which stretch comes next);
+ *   - when the stretch itself starts where the previous one ended, with another direction
+ *     (an internal reflection), the reflected beam: +flux at its origin along its
+ *     direction, whose expectation is the F e^{-s L} of the stretch before.
+ * Sources are endless beams: each is the infinite medium's continuation, and the walk
+ * itself accounts for where it ends.
+ *
+ * Which table a source reads follows from its events k and the components asked for: its
+ * light's next events are orders k + 1 (the first scattering on the camera segment of
+ * light that flew straight from the source: a line meets a line with probability zero, so
+ * this order comes from the blurred first-order table below), k + 2 (J_2) and >= k + 3
+ * (J_multiple).
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "boundary.h"
+
+/* Two positions closer than this (relative to their size, and at least this in absolute
+ * terms) are the same point: vrl_trace.comp starts a reflected stretch ray_epsilon off the
+ * boundary point where the previous one ended. */
+#define SAME_POINT 1e-3f
+
+static float dist3(const float *a, const float *b)
+{
+    float d0 = a[0] - b[0], d1 = a[1] - b[1], d2 = a[2] - b[2];
+    return sqrtf(d0 * d0 + d1 * d1 + d2 * d2);
+}
+
+static void end_of(const GpuVrl *v, float end[3])
+{
+    for (int c = 0; c < 3; c++)
+        end[c] = v->origin[c] + v->length * v->direction[c];
+}
+
+ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
+{
+    if (!previous || previous->material != v->material || previous->events != v->events ||
+        !(previous->length > 0.0f))
+        return NS_BOUNDARY_LINK_START;
+    float end[3];
+    end_of(previous, end);
+    float size = fmaxf(1.0f, fmaxf(fabsf(end[0]), fmaxf(fabsf(end[1]), fabsf(end[2]))));
+    if (dist3(end, v->origin) > SAME_POINT * size)
+        return NS_BOUNDARY_LINK_START;
+    float cos_turn = previous->direction[0] * v->direction[0] +
+                     previous->direction[1] * v->direction[1] +
+                     previous->direction[2] * v->direction[2];
+    /* Grazing its own boundary, the walk goes on along the same line (vrl_trace.comp). */
+    return cos_turn > 1.0f - 1e-5f ? NS_BOUNDARY_LINK_CONTINUED : NS_BOUNDARY_LINK_REFLECTED;
+}
+
+uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
+                             uint32_t min_events, GpuVrl *out)
+{
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < count; i++) {
+        const GpuVrl *v = &stretches[i];
+        if (v->events < min_events)
+            continue;
+        ns_boundary_link link = ns_boundary_link_of(i ? &stretches[i - 1] : NULL, v);
+        if (link == NS_BOUNDARY_LINK_REFLECTED) {
+            GpuVrl r = *v;
+            r.length = 0.0f;
+            out[n++] = r;
+        }
+        /* A stretch that the next one continues along the same line has no boundary event
+         * at its end: the next one's ghost stands for both. */
+        int continued = i + 1 < count && ns_boundary_link_of(v, &stretches[i + 1]) == NS_BOUNDARY_LINK_CONTINUED;
+        if (!(v->length > 0.0f) || continued)
+            continue;
+        const float *st = materials[v->material].sigma_t;
+        GpuVrl ghost = *v;
+        end_of(v, ghost.origin);
+        ghost.length = 0.0f;
+        float largest = 0.0f;
+        for (int c = 0; c < 3; c++) {
+            ghost.power[c] = -expf(-st[c] * v->length) * v->power[c];
+            largest = fmaxf(largest, -ghost.power[c]);
+        }
+        if (largest > 0.0f)
+            out[n++] = ghost;
+    }
+    return n;
+}
+
+uint32_t ns_boundary_orders(uint32_t events, uint32_t components)
+{
+    uint32_t want_double = components & NS_COMPONENT_DOUBLE, want_multiple = components & NS_COMPONENT_MULTIPLE;
+    if (events == 0)
+        return components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
+    uint32_t orders = want_multiple ? NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE : 0u;
+    /* Order events + 1: double when that is 2, multiple beyond. */
+    if (events == 1 ? want_double : want_multiple)
+        orders |= NS_TABLE_FIRST_BLURRED;
+    return orders;
+}
+
+void ns_boundary_groups_free(ns_boundary_groups *g)
+{
+    for (uint32_t i = 0; i < NS_BOUNDARY_GROUPS; i++)
+        ns_vrl_set_free(&g->group[i].set);
+    memset(g, 0, sizeof *g);
+}
+
+int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
+                      ns_boundary_groups *out, ns_error *err)
+{
+    memset(out, 0, sizeof *out);
+    /* Group by (table orders, sign): a grid cell's representative must never mix a ghost
+     * with a reflected beam, and one gather reads one table. */
+    for (uint32_t pass = 0; pass < 2; pass++) {
+        for (uint32_t i = 0; i < count; i++) {
+            const GpuVrl *s = &sources[i];
+            uint32_t orders = ns_boundary_orders(s->events, components);
+            if (!orders)
+                continue;
+            int negative = s->power[0] + s->power[1] + s->power[2] < 0.0f;
+            uint32_t g = 0;
+            while (g < out->count && !(out->group[g].orders == orders && out->group[g].negative == negative))
+                g++;
+            if (g == out->count) {
+                if (pass == 1 || g == NS_BOUNDARY_GROUPS)
+                    return ns_fail(err, NS_ERR_INTERNAL, "boundary: more than %u source groups",
+                                   (unsigned)NS_BOUNDARY_GROUPS);
+                out->group[g].orders = orders;
+                out->group[g].negative = negative;
+                out->count++;
+            }
+            ns_source_group *grp = &out->group[g];
+            if (pass == 0)
+                grp->set.count++;
+            else
+                grp->set.vrls[grp->filled++] = *s;
+        }
+        if (pass == 0)
+            for (uint32_t g = 0; g < out->count; g++) {
+                out->group[g].set.vrls = malloc(sizeof(GpuVrl) * out->group[g].set.count);
+                if (!out->group[g].set.vrls) {
+                    ns_boundary_groups_free(out);
+                    return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u sources", count);
+                }
+            }
+    }
+    return NS_OK;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The blurred first-order table: J_1^blur(rho, z, theta, phi) = a e^{-z} [z > 0] K(rho)
+ * p_HG(cos theta), K a normalised Gaussian of standard deviation NS_BOUNDARY_BLUR_MFP, as
+ * the bin averages the table holds (the accumulation reads J as constant over a bin).
+ * ------------------------------------------------------------------------------------- */
+static double hg_integral(double g, double mu_low, double mu_high)
+{
+    /* Integral of p_HG over the solid angle of mu in [mu_low, mu_high] (2 pi d mu). */
+    if (fabs(g) < 1e-6)
+        return 0.5 * (mu_high - mu_low);
+    double a = 1.0 + g * g;
+    return (1.0 - g * g) / (2.0 * g) * (1.0 / sqrt(a - 2.0 * g * mu_high) - 1.0 / sqrt(a - 2.0 * g * mu_low));
+}
+
+void ns_blurred_first_order(float albedo, float g, float *j)
+{
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    double two_var = 2.0 * NS_BOUNDARY_BLUR_MFP * NS_BOUNDARY_BLUR_MFP;
+    double along_z[NS_TABLE_NZ], across[NS_TABLE_NRHO], angular[NS_TABLE_NTHETA];
+    for (uint32_t i = 0; i < NS_TABLE_NZ; i++) {
+        double z0 = fmax(grid.z[i], 0.0), z1 = fmax(grid.z[i + 1], 0.0);
+        along_z[i] = (exp(-z0) - exp(-z1)) / (grid.z[i + 1] - grid.z[i]);
+    }
+    for (uint32_t i = 0; i < NS_TABLE_NRHO; i++) {
+        double r0 = grid.rho[i], r1 = grid.rho[i + 1];
+        across[i] = (exp(-r0 * r0 / two_var) - exp(-r1 * r1 / two_var)) / (M_PI * (r1 * r1 - r0 * r0));
+    }
+    for (uint32_t i = 0; i < NS_TABLE_NTHETA; i++) {
+        double mu_high = cos(grid.theta[i]), mu_low = cos(grid.theta[i + 1]);
+        /* Bin average over solid angle: the integral over 2 pi (mu_high - mu_low). */
+        angular[i] = hg_integral(g, mu_low, mu_high) / (2.0 * M_PI * (mu_high - mu_low));
+    }
+    size_t at = 0;
+    for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
+        for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++)
+            for (uint32_t it = 0; it < NS_TABLE_NTHETA; it++) {
+                float v = (float)(albedo * along_z[iz] * across[ir] * angular[it]);
+                for (uint32_t ip = 0; ip < NS_TABLE_NPHI; ip++)
+                    j[at++] = v;
+            }
+}

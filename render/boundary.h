@@ -1,0 +1,57 @@
+/* boundary.h — (private to render/ and the tests) the boundary-crossing correction
+ * (render.boundary, boundary.c): sources from the light's walks inside the object, grouped
+ * by the table they read, and the blurred first-order table. */
+#ifndef NS_RENDER_BOUNDARY_H
+#define NS_RENDER_BOUNDARY_H
+
+#include "scatter.h"
+
+/* Standard deviation (mfp) of the blurred first-order table's radial kernel: light that
+ * leaves a source unscattered meets a camera segment (a line) with probability zero, so its
+ * first scattering there is spread over a narrow tube, like the beam x beam blur of photon
+ * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). */
+#define NS_BOUNDARY_BLUR_MFP 0.25
+
+/* How stretch v of a walk follows the stretch before it (NULL: none): a new start (the
+ * entry into the medium, or a scattering event: its events differ, or it starts elsewhere),
+ * an internal reflection (it starts where the previous one ended, in another direction), or
+ * the same line continued (the walk grazed its own boundary). */
+typedef enum {
+    NS_BOUNDARY_LINK_START,
+    NS_BOUNDARY_LINK_REFLECTED,
+    NS_BOUNDARY_LINK_CONTINUED,
+} ns_boundary_link;
+ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
+
+/* The sources of stretches[0, count) (the `vrl` method's light paths, in path order) with
+ * events >= min_events: a ghost (negative power) at the end of every stretch and a reflected
+ * beam (positive) at the start of every stretch that begins with an internal reflection, all
+ * endless (length 0). out has room for 2 count. Returns how many were written. */
+uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
+                             uint32_t min_events, GpuVrl *out);
+
+/* The table orders (NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE, NS_TABLE_FIRST_BLURRED) a
+ * source after `events` scattering events reads for the asked components; 0: none. */
+uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
+
+/* Sources grouped by (orders, sign): one gather each. */
+#define NS_BOUNDARY_GROUPS 4u
+typedef struct ns_source_group {
+    ns_vrl_set set;
+    uint32_t orders;
+    int negative;
+    uint32_t filled;
+} ns_source_group;
+typedef struct ns_boundary_groups {
+    ns_source_group group[NS_BOUNDARY_GROUPS];
+    uint32_t count;
+} ns_boundary_groups;
+int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
+                      ns_boundary_groups *out, ns_error *err);
+void ns_boundary_groups_free(ns_boundary_groups *g);
+
+/* J_1^blur of one channel (albedo a, phase g) as NS_TABLE_CELLS bin averages, [z][rho][theta]
+ * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). */
+void ns_blurred_first_order(float albedo, float g, float *j);
+
+#endif

@@ -1,0 +1,178 @@
+/* gpu_boundary.c — render.boundary "walks" (the boundary-crossing correction) against the
+ * path tracer, per order, where the paper's infinite-medium tables are known to be wrong:
+ *   (a) an index-matched sphere ~3.3 mfp across (a cloud): the tables go on scattering light
+ *       that has left, too bright;
+ *   (b) index-matched slabs 0.5, 2 and 8 mfp thick under a directional light;
+ *   (c) a sphere 8 mfp across at ior 1.5: Fresnel and total internal reflection send light
+ *       back that the tables never see, too dark;
+ *   (d) a glass rod lit from its top face: light guided by total internal reflection.
+ * Each case checks the image mean of nn with the correction within a tolerance of pt's per
+ * channel, and that without it nn is off by more (so that the scene tells them apart).
+ * Image means over 32 x 32 pixels. Also: off is the default and adds no source; the other
+ * methods refuse the setting naming it. */
+#include "gpu_util.h"
+
+typedef struct means {
+    double v[3];
+    uint64_t sources;
+} means;
+
+static int mean_of(ns_scene s, ns_method method, ns_boundary boundary, uint32_t spp, means *out)
+{
+    s.render.method = method;
+    s.render.boundary = boundary;
+    s.render.spp = spp;
+    ns_image img = {0};
+    ns_render_stats stats = {0};
+    if (!render_ok(&s, &img, &stats))
+        return -1;
+    image_mean(&img, out->v);
+    out->sources = stats.boundary_sources;
+    ns_image_free(&img);
+    return 0;
+}
+
+/* walks_tolerance: |walks / pt - 1| allowed; off_off: |off / pt - 1| required. */
+static void compare(const char *name, ns_scene s, uint32_t components, uint32_t pt_spp,
+                    double walks_tolerance, double off_off)
+{
+    s.render.components = components;
+    means pt, walks, off;
+    if (mean_of(s, NS_METHOD_PT, NS_BOUNDARY_OFF, pt_spp, &pt) ||
+        mean_of(s, NS_METHOD_NN, NS_BOUNDARY_WALKS, 4, &walks) ||
+        mean_of(s, NS_METHOD_NN, NS_BOUNDARY_OFF, 4, &off))
+        return;
+    CHECK(walks.sources > 0);
+    CHECK(off.sources == 0);
+    for (int c = 0; c < 3; c++) {
+        fprintf(stderr, "  %s, %s, channel %d: pt %.6g, nn walks %.6g (%+.1f%%), off %.6g (%+.1f%%)\n",
+                name, components == NS_COMPONENT_DOUBLE ? "double" : "multiple", c, pt.v[c],
+                walks.v[c], 100 * (walks.v[c] / pt.v[c] - 1), off.v[c], 100 * (off.v[c] / pt.v[c] - 1));
+        CHECK(pt.v[c] > 0);
+        CHECK(fabs(walks.v[c] / pt.v[c] - 1) < walks_tolerance);
+        CHECK(fabs(off.v[c] / pt.v[c] - 1) > off_off);
+    }
+}
+
+static ns_material material(const double albedo[3], double mfp, double g, double ior)
+{
+    double sigma_s[3], sigma_a[3];
+    for (int c = 0; c < 3; c++) {
+        sigma_s[c] = albedo[c] / mfp;
+        sigma_a[c] = (1 - albedo[c]) / mfp;
+    }
+    ns_material m = medium(sigma_s, sigma_a, ior);
+    m.g = (float)g;
+    return m;
+}
+
+static ns_scene one_object(ns_material *m, ns_object *o, ns_light *l)
+{
+    ns_scene s = base_scene(32, 32, 30);
+    scene_lists(&s, m, 1, o, 1, l, 1);
+    s.render.vrls = 40000;
+    s.render.gather_tile = 1;
+    s.render.seed = 1;
+    return s;
+}
+
+static void test_cloud(void)
+{
+    const double albedo[3] = {0.909, 0.8, 0.95};
+    ns_material m = material(albedo, 1.0, 0.0, 1.0);
+    ns_object ball = sphere(0, 0, 0, 1.65, 0);
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0.3, -1, -0.2);
+    ns_scene s = one_object(&m, &ball, &sun);
+    set3(s.camera.position, 0, 0, 9);
+    set3(s.camera.look_at, 0, 0, 0);
+    compare("cloud sphere 3.3 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.05, 0.2);
+}
+
+static void test_slab(double thickness, double walks_tolerance, double off_off)
+{
+    const double albedo[3] = {0.909, 0.5, 0.99};
+    ns_material m = material(albedo, 1.0, 0.5, 1.0);
+    ns_object box;
+    memset(&box, 0, sizeof box);
+    box.shape = NS_SHAPE_BOX;
+    set3(box.min, -30, -thickness, -30);
+    set3(box.max, 30, 0, 30);
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0, -1, 0);
+    ns_scene s = one_object(&m, &box, &sun);
+    set3(s.camera.position, 0, 10, 17.32);
+    set3(s.camera.look_at, 0, 0, 0);
+    s.render.vrls = 100000; /* the slab is 60 wide: VRLs spread over all of it */
+    char name[64];
+    snprintf(name, sizeof name, "slab %g mfp, ior 1", thickness);
+    compare(name, s, NS_COMPONENT_MULTIPLE, 256, walks_tolerance, off_off);
+}
+
+static void test_slabs(void)
+{
+    test_slab(0.5, 0.05, 0.2);
+    test_slab(2.0, 0.05, 0.2);
+    test_slab(8.0, 0.05, 0.1);
+}
+
+static void test_refracting_sphere(void)
+{
+    const double albedo[3] = {0.938, 0.8, 0.97};
+    ns_material m = material(albedo, 1.0, 0.5, 1.5);
+    ns_object ball = sphere(0, 0, 0, 4, 0);
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0, -1, -0.3);
+    ns_scene s = one_object(&m, &ball, &sun);
+    set3(s.camera.position, 0, 2, 20);
+    set3(s.camera.look_at, 0, 0, 0);
+    compare("sphere 8 mfp, ior 1.5", s, NS_COMPONENT_MULTIPLE, 256, 0.05, 0.1);
+}
+
+static void test_light_guide(void)
+{
+    const double albedo[3] = {0.95, 0.8, 0.5};
+    ns_material m = material(albedo, 2.0, 0.0, 1.5);
+    ns_object box;
+    memset(&box, 0, sizeof box);
+    box.shape = NS_SHAPE_BOX;
+    set3(box.min, -0.5, 0, -0.5);
+    set3(box.max, 0.5, 6, 0.5);
+    ns_light lamp = light(NS_LIGHT_POINT, 1, 1, 1);
+    set3(lamp.position, 0, 6.3, 0);
+    ns_scene s = one_object(&m, &box, &lamp);
+    s.camera.fov_deg = 28;
+    set3(s.camera.position, 0, 3, 14);
+    set3(s.camera.look_at, 0, 3, 0);
+    compare("glass rod, total internal reflection", s, NS_COMPONENT_MULTIPLE, 256, 0.08, 0.2);
+}
+
+static void test_bad_setting(void)
+{
+    ns_material m = diffuse(0.5, 0.5, 0.5);
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0, -1, 0);
+    ns_scene s = one_object(&m, &ball, &sun);
+    set3(s.camera.position, 0, 0, 10);
+    s.render.boundary = NS_BOUNDARY_WALKS;
+    s.render.method = NS_METHOD_DIPOLE;
+    ns_error err = {0};
+    CHECK_INT(ns_scene_validate(&s, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err.message, "render.boundary") != NULL);
+}
+
+int main(int argc, char **argv)
+{
+    const char *only = argc > 1 ? argv[1] : NULL;
+#define PICK(t)                                                                                    \
+    if (!only || strstr(#t, only))                                                                 \
+    RUN(t)
+    PICK(test_cloud);
+    PICK(test_slabs);
+    PICK(test_refracting_sphere);
+    PICK(test_light_guide);
+    PICK(test_bad_setting);
+    ns_context_destroy(test_context());
+    return harness_report();
+}
