@@ -425,7 +425,7 @@ int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_s
  *
  * Progress reports come on the rendering thread, synchronously, in this order: a
  * STAGE_START when a stage begins (stage names as in ns_render_stats: "pt_pipeline", "bvh",
- * "upload", "ray_pass", "pt_pass", "single", "vrl", "grid", "reconstruct", "accumulate",
+ * "upload", "ray_pass", "pt_pass", "single", "vrl", "boundary", "grid", "reconstruct", "accumulate",
  * "gather_pipeline", "gather", "composite", "readback"; a stage that runs once per camera
  * batch, medium or gather round starts and ends each time), TICKs while a long stage runs
  * (after every submission of pt_pass, single and the vrl method's gather, after each gather

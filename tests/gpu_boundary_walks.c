@@ -1,0 +1,300 @@
+/* gpu_boundary_walks.c — the boundary-crossing estimator (render/boundary.c) against the
+ * bounded walk, without tables. The light's real walks inside an object come from the
+ * renderer's own trace (ns_vrl_method_trace, on the device); everything else is on the CPU:
+ *   truth      the walk's own scattering events of order >= m inside the object, weighted by
+ *              the flux after each (the quantity the image integrates, without the camera);
+ *   corrected  T(entry; 0) + sum over ns_boundary_sources' sources (every order, k >= 0) of
+ *              their signed power times T(source; k), where T(b, w; k) counts the same events
+ *              (total order >= m, inside the object) of one infinite-medium walk from b
+ *              along w after k events: what a table would return, estimated without one.
+ * Per path the difference of the two is averaged; it must be 0 within 4 standard errors, for
+ * a sphere, a box and a cylinder (a mesh) at ior 1, 1.3 and 1.5, for orders >= 2 and >= 3.
+ * The infinite medium alone (corrected without the sources) must be off by more than 4
+ * standard errors, so that each case can tell the two apart. */
+#include <stdlib.h>
+
+#include "boundary.h"
+#include "gpu_util.h"
+#include "vrl_method.h"
+
+typedef struct device_scene {
+    ns_gpu_scene gs;
+    gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
+} device_scene;
+
+static int device_scene_make(const ns_scene *s, device_scene *d)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    memset(d, 0, sizeof *d);
+    int status = ns_gpu_scene_build(s, &d->gs, &err);
+    if (!status) {
+        d->gs.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
+        gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
+        ns_gpu_scene_buffer_descs(&d->gs, descs);
+        status = gpu_buffers_create(&ctx->dev, d->buffers, descs, NS_SCENE_BUFFER_COUNT, &err);
+    }
+    if (status)
+        fprintf(stderr, "device scene: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    return status;
+}
+
+static void device_scene_free(device_scene *d)
+{
+    for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
+        gpu_buffer_destroy(&test_context()->dev, &d->buffers[i]);
+    ns_gpu_scene_free(&d->gs);
+}
+
+/* ---------------------------------------------------------------------------------------
+ * The objects, in mean free paths (sigma_t = 1), and their insides.
+ * ------------------------------------------------------------------------------------- */
+enum { SPHERE, BOX, CYLINDER };
+#define SPHERE_RADIUS 2.0
+#define BOX_HALF 1.5
+#define CYL_RADIUS 1.3
+#define CYL_HEIGHT 3.8
+#define CYL_SEGMENTS 48
+
+static int shape;
+
+static int inside(const double p[3])
+{
+    switch (shape) {
+    case SPHERE:
+        return p[0] * p[0] + p[1] * p[1] + p[2] * p[2] < SPHERE_RADIUS * SPHERE_RADIUS;
+    case BOX:
+        return fabs(p[0]) < BOX_HALF && fabs(p[1]) < BOX_HALF && fabs(p[2]) < BOX_HALF;
+    default:
+        if (p[1] <= 0 || p[1] >= CYL_HEIGHT)
+            return 0;
+        /* The mesh's polygon: rim vertices at (R cos a, -R sin a), a = 2 pi i / N. */
+        for (int k = 0; k < CYL_SEGMENTS; k++) {
+            double m = 2 * M_PI * (k + 0.5) / CYL_SEGMENTS;
+            if (p[0] * cos(m) - p[2] * sin(m) >= CYL_RADIUS * cos(M_PI / CYL_SEGMENTS))
+                return 0;
+        }
+        return 1;
+    }
+}
+
+static ns_triangle cylinder_triangles[4 * CYL_SEGMENTS];
+
+static void cylinder_mesh(void)
+{
+    double rim[CYL_SEGMENTS][2];
+    for (int i = 0; i < CYL_SEGMENTS; i++) {
+        double a = 2 * M_PI * i / CYL_SEGMENTS;
+        rim[i][0] = CYL_RADIUS * cos(a);
+        rim[i][1] = -CYL_RADIUS * sin(a); /* counter-clockwise seen from +y */
+    }
+    memset(cylinder_triangles, 0, sizeof cylinder_triangles);
+    for (int i = 0; i < CYL_SEGMENTS; i++) {
+        int j = (i + 1) % CYL_SEGMENTS;
+        double b0[3] = {rim[i][0], 0, rim[i][1]}, b1[3] = {rim[j][0], 0, rim[j][1]};
+        double t0[3] = {rim[i][0], CYL_HEIGHT, rim[i][1]}, t1[3] = {rim[j][0], CYL_HEIGHT, rim[j][1]};
+        double top[3] = {0, CYL_HEIGHT, 0}, bottom[3] = {0, 0, 0};
+        const double *quad[4][3] = {{b0, b1, t1}, {b0, t1, t0}, {top, t0, t1}, {bottom, b1, b0}};
+        for (int q = 0; q < 4; q++)
+            for (int v = 0; v < 3; v++)
+                set3(cylinder_triangles[4 * i + q].v[v], quad[q][v][0], quad[q][v][1], quad[q][v][2]);
+    }
+}
+
+/* ---------------------------------------------------------------------------------------
+ * T(b, w; k): one infinite-medium walk (albedo a, Henyey-Greenstein g, mfp 1).
+ * ------------------------------------------------------------------------------------- */
+static uint64_t rng_state = 88172645463325252ull;
+static double rnd(void)
+{
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 7;
+    rng_state ^= rng_state << 17;
+    return (double)(rng_state >> 11) * (1.0 / 9007199254740992.0);
+}
+
+static void hg(double w[3], double g)
+{
+    double c;
+    if (fabs(g) < 1e-3)
+        c = 1 - 2 * rnd();
+    else {
+        double q = (1 - g * g) / (1 - g + 2 * g * rnd());
+        c = (1 + g * g - q * q) / (2 * g);
+    }
+    double s = sqrt(fmax(0.0, 1 - c * c)), phi = 2 * M_PI * rnd();
+    double t[3] = {fabs(w[0]) < 0.9 ? 1 : 0, fabs(w[0]) < 0.9 ? 0 : 1, 0};
+    double u[3] = {w[1] * t[2] - w[2] * t[1], w[2] * t[0] - w[0] * t[2], w[0] * t[1] - w[1] * t[0]};
+    double un = sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+    for (int i = 0; i < 3; i++)
+        u[i] /= un;
+    double v[3] = {w[1] * u[2] - w[2] * u[1], w[2] * u[0] - w[0] * u[2], w[0] * u[1] - w[1] * u[0]};
+    for (int i = 0; i < 3; i++)
+        w[i] = u[i] * s * cos(phi) + v[i] * s * sin(phi) + w[i] * c;
+}
+
+static double table_walk(const float origin[3], const float direction[3], uint32_t k, double albedo,
+                         double g, uint32_t min_order)
+{
+    double p[3] = {origin[0], origin[1], origin[2]}, w[3] = {direction[0], direction[1], direction[2]};
+    double weight = 1, sum = 0;
+    for (int step = 0; step < 100000; step++) {
+        double t = -log(1 - rnd());
+        for (int i = 0; i < 3; i++)
+            p[i] += t * w[i];
+        k++;
+        weight *= albedo;
+        if (k >= min_order && inside(p))
+            sum += weight;
+        if (p[0] * p[0] + p[1] * p[1] + p[2] * p[2] > 1e6)
+            break;
+        if (weight < 1e-4) {
+            if (rnd() < 0.5)
+                break;
+            weight *= 2;
+        }
+        hg(w, g);
+    }
+    return sum;
+}
+
+/* ---------------------------------------------------------------------------------------
+ * One case.
+ * ------------------------------------------------------------------------------------- */
+static void run_case(int which, double ior)
+{
+    static const char *const names[] = {"sphere 4 mfp", "box 3 mfp", "cylinder 2.6 x 3.8 mfp"};
+    const double albedo = 0.9, g = 0.5;
+    shape = which;
+    double sigma_s[3] = {albedo, albedo, albedo}, sigma_a[3] = {1 - albedo, 1 - albedo, 1 - albedo};
+    ns_material m = medium(sigma_s, sigma_a, ior);
+    m.g = (float)g;
+    ns_object o;
+    memset(&o, 0, sizeof o);
+    ns_scene s = base_scene(8, 8, 30);
+    if (which == SPHERE) {
+        o = sphere(0, 0, 0, SPHERE_RADIUS, 0);
+    } else if (which == BOX) {
+        o.shape = NS_SHAPE_BOX;
+        set3(o.min, -BOX_HALF, -BOX_HALF, -BOX_HALF);
+        set3(o.max, BOX_HALF, BOX_HALF, BOX_HALF);
+    } else {
+        cylinder_mesh();
+        o.shape = NS_SHAPE_MESH;
+        o.first_triangle = 0;
+        o.triangle_count = 4 * CYL_SEGMENTS;
+        s.triangles = cylinder_triangles;
+        s.triangle_count = 4 * CYL_SEGMENTS;
+    }
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0.3, -1, -0.2);
+    scene_lists(&s, &m, 1, &o, 1, &sun, 1);
+    set3(s.camera.position, 0, 0, 20);
+
+    device_scene d;
+    if (device_scene_make(&s, &d))
+        return;
+    const uint32_t paths = 20000;
+    ns_vrl_set walks = {0};
+    ns_error err = {0};
+    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7, &walks, NULL, &err);
+    if (status)
+        fprintf(stderr, "trace: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count + 1));
+    CHECK(sources != NULL);
+    if (status || !sources) {
+        free(sources);
+        ns_vrl_set_free(&walks);
+        device_scene_free(&d);
+        return;
+    }
+    uint32_t source_count = ns_boundary_sources(walks.vrls, walks.count, d.gs.materials, 0, sources);
+    CHECK(source_count > 0);
+
+    for (uint32_t min_order = 2; min_order <= 3; min_order++) {
+        /* Per path: truth, corrected and the infinite medium's T(entry) alone. The sources
+         * come in stretch order, so path p's are those made from its stretches. */
+        double sum_d = 0, sum_d2 = 0, sum_i = 0, sum_i2 = 0, sum_truth = 0;
+        uint32_t path_count = 0, next_source = 0;
+        uint32_t i = 0;
+        while (i < walks.count) {
+            uint32_t end = i + 1;
+            while (end < walks.count && !(walks.vrls[end].events == 0 &&
+                                          ns_boundary_link_of(&walks.vrls[end - 1], &walks.vrls[end]) ==
+                                              NS_BOUNDARY_LINK_START))
+                end++;
+            double truth = 0;
+            for (uint32_t j = i + 1; j < end; j++) {
+                const GpuVrl *v = &walks.vrls[j];
+                if (v->events >= min_order && v->events >= 1 &&
+                    ns_boundary_link_of(&walks.vrls[j - 1], v) == NS_BOUNDARY_LINK_START)
+                    truth += v->power[0];
+            }
+            const GpuVrl *entry = &walks.vrls[i];
+            double infinite = entry->power[0] * table_walk(entry->origin, entry->direction, 0, albedo, g, min_order);
+            double corrected = infinite;
+            /* This path's sources: those whose origin stretch lies in [i, end); sources are
+             * written in stretch order, 0 to 2 per stretch, so recount them. */
+            uint32_t made = ns_boundary_sources(walks.vrls + i, end - i, d.gs.materials, 0, sources + next_source);
+            for (uint32_t k = next_source; k < next_source + made; k++)
+                corrected += sources[k].power[0] *
+                             table_walk(sources[k].origin, sources[k].direction, sources[k].events, albedo, g, min_order);
+            next_source += made;
+            sum_d += corrected - truth;
+            sum_d2 += (corrected - truth) * (corrected - truth);
+            sum_i += infinite - truth;
+            sum_i2 += (infinite - truth) * (infinite - truth);
+            sum_truth += truth;
+            path_count++;
+            i = end;
+        }
+        CHECK(next_source == source_count);
+        double n = paths; /* paths that made no stretch add 0 to every sum */
+        double mean_d = sum_d / n, se_d = sqrt((sum_d2 / n - mean_d * mean_d) / (n - 1));
+        double mean_i = sum_i / n, se_i = sqrt((sum_i2 / n - mean_i * mean_i) / (n - 1));
+        double truth = sum_truth / n;
+        fprintf(stderr,
+                "  %s, ior %.1f, orders >= %u: truth %.5f, corrected - truth %+.5f (%.1f se, %+.2f%%), "
+                "infinite - truth %+.5f (%.1f se); %u paths entered, %u sources\n",
+                names[which], ior, min_order, truth, mean_d, mean_d / se_d, 100 * mean_d / truth, mean_i,
+                mean_i / se_i, path_count, source_count);
+        CHECK(truth > 0);
+        CHECK(fabs(mean_d) < 4 * se_d);
+        CHECK(fabs(mean_i) > 4 * se_i);
+    }
+    free(sources);
+    ns_vrl_set_free(&walks);
+    device_scene_free(&d);
+}
+
+static void test_sphere(void)
+{
+    run_case(SPHERE, 1.0);
+    run_case(SPHERE, 1.3);
+    run_case(SPHERE, 1.5);
+}
+
+static void test_box(void)
+{
+    run_case(BOX, 1.0);
+    run_case(BOX, 1.3);
+    run_case(BOX, 1.5);
+}
+
+static void test_cylinder(void)
+{
+    run_case(CYLINDER, 1.0);
+    run_case(CYLINDER, 1.3);
+    run_case(CYLINDER, 1.5);
+}
+
+int main(void)
+{
+    RUN(test_sphere);
+    RUN(test_box);
+    RUN(test_cylinder);
+    ns_context_destroy(test_context());
+    return harness_report();
+}
