@@ -1,0 +1,158 @@
+/* unit_boundary.c — the host side of the boundary-crossing correction (render/boundary.c):
+ *   - the blurred first-order table against its closed forms (energy a, mean depth 1 mfp,
+ *     mean cosine g, radial spread 2 sigma^2), from its bin averages;
+ *   - which table orders a source reads, for every components set and event count;
+ *   - the sources of a hand-made walk (entry, scattering, internal reflection, a grazing
+ *     continuation): where, which sign, what power;
+ *   - grouping by (orders, sign). */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "boundary.h"
+#include "harness.h"
+
+static void test_blurred_table_moments(void)
+{
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    const double cases[][2] = {{0.9, 0.0}, {0.5, 0.8}, {0.99, -0.3}};
+    float *j = malloc(sizeof(float) * NS_TABLE_CELLS);
+    CHECK(j != NULL);
+    if (!j)
+        return;
+    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
+        double a = cases[c][0], g = cases[c][1];
+        ns_blurred_first_order((float)a, (float)g, j);
+        double energy = 0, z = 0, cos_theta = 0, rho2 = 0, below = 0;
+        size_t at = 0;
+        for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
+            for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++) {
+                double z0 = grid.z[iz], z1 = grid.z[iz + 1], r0 = grid.rho[ir], r1 = grid.rho[ir + 1];
+                double volume = (z1 - z0) * M_PI * (r1 * r1 - r0 * r0);
+                for (uint32_t it = 0; it < NS_TABLE_NTHETA; it++) {
+                    double mu0 = cos(grid.theta[it]), mu1 = cos(grid.theta[it + 1]);
+                    for (uint32_t ip = 0; ip < NS_TABLE_NPHI; ip++, at++) {
+                        /* phi in [0, pi] stands for its mirror image too. */
+                        double omega = (mu0 - mu1) * 2.0 * (grid.phi[ip + 1] - grid.phi[ip]);
+                        double e = j[at] * volume * omega;
+                        energy += e;
+                        if (z1 <= 0)
+                            below += e;
+                        z += e * 0.5 * (z0 + z1);
+                        rho2 += e * 0.5 * (r0 * r0 + r1 * r1);
+                        cos_theta += e * 0.5 * (mu0 + mu1);
+                    }
+                }
+            }
+        z /= energy, cos_theta /= energy, rho2 /= energy;
+        double spread = 2 * NS_BOUNDARY_BLUR_MFP * NS_BOUNDARY_BLUR_MFP;
+        fprintf(stderr, "  a %.2f g %+.1f: energy %.6f, <z> %.4f, <cos> %.4f, <rho^2> %.4f (%.4f)\n", a, g,
+                energy, z, cos_theta, rho2, spread);
+        CHECK(fabs(energy / a - 1) < 1e-4);
+        CHECK(below == 0);
+        CHECK(fabs(z - 1) < 0.01);
+        /* Bin midpoints of 10-degree bins: the mean cosine within 0.01. */
+        CHECK(fabs(cos_theta - g) < 0.01);
+        CHECK(fabs(rho2 / spread - 1) < 0.05);
+    }
+    free(j);
+}
+
+static void test_orders(void)
+{
+    const uint32_t D = NS_COMPONENT_DOUBLE, M = NS_COMPONENT_MULTIPLE, B = NS_TABLE_FIRST_BLURRED;
+    /* k = 0: the VRL's own orders. */
+    CHECK_INT(ns_boundary_orders(0, D | M), D | M);
+    CHECK_INT(ns_boundary_orders(0, M | NS_COMPONENT_SINGLE), M);
+    /* k = 1: its first scattering after the source is order 2 (double), then 3 (J_2) and
+     * beyond (J_multiple). */
+    CHECK_INT(ns_boundary_orders(1, D | M), B | D | M);
+    CHECK_INT(ns_boundary_orders(1, M), D | M);
+    CHECK_INT(ns_boundary_orders(1, D), B);
+    /* k >= 2: everything is multiple. */
+    CHECK_INT(ns_boundary_orders(2, D | M), B | D | M);
+    CHECK_INT(ns_boundary_orders(5, M), B | D | M);
+    CHECK_INT(ns_boundary_orders(2, D), 0);
+    CHECK_INT(ns_boundary_orders(3, NS_COMPONENT_SINGLE | NS_COMPONENT_SURFACE), 0);
+}
+
+static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
+                      double power, uint32_t events)
+{
+    GpuVrl v;
+    memset(&v, 0, sizeof v);
+    v.origin[0] = (float)ox, v.origin[1] = (float)oy, v.origin[2] = (float)oz;
+    v.direction[0] = (float)dx, v.direction[1] = (float)dy, v.direction[2] = (float)dz;
+    v.length = (float)len;
+    v.power[0] = v.power[1] = v.power[2] = (float)power;
+    v.events = events;
+    return v;
+}
+
+static void test_sources_of_a_walk(void)
+{
+    GpuMaterial m;
+    memset(&m, 0, sizeof m);
+    m.sigma_t[0] = 1.0f, m.sigma_t[1] = 2.0f, m.sigma_t[2] = 0.5f, m.sigma_t[3] = 1.5f;
+    /* Enters at (0, 1, 0) going down 2 to the floor of a slab; scatters at y = 0.5 (k = 1),
+     * goes up 0.5 to the top face, is reflected there down to the floor (1 away), grazes it
+     * and goes on 0.25 along the same line. Then a second path starts elsewhere. */
+    const GpuVrl walk[] = {
+        stretch(0, 1, 0, 0, -1, 0, 2, 1.0, 0),          /* entry */
+        stretch(0, 0.5, 0, 0, 1, 0, 0.5, 0.8, 1),       /* after a scattering */
+        stretch(0, 1, 0, 0, -1, 0, 1.0, 0.3, 1),        /* reflected at the top face */
+        stretch(0, 0.0, 0, 0, -1, 0, 0.25, 0.3, 1),     /* grazing continuation */
+        stretch(5, 1, 5, 0, -1, 0, 2, 1.0, 0),          /* the next path */
+    };
+    CHECK_INT(ns_boundary_link_of(NULL, &walk[0]), NS_BOUNDARY_LINK_START);
+    CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_START);
+    CHECK_INT(ns_boundary_link_of(&walk[1], &walk[2]), NS_BOUNDARY_LINK_REFLECTED);
+    CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_CONTINUED);
+    CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
+
+    GpuVrl out[10];
+    /* min_events 1, as the renderer asks (k = 0 is the bounded beams'): ghost of stretch 1
+     * at (0, 1, 0) going up; the reflected beam (stretch 2's start); no ghost at stretch 2's
+     * end (stretch 3 continues it); ghost at stretch 3's end (0, -0.25, 0). */
+    uint32_t n = ns_boundary_sources(walk, 5, &m, 1, out);
+    CHECK_INT(n, 3);
+    if (n != 3)
+        return;
+    CHECK(fabsf(out[0].origin[1] - 1.0f) < 1e-6f && out[0].direction[1] == 1.0f);
+    for (int c = 0; c < 3; c++)
+        CHECK(fabsf(out[0].power[c] + 0.8f * expf(-m.sigma_t[c] * 0.5f)) < 1e-6f);
+    CHECK(out[0].length == 0.0f && out[0].events == 1);
+    CHECK(out[1].power[0] == 0.3f && out[1].origin[1] == 1.0f && out[1].direction[1] == -1.0f);
+    CHECK(out[1].length == 0.0f && out[1].events == 1);
+    CHECK(fabsf(out[2].origin[1] + 0.25f) < 1e-6f);
+    for (int c = 0; c < 3; c++)
+        CHECK(fabsf(out[2].power[c] + 0.3f * expf(-m.sigma_t[c] * 0.25f)) < 1e-6f);
+    /* min_events 0 adds the entries' ghosts at their exits. */
+    CHECK_INT(ns_boundary_sources(walk, 5, &m, 0, out), 5);
+
+    ns_boundary_groups groups;
+    ns_error err = {0};
+    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, &groups, &err), NS_OK);
+    /* k = 0 ghosts read M, k = 1 ghosts and the reflected beam read D | M: three groups. */
+    CHECK_INT(groups.count, 3);
+    uint32_t total = 0;
+    for (uint32_t g = 0; g < groups.count; g++) {
+        total += groups.group[g].set.count;
+        for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
+            const GpuVrl *s = &groups.group[g].set.vrls[i];
+            CHECK_INT(ns_boundary_orders(s->events, NS_COMPONENT_MULTIPLE), groups.group[g].orders);
+            CHECK((s->power[0] < 0) == groups.group[g].negative);
+        }
+    }
+    CHECK_INT(total, 5);
+    ns_boundary_groups_free(&groups);
+}
+
+int main(void)
+{
+    RUN(test_blurred_table_moments);
+    RUN(test_orders);
+    RUN(test_sources_of_a_walk);
+    return harness_report();
+}
