@@ -80,14 +80,14 @@ static void write_results(FILE *f, const bench_run *run)
                "wall time of `ns_render` after the first render; first: the first render, which "
                "reconstructs and accumulates the tables.\n\n"
                "| scene | method | components | status | render.vrls | VRLs | spp | time ms | first ms | "
-               "PSNR dB | RMSE | rel. err | interactions | table MB | weights KB |\n"
-               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+               "PSNR dB | RMSE | rel. err | mean / ref R G B | interactions | table MB | weights KB |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         if (s->skipped) {
             fprintf(f, "| %s | all | - | skipped: ", s->name);
             put_escaped(f, s->skip_reason);
-            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
             continue;
         }
         for (int m = 0; m < BENCH_METHOD_COUNT; m++) {
@@ -99,14 +99,17 @@ static void write_results(FILE *f, const bench_run *run)
             if (!r->ok) {
                 fprintf(f, "not rendered: ");
                 put_escaped(f, r->error[0] ? r->error : "not run");
-                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
                 continue;
             }
             int compared = r->metrics.pixels > 0;
-            fprintf(f, "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %llu | %s | %s |\n",
+            fprintf(f, "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %s %s %s | %llu | %s | %s |\n",
                     compared ? "ok" : "ok, no reference", r->vrls, (unsigned long long)r->stats.vrl_count, r->spp,
                     num(r->ms, 1).text, num(r->cold_ms, 1).text, num(compared ? r->metrics.psnr[3] : NAN, 2).text,
                     sci(compared ? r->metrics.rmse[3] : NAN).text, num(compared ? r->metrics.relerr[3] : NAN, 4).text,
+                    num(compared ? r->metrics.mean_ratio[0] : NAN, 3).text,
+                    num(compared ? r->metrics.mean_ratio[1] : NAN, 3).text,
+                    num(compared ? r->metrics.mean_ratio[2] : NAN, 3).text,
                     (unsigned long long)r->stats.interactions, num(r->stats.table_bytes / 1048576.0, 1).text,
                     num(r->stats.weights_bytes / 1024.0, 1).text);
         }

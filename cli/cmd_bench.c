@@ -41,7 +41,7 @@
  * ------------------------------------------------------------------------------------- */
 typedef struct bench_args {
     const char *scenes, *methods, *out_dir, *cache_dir, *device, *scene_dir, *bunny, *diff;
-    const char *ladder;
+    const char *ladder, *boundary;
     uint32_t width, height, spp, ref_spp, repeat;
     double vrl_scale, mc_collisions;
     int references_only;
@@ -74,6 +74,8 @@ static void bench_usage(FILE *out)
             "  --references       (re)render the references of the chosen scenes, report the\n"
             "                     time, and stop\n"
             "  --diff METHOD      method in the contact sheet's difference column (nn_full)\n"
+            "  --boundary MODEL   render.boundary of the nn and table rows: off (the scenes'\n"
+            "                     default) or walks\n"
             "  --device D         Vulkan device: index or name substring (also NSCATTER_DEVICE)\n"
             "  --scene-dir DIR    folder holding bench.json and the scenes (default: the source's)\n"
             "  --bunny OBJ        the Stanford bunny (default: glmark2-data's " BENCH_DEFAULT_BUNNY ")\n"
@@ -168,6 +170,10 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
             rc = parse_real(arg, val, 1e4, 1e12, &a->mc_collisions);
         } else if (TAKES("--pt-spp")) {
             a->ladder = val;
+        } else if (TAKES("--boundary")) {
+            a->boundary = val;
+            if (strcmp(val, "off") && strcmp(val, "walks"))
+                return bench_bad("--boundary", val, "neither off nor walks");
         } else if (TAKES("--out")) {
             a->out_dir = val;
         } else if (TAKES("--cache")) {
@@ -613,6 +619,8 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     r->vrls = info->vrls_key ? vrls : 0;
     r->spp = scene_spp(b, s);
     json_t *scene_json = scene_for(s, info->method, info->components, r->spp, 0, r->vrls);
+    if (b->args.boundary && (info->method == NS_METHOD_NN || info->method == NS_METHOD_TABLE))
+        json_object_set_new(json_object_get(scene_json, "render"), "boundary", json_string(b->args.boundary));
     double times[64];
     uint32_t n = 0;
     for (uint32_t i = 0; i < repeat && i < 64; i++) {

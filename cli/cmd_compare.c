@@ -27,7 +27,8 @@ static void compare_usage(FILE *out)
         "  --diff OUT.png  write a false-colour map of |A - B| (channel mean)\n"
         "  --diff-scale S  difference shown at the top of the ramp (default: the largest)\n"
         "\n"
-        "prints one JSON object: pixels, peak, rmse/psnr/relerr per channel and overall.\n"
+        "prints one JSON object: pixels, peak, rmse/psnr/relerr/mean_ratio (mean of A over\n"
+        "mean of B) per channel and overall.\n"
         "exit status: 0 compared, 1 could not write the difference image, 2 bad arguments\n"
         "or unreadable/mismatched images\n");
 }
@@ -102,12 +103,12 @@ static int compare_print(const compare_args *args, const ns_image *a, const imag
                          double diff_scale)
 {
     json_t *obj = json_pack(
-        "{s:s, s:s, s:o, s:I, s:I, s:I, s:b, s:o, s:o, s:o, s:o, s:f, s:o, s:I}", "a", args->a_path,
+        "{s:s, s:s, s:o, s:I, s:I, s:I, s:b, s:o, s:o, s:o, s:o, s:o, s:f, s:o, s:I}", "a", args->a_path,
         "b", args->b_path, "mask", args->mask_path ? json_string(args->mask_path) : json_null(),
         "width", (json_int_t)a->width, "height", (json_int_t)a->height, "pixels",
         (json_int_t)m->pixels, "identical", m->identical, "peak", compare_number(m->peak), "rmse",
         compare_channels(m->rmse), "psnr", compare_channels(m->psnr), "relerr",
-        compare_channels(m->relerr), "relerr_epsilon", IMAGE_RELERR_EPSILON, "max_abs_diff",
+        compare_channels(m->relerr), "mean_ratio", compare_channels(m->mean_ratio), "relerr_epsilon", IMAGE_RELERR_EPSILON, "max_abs_diff",
         compare_number(m->max_abs_diff), "nonfinite", (json_int_t)m->nonfinite);
     if (!obj)
         return 1;

@@ -189,7 +189,7 @@ void image_compare(const ns_image *a, const ns_image *b, const uint8_t *mask, im
 {
     assert(a->width == b->width && a->height == b->height);
     memset(m, 0, sizeof *m);
-    double sq[3] = {0}, rel[3] = {0};
+    double sq[3] = {0}, rel[3] = {0}, sum_a[3] = {0}, sum_b[3] = {0};
     uint64_t counted[3] = {0};
     double peak = 0.0;
     int identical = 1;
@@ -210,6 +210,8 @@ void image_compare(const ns_image *a, const ns_image *b, const uint8_t *mask, im
                 identical = 0;
             sq[c] += d * d;
             rel[c] += fabs(d) / (fabs(vb) + IMAGE_RELERR_EPSILON);
+            sum_a[c] += va;
+            sum_b[c] += vb;
             counted[c]++;
             if (vb > peak)
                 peak = vb;
@@ -226,6 +228,10 @@ void image_compare(const ns_image *a, const ns_image *b, const uint8_t *mask, im
         rel_all += rel[c];
         counted_all += counted[c];
     }
+    for (int c = 0; c < 3; c++)
+        m->mean_ratio[c] = sum_b[c] != 0.0 ? sum_a[c] / sum_b[c] : NAN;
+    double total_b = sum_b[0] + sum_b[1] + sum_b[2];
+    m->mean_ratio[3] = total_b != 0.0 ? (sum_a[0] + sum_a[1] + sum_a[2]) / total_b : NAN;
     m->rmse[3] = counted_all ? sqrt(sq_all / (double)counted_all) : NAN;
     m->relerr[3] = counted_all ? rel_all / (double)counted_all : NAN;
     m->peak = counted_all ? peak : NAN;

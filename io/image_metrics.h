@@ -43,6 +43,8 @@ typedef struct image_metrics {
     double rmse[4];      /* R, G, B, overall */
     double psnr[4];      /* +INFINITY when the RMSE is 0; NaN when peak is 0 */
     double relerr[4];    /* mean relative error, R, G, B, overall */
+    double mean_ratio[4]; /* mean of A over mean of B, R, G, B, overall (NaN when B's is 0):
+                             the bias a scattering model leaves, apart from its noise */
     double max_abs_diff; /* largest |A - B| over counted pixels and channels */
     int identical;       /* every counted value equal (bit for bit after loading) */
     uint64_t nonfinite;  /* counted values where A or B is NaN/Inf (excluded) */

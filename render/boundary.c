@@ -141,7 +141,8 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
             while (g < out->count && !(out->group[g].orders == orders && out->group[g].negative == negative))
                 g++;
             if (g == out->count) {
-                if (pass == 1 || g == NS_BOUNDARY_GROUPS)
+                /* One place stays free for ns_boundary_add_reflected_vrls. */
+                if (pass == 1 || g + 1 == NS_BOUNDARY_GROUPS)
                     return ns_fail(err, NS_ERR_INTERNAL, "boundary: more than %u source groups",
                                    (unsigned)NS_BOUNDARY_GROUPS);
                 out->group[g].orders = orders;
@@ -163,6 +164,30 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
                 }
             }
     }
+    return NS_OK;
+}
+
+int ns_boundary_add_reflected_vrls(const ns_vrl_set *vrls, ns_boundary_groups *g, ns_error *err)
+{
+    uint32_t n = 0;
+    for (uint32_t i = 1; i < vrls->count; i++)
+        n += ns_boundary_link_of(&vrls->vrls[i - 1], &vrls->vrls[i]) == NS_BOUNDARY_LINK_REFLECTED;
+    if (!n)
+        return NS_OK;
+    if (g->count == NS_BOUNDARY_GROUPS)
+        return ns_fail(err, NS_ERR_INTERNAL, "boundary: more than %u source groups", (unsigned)NS_BOUNDARY_GROUPS);
+    ns_source_group *group = &g->group[g->count];
+    memset(group, 0, sizeof *group);
+    group->set.vrls = malloc(sizeof(GpuVrl) * n);
+    if (!group->set.vrls)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u reflected VRLs", n);
+    for (uint32_t i = 1; i < vrls->count; i++)
+        if (ns_boundary_link_of(&vrls->vrls[i - 1], &vrls->vrls[i]) == NS_BOUNDARY_LINK_REFLECTED)
+            group->set.vrls[group->filled++] = vrls->vrls[i];
+    group->set.count = n;
+    group->orders = NS_TABLE_FIRST_BLURRED;
+    group->bounded = 1;
+    g->count++;
     return NS_OK;
 }
 

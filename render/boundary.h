@@ -34,12 +34,14 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
  * source after `events` scattering events reads for the asked components; 0: none. */
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
 
-/* Sources grouped by (orders, sign): one gather each. */
-#define NS_BOUNDARY_GROUPS 4u
+/* Sources grouped by (orders, sign): one gather each; and one more group, the reflected
+ * VRLs below. */
+#define NS_BOUNDARY_GROUPS 5u
 typedef struct ns_source_group {
     ns_vrl_set set;
     uint32_t orders;
     int negative;
+    int bounded; /* its beams end at their length (the reflected VRLs); sources are endless */
     uint32_t filled;
 } ns_source_group;
 typedef struct ns_boundary_groups {
@@ -49,6 +51,12 @@ typedef struct ns_boundary_groups {
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
                       ns_boundary_groups *out, ns_error *err);
 void ns_boundary_groups_free(ns_boundary_groups *g);
+
+/* Adds to g the group of the VRLs of `vrls` (vrl.comp's chains, in path order) that start with
+ * an internal reflection of the unscattered beam, reading the blurred first-order table: the
+ * single scattering of light the boundary reflected before it scattered, which the single
+ * stage (straight to the lights) does not see. Nothing is added when there are none. */
+int ns_boundary_add_reflected_vrls(const ns_vrl_set *vrls, ns_boundary_groups *g, ns_error *err);
 
 /* J_1^blur of one channel (albedo a, phase g) as NS_TABLE_CELLS bin averages, [z][rho][theta]
  * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). */

@@ -612,6 +612,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
                                  ns_render_stats *stats, ns_error *err)
 {
     const ns_scene *scene = in->scene;
+    if (!(scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)))
+        return ns_boundary_add_reflected_vrls(&v->set, &v->boundary, err); /* single alone */
     ns_vrl_set walks;
     int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                      scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
@@ -626,6 +628,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     ns_vrl_set_free(&walks);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
     free(sources);
+    if (!status && (scene->render.components & NS_COMPONENT_SINGLE))
+        status = ns_boundary_add_reflected_vrls(&v->set, &v->boundary, err);
     if (!status && stats)
         for (uint32_t g = 0; g < v->boundary.count; g++)
             stats->boundary_sources += v->boundary.group[g].set.count;
@@ -790,9 +794,12 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
         ns_span one = ns_progress_push(ctx, 0.0, 1.0 / grids);
         status = grid_once(ctx, &source->set, mat, m, scene->render.cull_solid_angle, &source->grids[m],
                            &source->grid_built[m], times, err);
-        if (!status)
+        /* Single scattering alone gathers only the boundary's reflected VRLs. */
+        if (!status && orders)
             status = gather_grid(ctx, in, source, m, 0, &source->grids[m], orders, bounded_beams(scene),
                                  list, seg_buf, out, stats, times, err);
+        else if (!status)
+            memset((float(*)[4])out->mapped + first, 0, 16ull * count);
         ns_progress_pop(ctx, one);
         for (uint32_t g = 0; g < source->boundary.count && !status; g++) {
             const ns_source_group *group = &source->boundary.group[g];
@@ -800,10 +807,11 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
             one = ns_progress_push(ctx, (1.0 + g) / grids, (2.0 + g) / grids);
             status = grid_once(ctx, &group->set, mat, m, scene->render.cull_solid_angle,
                                &source->boundary_grids[at], &source->boundary_grid_built[at], times, err);
-            /* Sources are endless beams: the walk accounts for where each one ends. */
+            /* Sources are endless beams (the walk accounts for where each one ends); the
+             * reflected VRLs end at their exit, as every bounded beam. */
             if (!status && source->boundary_grids[at].vrl_count)
                 status = gather_grid(ctx, in, source, m, 1 + g, &source->boundary_grids[at], group->orders,
-                                     0, list, seg_buf, scratch, stats, times, err);
+                                     group->bounded, list, seg_buf, scratch, stats, times, err);
             if (!status && source->boundary_grids[at].vrl_count) {
                 float(*sum)[4] = out->mapped;
                 const float(*add)[4] = scratch->mapped;
@@ -993,7 +1001,11 @@ int ns_scatter_render(ns_context *ctx, const ns_scatter_inputs *in, ns_render_st
     ns_batch_shares(in->scene, shares);
     if (in->segment_count && (components & NS_COMPONENT_SINGLE))
         status = render_single(ctx, in, shares[0], shares[1], &times, err);
-    if (!status && in->segment_count && (components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE))) {
+    /* With the boundary correction the gather also carries single scattering after an
+     * internal reflection. */
+    int gathers = (components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)) ||
+                  ((components & NS_COMPONENT_SINGLE) && in->scene->render.boundary != NS_BOUNDARY_OFF);
+    if (!status && in->segment_count && gathers) {
         status = ns_run_check(ctx, err);
         ns_span outer = ns_progress_push(ctx, shares[1], 1.0);
         if (!status)
