@@ -10,9 +10,9 @@
  *     B = T(VRL) + sum over the boundary events i of the light's real walk inside the object
  *             W_i [ - T(b_i, w_i; k_i) + 1{reflected} T(b_i, w_i^r; k_i) ]
  *
- * is exact in expectation. The unscattered part (k = 0) is the bounded beams' (vrl.comp's
- * reflected stretches, gather.glsl's subtraction past a VRL's exit). For k >= 1 the walks are
- * the `vrl` method's light paths (vrl_trace.comp: free flights, Henyey-Greenstein, Fresnel
+ * is exact in expectation. The first stretch's own exit is the bounded beams' (gather.glsl
+ * subtracts the beam past a VRL's exit); everything after it comes from walks: the `vrl`
+ * method's light paths (vrl_trace.comp: free flights, Henyey-Greenstein, Fresnel
  * and total internal reflection with the Fresnel probability, Russian roulette), which
  * return every stretch of every path inside a medium: origin, direction, the distance L to
  * the boundary ahead, the flux at its origin and the events before it. Each stretch gives
@@ -72,14 +72,13 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
 }
 
 uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
-                             uint32_t min_events, GpuVrl *out)
+                             int entry_ghosts, GpuVrl *out)
 {
     uint32_t n = 0;
     for (uint32_t i = 0; i < count; i++) {
         const GpuVrl *v = &stretches[i];
-        if (v->events < min_events)
-            continue;
         ns_boundary_link link = ns_boundary_link_of(i ? &stretches[i - 1] : NULL, v);
+        int entry = v->events == 0 && link == NS_BOUNDARY_LINK_START;
         if (link == NS_BOUNDARY_LINK_REFLECTED) {
             GpuVrl r = *v;
             r.length = 0.0f;
@@ -88,7 +87,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
         /* A stretch that the next one continues along the same line has no boundary event
          * at its end: the next one's ghost stands for both. */
         int continued = i + 1 < count && ns_boundary_link_of(v, &stretches[i + 1]) == NS_BOUNDARY_LINK_CONTINUED;
-        if (!(v->length > 0.0f) || continued)
+        if (!(v->length > 0.0f) || continued || (entry && !entry_ghosts))
             continue;
         const float *st = materials[v->material].sigma_t;
         GpuVrl ghost = *v;
@@ -105,16 +104,48 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
     return n;
 }
 
+static uint32_t hash32(uint32_t v)
+{
+    /* PCG's output permutation, as shaders/common.glsl's pcg_hash. */
+    uint32_t state = v * 747796405u + 2891336453u;
+    uint32_t word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t seed)
+{
+    if (!(floor > 0.0f))
+        return n;
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        GpuVrl s = sources[i];
+        float weight = fabsf(s.power[0] + s.power[1] + s.power[2]) / 3.0f;
+        if (weight < floor) {
+            float u = (float)(hash32(hash32(seed) + i) >> 8) * (1.0f / 16777216.0f);
+            if (!(u * floor < weight))
+                continue;
+            for (int c = 0; c < 3; c++)
+                s.power[c] *= floor / weight;
+        }
+        sources[kept++] = s;
+    }
+    return kept;
+}
+
+/* Whether the components ask for scattering order `order` (>= 1). */
+static int order_wanted(uint32_t order, uint32_t components)
+{
+    uint32_t bit = order == 1 ? NS_COMPONENT_SINGLE : order == 2 ? NS_COMPONENT_DOUBLE : NS_COMPONENT_MULTIPLE;
+    return (components & bit) != 0;
+}
+
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components)
 {
-    uint32_t want_double = components & NS_COMPONENT_DOUBLE, want_multiple = components & NS_COMPONENT_MULTIPLE;
-    if (events == 0)
-        return components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE);
-    uint32_t orders = want_multiple ? NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE : 0u;
-    /* Order events + 1: double when that is 2, multiple beyond. */
-    if (events == 1 ? want_double : want_multiple)
-        orders |= NS_TABLE_FIRST_BLURRED;
-    return orders;
+    /* The source's light scatters next as order events + 1 (the blurred first order),
+     * events + 2 (J_2) and events + 3 on (J_multiple). */
+    return (order_wanted(events + 1, components) ? NS_TABLE_FIRST_BLURRED : 0u) |
+           (order_wanted(events + 2, components) ? NS_COMPONENT_DOUBLE : 0u) |
+           (order_wanted(events + 3, components) ? NS_COMPONENT_MULTIPLE : 0u);
 }
 
 void ns_boundary_groups_free(ns_boundary_groups *g)
@@ -141,8 +172,7 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
             while (g < out->count && !(out->group[g].orders == orders && out->group[g].negative == negative))
                 g++;
             if (g == out->count) {
-                /* One place stays free for ns_boundary_add_reflected_vrls. */
-                if (pass == 1 || g + 1 == NS_BOUNDARY_GROUPS)
+                if (pass == 1 || g == NS_BOUNDARY_GROUPS)
                     return ns_fail(err, NS_ERR_INTERNAL, "boundary: more than %u source groups",
                                    (unsigned)NS_BOUNDARY_GROUPS);
                 out->group[g].orders = orders;
@@ -164,30 +194,6 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
                 }
             }
     }
-    return NS_OK;
-}
-
-int ns_boundary_add_reflected_vrls(const ns_vrl_set *vrls, ns_boundary_groups *g, ns_error *err)
-{
-    uint32_t n = 0;
-    for (uint32_t i = 1; i < vrls->count; i++)
-        n += ns_boundary_link_of(&vrls->vrls[i - 1], &vrls->vrls[i]) == NS_BOUNDARY_LINK_REFLECTED;
-    if (!n)
-        return NS_OK;
-    if (g->count == NS_BOUNDARY_GROUPS)
-        return ns_fail(err, NS_ERR_INTERNAL, "boundary: more than %u source groups", (unsigned)NS_BOUNDARY_GROUPS);
-    ns_source_group *group = &g->group[g->count];
-    memset(group, 0, sizeof *group);
-    group->set.vrls = malloc(sizeof(GpuVrl) * n);
-    if (!group->set.vrls)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u reflected VRLs", n);
-    for (uint32_t i = 1; i < vrls->count; i++)
-        if (ns_boundary_link_of(&vrls->vrls[i - 1], &vrls->vrls[i]) == NS_BOUNDARY_LINK_REFLECTED)
-            group->set.vrls[group->filled++] = vrls->vrls[i];
-    group->set.count = n;
-    group->orders = NS_TABLE_FIRST_BLURRED;
-    group->bounded = 1;
-    g->count++;
     return NS_OK;
 }
 

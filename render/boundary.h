@@ -10,7 +10,11 @@
  * leaves a source unscattered meets a camera segment (a line) with probability zero, so its
  * first scattering there is spread over a narrow tube, like the beam x beam blur of photon
  * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). */
-#define NS_BOUNDARY_BLUR_MFP 0.25
+#define NS_BOUNDARY_BLUR_MFP 0.1
+
+/* Sources weaker than this fraction of the mean VRL's power go through Russian roulette
+ * (ns_boundary_roulette). */
+#define NS_BOUNDARY_ROULETTE 0.5
 
 /* How stretch v of a walk follows the stretch before it (NULL: none): a new start (the
  * entry into the medium, or a scattering event: its events differ, or it starts elsewhere),
@@ -23,25 +27,33 @@ typedef enum {
 } ns_boundary_link;
 ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
 
-/* The sources of stretches[0, count) (the `vrl` method's light paths, in path order) with
- * events >= min_events: a ghost (negative power) at the end of every stretch and a reflected
- * beam (positive) at the start of every stretch that begins with an internal reflection, all
+/* The sources of stretches[0, count) (the `vrl` method's light paths, in path order): a
+ * ghost (negative power) at the end of every stretch, except the entry stretch's unless
+ * entry_ghosts (the renderer's bounded VRLs subtract that one), and a reflected beam
+ * (positive) at the start of every stretch that begins with an internal reflection, all
  * endless (length 0). out has room for 2 count. Returns how many were written. */
 uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
-                             uint32_t min_events, GpuVrl *out);
+                             int entry_ghosts, GpuVrl *out);
 
-/* The table orders (NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE, NS_TABLE_FIRST_BLURRED) a
- * source after `events` scattering events reads for the asked components; 0: none. */
+/* Russian roulette on weak sources: one whose power (mean of RGB, in absolute value) is
+ * below `floor` is kept with probability |power| / floor and then carries power * floor /
+ * |power| (sign and colour kept), the others as they are: unbiased, and no more sources
+ * than the total weight over floor besides the strong ones. The draws come from seed and
+ * each source's index. Compacts sources[0, n) in place; returns how many are left. */
+uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t seed);
+
+/* The table orders (NS_TABLE_FIRST_BLURRED, NS_COMPONENT_DOUBLE for J_2,
+ * NS_COMPONENT_MULTIPLE for J_multiple) a source after `events` scattering events reads for
+ * the asked components (single, double, multiple); 0: none. */
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
 
-/* Sources grouped by (orders, sign): one gather each; and one more group, the reflected
- * VRLs below. */
-#define NS_BOUNDARY_GROUPS 5u
+/* Sources grouped by (orders, sign): one gather each. Three sets of orders at most (events
+ * 0, 1 and more), two signs. */
+#define NS_BOUNDARY_GROUPS 6u
 typedef struct ns_source_group {
     ns_vrl_set set;
     uint32_t orders;
     int negative;
-    int bounded; /* its beams end at their length (the reflected VRLs); sources are endless */
     uint32_t filled;
 } ns_source_group;
 typedef struct ns_boundary_groups {
@@ -52,11 +64,6 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
                       ns_boundary_groups *out, ns_error *err);
 void ns_boundary_groups_free(ns_boundary_groups *g);
 
-/* Adds to g the group of the VRLs of `vrls` (vrl.comp's chains, in path order) that start with
- * an internal reflection of the unscattered beam, reading the blurred first-order table: the
- * single scattering of light the boundary reflected before it scattered, which the single
- * stage (straight to the lights) does not see. Nothing is added when there are none. */
-int ns_boundary_add_reflected_vrls(const ns_vrl_set *vrls, ns_boundary_groups *g, ns_error *err);
 
 /* J_1^blur of one channel (albedo a, phase g) as NS_TABLE_CELLS bin averages, [z][rho][theta]
  * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). */

@@ -612,8 +612,6 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
                                  ns_render_stats *stats, ns_error *err)
 {
     const ns_scene *scene = in->scene;
-    if (!(scene->render.components & (NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE)))
-        return ns_boundary_add_reflected_vrls(&v->set, &v->boundary, err); /* single alone */
     ns_vrl_set walks;
     int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                      scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
@@ -624,12 +622,20 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
         ns_vrl_set_free(&walks);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
     }
-    uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 1, sources);
+    uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
     ns_vrl_set_free(&walks);
+    /* Sources weaker than a fraction of the mean VRL carry little but cost as much in the
+     * gather: long walks (milk's albedo 0.999) make many of them. */
+    double vrl_power = 0;
+    for (uint32_t i = 0; i < v->set.count; i++)
+        vrl_power += (v->set.vrls[i].power[0] + v->set.vrls[i].power[1] + v->set.vrls[i].power[2]) / 3.0;
+    float floor = v->set.count ? (float)(NS_BOUNDARY_ROULETTE * vrl_power / v->set.count) : 0.0f;
+    const char *env = getenv("NS_ROULETTE");
+    if (env)
+        floor = v->set.count ? (float)(atof(env) * vrl_power / v->set.count) : 0.0f;
+    n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
     free(sources);
-    if (!status && (scene->render.components & NS_COMPONENT_SINGLE))
-        status = ns_boundary_add_reflected_vrls(&v->set, &v->boundary, err);
     if (!status && stats)
         for (uint32_t g = 0; g < v->boundary.count; g++)
             stats->boundary_sources += v->boundary.group[g].set.count;
@@ -653,8 +659,9 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     int boundary = scene->render.boundary != NS_BOUNDARY_OFF;
     ns_stage stage = stage_begin(ctx, T_VRL, 0.0, boundary ? 0.5 : 1.0);
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
-     * VRLs of their own. */
-    uint32_t chain = bounded_beams(scene) ? NS_VRL_MAX_CHAIN : 1;
+     * VRLs of their own; with the boundary correction its walks follow them instead, as far
+     * as they go (the chain stops at NS_VRL_MAX_CHAIN). */
+    uint32_t chain = bounded_beams(scene) && !boundary ? NS_VRL_MAX_CHAIN : 1;
     int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
                                  chain, scene->render.seed, &v->set, err);
     stage_end(ctx, times, T_VRL, &stage);
@@ -807,11 +814,10 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
             one = ns_progress_push(ctx, (1.0 + g) / grids, (2.0 + g) / grids);
             status = grid_once(ctx, &group->set, mat, m, scene->render.cull_solid_angle,
                                &source->boundary_grids[at], &source->boundary_grid_built[at], times, err);
-            /* Sources are endless beams (the walk accounts for where each one ends); the
-             * reflected VRLs end at their exit, as every bounded beam. */
+            /* Sources are endless beams: the walk accounts for where each one ends. */
             if (!status && source->boundary_grids[at].vrl_count)
                 status = gather_grid(ctx, in, source, m, 1 + g, &source->boundary_grids[at], group->orders,
-                                     group->bounded, list, seg_buf, scratch, stats, times, err);
+                                     0, list, seg_buf, scratch, stats, times, err);
             if (!status && source->boundary_grids[at].vrl_count) {
                 float(*sum)[4] = out->mapped;
                 const float(*add)[4] = scratch->mapped;

@@ -10,6 +10,8 @@
  * channel, and that without it nn is off by more (so that the scene tells them apart).
  * Image means over 32 x 32 pixels. Also: off is the default and adds no source; the other
  * methods refuse the setting naming it. */
+#include <stdlib.h>
+
 #include "gpu_util.h"
 
 typedef struct means {
@@ -22,6 +24,8 @@ static int mean_of(ns_scene s, ns_method method, ns_boundary boundary, uint32_t 
     s.render.method = method;
     s.render.boundary = boundary;
     s.render.spp = spp;
+    if (method == NS_METHOD_PT && getenv("NS_PT_SEED"))
+        s.render.seed = (uint32_t)atoi(getenv("NS_PT_SEED"));
     ns_image img = {0};
     ns_render_stats stats = {0};
     if (!render_ok(&s, &img, &stats))
@@ -143,9 +147,9 @@ static void test_light_guide(void)
      * sub-path to the first event (docs/reference.md), so it misses light that the walls
      * reflect between two events; a sphere light it also hits after any number of
      * reflections. */
-    ns_light lamp = light(NS_LIGHT_SPHERE, 20, 20, 20);
-    set3(lamp.position, 0, 6.4, 0);
-    lamp.radius = 0.15f;
+    ns_light lamp = light(NS_LIGHT_SPHERE, 3, 3, 3);
+    set3(lamp.position, 0, 6.8, 0);
+    lamp.radius = 0.4f;
     ns_scene s = one_object(&m, &box, &lamp);
     s.camera.fov_deg = 28;
     set3(s.camera.position, 0, 3, 14);

@@ -3,7 +3,7 @@
  * renderer's own trace (ns_vrl_method_trace, on the device); everything else is on the CPU:
  *   truth      the walk's own scattering events of order >= m inside the object, weighted by
  *              the flux after each (the quantity the image integrates, without the camera);
- *   corrected  T(entry; 0) + sum over ns_boundary_sources' sources (every order, k >= 0) of
+ *   corrected  T(entry; 0) + sum over ns_boundary_sources' sources (the entry's ghost too) of
  *              their signed power times T(source; k), where T(b, w; k) counts the same events
  *              (total order >= m, inside the object) of one infinite-medium walk from b
  *              along w after k events: what a table would return, estimated without one.
@@ -210,7 +210,7 @@ static void run_case(int which, double ior)
         device_scene_free(&d);
         return;
     }
-    uint32_t source_count = ns_boundary_sources(walks.vrls, walks.count, d.gs.materials, 0, sources);
+    uint32_t source_count = ns_boundary_sources(walks.vrls, walks.count, d.gs.materials, 1, sources);
     CHECK(source_count > 0);
 
     for (uint32_t min_order = 2; min_order <= 3; min_order++) {
@@ -237,7 +237,7 @@ static void run_case(int which, double ior)
             double corrected = infinite;
             /* This path's sources: those whose origin stretch lies in [i, end); sources are
              * written in stretch order, 0 to 2 per stretch, so recount them. */
-            uint32_t made = ns_boundary_sources(walks.vrls + i, end - i, d.gs.materials, 0, sources + next_source);
+            uint32_t made = ns_boundary_sources(walks.vrls + i, end - i, d.gs.materials, 1, sources + next_source);
             for (uint32_t k = next_source; k < next_source + made; k++)
                 corrected += sources[k].power[0] *
                              table_walk(sources[k].origin, sources[k].direction, sources[k].events, albedo, g, min_order);
