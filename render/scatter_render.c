@@ -630,9 +630,6 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     for (uint32_t i = 0; i < v->set.count; i++)
         vrl_power += (v->set.vrls[i].power[0] + v->set.vrls[i].power[1] + v->set.vrls[i].power[2]) / 3.0;
     float floor = v->set.count ? (float)(NS_BOUNDARY_ROULETTE * vrl_power / v->set.count) : 0.0f;
-    const char *env = getenv("NS_ROULETTE");
-    if (env)
-        floor = v->set.count ? (float)(atof(env) * vrl_power / v->set.count) : 0.0f;
     n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
     free(sources);
