@@ -54,7 +54,14 @@ typedef struct bench_reference {
     double ms; /* render time when it was made (from its .json when cached) */
     char device[256];
     ns_image image;
+    /* pt's per-sample variance of this component set, the mean over pixels and channels
+     * (from a short independent render: MSE = variance (1/BENCH_NOISE_SPP + 1/spp)), and
+     * what it caps: the reference's own mean squared error variance / spp, and the PSNR a
+     * noise-free image would score against it. 0 / NaN when not measured. */
+    double variance, noise_mse, ceiling_db;
 } bench_reference;
+
+#define BENCH_NOISE_SPP 16u
 
 typedef struct bench_result {
     int ran, ok;
@@ -66,6 +73,8 @@ typedef struct bench_result {
     ns_render_stats stats;      /* of the last render */
     ns_render_stats cold_stats; /* of the first render */
     image_metrics metrics;      /* against the reference with the same components */
+    double psnr_denoised;       /* PSNR with the reference's own noise taken out of the MSE
+                                   (NaN when it is not known or the rest is within it) */
     double equal_time_ratio;    /* vrl: ms / nn_full's ms; 0 when there was none to match */
     ns_image image;             /* the last render */
 } bench_result;

@@ -78,16 +78,18 @@ static void write_results(FILE *f, const bench_run *run)
                "One row per scene and method. PSNR, RMSE and relative error are against the pt "
                "reference with the same components (`nscatter compare`'s definitions). Time: median "
                "wall time of `ns_render` after the first render; first: the first render, which "
-               "reconstructs and accumulates the tables.\n\n"
+               "reconstructs and accumulates the tables. PSNR, ref noise out: with the reference's "
+               "own noise (References) taken out of the MSE; n/a when the rest is within it. "
+               "mean / ref: the image's mean over the reference's, per channel.\n\n"
                "| scene | method | components | status | render.vrls | VRLs | spp | time ms | first ms | "
-               "PSNR dB | RMSE | rel. err | mean / ref R G B | interactions | table MB | weights KB |\n"
-               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+               "PSNR dB | PSNR, ref noise out dB | RMSE | rel. err | mean / ref R G B | interactions | table MB | weights KB |\n"
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         if (s->skipped) {
             fprintf(f, "| %s | all | - | skipped: ", s->name);
             put_escaped(f, s->skip_reason);
-            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
             continue;
         }
         for (int m = 0; m < BENCH_METHOD_COUNT; m++) {
@@ -99,13 +101,14 @@ static void write_results(FILE *f, const bench_run *run)
             if (!r->ok) {
                 fprintf(f, "not rendered: ");
                 put_escaped(f, r->error[0] ? r->error : "not run");
-                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
                 continue;
             }
             int compared = r->metrics.pixels > 0;
-            fprintf(f, "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %s %s %s | %llu | %s | %s |\n",
+            fprintf(f, "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %s | %s %s %s | %llu | %s | %s |\n",
                     compared ? "ok" : "ok, no reference", r->vrls, (unsigned long long)r->stats.vrl_count, r->spp,
                     num(r->ms, 1).text, num(r->cold_ms, 1).text, num(compared ? r->metrics.psnr[3] : NAN, 2).text,
+                    num(compared ? r->psnr_denoised : NAN, 2).text,
                     sci(compared ? r->metrics.rmse[3] : NAN).text, num(compared ? r->metrics.relerr[3] : NAN, 4).text,
                     num(compared ? r->metrics.mean_ratio[0] : NAN, 3).text,
                     num(compared ? r->metrics.mean_ratio[1] : NAN, 3).text,
@@ -288,16 +291,21 @@ static void write_references(FILE *f, const bench_run *run)
     fprintf(f, "## References\n\n"
                "pt renders cached outside git, keyed by a hash of the scene JSON (with method pt, "
                "the components, spp and seed) and its meshes; `nscatter bench --references` "
-               "renders them again.\n\n"
-               "| scene | components | spp | time s | device | this run | file |\n|---|---|---|---|---|---|---|\n");
+               "renders them again. Noise ceiling: the PSNR a noise-free image would score against "
+               "the reference, from pt's per-sample variance of the same components (a "
+               "%u-spp render on another seed; kept in the reference's .json): 20 log10(peak / "
+               "sqrt(variance / spp)). A PSNR near it says the reference cannot tell.\n\n"
+               "| scene | components | spp | time s | noise ceiling dB | device | this run | file |\n"
+               "|---|---|---|---|---|---|---|---|\n", BENCH_NOISE_SPP);
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         for (int set = 0; set < BENCH_REF_SETS; set++) {
             const bench_reference *r = &s->refs[set];
             if (!r->wanted)
                 continue;
-            fprintf(f, "| %s | %s | %u | %s | %s | %s | ", s->name, bench_components_name(bench_ref_components[set]),
-                    r->spp, num(r->ok ? r->ms / 1000.0 : NAN, 1).text, r->ok ? r->device : "n/a",
+            fprintf(f, "| %s | %s | %u | %s | %s | %s | %s | ", s->name, bench_components_name(bench_ref_components[set]),
+                    r->spp, num(r->ok ? r->ms / 1000.0 : NAN, 1).text, num(r->ok ? r->ceiling_db : NAN, 1).text,
+                    r->ok ? r->device : "n/a",
                     !r->ok ? "failed" : r->generated ? "rendered" : "cached");
             if (r->ok)
                 fprintf(f, "`%s` |\n", r->path);

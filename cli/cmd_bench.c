@@ -35,6 +35,7 @@
 #define BENCH_DEFAULT_BUNNY "/usr/share/glmark2/models/bunny.obj"
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
+#define BENCH_NOISE_SEED 2000u  /* the short render that measures a reference's noise */
 
 /* ---------------------------------------------------------------------------------------
  * Arguments.
@@ -516,6 +517,9 @@ static uint64_t reference_key(bench *b, const json_t *scene_json)
     return h;
 }
 
+static int write_reference_meta(const char *path, const bench_reference *r, const char *scene,
+                                uint32_t components);
+
 static int write_reference(const char *path, const ns_image *img, const bench_reference *r,
                            const char *scene, uint32_t components)
 {
@@ -527,14 +531,21 @@ static int write_reference(const char *path, const ns_image *img, const bench_re
     encode_buffer_free(&exr);
     if (rc)
         return -1;
+    return write_reference_meta(path, r, scene, components);
+}
+
+static int write_reference_meta(const char *path, const bench_reference *r, const char *scene,
+                                uint32_t components)
+{
     char meta_path[4200];
     snprintf(meta_path, sizeof meta_path, "%.4190s.json", path);
-    json_t *meta = json_pack("{s:s, s:s, s:I, s:I, s:f, s:s}", "scene", scene, "components",
+    json_t *meta = json_pack("{s:s, s:s, s:I, s:I, s:f, s:s, s:f}", "scene", scene, "components",
                              bench_components_name(components), "spp", (json_int_t)r->spp, "seed",
-                             (json_int_t)BENCH_REF_SEED, "ms", r->ms, "device", r->device);
+                             (json_int_t)BENCH_REF_SEED, "ms", r->ms, "device", r->device, "variance",
+                             r->variance);
     char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
     json_decref(meta);
-    rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
+    int rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
     free(text);
     return rc;
 }
@@ -548,7 +559,42 @@ static void read_reference_meta(const char *path, bench_reference *r)
     r->ms = json_is_number(ms) ? json_number_value(ms) : NAN;
     const char *dev = json_string_value(json_object_get(meta, "device"));
     snprintf(r->device, sizeof r->device, "%s", dev ? dev : "?");
+    json_t *variance = json_object_get(meta, "variance");
+    r->variance = json_is_number(variance) ? json_number_value(variance) : 0.0;
     json_decref(meta);
+}
+
+/* The reference's noise: one short pt render of the same components on another seed;
+ * their MSE is variance (1/BENCH_NOISE_SPP + 1/spp). Kept in the reference's .json. */
+static void measure_reference_noise(bench *b, bench_scene *s, bench_reference *r, uint32_t components)
+{
+    if (!(r->variance > 0)) {
+        json_t *scene_json = scene_for(s, NS_METHOD_PT, components, BENCH_NOISE_SPP, BENCH_NOISE_SEED, 0);
+        json_object_del(json_object_get(scene_json, "render"), "vrls");
+        ns_image img;
+        ns_render_stats stats;
+        double ms;
+        char error[512];
+        int rc = bench_render(b, scene_json, &img, &stats, &ms, error, sizeof error);
+        json_decref(scene_json);
+        if (rc) {
+            fprintf(stderr, "nscatter bench: %s reference (%s): its noise: %s\n", s->name,
+                    bench_components_name(components), error);
+            return;
+        }
+        image_metrics m;
+        image_compare(&img, &r->image, NULL, &m);
+        ns_image_free(&img);
+        r->variance = m.rmse[3] * m.rmse[3] / (1.0 / BENCH_NOISE_SPP + 1.0 / r->spp);
+        if (write_reference_meta(r->path, r, s->name, components))
+            fprintf(stderr, "nscatter bench: cannot update '%s.json': %s\n", r->path, strerror(errno));
+    }
+    image_metrics self;
+    image_compare(&r->image, &r->image, NULL, &self);
+    r->noise_mse = r->variance / r->spp;
+    r->ceiling_db = r->noise_mse > 0 && self.peak > 0 ? 20.0 * log10(self.peak / sqrt(r->noise_mse)) : NAN;
+    fprintf(stderr, "bench: %s reference (%s): noise ceiling %.1f dB\n", s->name, bench_components_name(components),
+            r->ceiling_db);
 }
 
 static int ensure_reference(bench *b, bench_scene *s, int set, int force)
@@ -575,6 +621,7 @@ static int ensure_reference(bench *b, bench_scene *s, int set, int force)
         json_decref(scene_json);
         fprintf(stderr, "bench: %s reference (%s): cached %s\n", s->name, bench_components_name(components),
                 r->path);
+        measure_reference_noise(b, s, r, components);
         return 0;
     }
     ns_image_free(&r->image);
@@ -594,6 +641,7 @@ static int ensure_reference(bench *b, bench_scene *s, int set, int force)
         fprintf(stderr, "nscatter bench: cannot cache the reference '%s': %s\n", r->path, strerror(errno));
     fprintf(stderr, "bench: %s reference (%s): %.1f s, %s\n", s->name, bench_components_name(components),
             r->ms / 1000.0, r->path);
+    measure_reference_noise(b, s, r, components);
     return 0;
 }
 
@@ -657,7 +705,12 @@ static void compare_with_reference(bench_scene *s, int m)
     int set = bench_ref_index(bench_methods[m].components);
     if (!r->ok || set < 0 || !s->refs[set].ok)
         return;
-    image_compare(&r->image, &s->refs[set].image, NULL, &r->metrics);
+    const bench_reference *ref = &s->refs[set];
+    image_compare(&r->image, &ref->image, NULL, &r->metrics);
+    /* What is left of the MSE once the reference's own noise is taken out; within 10% of
+     * the measured MSE it cannot be told from 0. */
+    double mse = r->metrics.rmse[3] * r->metrics.rmse[3], rest = mse - ref->noise_mse;
+    r->psnr_denoised = ref->noise_mse > 0 && rest > 0.1 * mse ? 20.0 * log10(r->metrics.peak / sqrt(rest)) : NAN;
 }
 
 /* vrl at equal time: its cost grows linearly with render.vrls above a fixed part (the stages

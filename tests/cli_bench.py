@@ -2,6 +2,7 @@
 sheet are written, every number of a rendered row in the report parses back and is finite,
 bad arguments exit 2 naming the argument, and a missing reference is rendered once and
 read from the cache the second time (and rendered again only by --references)."""
+import json
 import math
 import os
 import struct
@@ -108,6 +109,17 @@ def check_report(t, out):
     for r in refs:
         t.equal(r["spp"], "4", "reference spp")
         t.check(math.isfinite(float(r["time s"])), f"reference time {r['time s']}")
+        # The noise ceiling: the reference's own noise measured from a second render; at
+        # 4 spp it is low, but it is a number.
+        try:
+            ceiling = float(r["noise ceiling dB"])
+        except (KeyError, ValueError):
+            ceiling = float("nan")
+        t.check(math.isfinite(ceiling) and 0 < ceiling < 200, f"noise ceiling {r.get('noise ceiling dB')!r}")
+        meta = json.load(open(r["file"].strip("`") + ".json", encoding="utf-8"))
+        t.check(meta.get("variance", 0) > 0, f"variance kept beside the reference: {meta}")
+    for row in rows:
+        t.check("PSNR, ref noise out dB" in row, "results carry the PSNR with the reference's noise out")
     # Contact sheet: columns reference, nn_surface, pt, difference; 2-pixel gaps.
     size = png_size(sheet_path)
     t.equal(size, (4 * (SIZE + 2) - 2, SIZE), "contact sheet size (4 columns, 1 row)")
