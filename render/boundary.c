@@ -211,12 +211,23 @@ static double hg_integral(double g, double mu_low, double mu_high)
     return (1.0 - g * g) / (2.0 * g) * (1.0 / sqrt(a - 2.0 * g * mu_high) - 1.0 / sqrt(a - 2.0 * g * mu_low));
 }
 
-void ns_blurred_first_order(float albedo, float g, float *j)
+void ns_blurred_angular(float g, double angular[NS_TABLE_NTHETA])
+{
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    for (uint32_t i = 0; i < NS_TABLE_NTHETA; i++) {
+        double mu_high = cos(grid.theta[i]), mu_low = cos(grid.theta[i + 1]);
+        /* Bin average over solid angle: the integral over 2 pi (mu_high - mu_low). */
+        angular[i] = hg_integral(g, mu_low, mu_high) / (2.0 * M_PI * (mu_high - mu_low));
+    }
+}
+
+void ns_blurred_spatial(float *j)
 {
     ns_table_grid grid;
     ns_table_grid_default(&grid);
     double two_var = 2.0 * NS_BOUNDARY_BLUR_MFP * NS_BOUNDARY_BLUR_MFP;
-    double along_z[NS_TABLE_NZ], across[NS_TABLE_NRHO], angular[NS_TABLE_NTHETA];
+    double along_z[NS_TABLE_NZ], across[NS_TABLE_NRHO];
     for (uint32_t i = 0; i < NS_TABLE_NZ; i++) {
         double z0 = fmax(grid.z[i], 0.0), z1 = fmax(grid.z[i + 1], 0.0);
         along_z[i] = (exp(-z0) - exp(-z1)) / (grid.z[i + 1] - grid.z[i]);
@@ -225,17 +236,20 @@ void ns_blurred_first_order(float albedo, float g, float *j)
         double r0 = grid.rho[i], r1 = grid.rho[i + 1];
         across[i] = (exp(-r0 * r0 / two_var) - exp(-r1 * r1 / two_var)) / (M_PI * (r1 * r1 - r0 * r0));
     }
-    for (uint32_t i = 0; i < NS_TABLE_NTHETA; i++) {
-        double mu_high = cos(grid.theta[i]), mu_low = cos(grid.theta[i + 1]);
-        /* Bin average over solid angle: the integral over 2 pi (mu_high - mu_low). */
-        angular[i] = hg_integral(g, mu_low, mu_high) / (2.0 * M_PI * (mu_high - mu_low));
-    }
     size_t at = 0;
     for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
-        for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++)
-            for (uint32_t it = 0; it < NS_TABLE_NTHETA; it++) {
-                float v = (float)(albedo * along_z[iz] * across[ir] * angular[it]);
-                for (uint32_t ip = 0; ip < NS_TABLE_NPHI; ip++)
-                    j[at++] = v;
-            }
+        for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++) {
+            float v = (float)(along_z[iz] * across[ir]);
+            for (uint32_t k = 0; k < NS_TABLE_NTHETA * NS_TABLE_NPHI; k++)
+                j[at++] = v;
+        }
+}
+
+void ns_blurred_first_order(float albedo, float g, float *j)
+{
+    double angular[NS_TABLE_NTHETA];
+    ns_blurred_angular(g, angular);
+    ns_blurred_spatial(j);
+    for (size_t i = 0; i < NS_TABLE_CELLS; i++)
+        j[i] = (float)(albedo * angular[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * j[i]);
 }

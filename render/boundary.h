@@ -68,7 +68,14 @@ void ns_boundary_groups_free(ns_boundary_groups *g);
 
 
 /* J_1^blur of one channel (albedo a, phase g) as NS_TABLE_CELLS bin averages, [z][rho][theta]
- * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). */
+ * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). It is
+ * a * angular_g(theta) * spatial(z, rho): ns_blurred_angular gives the first factor's bin
+ * averages, ns_blurred_spatial the second's (e^{-z} [z > 0] K(rho), the same at every
+ * theta and phi), so that its A is a * angular_g(theta) times the A of the spatial part
+ * alone (theta is constant along the accumulation's line): one accumulation serves every
+ * material (scatter_tables.c). */
 void ns_blurred_first_order(float albedo, float g, float *j);
+void ns_blurred_angular(float g, double angular[NS_TABLE_NTHETA]);
+void ns_blurred_spatial(float *j);
 
 #endif

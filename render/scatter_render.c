@@ -576,7 +576,7 @@ typedef struct vrl_source {
     ns_vrl_set set;
     ns_vrl_grid *grids;       /* per material */
     uint8_t *grid_built;      /* per material */
-    uint64_t *table_bytes;    /* per (grid slot, material): 0 until its tables were used */
+    uint64_t *table_bytes;    /* per (orders, material): 0 until its tables were used */
     /* render.boundary: the sources by group, and per (group, material) their grid. */
     ns_boundary_groups boundary;
     ns_vrl_grid *boundary_grids;  /* [group * materials + material] */
@@ -597,6 +597,15 @@ static void vrl_source_free(vrl_source *v, uint32_t material_count)
     ns_boundary_groups_free(&v->boundary);
     ns_vrl_set_free(&v->set);
     memset(v, 0, sizeof *v);
+}
+
+/* A table's orders (NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE, NS_TABLE_FIRST_BLURRED) as an
+ * index, so that a table read by several grids counts its bytes once. */
+#define ORDER_SETS 8u
+static uint32_t order_set(uint32_t orders)
+{
+    return (orders & NS_COMPONENT_DOUBLE ? 1u : 0u) | (orders & NS_COMPONENT_MULTIPLE ? 2u : 0u) |
+           (orders & NS_TABLE_FIRST_BLURRED ? 4u : 0u);
 }
 
 /* The beams end at their exit: asked for, or implied by the boundary correction, whose
@@ -648,7 +657,7 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     v->ready = 1;
     v->grids = calloc(materials, sizeof *v->grids);
     v->grid_built = calloc(materials, 1);
-    v->table_bytes = calloc((1 + NS_BOUNDARY_GROUPS) * materials, sizeof *v->table_bytes);
+    v->table_bytes = calloc(ORDER_SETS * materials, sizeof *v->table_bytes);
     v->boundary_grids = calloc(NS_BOUNDARY_GROUPS * materials, sizeof *v->boundary_grids);
     v->boundary_grid_built = calloc(NS_BOUNDARY_GROUPS * materials, 1);
     if (!v->grids || !v->grid_built || !v->table_bytes || !v->boundary_grids || !v->boundary_grid_built)
@@ -675,11 +684,11 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
 }
 
 /* One grid of medium m (its VRLs, or one group of boundary sources) gathered over the medium's
- * segments of the round into out (overwritten there), through the tables of `orders`
- * (slot: where their bytes are counted). Progress: the current span, 5% to the grid's build
+ * segments of the round into out (overwritten there), through the tables of `orders`.
+ * Progress: the current span, 5% to the grid's build
  * (done by the caller), 25% to the tables, the rest to the gather. */
 static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source, uint32_t m,
-                       uint32_t slot, const ns_vrl_grid *grid, uint32_t orders, int bounded,
+                       const ns_vrl_grid *grid, uint32_t orders, int bounded,
                        const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
                        ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
@@ -709,7 +718,7 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
         if (!status) {
             if (stats)
                 stats->weights_bytes = ts.weights_bytes;
-            source->table_bytes[slot * in->gs->material_count + m] = tables->bytes;
+            source->table_bytes[order_set(orders) * in->gs->material_count + m] = tables->bytes;
         }
         mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                   : NS_GATHER_MODE_EXACT;
@@ -800,7 +809,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                            &source->grid_built[m], times, err);
         /* Single scattering alone gathers only the boundary's reflected VRLs. */
         if (!status && orders)
-            status = gather_grid(ctx, in, source, m, 0, &source->grids[m], orders, bounded_beams(scene),
+            status = gather_grid(ctx, in, source, m, &source->grids[m], orders, bounded_beams(scene),
                                  list, seg_buf, out, stats, times, err);
         else if (!status)
             memset((float(*)[4])out->mapped + first, 0, 16ull * count);
@@ -813,7 +822,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                                &source->boundary_grids[at], &source->boundary_grid_built[at], times, err);
             /* Sources are endless beams: the walk accounts for where each one ends. */
             if (!status && source->boundary_grids[at].vrl_count)
-                status = gather_grid(ctx, in, source, m, 1 + g, &source->boundary_grids[at], group->orders,
+                status = gather_grid(ctx, in, source, m, &source->boundary_grids[at], group->orders,
                                      0, list, seg_buf, scratch, stats, times, err);
             if (!status && source->boundary_grids[at].vrl_count) {
                 float(*sum)[4] = out->mapped;
@@ -983,7 +992,7 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     if (stats) {
         stats->tiles_interpolated += interpolated;
         uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
-        for (uint32_t i = 0; source.table_bytes && i < (1 + NS_BOUNDARY_GROUPS) * in->gs->material_count; i++)
+        for (uint32_t i = 0; source.table_bytes && i < ORDER_SETS * in->gs->material_count; i++)
             table_bytes += source.table_bytes[i];
         if (table_bytes > stats->table_bytes)
             stats->table_bytes = table_bytes;

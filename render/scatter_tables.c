@@ -51,6 +51,10 @@ struct ns_table_cache {
     uint32_t count, capacity;
     uint64_t bytes; /* changed atomically: ns_context_table_cache_bytes reads it anywhere */
     uint64_t clock;
+    /* Per accumulation mode: A of the blurred first order's spatial part (boundary.h), one
+     * channel, host memory, made on first use and kept for the context's life (10.6 MB each,
+     * outside `bytes`: every material's blurred table is made from it). */
+    float *blur_unit[2];
 };
 
 /* ---------------------------------------------------------------------------------------
@@ -558,19 +562,10 @@ static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
     int want_double = (key->orders & NS_COMPONENT_DOUBLE) != 0;
     int want_multiple = (key->orders & NS_COMPONENT_MULTIPLE) != 0;
-    float *blurred = NULL;
-    if (key->orders & NS_TABLE_FIRST_BLURRED) {
-        blurred = malloc(cells * sizeof(float));
-        if (!blurred) {
-            free(j);
-            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
-        }
-    }
     for (int c = 0; c < 3; c++) {
         cache_entry *e = find_j(ctx->tables, key->source, key->g, key->albedo[c]);
         if (!e) { /* ensure_j put every channel there just before */
             free(j);
-            free(blurred);
             return ns_fail(err, NS_ERR_INTERNAL, "tables: J of albedo %g vanished from the cache",
                            (double)key->albedo[c]);
         }
@@ -578,13 +573,7 @@ static int sum_orders(ns_context *ctx, const ns_table_key *key, float **out, ns_
         float *dst = j + c * cells;
         for (size_t i = 0; i < cells; i++)
             dst[i] = (want_double ? e->j[0][i] : 0.0f) + (want_multiple ? e->j[1][i] : 0.0f);
-        if (blurred) {
-            ns_blurred_first_order(key->albedo[c], key->g, blurred);
-            for (size_t i = 0; i < cells; i++)
-                dst[i] += blurred[i];
-        }
     }
-    free(blurred);
     *out = j;
     return NS_OK;
 }
@@ -622,6 +611,97 @@ static uint64_t weights_bytes(const ns_table_key *key)
                                        : 0;
 }
 
+/* The A of the blurred first order's spatial part, accumulated once per mode. */
+static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float **out, double *ms,
+                     ns_error *err)
+{
+    float **slot = &ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
+    if (*slot) {
+        *out = *slot;
+        return NS_OK;
+    }
+    size_t cells = NS_TABLE_CELLS;
+    float *j = calloc(3 * cells, sizeof(float)); /* channel 0 only; the others stay 0 */
+    float *unit = malloc(cells * sizeof(float));
+    if (!j || !unit) {
+        free(j);
+        free(unit);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
+    }
+    ns_blurred_spatial(j);
+    ns_scatter_tables a;
+    ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
+    int status = ns_tables_accumulate(ctx, j, accumulation, &a, NULL, err);
+    *ms += ns_stage_end(ctx, &stage);
+    free(j);
+    if (!status) {
+        memcpy(unit, a.a.mapped, cells * sizeof(float));
+        ns_scatter_tables_free(ctx, &a);
+        *slot = unit;
+        *out = unit;
+    } else {
+        free(unit);
+    }
+    return status;
+}
+
+/* A of a key with the blurred first order: A of the same key without it (from the cache or
+ * made) plus, per channel, albedo * angular_g(theta) * the unit A (boundary.h says why). */
+static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_tables *out,
+                           ns_table_stats *stats, ns_error *err)
+{
+    size_t cells = NS_TABLE_CELLS;
+    uint64_t table_bytes = 3ull * cells * sizeof(float);
+    ns_table_key base = *key;
+    base.orders &= ~NS_TABLE_FIRST_BLURRED;
+    const ns_scatter_tables *base_tables = NULL;
+    int status = NS_OK;
+    if (base.orders) {
+        ns_table_stats inner;
+        status = ns_tables_get(ctx, &base, &base_tables, &inner, err);
+        stats->reconstruct_ms += inner.reconstruct_ms;
+        stats->accumulate_ms += inner.accumulate_ms;
+        stats->reconstructed |= inner.reconstructed;
+        stats->accumulated |= inner.accumulated;
+        stats->tables_made += inner.tables_made;
+        stats->tables_reused += inner.tables_reused;
+    }
+    const float *unit = NULL;
+    if (!status)
+        status = blur_unit(ctx, key->accumulation, &unit, &stats->accumulate_ms, err);
+    gpu_buffer a = {0};
+    /* Read before anything is inserted: the base's entry may be evicted after. */
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &a,
+                                   &(gpu_buffer_desc){.size = table_bytes,
+                                                      .data = base_tables ? base_tables->a.mapped : NULL,
+                                                      .data_size = base_tables ? table_bytes : 0,
+                                                      .label = "ns.tables.a"},
+                                   err);
+    if (status)
+        return status;
+    double angular[NS_TABLE_NTHETA];
+    ns_blurred_angular(key->g, angular);
+    float *dst = a.mapped;
+    for (int c = 0; c < 3; c++) {
+        float per_theta[NS_TABLE_NTHETA];
+        for (uint32_t t = 0; t < NS_TABLE_NTHETA; t++)
+            per_theta[t] = (float)(key->albedo[c] * angular[t]);
+        float *channel = dst + c * cells;
+        for (size_t i = 0; i < cells; i++)
+            channel[i] += per_theta[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[i];
+    }
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    *out = (ns_scatter_tables){.a = a,
+                               .scale = (float)grid.scale,
+                               .inv_step = (float)(1.0 / grid.step),
+                               .extent = (float)grid.extent,
+                               .bytes = table_bytes};
+    stats->accumulated = 1;
+    return NS_OK;
+}
+
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err)
 {
@@ -643,16 +723,20 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
         *out = &hit->a;
         return NS_OK;
     }
-    status = ensure_j(ctx, key, stats, err);
-    float *j = NULL;
-    if (!status)
-        status = sum_orders(ctx, key, &j, err);
     cache_entry e = {.kind = ENTRY_A, .key = *key};
-    if (!status) {
-        ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-        status = ns_tables_accumulate(ctx, j, key->accumulation, &e.a, NULL, err);
-        stats->accumulate_ms = ns_stage_end(ctx, &stage);
-        stats->accumulated = 1;
+    float *j = NULL;
+    if (key->orders & NS_TABLE_FIRST_BLURRED) {
+        status = compose_blurred(ctx, key, &e.a, stats, err);
+    } else {
+        status = ensure_j(ctx, key, stats, err);
+        if (!status)
+            status = sum_orders(ctx, key, &j, err);
+        if (!status) {
+            ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
+            status = ns_tables_accumulate(ctx, j, key->accumulation, &e.a, NULL, err);
+            stats->accumulate_ms = ns_stage_end(ctx, &stage);
+            stats->accumulated = 1;
+        }
     }
     free(j);
     if (status) {
@@ -707,6 +791,8 @@ void ns_tables_destroy(ns_context *ctx)
     if (ctx->tables) {
         while (ctx->tables->count)
             remove_entry(ctx, ctx->tables, ctx->tables->count - 1);
+        free(ctx->tables->blur_unit[0]);
+        free(ctx->tables->blur_unit[1]);
         free(ctx->tables->entries);
         free(ctx->tables);
         ctx->tables = NULL;
