@@ -63,11 +63,31 @@ Vrl representative_at(uint k)
 
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
 
-// The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
-uint theta_bin(vec3 w, vec3 d)
+// The table is read between its cells (issue 15: nearest-cell reads were 5-10% off near the
+// source and drew stair-step bands across the multiple-scattering image; docs/scattering.md,
+// *Reading the table between cells*). accumulate.comp computes A at every cell's centre, so
+// each coordinate is taken as a continuous index whose integers are the centres: linear
+// interpolation between the two centres around the point in asinh(z), asinh(rho) and
+// cos theta,
+// and a bin's value held beyond its centre at the grid's ends (the axis rho = 0, the poles of
+// theta, the extent). In z the two cells may lie on either side of the plane z = 0 (the
+// table's z has a sign: bins below and above the source), which is where A is continuous. phi
+// is read at the nearest bin. tests/oracles/gather_cpu.c does the same arithmetic in C.
+
+// The two theta rows (bin times the phi bin count) around light along w seen from a VRL of
+// axis d, and in t the weight of the second: the same at every point of the VRL. t is linear
+// in cos theta between the two bins' centres and is computed from their cosines, not from
+// acos: lavapipe's acos is a polynomial about 1e-4 rad off (it picks the pair, where an error
+// only moves t by as much past 0 or 1, which the clamp takes back).
+uvec2 theta_rows(vec3 w, vec3 d, out float t)
 {
     float cos_theta = clamp(dot(w, d), -1.0, 1.0);
-    return min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
+    float f = acos(cos_theta) * ANGLE_BINS_PER_RADIAN - 0.5;
+    uint i = min(uint(max(f, 0.0)), NS_TABLE_NTHETA - 2u);
+    float c0 = cos((float(i) + 0.5) / ANGLE_BINS_PER_RADIAN);
+    float c1 = cos((float(i) + 1.5) / ANGLE_BINS_PER_RADIAN);
+    t = clamp((cos_theta - c0) / (c1 - c0), 0.0, 1.0);
+    return uvec2(i, i + 1u) * NS_TABLE_NPHI;
 }
 
 // The phi bin at a point whose radial unit vector is e_rho (mirror-symmetric about it).
@@ -79,28 +99,31 @@ uint phi_bin(vec3 w, vec3 d, vec3 e_rho)
     return min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
 }
 
-// Spatial part of the table index of each channel for (z, rho) in mfp per channel, or -1
-// beyond the table. Vector arithmetic, no loop over channels (lavapipe counts loops).
-ivec3 spatial_bins(vec3 z_mfp, vec3 rho_mfp)
+const uint TABLE_DIRS = NS_TABLE_NTHETA * NS_TABLE_NPHI;
+
+// One corner of the interpolation, per channel: the table at index base + offset of each
+// channel's slice.
+vec3 table_corner(uvec3 base, uint offset)
 {
-    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
-    ivec3 iz = ivec3(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
-    ivec3 ir = ivec3(floor(asinh(rho_mfp / scale) * inv_step));
-    iz = clamp(iz, 0, int(NS_TABLE_NZ) - 1);
-    ir = clamp(ir, 0, int(NS_TABLE_NRHO) - 1);
-    bvec3 inside = lessThan(max(abs(z_mfp), rho_mfp), vec3(extent));
-    return mix(ivec3(-1), iz * int(NS_TABLE_NRHO) + ir, inside);
+    return vec3(table[base.x + offset], table[base.y + offset], table[base.z + offset]);
 }
 
-float table_read(int channel, int cell, uint dir)
+// Bilinear in (z, rho) at one direction, the weights tz and tr of the upper cells per channel.
+vec3 table_bilinear(uvec3 base, uint dir, vec3 tz, vec3 tr)
 {
-    return cell < 0 ? 0.0
-                    : table[uint(channel) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
+    vec3 a00 = table_corner(base, dir);
+    vec3 a01 = table_corner(base, dir + TABLE_DIRS);
+    vec3 a10 = table_corner(base, dir + NS_TABLE_NRHO * TABLE_DIRS);
+    vec3 a11 = table_corner(base, dir + (NS_TABLE_NRHO + 1u) * TABLE_DIRS);
+    vec3 lo = a00 + tr * (a01 - a00);
+    vec3 hi = a10 + tr * (a11 - a10);
+    return lo + tz * (hi - lo);
 }
 
-// A at point p for light arriving along w, per channel, in mfp units; theta_row = the
-// theta bin times the phi bin count.
-vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
+// A at point p for light arriving along w, per channel, in mfp units; rows and theta_t from
+// theta_rows. 0 beyond the table's extent. Vector arithmetic over the channels, no loop
+// (lavapipe counts loops).
+vec3 table_at(Vrl v, vec3 p, vec3 w, uvec2 rows, float theta_t)
 {
     vec3 delta = p - v.origin;
     float z = dot(delta, v.direction);
@@ -108,10 +131,21 @@ vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
     float rho = length(radial);
     // On the axis any radial direction is as good: the phi bins all meet there.
     vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
-    uint dir = theta_row + phi_bin(w, v.direction, e_rho);
+    uint phi = phi_bin(w, v.direction, e_rho);
     vec3 s = params.sigma_t.xyz;
-    ivec3 cell = spatial_bins(z * s, rho * s);
-    return vec3(table_read(0, cell.x, dir), table_read(1, cell.y, dir), table_read(2, cell.z, dir));
+    vec3 z_mfp = z * s, rho_mfp = rho * s;
+    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
+    vec3 fz = clamp(asinh(z_mfp / scale) * inv_step + (float(NS_TABLE_NZ / 2u) - 0.5), 0.0,
+                    float(NS_TABLE_NZ - 1u));
+    vec3 fr = clamp(asinh(rho_mfp / scale) * inv_step - 0.5, 0.0, float(NS_TABLE_NRHO - 1u));
+    uvec3 iz = min(uvec3(fz), uvec3(NS_TABLE_NZ - 2u));
+    uvec3 ir = min(uvec3(fr), uvec3(NS_TABLE_NRHO - 2u));
+    vec3 tz = fz - vec3(iz), tr = fr - vec3(ir);
+    uvec3 base = (iz * NS_TABLE_NRHO + ir) * TABLE_DIRS + uvec3(0u, 1u, 2u) * NS_TABLE_CELLS;
+    vec3 lo = table_bilinear(base, rows.x + phi, tz, tr);
+    vec3 hi = table_bilinear(base, rows.y + phi, tz, tr);
+    vec3 inside = vec3(lessThan(max(abs(z_mfp), rho_mfp), vec3(extent)));
+    return inside * (lo + theta_t * (hi - lo));
 }
 
 vec3 dipole_rd(float r)
@@ -127,14 +161,14 @@ vec3 dipole_rd(float r)
 
 // exit_matters: e^{-s Lc} is above float resolution in some channel, so A(exit) counts.
 // The segment's table value for an endless beam from `origin` along v's direction.
-vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_attenuation,
+vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uvec2 rows, float theta_t, vec3 segment_attenuation,
                 vec3 paper_weight, bool exit_matters)
 {
     if (NS_GATHER_FORM == NS_GATHER_MODE_PAPER)
-        return paper_weight * table_at(v, seg.entry, w, theta_row);
-    vec3 value = table_at(v, seg.entry, w, theta_row);
+        return paper_weight * table_at(v, seg.entry, w, rows, theta_t);
+    vec3 value = table_at(v, seg.entry, w, rows, theta_t);
     if (exit_matters)
-        value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+        value -= segment_attenuation * table_at(v, seg.exit, w, rows, theta_t);
     return value;
 }
 
@@ -144,15 +178,17 @@ vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 
     if (NS_GATHER_FORM == NS_GATHER_MODE_DIPOLE)
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
     vec3 s = params.sigma_t.xyz;
-    uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
-    vec3 value = beam_value(v, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+    float theta_t;
+    uvec2 rows = theta_rows(w, v.direction, theta_t);
+    vec3 value = beam_value(v, seg, w, rows, theta_t, segment_attenuation, paper_weight, exit_matters);
 #if NS_BOUNDED_BEAMS
     vec3 beam_attenuation = exp(-s * v.len);
     if (v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
         Vrl beyond = v;
         beyond.origin = v.origin + v.len * v.direction;
-        value -= beam_attenuation * beam_value(beyond, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
-        // Nearest-bin reads of two frames can cross where the exact difference is ~0.
+        value -= beam_attenuation * beam_value(beyond, seg, w, rows, theta_t, segment_attenuation, paper_weight, exit_matters);
+        // The tables' reads in two frames (interpolated between cells, each with its own
+        // discretisation error) can cross where the exact difference is ~0.
         value = max(value, vec3(0.0));
     }
 #endif

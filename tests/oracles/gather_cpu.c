@@ -12,34 +12,51 @@
 static float dot3(const float *a, const float *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 static float clampf(float v, float lo, float hi) { return v < lo ? lo : v > hi ? hi : v; }
 
-static uint32_t direction_bin(const float *w, const float *d, const float *e_rho)
+/* gather.glsl's theta_rows: the two theta rows around w seen from axis d and the weight of
+ * the second, linear in cos theta between the bins' centres, held beyond the first and last. */
+static void theta_rows(const float *w, const float *d, uint32_t rows[2], float *t)
+{
+    const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
+    float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
+    float f = acosf(cos_theta) * bins_per_radian - 0.5f;
+    uint32_t i = (uint32_t)fmaxf(f, 0.0f);
+    if (i > NS_TABLE_NTHETA - 2)
+        i = NS_TABLE_NTHETA - 2;
+    float c0 = cosf(((float)i + 0.5f) / bins_per_radian);
+    float c1 = cosf(((float)i + 1.5f) / bins_per_radian);
+    *t = clampf((cos_theta - c0) / (c1 - c0), 0.0f, 1.0f);
+    rows[0] = i * NS_TABLE_NPHI;
+    rows[1] = (i + 1) * NS_TABLE_NPHI;
+}
+
+/* gather.glsl's phi_bin: nearest. */
+static uint32_t phi_bin(const float *w, const float *d, const float *e_rho)
 {
     const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
     float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
     float w_perp[3] = {w[0] - cos_theta * d[0], w[1] - cos_theta * d[1], w[2] - cos_theta * d[2]};
     float perp = sqrtf(dot3(w_perp, w_perp));
     float cos_phi = perp > 1e-6f ? clampf(dot3(w_perp, e_rho) / perp, -1.0f, 1.0f) : 1.0f;
-    uint32_t it = (uint32_t)(acosf(cos_theta) * bins_per_radian);
     uint32_t ip = (uint32_t)(acosf(cos_phi) * bins_per_radian);
-    if (it > NS_TABLE_NTHETA - 1)
-        it = NS_TABLE_NTHETA - 1;
-    if (ip > NS_TABLE_NPHI - 1)
-        ip = NS_TABLE_NPHI - 1;
-    return it * NS_TABLE_NPHI + ip;
+    return ip > NS_TABLE_NPHI - 1 ? NS_TABLE_NPHI - 1 : ip;
 }
 
-static int spatial_bin(const GpuGatherParams *p, float z, float rho)
+#define TABLE_DIRS (NS_TABLE_NTHETA * NS_TABLE_NPHI)
+
+/* gather.glsl's table_bilinear for one channel's slice. */
+static float table_bilinear(const float *slice, size_t base, uint32_t dir, float tz, float tr)
 {
-    float extent = p->table_map[2];
-    if (fabsf(z) >= extent || rho >= extent)
-        return -1;
-    int iz = (int)floorf(asinhf(z / p->table_map[0]) * p->table_map[1]) + (int)(NS_TABLE_NZ / 2);
-    int ir = (int)floorf(asinhf(rho / p->table_map[0]) * p->table_map[1]);
-    iz = iz < 0 ? 0 : iz > (int)NS_TABLE_NZ - 1 ? (int)NS_TABLE_NZ - 1 : iz;
-    ir = ir < 0 ? 0 : ir > (int)NS_TABLE_NRHO - 1 ? (int)NS_TABLE_NRHO - 1 : ir;
-    return iz * (int)NS_TABLE_NRHO + ir;
+    float a00 = slice[base + dir];
+    float a01 = slice[base + dir + TABLE_DIRS];
+    float a10 = slice[base + dir + NS_TABLE_NRHO * TABLE_DIRS];
+    float a11 = slice[base + dir + (NS_TABLE_NRHO + 1) * TABLE_DIRS];
+    float lo = a00 + tr * (a01 - a00);
+    float hi = a10 + tr * (a11 - a10);
+    return lo + tz * (hi - lo);
 }
 
+/* gather.glsl's table_at: A between the cells' centres in asinh(z), asinh(rho) and cos theta,
+ * phi at the nearest bin, 0 beyond the extent. */
 static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl *v,
                      const float *point, const float *w, float a[3])
 {
@@ -52,13 +69,27 @@ static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl 
     if (rho > 0.0f)
         for (int i = 0; i < 3; i++)
             e_rho[i] = radial[i] / rho;
-    uint32_t dir = direction_bin(w, v->direction, e_rho);
+    uint32_t rows[2];
+    float theta_t;
+    theta_rows(w, v->direction, rows, &theta_t);
+    uint32_t phi = phi_bin(w, v->direction, e_rho);
+    float scale = p->table_map[0], inv_step = p->table_map[1], extent = p->table_map[2];
     for (int c = 0; c < 3; c++) {
         float s = p->sigma_t[c];
-        int cell = spatial_bin(p, z * s, rho * s);
-        a[c] = cell >= 0 ? table[(size_t)c * NS_TABLE_CELLS +
-                                 (size_t)cell * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir]
-                         : 0.0f;
+        float z_mfp = z * s, rho_mfp = rho * s;
+        float fz = clampf(asinhf(z_mfp / scale) * inv_step + ((float)(NS_TABLE_NZ / 2) - 0.5f), 0.0f,
+                          (float)(NS_TABLE_NZ - 1));
+        float fr = clampf(asinhf(rho_mfp / scale) * inv_step - 0.5f, 0.0f, (float)(NS_TABLE_NRHO - 1));
+        uint32_t iz = (uint32_t)fz, ir = (uint32_t)fr;
+        iz = iz > NS_TABLE_NZ - 2 ? NS_TABLE_NZ - 2 : iz;
+        ir = ir > NS_TABLE_NRHO - 2 ? NS_TABLE_NRHO - 2 : ir;
+        float tz = fz - (float)iz, tr = fr - (float)ir;
+        const float *slice = table + (size_t)c * NS_TABLE_CELLS;
+        size_t base = ((size_t)iz * NS_TABLE_NRHO + ir) * TABLE_DIRS;
+        float lo = table_bilinear(slice, base, rows[0] + phi, tz, tr);
+        float hi = table_bilinear(slice, base, rows[1] + phi, tz, tr);
+        float inside = fmaxf(fabsf(z_mfp), rho_mfp) < extent ? 1.0f : 0.0f;
+        a[c] = inside * (lo + theta_t * (hi - lo));
     }
 }
 
