@@ -8,7 +8,13 @@
  * through the sphere's centre (8 x 128 pixels, parallel to the light); the strip's columns are
  * averaged into one profile along the light, and its second difference, relative to the
  * profile, must have no spike far above its own typical size (the median of its absolute
- * value: what the noise and the profile's smooth curvature give). Validation on. */
+ * value: what the noise and the profile's smooth curvature give). Validation on.
+ *
+ * Measured on lavapipe (2026-11-27, 5000 VRLs, 8 spp, seeds 1-4): with the nearest-cell
+ * reads the largest spike is 16-21 times the median, always at the centre row, where the
+ * camera rays cross 90 degrees from the light and the theta bin changes (reads between cells
+ * in z and rho alone, theta nearest, still gave 13.7 with 20000 VRLs at 4 spp); read between
+ * cells in z, rho and theta, 4.8 to 5.9 times. The bound is 8. Set NS_BANDS_VERBOSE=1 to print the profile. */
 #include "gpu_util.h"
 
 #define WIDTH 8u
@@ -30,9 +36,9 @@ static int strip_profile(double profile[HEIGHT])
     set3(s.camera.look_at, 0, 0, 0);
     s.render.method = NS_METHOD_NN;
     s.render.components = NS_COMPONENT_MULTIPLE;
-    s.render.vrls = 20000;
+    s.render.vrls = 5000;
     s.render.gather_tile = 1;
-    s.render.spp = 4;
+    s.render.spp = 8;
     s.render.seed = 1;
     ns_image img = {0};
     ns_render_stats stats = {0};
@@ -62,7 +68,7 @@ static void test_no_bands_along_the_light(void)
      * half-height); the last rows before the limb have segments that shrink to nothing, a
      * real curvature, so keep |y| below 0.85 of the radius. */
     const double limit = 0.85 / 1.15 * (HEIGHT / 2.0);
-    double d2[HEIGHT], sorted[HEIGHT];
+    double sorted[HEIGHT];
     uint32_t n = 0, worst_row = 0;
     double worst = 0;
     for (uint32_t y = 1; y + 1 < HEIGHT; y++) {
@@ -70,7 +76,7 @@ static void test_no_bands_along_the_light(void)
             continue;
         CHECK(profile[y] > 0);
         double v = fabs(profile[y - 1] - 2 * profile[y] + profile[y + 1]) / profile[y];
-        d2[n] = sorted[n] = v;
+        sorted[n] = v;
         if (v > worst) {
             worst = v;
             worst_row = y;
@@ -79,7 +85,6 @@ static void test_no_bands_along_the_light(void)
         if (getenv("NS_BANDS_VERBOSE"))
             printf("row %3u  profile %.6g  |d2|/profile %.3e\n", y, profile[y], v);
     }
-    (void)d2;
     qsort(sorted, n, sizeof *sorted, compare_double);
     double median = sorted[n / 2];
     printf("second difference over %u rows: median %.3e, largest %.3e (row %u), ratio %.1f\n", n,
