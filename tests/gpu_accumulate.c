@@ -373,8 +373,8 @@ static double table_value(const float *a, const double p[3], const double w[3], 
 
 /* The A table's value at point p read between cell centres as the gather reads it
  * (shaders/gather.glsl table_at, written here independently in double): linear in the
- * continuous asinh index of z and rho and in cos theta between the centres, held beyond the
- * first and last centres, phi at the nearest bin. */
+ * continuous asinh index of z and rho and in cos theta between the centres, on Kuhn's
+ * tetrahedra, held beyond the first and last centres, phi at the nearest bin. */
 static double table_value_between(const float *a, const double p[3], const double w[3])
 {
     double rho = hypot(p[0], p[1]);
@@ -395,15 +395,29 @@ static double table_value_between(const float *a, const double p[3], const doubl
     double wh = hypot(w[0], w[1]);
     double cos_phi = rho > 0 && wh > 0 ? (w[0] * p[0] + w[1] * p[1]) / (wh * rho) : 1.0;
     int ip = angle_bin(acos(fmax(-1.0, fmin(1.0, cos_phi))));
-    double sum = 0.0;
-    for (int dz = 0; dz < 2; dz++)
-        for (int dr = 0; dr < 2; dr++)
-            for (int dt = 0; dt < 2; dt++) {
-                double weight = (dz ? tz : 1 - tz) * (dr ? tr : 1 - tr) * (dt ? tt : 1 - tt);
-                long cell = (((long)(iz + dz) * NS_TABLE_NRHO + ir + dr) * NS_TABLE_NTHETA + it + dt) *
-                                NS_TABLE_NPHI + ip;
-                sum += weight * a[cell];
+    /* Kuhn's tetrahedron holding the point: from the lower corner step along the axes in
+     * decreasing order of their fractions; the weights are the differences of the sorted
+     * fractions. */
+    double t[3] = {tz, tr, tt};
+    int order[3] = {0, 1, 2}; /* z, rho, theta; ties keep this order */
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k + 1 < 3 - i; k++)
+            if (t[order[k + 1]] > t[order[k]]) {
+                int swap = order[k];
+                order[k] = order[k + 1];
+                order[k + 1] = swap;
             }
+    int corner[3] = {0, 0, 0};
+    double sum = 0.0, previous = 1.0;
+    for (int k = 0; k <= 3; k++) {
+        double next = k < 3 ? t[order[k]] : 0.0;
+        long cell = (((long)(iz + corner[0]) * NS_TABLE_NRHO + ir + corner[1]) * NS_TABLE_NTHETA + it +
+                     corner[2]) * NS_TABLE_NPHI + ip;
+        sum += (previous - next) * a[cell];
+        if (k < 3)
+            corner[order[k]] = 1;
+        previous = next;
+    }
     return sum;
 }
 

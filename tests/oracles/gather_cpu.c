@@ -12,9 +12,10 @@
 static float dot3(const float *a, const float *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 static float clampf(float v, float lo, float hi) { return v < lo ? lo : v > hi ? hi : v; }
 
-/* gather.glsl's theta_rows: the two theta rows around w seen from axis d and the weight of
- * the second, linear in cos theta between the bins' centres, held beyond the first and last. */
-static void theta_rows(const float *w, const float *d, uint32_t rows[2], float *t)
+/* gather.glsl's theta_row: the lower of the two theta rows around w seen from axis d and the
+ * weight of the upper one, linear in cos theta between the bins' centres, held beyond the
+ * first and last. */
+static uint32_t theta_row(const float *w, const float *d, float *t)
 {
     const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
     float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
@@ -25,8 +26,7 @@ static void theta_rows(const float *w, const float *d, uint32_t rows[2], float *
     float c0 = cosf(((float)i + 0.5f) / bins_per_radian);
     float c1 = cosf(((float)i + 1.5f) / bins_per_radian);
     *t = clampf((cos_theta - c0) / (c1 - c0), 0.0f, 1.0f);
-    rows[0] = i * NS_TABLE_NPHI;
-    rows[1] = (i + 1) * NS_TABLE_NPHI;
+    return i * NS_TABLE_NPHI;
 }
 
 /* gather.glsl's phi_bin: nearest. */
@@ -42,21 +42,14 @@ static uint32_t phi_bin(const float *w, const float *d, const float *e_rho)
 }
 
 #define TABLE_DIRS (NS_TABLE_NTHETA * NS_TABLE_NPHI)
-
-/* gather.glsl's table_bilinear for one channel's slice. */
-static float table_bilinear(const float *slice, size_t base, uint32_t dir, float tz, float tr)
-{
-    float a00 = slice[base + dir];
-    float a01 = slice[base + dir + TABLE_DIRS];
-    float a10 = slice[base + dir + NS_TABLE_NRHO * TABLE_DIRS];
-    float a11 = slice[base + dir + (NS_TABLE_NRHO + 1) * TABLE_DIRS];
-    float lo = a00 + tr * (a01 - a00);
-    float hi = a10 + tr * (a11 - a10);
-    return lo + tz * (hi - lo);
-}
+#define STEP_Z (NS_TABLE_NRHO * TABLE_DIRS)
+#define STEP_RHO TABLE_DIRS
+#define STEP_THETA NS_TABLE_NPHI
 
 /* gather.glsl's table_at: A between the cells' centres in asinh(z), asinh(rho) and cos theta,
- * phi at the nearest bin, 0 beyond the extent. */
+ * linear on the tetrahedron of Kuhn's triangulation that holds the point (the axes stepped in
+ * decreasing order of their fractions, ties to z, then rho), phi at the nearest bin, 0
+ * beyond the extent. */
 static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl *v,
                      const float *point, const float *w, float a[3])
 {
@@ -69,11 +62,11 @@ static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl 
     if (rho > 0.0f)
         for (int i = 0; i < 3; i++)
             e_rho[i] = radial[i] / rho;
-    uint32_t rows[2];
-    float theta_t;
-    theta_rows(w, v->direction, rows, &theta_t);
+    float tt;
+    uint32_t row = theta_row(w, v->direction, &tt);
     uint32_t phi = phi_bin(w, v->direction, e_rho);
     float scale = p->table_map[0], inv_step = p->table_map[1], extent = p->table_map[2];
+    const size_t all_steps = STEP_Z + STEP_RHO + STEP_THETA;
     for (int c = 0; c < 3; c++) {
         float s = p->sigma_t[c];
         float z_mfp = z * s, rho_mfp = rho * s;
@@ -84,12 +77,17 @@ static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl 
         iz = iz > NS_TABLE_NZ - 2 ? NS_TABLE_NZ - 2 : iz;
         ir = ir > NS_TABLE_NRHO - 2 ? NS_TABLE_NRHO - 2 : ir;
         float tz = fz - (float)iz, tr = fr - (float)ir;
-        const float *slice = table + (size_t)c * NS_TABLE_CELLS;
-        size_t base = ((size_t)iz * NS_TABLE_NRHO + ir) * TABLE_DIRS;
-        float lo = table_bilinear(slice, base, rows[0] + phi, tz, tr);
-        float hi = table_bilinear(slice, base, rows[1] + phi, tz, tr);
+        const float *cell = table + (size_t)c * NS_TABLE_CELLS + ((size_t)iz * NS_TABLE_NRHO + ir) * TABLE_DIRS +
+                            row + phi;
+        int z_rho = tz >= tr, z_theta = tz >= tt, rho_theta = tr >= tt;
+        size_t first = z_rho && z_theta ? STEP_Z : !z_rho && rho_theta ? STEP_RHO : STEP_THETA;
+        size_t last = z_theta && rho_theta ? STEP_THETA : z_rho && !rho_theta ? STEP_RHO : STEP_Z;
+        float t_max = fmaxf(tz, fmaxf(tr, tt)), t_min = fminf(tz, fminf(tr, tt));
+        float t_mid = tz + tr + tt - t_max - t_min;
+        float value = (1.0f - t_max) * cell[0] + (t_max - t_mid) * cell[first] +
+                      (t_mid - t_min) * cell[all_steps - last] + t_min * cell[all_steps];
         float inside = fmaxf(fabsf(z_mfp), rho_mfp) < extent ? 1.0f : 0.0f;
-        a[c] = inside * (lo + theta_t * (hi - lo));
+        a[c] = inside * value;
     }
 }
 
