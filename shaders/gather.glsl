@@ -63,11 +63,30 @@ Vrl representative_at(uint k)
 
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
 
-// The table's theta bin for light along w seen from a VRL of axis d: the same at every point.
-uint theta_bin(vec3 w, vec3 d)
+// The table is read between its cells (issue 15: nearest-cell reads were 5-10% off near the
+// source and drew stair-step bands across the multiple-scattering image; docs/scattering.md,
+// *Reading the table between cells*). accumulate.comp computes A at every cell's centre, so
+// each coordinate is taken as a continuous index whose integers are the centres: linear
+// interpolation between the centres around the point in asinh(z), asinh(rho) and cos theta
+// (on a tetrahedron of the cube of 8 cells, table_at), and a bin's value held beyond its
+// centre at the grid's ends (the axis rho = 0, the poles of theta, the extent). In z the two cells may lie on either side of the plane z = 0 (the
+// table's z has a sign: bins below and above the source), which is where A is continuous. phi
+// is read at the nearest bin. tests/oracles/gather_cpu.c does the same arithmetic in C.
+
+// The lower of the two theta rows (bin times the phi bin count) around light along w seen from
+// a VRL of axis d, and in t the weight of the upper one: the same at every point of the VRL. t is linear
+// in cos theta between the two bins' centres and is computed from their cosines, not from
+// acos: lavapipe's acos is a polynomial about 1e-4 rad off (it picks the pair, where an error
+// only moves t by as much past 0 or 1, which the clamp takes back).
+uint theta_row(vec3 w, vec3 d, out float t)
 {
     float cos_theta = clamp(dot(w, d), -1.0, 1.0);
-    return min(uint(acos(cos_theta) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NTHETA - 1u);
+    float f = acos(cos_theta) * ANGLE_BINS_PER_RADIAN - 0.5;
+    uint i = min(uint(max(f, 0.0)), NS_TABLE_NTHETA - 2u);
+    float c0 = cos((float(i) + 0.5) / ANGLE_BINS_PER_RADIAN);
+    float c1 = cos((float(i) + 1.5) / ANGLE_BINS_PER_RADIAN);
+    t = clamp((cos_theta - c0) / (c1 - c0), 0.0, 1.0);
+    return i * NS_TABLE_NPHI;
 }
 
 // The phi bin at a point whose radial unit vector is e_rho (mirror-symmetric about it).
@@ -79,28 +98,29 @@ uint phi_bin(vec3 w, vec3 d, vec3 e_rho)
     return min(uint(acos(cos_phi) * ANGLE_BINS_PER_RADIAN), NS_TABLE_NPHI - 1u);
 }
 
-// Spatial part of the table index of each channel for (z, rho) in mfp per channel, or -1
-// beyond the table. Vector arithmetic, no loop over channels (lavapipe counts loops).
-ivec3 spatial_bins(vec3 z_mfp, vec3 rho_mfp)
+const uint TABLE_DIRS = NS_TABLE_NTHETA * NS_TABLE_NPHI;
+// A step of one cell along each axis of the interpolation, in table entries.
+const uint STEP_Z = NS_TABLE_NRHO * TABLE_DIRS, STEP_RHO = TABLE_DIRS, STEP_THETA = NS_TABLE_NPHI;
+
+// One corner of the interpolation, per channel: the table at index base + offset of each
+// channel's slice.
+vec3 table_corner(uvec3 base, uvec3 offset)
 {
-    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
-    ivec3 iz = ivec3(floor(asinh(z_mfp / scale) * inv_step)) + int(NS_TABLE_NZ / 2u);
-    ivec3 ir = ivec3(floor(asinh(rho_mfp / scale) * inv_step));
-    iz = clamp(iz, 0, int(NS_TABLE_NZ) - 1);
-    ir = clamp(ir, 0, int(NS_TABLE_NRHO) - 1);
-    bvec3 inside = lessThan(max(abs(z_mfp), rho_mfp), vec3(extent));
-    return mix(ivec3(-1), iz * int(NS_TABLE_NRHO) + ir, inside);
+    uvec3 i = base + offset;
+    return vec3(table[i.x], table[i.y], table[i.z]);
 }
 
-float table_read(int channel, int cell, uint dir)
-{
-    return cell < 0 ? 0.0
-                    : table[uint(channel) * NS_TABLE_CELLS + uint(cell) * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir];
-}
-
-// A at point p for light arriving along w, per channel, in mfp units; theta_row = the
-// theta bin times the phi bin count.
-vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
+// A at point p for light arriving along w, per channel, in mfp units; row (the lower theta
+// row) and theta_t from theta_row. 0 beyond the table's extent. Vector arithmetic over the
+// channels, no loop (lavapipe counts loops).
+//
+// Between the 8 cells around the point (z, rho, theta) the value is the linear interpolation
+// on one of the cube's 6 tetrahedra (Kuhn's triangulation: the path from the lower corner to
+// the upper one that steps along the axes in decreasing order of the fractions), 4 reads per
+// channel instead of trilinear's 8: on lavapipe each read is a loop over the lanes and the
+// reads are most of the gather's time (docs/scattering.md, *Reading the table between cells*).
+// Continuous, exact for a linear A, of the same order of accuracy as trilinear.
+vec3 table_at(Vrl v, vec3 p, vec3 w, uint row, float theta_t)
 {
     vec3 delta = p - v.origin;
     float z = dot(delta, v.direction);
@@ -108,10 +128,33 @@ vec3 table_at(Vrl v, vec3 p, vec3 w, uint theta_row)
     float rho = length(radial);
     // On the axis any radial direction is as good: the phi bins all meet there.
     vec3 e_rho = rho > 0.0 ? radial / rho : vec3(0.0);
-    uint dir = theta_row + phi_bin(w, v.direction, e_rho);
+    uint phi = phi_bin(w, v.direction, e_rho);
     vec3 s = params.sigma_t.xyz;
-    ivec3 cell = spatial_bins(z * s, rho * s);
-    return vec3(table_read(0, cell.x, dir), table_read(1, cell.y, dir), table_read(2, cell.z, dir));
+    vec3 z_mfp = z * s, rho_mfp = rho * s;
+    float scale = params.table_map.x, inv_step = params.table_map.y, extent = params.table_map.z;
+    vec3 fz = clamp(asinh(z_mfp / scale) * inv_step + (float(NS_TABLE_NZ / 2u) - 0.5), 0.0,
+                    float(NS_TABLE_NZ - 1u));
+    vec3 fr = clamp(asinh(rho_mfp / scale) * inv_step - 0.5, 0.0, float(NS_TABLE_NRHO - 1u));
+    uvec3 iz = min(uvec3(fz), uvec3(NS_TABLE_NZ - 2u));
+    uvec3 ir = min(uvec3(fr), uvec3(NS_TABLE_NRHO - 2u));
+    vec3 tz = fz - vec3(iz), tr = fr - vec3(ir), tt = vec3(theta_t);
+    uvec3 base = (iz * NS_TABLE_NRHO + ir) * TABLE_DIRS + uvec3(0u, 1u, 2u) * NS_TABLE_CELLS + (row + phi);
+    // The order of the three fractions per channel, ties to z, then rho (a strict order).
+    bvec3 z_rho = greaterThanEqual(tz, tr), z_theta = greaterThanEqual(tz, tt), rho_theta = greaterThanEqual(tr, tt);
+    bvec3 z_first = bvec3(uvec3(z_rho) & uvec3(z_theta));
+    bvec3 rho_first = bvec3(uvec3(not(z_rho)) & uvec3(rho_theta));
+    bvec3 theta_last = bvec3(uvec3(z_theta) & uvec3(rho_theta));
+    bvec3 rho_last = bvec3(uvec3(z_rho) & uvec3(not(rho_theta)));
+    uvec3 first = mix(mix(uvec3(STEP_THETA), uvec3(STEP_RHO), rho_first), uvec3(STEP_Z), z_first);
+    uvec3 last = mix(mix(uvec3(STEP_Z), uvec3(STEP_RHO), rho_last), uvec3(STEP_THETA), theta_last);
+    const uint all_steps = STEP_Z + STEP_RHO + STEP_THETA;
+    vec3 t_max = max(tz, max(tr, tt)), t_min = min(tz, min(tr, tt));
+    vec3 t_mid = tz + tr + tt - t_max - t_min;
+    vec3 value = (1.0 - t_max) * table_corner(base, uvec3(0u)) + (t_max - t_mid) * table_corner(base, first) +
+                 (t_mid - t_min) * table_corner(base, uvec3(all_steps) - last) +
+                 t_min * table_corner(base, uvec3(all_steps));
+    vec3 inside = vec3(lessThan(max(abs(z_mfp), rho_mfp), vec3(extent)));
+    return inside * value;
 }
 
 vec3 dipole_rd(float r)
@@ -127,14 +170,14 @@ vec3 dipole_rd(float r)
 
 // exit_matters: e^{-s Lc} is above float resolution in some channel, so A(exit) counts.
 // The segment's table value for an endless beam from `origin` along v's direction.
-vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint theta_row, vec3 segment_attenuation,
+vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint row, float theta_t, vec3 segment_attenuation,
                 vec3 paper_weight, bool exit_matters)
 {
     if (NS_GATHER_FORM == NS_GATHER_MODE_PAPER)
-        return paper_weight * table_at(v, seg.entry, w, theta_row);
-    vec3 value = table_at(v, seg.entry, w, theta_row);
+        return paper_weight * table_at(v, seg.entry, w, row, theta_t);
+    vec3 value = table_at(v, seg.entry, w, row, theta_t);
     if (exit_matters)
-        value -= segment_attenuation * table_at(v, seg.exit, w, theta_row);
+        value -= segment_attenuation * table_at(v, seg.exit, w, row, theta_t);
     return value;
 }
 
@@ -144,15 +187,17 @@ vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 
     if (NS_GATHER_FORM == NS_GATHER_MODE_DIPOLE)
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
     vec3 s = params.sigma_t.xyz;
-    uint theta_row = theta_bin(w, v.direction) * NS_TABLE_NPHI;
-    vec3 value = beam_value(v, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
+    float theta_t;
+    uint row = theta_row(w, v.direction, theta_t);
+    vec3 value = beam_value(v, seg, w, row, theta_t, segment_attenuation, paper_weight, exit_matters);
 #if NS_BOUNDED_BEAMS
     vec3 beam_attenuation = exp(-s * v.len);
     if (v.len > 0.0 && max(beam_attenuation.x, max(beam_attenuation.y, beam_attenuation.z)) > params.table_map.w) {
         Vrl beyond = v;
         beyond.origin = v.origin + v.len * v.direction;
-        value -= beam_attenuation * beam_value(beyond, seg, w, theta_row, segment_attenuation, paper_weight, exit_matters);
-        // Nearest-bin reads of two frames can cross where the exact difference is ~0.
+        value -= beam_attenuation * beam_value(beyond, seg, w, row, theta_t, segment_attenuation, paper_weight, exit_matters);
+        // The tables' reads in two frames (interpolated between cells, each with its own
+        // discretisation error) can cross where the exact difference is ~0.
         value = max(value, vec3(0.0));
     }
 #endif

@@ -371,6 +371,56 @@ static double table_value(const float *a, const double p[3], const double w[3], 
     return a[cell];
 }
 
+/* The A table's value at point p read between cell centres as the gather reads it
+ * (shaders/gather.glsl table_at, written here independently in double): linear in the
+ * continuous asinh index of z and rho and in cos theta between the centres, on Kuhn's
+ * tetrahedra, held beyond the first and last centres, phi at the nearest bin. */
+static double table_value_between(const float *a, const double p[3], const double w[3])
+{
+    double rho = hypot(p[0], p[1]);
+    if (fabs(p[2]) >= grid.extent || rho >= grid.extent)
+        return 0.0;
+    double fz = asinh(p[2] / grid.scale) / grid.step + NS_TABLE_NZ / 2 - 0.5;
+    double fr = asinh(rho / grid.scale) / grid.step - 0.5;
+    fz = fmin(fmax(fz, 0.0), NS_TABLE_NZ - 1);
+    fr = fmin(fmax(fr, 0.0), NS_TABLE_NRHO - 1);
+    int iz = fz >= NS_TABLE_NZ - 1 ? NS_TABLE_NZ - 2 : (int)fz;
+    int ir = fr >= NS_TABLE_NRHO - 1 ? NS_TABLE_NRHO - 2 : (int)fr;
+    double tz = fz - iz, tr = fr - ir;
+    double cos_theta = fmax(-1.0, fmin(1.0, w[2])), step = M_PI / NS_TABLE_NTHETA;
+    double ft = acos(cos_theta) / step - 0.5;
+    int it = ft <= 0 ? 0 : ft >= NS_TABLE_NTHETA - 2 ? NS_TABLE_NTHETA - 2 : (int)ft;
+    double c0 = cos((it + 0.5) * step), c1 = cos((it + 1.5) * step);
+    double tt = fmin(fmax((cos_theta - c0) / (c1 - c0), 0.0), 1.0);
+    double wh = hypot(w[0], w[1]);
+    double cos_phi = rho > 0 && wh > 0 ? (w[0] * p[0] + w[1] * p[1]) / (wh * rho) : 1.0;
+    int ip = angle_bin(acos(fmax(-1.0, fmin(1.0, cos_phi))));
+    /* Kuhn's tetrahedron holding the point: from the lower corner step along the axes in
+     * decreasing order of their fractions; the weights are the differences of the sorted
+     * fractions. */
+    double t[3] = {tz, tr, tt};
+    int order[3] = {0, 1, 2}; /* z, rho, theta; ties keep this order */
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k + 1 < 3 - i; k++)
+            if (t[order[k + 1]] > t[order[k]]) {
+                int swap = order[k];
+                order[k] = order[k + 1];
+                order[k + 1] = swap;
+            }
+    int corner[3] = {0, 0, 0};
+    double sum = 0.0, previous = 1.0;
+    for (int k = 0; k <= 3; k++) {
+        double next = k < 3 ? t[order[k]] : 0.0;
+        long cell = (((long)(iz + corner[0]) * NS_TABLE_NRHO + ir + corner[1]) * NS_TABLE_NTHETA + it +
+                     corner[2]) * NS_TABLE_NPHI + ip;
+        sum += (previous - next) * a[cell];
+        if (k < 3)
+            corner[order[k]] = 1;
+        previous = next;
+    }
+    return sum;
+}
+
 static void test_network_tables_brute_force(void)
 {
     ns_table_stats stats;
@@ -388,6 +438,11 @@ static void test_network_tables_brute_force(void)
     memcpy(copy, a, 3 * cells * sizeof(float));
     int point_failures = 0, segment_failures = 0;
     double worst_point = 0, worst_segment = 0;
+    /* A at the exit point itself, nearest cell and between cells, against the brute force
+     * from that point (issue 15: what reading between cells gains), and the segment form with
+     * each: mean and worst relative errors. */
+    double exit_err[2] = {0, 0}, exit_worst[2] = {0, 0}, seg_err[2] = {0, 0}, seg_worst[2] = {0, 0};
+    int exit_n = 0;
     for (int ch = 0; ch < 3; ch++) {
         float *j = summed_j(&nn_key, ch);
         if (!j)
@@ -417,6 +472,19 @@ static void test_network_tables_brute_force(void)
             double segment = ac[cell] - exp(-length) * a_exit;
             double direct = brute_force(j, c.p, c.w, length);
             double seg_tol = exp(-length) * spread + 3e-3 * want + 1e-13 * j_max;
+            double exit_want = brute_force(j, exit, c.w, 40.0);
+            double got[2] = {a_exit, table_value_between(ac, exit, c.w)};
+            for (int k = 0; k < 2; k++) {
+                double es = fabs(ac[cell] - exp(-length) * got[k] - direct) / want;
+                seg_err[k] += es / (3 * 40);
+                seg_worst[k] = fmax(seg_worst[k], es);
+                if (exit_want > 1e-6 * j_max) {
+                    double e = fabs(got[k] - exit_want) / exit_want;
+                    exit_err[k] += e;
+                    exit_worst[k] = fmax(exit_worst[k], e);
+                    exit_n += k;
+                }
+            }
             worst_segment = fmax(worst_segment, fabs(segment - direct) / want);
             if (fabs(segment - direct) > seg_tol && segment_failures++ < 5)
                 fprintf(stderr,
@@ -431,6 +499,16 @@ static void test_network_tables_brute_force(void)
     printf("nn tables: A vs brute force worst %.2e relative; segment form worst error %.2e "
            "of A(entry)\n",
            worst_point, worst_segment);
+    if (exit_n > 0) {
+        printf("A at %d exit points against brute force, mean / worst relative error: nearest cell "
+               "%.3f / %.3f, between cells %.3f / %.3f; segment form of all 120, of A(entry): "
+               "%.4f / %.3f, %.4f / %.3f\n",
+               exit_n, exit_err[0] / exit_n, exit_worst[0], exit_err[1] / exit_n, exit_worst[1],
+               seg_err[0], seg_worst[0], seg_err[1], seg_worst[1]);
+        /* The gather's reads between cells must do better than the nearest cell on average. */
+        CHECK(exit_err[1] < exit_err[0]);
+        CHECK(seg_err[1] < seg_err[0]);
+    }
     free(copy);
 }
 

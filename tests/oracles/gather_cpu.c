@@ -12,34 +12,44 @@
 static float dot3(const float *a, const float *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 static float clampf(float v, float lo, float hi) { return v < lo ? lo : v > hi ? hi : v; }
 
-static uint32_t direction_bin(const float *w, const float *d, const float *e_rho)
+/* gather.glsl's theta_row: the lower of the two theta rows around w seen from axis d and the
+ * weight of the upper one, linear in cos theta between the bins' centres, held beyond the
+ * first and last. */
+static uint32_t theta_row(const float *w, const float *d, float *t)
+{
+    const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
+    float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
+    float f = acosf(cos_theta) * bins_per_radian - 0.5f;
+    uint32_t i = (uint32_t)fmaxf(f, 0.0f);
+    if (i > NS_TABLE_NTHETA - 2)
+        i = NS_TABLE_NTHETA - 2;
+    float c0 = cosf(((float)i + 0.5f) / bins_per_radian);
+    float c1 = cosf(((float)i + 1.5f) / bins_per_radian);
+    *t = clampf((cos_theta - c0) / (c1 - c0), 0.0f, 1.0f);
+    return i * NS_TABLE_NPHI;
+}
+
+/* gather.glsl's phi_bin: nearest. */
+static uint32_t phi_bin(const float *w, const float *d, const float *e_rho)
 {
     const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
     float cos_theta = clampf(dot3(w, d), -1.0f, 1.0f);
     float w_perp[3] = {w[0] - cos_theta * d[0], w[1] - cos_theta * d[1], w[2] - cos_theta * d[2]};
     float perp = sqrtf(dot3(w_perp, w_perp));
     float cos_phi = perp > 1e-6f ? clampf(dot3(w_perp, e_rho) / perp, -1.0f, 1.0f) : 1.0f;
-    uint32_t it = (uint32_t)(acosf(cos_theta) * bins_per_radian);
     uint32_t ip = (uint32_t)(acosf(cos_phi) * bins_per_radian);
-    if (it > NS_TABLE_NTHETA - 1)
-        it = NS_TABLE_NTHETA - 1;
-    if (ip > NS_TABLE_NPHI - 1)
-        ip = NS_TABLE_NPHI - 1;
-    return it * NS_TABLE_NPHI + ip;
+    return ip > NS_TABLE_NPHI - 1 ? NS_TABLE_NPHI - 1 : ip;
 }
 
-static int spatial_bin(const GpuGatherParams *p, float z, float rho)
-{
-    float extent = p->table_map[2];
-    if (fabsf(z) >= extent || rho >= extent)
-        return -1;
-    int iz = (int)floorf(asinhf(z / p->table_map[0]) * p->table_map[1]) + (int)(NS_TABLE_NZ / 2);
-    int ir = (int)floorf(asinhf(rho / p->table_map[0]) * p->table_map[1]);
-    iz = iz < 0 ? 0 : iz > (int)NS_TABLE_NZ - 1 ? (int)NS_TABLE_NZ - 1 : iz;
-    ir = ir < 0 ? 0 : ir > (int)NS_TABLE_NRHO - 1 ? (int)NS_TABLE_NRHO - 1 : ir;
-    return iz * (int)NS_TABLE_NRHO + ir;
-}
+#define TABLE_DIRS (NS_TABLE_NTHETA * NS_TABLE_NPHI)
+#define STEP_Z (NS_TABLE_NRHO * TABLE_DIRS)
+#define STEP_RHO TABLE_DIRS
+#define STEP_THETA NS_TABLE_NPHI
 
+/* gather.glsl's table_at: A between the cells' centres in asinh(z), asinh(rho) and cos theta,
+ * linear on the tetrahedron of Kuhn's triangulation that holds the point (the axes stepped in
+ * decreasing order of their fractions, ties to z, then rho), phi at the nearest bin, 0
+ * beyond the extent. */
 static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl *v,
                      const float *point, const float *w, float a[3])
 {
@@ -52,13 +62,32 @@ static void table_at(const GpuGatherParams *p, const float *table, const GpuVrl 
     if (rho > 0.0f)
         for (int i = 0; i < 3; i++)
             e_rho[i] = radial[i] / rho;
-    uint32_t dir = direction_bin(w, v->direction, e_rho);
+    float tt;
+    uint32_t row = theta_row(w, v->direction, &tt);
+    uint32_t phi = phi_bin(w, v->direction, e_rho);
+    float scale = p->table_map[0], inv_step = p->table_map[1], extent = p->table_map[2];
+    const size_t all_steps = STEP_Z + STEP_RHO + STEP_THETA;
     for (int c = 0; c < 3; c++) {
         float s = p->sigma_t[c];
-        int cell = spatial_bin(p, z * s, rho * s);
-        a[c] = cell >= 0 ? table[(size_t)c * NS_TABLE_CELLS +
-                                 (size_t)cell * (NS_TABLE_NTHETA * NS_TABLE_NPHI) + dir]
-                         : 0.0f;
+        float z_mfp = z * s, rho_mfp = rho * s;
+        float fz = clampf(asinhf(z_mfp / scale) * inv_step + ((float)(NS_TABLE_NZ / 2) - 0.5f), 0.0f,
+                          (float)(NS_TABLE_NZ - 1));
+        float fr = clampf(asinhf(rho_mfp / scale) * inv_step - 0.5f, 0.0f, (float)(NS_TABLE_NRHO - 1));
+        uint32_t iz = (uint32_t)fz, ir = (uint32_t)fr;
+        iz = iz > NS_TABLE_NZ - 2 ? NS_TABLE_NZ - 2 : iz;
+        ir = ir > NS_TABLE_NRHO - 2 ? NS_TABLE_NRHO - 2 : ir;
+        float tz = fz - (float)iz, tr = fr - (float)ir;
+        const float *cell = table + (size_t)c * NS_TABLE_CELLS + ((size_t)iz * NS_TABLE_NRHO + ir) * TABLE_DIRS +
+                            row + phi;
+        int z_rho = tz >= tr, z_theta = tz >= tt, rho_theta = tr >= tt;
+        size_t first = z_rho && z_theta ? STEP_Z : !z_rho && rho_theta ? STEP_RHO : STEP_THETA;
+        size_t last = z_theta && rho_theta ? STEP_THETA : z_rho && !rho_theta ? STEP_RHO : STEP_Z;
+        float t_max = fmaxf(tz, fmaxf(tr, tt)), t_min = fminf(tz, fminf(tr, tt));
+        float t_mid = tz + tr + tt - t_max - t_min;
+        float value = (1.0f - t_max) * cell[0] + (t_max - t_mid) * cell[first] +
+                      (t_mid - t_min) * cell[all_steps - last] + t_min * cell[all_steps];
+        float inside = fmaxf(fabsf(z_mfp), rho_mfp) < extent ? 1.0f : 0.0f;
+        a[c] = inside * value;
     }
 }
 
