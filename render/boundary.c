@@ -104,6 +104,11 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
     return n;
 }
 
+static float source_weight(const GpuVrl *s)
+{
+    return fabsf(s->power[0] + s->power[1] + s->power[2]) / 3.0f;
+}
+
 static uint32_t hash32(uint32_t v)
 {
     /* PCG's output permutation, as shaders/common.glsl's pcg_hash. */
@@ -119,7 +124,7 @@ uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t
     uint32_t kept = 0;
     for (uint32_t i = 0; i < n; i++) {
         GpuVrl s = sources[i];
-        float weight = fabsf(s.power[0] + s.power[1] + s.power[2]) / 3.0f;
+        float weight = source_weight(&s);
         if (weight < floor) {
             float u = (float)(hash32(hash32(seed) + i) >> 8) * (1.0f / 16777216.0f);
             if (!(u * floor < weight))
@@ -137,6 +142,35 @@ static int order_wanted(uint32_t order, uint32_t components)
 {
     uint32_t bit = order == 1 ? NS_COMPONENT_SINGLE : order == 2 ? NS_COMPONENT_DOUBLE : NS_COMPONENT_MULTIPLE;
     return (components & bit) != 0;
+}
+
+float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target)
+{
+    if (n <= target || !target)
+        return 0.0f;
+    /* kept(f) = sum min(1, w / f) falls as f grows: bisect between a floor that keeps
+     * everything (the smallest weight) and one that keeps at most target (the total over
+     * target), in the logarithm. */
+    double total = 0, smallest = INFINITY;
+    for (uint32_t i = 0; i < n; i++) {
+        double w = source_weight(&sources[i]);
+        total += w;
+        if (w > 0 && w < smallest)
+            smallest = w;
+    }
+    if (!(total > 0))
+        return 0.0f;
+    double lo = log(fmin(smallest, total / target)), hi = log(total / target);
+    for (int it = 0; it < 40; it++) {
+        double mid = 0.5 * (lo + hi), f = exp(mid), kept = 0;
+        for (uint32_t i = 0; i < n; i++)
+            kept += fmin(1.0, source_weight(&sources[i]) / f);
+        if (kept > target)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return (float)exp(hi);
 }
 
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components)

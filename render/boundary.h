@@ -12,11 +12,14 @@
  * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). */
 #define NS_BOUNDARY_BLUR_MFP 0.1
 
-/* Sources weaker than this multiple of the mean VRL's power go through Russian roulette
- * (ns_boundary_roulette). Measured on the bench's candle, milk and cloud at 128² (multiple
- * only, docs/scattering.md): 0.5 took 27% of the gather's interactions away, 2 took 52-62%,
- * each at the same PSNR within 0.05 dB. */
-#define NS_BOUNDARY_ROULETTE 2.0
+/* How many sources the gather takes (ns_boundary_floor): as many as VRLs, and at least
+ * NS_BOUNDARY_MIN_SOURCES; and how many walks make them: render.vrls, at least
+ * NS_BOUNDARY_MIN_WALKS (a scene with few VRLs, the bench's bumpy sphere at 3000 paths and
+ * 423 VRLs, would otherwise get a noisy correction). On that sphere at 128², multiple only,
+ * PSNR against pt / gather time: at least 1024 sources 32.90 dB / 1.9 s, 4096 33.12 dB /
+ * 4.9 s, 16384 33.16 dB / 14.3 s (off: 32.48 dB / 0.5 s); docs/scattering.md. */
+#define NS_BOUNDARY_MIN_SOURCES 4096u
+#define NS_BOUNDARY_MIN_WALKS 20000u
 
 /* How stretch v of a walk follows the stretch before it (NULL: none): a new start (the
  * entry into the medium, or a scattering event: its events differ, or it starts elsewhere),
@@ -43,6 +46,10 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
  * than the total weight over floor besides the strong ones. The draws come from seed and
  * each source's index. Compacts sources[0, n) in place; returns how many are left. */
 uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t seed);
+
+/* The floor with which ns_boundary_roulette keeps `target` of sources[0, n) in expectation
+ * (the sum over them of min(1, |power| / floor)); 0 when n <= target (keep them all). */
+float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target);
 
 /* The table orders (NS_TABLE_FIRST_BLURRED, NS_COMPONENT_DOUBLE for J_2,
  * NS_COMPONENT_MULTIPLE for J_multiple) a source after `events` scattering events reads for

@@ -616,13 +616,15 @@ static int bounded_beams(const ns_scene *scene)
 }
 
 /* render.boundary: the light's walks inside the objects (the `vrl` method's paths, as many
- * as render.vrls, on a seed of their own), turned into grouped sources (boundary.c). */
+ * as render.vrls and at least NS_BOUNDARY_MIN_WALKS, on a seed of their own), turned into
+ * grouped sources (boundary.c). */
 static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *v,
                                  ns_render_stats *stats, ns_error *err)
 {
     const ns_scene *scene = in->scene;
     ns_vrl_set walks;
-    int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
+    uint32_t paths = scene->render.vrls > NS_BOUNDARY_MIN_WALKS ? scene->render.vrls : NS_BOUNDARY_MIN_WALKS;
+    int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, paths,
                                      scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
     if (status)
         return status;
@@ -633,12 +635,10 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     }
     uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
     ns_vrl_set_free(&walks);
-    /* Sources weaker than a fraction of the mean VRL carry little but cost as much in the
-     * gather: long walks (milk's albedo 0.999) make many of them. */
-    double vrl_power = 0;
-    for (uint32_t i = 0; i < v->set.count; i++)
-        vrl_power += (v->set.vrls[i].power[0] + v->set.vrls[i].power[1] + v->set.vrls[i].power[2]) / 3.0;
-    float floor = v->set.count ? (float)(NS_BOUNDARY_ROULETTE * vrl_power / v->set.count) : 0.0f;
+    /* Long walks (milk's albedo 0.999) make many weak sources, each costing the gather as
+     * much as a strong one: Russian roulette keeps about as many as there are VRLs. */
+    uint32_t target = v->set.count > NS_BOUNDARY_MIN_SOURCES ? v->set.count : NS_BOUNDARY_MIN_SOURCES;
+    float floor = ns_boundary_floor(sources, n, target);
     n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
     free(sources);

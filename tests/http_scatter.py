@@ -2,7 +2,8 @@
 full render (surface + single + double + multiple) reports every scattering stage in
 Server-Timing and its counts and memory in X-Nscatter-Stats; sweeping the albedo and coming
 back to the first material reuses its cached tables (no reconstruct/accumulate stage the
-second time); bad scattering settings get a 422 naming the field."""
+second time); the boundary correction's walks show as a stage and a count; bad scattering
+settings get a 422 naming the field."""
 import json
 import os
 import sys
@@ -102,6 +103,23 @@ def test_bounded_beams_add_reflected_vrls(t, srv):
                 f"internal reflections stored as VRLs: {counts}")
 
 
+def test_boundary_walks(t, srv):
+    # render.boundary "walks": the walks are a stage of their own and their sources are
+    # counted; "off" (the default) has neither. The image changes.
+    answers = {}
+    for boundary in ("off", "walks"):
+        status, headers, body = srv.render(scatter_scene(components=("multiple",), boundary=boundary))
+        t.equal(status, 200, f"boundary {boundary} ({body[:300]!r})")
+        answers[boundary] = (stats_of(headers), server_timing(headers.get("server-timing", "")), body)
+    if len(answers) == 2:
+        (off_counts, off_timing, off_body), (counts, timing, body) = answers["off"], answers["walks"]
+        t.check("boundary" in timing and "boundary" not in off_timing,
+                f"the walks' stage: {sorted(timing)} / {sorted(off_timing)}")
+        t.check(counts.get("boundary_sources", 0) > 0, f"sources counted: {counts}")
+        t.equal(off_counts.get("boundary_sources"), 0, "no source when off")
+        t.check(body != off_body, "the correction changes the image")
+
+
 def test_bad_settings_422(t, srv):
     expect_422(t, srv, scatter_scene(vrls=0), "/render/vrls", "zero VRLs")
     expect_422(t, srv, scatter_scene(gather_tile=99), "/render/gather_tile", "tile too large")
@@ -120,13 +138,16 @@ def test_bad_settings_422(t, srv):
     expect_422(t, srv, scatter_scene(vrl_beams="finite"), "/render/vrl_beams", "unknown beam model")
     expect_422(t, srv, scatter_scene(method="vrl", vrl_beams="bounded"), "/render/vrl_beams",
                "bounded beams with method vrl")
+    expect_422(t, srv, scatter_scene(boundary="on"), "/render/boundary", "unknown boundary model")
+    expect_422(t, srv, scatter_scene(method="dipole", boundary="walks"), "/render/boundary",
+               "boundary walks with method dipole")
 
 
 def main():
     t = Checks()
     with Server() as srv:
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
-                     test_bounded_beams_add_reflected_vrls,
+                     test_bounded_beams_add_reflected_vrls, test_boundary_walks,
                      test_adaptive_gather_counts_interpolated_tiles, test_bad_settings_422):
             t.run(test, srv)
         code = srv.stop()

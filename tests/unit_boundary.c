@@ -191,6 +191,23 @@ static void test_roulette(void)
         CHECK(fabs(after[k] - before[k]) < 5 * sqrt(WEAK / 2 * 0.1 * 1.2));
     /* A floor of 0 keeps everything. */
     CHECK_INT(ns_boundary_roulette(s, n, 0.0f, 42), n);
+
+    /* The floor for a target count: all kept at or below it; otherwise the expected count
+     * at that floor is the target (two strong sources always kept). */
+    for (uint32_t i = 0; i < WEAK + 2; i++) {
+        double p = i < WEAK ? 0.001 * (1 + i % 100) : 5.0;
+        s[i] = stretch(0, 0, 0, 0, 0, 1, 0, p, 1);
+    }
+    CHECK(ns_boundary_floor(s, WEAK + 2, WEAK + 2) == 0.0f);
+    const uint32_t targets[] = {50000, 10000, 100};
+    for (size_t k = 0; k < sizeof targets / sizeof targets[0]; k++) {
+        float f = ns_boundary_floor(s, WEAK + 2, targets[k]);
+        double expected_kept = 0;
+        for (uint32_t i = 0; i < WEAK + 2; i++)
+            expected_kept += fmin(1.0, s[i].power[0] / f);
+        fprintf(stderr, "  target %u: floor %.5g keeps %.1f\n", targets[k], (double)f, expected_kept);
+        CHECK(fabs(expected_kept / targets[k] - 1) < 1e-3);
+    }
     free(s);
 }
 
