@@ -89,7 +89,7 @@ static void test_cloud(void)
     ns_scene s = one_object(&m, &ball, &sun);
     set3(s.camera.position, 0, 0, 9);
     set3(s.camera.look_at, 0, 0, 0);
-    /* Measured (2026-11-27, between-cell reads): walks -4.4 / -4.3 / -3.3%, off +84 / +57 /
+    /* Measured (2026-11-27, between-cell reads): walks -5.1 / -5.0 / -4.0%, off +84 / +57 /
      * +107%. */
     compare("cloud sphere 3.3 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.08, 0.3, 8);
 }
@@ -115,8 +115,8 @@ static void test_slab(double thickness, double walks_tolerance, double off_off)
 }
 
 /* Measured (2026-11-27, between-cell reads), walks / off against pt per channel (albedo
- * 0.909 / 0.5 / 0.99): 0.5 mfp +14.9 / +4.9 / +3.3% against +614 / +163 / +2386%; 2 mfp
- * +6.5 / +0.6 / +17.5% against +97 / +17 / +467%; 8 mfp +2.5 / +1.1 / +5.5% against +35 /
+ * 0.909 / 0.5 / 0.99): 0.5 mfp +11.2 / +1.8 / +2.2% against +614 / +163 / +2386%; 2 mfp
+ * +4.6 / +0.6 / +11.7% against +97 / +17 / +467%; 8 mfp +1.7 / -0.2 / +6.3% against +35 /
  * +9 / +172%. What is left is the tables' own error, magnified where the ghosts take most of
  * the infinite medium's light away again (docs/scattering.md). */
 static void test_slabs(void)
@@ -136,7 +136,7 @@ static void test_refracting_sphere(void)
     ns_scene s = one_object(&m, &ball, &sun);
     set3(s.camera.position, 0, 2, 20);
     set3(s.camera.look_at, 0, 0, 0);
-    /* Measured (2026-11-27): walks +11.1 / +7.8 / +12.1%, off -17.6 / -12.9 / -17.3%: the
+    /* Measured (2026-11-27): walks +11.4 / +8.1 / +12.4%, off -17.6 / -12.9 / -17.3%: the
      * sign turns, and the error shrinks by less than on the index-matched objects. */
     compare("sphere 8 mfp, ior 1.5", s, NS_COMPONENT_MULTIPLE, 256, 0.18, 0.1, 1.3);
 }
