@@ -1,5 +1,5 @@
-/* boundary.c — the boundary-crossing correction of double and multiple scattering
- * (render.boundary; docs/scattering.md, "The object's boundary"; the estimator is
+/* boundary.c — the boundary-crossing correction of the gathered scattering (double,
+ * multiple, and single scattering after an internal reflection; render.boundary; docs/scattering.md, "The object's boundary"; the estimator is
  * shared/boundary/README.md's).
  *
  * The tables describe an infinite medium: past the point where the real light first reaches

@@ -635,6 +635,12 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     }
     uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
     ns_vrl_set_free(&walks);
+    /* Only the sources whose orders the components ask for take part (or a budget). */
+    uint32_t wanted = 0;
+    for (uint32_t i = 0; i < n; i++)
+        if (ns_boundary_orders(sources[i].events, scene->render.components))
+            sources[wanted++] = sources[i];
+    n = wanted;
     /* Long walks (milk's albedo 0.999) make many weak sources, each costing the gather as
      * much as a strong one: Russian roulette keeps about as many as there are VRLs. */
     uint32_t target = v->set.count > NS_BOUNDARY_MIN_SOURCES ? v->set.count : NS_BOUNDARY_MIN_SOURCES;
