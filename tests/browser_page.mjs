@@ -233,12 +233,13 @@ async function run() {
         single: await page.locator('#single-samples').inputValue(),
         accumulation: await page.locator('#accumulation').inputValue(),
         beams: await page.locator('#vrl-beams').inputValue(),
+        boundary: await page.locator('#boundary').inputValue(),
         cull: await page.locator('#cull-solid-angle').inputValue(),
         cullPlaceholder: await page.locator('#cull-solid-angle').getAttribute('placeholder'),
       };
-      check('controls show it: nn, four components, 4000 VRLs, tile 4, 16 samples; absent keys as defaults (exact, endless, empty cull with placeholder 0)',
+      check('controls show it: nn, four components, 4000 VRLs, tile 4, 16 samples; absent keys as defaults (exact, endless, boundary off, empty cull with placeholder 0)',
         JSON.stringify(shownControls) === JSON.stringify({
-          method: 'nn', components: 4, vrls: '4000', tile: '4', single: '16', accumulation: 'exact', beams: 'endless', cull: '', cullPlaceholder: '0',
+          method: 'nn', components: 4, vrls: '4000', tile: '4', single: '16', accumulation: 'exact', beams: 'endless', boundary: 'off', cull: '', cullPlaceholder: '0',
         }), JSON.stringify(shownControls));
     });
 
@@ -331,13 +332,15 @@ async function run() {
       await page.locator('#accumulation').focus();
       await page.keyboard.press('ArrowDown');
       await page.locator('#vrl-beams').selectOption('bounded');
+      await page.locator('#boundary').selectOption('walks');
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
-      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, vrl_beams, cull_solid_angle',
+      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, vrl_beams, boundary, cull_solid_angle',
         r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
         && r.gather_tolerance === 0.01 && r.single_samples === 20
-        && r.accumulation === 'paper' && r.vrl_beams === 'bounded' && r.cull_solid_angle === 0.05, JSON.stringify(r));
+        && r.accumulation === 'paper' && r.vrl_beams === 'bounded' && r.boundary === 'walks'
+        && r.cull_solid_angle === 0.05, JSON.stringify(r));
       await typeNumber(page, '#vrls', '0');
       scene = await editorScene(page);
       check('an out-of-range VRL count is marked and leaves the text alone',
@@ -459,7 +462,7 @@ async function run() {
 
     await step('invalid scattering settings list their JSON pointers', async () => {
       const scene = structuredClone(defaultScene);
-      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', accumulation: 'fast', vrl_beams: 'sideways', cull_solid_angle: -1 });
+      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', accumulation: 'fast', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
       await setEditor(page, JSON.stringify(scene, null, 2));
       // The controls follow typing after a short pause.
       const followed = await page.waitForFunction(() => document.getElementById('accumulation').value === 'fast', null, { timeout: 5000 })
@@ -470,7 +473,7 @@ async function run() {
       await renderAndWait(page);
       const text = await problemText(page);
       check('error panel names status 422', /\b422\b/.test(text), text);
-      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'accumulation', 'vrl_beams', 'cull_solid_angle']) {
+      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'accumulation', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
         const pointer = `/render/${key}`;
         check(`pointer ${pointer} is listed`, (await page.locator('#problem-errors button.pointer', { hasText: pointer }).count()) === 1, text);
       }

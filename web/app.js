@@ -85,12 +85,14 @@ const SCATTER_NUMBERS = [
 const SCATTER_CHOICES = [
   { key: 'accumulation', id: 'accumulation', fallback: 'exact' },
   { key: 'vrl_beams', id: 'vrl-beams', fallback: 'endless' },
+  { key: 'boundary', id: 'boundary', fallback: 'off' },
 ];
 
 /* X-Nscatter-Stats keys shown under the timings, in this order. */
 const COUNT_ROWS = [
   { key: 'vrl_count', label: 'VRLs' },
   { key: 'vrl_paths', label: 'light paths traced' },
+  { key: 'boundary_sources', label: 'boundary sources' },
   { key: 'camera_segments', label: 'camera segments in media' },
   { key: 'gather_segments', label: 'segments gathered' },
   { key: 'tiles_interpolated', label: 'tiles interpolated' },
