@@ -17,36 +17,6 @@
 #include "gpu_util.h"
 #include "vrl_method.h"
 
-typedef struct device_scene {
-    ns_gpu_scene gs;
-    gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
-} device_scene;
-
-static int device_scene_make(const ns_scene *s, device_scene *d)
-{
-    ns_context *ctx = test_context();
-    ns_error err = {0};
-    memset(d, 0, sizeof *d);
-    int status = ns_gpu_scene_build(s, &d->gs, &err);
-    if (!status) {
-        d->gs.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
-        gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
-        ns_gpu_scene_buffer_descs(&d->gs, descs);
-        status = gpu_buffers_create(&ctx->dev, d->buffers, descs, NS_SCENE_BUFFER_COUNT, &err);
-    }
-    if (status)
-        fprintf(stderr, "device scene: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
-    return status;
-}
-
-static void device_scene_free(device_scene *d)
-{
-    for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
-        gpu_buffer_destroy(&test_context()->dev, &d->buffers[i]);
-    ns_gpu_scene_free(&d->gs);
-}
-
 /* ---------------------------------------------------------------------------------------
  * The objects, in mean free paths (sigma_t = 1), and their insides.
  * ------------------------------------------------------------------------------------- */

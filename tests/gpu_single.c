@@ -16,52 +16,18 @@
 #include "gpu_util.h"
 #include "scatter.h"
 
-/* ---------------------------------------------------------------------------------------
- * Scene on the device, as render.c uploads it (with the loop budget).
- * ------------------------------------------------------------------------------------- */
-typedef struct device_scene {
-    ns_gpu_scene gs;
-    gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
-} device_scene;
-
-static void scene_down(device_scene *d)
-{
-    ns_context *ctx = test_context();
-    for (int i = 0; i < NS_SCENE_BUFFER_COUNT; i++)
-        gpu_buffer_destroy(&ctx->dev, &d->buffers[i]);
-    ns_gpu_scene_free(&d->gs);
-}
-
-static int scene_up(const ns_scene *s, device_scene *d)
-{
-    ns_context *ctx = test_context();
-    ns_error err = {0};
-    memset(d, 0, sizeof *d);
-    int status = ns_gpu_scene_build(s, &d->gs, &err);
-    if (!status) {
-        d->gs.params.limits[0] = ctx->dev.loop_limited ? NS_LAVAPIPE_LOOP_BUDGET : 0;
-        gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
-        ns_gpu_scene_buffer_descs(&d->gs, descs);
-        status = gpu_buffers_create(&ctx->dev, d->buffers, descs, NS_SCENE_BUFFER_COUNT, &err);
-    }
-    if (status)
-        fprintf(stderr, "scene_up: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
-    return status;
-}
-
 /* Runs ns_single_scatter on n segments; out[i] = RGB of segment i. Returns the status, and
  * checks it: a caller that gives up on a failure still counts as failed, with the error's
- * message printed (scene_up checks its own part). */
+ * message printed (device_scene_make checks its own part). */
 static int run_single(const ns_scene *s, const GpuSegment *segments, uint32_t n, uint32_t samples,
                       float (*out)[4], double *ms)
 {
     ns_context *ctx = test_context();
     ns_error err = {0};
     device_scene d;
-    int status = scene_up(s, &d);
+    int status = device_scene_make(s, &d);
     if (status) {
-        scene_down(&d);
+        device_scene_free(&d);
         return status;
     }
     gpu_buffer seg = {0}, result = {0};
@@ -88,7 +54,7 @@ static int run_single(const ns_scene *s, const GpuSegment *segments, uint32_t n,
     CHECK_INT(status, NS_OK);
     gpu_buffer_destroy(&ctx->dev, &seg);
     gpu_buffer_destroy(&ctx->dev, &result);
-    scene_down(&d);
+    device_scene_free(&d);
     return status;
 }
 
@@ -646,7 +612,7 @@ static void test_loop_limit_error(void)
     s.scene.light_count = LIGHTS;
     GpuSegment seg = segment(0, TOP, 0, 0, -1, 0, TOP);
     device_scene d;
-    if (!scene_up(&s.scene, &d)) {
+    if (!device_scene_make(&s.scene, &d)) {
         gpu_buffer segs = {0}, out = {0};
         ns_error err = {0};
         CHECK_INT(gpu_buffer_create(
@@ -659,7 +625,7 @@ static void test_loop_limit_error(void)
         CHECK_STR_CONTAINS(err.message, "loop limit");
         gpu_buffer_destroy(&ctx->dev, &segs);
         gpu_buffer_destroy(&ctx->dev, &out);
-        scene_down(&d);
+        device_scene_free(&d);
     }
     free(objects);
 }
@@ -782,7 +748,7 @@ static void test_bad_arguments(void)
     slab s;
     make_slab(&s, 1.0, directional(dir, E_RGB));
     device_scene d;
-    if (scene_up(&s.scene, &d))
+    if (device_scene_make(&s.scene, &d))
         return;
     GpuSegment seg = segment(0, TOP, 0, 0, -1, 0, TOP);
     gpu_buffer segs = {0}, out = {0};
@@ -813,7 +779,7 @@ static void test_bad_arguments(void)
     }
     gpu_buffer_destroy(&ctx->dev, &segs);
     gpu_buffer_destroy(&ctx->dev, &out);
-    scene_down(&d);
+    device_scene_free(&d);
     CHECK_INT(gpu_validation_count(&ctx->dev), 0);
 }
 
