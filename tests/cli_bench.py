@@ -64,6 +64,7 @@ def test_bad_arguments(t, d):
         (["--scenes", "teapot"], "teapot"),
         (["--diff", "upbp"], "--diff"),
         (["--pt-spp", "1,,4"], "--pt-spp"),
+        (["--boundary", "on"], "--boundary"),
         (["--cache"], "--cache"),
     ]
     for args, named in cases:

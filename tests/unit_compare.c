@@ -177,6 +177,18 @@ static void test_one_channel_and_relerr(void)
     CHECK_NEAR(m.psnr[3], 20.0 * log10(sqrt(3.0) / d), 1e-9);
     CHECK_NEAR(m.relerr[0], d / (1.0 + IMAGE_RELERR_EPSILON), 1e-12);
     CHECK_NEAR(m.relerr[3], d / (1.0 + IMAGE_RELERR_EPSILON) / 3.0, 1e-12);
+    /* Means over the reference's: 1.25 in red, 1 elsewhere, 3.25 / 3 over all. */
+    CHECK_NEAR(m.mean_ratio[0], 1.25, 1e-12);
+    CHECK_NEAR(m.mean_ratio[1], 1.0, 0);
+    CHECK_NEAR(m.mean_ratio[3], 3.25 / 3.0, 1e-12);
+    ns_image_free(&a);
+    ns_image_free(&b);
+    /* A reference channel that is 0 everywhere has no ratio. */
+    b = image_filled(4, 4, 1, 0, 1), a = image_filled(4, 4, 2, 0.5f, 1);
+    image_compare(&a, &b, NULL, &m);
+    CHECK_NEAR(m.mean_ratio[0], 2.0, 0);
+    CHECK(isnan(m.mean_ratio[1]));
+    CHECK_NEAR(m.mean_ratio[3], 3.5 / 2.0, 1e-12);
     ns_image_free(&a);
     ns_image_free(&b);
 }
@@ -355,6 +367,11 @@ static void test_cli_identical_and_offset(void)
     CHECK_NEAR(json_metric(r.json, "rmse", "all"), 0.125, 1e-7);
     CHECK_NEAR(json_metric(r.json, "rmse", "g"), 0.125, 1e-7);
     CHECK_NEAR(json_metric(r.json, "psnr", "all"), 20.0 * log10(2.0 / 0.125), 1e-6);
+    /* A is B + 0.125 everywhere: its mean over B's is 1 + 0.125 / mean(B). */
+    double mean_b = 0;
+    for (size_t i = 0; i < 16 * 8 * 3; i++)
+        mean_b += b.rgb[i] / (16.0 * 8 * 3);
+    CHECK_NEAR(json_metric(r.json, "mean_ratio", "all"), 1.0 + 0.125 / mean_b, 1e-6);
     CHECK_NEAR(json_number_value(json_object_get(r.json, "peak")), 2.0, 0);
     CHECK_NEAR(json_number_value(json_object_get(json_object_get(r.json, "diff"), "scale")), 0.125,
                1e-6);
