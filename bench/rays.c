@@ -9,9 +9,10 @@
  * made once from Embree's primary hits, untimed, so that both sides trace the same shadow
  * rays).
  *
- *   nscatter  ns_trace_rays_timed (render/trace_rays.c): the real traversal (trace.glsl's
- *             trace_scene, through shaders/trace_test.comp), nearest hit for every ray,
- *             shadow rays included, as the renderer traces them (it has no any-hit query).
+ *   nscatter  ns_trace_rays_timed (render/trace_rays.c): the real traversal (trace.glsl,
+ *             through shaders/trace_test.comp): trace_scene's nearest hit for primary rays,
+ *             trace_shadow's any-hit query for shadow rays as the renderer traces them
+ *             (--nearest-shadow: their nearest hit, as before that query existed).
  *             Timed by two timestamp queries around the dispatch (device time only: no BVH
  *             build, no upload, no readback); the host time from recording to the fence is
  *             printed beside it.
@@ -79,6 +80,7 @@ typedef struct args {
     uint32_t width, height, repeat, threads;
     double light[3];
     int no_packets;
+    int nearest_shadow; /* nscatter's shadow rays: 0 the any-hit query (as the renderer), 1 nearest hit */
     int floor_quad; /* nscatter's floor: 0 its plane (as the renderer), 1 Embree's square */
 } args;
 
@@ -96,6 +98,8 @@ static void usage(FILE *f)
             "                  the threads lavapipe uses)\n"
             "  --light X,Y,Z   direction towards the directional light (default 3,5,3)\n"
             "  --no-packets    skip the rtcIntersect16/rtcOccluded16 runs\n"
+            "  --nearest-shadow  nscatter traces shadow rays for their nearest hit (as before\n"
+            "                  the any-hit query), not with the renderer's any-hit query\n"
             "  --floor F       nscatter's floor: plane (default: an infinite plane outside the\n"
             "                  BVH, as the renderer traces a plane) or quad (Embree's square, its\n"
             "                  two triangles built into nscatter's BVH with the bunny)\n"
@@ -134,6 +138,9 @@ static int parse_args(int argc, char **argv, args *a)
             exit(0);
         } else if (!strcmp(o, "--no-packets")) {
             a->no_packets = 1;
+            continue;
+        } else if (!strcmp(o, "--nearest-shadow")) {
+            a->nearest_shadow = 1;
             continue;
         }
         if (!v) {
@@ -792,6 +799,7 @@ int main(int argc, char **argv)
             r->direction[k] = (float)light[k];
         }
         r->origin[3] = INFINITY;
+        r->direction[3] = a.nearest_shadow ? 0.0f : 1.0f; /* trace_test.comp: any-hit */
     }
     uint32_t total = primary + shadow;
     job.count = total;
@@ -922,9 +930,12 @@ int main(int argc, char **argv)
            info.driver_name, info.driver_info, a.threads, cpu);
     printf("Embree %s, scene build %.1f ms (not timed below); load average %.2f -> %.2f\n",
            eversion, embree_build_ms, load_start[0], load_end[0]);
-    printf("timed runs: %u per side and set, after one warm-up; nscatter = %s\n\n", a.repeat,
+    printf("timed runs: %u per side and set, after one warm-up; nscatter = %s; nscatter's shadow "
+           "rays: %s\n\n",
+           a.repeat,
            timestamps ? "device time between two timestamp queries around the dispatch"
-                      : "host time from recording to the fence (the queue has no timestamps)");
+                      : "host time from recording to the fence (the queue has no timestamps)",
+           a.nearest_shadow ? "nearest hit" : "any-hit");
     printf("%-22s %-34s %9s %9s %8s | %8s %8s\n", "side", "how", "best ms", "median ms", "Mrays/s",
            "prim ms", "shadow ms");
     print_row("nscatter", timestamps ? "trace_test.comp, timestamps" : "trace_test.comp, host",
@@ -953,10 +964,11 @@ int main(int argc, char **argv)
     printf("{\"bench\":\"rays\",\"width\":%u,\"height\":%u,\"triangles\":%u,\"rays\":%u,"
            "\"primary\":%u,\"shadow\":%u,\"repeat\":%u,\"threads\":%u,\"device\":\"%s\","
            "\"driver\":\"%s\",\"cpu\":\"%s\",\"embree\":\"%s\",\"nscatter_timing\":\"%s\","
-           "\"floor\":\"%s\",\"load_start\":%.2f,\"load_end\":%.2f,",
+           "\"floor\":\"%s\",\"shadow_query\":\"%s\",\"load_start\":%.2f,\"load_end\":%.2f,",
            a.width, a.height, tris, total, primary, shadow, a.repeat, a.threads, info.device_name,
            info.driver_info, cpu, eversion, timestamps ? "timestamps" : "host",
-           a.floor_quad ? "quad" : "plane", load_start[0], load_end[0]);
+           a.floor_quad ? "quad" : "plane", a.nearest_shadow ? "nearest" : "any", load_start[0],
+           load_end[0]);
     json_side("nscatter", &ns_dev, total, primary, shadow, 0);
     json_side("nscatter_host", &ns_wall, total, primary, shadow, 0);
     json_side("embree_scalar", &em_scalar, total, primary, shadow, 0);

@@ -70,12 +70,22 @@ static void camera_params(const ns_camera *c, GpuParams *p)
     set4(p->cam_forward, forward, 0.0f);
 }
 
-static GpuPrim object_prim(const ns_object *o, uint32_t index)
+/* The flag bits every primitive of material m carries: shadow rays cross the boundary of an
+ * index-matched medium (with its Beer-Lambert factor) and stop at anything else, so the
+ * shaders' any-hit query (trace.glsl's trace_shadow) must know which is which. */
+static uint32_t material_flags(const ns_scene *s, uint32_t m)
+{
+    const ns_material *mat = &s->materials[m];
+    return mat->type == NS_MATERIAL_MEDIUM && mat->ior == 1.0f ? NS_PRIM_SHADOW_PASSES : 0u;
+}
+
+static GpuPrim object_prim(const ns_scene *s, const ns_object *o, uint32_t index)
 {
     GpuPrim p;
     memset(&p, 0, sizeof p);
     p.info[1] = o->material;
     p.info[2] = index;
+    p.info[3] = material_flags(s, o->material);
     switch (o->shape) {
     case NS_SHAPE_SPHERE:
         p.info[0] = NS_PRIM_SPHERE;
@@ -205,7 +215,7 @@ static int convert_geometry(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *
     for (uint32_t i = 0; i < s->object_count; i++) {
         const ns_object *o = &s->objects[i];
         if (o->shape == NS_SHAPE_PLANE) {
-            planes[np++] = object_prim(o, i);
+            planes[np++] = object_prim(s, o, i);
         } else if (o->shape == NS_SHAPE_MESH) {
             for (uint32_t t = 0; t < o->triangle_count; t++) {
                 const ns_triangle *tri = &s->triangles[o->first_triangle + t];
@@ -214,18 +224,19 @@ static int convert_geometry(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scene *
                 p->info[0] = NS_PRIM_TRIANGLE;
                 p->info[1] = o->material;
                 p->info[2] = i;
+                p->info[3] = material_flags(s, o->material);
                 set4(p->a, tri->v[0], 0.0f);
                 set4(p->b, tri->v[1], 0.0f);
                 set4(p->c, tri->v[2], 0.0f);
                 if (ns_triangle_is_smooth(tri)) {
-                    p->info[3] = NS_PRIM_SMOOTH;
+                    p->info[3] |= NS_PRIM_SMOOTH;
                     store_normal(&p->a[3], tri->n[0]);
                     store_normal(&p->b[3], tri->n[1]);
                     store_normal(&p->c[3], tri->n[2]);
                 }
             }
         } else {
-            input[n++] = object_prim(o, i);
+            input[n++] = object_prim(s, o, i);
         }
     }
     ns_bvh bvh;

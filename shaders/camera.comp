@@ -41,7 +41,7 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false);
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false, true);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -49,7 +49,7 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false);
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false, true);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             // Uniform sampling of the cone the sphere subtends (pdf 1 / solid angle).
             vec3 wi;
@@ -59,14 +59,14 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             float c = dot(n, wi);
             if (c <= 0.0)
                 continue;
-            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false);
+            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false, true);
         }
     }
     // Every environment light together: one cosine-distributed ray, whose pdf cancels the
     // cosine and 1/pi of the Lambertian BRDF.
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
         vec3 wi = cosine_sample_direct(n);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false, true);
     }
     return rho * sum;
 }

@@ -278,8 +278,24 @@ vec3 sigma_t_of(uint material)
 // the iterations counted, so they must include these, which lavapipe counts against its
 // limit. camera.comp and pt.comp pass false, as they always have: counting would move
 // their budget checks, and so their images.
-vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, bool counted)
+//
+// any_hit: try trace_shadow's any-hit query first. camera.comp and single.comp pass true.
+// pt.comp passes false: its yield budget on lavapipe (NS_PT_YIELD_LAVAPIPE) was measured on
+// the walk's ratio of real to counted loop iterations, and with the query its light
+// sub-paths ran past lavapipe's limit (gpu_single's comparison with pt caught it).
+vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, bool counted, bool any_hit)
 {
+    // Most shadow rays from outside the media meet a blocker or nothing at all: the any-hit
+    // query answers those, and only a ray that meets an index-matched boundary walks its
+    // crossings in order below. A ray from inside an index-matched medium would almost always
+    // meet its boundary first, so it walks at once.
+    if (any_hit && medium == NS_NONE) {
+        uint met = trace_shadow(o, d, 0.0, tmax);
+        if (met == NS_SHADOW_BLOCKED)
+            return vec3(0.0);
+        if (met == NS_SHADOW_CLEAR)
+            return vec3(1.0);
+    }
     vec3 tau = vec3(0.0);
     float t_enter = 0.0, tmin = 0.0;
     for (int crossing = 0; crossing < 16; crossing++) {

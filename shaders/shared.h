@@ -52,7 +52,8 @@ NS_CONST(uint, NS_PRIM_SPHERE, 0);
 NS_CONST(uint, NS_PRIM_BOX, 1);
 NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
 NS_CONST(uint, NS_PRIM_PLANE, 3);
-NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w */
+NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w bits */
+NS_CONST(uint, NS_PRIM_SHADOW_PASSES, 2); /* an index-matched medium's boundary: shadow rays cross it */
 
 /* Light kinds in GpuLight.info.x (same values as ns_light_type). */
 NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);
@@ -108,7 +109,7 @@ struct GpuSamplePush {
 struct GpuSinglePush {
     ns_uint first_sample;
     ns_uint sample_count;
-    ns_uint samples; /* all samples of a segment (sets dt) */
+    ns_uint samples; /* all samples of a segment (N: the strata of the distance CDF) */
     ns_uint segment_count;
 };
 
@@ -129,7 +130,8 @@ struct GpuNode {
 
 /* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
  * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
- * info = kind, material index, object index, flags (NS_PRIM_SMOOTH: a triangle whose a.w,
+ * info = kind, material index, object index, flag bits (NS_PRIM_SHADOW_PASSES: the boundary
+ * of an index-matched medium; NS_PRIM_SMOOTH: a triangle whose a.w,
  * b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16 bits; scene_gpu.c). */
 struct GpuPrim {
     ns_vec4 a;
@@ -178,6 +180,8 @@ NS_CONST(uint, NS_COUNTER_LOOP_LIMIT, 2);
 NS_CONST(uint, NS_COUNTER_COUNT, 4);
 
 /* BVH test shader: one ray in, the nearest hit out. */
+/* A ray of trace_test.comp: direction.w = 1 asks the shadow rays' any-hit query, 0 the
+ * nearest hit. */
 struct GpuRay {
     ns_vec4 origin; /* w = tmax */
     ns_vec4 direction;
@@ -185,9 +189,9 @@ struct GpuRay {
 
 struct GpuHit {
     float t;
-    ns_uint prim; /* index into GpuPrim order, NS_NONE for a miss */
+    ns_uint prim;    /* index into GpuPrim order, NS_NONE for a miss; any-hit: 0 if blocked */
     ns_uint front;
-    ns_uint pad;
+    ns_uint crossed; /* any-hit only: 1 if what it met is an NS_PRIM_SHADOW_PASSES primitive */
 };
 
 #if defined(__STDC__) || defined(__cplusplus)

@@ -162,7 +162,7 @@ vec3 blended_normal(GpuPrim p, vec3 pos)
 vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
 {
     GpuPrim p = prims[i];
-    if (p.info.x != NS_PRIM_TRIANGLE || p.info.w != NS_PRIM_SMOOTH)
+    if (p.info.x != NS_PRIM_TRIANGLE || (p.info.w & NS_PRIM_SMOOTH) == 0u)
         return geometric;
     vec3 s = blended_normal(p, pos);
     float side = dot(d, geometric) < 0.0 ? 1.0 : -1.0; // facing the ray: side * normal
@@ -231,4 +231,53 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     hit.front = dot(d, geometric) < 0.0;
     hit.normal = hit_normal(best_prim, d, o + best * d, geometric);
     return true;
+}
+
+// What a shadow ray meets in (tmax > t > tmin), for the any-hit query of shadow rays: the BVH
+// primitives and the planes in any order, stopping at the first primitive met; the nearest
+// hit is never needed. NS_SHADOW_BLOCKED: that primitive blocks (a diffuse surface or a
+// refracting boundary). NS_SHADOW_CROSSES: it is the boundary of an index-matched medium
+// (NS_PRIM_SHADOW_PASSES), which a shadow ray crosses with its Beer-Lambert factor, so the
+// caller must walk the crossings in order (transmittance); stopping there keeps such rays
+// no dearer than that walk alone. NS_SHADOW_CLEAR: nothing. tmax never shrinks, so a node's
+// box is tested once, before it is pushed.
+const uint NS_SHADOW_CLEAR = 0u, NS_SHADOW_BLOCKED = 1u, NS_SHADOW_CROSSES = 2u;
+
+uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
+{
+    vec3 inv_d = 1.0 / d;
+    uint stack[NS_BVH_STACK];
+    uint sp = 0u;
+    if (params.counts.w > 0u && enter_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, tmin, tmax) != NS_INF)
+        stack[sp++] = 0u;
+    while (sp > 0u) {
+        if (out_of_budget())
+            break;
+        GpuNode node = nodes[stack[--sp]];
+        if (node.count > 0u) {
+            for (uint i = node.first; i < node.first + node.count; i++)
+                if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
+                    return (prims[i].info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
+                                                                            : NS_SHADOW_BLOCKED;
+            continue;
+        }
+        // The nearer child first: what is met near the origin ends the query sooner.
+        uint l = node.first, r = node.first + 1u;
+        float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);
+        float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, tmax);
+        if (tl > tr) {
+            uint tmp = l; l = r; r = tmp;
+            float tt = tl; tl = tr; tr = tt;
+        }
+        if (tr != NS_INF && sp < NS_BVH_STACK)
+            stack[sp++] = r;
+        if (tl != NS_INF && sp < NS_BVH_STACK)
+            stack[sp++] = l;
+    }
+    uint first_plane = params.prims.x;
+    for (uint i = first_plane; i < first_plane + params.prims.y; i++)
+        if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
+            return (prims[i].info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
+                                                                    : NS_SHADOW_BLOCKED;
+    return NS_SHADOW_CLEAR;
 }

@@ -1,6 +1,7 @@
 /* gpu_bvh.c — the BVH built on the CPU and traversed by the shader (trace.glsl through
  * shaders/trace_test.comp) finds the same nearest hit as brute force in double precision
- * on the CPU, for 10^4 random rays over random spheres, boxes, triangles and planes. */
+ * on the CPU, for 10^4 random rays over random spheres, boxes, triangles and planes; and the
+ * shadow rays' any-hit query gives brute force's answer. */
 #include "gpu_util.h"
 
 #define RAYS 10000
@@ -122,33 +123,40 @@ static GpuPrim random_prim(int kind, uint32_t index)
     return p;
 }
 
-static void test_bvh_matches_brute_force(void)
+enum {
+    SPHERES = 300,
+    BOXES = 300,
+    TRIANGLES = 1400,
+    PLANES = 2,
+    PRIMS = SPHERES + BOXES + TRIANGLES
+};
+
+/* Random spheres, boxes and triangles, a floor below everything and a tilted plane beyond
+ * it; `all` is the primitives then the planes, for brute force. */
+static void random_scene(GpuPrim *prims, GpuPrim *planes, GpuPrim *all)
 {
-    enum {
-        SPHERES = 300,
-        BOXES = 300,
-        TRIANGLES = 1400,
-        PLANES = 2,
-        PRIMS = SPHERES + BOXES + TRIANGLES
-    };
-    static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
-    static GpuRay rays[RAYS];
-    static GpuHit hits[RAYS];
     for (uint32_t i = 0; i < PRIMS; i++)
         prims[i] = random_prim(i < SPHERES           ? NS_PRIM_SPHERE
                                : i < SPHERES + BOXES ? NS_PRIM_BOX
                                                      : NS_PRIM_TRIANGLE,
                                i);
-    /* A floor below everything and a tilted plane beyond it. */
-    memset(planes, 0, sizeof planes);
+    memset(planes, 0, sizeof *planes * PLANES);
     planes[0].info[0] = planes[1].info[0] = NS_PRIM_PLANE;
     planes[0].a[1] = -14;
     planes[0].b[1] = 1;
     planes[1].a[0] = 20;
     planes[1].b[0] = (float)(1 / sqrt(2.0));
     planes[1].b[2] = (float)(1 / sqrt(2.0));
-    memcpy(all, prims, sizeof prims);
-    memcpy(all + PRIMS, planes, sizeof planes);
+    memcpy(all, prims, sizeof *prims * PRIMS);
+    memcpy(all + PRIMS, planes, sizeof *planes * PLANES);
+}
+
+static void test_bvh_matches_brute_force(void)
+{
+    static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
+    static GpuRay rays[RAYS];
+    static GpuHit hits[RAYS];
+    random_scene(prims, planes, all);
 
     for (uint32_t i = 0; i < RAYS; i++) {
         double d[3];
@@ -212,6 +220,75 @@ static void test_bvh_matches_brute_force(void)
     fprintf(stderr, "%d of %d rays hit, %d ties\n", hit_count, RAYS, ties);
 }
 
+/* The shadow rays' any-hit query (trace.glsl's trace_shadow, direction.w = 1) against brute
+ * force: it stops at the first primitive in (0, tmax) it meets, in any order, and says
+ * whether that one blocks or is flagged NS_PRIM_SHADOW_PASSES (then transmittance walks the
+ * crossings in order); "clear" only when there is none. So "blocked" needs an unflagged
+ * primitive in range, "crosses" a flagged one, "clear" neither. A third of each kind of
+ * primitive and the tilted plane are flagged; tmax is random, so that every answer occurs. */
+static void test_any_hit_matches_brute_force(void)
+{
+    static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
+    static GpuRay rays[RAYS];
+    static GpuHit hits[RAYS];
+    random_scene(prims, planes, all);
+    for (uint32_t i = 0; i < PRIMS; i++)
+        if (i % 3 == 0)
+            prims[i].info[3] |= NS_PRIM_SHADOW_PASSES;
+    planes[1].info[3] |= NS_PRIM_SHADOW_PASSES;
+    memcpy(all, prims, sizeof prims);
+    memcpy(all + PRIMS, planes, sizeof planes);
+    for (uint32_t i = 0; i < RAYS; i++) {
+        double d[3];
+        random_unit(d);
+        for (int k = 0; k < 3; k++) {
+            rays[i].origin[k] = (float)uniform(-12, 12);
+            rays[i].direction[k] = (float)d[k];
+        }
+        rays[i].origin[3] = (float)uniform(0.2, 12);
+        rays[i].direction[3] = 1.0f;
+    }
+    ns_error err = {0};
+    int status =
+        ns_trace_rays(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS, hits, &err);
+    if (status)
+        fprintf(stderr, "ns_trace_rays: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    if (status)
+        return;
+    int blocked = 0, crossed = 0, clear = 0, mismatches = 0;
+    for (uint32_t i = 0; i < RAYS; i++) {
+        double o[3] = {rays[i].origin[0], rays[i].origin[1], rays[i].origin[2]};
+        double d[3] = {rays[i].direction[0], rays[i].direction[1], rays[i].direction[2]};
+        int has_blocker = 0, has_flagged = 0;
+        for (uint32_t p = 0; p < PRIMS + PLANES; p++) {
+            double t = cpu_hit(&all[p], o, d);
+            if (t > 0 && t < rays[i].origin[3]) {
+                if (all[p].info[3] & NS_PRIM_SHADOW_PASSES)
+                    has_flagged = 1;
+                else
+                    has_blocker = 1;
+            }
+        }
+        int got_blocked = hits[i].prim != NS_NONE, got_crosses = hits[i].crossed == 1;
+        int ok = got_blocked   ? has_blocker && !got_crosses
+                 : got_crosses ? has_flagged
+                               : !has_blocker && !has_flagged && hits[i].t < 0;
+        if (!ok && mismatches++ < 5)
+            fprintf(stderr, "ray %u: gpu %s, brute force: blocker %d, flagged %d\n", i,
+                    got_blocked ? "blocked" : got_crosses ? "crosses" : "clear", has_blocker,
+                    has_flagged);
+        blocked += got_blocked;
+        crossed += got_crosses;
+        clear += !got_blocked && !got_crosses;
+    }
+    /* A hit within float precision of tmax or grazing a primitive may go either way. */
+    CHECK(mismatches <= 3);
+    CHECK(blocked > RAYS / 10 && crossed > RAYS / 20 && clear > RAYS / 20);
+    fprintf(stderr, "any-hit: %d blocked, %d crosses, %d clear, %d differ\n", blocked,
+            crossed, clear, mismatches);
+}
+
 /* Degenerate inputs: no BVH primitives at all, and many identical primitives (all
  * centroids equal, so no SAH split separates them). */
 static void test_degenerate_trees(void)
@@ -243,6 +320,7 @@ static void test_degenerate_trees(void)
 int main(void)
 {
     RUN(test_bvh_matches_brute_force);
+    RUN(test_any_hit_matches_brute_force);
     RUN(test_degenerate_trees);
     ns_context_destroy(test_context());
     return harness_report();
