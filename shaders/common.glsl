@@ -151,9 +151,10 @@ float hg_phase(float cos_t, float g)
 
 // A direction drawn from p_HG about d (pdf = p_HG). Near g = 0 the inverse CDF divides by
 // g, so the isotropic case is taken on its own.
-vec3 hg_sample(vec3 d, float g)
+// A direction from p_HG around d for the uniform numbers u (the cosine's CDF) and phi_u (the
+// azimuth's): single.comp stratifies them across a segment's samples.
+vec3 hg_sample_at(vec3 d, float g, float u, float phi_u)
 {
-    float u = rnd();
     float cos_t;
     if (abs(g) < 1e-3) {
         cos_t = 1.0 - 2.0 * u;
@@ -161,25 +162,13 @@ vec3 hg_sample(vec3 d, float g)
         float s = (1.0 - g * g) / (1.0 + g - 2.0 * g * u);
         cos_t = clamp((1.0 + g * g - s * s) / (2.0 * g), -1.0, 1.0);
     }
-    return around(d, cos_t, 2.0 * PI * rnd());
+    return around(d, cos_t, 2.0 * PI * phi_u);
 }
 
-// The same distribution as hg_sample, as single.comp has always drawn it: for g != 0 its
-// inverse CDF divides by 1 - g + 2 g u where hg_sample's divides by 1 + g - 2 g u, that is
-// it reads u backwards (u = 0 gives cos -1 here, +1 there). Both sample p_HG exactly, but a
-// random number gives another direction and the two expressions round differently, so
-// single scattering keeps its own: sharing hg_sample would change its images.
-vec3 hg_sample_mirrored(vec3 d, float g)
+vec3 hg_sample(vec3 d, float g)
 {
-    float u = rnd(), phi = 2.0 * PI * rnd();
-    float cos_t;
-    if (abs(g) < 1e-3) {
-        cos_t = 1.0 - 2.0 * u;
-    } else {
-        float q = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
-        cos_t = clamp((1.0 + g * g - q * q) / (2.0 * g), -1.0, 1.0);
-    }
-    return around(d, cos_t, phi);
+    float u = rnd();
+    return hg_sample_at(d, g, u, rnd());
 }
 
 // ---------------------------------------------------------------------------------------

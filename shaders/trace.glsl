@@ -172,6 +172,11 @@ vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
 }
 
 // Nearest hit in (tmin, tmax) over the BVH primitives and the planes.
+//
+// Front to back: of an inner node's children the nearer is popped next; each is stacked with
+// the distance where the ray enters its box, and dropped when popped if a hit nearer than
+// that has been found since (the same test as its box against the shrunken interval, without
+// reading the node or testing the box again).
 bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 {
     vec3 inv_d = 1.0 / d;
@@ -179,15 +184,19 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     uint best_prim = NS_NONE;
 
     uint stack[NS_BVH_STACK];
+    float stack_enter[NS_BVH_STACK];
     uint sp = 0u;
-    if (params.counts.w > 0u)
-        stack[sp++] = 0u;
+    if (params.counts.w > 0u) {
+        stack[sp] = 0u;
+        stack_enter[sp++] = enter_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, tmin, best);
+    }
     while (sp > 0u) {
         if (out_of_budget())
             break;
-        GpuNode node = nodes[stack[--sp]];
-        if (enter_box(o, inv_d, node.bmin, node.bmax, tmin, best) == NS_INF)
+        sp--;
+        if (stack_enter[sp] > best)
             continue;
+        GpuNode node = nodes[stack[sp]];
         if (node.count > 0u) {
             for (uint i = node.first; i < node.first + node.count; i++) {
                 float t = hit_prim(i, o, d, inv_d, tmin, best);
@@ -198,7 +207,7 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
             }
             continue;
         }
-        // Visit the nearer child first: push the farther one, then the nearer one.
+        // Push the farther child, then the nearer one.
         uint l = node.first, r = node.first + 1u;
         float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, best);
         float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, best);
@@ -206,10 +215,14 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
             uint tmp = l; l = r; r = tmp;
             float tt = tl; tl = tr; tr = tt;
         }
-        if (tr != NS_INF && sp < NS_BVH_STACK)
-            stack[sp++] = r;
-        if (tl != NS_INF && sp < NS_BVH_STACK)
-            stack[sp++] = l;
+        if (tr != NS_INF && sp < NS_BVH_STACK) {
+            stack[sp] = r;
+            stack_enter[sp++] = tr;
+        }
+        if (tl != NS_INF && sp < NS_BVH_STACK) {
+            stack[sp] = l;
+            stack_enter[sp++] = tl;
+        }
     }
 
     uint first_plane = params.prims.x;
@@ -248,12 +261,16 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
     vec3 inv_d = 1.0 / d;
     uint stack[NS_BVH_STACK];
     uint sp = 0u;
+    uint current = NS_NONE;
     if (params.counts.w > 0u && enter_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, tmin, tmax) != NS_INF)
-        stack[sp++] = 0u;
-    while (sp > 0u) {
+        current = 0u;
+    while (current != NS_NONE || sp > 0u) {
         if (out_of_budget())
             break;
-        GpuNode node = nodes[stack[--sp]];
+        if (current == NS_NONE)
+            current = stack[--sp];
+        GpuNode node = nodes[current];
+        current = NS_NONE;
         if (node.count > 0u) {
             for (uint i = node.first; i < node.first + node.count; i++)
                 if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
@@ -261,7 +278,7 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
                                                                             : NS_SHADOW_BLOCKED;
             continue;
         }
-        // The nearer child first: what is met near the origin ends the query sooner.
+        // The nearer child next: what is met near the origin ends the query sooner.
         uint l = node.first, r = node.first + 1u;
         float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);
         float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, tmax);
@@ -269,10 +286,11 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
             uint tmp = l; l = r; r = tmp;
             float tt = tl; tl = tr; tr = tt;
         }
-        if (tr != NS_INF && sp < NS_BVH_STACK)
-            stack[sp++] = r;
-        if (tl != NS_INF && sp < NS_BVH_STACK)
-            stack[sp++] = l;
+        if (tl != NS_INF) {
+            current = l;
+            if (tr != NS_INF && sp < NS_BVH_STACK)
+                stack[sp++] = r;
+        }
     }
     uint first_plane = params.prims.x;
     for (uint i = first_plane; i < first_plane + params.prims.y; i++)

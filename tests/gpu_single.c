@@ -123,6 +123,11 @@ static void slab_segments(GpuSegment *out)
     out[4] = segment(-1, 0.1, -1, 0.5, 1, 0.2, 0.8);
 }
 
+/* Samples per segment of the closed-form checks: the lights other than the environment take
+ * one point per 4 of them (single.comp's LIGHT_STRIDE), so 400 strata of the distance CDF,
+ * each with one jittered point: the smooth integrands come out within about 1e-4. */
+#define CLOSED_FORM_SAMPLES 1600u
+
 /* ---------------------------------------------------------------------------------------
  * Closed forms (double precision, derived independently of the shader).
  * ------------------------------------------------------------------------------------- */
@@ -223,7 +228,7 @@ static void check_directional(double ior)
     GpuSegment segs[SLAB_SEGMENTS];
     slab_segments(segs);
     float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, out, NULL))
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++)
@@ -251,7 +256,7 @@ static void test_directional_refracted_oblique(void)
     GpuSegment segs[SLAB_SEGMENTS];
     slab_segments(segs);
     float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, out, NULL))
         return;
     double differs = 0, total = 0;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
@@ -337,7 +342,7 @@ static void check_point_light(double ior, const double p[3], double tolerance)
     GpuSegment segs[SLAB_SEGMENTS];
     slab_segments(segs);
     float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, out, NULL))
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++)
@@ -366,7 +371,7 @@ static void test_point_far_refracted(void)
     GpuSegment segs[SLAB_SEGMENTS];
     slab_segments(segs);
     float out[SLAB_SEGMENTS][4];
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, out, NULL))
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++)
@@ -397,7 +402,7 @@ static void test_sphere_light(void)
     float sphere_out[SLAB_SEGMENTS][4], point_out[SLAB_SEGMENTS][4];
     slab s;
     make_slab(&s, 1.0, l);
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, sphere_out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, sphere_out, NULL))
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++)
@@ -405,13 +410,13 @@ static void test_sphere_light(void)
                       slab_point(&segs[i], p, radiance * (c + 1) * M_PI * r * r, c), 2e-3);
     /* Refracting boundary: the same equivalence through the shader's planar model. */
     make_slab(&s, 1.5, l);
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, sphere_out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, sphere_out, NULL))
         return;
     ns_light pl = light(NS_LIGHT_POINT, radiance * M_PI * r * r, 2 * radiance * M_PI * r * r,
                         3 * radiance * M_PI * r * r);
     set3(pl.position, p[0], p[1], p[2]);
     make_slab(&s, 1.5, pl);
-    if (run_single(&s.scene, segs, SLAB_SEGMENTS, 400, point_out, NULL))
+    if (run_single(&s.scene, segs, SLAB_SEGMENTS, CLOSED_FORM_SAMPLES, point_out, NULL))
         return;
     for (int i = 0; i < SLAB_SEGMENTS; i++)
         for (int c = 0; c < 3; c++) {
@@ -422,9 +427,9 @@ static void test_sphere_light(void)
 
 /* A diffuse occluder over x < 0 (y in [2, 2.5]) and light straight down: a segment from
  * x = 0.3 to x = -0.3 is lit over its first half exactly, one at x = -5 is dark, one at
- * x = 5 is fully lit. The shadow's edge falls inside one of the 400 strata of the distance
- * CDF (single.comp), whose one jittered point is lit or not: that stratum's share, about
- * 1/400 of the whole segment's light (1/200 of the half), is the tolerance of the half. */
+ * x = 5 is fully lit. The shadow's edge falls inside one of the lights' 400 strata of the
+ * distance CDF (single.comp), whose one jittered point is lit or not: that stratum's share,
+ * about 1/400 of the whole segment's light (1/200 of the half), is the tolerance of the half. */
 static void check_shadow(double ior)
 {
     double dir[3] = {0, -1, 0};
@@ -444,7 +449,7 @@ static void check_shadow(double ior)
         segment(5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
     };
     float out[3][4];
-    if (run_single(&s.scene, segs, 3, 400, out, NULL))
+    if (run_single(&s.scene, segs, 3, CLOSED_FORM_SAMPLES, out, NULL))
         return;
     for (int c = 0; c < 3; c++) {
         double half = slab_directional(&segs[0], seg_length(&segs[0]) / 2, dir, ior, E_RGB[c], c);
@@ -635,21 +640,23 @@ static void test_loop_limit_error(void)
 /* The single component of the path tracer (next-event estimation inside index-matched
  * media) against this stage composed the way render.c does: every camera segment of the
  * camera pass contributes throughput * out / spp to its pixel. A scattering sphere under a
- * directional and a point light; the mean over the pixels of (ours - pt) must lie within 4
- * standard errors of 0, per channel, with a standard error small enough to mean something. */
+ * directional light, a point light and the environment (single.comp's stratified phase
+ * directions); the mean over the pixels of (ours - pt) must lie within 4 standard errors of
+ * 0, per channel, with a standard error small enough to mean something. */
 static void test_against_path_tracer(void)
 {
     const double ss[3] = {0.6, 1.2, 2.0}, sa[3] = {0.2, 0.1, 0.4};
     ns_material m = medium(ss, sa, 1.0);
     m.g = 0.4f;
     ns_object ball = sphere(0, 0, 0, 1, 0);
-    ns_light lights[2] = {light(NS_LIGHT_DIRECTIONAL, 1, 1.5, 2), light(NS_LIGHT_POINT, 6, 4, 2)};
+    ns_light lights[3] = {light(NS_LIGHT_DIRECTIONAL, 1, 1.5, 2), light(NS_LIGHT_POINT, 6, 4, 2),
+                          light(NS_LIGHT_ENVIRONMENT, 0.3, 0.2, 0.1)};
     set3(lights[0].direction, 0.3, -1, 0.2);
     set3(lights[1].position, -2, 1.5, 1.5);
     ns_scene s = base_scene(16, 16, 40);
     set3(s.camera.position, 0, 0.5, 4);
     set3(s.camera.look_at, 0, 0, 0);
-    scene_lists(&s, &m, 1, &ball, 1, lights, 2);
+    scene_lists(&s, &m, 1, &ball, 1, lights, 3);
     const uint32_t pixels = 16 * 16;
 
     /* Ours: camera pass segments, then single scattering on them. */

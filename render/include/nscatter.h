@@ -243,7 +243,7 @@ typedef enum { NS_BOUNDARY_OFF = 0, NS_BOUNDARY_WALKS = 1 } ns_boundary;
 #define NS_DEFAULT_GATHER_TILE 2u
 #define NS_DEFAULT_GATHER_LEVELS 0u
 #define NS_DEFAULT_GATHER_TOLERANCE 0.02f
-#define NS_DEFAULT_SINGLE_SAMPLES 100u
+#define NS_DEFAULT_SINGLE_SAMPLES 40u
 
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
@@ -278,7 +278,7 @@ typedef struct ns_render_settings {
      * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. */
     uint32_t gather_levels;
     float gather_tolerance;
-    /* Regular samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
+    /* Samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
      * 0: NS_DEFAULT_SINGLE_SAMPLES. */
     uint32_t single_samples;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
