@@ -28,7 +28,7 @@ static void test_zero_settings_render_the_defaults(void)
         .max_depth = 8,
         .vrls = 10000,
         .gather_tile = 2,
-        .single_samples = 40,
+        .single_samples = 64,
     });
     ns_image a = {0}, b = {0};
     ns_render_stats sa = {0}, sb = {0};

@@ -526,6 +526,35 @@ static void test_many_samples(void)
                       1e-3);
 }
 
+/* A segment's samples scale with its throughput (single.comp's segment_strata): the same
+ * segment at weight 1 and at weight 1/64 of 1600 samples takes 1600 and 25 strata. Both
+ * estimates hold the closed form within their strata's error (the light's 400 and 7 strata,
+ * one jittered point each; for 7, up to the integrand's variation across one stratum: 5e-2),
+ * and they differ, because the strata differ; at equal weight they would be the same
+ * numbers bit for bit. */
+static void test_samples_follow_throughput(void)
+{
+    double dir[3] = {0.35, -1, -0.2};
+    unit(dir);
+    slab s;
+    make_slab(&s, 1.5, directional(dir, E_RGB));
+    GpuSegment segs[SLAB_SEGMENTS];
+    slab_segments(segs);
+    GpuSegment pair[2] = {segs[1], segs[1]};
+    set3(pair[1].throughput, 1.0 / 64, 1.0 / 128, 1.0 / 256); /* the largest channel counts */
+    float out[2][4];
+    if (run_single(&s.scene, pair, 2, CLOSED_FORM_SAMPLES, out, NULL))
+        return;
+    int differ = 0;
+    for (int c = 0; c < 3; c++) {
+        double want = slab_directional(&segs[1], seg_length(&segs[1]), dir, 1.5, E_RGB[c], c);
+        CHECK_REL(out[0][c], want, 1e-3);
+        CHECK_REL(out[1][c], want, 5e-2);
+        differ += out[0][c] != out[1][c];
+    }
+    CHECK_INT(differ, 3);
+}
+
 /* The random numbers (a sphere light's cone, the environment's directions) follow each
  * segment, not its position in the buffer: the camera pass records segments in whatever
  * order its invocations finish. Reversing the buffer gives the same values bit for bit. */
@@ -852,6 +881,7 @@ int main(void)
     RUN(test_environment_index_matched);
     RUN(test_environment_refracted);
     RUN(test_many_samples);
+    RUN(test_samples_follow_throughput);
     RUN(test_order_independent);
     RUN(test_loop_limit_retry);
     RUN(test_loop_limit_error);

@@ -18,7 +18,7 @@ static void test_zero_means_default(void)
     CHECK_INT(r.vrls, 10000);
     CHECK_INT(r.gather_tile, 2);
     CHECK_INT(r.gather_levels, 0);
-    CHECK_INT(r.single_samples, 40);
+    CHECK_INT(r.single_samples, 64);
     CHECK_INT(r.accumulation, NS_ACCUMULATION_EXACT);
     CHECK_INT(r.vrl_beams, NS_VRL_BEAMS_ENDLESS);
     CHECK_NEAR(r.cull_solid_angle, 0, 0);

@@ -243,7 +243,7 @@ typedef enum { NS_BOUNDARY_OFF = 0, NS_BOUNDARY_WALKS = 1 } ns_boundary;
 #define NS_DEFAULT_GATHER_TILE 2u
 #define NS_DEFAULT_GATHER_LEVELS 0u
 #define NS_DEFAULT_GATHER_TOLERANCE 0.02f
-#define NS_DEFAULT_SINGLE_SAMPLES 40u
+#define NS_DEFAULT_SINGLE_SAMPLES 64u
 
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
