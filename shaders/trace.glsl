@@ -171,6 +171,21 @@ vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
     return faces_ray && mirror_stays_out ? s : geometric;
 }
 
+// An inner node's two children, nearer first: where the ray enters each box within
+// [tmin, tmax] (NS_INF: it misses it).
+void children_near_far(GpuNode node, vec3 o, vec3 inv_d, float tmin, float tmax, out uint near_child,
+                       out uint far_child, out float t_near, out float t_far)
+{
+    uint l = node.first, r = node.first + 1u;
+    float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);
+    float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, tmax);
+    bool swap = tl > tr;
+    near_child = swap ? r : l;
+    far_child = swap ? l : r;
+    t_near = swap ? tr : tl;
+    t_far = swap ? tl : tr;
+}
+
 // Nearest hit in (tmin, tmax) over the BVH primitives and the planes.
 //
 // Front to back: of an inner node's children the nearer is popped next; each is stacked with
@@ -208,13 +223,9 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
             continue;
         }
         // Push the farther child, then the nearer one.
-        uint l = node.first, r = node.first + 1u;
-        float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, best);
-        float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, best);
-        if (tl > tr) {
-            uint tmp = l; l = r; r = tmp;
-            float tt = tl; tl = tr; tr = tt;
-        }
+        uint l, r;
+        float tl, tr;
+        children_near_far(node, o, inv_d, tmin, best, l, r, tl, tr);
         if (tr != NS_INF && sp < NS_BVH_STACK) {
             stack[sp] = r;
             stack_enter[sp++] = tr;
@@ -279,13 +290,9 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
             continue;
         }
         // The nearer child next: what is met near the origin ends the query sooner.
-        uint l = node.first, r = node.first + 1u;
-        float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);
-        float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, tmax);
-        if (tl > tr) {
-            uint tmp = l; l = r; r = tmp;
-            float tt = tl; tl = tr; tr = tt;
-        }
+        uint l, r;
+        float tl, tr;
+        children_near_far(node, o, inv_d, tmin, tmax, l, r, tl, tr);
         if (tl != NS_INF) {
             current = l;
             if (tr != NS_INF && sp < NS_BVH_STACK)

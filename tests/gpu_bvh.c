@@ -151,13 +151,13 @@ static void random_scene(GpuPrim *prims, GpuPrim *planes, GpuPrim *all)
     memcpy(all + PRIMS, planes, sizeof *planes * PLANES);
 }
 
-static void test_bvh_matches_brute_force(void)
+/* RAYS random rays from inside the scene's cube, traced on the GPU. Nearest hit: every tenth
+ * with tmax 5, the rest unbounded. Any-hit (direction.w = 1): tmax uniform in [0.2, 12], so
+ * that rays end before, between and after what they meet. Nonzero (and a failed check) if
+ * the trace failed. */
+static int trace_random_rays(const GpuPrim *prims, const GpuPrim *planes, GpuRay *rays,
+                             GpuHit *hits, int any_hit)
 {
-    static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
-    static GpuRay rays[RAYS];
-    static GpuHit hits[RAYS];
-    random_scene(prims, planes, all);
-
     for (uint32_t i = 0; i < RAYS; i++) {
         double d[3];
         random_unit(d);
@@ -165,7 +165,8 @@ static void test_bvh_matches_brute_force(void)
             rays[i].origin[k] = (float)uniform(-12, 12);
             rays[i].direction[k] = (float)d[k];
         }
-        rays[i].origin[3] = i % 10 == 0 ? 5.0f : 1e30f; /* some rays with a short tmax */
+        rays[i].origin[3] = any_hit ? (float)uniform(0.2, 12) : i % 10 == 0 ? 5.0f : 1e30f;
+        rays[i].direction[3] = any_hit ? 1.0f : 0.0f;
     }
     ns_error err = {0};
     int status =
@@ -173,7 +174,16 @@ static void test_bvh_matches_brute_force(void)
     if (status)
         fprintf(stderr, "ns_trace_rays: %s\n", err.message);
     CHECK_INT(status, NS_OK);
-    if (status)
+    return status;
+}
+
+static void test_bvh_matches_brute_force(void)
+{
+    static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
+    static GpuRay rays[RAYS];
+    static GpuHit hits[RAYS];
+    random_scene(prims, planes, all);
+    if (trace_random_rays(prims, planes, rays, hits, 0))
         return;
 
     int hit_count = 0, mismatches = 0, ties = 0;
@@ -238,23 +248,7 @@ static void test_any_hit_matches_brute_force(void)
     planes[1].info[3] |= NS_PRIM_SHADOW_PASSES;
     memcpy(all, prims, sizeof prims);
     memcpy(all + PRIMS, planes, sizeof planes);
-    for (uint32_t i = 0; i < RAYS; i++) {
-        double d[3];
-        random_unit(d);
-        for (int k = 0; k < 3; k++) {
-            rays[i].origin[k] = (float)uniform(-12, 12);
-            rays[i].direction[k] = (float)d[k];
-        }
-        rays[i].origin[3] = (float)uniform(0.2, 12);
-        rays[i].direction[3] = 1.0f;
-    }
-    ns_error err = {0};
-    int status =
-        ns_trace_rays(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS, hits, &err);
-    if (status)
-        fprintf(stderr, "ns_trace_rays: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
-    if (status)
+    if (trace_random_rays(prims, planes, rays, hits, 1))
         return;
     int blocked = 0, crossed = 0, clear = 0, mismatches = 0;
     for (uint32_t i = 0; i < RAYS; i++) {

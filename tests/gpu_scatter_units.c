@@ -2,9 +2,12 @@
  * by k (positions, sizes, the camera) and its coefficients by 1/k leaves the image unchanged,
  * for every component of method nn (single, double, multiple) and for the dipole, with a
  * point light whose intensity is scaled by k^2 (its irradiance falls as 1/d^2) and a
- * directional light (irradiance unchanged). The VRLs, the samples along the segments and the
- * table bins are the same in mfp units, so the two images agree to float rounding; a wrong
- * power of s anywhere (s^2 in the gather, s^3 in J_world, dt) would change them by k^n. */
+ * directional light (irradiance unchanged). The VRLs and the table bins are the same in mfp
+ * units, so those images agree to float rounding; a wrong power of s anywhere (s^2 in the
+ * gather, s^3 in J_world, the distance density along a segment) would change them by k^n.
+ * Single scattering jitters its points along a segment from a hash of the segment's entry
+ * point, which the scaling changes, so it takes the most samples there are: its jitter then
+ * moves the image by about 1e-5 of its mean. */
 #include "gpu_util.h"
 
 #define W 40
@@ -18,6 +21,7 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
     s->render.components = components;
     s->render.spp = 1;
     s->render.vrls = 4000;
+    s->render.single_samples = NS_MAX_SINGLE_SAMPLES;
     set3(s->camera.position, 0, 1.2 * k, 5 * k);
     set3(s->camera.look_at, 0, 0, 0);
     mats[0] = diffuse(0.5, 0.5, 0.5);
