@@ -245,9 +245,11 @@ void ns_gather_nodes_free(ns_gather_nodes *n);
 uint32_t ns_gather_ranges(const ns_gather_nodes *tree, uint32_t budget, GpuGatherPush *push);
 
 /* ---------------------------------------------------------------------------------------
- * Single scattering (single.c): `samples` regular samples along every segment, connected to
- * every light (refracted at a smooth boundary as in Jensen et al. 2001), Beer-Lambert inside
- * the medium, Henyey-Greenstein phase. out: vec4 per segment.
+ * Single scattering (single.c): up to `samples` strata along every segment (fewer where its
+ * throughput is low), points drawn from the camera's transmittance, connected to the
+ * environment at each and to the other lights at one in four (refracted at a smooth boundary
+ * as in Jensen et al. 2001), Beer-Lambert inside the medium, Henyey-Greenstein phase.
+ * out: vec4 per segment.
  * ------------------------------------------------------------------------------------- */
 int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *segments,
                       uint32_t segment_count, uint32_t samples, gpu_buffer *out, ns_error *err);

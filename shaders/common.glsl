@@ -149,10 +149,9 @@ float hg_phase(float cos_t, float g)
     return (1.0 - g * g) / (4.0 * PI * denom * sqrt(denom));
 }
 
-// A direction drawn from p_HG about d (pdf = p_HG). Near g = 0 the inverse CDF divides by
-// g, so the isotropic case is taken on its own.
-// A direction from p_HG around d for the uniform numbers u (the cosine's CDF) and phi_u (the
-// azimuth's): single.comp stratifies them across a segment's samples.
+// A direction drawn from p_HG about d (pdf = p_HG) for the uniform numbers u (the cosine's
+// CDF) and phi_u (the azimuth's; single.comp stratifies them across a segment's samples).
+// Near g = 0 the inverse CDF divides by g, so the isotropic case is taken on its own.
 vec3 hg_sample_at(vec3 d, float g, float u, float phi_u)
 {
     float cos_t;
@@ -165,6 +164,7 @@ vec3 hg_sample_at(vec3 d, float g, float u, float phi_u)
     return around(d, cos_t, 2.0 * PI * phi_u);
 }
 
+// The same from the random stream (the cosine's number first).
 vec3 hg_sample(vec3 d, float g)
 {
     float u = rnd();

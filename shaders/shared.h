@@ -103,7 +103,7 @@ struct GpuSamplePush {
 };
 
 /* Push constants of single scattering (single.comp): samples [first_sample, first_sample +
- * sample_count) of the `samples` regular samples along each of segment_count segments. The
+ * sample_count) of the `samples` strata along each of segment_count segments. The
  * samples are split across dispatches (render/single.c: lavapipe's loop limit); a dispatch
  * with first_sample 0 writes its segments' outputs, later ones add to them. */
 struct GpuSinglePush {

@@ -1,10 +1,12 @@
 #version 450
 // single.comp — single scattering along camera segments (paper Section 4.1, step 3): one
 // invocation per segment takes the samples [first_sample, first_sample + sample_count) of
-// `samples` regular (midpoint) points along it, connects each point to every light and adds
-//     e^{-sigma_t t} sigma_s p_HG(cos) L_in(x) dt
+// its strata (at most `samples`, fewer for a segment of low throughput: segment_strata),
+// each a point drawn along the segment (distance_sample), connects it to the lights and adds
+//     e^{-sigma_t t} sigma_s p_HG(cos) L_in(x) / (strata pdf(t))
 // to the segment's output: the radiance arriving at the segment's entry from inside the
-// medium (render/scatter.h). The C side (render/single.c) splits the samples across
+// medium (render/scatter.h). main() says how the environment and the other lights share
+// the strata. The C side (render/single.c) splits the samples across
 // dispatches so that no invocation runs past lavapipe's loop limit (shared.h).
 //
 // Light reaching a point x inside the medium:
