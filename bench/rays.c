@@ -80,7 +80,7 @@ typedef struct args {
     uint32_t width, height, repeat, threads;
     double light[3];
     int no_packets;
-    int nearest_shadow; /* nscatter's shadow rays: 0 the any-hit query (as the renderer), 1 nearest hit */
+    int nearest_shadow; /* nscatter's shadow rays: 0 any-hit (as the renderer), 1 nearest */
     int floor_quad; /* nscatter's floor: 0 its plane (as the renderer), 1 Embree's square */
 } args;
 

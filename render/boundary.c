@@ -1,6 +1,6 @@
 /* boundary.c — the boundary-crossing correction of the gathered scattering (double,
- * multiple, and single scattering after an internal reflection; render.boundary; docs/scattering.md, "The object's boundary"; the estimator is
- * shared/boundary/README.md's).
+ * multiple, and single scattering after an internal reflection; render.boundary;
+ * docs/scattering.md, "The object's boundary"; the estimator is shared/boundary/README.md's).
  *
  * The tables describe an infinite medium: past the point where the real light first reaches
  * the object's boundary, they go on scattering light that has left, and never see the light

@@ -623,7 +623,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
 {
     const ns_scene *scene = in->scene;
     ns_vrl_set walks;
-    uint32_t paths = scene->render.vrls > NS_BOUNDARY_MIN_WALKS ? scene->render.vrls : NS_BOUNDARY_MIN_WALKS;
+    uint32_t paths =
+        scene->render.vrls > NS_BOUNDARY_MIN_WALKS ? scene->render.vrls : NS_BOUNDARY_MIN_WALKS;
     int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, paths,
                                      scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
     if (status)
@@ -643,7 +644,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     n = wanted;
     /* Long walks (milk's albedo 0.999) make many weak sources, each costing the gather as
      * much as a strong one: Russian roulette keeps about as many as there are VRLs. */
-    uint32_t target = v->set.count > NS_BOUNDARY_MIN_SOURCES ? v->set.count : NS_BOUNDARY_MIN_SOURCES;
+    uint32_t target =
+        v->set.count > NS_BOUNDARY_MIN_SOURCES ? v->set.count : NS_BOUNDARY_MIN_SOURCES;
     float floor = ns_boundary_floor(sources, n, target);
     n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);

@@ -26,6 +26,9 @@ layout(push_constant) uniform PushBlock { GpuSamplePush ns_push[1]; };
 #define NS_COMMON_LIGHTS
 #include "common.glsl"
 
+// How this pass traces its shadow rays (common.glsl, transmittance).
+const uint SHADOW_RAYS = SHADOW_ANY_HIT;
+
 // Outgoing radiance of a Lambertian surface of reflectance rho at p (n faces the viewer)
 // from all lights, one shadow ray each.
 vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
@@ -41,7 +44,7 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false, true);
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -49,7 +52,7 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false, true);
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             // Uniform sampling of the cone the sphere subtends (pdf 1 / solid angle).
             vec3 wi;
@@ -59,14 +62,14 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             float c = dot(n, wi);
             if (c <= 0.0)
                 continue;
-            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false, true);
+            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
         }
     }
     // Every environment light together: one cosine-distributed ray, whose pdf cancels the
     // cosine and 1/pi of the Lambertian BRDF.
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
         vec3 wi = cosine_sample_direct(n);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false, true);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
     }
     return rho * sum;
 }

@@ -262,23 +262,25 @@ vec3 sigma_t_of(uint material)
 // straight shadow ray (pt.comp reaches it by other strategies); index-matched boundaries
 // let it through with the Beer-Lambert factor of the media crossed.
 //
-// counted: each crossing counts one loop iteration (out_of_budget) and stops the ray once
-// the budget is spent. single.comp passes true: render/single.c sizes its dispatches from
-// the iterations counted, so they must include these, which lavapipe counts against its
-// limit. camera.comp and pt.comp pass false, as they always have: counting would move
-// their budget checks, and so their images.
-//
-// any_hit: try trace_shadow's any-hit query first. camera.comp and single.comp pass true.
-// pt.comp passes false: its yield budget on lavapipe (NS_PT_YIELD_LAVAPIPE) was measured on
-// the walk's ratio of real to counted loop iterations, and with the query its light
-// sub-paths ran past lavapipe's limit (gpu_single's comparison with pt caught it).
-vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, bool counted, bool any_hit)
+// `how` (bits), fixed per pass, each pass naming its choice once (SHADOW_RAYS):
+// SHADOW_COUNTED: each crossing counts one loop iteration (out_of_budget) and stops the ray
+//   once the budget is spent. single.comp sets it: render/single.c sizes its dispatches from
+//   the iterations counted, so they must include these, which lavapipe counts against its
+//   limit. camera.comp and pt.comp do not, as they never have: counting would move their
+//   budget checks, and so their images.
+// SHADOW_ANY_HIT: try trace_shadow's any-hit query first. camera.comp and single.comp set
+//   it. pt.comp does not: its yield budget on lavapipe (NS_PT_YIELD_LAVAPIPE) was measured
+//   on the walk's ratio of real to counted loop iterations, and with the query its light
+//   sub-paths ran past lavapipe's limit (gpu_single's comparison with pt caught it).
+const uint SHADOW_COUNTED = 1u, SHADOW_ANY_HIT = 2u;
+
+vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
 {
     // Most shadow rays from outside the media meet a blocker or nothing at all: the any-hit
     // query answers those, and only a ray that meets an index-matched boundary walks its
     // crossings in order below. A ray from inside an index-matched medium would almost always
     // meet its boundary first, so it walks at once.
-    if (any_hit && medium == NS_NONE) {
+    if ((how & SHADOW_ANY_HIT) != 0u && medium == NS_NONE) {
         uint met = trace_shadow(o, d, 0.0, tmax);
         if (met == NS_SHADOW_BLOCKED)
             return vec3(0.0);
@@ -288,7 +290,7 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, bool counted, bool a
     vec3 tau = vec3(0.0);
     float t_enter = 0.0, tmin = 0.0;
     for (int crossing = 0; crossing < 16; crossing++) {
-        if (counted && out_of_budget())
+        if ((how & SHADOW_COUNTED) != 0u && out_of_budget())
             break;
         Hit h;
         if (!trace_scene(o, d, tmin, tmax, h))

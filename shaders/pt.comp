@@ -43,6 +43,9 @@ layout(push_constant) uniform PushBlock { GpuPtPush ns_push[1]; };
 #define NS_COMMON_LIGHTS
 #include "common.glsl"
 
+// How this pass traces its shadow rays (common.glsl, transmittance).
+const uint SHADOW_RAYS = 0u;
+
 bool order_counts(uint events)
 {
     uint bit = events == 0u ? NS_PT_SURFACE
@@ -66,7 +69,7 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, false, false);
+                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -74,7 +77,7 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, false, false);
+                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
@@ -82,12 +85,12 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
                 continue;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, false, false);
+                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
         }
     }
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
         vec3 wi = cosine_sample(n);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, false, false);
+        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
     }
     return rho * sum;
 }
@@ -105,19 +108,19 @@ vec3 direct_light_medium(vec3 p, vec3 d, float g, uint medium)
         uint kind = light.info.x;
         if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
             vec3 wi = -light.direction.xyz;
-            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium, false, false);
+            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - p;
             float d2 = dot(v, v);
             float dist = sqrt(d2);
             vec3 wi = v / dist;
-            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium, false, false);
+            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
             if (sample_sphere_light(light, p, wi, t_light, solid_angle))
                 sum += light.color.rgb * hg_phase(dot(d, wi), g) * solid_angle *
-                       transmittance(p, wi, t_light, medium, false, false);
+                       transmittance(p, wi, t_light, medium, SHADOW_RAYS);
         }
     }
     return sum;
@@ -227,7 +230,7 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
         float light_distance = point ? distance(light.position.xyz, y) : NS_INF;
         float tolerance = point ? 1e-5 * (light_distance + distance(x, y)) : 1e-5;
         if (length(miss) <= tolerance) {
-            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE, false, false);
+            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE, SHADOW_RAYS);
             return light.color.rgb * (hg_phase(dot(d, v), g) * transmit / abs(det)) *
                    beer_lambert(sigma_t_of(medium), distance(x, y)) * visible;
         }
@@ -313,7 +316,7 @@ LightVertex trace_light_subpath()
         // outside it; the light must reach that point from infinity.
         d = light.direction.xyz;
         o = disk_before_sphere(c, r, d);
-        beta = light.color.rgb * (PI * r * r) * transmittance(o, -d, NS_INF, NS_NONE, false, false);
+        beta = light.color.rgb * (PI * r * r) * transmittance(o, -d, NS_INF, NS_NONE, SHADOW_RAYS);
     } else {
         o = light.position.xyz;
         vec3 v = c - o;
@@ -423,7 +426,7 @@ vec3 connect_light_vertex(vec3 o, vec3 d, float t_end, vec3 w, uint medium, vec3
     GpuMaterial mm = materials[medium];
     float g = mm.sigma_s.w;
     vec3 f = w * exp(-mm.sigma_t.xyz * t) * mm.sigma_s.xyz * hg_phase(dot(d, wi), g) *
-             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium, false, false);
+             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium, SHADOW_RAYS);
     // beta is flux inside the medium, so f * beta is radiance inside it; leaving a medium
     // of index n into vacuum divides radiance by n^2. Camera paths that enter and leave
     // again see both factors cancel and carry neither; this connection has only the exit.

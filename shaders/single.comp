@@ -44,6 +44,9 @@ layout(push_constant) uniform PushBlock { GpuSinglePush ns_push[1]; };
 #define NS_COMMON_TRACE
 #include "common.glsl"
 
+// How this pass traces its shadow rays (common.glsl, transmittance).
+const uint SHADOW_RAYS = SHADOW_COUNTED | SHADOW_ANY_HIT;
+
 // ---------------------------------------------------------------------------------------
 // Light seen from a point p (outside the medium, or inside an index-matched one): the
 // direction towards it, the distance to it along that direction, and its perpendicular
@@ -105,7 +108,7 @@ vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
     LightSample s = sample_light(light, x);
     if (!s.valid)
         return vec3(0.0);
-    return s.irradiance * hg_phase(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium, true, true);
+    return s.irradiance * hg_phase(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium, SHADOW_RAYS);
 }
 
 // A point light through the face at b, taken as the plane (b, n), as a flat face exactly:
@@ -164,7 +167,7 @@ vec3 point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, v
     vec3 travel = h > 0.0 ? normalize(x - y) : -n;
     vec3 to_light = p - y;
     float d_light = length(to_light);
-    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE, true, true);
+    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE, SHADOW_RAYS);
     return light.color.rgb * ((1.0 - f) * spread) * outside * beer_lambert(mat.sigma_t.xyz, h / cos_t) *
            hg_phase(dot(travel, wo), mat.sigma_s.w);
 }
@@ -214,7 +217,7 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
     // Exact distance from x back to the plane through b along the refracted direction.
     float s_inside = max(0.0, dot(b - x, n)) / cos_t;
     vec3 e_inside = s.irradiance * ((1.0 - f) * cos_i / cos_t);
-    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE, true, true);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE, SHADOW_RAYS);
     return e_inside * outside * beer_lambert(mat.sigma_t.xyz, s_inside) * hg_phase(dot(travel, wo), g);
 }
 
@@ -224,7 +227,7 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
 {
     float ior = mat.sigma_t.w;
     if (ior == 1.0)
-        return params.environment.rgb * transmittance(x, back, NS_INF, medium, true, true);
+        return params.environment.rgb * transmittance(x, back, NS_INF, medium, SHADOW_RAYS);
     Hit h;
     if (!trace_scene(x, back, 0.0, NS_INF, h))
         return params.environment.rgb * beer_lambert(mat.sigma_t.xyz, NS_INF);
@@ -240,7 +243,7 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
     if (f >= 1.0)
         return vec3(0.0); // total internal reflection: no light from outside this way
     vec3 leaving = normalize(ior * back - (ior * cos_i - cos_t) * n);
-    vec3 outside = transmittance(b + n * ray_epsilon(b), leaving, NS_INF, NS_NONE, true, true);
+    vec3 outside = transmittance(b + n * ray_epsilon(b), leaving, NS_INF, NS_NONE, SHADOW_RAYS);
     return params.environment.rgb * (ior * ior * (1.0 - f)) * outside *
            beer_lambert(mat.sigma_t.xyz, h.t);
 }
@@ -397,7 +400,8 @@ void main()
     vec3 wo = -seg.direction; // towards the camera
     float len = distance(seg.entry, seg.exit);
     uint segment_seed = segment_stream(seg);
-    uvec2 phase_shift = uvec2(pcg_hash(segment_seed ^ 0x5bd1e995u), pcg_hash(segment_seed ^ 0x27d4eb2fu));
+    uvec2 phase_shift =
+        uvec2(pcg_hash(segment_seed ^ 0x5bd1e995u), pcg_hash(segment_seed ^ 0x27d4eb2fu));
 
     // Two estimates share the segment's samples: the environment's at every one of the N
     // (its one phase-sampled direction per point is what makes single scattering noisy), the
@@ -420,18 +424,21 @@ void main()
             if (environment) {
                 float t = distance_sample(density, (float(k) + rnd()) / float(strata), pdf);
                 vec3 x = seg.entry + t * seg.direction;
+                vec2 phase_u = phase_numbers(k, phase_shift);
                 sum_environment += beer_lambert(mat.sigma_t.xyz, t) / pdf *
-                                   environment_in(x, wo, seg.material, mat, phase_numbers(k, phase_shift));
+                                   environment_in(x, wo, seg.material, mat, phase_u);
             }
             if (k % LIGHT_STRIDE == 0u) {
                 uint j = k / LIGHT_STRIDE;
                 float t = distance_sample(density, (float(j) + rnd()) / float(light_strata), pdf);
                 vec3 x = seg.entry + t * seg.direction;
-                sum_lights += beer_lambert(mat.sigma_t.xyz, t) * lights_in(x, wo, seg.material, mat) / pdf;
+                sum_lights +=
+                    beer_lambert(mat.sigma_t.xyz, t) * lights_in(x, wo, seg.material, mat) / pdf;
             }
         }
     }
-    vec3 sum = mat.sigma_s.xyz * (sum_environment / float(strata) + sum_lights / float(light_strata));
+    vec3 sum =
+        mat.sigma_s.xyz * (sum_environment / float(strata) + sum_lights / float(light_strata));
     // lavapipe stops loops silently once an invocation has run 65535 iterations in all
     // (shared.h), and from then on every loop ends after its first iteration: a loop of two
     // iterations here tells whether that happened anywhere above. Its trip count comes from

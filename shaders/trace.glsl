@@ -173,8 +173,8 @@ vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
 
 // An inner node's two children, nearer first: where the ray enters each box within
 // [tmin, tmax] (NS_INF: it misses it).
-void children_near_far(GpuNode node, vec3 o, vec3 inv_d, float tmin, float tmax, out uint near_child,
-                       out uint far_child, out float t_near, out float t_far)
+void children_near_far(GpuNode node, vec3 o, vec3 inv_d, float tmin, float tmax,
+                       out uint near_child, out uint far_child, out float t_near, out float t_far)
 {
     uint l = node.first, r = node.first + 1u;
     float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);

@@ -40,7 +40,7 @@ layout(push_constant) uniform PushBlock { GpuVrlTracePush ns_push[1]; };
 // Transmittance from o to infinity along d outside the media (the light's side of a
 // directional or environment sample): blocked by diffuse surfaces and refracting
 // boundaries, attenuated by index-matched media, as the camera pass's shadow rays. It is
-// not common.glsl's transmittance(o, d, NS_INF, NS_NONE, false), which differs in two
+// not common.glsl's transmittance(o, d, NS_INF, NS_NONE, 0u), which differs in two
 // cases and would change this method's images: a ray that leaves the scene inside an
 // index-matched medium keeps exp(-tau) here, where transmittance applies that medium's
 // Beer-Lambert to infinity (0 in every channel it attenuates); and a ray that runs out of

@@ -270,8 +270,10 @@ static void test_any_hit_matches_brute_force(void)
                                : !has_blocker && !has_flagged && hits[i].t < 0;
         if (!ok && mismatches++ < 5)
             fprintf(stderr, "ray %u: gpu %s, brute force: blocker %d, flagged %d\n", i,
-                    got_blocked ? "blocked" : got_crosses ? "crosses" : "clear", has_blocker,
-                    has_flagged);
+                    got_blocked   ? "blocked"
+                    : got_crosses ? "crosses"
+                                  : "clear",
+                    has_blocker, has_flagged);
         blocked += got_blocked;
         crossed += got_crosses;
         clear += !got_blocked && !got_crosses;
@@ -279,8 +281,8 @@ static void test_any_hit_matches_brute_force(void)
     /* A hit within float precision of tmax or grazing a primitive may go either way. */
     CHECK(mismatches <= 3);
     CHECK(blocked > RAYS / 10 && crossed > RAYS / 20 && clear > RAYS / 20);
-    fprintf(stderr, "any-hit: %d blocked, %d crosses, %d clear, %d differ\n", blocked,
-            crossed, clear, mismatches);
+    fprintf(stderr, "any-hit: %d blocked, %d crosses, %d clear, %d differ\n", blocked, crossed,
+            clear, mismatches);
 }
 
 /* Degenerate inputs: no BVH primitives at all, and many identical primitives (all

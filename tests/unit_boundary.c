@@ -205,7 +205,8 @@ static void test_roulette(void)
         double expected_kept = 0;
         for (uint32_t i = 0; i < WEAK + 2; i++)
             expected_kept += fmin(1.0, s[i].power[0] / f);
-        fprintf(stderr, "  target %u: floor %.5g keeps %.1f\n", targets[k], (double)f, expected_kept);
+        fprintf(stderr, "  target %u: floor %.5g keeps %.1f\n", targets[k], (double)f,
+                expected_kept);
         CHECK(fabs(expected_kept / targets[k] - 1) < 1e-3);
     }
     free(s);
