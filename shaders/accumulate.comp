@@ -120,16 +120,18 @@ void main()
     if (params.counts.x == 0u) // the warm-up
         return;
     fill_edges(); // before any invocation of the group returns: barrier() needs them all
-    uint cell = push.first_cell + gl_GlobalInvocationID.x;
-    if (gl_GlobalInvocationID.x >= push.cell_count || cell >= params.counts.x)
+    uint order = push.first_cell + gl_GlobalInvocationID.x;
+    if (gl_GlobalInvocationID.x >= push.cell_count || order >= params.counts.x)
         return;
-    uint rest = cell;
-    int ip = int(rest % NS_TABLE_NPHI);
-    rest /= NS_TABLE_NPHI;
-    int it = int(rest % NS_TABLE_NTHETA);
-    rest /= NS_TABLE_NTHETA;
+    uint rest = order;
+    int iz = int(rest % NS_TABLE_NZ);
+    rest /= NS_TABLE_NZ;
     int ir = int(rest % NS_TABLE_NRHO);
-    int iz = int(rest / NS_TABLE_NRHO);
+    rest /= NS_TABLE_NRHO;
+    int it = int(rest % NS_TABLE_NTHETA);
+    int ip = int(rest / NS_TABLE_NTHETA);
+    uint cell = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
+                    NS_TABLE_NPHI + uint(ip);
 
     float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1));
     float rho0 = 0.5 * (rho_edge(ir) + rho_edge(ir + 1));
