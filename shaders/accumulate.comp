@@ -51,18 +51,14 @@ const float ANGLE_STEP = PI / float(NS_TABLE_NTHETA); // theta and phi bins: 10 
 const float FAR = 3.0e38;
 const int NZ = int(NS_TABLE_NZ), NRHO = int(NS_TABLE_NRHO), NPHI = int(NS_TABLE_NPHI);
 
-// The bin edges and the phi edges' cotangents, computed once per workgroup: sinh and the
-// trigonometric functions cost far more on lavapipe than a load.
-shared float z_edges[NZ + 1];
-shared float rho_edges[NRHO + 1];
+// The phi edges' cotangents, computed once per workgroup (cos and sin cost more on lavapipe
+// than a load). The z and rho edges are computed where they are needed, from the expression
+// offline/mc.c's grid uses: a sinh costs less than a read of shared memory, which lavapipe
+// makes one lane at a time, and the walk needs only one new edge per axis and step.
 shared float phi_cot[NPHI];
 
 void fill_edges()
 {
-    for (uint i = gl_LocalInvocationID.x; i <= uint(NZ); i += NS_ACCUMULATE_GROUP)
-        z_edges[i] = params.grid.x * sinh(params.grid.y * float(int(i) - NZ / 2));
-    for (uint i = gl_LocalInvocationID.x; i <= uint(NRHO); i += NS_ACCUMULATE_GROUP)
-        rho_edges[i] = params.grid.x * sinh(params.grid.y * float(i));
     for (uint i = gl_LocalInvocationID.x; i < uint(NPHI); i += NS_ACCUMULATE_GROUP) {
         float edge = float(i + 1u) * ANGLE_STEP;
         phi_cot[i] = cos(edge) / sin(edge);
@@ -70,34 +66,25 @@ void fill_edges()
     barrier();
 }
 
-float z_edge(int i) { return z_edges[i]; }
-float rho_edge(int i) { return rho_edges[i]; }
+float z_edge(int i) { return params.grid.x * sinh(params.grid.y * float(i - NZ / 2)); }
+float rho_edge(int i) { return params.grid.x * sinh(params.grid.y * float(i)); }
 
-// u of the next z-plane (FAR when the walk runs parallel to them).
-float next_z(int iz, float z0, float cos_theta, float inv_cos)
-{
-    if (cos_theta > 0.0)
-        return (z0 - z_edge(iz)) * inv_cos; // z decreases: the bin's lower plane
-    if (cos_theta < 0.0)
-        return (z0 - z_edge(iz + 1)) * inv_cos;
-    return FAR;
-}
+// u of the z-plane at height `edge` (the walk never runs parallel to them: |cos theta| >=
+// cos 85 degrees at every centre).
+float next_z(float edge, float z0, float inv_cos) { return (z0 - edge) * inv_cos; }
 
-// u of the next rho-cylinder from u (where T = t0 - u sin_theta), and which way it goes:
-// inward through the bin's inner cylinder while T > 0 and the line reaches it, else outward
-// through the outer one (on the far side of the closest approach when T > 0).
-float next_rho(int ir, float u, float t0, float s2, float sin_theta, float inv_sin,
-               out int dir)
+// u of the next rho-cylinder from u (where T = t0 - u sin_theta), with the current bin's
+// inner and outer radii, and which way it goes: inward through the inner cylinder while T > 0
+// and the line reaches it, else outward through the outer one (on the far side of the closest
+// approach when T > 0).
+float next_rho(int ir, float lo, float hi, float u, float t0, float s2, float sin_theta,
+               float inv_sin, out int dir)
 {
     float t = t0 - u * sin_theta;
-    float lo = rho_edge(ir);
-    if (t > 0.0 && ir > 0 && lo * lo > s2) {
-        dir = -1;
-        return (t0 - sqrt(lo * lo - s2)) * inv_sin;
-    }
-    float hi = rho_edge(ir + 1);
-    dir = 1;
-    return (t0 + sqrt(max(hi * hi - s2, 0.0))) * inv_sin;
+    bool inward = t > 0.0 && ir > 0 && lo * lo > s2;
+    dir = inward ? -1 : 1;
+    return inward ? (t0 - sqrt(lo * lo - s2)) * inv_sin
+                  : (t0 + sqrt(max(hi * hi - s2, 0.0))) * inv_sin;
 }
 
 // u of the next constant-phi half-plane (none after the last bin: phi tends to pi).
@@ -133,8 +120,8 @@ void main()
     uint cell = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
                     NS_TABLE_NPHI + uint(ip);
 
-    float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1));
-    float rho0 = 0.5 * (rho_edge(ir) + rho_edge(ir + 1));
+    float rho_lo = rho_edge(ir), rho_hi = rho_edge(ir + 1);
+    float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1)), rho0 = 0.5 * (rho_lo + rho_hi);
     float theta = (float(it) + 0.5) * ANGLE_STEP, phi = (float(ip) + 0.5) * ANGLE_STEP;
     float cos_theta = cos(theta), sin_theta = sin(theta); // sin_theta > 0 at every centre
     float inv_cos = 1.0 / cos_theta, inv_sin = 1.0 / sin_theta; // |cos_theta| >= cos(85 deg)
@@ -145,9 +132,12 @@ void main()
     vec3 j_max = params.j_max.xyz;
     vec3 floor_abs = params.cut.y * j_max;
 
+    // The z-plane ahead is the bin's lower one while z decreases along the walk, else its
+    // upper one.
+    int z_step = cos_theta > 0.0 ? -1 : 1, z_ahead = cos_theta > 0.0 ? 0 : 1;
     int rho_dir;
-    float uz = next_z(iz, z0, cos_theta, inv_cos);
-    float ur = next_rho(ir, 0.0, t0, s2, sin_theta, inv_sin, rho_dir);
+    float uz = next_z(z_edge(iz + z_ahead), z0, inv_cos);
+    float ur = next_rho(ir, rho_lo, rho_hi, 0.0, t0, s2, sin_theta, inv_sin, rho_dir);
     float up = next_phi(ip, t0, s, inv_sin);
 
     float u = 0.0, decay = 1.0; // decay = e^{-u}
@@ -183,24 +173,29 @@ void main()
             capped = false;
             break;
         }
-        if (event == 0) {
-            iz += cos_theta > 0.0 ? -1 : 1;
-            if (iz < 0 || iz >= NZ) {
-                capped = false;
-                break;
-            }
-            uz = next_z(iz, z0, cos_theta, inv_cos);
-        } else if (event == 1) {
-            ir += rho_dir;
-            if (ir >= NRHO) {
-                capped = false;
-                break;
-            }
-            ur = next_rho(ir, u, t0, s2, sin_theta, inv_sin, rho_dir);
-        } else {
-            ip++;
-            up = next_phi(ip, t0, s, inv_sin);
+        // Into the next bin. lavapipe runs every branch that its SIMD lanes disagree on, so
+        // this is written without branches: one new edge per axis (the rho bin's new inner or
+        // outer radius; its other radius is the one it crossed), kept where no event moved it.
+        iz += event == 0 ? z_step : 0;
+        ir += event == 1 ? rho_dir : 0;
+        ip += event == 2 ? 1 : 0;
+        if (iz < 0 || iz >= NZ || ir >= NRHO) { // it leaves the table
+            capped = false;
+            break;
         }
+        float z_new = z_edge(iz + z_ahead);
+        float rho_new = rho_edge(rho_dir > 0 ? ir + 1 : ir);
+        bool rho_moved = event == 1;
+        float lo = rho_moved ? (rho_dir > 0 ? rho_hi : rho_new) : rho_lo;
+        float hi = rho_moved ? (rho_dir > 0 ? rho_new : rho_lo) : rho_hi;
+        rho_lo = lo;
+        rho_hi = hi;
+        uz = event == 0 ? next_z(z_new, z0, inv_cos) : uz;
+        int dir;
+        float ur_new = next_rho(ir, rho_lo, rho_hi, u, t0, s2, sin_theta, inv_sin, dir);
+        ur = rho_moved ? ur_new : ur;
+        rho_dir = rho_moved ? dir : rho_dir;
+        up = event == 2 ? next_phi(ip, t0, s, inv_sin) : up;
     }
     for (uint c = 0u; c < 3u; c++)
         a[c * NS_TABLE_CELLS + cell] = sum[c];
