@@ -416,25 +416,34 @@ void main()
     if (len > 0.0) {
         DistanceDensity density = distance_density(mat.sigma_t.xyz, len);
         uint end = min(push.first_sample + push.sample_count, strata);
-        for (uint k = push.first_sample; k < end; k++) {
+        // Two loops, not one with the lights behind `k % LIGHT_STRIDE == 0`: lavapipe runs a
+        // branch's code for the whole SIMD group whether or not any lane takes it, but a
+        // loop no lane enters costs nothing, so the lights cost 1/LIGHT_STRIDE of the
+        // environment here. Stratum k's random stream is the same in both: the environment
+        // takes its first number, the lights the ones after it.
+        for (uint k = push.first_sample; environment && k < end; k++) {
             if (out_of_budget())
                 break;
             rng_state = pcg_hash(segment_seed + k);
             float pdf;
-            if (environment) {
-                float t = distance_sample(density, (float(k) + rnd()) / float(strata), pdf);
-                vec3 x = seg.entry + t * seg.direction;
-                vec2 phase_u = phase_numbers(k, phase_shift);
-                sum_environment += beer_lambert(mat.sigma_t.xyz, t) / pdf *
-                                   environment_in(x, wo, seg.material, mat, phase_u);
-            }
-            if (k % LIGHT_STRIDE == 0u) {
-                uint j = k / LIGHT_STRIDE;
-                float t = distance_sample(density, (float(j) + rnd()) / float(light_strata), pdf);
-                vec3 x = seg.entry + t * seg.direction;
-                sum_lights +=
-                    beer_lambert(mat.sigma_t.xyz, t) * lights_in(x, wo, seg.material, mat) / pdf;
-            }
+            float t = distance_sample(density, (float(k) + rnd()) / float(strata), pdf);
+            vec3 x = seg.entry + t * seg.direction;
+            vec2 phase_u = phase_numbers(k, phase_shift);
+            sum_environment += beer_lambert(mat.sigma_t.xyz, t) / pdf *
+                               environment_in(x, wo, seg.material, mat, phase_u);
+        }
+        uint first_light = (push.first_sample + LIGHT_STRIDE - 1u) / LIGHT_STRIDE;
+        for (uint j = first_light; j * LIGHT_STRIDE < end; j++) {
+            if (out_of_budget())
+                break;
+            rng_state = pcg_hash(segment_seed + j * LIGHT_STRIDE);
+            if (environment)
+                rnd(); // the environment's
+            float pdf;
+            float t = distance_sample(density, (float(j) + rnd()) / float(light_strata), pdf);
+            vec3 x = seg.entry + t * seg.direction;
+            sum_lights +=
+                beer_lambert(mat.sigma_t.xyz, t) * lights_in(x, wo, seg.material, mat) / pdf;
         }
     }
     vec3 sum =
