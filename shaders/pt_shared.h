@@ -38,7 +38,7 @@ struct GpuPtPath {
     ns_uvec4 progress;
     ns_vec4 light_vertex; /* the sample's light sub-path vertex; w = 1 when there is one */
     ns_vec4 light_weight; /* its throughput (flux per unit pdf) */
-    ns_vec4 light_dir;    /* the direction light travelled to reach it */
+    ns_vec4 light_dir;    /* the direction light travelled to reach it; w = its events */
 };
 
 /* Boundary (Fresnel) events a path may take between two scattering events before it is

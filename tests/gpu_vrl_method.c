@@ -726,7 +726,10 @@ static void compare_with_path_tracer(double ior, uint32_t vrl_spp, uint32_t vrls
                     names[o], c, vmean[c], vse[c], pmean[c], pse[c],
                     fabs(vmean[c] - pmean[c]) / se);
             CHECK(pmean[c] > 0);
-            CHECK(fabs(vmean[c] - pmean[c]) < 4 * se);
+            if (o == 1 && ior != 1.0) // see test_against_path_tracer_refracting
+                CHECK(vmean[c] - pmean[c] < 4 * se);
+            else
+                CHECK(fabs(vmean[c] - pmean[c]) < 4 * se);
         }
     }
 }
@@ -737,7 +740,13 @@ static void test_against_path_tracer(void)
 }
 
 /* Through a refracting boundary: Fresnel transmission, internal reflection in the walk, and
- * the 1/ior^2 radiance factor of the composition. */
+ * the 1/ior^2 radiance factor of the composition. Double scattering must agree: under a
+ * directional light neither method can make a double-scattering path whose light reflects
+ * off the boundary between its two events (a VRL meets the camera stretch only in a straight
+ * line; pt's light sub-path connects straight too), and both make all the others. Multiple
+ * scattering only one way: the VRLs miss every path whose last edge (VRL to camera stretch)
+ * reflects off the boundary, which pt's light sub-paths make when an earlier edge is
+ * straight (docs/reference.md), so the VRLs must not exceed pt (measured: 12-22% below). */
 static void test_against_path_tracer_refracting(void)
 {
     compare_with_path_tracer(1.5, 1, 1000);
