@@ -48,10 +48,15 @@ typedef enum ns_pipeline_when {
 
 typedef struct ns_pipeline_row {
     const char *shader;  /* name in the shader registry: shaders/<shader>.comp */
-    uint32_t bindings;   /* binding 0 is a uniform buffer, the rest storage buffers */
+    uint32_t bindings;   /* binding 0 is a uniform buffer, the rest storage buffers... */
     uint32_t push_bytes; /* sizeof the shader's push struct; 0 = no push constants */
     ns_pipeline_when when;
+    uint32_t texel_bindings; /* ...except these (bit i: binding i), texel buffers */
 } ns_pipeline_row;
+
+/* The bindings of the BVH's nodes (1) and primitives (2), which every shader that traces
+ * reads as texel buffers (shaders/trace.glsl). */
+#define NS_TRACE_TEXEL_BINDINGS ((1u << 1) | (1u << 2))
 
 /* The table's row of id (NULL if id is out of range). */
 const ns_pipeline_row *ns_pipeline_row_of(ns_pipeline_id id);

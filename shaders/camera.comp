@@ -135,7 +135,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
             radiance += s.w * params.environment.rgb;
         } else {
             vec3 p = s.o + h.t * s.d;
-            uint m = prims[h.prim].info.y;
+            uint m = prim_at(h.prim).info.y;
             GpuMaterial mat = materials[m];
             vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
             if (mat.reflectance.w == 0.0) {

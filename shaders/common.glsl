@@ -295,7 +295,7 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
         Hit h;
         if (!trace_scene(o, d, tmin, tmax, h))
             break;
-        uint m = prims[h.prim].info.y;
+        uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
         if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
             return vec3(0.0);

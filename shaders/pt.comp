@@ -157,7 +157,7 @@ bool leave_medium(vec3 x, vec3 v, uint medium, out vec3 y, out vec3 n, out vec3 
     n = v;
     o = v;
     transmit = 0.0;
-    if (!trace_scene(x, v, 0.0, NS_INF, h) || h.front || prims[h.prim].info.y != medium)
+    if (!trace_scene(x, v, 0.0, NS_INF, h) || h.front || prim_at(h.prim).info.y != medium)
         return false;
     float ior = materials[medium].sigma_t.w;
     y = x + h.t * v;
@@ -201,7 +201,7 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
     // Seed: the light's own refraction at the face the straight line meets (the straight
     // line itself may lie beyond the critical angle).
     Hit h;
-    if (trace_scene(x, v, 0.0, NS_INF, h) && !h.front && prims[h.prim].info.y == medium) {
+    if (trace_scene(x, v, 0.0, NS_INF, h) && !h.front && prim_at(h.prim).info.y == medium) {
         vec3 travel = point ? normalize(x + h.t * v - light.position.xyz) : light.direction.xyz;
         float cos_i = -dot(travel, h.normal), cos_t, ior = materials[medium].sigma_t.w;
         if (cos_i > 0.0 && fresnel(cos_i, 1.0 / ior, cos_t) < 1.0)
@@ -389,7 +389,7 @@ LightVertex trace_light_subpath()
         }
         if (!hit)
             break;
-        uint m = prims[h.prim].info.y;
+        uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
         if (mat.reflectance.w == 0.0)
             break; // diffuse: light that reaches it is the surface estimators' business
@@ -561,7 +561,7 @@ bool path_step(inout PathState s)
         return false;
     }
     vec3 p = s.o + h.t * s.d;
-    uint m = prims[h.prim].info.y;
+    uint m = prim_at(h.prim).info.y;
     GpuMaterial mat = materials[m];
     vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
     if (mat.reflectance.w == 0.0) {

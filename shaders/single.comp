@@ -186,7 +186,7 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
         return s.irradiance * hg_phase(dot(-s.toward, wo), g) * beer_lambert(mat.sigma_t.xyz, s.distance);
     }
     // Anything but this medium's own boundary, left from inside, blocks the light.
-    if (prims[h.prim].info.y != medium || h.front)
+    if (prim_at(h.prim).info.y != medium || h.front)
         return vec3(0.0);
     vec3 b = x + h.t * aim;
     vec3 n = h.normal; // outward: the light arrives against it
@@ -231,7 +231,7 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
     Hit h;
     if (!trace_scene(x, back, 0.0, NS_INF, h))
         return params.environment.rgb * beer_lambert(mat.sigma_t.xyz, NS_INF);
-    if (prims[h.prim].info.y != medium || h.front)
+    if (prim_at(h.prim).info.y != medium || h.front)
         return vec3(0.0);
     vec3 b = x + h.t * back;
     vec3 n = h.normal;

@@ -1,11 +1,38 @@
 // trace.glsl — ray/primitive intersection and stack-based BVH traversal, shared by the
 // camera pass and the BVH test shader. Needs shared.h included first. Declares bindings
-// 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives).
+// 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives), both
+// texel buffers read with node_at and prim_at.
 
 layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
-layout(std430, binding = 1) readonly buffer NodeBlock { GpuNode nodes[]; };
-layout(std430, binding = 2) readonly buffer PrimBlock { GpuPrim prims[]; };
+// The BVH's nodes and primitives are read as texel buffers of 16-byte texels, not as storage
+// buffers: lavapipe reads a storage buffer at addresses that differ per lane one lane and one
+// component at a time, and a texel fetch with its texture path, about a third faster on
+// the whole traversal (docs/bench.md, *Texel buffers*). The render's pipelines bind them so
+// (render/pipelines.c, NS_TRACE_TEXEL_BINDINGS).
+layout(binding = 1) uniform usamplerBuffer node_texels;
+layout(binding = 2) uniform usamplerBuffer prim_texels;
+
+GpuNode node_at(uint i)
+{
+    uvec4 a = texelFetch(node_texels, int(2u * i)), b = texelFetch(node_texels, int(2u * i + 1u));
+    GpuNode n;
+    n.bmin = uintBitsToFloat(a.xyz);
+    n.first = a.w;
+    n.bmax = uintBitsToFloat(b.xyz);
+    n.count = b.w;
+    return n;
+}
+
+GpuPrim prim_at(uint i)
+{
+    GpuPrim p;
+    p.a = uintBitsToFloat(texelFetch(prim_texels, int(4u * i)));
+    p.b = uintBitsToFloat(texelFetch(prim_texels, int(4u * i + 1u)));
+    p.c = uintBitsToFloat(texelFetch(prim_texels, int(4u * i + 2u)));
+    p.info = texelFetch(prim_texels, int(4u * i + 3u));
+    return p;
+}
 
 const float NS_INF = 1.0 / 0.0;
 
@@ -97,7 +124,7 @@ float hit_plane(vec3 o, vec3 d, vec3 p0, vec3 n, float tmin, float tmax)
 
 float hit_prim(uint i, vec3 o, vec3 d, vec3 inv_d, float tmin, float tmax)
 {
-    GpuPrim p = prims[i];
+    GpuPrim p = prim_at(i);
     uint kind = p.info.x;
     if (kind == NS_PRIM_SPHERE)
         return hit_sphere(o, d, p.a, tmin, tmax);
@@ -110,7 +137,7 @@ float hit_prim(uint i, vec3 o, vec3 d, vec3 inv_d, float tmin, float tmax)
 
 vec3 outward_normal(uint i, vec3 pos)
 {
-    GpuPrim p = prims[i];
+    GpuPrim p = prim_at(i);
     uint kind = p.info.x;
     if (kind == NS_PRIM_SPHERE)
         return normalize(pos - p.a.xyz);
@@ -161,7 +188,7 @@ vec3 blended_normal(GpuPrim p, vec3 pos)
 // the surface. Otherwise the geometric normal, as for a flat triangle.
 vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
 {
-    GpuPrim p = prims[i];
+    GpuPrim p = prim_at(i);
     if (p.info.x != NS_PRIM_TRIANGLE || (p.info.w & NS_PRIM_SMOOTH) == 0u)
         return geometric;
     vec3 s = blended_normal(p, pos);
@@ -177,8 +204,8 @@ void children_near_far(GpuNode node, vec3 o, vec3 inv_d, float tmin, float tmax,
                        out uint near_child, out uint far_child, out float t_near, out float t_far)
 {
     uint l = node.first, r = node.first + 1u;
-    float tl = enter_box(o, inv_d, nodes[l].bmin, nodes[l].bmax, tmin, tmax);
-    float tr = enter_box(o, inv_d, nodes[r].bmin, nodes[r].bmax, tmin, tmax);
+    float tl = enter_box(o, inv_d, node_at(l).bmin, node_at(l).bmax, tmin, tmax);
+    float tr = enter_box(o, inv_d, node_at(r).bmin, node_at(r).bmax, tmin, tmax);
     bool swap = tl > tr;
     near_child = swap ? r : l;
     far_child = swap ? l : r;
@@ -203,7 +230,7 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     uint sp = 0u;
     if (params.counts.w > 0u) {
         stack[sp] = 0u;
-        stack_enter[sp++] = enter_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, tmin, best);
+        stack_enter[sp++] = enter_box(o, inv_d, node_at(0).bmin, node_at(0).bmax, tmin, best);
     }
     while (sp > 0u) {
         if (out_of_budget())
@@ -211,7 +238,7 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
         sp--;
         if (stack_enter[sp] > best)
             continue;
-        GpuNode node = nodes[stack[sp]];
+        GpuNode node = node_at(stack[sp]);
         if (node.count > 0u) {
             for (uint i = node.first; i < node.first + node.count; i++) {
                 float t = hit_prim(i, o, d, inv_d, tmin, best);
@@ -273,19 +300,19 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
     uint stack[NS_BVH_STACK];
     uint sp = 0u;
     uint current = NS_NONE;
-    if (params.counts.w > 0u && enter_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, tmin, tmax) != NS_INF)
+    if (params.counts.w > 0u && enter_box(o, inv_d, node_at(0).bmin, node_at(0).bmax, tmin, tmax) != NS_INF)
         current = 0u;
     while (current != NS_NONE || sp > 0u) {
         if (out_of_budget())
             break;
         if (current == NS_NONE)
             current = stack[--sp];
-        GpuNode node = nodes[current];
+        GpuNode node = node_at(current);
         current = NS_NONE;
         if (node.count > 0u) {
             for (uint i = node.first; i < node.first + node.count; i++)
                 if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-                    return (prims[i].info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
+                    return (prim_at(i).info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
                                                                             : NS_SHADOW_BLOCKED;
             continue;
         }
@@ -302,7 +329,7 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
     uint first_plane = params.prims.x;
     for (uint i = first_plane; i < first_plane + params.prims.y; i++)
         if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-            return (prims[i].info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
+            return (prim_at(i).info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
                                                                     : NS_SHADOW_BLOCKED;
     return NS_SHADOW_CLEAR;
 }

@@ -59,7 +59,7 @@ vec3 from_infinity(vec3 o, vec3 d, out uint medium_at_o)
         Hit h;
         if (!trace_scene(o, -d, tmin, NS_INF, h))
             return inside ? vec3(0.0) : exp(-tau); // an unbounded medium behind: no light
-        uint m = prims[h.prim].info.y;
+        uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
         if (!crossable(mat))
             return vec3(0.0);
@@ -89,7 +89,7 @@ bool walk_to_target(vec3 o, vec3 d, uint medium, uint target_object, inout vec3 
             return false;
         if (medium != NS_NONE)
             beta *= beer_lambert(materials[medium].sigma_t.xyz, hit.t - t_enter);
-        GpuPrim p = prims[hit.prim];
+        GpuPrim p = prim_at(hit.prim);
         GpuMaterial mat = materials[p.info.y];
         if (scatters(mat))
             return hit.front && p.info.z == target_object;
@@ -170,7 +170,7 @@ uint stratum_of(uint i)
 GpuVrl enter(vec3 o, vec3 d, Hit h, vec3 beta, out Hit exit_hit)
 {
     vec3 p = o + h.t * d;
-    uint m = prims[h.prim].info.y;
+    uint m = prim_at(h.prim).info.y;
     float ior = materials[m].sigma_t.w;
     vec3 d_in = d;
     if (ior != 1.0) {
@@ -195,7 +195,7 @@ bool reflect_stretch(GpuVrl v, inout Hit exit_hit, out GpuVrl next)
 {
     next = v;
     float len = exit_hit.t;
-    if (len <= 0.0 || prims[exit_hit.prim].info.y != v.material || exit_hit.front)
+    if (len <= 0.0 || prim_at(exit_hit.prim).info.y != v.material || exit_hit.front)
         return false;
     GpuMaterial mat = materials[v.material];
     vec3 n = exit_hit.normal; // outward: the beam leaves along it

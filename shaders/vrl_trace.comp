@@ -54,7 +54,7 @@ vec3 transmittance_to_infinity(vec3 o, vec3 d)
         Hit h;
         if (!trace_scene(o, d, tmin, NS_INF, h))
             return exp(-tau);
-        uint m = prims[h.prim].info.y;
+        uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
         if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
             return vec3(0.0);
@@ -148,7 +148,7 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
             flux *= exp(-materials[medium].sigma_t.xyz * h.t);
         vec3 p = o + h.t * d;
         float eps = ray_epsilon(p);
-        uint m = prims[h.prim].info.y;
+        uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
         if (mat.reflectance.w == 0.0)
             return false;
@@ -157,7 +157,7 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
             continue;
         }
         vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
-        if (h.front && prims[h.prim].info.z == target_object && scatters(mat)) {
+        if (h.front && prim_at(h.prim).info.z == target_object && scatters(mat)) {
             float ior = mat.sigma_t.w;
             if (ior != 1.0) {
                 float eta = 1.0 / ior;
@@ -240,7 +240,7 @@ bool walk_step(inout GpuVrlWalk w)
     }
     vec3 p = o + h.t * d;
     float eps = ray_epsilon(p);
-    uint m = prims[h.prim].info.y;
+    uint m = prim_at(h.prim).info.y;
     if (h.front && m == w.state.z) {
         w.origin.xyz = p + d * eps; // grazing its own boundary within float error
         return true;

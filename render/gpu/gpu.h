@@ -133,6 +133,9 @@ typedef struct gpu_pipeline_desc {
     const char *shader; /* name in the shader registry (file name without .comp) */
     uint32_t binding_count;
     uint32_t push_constant_size; /* bytes, 0 = none */
+    /* Bit i: binding i is a uniform texel buffer of 16-byte texels (VK_FORMAT_R32G32B32A32_UINT,
+     * a usamplerBuffer in the shader) over the whole buffer, not a storage buffer. */
+    uint32_t texel_bindings;
 } gpu_pipeline_desc;
 
 typedef struct gpu_pipeline {
@@ -141,11 +144,15 @@ typedef struct gpu_pipeline {
     VkPipeline pipeline;
     uint32_t binding_count;
     uint32_t push_constant_size;
+    uint32_t texel_bindings; /* as in gpu_pipeline_desc */
     char name[32];
 } gpu_pipeline;
 
 int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc,
                         ns_error *err);
+/* The descriptor type of binding i: 0 a uniform buffer, a texel binding a uniform texel
+ * buffer, every other a storage buffer. */
+VkDescriptorType gpu_binding_type(const gpu_pipeline *pipe, uint32_t i);
 void gpu_pipeline_destroy(gpu_device *dev, gpu_pipeline *pipe);
 
 /* Records one dispatch of pipe over groups[0..2] with buffers bound in order, submits it and

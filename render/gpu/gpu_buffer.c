@@ -46,8 +46,11 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
     VkBufferCreateInfo info = {
         .sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO,
         .size = size,
-        .usage = desc->kind == GPU_BUFFER_UNIFORM ? VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
-                                                  : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT,
+        /* A storage buffer may also be bound as a uniform texel buffer (gpu_pipeline_desc's
+         * texel_bindings). */
+        .usage = desc->kind == GPU_BUFFER_UNIFORM
+                     ? VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
+                     : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT,
         .sharingMode = VK_SHARING_MODE_EXCLUSIVE,
     };
     int status =

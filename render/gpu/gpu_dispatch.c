@@ -7,6 +7,7 @@
 
 typedef struct dispatch_objects {
     VkDescriptorPool pool;
+    VkBufferView views[GPU_MAX_BINDINGS]; /* of the texel bindings */
     VkCommandBuffer cmd;
     VkFence fence;
     VkQueryPool timestamps; /* two, around the dispatches, when the caller asks for the time */
@@ -20,6 +21,9 @@ static void destroy_objects(gpu_device *dev, dispatch_objects *o)
         vkFreeCommandBuffers(dev->device, dev->command_pool, 1, &o->cmd);
     if (o->pool)
         vkDestroyDescriptorPool(dev->device, o->pool, NULL); /* frees its sets */
+    for (uint32_t i = 0; i < GPU_MAX_BINDINGS; i++)
+        if (o->views[i])
+            vkDestroyBufferView(dev->device, o->views[i], NULL);
     if (o->timestamps)
         vkDestroyQueryPool(dev->device, o->timestamps, NULL);
 }
@@ -64,14 +68,15 @@ static int read_timestamps(gpu_device *dev, const dispatch_objects *o, double *d
 static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch_objects *o,
                              gpu_buffer *const *buffers, VkDescriptorSet *set, ns_error *err)
 {
-    VkDescriptorPoolSize sizes[2] = {
+    VkDescriptorPoolSize sizes[3] = {
         {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
         {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, GPU_MAX_BINDINGS},
+        {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, GPU_MAX_BINDINGS},
     };
     VkDescriptorPoolCreateInfo pool = {
         .sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO,
         .maxSets = 1,
-        .poolSizeCount = 2,
+        .poolSizeCount = 3,
         .pPoolSizes = sizes,
     };
     int status = gpu_check(vkCreateDescriptorPool(dev->device, &pool, NULL, &o->pool),
@@ -91,16 +96,39 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
     VkDescriptorBufferInfo infos[GPU_MAX_BINDINGS];
     VkWriteDescriptorSet writes[GPU_MAX_BINDINGS];
     for (uint32_t i = 0; i < pipe->binding_count; i++) {
+        VkDescriptorType type = gpu_binding_type(pipe, i);
         infos[i] = (VkDescriptorBufferInfo){buffers[i]->buffer, 0, VK_WHOLE_SIZE};
         writes[i] = (VkWriteDescriptorSet){
             .sType = VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET,
             .dstSet = *set,
             .dstBinding = i,
             .descriptorCount = 1,
-            .descriptorType =
-                i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+            .descriptorType = type,
             .pBufferInfo = &infos[i],
         };
+        if (type != VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER)
+            continue;
+        /* Whole texels only: the view's range is a multiple of 16 bytes (a buffer smaller
+         * than one texel gets one, which its shader never reads). */
+        VkDeviceSize texels = buffers[i]->size / 16;
+        VkBufferViewCreateInfo view = {
+            .sType = VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO,
+            .buffer = buffers[i]->buffer,
+            .format = VK_FORMAT_R32G32B32A32_UINT,
+            .offset = 0,
+            .range = (texels ? texels : 1) * 16,
+        };
+        if (texels > dev->properties.limits.maxTexelBufferElements)
+            return ns_fail(err, NS_ERR_LIMIT,
+                           "%s: binding %u holds %llu texels, the device's texel buffers %u",
+                           pipe->name, i, (unsigned long long)texels,
+                           dev->properties.limits.maxTexelBufferElements);
+        status = gpu_check(vkCreateBufferView(dev->device, &view, NULL, &o->views[i]),
+                           "vkCreateBufferView", err);
+        if (status)
+            return status;
+        writes[i].pBufferInfo = NULL;
+        writes[i].pTexelBufferView = &o->views[i];
     }
     vkUpdateDescriptorSets(dev->device, pipe->binding_count, writes, 0, NULL);
     return NS_OK;

@@ -4,14 +4,21 @@
 
 #include "gpu.h"
 
+VkDescriptorType gpu_binding_type(const gpu_pipeline *pipe, uint32_t i)
+{
+    if (i == 0)
+        return VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
+    return (pipe->texel_bindings >> i) & 1u ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER
+                                            : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
+}
+
 static int create_set_layout(gpu_device *dev, gpu_pipeline *pipe, ns_error *err)
 {
     VkDescriptorSetLayoutBinding bindings[GPU_MAX_BINDINGS];
     for (uint32_t i = 0; i < pipe->binding_count; i++) {
         bindings[i] = (VkDescriptorSetLayoutBinding){
             .binding = i,
-            .descriptorType =
-                i == 0 ? VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER,
+            .descriptorType = gpu_binding_type(pipe, i),
             .descriptorCount = 1,
             .stageFlags = VK_SHADER_STAGE_COMPUTE_BIT,
         };
@@ -41,6 +48,7 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
     snprintf(pipe->name, sizeof pipe->name, "%s", desc->shader);
     pipe->binding_count = desc->binding_count;
     pipe->push_constant_size = desc->push_constant_size;
+    pipe->texel_bindings = desc->texel_bindings;
 
     int status = create_set_layout(dev, pipe, err);
     VkPushConstantRange push = {VK_SHADER_STAGE_COMPUTE_BIT, 0, desc->push_constant_size};
