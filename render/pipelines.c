@@ -14,36 +14,38 @@
  * grows on one side cannot leave the pipeline layout behind. */
 static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
-                            NS_TRACE_TEXEL_BINDINGS},
-    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 4, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START, 0},
-    [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START, NS_TRACE_TEXEL_BINDINGS},
-    [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START, 0},
+                            NS_TRACE_TEXEL_BINDINGS, 0},
+    /* J, read at every step of the walk (accumulate.comp), is a texel buffer of floats. */
+    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 4, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
+                                1u << 1, 1u << 1},
+    [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START, NS_TRACE_TEXEL_BINDINGS, 0},
+    [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START, 0, 0},
     [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START,
-                            NS_TRACE_TEXEL_BINDINGS},
+                            NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_VRL_TRACE] = {"vrl_trace", 8, sizeof(GpuVrlTracePush), NS_PIPELINE_AT_START,
-                               NS_TRACE_TEXEL_BINDINGS},
+                               NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_VRL_GATHER] = {"vrl_gather", 8, sizeof(GpuVrlGatherPush), NS_PIPELINE_AT_START,
-                                NS_TRACE_TEXEL_BINDINGS},
+                                NS_TRACE_TEXEL_BINDINGS, 0},
     /* Without the paper's and the dipole's branches the default gather runs 1.7x faster on
      * lavapipe (gather.glsl), so each form is its own shader and only the default one is
      * compiled at start-up; the others are warmed when made so that their render reports the
      * compile as the stage "gather_pipeline". */
     [NS_PIPELINE_GATHER_BOUNDED] = {"gather_bounded", 8, sizeof(GpuGatherPush),
-                                    NS_PIPELINE_FIRST_USE_WARMED, 0},
+                                    NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     [NS_PIPELINE_GATHER_PAPER] = {"gather_paper", 8, sizeof(GpuGatherPush),
-                                  NS_PIPELINE_FIRST_USE_WARMED, 0},
+                                  NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     [NS_PIPELINE_GATHER_PAPER_BOUNDED] = {"gather_paper_bounded", 8, sizeof(GpuGatherPush),
-                                          NS_PIPELINE_FIRST_USE_WARMED, 0},
+                                          NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
-                                   NS_PIPELINE_FIRST_USE_WARMED, 0},
+                                   NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     /* The reference path tracer is not on the fast path: its compile (~0.3 s on lavapipe) is
      * paid once per context by the first pt render (stage "pt_pipeline" and its first
      * dispatch), never by a context that renders no pt. */
-    [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS},
+    [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS, 0},
     /* Only the BVH tests trace rays on their own (ns_trace_rays): a service never does. */
-    [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS},
-    [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0},
-    [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0},
+    [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS, 0},
+    [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
+    [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
 };
 
 const ns_pipeline_row *ns_pipeline_row_of(ns_pipeline_id id)
@@ -60,7 +62,8 @@ int ns_pipeline_make(gpu_device *dev, ns_pipeline_id id, gpu_pipeline *pipe, ns_
                                &(gpu_pipeline_desc){.shader = row->shader,
                                                     .binding_count = row->bindings,
                                                     .push_constant_size = row->push_bytes,
-                                                    .texel_bindings = row->texel_bindings},
+                                                    .texel_bindings = row->texel_bindings,
+                                                    .texel_r32_bindings = row->texel_r32_bindings},
                                err);
 }
 

@@ -52,6 +52,7 @@ typedef struct ns_pipeline_row {
     uint32_t push_bytes; /* sizeof the shader's push struct; 0 = no push constants */
     ns_pipeline_when when;
     uint32_t texel_bindings; /* ...except these (bit i: binding i), texel buffers */
+    uint32_t texel_r32_bindings; /* of those, the ones of 4-byte texels (gpu_pipeline_desc) */
 } ns_pipeline_row;
 
 /* The bindings of the BVH's nodes (1) and primitives (2), which every shader that traces

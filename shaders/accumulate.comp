@@ -40,7 +40,10 @@ layout(local_size_x = NS_ACCUMULATE_GROUP) in;
 
 layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
-layout(std430, binding = 1) readonly buffer JBlock { float j[]; };
+// J as a texel buffer of floats: lavapipe fetches texels through its texture path, where a
+// storage buffer's per-lane reads are a loop over the lanes (docs/bench.md, *Texel buffers*).
+layout(binding = 1) uniform usamplerBuffer j_texels;
+float j_at(uint i) { return uintBitsToFloat(texelFetch(j_texels, int(i)).x); }
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuAccumulatePush ns_push[1]; };
@@ -160,7 +163,7 @@ void main()
         float decay_next = exp(-u_next);
         uint index = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
                          NS_TABLE_NPHI + uint(ip);
-        vec3 jv = vec3(j[index], j[NS_TABLE_CELLS + index], j[2u * NS_TABLE_CELLS + index]);
+        vec3 jv = vec3(j_at(index), j_at(NS_TABLE_CELLS + index), j_at(2u * NS_TABLE_CELLS + index));
         sum += jv * (decay - decay_next);
         steps++;
         u = u_next;

@@ -133,9 +133,11 @@ typedef struct gpu_pipeline_desc {
     const char *shader; /* name in the shader registry (file name without .comp) */
     uint32_t binding_count;
     uint32_t push_constant_size; /* bytes, 0 = none */
-    /* Bit i: binding i is a uniform texel buffer of 16-byte texels (VK_FORMAT_R32G32B32A32_UINT,
-     * a usamplerBuffer in the shader) over the whole buffer, not a storage buffer. */
+    /* Bit i: binding i is a uniform texel buffer over the whole buffer (a usamplerBuffer in
+     * the shader), not a storage buffer: of 16-byte texels (VK_FORMAT_R32G32B32A32_UINT), or
+     * of 4-byte ones (VK_FORMAT_R32_UINT) where the bit is also set in texel_r32_bindings. */
     uint32_t texel_bindings;
+    uint32_t texel_r32_bindings;
 } gpu_pipeline_desc;
 
 typedef struct gpu_pipeline {
@@ -144,7 +146,7 @@ typedef struct gpu_pipeline {
     VkPipeline pipeline;
     uint32_t binding_count;
     uint32_t push_constant_size;
-    uint32_t texel_bindings; /* as in gpu_pipeline_desc */
+    uint32_t texel_bindings, texel_r32_bindings; /* as in gpu_pipeline_desc */
     char name[32];
 } gpu_pipeline;
 

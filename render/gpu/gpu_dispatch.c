@@ -108,15 +108,16 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
         };
         if (type != VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER)
             continue;
-        /* Whole texels only: the view's range is a multiple of 16 bytes (a buffer smaller
+        /* Whole texels only: the view's range is a multiple of the texel (a buffer smaller
          * than one texel gets one, which its shader never reads). */
-        VkDeviceSize texels = buffers[i]->size / 16;
+        int r32 = (pipe->texel_r32_bindings >> i) & 1u;
+        VkDeviceSize texel_bytes = r32 ? 4 : 16, texels = buffers[i]->size / texel_bytes;
         VkBufferViewCreateInfo view = {
             .sType = VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO,
             .buffer = buffers[i]->buffer,
-            .format = VK_FORMAT_R32G32B32A32_UINT,
+            .format = r32 ? VK_FORMAT_R32_UINT : VK_FORMAT_R32G32B32A32_UINT,
             .offset = 0,
-            .range = (texels ? texels : 1) * 16,
+            .range = (texels ? texels : 1) * texel_bytes,
         };
         if (texels > dev->properties.limits.maxTexelBufferElements)
             return ns_fail(err, NS_ERR_LIMIT,

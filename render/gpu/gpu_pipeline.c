@@ -49,6 +49,7 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
     pipe->binding_count = desc->binding_count;
     pipe->push_constant_size = desc->push_constant_size;
     pipe->texel_bindings = desc->texel_bindings;
+    pipe->texel_r32_bindings = desc->texel_r32_bindings & desc->texel_bindings;
 
     int status = create_set_layout(dev, pipe, err);
     VkPushConstantRange push = {VK_SHADER_STAGE_COMPUTE_BIT, 0, desc->push_constant_size};
