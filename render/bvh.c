@@ -71,6 +71,7 @@ typedef struct builder {
     GpuNode *nodes;
     uint32_t node_count;
     uint32_t depth;
+    uint32_t max_depth; /* where the surface-area splits stop (NS_BVH_MAX_DEPTH) */
 } builder;
 
 static aabb range_bounds(const builder *b, uint32_t begin, uint32_t end, aabb *centroids)
@@ -161,8 +162,17 @@ static void build_node(builder *b, uint32_t node_index, uint32_t begin, uint32_t
     if (depth > b->depth)
         b->depth = depth;
     uint32_t count = end - begin;
-    if (count <= 1 || depth >= NS_BVH_MAX_DEPTH) {
+    if (count <= 1 || (depth >= b->max_depth && count <= NS_BVH_LEAF_ENTRY_MAX)) {
         make_leaf(b, node, begin, end);
+        return;
+    }
+    if (depth >= b->max_depth) { /* too many for a leaf's stack entry: halve, no SAH */
+        uint32_t left = b->node_count, mid = begin + count / 2;
+        b->node_count += 2;
+        node->first = left;
+        node->count = 0;
+        build_node(b, left, begin, mid, depth + 1);
+        build_node(b, left + 1, mid, end, depth + 1);
         return;
     }
 
@@ -207,10 +217,19 @@ static void build_node(builder *b, uint32_t node_index, uint32_t begin, uint32_t
 
 int ns_bvh_build(const GpuPrim *prims, uint32_t count, ns_bvh *out, ns_error *err)
 {
+    return ns_bvh_build_limited(prims, count, NS_BVH_MAX_DEPTH, out, err);
+}
+
+int ns_bvh_build_limited(const GpuPrim *prims, uint32_t count, uint32_t max_depth, ns_bvh *out,
+                         ns_error *err)
+{
     memset(out, 0, sizeof *out);
     if (count == 0)
         return NS_OK;
-    builder b = {0};
+    if (count > NS_BVH_MAX_PRIMS)
+        return ns_fail(err, NS_ERR_LIMIT, "%u primitives in the BVH; at most %u", count,
+                       NS_BVH_MAX_PRIMS);
+    builder b = {.max_depth = max_depth < NS_BVH_MAX_DEPTH ? max_depth : NS_BVH_MAX_DEPTH};
     b.bounds = malloc(sizeof *b.bounds * count);
     b.centroid = malloc(sizeof *b.centroid * count);
     b.index = malloc(sizeof *b.index * count);

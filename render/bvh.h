@@ -19,6 +19,10 @@ typedef struct ns_bvh {
 /* Builds over prims[0..count) (no planes). count 0 gives an empty tree (node_count 0).
  * Allocates everything in *out; free with ns_bvh_free, also after a failure. */
 int ns_bvh_build(const GpuPrim *prims, uint32_t count, ns_bvh *out, ns_error *err);
+/* The same with the surface-area splits stopping at max_depth (at most NS_BVH_MAX_DEPTH),
+ * so that tests reach what happens there. */
+int ns_bvh_build_limited(const GpuPrim *prims, uint32_t count, uint32_t max_depth, ns_bvh *out,
+                         ns_error *err);
 void ns_bvh_free(ns_bvh *bvh);
 
 /* Axis-aligned bounds of a sphere, box or triangle primitive. */

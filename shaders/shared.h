@@ -38,10 +38,16 @@ NS_CONST(uint, NS_CAMERA_GROUP_X, 8);
 NS_CONST(uint, NS_CAMERA_GROUP_Y, 8);
 NS_CONST(uint, NS_TRACE_GROUP, 64);
 
-/* Traversal stack depth; the builder stops splitting before the tree gets deeper. */
-NS_CONST(uint, NS_BVH_STACK, 64);
+/* Traversal stack depth. The builder's surface-area splits stop at NS_BVH_MAX_DEPTH; a leaf
+ * there with more than NS_BVH_LEAF_ENTRY_MAX primitives is halved further (at most 19 more
+ * levels for NS_BVH_MAX_PRIMS primitives), so the tree stays within the stack. */
+NS_CONST(uint, NS_BVH_STACK, 80);
 NS_CONST(uint, NS_BVH_MAX_DEPTH, 60);
 NS_CONST(uint, NS_BVH_LEAF_MAX, 4);
+/* The traversal's stack entry of a leaf holds its first primitive in 25 bits and its count in
+ * 6 (trace.glsl, node_entry): no leaf holds more, no BVH more primitives. */
+NS_CONST(uint, NS_BVH_LEAF_ENTRY_MAX, 63);
+NS_CONST(uint, NS_BVH_MAX_PRIMS, 33554432);
 
 /* Deferred Fresnel branches a camera path may hold (see camera.comp: split deterministically
  * while there is room, choose by the Fresnel probability when full). */

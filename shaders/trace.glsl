@@ -198,14 +198,28 @@ vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
     return faces_ray && mirror_stays_out ? s : geometric;
 }
 
-// An inner node's two children, nearer first: where the ray enters each box within
-// [tmin, tmax] (NS_INF: it misses it).
-void children_near_far(GpuNode node, vec3 o, vec3 inv_d, float tmin, float tmax,
+const uint NS_ENTRY_LEAF = 0x80000000u, NS_ENTRY_PAIR = 0x40000000u;
+uint node_entry(GpuNode n)
+{
+    return n.count == 0u ? (NS_ENTRY_PAIR | n.first) : (NS_ENTRY_LEAF | (n.count << 25) | n.first);
+}
+
+void open_entry(uint e, out uint first, out uint count)
+{
+    bool leaf = (e & NS_ENTRY_LEAF) != 0u;
+    first = leaf ? (e & 0x1ffffffu) : (e & 0x3fffffffu);
+    count = leaf ? ((e >> 25) & 63u) : 0u;
+}
+
+// An inner node's two children (at first, first + 1), nearer first: where the ray enters
+// each box within [tmin, tmax] (NS_INF: it misses it), and their stack entries.
+void children_near_far(uint first, vec3 o, vec3 inv_d, float tmin, float tmax,
                        out uint near_child, out uint far_child, out float t_near, out float t_far)
 {
-    uint l = node.first, r = node.first + 1u;
-    float tl = enter_box(o, inv_d, node_at(l).bmin, node_at(l).bmax, tmin, tmax);
-    float tr = enter_box(o, inv_d, node_at(r).bmin, node_at(r).bmax, tmin, tmax);
+    GpuNode nl = node_at(first), nr = node_at(first + 1u);
+    float tl = enter_box(o, inv_d, nl.bmin, nl.bmax, tmin, tmax);
+    float tr = enter_box(o, inv_d, nr.bmin, nr.bmax, tmin, tmax);
+    uint l = node_entry(nl), r = node_entry(nr);
     bool swap = tl > tr;
     near_child = swap ? r : l;
     far_child = swap ? l : r;
@@ -229,8 +243,9 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     float stack_enter[NS_BVH_STACK];
     uint sp = 0u;
     if (params.counts.w > 0u) {
-        stack[sp] = 0u;
-        stack_enter[sp++] = enter_box(o, inv_d, node_at(0).bmin, node_at(0).bmax, tmin, best);
+        GpuNode root = node_at(0u);
+        stack[sp] = node_entry(root);
+        stack_enter[sp++] = enter_box(o, inv_d, root.bmin, root.bmax, tmin, best);
     }
     while (sp > 0u) {
         if (out_of_budget())
@@ -238,9 +253,10 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
         sp--;
         if (stack_enter[sp] > best)
             continue;
-        GpuNode node = node_at(stack[sp]);
-        if (node.count > 0u) {
-            for (uint i = node.first; i < node.first + node.count; i++) {
+        uint first, count;
+        open_entry(stack[sp], first, count);
+        if (count > 0u) {
+            for (uint i = first; i < first + count; i++) {
                 float t = hit_prim(i, o, d, inv_d, tmin, best);
                 if (t > 0.0) {
                     best = t;
@@ -252,7 +268,7 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
         // Push the farther child, then the nearer one.
         uint l, r;
         float tl, tr;
-        children_near_far(node, o, inv_d, tmin, best, l, r, tl, tr);
+        children_near_far(first, o, inv_d, tmin, best, l, r, tl, tr);
         if (tr != NS_INF && sp < NS_BVH_STACK) {
             stack[sp] = r;
             stack_enter[sp++] = tr;
@@ -300,17 +316,21 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
     uint stack[NS_BVH_STACK];
     uint sp = 0u;
     uint current = NS_NONE;
-    if (params.counts.w > 0u && enter_box(o, inv_d, node_at(0).bmin, node_at(0).bmax, tmin, tmax) != NS_INF)
-        current = 0u;
+    if (params.counts.w > 0u) {
+        GpuNode root = node_at(0u);
+        if (enter_box(o, inv_d, root.bmin, root.bmax, tmin, tmax) != NS_INF)
+            current = node_entry(root);
+    }
     while (current != NS_NONE || sp > 0u) {
         if (out_of_budget())
             break;
         if (current == NS_NONE)
             current = stack[--sp];
-        GpuNode node = node_at(current);
+        uint first, count;
+        open_entry(current, first, count);
         current = NS_NONE;
-        if (node.count > 0u) {
-            for (uint i = node.first; i < node.first + node.count; i++)
+        if (count > 0u) {
+            for (uint i = first; i < first + count; i++)
                 if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
                     return (prim_at(i).info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
                                                                             : NS_SHADOW_BLOCKED;
@@ -319,7 +339,7 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
         // The nearer child next: what is met near the origin ends the query sooner.
         uint l, r;
         float tl, tr;
-        children_near_far(node, o, inv_d, tmin, tmax, l, r, tl, tr);
+        children_near_far(first, o, inv_d, tmin, tmax, l, r, tl, tr);
         if (tl != NS_INF) {
             current = l;
             if (tr != NS_INF && sp < NS_BVH_STACK)

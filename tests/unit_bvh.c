@@ -51,7 +51,8 @@ static void walk(const ns_bvh *bvh, uint32_t index, uint32_t depth, walk_state *
     const GpuNode *n = &bvh->nodes[index];
     if (n->count > 0) {
         w->leaves++;
-        if (n->count > NS_BVH_LEAF_MAX && depth < NS_BVH_MAX_DEPTH)
+        if ((n->count > NS_BVH_LEAF_MAX && depth < NS_BVH_MAX_DEPTH) ||
+            n->count > NS_BVH_LEAF_ENTRY_MAX)
             w->oversized_leaves++;
         for (uint32_t i = n->first; i < n->first + n->count && i < bvh->prim_count; i++) {
             w->seen[i]++;
@@ -78,7 +79,7 @@ static void check_tree(const GpuPrim *prims, uint32_t count)
     CHECK_INT(ns_bvh_build(prims, count, &bvh, &err), NS_OK);
     CHECK_INT(bvh.prim_count, count);
     CHECK(bvh.node_count <= 2 * count - 1);
-    CHECK(bvh.depth <= NS_BVH_MAX_DEPTH);
+    CHECK(bvh.depth < NS_BVH_STACK);
     walk_state w = {0};
     w.seen = calloc(count, sizeof *w.seen);
     walk(&bvh, 0, 1, &w);
@@ -158,11 +159,40 @@ static void test_sah_separates_clusters(void)
     ns_bvh_free(&bvh);
 }
 
+/* Past the depth limit: with the surface-area splits stopped at depth 3, 5000 primitives
+ * reach it in leaves of hundreds, more than a leaf's stack entry holds, so they are halved
+ * further: every leaf within NS_BVH_LEAF_ENTRY_MAX, each primitive once, inside the stack. */
+static void test_leaves_past_depth_limit(void)
+{
+    static GpuPrim prims[5000];
+    for (uint32_t i = 0; i < 5000; i++)
+        prims[i] = random_prim(i, 10.0);
+    ns_bvh bvh;
+    CHECK_INT(ns_bvh_build_limited(prims, 5000, 3, &bvh, NULL), NS_OK);
+    walk_state w = {0};
+    w.seen = calloc(5000, sizeof *w.seen);
+    walk(&bvh, 0, 1, &w);
+    int once = 1, largest = 0;
+    for (uint32_t i = 0; i < 5000; i++)
+        once &= w.seen[i] == 1;
+    CHECK(once);
+    CHECK_INT(w.bad_child, 0);
+    CHECK_INT(w.bad_leaf, 0);
+    for (uint32_t i = 0; i < bvh.node_count; i++)
+        if (bvh.nodes[i].count > (uint32_t)largest)
+            largest = (int)bvh.nodes[i].count;
+    CHECK(largest <= (int)NS_BVH_LEAF_ENTRY_MAX && largest > (int)NS_BVH_LEAF_MAX);
+    CHECK(bvh.depth > 3 && bvh.depth < NS_BVH_STACK);
+    free(w.seen);
+    ns_bvh_free(&bvh);
+}
+
 int main(void)
 {
     RUN(test_random_scenes);
     RUN(test_identical_primitives);
     RUN(test_empty);
     RUN(test_sah_separates_clusters);
+    RUN(test_leaves_past_depth_limit);
     return harness_report();
 }
