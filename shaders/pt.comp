@@ -284,9 +284,11 @@ vec3 specular_light_medium(vec3 x, vec3 d, float g, uint medium)
 // when the light met the boundary (an internal reflection) since the event before, the walk
 // stopping at the first event reached in a straight line. Before this rule only the first
 // event connected, and a path whose light reflected off the boundary between its first two
-// events was made by no strategy: on an index-1.3 sphere of albedo 1 under a point light,
-// double scattering came out 0.69 of the same power from a small sphere light
-// (docs/reference.md). Up to NS_PT_LIGHT_VERTICES events may connect; the sample takes one
+// events was made by no strategy: on an index-1.3 sphere of albedo 0.999 under a point light,
+// multiple scattering came out 0.80 of the same power from a sphere light of radius 0.3
+// (now 1.006: gpu_pt_consistency). A path none of whose edges is straight is still made by
+// none (double scattering whose light reflects between its two events: 0.93 there;
+// docs/reference.md). Up to NS_PT_LIGHT_VERTICES events may connect; the sample takes one
 // of them uniformly (reservoir sampling as the walk goes) and weighs it by their number.
 // ---------------------------------------------------------------------------------------
 const uint NS_PT_LIGHT_VERTICES = 4u;
