@@ -173,8 +173,8 @@ static int pt_check_counters(const uint32_t *counters, void *user, ns_error *err
                        counters[NS_PT_COUNTER_TRUNCATED], (unsigned)NS_PT_MAX_BOUNDARY_RUN);
     if (counters[NS_PT_COUNTER_LIGHT_TRUNCATED])
         return ns_fail(err, NS_ERR_LIMIT,
-                       "pt: %u light sub-path(s) took more than %u boundary events before "
-                       "scattering",
+                       "pt: %u light sub-path(s) took more than %u boundary events in a row "
+                       "without scattering",
                        counters[NS_PT_COUNTER_LIGHT_TRUNCATED],
                        (unsigned)NS_PT_MAX_LIGHT_BOUNDARIES);
     if (counters[NS_PT_COUNTER_NONFINITE])

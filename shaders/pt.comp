@@ -288,8 +288,10 @@ vec3 specular_light_medium(vec3 x, vec3 d, float g, uint medium)
 // multiple scattering came out 0.80 of the same power from a sphere light of radius 0.3
 // (now 1.006: gpu_pt_consistency). A path none of whose edges is straight is still made by
 // none (double scattering whose light reflects between its two events: 0.93 there;
-// docs/reference.md). Up to NS_PT_LIGHT_VERTICES events may connect; the sample takes one
-// of them uniformly (reservoir sampling as the walk goes) and weighs it by their number.
+// docs/reference.md), nor one whose first straight edge comes after the light's
+// NS_PT_LIGHT_VERTICES-th event (four reflected edges in a row). Up to NS_PT_LIGHT_VERTICES
+// events may connect; the sample takes one of them uniformly (reservoir sampling as the walk
+// goes) and weighs it by their number.
 // ---------------------------------------------------------------------------------------
 const uint NS_PT_LIGHT_VERTICES = 4u;
 
@@ -350,8 +352,17 @@ LightVertex trace_light_subpath()
     uint medium = NS_NONE;
     bool entered = false;   // refracted into a scattering medium straight from the light
     bool reflected = false; // an internal reflection since the last scattering event
-    uint events = 0u, eligible = 0u, bounce;
-    for (bounce = 0u; bounce <= NS_PT_MAX_LIGHT_BOUNDARIES; bounce++) {
+    uint events = 0u, eligible = 0u;
+    // Boundary events since the last scattering event (or the light), as the camera path's
+    // boundary_run: the walk ends at most NS_PT_LIGHT_VERTICES events in, each stretch
+    // between two within the cap.
+    uint run = 0u;
+    bool truncated = false;
+    while (true) {
+        if (run++ > NS_PT_MAX_LIGHT_BOUNDARIES) {
+            truncated = true;
+            break;
+        }
         Hit h;
         bool hit = trace_scene(o, d, 0.0, NS_INF, h);
         if (medium != NS_NONE) {
@@ -379,6 +390,7 @@ LightVertex trace_light_subpath()
                 o = o + t * d;
                 d = hg_sample(d, mm.sigma_s.w);
                 reflected = false;
+                run = 0u;
                 continue;
             }
             if (!hit)
@@ -435,7 +447,7 @@ LightVertex trace_light_subpath()
             break; // reflected off the outside, or refracted out
         }
     }
-    if (bounce > NS_PT_MAX_LIGHT_BOUNDARIES)
+    if (truncated)
         atomicAdd(counters[NS_PT_COUNTER_LIGHT_TRUNCATED], 1u);
     lv.beta *= float(eligible); // one of `eligible` events, each taken with 1 / eligible
     return lv;

@@ -47,7 +47,8 @@ struct GpuPtPath {
  * return a biased image. */
 NS_CONST(uint, NS_PT_MAX_BOUNDARY_RUN, 256);
 
-/* Boundary events a light sub-path may take before it reaches a scattering event. */
+/* Boundary events a light sub-path may take in a row before it reaches its next scattering
+ * event. */
 NS_CONST(uint, NS_PT_MAX_LIGHT_BOUNDARIES, 256);
 
 /* Counters of the pt pass: [NS_COUNTER_LOOP_LIMIT] as in shared.h (lavapipe cut an

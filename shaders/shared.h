@@ -39,9 +39,10 @@ NS_CONST(uint, NS_CAMERA_GROUP_Y, 8);
 NS_CONST(uint, NS_TRACE_GROUP, 64);
 
 /* Traversal stack depth. The builder's surface-area splits stop at NS_BVH_MAX_DEPTH; a leaf
- * there with more than NS_BVH_LEAF_ENTRY_MAX primitives is halved further (at most 19 more
- * levels for NS_BVH_MAX_PRIMS primitives), so the tree stays within the stack. */
-NS_CONST(uint, NS_BVH_STACK, 80);
+ * there with more than NS_BVH_LEAF_ENTRY_MAX primitives is halved further (at most 20 more
+ * levels for NS_BVH_MAX_PRIMS primitives: leaves at depth 80 at most, root = 1), and a
+ * traversal holds at most one entry per level plus one, so the stack cannot overflow. */
+NS_CONST(uint, NS_BVH_STACK, 84);
 NS_CONST(uint, NS_BVH_MAX_DEPTH, 60);
 NS_CONST(uint, NS_BVH_LEAF_MAX, 4);
 /* The traversal's stack entry of a leaf holds its first primitive in 25 bits and its count in
