@@ -259,6 +259,8 @@ int ns_trace_rays(ns_context *ctx, const GpuPrim *prims, uint32_t prim_count, co
  * the same load; the context's lock is held meanwhile. hits are the last dispatch's. */
 typedef struct ns_trace_timing {
     uint32_t repeats;
+    uint32_t max_depth; /* where the BVH's surface-area splits stop (0: NS_BVH_MAX_DEPTH), so
+                           that tests reach the leaves built past it */
     double *device_ms;
     double *wall_ms;
     void (*between)(void *user, uint32_t r);

@@ -24,7 +24,9 @@ int ns_trace_rays_timed(ns_context *ctx, const GpuPrim *prims, uint32_t prim_cou
 {
     uint32_t repeats = timing->repeats ? timing->repeats : 1;
     ns_bvh bvh;
-    int status = ns_bvh_build(prims, prim_count, &bvh, err);
+    int status = ns_bvh_build_limited(prims, prim_count,
+                                      timing->max_depth ? timing->max_depth : NS_BVH_MAX_DEPTH,
+                                      &bvh, err);
     GpuPrim *all = status ? NULL : malloc(sizeof *all * ((size_t)prim_count + plane_count + 1));
     if (!status && !all)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "trace: primitives");

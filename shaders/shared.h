@@ -45,8 +45,10 @@ NS_CONST(uint, NS_TRACE_GROUP, 64);
 NS_CONST(uint, NS_BVH_STACK, 84);
 NS_CONST(uint, NS_BVH_MAX_DEPTH, 60);
 NS_CONST(uint, NS_BVH_LEAF_MAX, 4);
-/* The traversal's stack entry of a leaf holds its first primitive in 25 bits and its count in
- * 6 (trace.glsl, node_entry): no leaf holds more, no BVH more primitives. */
+/* The traversal's stack entry of a leaf holds its first primitive below bit
+ * NS_BVH_ENTRY_COUNT_SHIFT and its count in the 6 bits above (trace.glsl, node_entry): no
+ * leaf holds more, no BVH more primitives. */
+NS_CONST(uint, NS_BVH_ENTRY_COUNT_SHIFT, 25);
 NS_CONST(uint, NS_BVH_LEAF_ENTRY_MAX, 63);
 NS_CONST(uint, NS_BVH_MAX_PRIMS, 33554432);
 
@@ -218,6 +220,9 @@ _Static_assert(sizeof(GpuSinglePush) == 16 && offsetof(GpuSinglePush, segment_co
                "GpuSinglePush layout");
 _Static_assert(offsetof(GpuParams, image) == 80, "GpuParams.image offset");
 _Static_assert(offsetof(GpuParams, prims) == 112, "GpuParams.prims offset");
+_Static_assert(NS_BVH_MAX_PRIMS == 1u << NS_BVH_ENTRY_COUNT_SHIFT &&
+                   NS_BVH_LEAF_ENTRY_MAX == 0xffffffffu >> (NS_BVH_ENTRY_COUNT_SHIFT + 1),
+               "a leaf's stack entry: first primitive, count, the leaf flag in bit 31");
 _Static_assert(sizeof(GpuNode) == 32 && offsetof(GpuNode, bmax) == 16, "GpuNode layout");
 _Static_assert(offsetof(GpuNode, first) == 12 && offsetof(GpuNode, count) == 28, "GpuNode");
 _Static_assert(sizeof(GpuPrim) == 64 && offsetof(GpuPrim, info) == 48, "GpuPrim layout");

@@ -7,8 +7,8 @@ layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 // The BVH's nodes and primitives are read as texel buffers of 16-byte texels, not as storage
 // buffers: lavapipe reads a storage buffer at addresses that differ per lane one lane and one
-// component at a time, and a texel fetch with its texture path, about a third faster on
-// the whole traversal (docs/bench.md, *Texel buffers*). The render's pipelines bind them so
+// component at a time, and a texel fetch with its texture path: 17% less traversal time
+// (docs/bench.md, *Texel buffers*). The render's pipelines bind them so
 // (render/pipelines.c, NS_TRACE_TEXEL_BINDINGS).
 layout(binding = 1) uniform usamplerBuffer node_texels;
 layout(binding = 2) uniform usamplerBuffer prim_texels;
@@ -198,17 +198,24 @@ vec3 hit_normal(uint i, vec3 d, vec3 pos, vec3 geometric)
     return faces_ray && mirror_stays_out ? s : geometric;
 }
 
+// What the traversal stacks for a node, from the texels its parent read with its box, so
+// that popping it reads nothing: an inner node as NS_ENTRY_PAIR | the index of its first
+// child (the second follows it); a leaf as NS_ENTRY_LEAF | count << NS_BVH_ENTRY_COUNT_SHIFT |
+// its first primitive (render/bvh.c keeps leaves within NS_BVH_LEAF_ENTRY_MAX primitives and
+// BVHs within NS_BVH_MAX_PRIMS).
 const uint NS_ENTRY_LEAF = 0x80000000u, NS_ENTRY_PAIR = 0x40000000u;
+
 uint node_entry(GpuNode n)
 {
-    return n.count == 0u ? (NS_ENTRY_PAIR | n.first) : (NS_ENTRY_LEAF | (n.count << 25) | n.first);
+    return n.count == 0u ? (NS_ENTRY_PAIR | n.first)
+                         : (NS_ENTRY_LEAF | (n.count << NS_BVH_ENTRY_COUNT_SHIFT) | n.first);
 }
 
 void open_entry(uint e, out uint first, out uint count)
 {
     bool leaf = (e & NS_ENTRY_LEAF) != 0u;
-    first = leaf ? (e & 0x1ffffffu) : (e & 0x3fffffffu);
-    count = leaf ? ((e >> 25) & 63u) : 0u;
+    first = e & (leaf ? NS_BVH_MAX_PRIMS - 1u : ~(NS_ENTRY_LEAF | NS_ENTRY_PAIR));
+    count = leaf ? (e >> NS_BVH_ENTRY_COUNT_SHIFT) & NS_BVH_LEAF_ENTRY_MAX : 0u;
 }
 
 // An inner node's two children (at first, first + 1), nearer first: where the ray enters

@@ -156,7 +156,7 @@ static void random_scene(GpuPrim *prims, GpuPrim *planes, GpuPrim *all)
  * that rays end before, between and after what they meet. Nonzero (and a failed check) if
  * the trace failed. */
 static int trace_random_rays(const GpuPrim *prims, const GpuPrim *planes, GpuRay *rays,
-                             GpuHit *hits, int any_hit)
+                             GpuHit *hits, int any_hit, uint32_t max_depth)
 {
     for (uint32_t i = 0; i < RAYS; i++) {
         double d[3];
@@ -169,21 +169,22 @@ static int trace_random_rays(const GpuPrim *prims, const GpuPrim *planes, GpuRay
         rays[i].direction[3] = any_hit ? 1.0f : 0.0f;
     }
     ns_error err = {0};
-    int status =
-        ns_trace_rays(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS, hits, &err);
+    int status = ns_trace_rays_timed(test_context(), prims, PRIMS, planes, PLANES, rays, RAYS,
+                                     hits, &(ns_trace_timing){.max_depth = max_depth}, &err);
     if (status)
-        fprintf(stderr, "ns_trace_rays: %s\n", err.message);
+        fprintf(stderr, "ns_trace_rays_timed: %s\n", err.message);
     CHECK_INT(status, NS_OK);
     return status;
 }
 
-static void test_bvh_matches_brute_force(void)
+/* max_depth: where the BVH's surface-area splits stop (0: the default). */
+static void check_nearest_hits(uint32_t max_depth)
 {
     static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
     static GpuRay rays[RAYS];
     static GpuHit hits[RAYS];
     random_scene(prims, planes, all);
-    if (trace_random_rays(prims, planes, rays, hits, 0))
+    if (trace_random_rays(prims, planes, rays, hits, 0, max_depth))
         return;
 
     int hit_count = 0, mismatches = 0, ties = 0;
@@ -236,7 +237,7 @@ static void test_bvh_matches_brute_force(void)
  * crossings in order); "clear" only when there is none. So "blocked" needs an unflagged
  * primitive in range, "crosses" a flagged one, "clear" neither. A third of each kind of
  * primitive and the tilted plane are flagged; tmax is random, so that every answer occurs. */
-static void test_any_hit_matches_brute_force(void)
+static void check_any_hits(uint32_t max_depth)
 {
     static GpuPrim prims[PRIMS], planes[PLANES], all[PRIMS + PLANES];
     static GpuRay rays[RAYS];
@@ -248,7 +249,7 @@ static void test_any_hit_matches_brute_force(void)
     planes[1].info[3] |= NS_PRIM_SHADOW_PASSES;
     memcpy(all, prims, sizeof prims);
     memcpy(all + PRIMS, planes, sizeof planes);
-    if (trace_random_rays(prims, planes, rays, hits, 1))
+    if (trace_random_rays(prims, planes, rays, hits, 1, max_depth))
         return;
     int blocked = 0, crossed = 0, clear = 0, mismatches = 0;
     for (uint32_t i = 0; i < RAYS; i++) {
@@ -285,6 +286,26 @@ static void test_any_hit_matches_brute_force(void)
             clear, mismatches);
 }
 
+static void test_bvh_matches_brute_force(void)
+{
+    check_nearest_hits(0);
+}
+
+static void test_any_hit_matches_brute_force(void)
+{
+    check_any_hits(0);
+}
+
+/* Leaves built past the depth limit (render/bvh.c): with the surface-area splits stopped at
+ * depth 3, the scene's primitives reach it in leaves of hundreds, which are halved to at most
+ * NS_BVH_LEAF_ENTRY_MAX; the traversal reads a leaf's count from its stack entry, so a count
+ * it cannot hold would lose hits here. */
+static void test_leaves_past_depth_limit(void)
+{
+    check_nearest_hits(3);
+    check_any_hits(3);
+}
+
 /* Degenerate inputs: no BVH primitives at all, and many identical primitives (all
  * centroids equal, so no SAH split separates them). */
 static void test_degenerate_trees(void)
@@ -317,6 +338,7 @@ int main(void)
 {
     RUN(test_bvh_matches_brute_force);
     RUN(test_any_hit_matches_brute_force);
+    RUN(test_leaves_past_depth_limit);
     RUN(test_degenerate_trees);
     ns_context_destroy(test_context());
     return harness_report();
