@@ -18,7 +18,8 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     /* J, read at every step of the walk (accumulate.comp), is a texel buffer of floats. */
     [NS_PIPELINE_ACCUMULATE] = {"accumulate", 4, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
                                 1u << 1, 1u << 1},
-    [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START, NS_TRACE_TEXEL_BINDINGS, 0},
+    [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START,
+                         NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START, 0, 0},
     [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
@@ -41,9 +42,11 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     /* The reference path tracer is not on the fast path: its compile (~0.3 s on lavapipe) is
      * paid once per context by the first pt render (stage "pt_pipeline" and its first
      * dispatch), never by a context that renders no pt. */
-    [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS, 0},
+    [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS,
+                        0},
     /* Only the BVH tests trace rays on their own (ns_trace_rays): a service never does. */
-    [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS, 0},
+    [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS,
+                                0},
     [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
     [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
 };

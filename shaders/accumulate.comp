@@ -163,7 +163,8 @@ void main()
         float decay_next = exp(-u_next);
         uint index = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
                          NS_TABLE_NPHI + uint(ip);
-        vec3 jv = vec3(j_at(index), j_at(NS_TABLE_CELLS + index), j_at(2u * NS_TABLE_CELLS + index));
+        vec3 jv = vec3(j_at(index), j_at(NS_TABLE_CELLS + index),
+            j_at(2u * NS_TABLE_CELLS + index));
         sum += jv * (decay - decay_next);
         steps++;
         u = u_next;

@@ -44,7 +44,8 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
+                sum += light.color.rgb * (c / PI) *
+                    transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -52,7 +53,8 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, SHADOW_RAYS);
+                sum += light.color.rgb * (c / (PI * d2)) *
+                    transmittance(o, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             // Uniform sampling of the cone the sphere subtends (pdf 1 / solid angle).
             vec3 wi;
@@ -62,7 +64,8 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
             float c = dot(n, wi);
             if (c <= 0.0)
                 continue;
-            sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
+            sum += light.color.rgb * (c / PI) * solid_angle *
+                transmittance(o, wi, t_light, medium, SHADOW_RAYS);
         }
     }
     // Every environment light together: one cosine-distributed ray, whose pdf cancels the

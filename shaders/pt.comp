@@ -69,7 +69,8 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = -light.direction.xyz;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
+                sum += light.color.rgb * (c / PI) *
+                    transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - o;
             float d2 = dot(v, v);
@@ -77,7 +78,8 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
             vec3 wi = v / dist;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) * transmittance(o, wi, dist, medium, SHADOW_RAYS);
+                sum += light.color.rgb * (c / (PI * d2)) *
+                    transmittance(o, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
@@ -85,7 +87,8 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
                 continue;
             float c = dot(n, wi);
             if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * solid_angle * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
+                sum += light.color.rgb * (c / PI) * solid_angle *
+                    transmittance(o, wi, t_light, medium, SHADOW_RAYS);
         }
     }
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
@@ -108,13 +111,15 @@ vec3 direct_light_medium(vec3 p, vec3 d, float g, uint medium)
         uint kind = light.info.x;
         if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
             vec3 wi = -light.direction.xyz;
-            sum += light.color.rgb * hg_phase(dot(d, wi), g) * transmittance(p, wi, NS_INF, medium, SHADOW_RAYS);
+            sum += light.color.rgb * hg_phase(dot(d, wi), g) *
+                transmittance(p, wi, NS_INF, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_POINT) {
             vec3 v = light.position.xyz - p;
             float d2 = dot(v, v);
             float dist = sqrt(d2);
             vec3 wi = v / dist;
-            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) * transmittance(p, wi, dist, medium, SHADOW_RAYS);
+            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) *
+                transmittance(p, wi, dist, medium, SHADOW_RAYS);
         } else if (kind == NS_GPU_LIGHT_SPHERE) {
             vec3 wi;
             float t_light, solid_angle;
@@ -230,7 +235,8 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
         float light_distance = point ? distance(light.position.xyz, y) : NS_INF;
         float tolerance = point ? 1e-5 * (light_distance + distance(x, y)) : 1e-5;
         if (length(miss) <= tolerance) {
-            vec3 visible = transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE, SHADOW_RAYS);
+            vec3 visible =
+                transmittance(y + n * ray_epsilon(y), o, light_distance, NS_NONE, SHADOW_RAYS);
             return light.color.rgb * (hg_phase(dot(d, v), g) * transmit / abs(det)) *
                    beer_lambert(sigma_t_of(medium), distance(x, y)) * visible;
         }
@@ -476,7 +482,8 @@ vec3 connect_light_vertex(vec3 o, vec3 d, float t_end, vec3 w, uint medium, vec3
     GpuMaterial mm = materials[medium];
     float g = mm.sigma_s.w;
     vec3 f = w * exp(-mm.sigma_t.xyz * t) * mm.sigma_s.xyz * hg_phase(dot(d, wi), g) *
-             hg_phase(dot(light_dir, -wi), g) / dist2 * transmittance(x, wi, dist, medium, SHADOW_RAYS);
+             hg_phase(dot(light_dir, -wi), g) / dist2 *
+                 transmittance(x, wi, dist, medium, SHADOW_RAYS);
     // beta is flux inside the medium, so f * beta is radiance inside it; leaving a medium
     // of index n into vacuum divides radiance by n^2. Camera paths that enter and leave
     // again see both factors cancel and carry neither; this connection has only the exit.

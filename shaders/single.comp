@@ -108,7 +108,8 @@ vec3 light_index_matched(GpuLight light, vec3 x, vec3 wo, uint medium, float g)
     LightSample s = sample_light(light, x);
     if (!s.valid)
         return vec3(0.0);
-    return s.irradiance * hg_phase(dot(-s.toward, wo), g) * transmittance(x, s.toward, s.distance, medium, SHADOW_RAYS);
+    return s.irradiance * hg_phase(dot(-s.toward, wo), g) *
+        transmittance(x, s.toward, s.distance, medium, SHADOW_RAYS);
 }
 
 // A point light through the face at b, taken as the plane (b, n), as a flat face exactly:
@@ -167,7 +168,8 @@ vec3 point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, v
     vec3 travel = h > 0.0 ? normalize(x - y) : -n;
     vec3 to_light = p - y;
     float d_light = length(to_light);
-    vec3 outside = transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE, SHADOW_RAYS);
+    vec3 outside =
+        transmittance(y + n * ray_epsilon(y), to_light / d_light, d_light, NS_NONE, SHADOW_RAYS);
     return light.color.rgb * ((1.0 - f) * spread) * outside * beer_lambert(mat.sigma_t.xyz, h / cos_t) *
            hg_phase(dot(travel, wo), mat.sigma_s.w);
 }
@@ -217,7 +219,8 @@ vec3 light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial m
     // Exact distance from x back to the plane through b along the refracted direction.
     float s_inside = max(0.0, dot(b - x, n)) / cos_t;
     vec3 e_inside = s.irradiance * ((1.0 - f) * cos_i / cos_t);
-    vec3 outside = transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE, SHADOW_RAYS);
+    vec3 outside =
+        transmittance(b + n * ray_epsilon(b), s.toward, s.distance, NS_NONE, SHADOW_RAYS);
     return e_inside * outside * beer_lambert(mat.sigma_t.xyz, s_inside) * hg_phase(dot(travel, wo), g);
 }
 
