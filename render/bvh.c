@@ -11,6 +11,10 @@
 #include "gpu.h"
 
 #define BINS 16
+
+/* Every triangle and every object of a valid scene fit the traversal's stack entries. */
+_Static_assert((uint64_t)NS_MAX_TRIANGLES + NS_MAX_OBJECTS <= NS_BVH_MAX_PRIMS,
+               "a scene's primitives fit a BVH");
 #define COST_TRAVERSE 1.0f
 #define COST_INTERSECT 1.0f
 
@@ -226,6 +230,8 @@ int ns_bvh_build_limited(const GpuPrim *prims, uint32_t count, uint32_t max_dept
     memset(out, 0, sizeof *out);
     if (count == 0)
         return NS_OK;
+    /* A scene cannot reach this (scene_check.c's limits, asserted below): only a direct
+     * caller of the render library's internals can. */
     if (count > NS_BVH_MAX_PRIMS)
         return ns_fail(err, NS_ERR_LIMIT, "%u primitives in the BVH; at most %u", count,
                        NS_BVH_MAX_PRIMS);
