@@ -27,6 +27,8 @@
 #extension GL_GOOGLE_include_directive : require
 #include "shared.h"
 #include "pt_shared.h"
+// One loop of nodes and leaves: the traversal pt's yield budget was measured on (trace.glsl).
+#define NS_TRACE_ONE_LOOP
 #include "trace.glsl"
 
 layout(local_size_x = NS_CAMERA_GROUP_X, local_size_y = NS_CAMERA_GROUP_Y) in;

@@ -2,6 +2,7 @@
 // camera pass and the BVH test shader. Needs shared.h included first. Declares bindings
 // 0 (parameters), 1 (BVH nodes) and 2 (primitives, planes after the BVH primitives), both
 // texel buffers read with node_at and prim_at.
+#extension GL_KHR_shader_subgroup_arithmetic : require
 
 layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
@@ -234,12 +235,36 @@ void children_near_far(uint first, vec3 o, vec3 inv_d, float tmin, float tmax,
     t_far = swap ? tl : tr;
 }
 
+bool is_pair_entry(uint e) { return (e & (NS_ENTRY_LEAF | NS_ENTRY_PAIR)) == NS_ENTRY_PAIR; }
+
+// trace_scene's pop: into `current` the next stacked entry that no hit found since it was
+// pushed has overtaken (a hit nearer than where the ray enters its box), or NS_NONE. A macro
+// because GLSL passes arrays by value.
+#define NS_POP_LIVE_ENTRY()                                                                    \
+    while (current == NS_NONE && sp > 0u) {                                                    \
+        inner++;                                                                               \
+        sp--;                                                                                  \
+        current = stack_enter[sp] > best ? NS_NONE : stack[sp];                                \
+    }
+
 // Nearest hit in (tmin, tmax) over the BVH primitives and the planes.
 //
-// Front to back: of an inner node's children the nearer is popped next; each is stacked with
-// the distance where the ray enters its box, and dropped when popped if a hit nearer than
-// that has been found since (the same test as its box against the shrunken interval, without
-// reading the node or testing the box again).
+// Front to back: of an inner node's children the nearer is visited next; the farther is
+// stacked with the distance where the ray enters its box, and dropped when popped if a hit
+// nearer than that has been found since (the same test as its box against the shrunken
+// interval, without reading the node or testing the box again).
+//
+// While-while (Aila & Laine 2009): each lane takes inner nodes in a loop of its own until it
+// holds a leaf (or nothing), then the group tests all its lanes' leaves together. On lavapipe
+// an iteration costs the whole loop body for the SIMD group, so one loop doing both made every
+// iteration pay for a leaf's primitives and an inner node's boxes whenever its lanes
+// disagreed: this way primary rays trace 27% faster (docs/bench.md). A lane waits while the
+// others finish their inner nodes, so the group runs more iterations than any one lane does:
+// lavapipe's loop limit counts the group's, so the count (loop_count, out_of_budget) adds the
+// most inner iterations any lane of the group took in each round, plus a round's loop exits.
+// NS_TRACE_ONE_LOOP (pt.comp) keeps the single loop of nodes and leaves, which is what pt's
+// yield budget on lavapipe was measured on (NS_PT_YIELD_LAVAPIPE); with this loop pt's
+// invocations ran past lavapipe's limit in gpu_pt_consistency and gpu_single.
 bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 {
     vec3 inv_d = 1.0 / d;
@@ -249,6 +274,7 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     uint stack[NS_BVH_STACK];
     float stack_enter[NS_BVH_STACK];
     uint sp = 0u;
+#ifdef NS_TRACE_ONE_LOOP
     if (params.counts.w > 0u) {
         GpuNode root = node_at(0u);
         stack[sp] = node_entry(root);
@@ -285,6 +311,48 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
             stack_enter[sp++] = tl;
         }
     }
+#else
+    uint current = NS_NONE;
+    if (params.counts.w > 0u) {
+        GpuNode root = node_at(0u);
+        if (enter_box(o, inv_d, root.bmin, root.bmax, tmin, best) != NS_INF)
+            current = node_entry(root);
+    }
+    while (current != NS_NONE) {
+        uint inner = 0u;
+        while (is_pair_entry(current)) {
+            inner++;
+            if (params.limits.x != 0u && loop_count + inner > params.limits.x)
+                break;
+            uint l, r;
+            float tl, tr;
+            children_near_far(current & ~NS_ENTRY_PAIR, o, inv_d, tmin, best, l, r, tl, tr);
+            if (tr != NS_INF && sp < NS_BVH_STACK) { // (tl <= tr: both children are entered)
+                stack[sp] = r;
+                stack_enter[sp++] = tr;
+            }
+            current = tl != NS_INF ? l : NS_NONE;
+            NS_POP_LIVE_ENTRY()
+        }
+        // The round's group iterations; the 3: this loop's, the inner loop's exit and the
+        // leaf's loop.
+        loop_count += subgroupMax(inner) + 3u;
+        if (out_of_budget() || current == NS_NONE)
+            break;
+        uint first, count;
+        open_entry(current, first, count);
+        for (uint i = first; i < first + count; i++) {
+            float t = hit_prim(i, o, d, inv_d, tmin, best);
+            if (t > 0.0) {
+                best = t;
+                best_prim = i;
+            }
+        }
+        current = NS_NONE;
+        NS_POP_LIVE_ENTRY()
+    }
+#endif
+#undef NS_POP_LIVE_ENTRY
 
     uint first_plane = params.prims.x;
     for (uint i = first_plane; i < first_plane + params.prims.y; i++) {

@@ -262,8 +262,9 @@ static int compute_queue_family(VkPhysicalDevice physical, uint32_t *family,
     return 0;
 }
 
-/* Subgroup size, or 0 when compute shaders lack subgroup votes and ballots (the gather's
- * walk needs them; every desktop driver and lavapipe has them). */
+/* Subgroup size, or 0 when compute shaders lack subgroup votes, ballots or arithmetic (the
+ * gather's walk needs the first two, the traversal's loop count subgroupMax; every desktop
+ * driver and lavapipe has them). */
 static uint32_t compute_subgroup_size(VkPhysicalDevice physical)
 {
     VkPhysicalDeviceSubgroupProperties subgroup = {
@@ -271,7 +272,8 @@ static uint32_t compute_subgroup_size(VkPhysicalDevice physical)
     VkPhysicalDeviceProperties2 props2 = {.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2,
                                           .pNext = &subgroup};
     vkGetPhysicalDeviceProperties2(physical, &props2);
-    VkSubgroupFeatureFlags need = VK_SUBGROUP_FEATURE_VOTE_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT;
+    VkSubgroupFeatureFlags need = VK_SUBGROUP_FEATURE_VOTE_BIT | VK_SUBGROUP_FEATURE_BALLOT_BIT |
+                                  VK_SUBGROUP_FEATURE_ARITHMETIC_BIT;
     int ok = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
              (subgroup.supportedOperations & need) == need;
     return ok ? subgroup.subgroupSize : 0;
