@@ -258,7 +258,7 @@ bool is_pair_entry(uint e) { return (e & (NS_ENTRY_LEAF | NS_ENTRY_PAIR)) == NS_
 // holds a leaf (or nothing), then the group tests all its lanes' leaves together. On lavapipe
 // an iteration costs the whole loop body for the SIMD group, so one loop doing both made every
 // iteration pay for a leaf's primitives and an inner node's boxes whenever its lanes
-// disagreed: this way primary rays trace 27% faster (docs/bench.md). A lane waits while the
+// disagreed: this way primary rays trace 26% faster (docs/bench.md). A lane waits while the
 // others finish their inner nodes, so the group runs more iterations than any one lane does:
 // lavapipe's loop limit counts the group's, so the count (loop_count, out_of_budget) adds the
 // most inner iterations any lane of the group took in each round, plus a round's loop exits.
@@ -318,8 +318,8 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
         if (enter_box(o, inv_d, root.bmin, root.bmax, tmin, best) != NS_INF)
             current = node_entry(root);
     }
+    uint inner = 0u; // this lane's inner iterations and pops in the round
     while (current != NS_NONE) {
-        uint inner = 0u;
         while (is_pair_entry(current)) {
             inner++;
             if (params.limits.x != 0u && loop_count + inner > params.limits.x)
@@ -334,9 +334,10 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
             current = tl != NS_INF ? l : NS_NONE;
             NS_POP_LIVE_ENTRY()
         }
-        // The round's group iterations; the 3: this loop's, the inner loop's exit and the
-        // leaf's loop.
+        // The round's group iterations: the most any lane took, 3 for the loops' exits (the
+        // inner loop's and the pops') and the leaf's loop, and out_of_budget's 1 for this one.
         loop_count += subgroupMax(inner) + 3u;
+        inner = 0u;
         if (out_of_budget() || current == NS_NONE)
             break;
         uint first, count;
