@@ -13,6 +13,7 @@
 #include "trace.glsl"
 
 layout(local_size_x = NS_CAMERA_GROUP_X, local_size_y = NS_CAMERA_GROUP_Y) in;
+#include "groups.glsl"
 
 layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
 layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
@@ -196,7 +197,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
 void main()
 {
     uint width = params.image.x, height = params.image.y;
-    uvec2 xy = gl_GlobalInvocationID.xy;
+    uvec2 xy = interleaved_invocation_xy();
     if (xy.x >= width || xy.y >= height)
         return;
     uint pixel = xy.y * width + xy.x;

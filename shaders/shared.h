@@ -33,6 +33,9 @@ typedef uint32_t ns_uvec4[4];
 #define NS_OPAQUE_ZERO uint(gl_NumWorkGroups.x == 0u)
 #endif
 
+/* Specialisation constant ids that every pipeline is given (render/gpu/gpu_pipeline.c). */
+NS_CONST(uint, NS_SPEC_CPU_THREADS, 0); /* lavapipe's threads; 0 on other devices */
+
 /* Workgroup shape of the camera pass (one invocation per pixel) and of the BVH test. */
 NS_CONST(uint, NS_CAMERA_GROUP_X, 8);
 NS_CONST(uint, NS_CAMERA_GROUP_Y, 8);

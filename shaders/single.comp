@@ -28,6 +28,7 @@
 #include "trace.glsl"
 
 layout(local_size_x = 64) in;
+#include "groups.glsl"
 
 layout(std430, binding = 3) readonly buffer MaterialBlock { GpuMaterial materials[]; };
 layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
@@ -390,7 +391,7 @@ vec2 phase_numbers(uint k, uvec2 shift)
 
 void main()
 {
-    uint index = gl_GlobalInvocationID.x;
+    uint index = interleaved_invocation_x();
     if (index >= push.segment_count || push.samples == 0u)
         return;
     GpuSegment seg = segments[index];

@@ -10,13 +10,14 @@
 #include "trace.glsl"
 
 layout(local_size_x = NS_TRACE_GROUP) in;
+#include "groups.glsl"
 
 layout(std430, binding = 3) readonly buffer RayBlock { GpuRay rays[]; };
 layout(std430, binding = 4) writeonly buffer HitBlock { GpuHit hits[]; };
 
 void main()
 {
-    uint i = gl_GlobalInvocationID.x;
+    uint i = interleaved_invocation_x();
     if (i >= params.prims.w)
         return;
     GpuRay ray = rays[i];

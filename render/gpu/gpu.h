@@ -44,6 +44,10 @@ typedef struct gpu_device {
     int validation;
     /* lavapipe: every shader invocation stops its loops after 65535 iterations in all. */
     int loop_limited;
+    /* lavapipe: the threads among which it splits a dispatch's workgroups, one contiguous run
+     * each (LP_NUM_THREADS, else the CPUs this process may run on, at most 16, as Mesa
+     * counts them); 0 on other devices. Shaders interleave their groups by it (groups.glsl). */
+    uint32_t cpu_threads;
     /* Invocations per subgroup in compute shaders: the exact gather walks its hierarchy once
      * per subgroup (votes), and its CPU reference groups segments the same way. */
     uint32_t subgroup_size;
@@ -70,6 +74,9 @@ typedef struct gpu_device {
 
 int gpu_device_create(gpu_device *dev, const gpu_device_desc *desc, ns_error *err);
 void gpu_device_destroy(gpu_device *dev);
+
+/* How many threads lavapipe splits a dispatch's workgroups among (gpu_device.cpu_threads). */
+uint32_t gpu_lavapipe_threads(void);
 
 /* Maps a VkResult to ns_status and fills err with "<what>: VK_ERROR_...". VK_SUCCESS is 0. */
 int gpu_check(VkResult result, const char *what, ns_error *err);

@@ -1,6 +1,8 @@
 /* gpu_device.c — instance, physical device choice, logical device and queue, the
  * validation messenger, debug labels and the pipeline cache. */
+#define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
 #include <ctype.h>
+#include <sched.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -341,6 +343,24 @@ static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err
     return NS_OK;
 }
 
+/* How many threads lavapipe splits a dispatch among, by Mesa 22.3's rule (llvmpipe's screen:
+ * the CPUs, or LP_NUM_THREADS read as debug_get_num_option reads numbers, at most
+ * LP_MAX_THREADS = 16; 0 threads run a dispatch on the caller: one run). A wrong count costs
+ * only the balance between the threads, never a result. */
+uint32_t gpu_lavapipe_threads(void)
+{
+    cpu_set_t set;
+    long n = sched_getaffinity(0, sizeof set, &set) == 0 ? CPU_COUNT(&set) : 1;
+    const char *env = getenv("LP_NUM_THREADS");
+    if (env) {
+        char *end;
+        long value = strtol(env, &end, 0);
+        if (end != env) /* no digits: the default stands */
+            n = value;
+    }
+    return n < 1 ? 1u : n > 16 ? 16u : (uint32_t)n;
+}
+
 static void fill_device_info(gpu_device *dev)
 {
     ns_device_info *info = &dev->info;
@@ -351,6 +371,7 @@ static void fill_device_info(gpu_device *dev)
     info->device_id = dev->properties.deviceID;
     info->is_cpu = dev->properties.deviceType == VK_PHYSICAL_DEVICE_TYPE_CPU;
     dev->loop_limited = contains_nocase(dev->properties.deviceName, "llvmpipe");
+    dev->cpu_threads = dev->loop_limited ? gpu_lavapipe_threads() : 0;
     dev->subgroup_size = compute_subgroup_size(dev->physical);
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {

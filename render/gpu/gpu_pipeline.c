@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "gpu.h"
+#include "shared.h" /* NS_SPEC_CPU_THREADS */
 
 VkDescriptorType gpu_binding_type(const gpu_pipeline *pipe, uint32_t i)
 {
@@ -72,6 +73,15 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
     if (!status)
         status = gpu_check(vkCreateShaderModule(dev->device, &module_info, NULL, &module),
                            "vkCreateShaderModule", err);
+    /* Every pipeline gets the device's specialisation constants (a shader that declares none
+     * ignores them): constant_id NS_SPEC_CPU_THREADS, lavapipe's threads (groups.glsl). */
+    uint32_t spec_values[1] = {dev->cpu_threads};
+    VkSpecializationMapEntry spec_entries[1] = {
+        {.constantID = NS_SPEC_CPU_THREADS, .offset = 0, .size = sizeof(uint32_t)}};
+    VkSpecializationInfo spec = {.mapEntryCount = 1,
+                                 .pMapEntries = spec_entries,
+                                 .dataSize = sizeof spec_values,
+                                 .pData = spec_values};
     if (!status) {
         VkComputePipelineCreateInfo info = {
             .sType = VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO,
@@ -81,6 +91,7 @@ int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_
                     .stage = VK_SHADER_STAGE_COMPUTE_BIT,
                     .module = module,
                     .pName = "main",
+                    .pSpecializationInfo = &spec,
                 },
             .layout = pipe->layout,
         };
