@@ -333,8 +333,8 @@ static int pick_physical_device(gpu_device *dev, const char *want, ns_error *err
     }
     if (chosen < 0 || !usable(devices[chosen]))
         return ns_fail(err, NS_ERR_NO_DEVICE,
-                       "no Vulkan 1.1 device with a compute queue and subgroup votes and "
-                       "ballots in compute shaders among %u device(s)",
+                       "no Vulkan 1.1 device with a compute queue and subgroup votes, "
+                       "ballots and arithmetic in compute shaders among %u device(s)",
                        count);
     dev->physical = devices[chosen];
     compute_queue_family(dev->physical, &dev->queue_family, &dev->timestamp_bits);
