@@ -434,20 +434,46 @@ static float exit_factor(const GpuMaterial *m)
 /* ---------------------------------------------------------------------------------------
  * Single scattering: every segment, full resolution.
  * ------------------------------------------------------------------------------------- */
+static int compare_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* The visible segments of all in pixel order, each pixel's in the order the camera pass
+ * wrote them. That pass appends segments as its invocations finish, an order that differs
+ * from run to run; single scattering's SIMD groups are made from this order, and its
+ * dispatches are sized from their loop counts (trace.glsl counts a group's, subgroupMax), so
+ * without the sort its float sums could differ from one run of a render to the next.
+ * Returns the count, or UINT32_MAX when out of memory. */
+static uint32_t visible_in_pixel_order(const GpuSegment *all, uint32_t count, GpuSegment *kept)
+{
+    uint64_t *order = malloc(sizeof *order * (count ? count : 1));
+    if (!order)
+        return UINT32_MAX;
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < count; i++)
+        if (visible(&all[i]))
+            order[n++] = (uint64_t)all[i].pixel << 32 | i;
+    qsort(order, n, sizeof *order, compare_u64);
+    for (uint32_t k = 0; k < n; k++)
+        kept[k] = all[(uint32_t)order[k]];
+    free(order);
+    return n;
+}
+
 static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a, double b,
                          scatter_times *times, ns_error *err)
 {
     ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
-    if (!kept) {
+    uint32_t n = kept ? visible_in_pixel_order(all, in->segment_count, kept) : UINT32_MAX;
+    if (n == UINT32_MAX) {
+        free(kept);
         stage_end(ctx, times, T_SINGLE, &stage);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
     }
-    uint32_t n = 0;
-    for (uint32_t i = 0; i < in->segment_count; i++)
-        if (visible(&all[i]))
-            kept[n++] = all[i];
     gpu_buffer segments = {0}, out = {0};
     int status = NS_OK;
     if (n) {

@@ -105,6 +105,28 @@ static void channel_max(const float *j, float j_max[3])
     }
 }
 
+/* The first rho bin from which J is 0 in every channel, z, theta and phi (NS_TABLE_NRHO when
+ * the last bin holds light). The blurred first order's Gaussian, 0.1 mfp wide, underflows to
+ * 0 beyond about 1.5 mfp: its A is 0 along every line that stays farther out, about half the
+ * cells (scatter.h, accumulate.comp). */
+static uint32_t zero_from_rho(const float *j)
+{
+    const size_t angles = (size_t)NS_TABLE_NTHETA * NS_TABLE_NPHI; /* cells of one (z, rho) */
+    uint32_t from = 0;
+    for (size_t row = 0; row < 3 * (size_t)NS_TABLE_NZ * NS_TABLE_NRHO; row++) {
+        uint32_t ir = (uint32_t)(row % NS_TABLE_NRHO);
+        if (ir < from)
+            continue;
+        const float *t = j + row * angles;
+        for (size_t k = 0; k < angles; k++)
+            if (t[k] > 0.0f) {
+                from = ir + 1;
+                break;
+            }
+    }
+    return from;
+}
+
 static int check_j(const float *j, ns_error *err)
 {
     for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
@@ -116,7 +138,7 @@ static int check_j(const float *j, ns_error *err)
 }
 
 static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[3],
-                                             ns_accumulation accumulation)
+                                             ns_accumulation accumulation, uint32_t zero_from)
 {
     GpuAccumulateParams p;
     memset(&p, 0, sizeof p);
@@ -128,6 +150,7 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
     p.cut[1] = CUT_FLOOR;
     p.cut[2] = accumulation == NS_ACCUMULATION_PAPER ? (float)NS_PAPER_ACCUMULATION_MFP : 0.0f;
     p.counts[0] = NS_TABLE_CELLS;
+    p.counts[1] = zero_from;
     p.counts[2] = NS_ACCUMULATE_STEP_CAP;
     return p;
 }
@@ -162,7 +185,18 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
+    return ns_tables_accumulate_within(ctx, j, accumulation, j ? zero_from_rho(j) : NS_TABLE_NRHO,
+                                       out, steps, err);
+}
+
+int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
+                                uint32_t zero_from, ns_scatter_tables *out, uint64_t *steps,
+                                ns_error *err)
+{
     memset(out, 0, sizeof *out);
+    if (zero_from > NS_TABLE_NRHO)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: rho bin %u beyond the grid's %u",
+                       zero_from, NS_TABLE_NRHO);
     if (accumulation != NS_ACCUMULATION_EXACT && accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)accumulation);
@@ -173,7 +207,7 @@ int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumu
     ns_table_grid_default(&grid);
     float j_max[3];
     channel_max(j, j_max);
-    GpuAccumulateParams params = accumulate_params(&grid, j_max, accumulation);
+    GpuAccumulateParams params = accumulate_params(&grid, j_max, accumulation, zero_from);
     int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
 

@@ -143,11 +143,20 @@ void main()
     float ur = next_rho(ir, rho_lo, rho_hi, 0.0, t0, s2, sin_theta, inv_sin, rho_dir);
     float up = next_phi(ip, t0, s, inv_sin);
 
+    // A line that never comes inside the radius from which J is 0 (counts.y, a rho bin edge)
+    // meets only zeros: A is 0 without a walk, exactly what the walk would find, since it
+    // crosses a cylinder inward only where lo * lo > s2 (next_rho), with the same edges. The
+    // blurred first order's table is 0 beyond about 1.5 mfp: half its cells need no walk.
+    int zero_from = int(params.counts.y);
+    float zero_edge = rho_edge(zero_from);
+    bool meets_j = ir < zero_from || zero_edge * zero_edge > s2;
+    uint step_cap = meets_j ? params.counts.z : 0u;
+
     float u = 0.0, decay = 1.0; // decay = e^{-u}
     vec3 sum = vec3(0.0);
     uint steps = 0u;
-    bool capped = true;
-    while (steps < params.counts.z) {
+    bool capped = meets_j;
+    while (steps < step_cap) {
         int event = 0;
         float u_event = uz;
         if (ur < u_event) {

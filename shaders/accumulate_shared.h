@@ -18,7 +18,9 @@ struct GpuAccumulateParams {
     ns_vec4 j_max;   /* xyz: the largest J of each channel's table (bounds the remainder) */
     ns_vec4 cut;     /* x = relative error allowed for the remainder, y = floor relative to
                         j_max (see accumulate.comp), z = fixed length (mfp, paper mode) or 0 */
-    ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = unused,
+    ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = the rho bin from
+                        which J is 0 in every channel and cell (NS_TABLE_NRHO: none; a line
+                        that never comes inside it meets only zeros, accumulate.comp),
                         z = step cap per cell, w = unused */
 };
 

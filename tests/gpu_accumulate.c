@@ -10,6 +10,7 @@
  *   (d) the cache: a second call is a hit with no reconstruction, other components reuse J,
  *       eviction keeps the byte bound; bad keys are refused naming the field.
  * Validation layers on (NSCATTER_VALIDATION=1). */
+#include "boundary.h"
 #include "gpu_util.h"
 #include "scatter.h"
 
@@ -276,6 +277,55 @@ static void check_exponential(const float *a, double length, const char *what)
            "values within 20 mfp (relative figures above 1e-10): mean relative error %.2e, mean "
            "tolerance %.2e, worst %.2e\n",
            what, worst_step, tested, sum_error / tested, sum_bound / tested, worst_smooth);
+}
+
+/* A of j walked from every cell (zero_from = NS_TABLE_NRHO) and as ns_tables_accumulate
+ * does it (told where J's radial support ends, lines that stay outside it skipped): the same
+ * floats, bit for bit, and the steps of both. */
+static void compare_skipped(const float *j, const char *what, uint64_t *steps_all,
+                            uint64_t *steps_skipped)
+{
+    ns_scatter_tables all, skipped;
+    ns_error err = {0};
+    int status = ns_tables_accumulate_within(test_context(), j, NS_ACCUMULATION_EXACT,
+                                             NS_TABLE_NRHO, &all, steps_all, &err);
+    CHECK_INT(status, NS_OK);
+    if (status)
+        return;
+    status = ns_tables_accumulate(test_context(), j, NS_ACCUMULATION_EXACT, &skipped,
+                                  steps_skipped, &err);
+    CHECK_INT(status, NS_OK);
+    if (!status) {
+        CHECK(memcmp(all.a.mapped, skipped.a.mapped, 3 * cells * sizeof(float)) == 0);
+        printf("%s: %llu steps walking every line, %llu skipping those outside J's support\n",
+               what, (unsigned long long)*steps_all, (unsigned long long)*steps_skipped);
+        ns_scatter_tables_free(test_context(), &skipped);
+    }
+    ns_scatter_tables_free(test_context(), &all);
+    ns_error bad = {0};
+    CHECK_INT(ns_tables_accumulate_within(test_context(), j, NS_ACCUMULATION_EXACT,
+                                          NS_TABLE_NRHO + 1, &all, NULL, &bad),
+              NS_ERR_INVALID_ARGUMENT);
+}
+
+/* The blurred first order's table is 0 beyond ~1.5 mfp of the axis: the lines that stay
+ * outside are not walked, and A is what walking them gives. A table with light in its last
+ * rho bin skips nothing. */
+static void test_radial_support_skips_walks(void)
+{
+    float *j = calloc(3 * cells, sizeof *j);
+    ns_blurred_spatial(j); /* channel 0 */
+    for (size_t i = 0; i < cells; i++)
+        j[2 * cells + i] = 0.5f * j[i]; /* channel 2 too; channel 1 stays 0 */
+    uint64_t all = 0, skipped = 0;
+    compare_skipped(j, "blurred first order", &all, &skipped);
+    CHECK(skipped > 0 && skipped < all / 2);
+    free(j);
+
+    j = exponential_j();
+    compare_skipped(j, "exponential (light in every rho bin)", &all, &skipped);
+    CHECK(skipped == all);
+    free(j);
 }
 
 static void test_closed_form_exponential(void)
@@ -738,6 +788,7 @@ int main(void)
         return 0;
     }
     RUN(test_closed_form_exponential);
+    RUN(test_radial_support_skips_walks);
     RUN(test_network_tables_brute_force);
     RUN(test_cache_hit_and_eviction);
     RUN(test_zero_albedo_costs_nothing);
