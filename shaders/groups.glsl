@@ -22,8 +22,9 @@ uint interleaved_group(uint g, uint n)
     uint run = threads > 1u ? n / threads : 0u;
     if (run == 0u || g >= run * threads)
         return g;
-    // g / run in floating point, corrected to the exact quotient: lavapipe divides integers
-    // one lane at a time (the integer division cost 4% of bench_rays).
+    // g / run in floating point, corrected to the exact quotient (g < 2^24: lavapipe's groups
+    // per dimension are at most 65535): x86 has no vector integer division, so LLVM divides
+    // one lane at a time.
     uint q = uint((float(g) + 0.5) / float(run));
     q -= q * run > g ? 1u : 0u;
     q += (q + 1u) * run <= g ? 1u : 0u;
