@@ -440,14 +440,24 @@ static int compare_u64(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
-/* The visible segments of all in pixel order, each pixel's in the order the camera pass
- * wrote them. That pass appends segments as its invocations finish, an order that differs
- * from run to run; single scattering's SIMD groups are made from this order, and its
- * dispatches are sized from their loop counts (trace.glsl counts a group's, subgroupMax), so
- * without the sort its float sums could differ from one run of a render to the next.
- * Returns the count, or UINT32_MAX when out of memory. */
-static uint32_t visible_in_pixel_order(const GpuSegment *all, uint32_t count, GpuSegment *kept)
+/* The visible segments of all, into kept: on a loop-limited device (lavapipe) in pixel order,
+ * each pixel's in the order the camera pass wrote them. That pass appends segments as its
+ * invocations finish, an order that differs from run to run; single scattering's SIMD groups
+ * are made from this order, and there its dispatches are sized from their loop counts
+ * (render/single.c; trace.glsl counts a group's, subgroupMax), so without the sort its float
+ * sums could differ from one run of a render to the next. Elsewhere nothing is sized from
+ * loop counts, and the sort (75 ms for a million segments) is skipped. Returns the count, or
+ * UINT32_MAX when out of memory. */
+static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixel_order,
+                                 GpuSegment *kept)
 {
+    if (!pixel_order) {
+        uint32_t n = 0;
+        for (uint32_t i = 0; i < count; i++)
+            if (visible(&all[i]))
+                kept[n++] = all[i];
+        return n;
+    }
     uint64_t *order = malloc(sizeof *order * (count ? count : 1));
     if (!order)
         return UINT32_MAX;
@@ -468,7 +478,8 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a,
     ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
-    uint32_t n = kept ? visible_in_pixel_order(all, in->segment_count, kept) : UINT32_MAX;
+    uint32_t n = kept ? visible_segments(all, in->segment_count, ctx->dev.loop_limited, kept)
+                      : UINT32_MAX;
     if (n == UINT32_MAX) {
         free(kept);
         stage_end(ctx, times, T_SINGLE, &stage);
