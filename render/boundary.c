@@ -56,14 +56,19 @@ static void end_of(const GpuVrl *v, float end[3])
 
 ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
 {
-    if (!previous || previous->material != v->material || previous->events != v->events ||
-        !(previous->length > 0.0f))
+    if (!previous || previous->events != v->events || !(previous->length > 0.0f))
         return NS_BOUNDARY_LINK_START;
+    /* Same events, so the same path (a path starts at 0 and only counts up), unless both are
+     * 0: unscattered light never re-enters, so then v starts a path of its own. */
+    ns_boundary_link elsewhere =
+        v->events > 0 ? NS_BOUNDARY_LINK_REENTERED : NS_BOUNDARY_LINK_START;
+    if (previous->material != v->material)
+        return elsewhere;
     float end[3];
     end_of(previous, end);
     float size = fmaxf(1.0f, fmaxf(fabsf(end[0]), fmaxf(fabsf(end[1]), fabsf(end[2]))));
     if (dist3(end, v->origin) > SAME_POINT * size)
-        return NS_BOUNDARY_LINK_START;
+        return elsewhere;
     float cos_turn = previous->direction[0] * v->direction[0] +
                      previous->direction[1] * v->direction[1] +
                      previous->direction[2] * v->direction[2];
@@ -79,7 +84,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
         const GpuVrl *v = &stretches[i];
         ns_boundary_link link = ns_boundary_link_of(i ? &stretches[i - 1] : NULL, v);
         int entry = v->events == 0 && link == NS_BOUNDARY_LINK_START;
-        if (link == NS_BOUNDARY_LINK_REFLECTED) {
+        if (link == NS_BOUNDARY_LINK_REFLECTED || link == NS_BOUNDARY_LINK_REENTERED) {
             GpuVrl r = *v;
             r.length = 0.0f;
             out[n++] = r;

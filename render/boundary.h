@@ -22,20 +22,24 @@
 #define NS_BOUNDARY_MIN_WALKS 20000u
 
 /* How stretch v of a walk follows the stretch before it (NULL: none): a new start (the
- * entry into the medium, or a scattering event: its events differ, or it starts elsewhere),
- * an internal reflection (it starts where the previous one ended, in another direction), or
- * the same line continued (the walk grazed its own boundary). */
+ * entry into the medium, or a scattering event: its events differ), an internal reflection
+ * (it starts where the previous one ended, in another direction), the same line continued
+ * (the walk grazed its own boundary), or a re-entry (after scattering, the walk left its
+ * object and entered one again, elsewhere: vrl_trace.comp; the events are the same, the
+ * point or the medium are not). Unscattered light never re-enters (vrl_trace.comp), so a
+ * stretch without events that starts elsewhere is a new path's entry. */
 typedef enum {
     NS_BOUNDARY_LINK_START,
     NS_BOUNDARY_LINK_REFLECTED,
     NS_BOUNDARY_LINK_CONTINUED,
+    NS_BOUNDARY_LINK_REENTERED,
 } ns_boundary_link;
 ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
 
 /* The sources of stretches[0, count) (the `vrl` method's light paths, in path order): a
  * ghost (negative power) at the end of every stretch, except the entry stretch's unless
- * entry_ghosts (the renderer's bounded VRLs subtract that one), and a reflected beam
- * (positive) at the start of every stretch that begins with an internal reflection, all
+ * entry_ghosts (the renderer's bounded VRLs subtract that one), and a positive beam at the
+ * start of every stretch that begins with an internal reflection or a re-entry, all
  * endless (length 0). out has room for 2 count. Returns how many were written. */
 uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
                              int entry_ghosts, GpuVrl *out);

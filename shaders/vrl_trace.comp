@@ -7,7 +7,9 @@
 // inside: free flights with one channel picked uniformly and the one-sample balance heuristic
 // over the three channels' pdfs (spectral MIS: unbiased per channel), Henyey-Greenstein
 // scattering, internal reflection chosen with probability F at the boundary (total internal
-// reflection always reflects; a path that leaves ends), Russian roulette.
+// reflection always reflects), Russian roulette. A path that leaves after scattering goes on
+// outside, as the emitted ray does, and enters the first scattering object it meets again
+// (a non-convex object's own, or another); otherwise it ends.
 //
 // Every stretch that starts inside the medium (at the entry, an event or an internal
 // reflection) is a VRL: origin, direction, length to the boundary ahead (the full ray: the
@@ -131,11 +133,16 @@ void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_obje
     }
 }
 
-// Follows the emitted ray up to the target's boundary and through it. Returns true with the
-// walk state set inside the medium, false when the path ends before (missed, blocked,
-// reflected off, or it reached another scattering object first: that object's own paths
-// carry the light that enters it).
-bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_object)
+// Follows a ray outside the media up to a scattering object's boundary and through it.
+// Returns true with the walk state set inside that medium, false when the path ends before
+// (missed, blocked, reflected off, or it reached another scattering object first).
+// An emitted ray enters only target_object: another object's own paths carry the light
+// that enters it. A walk that has left its object (re-entry, NS_NONE) enters any
+// scattering object it meets, its own included, with its events so far: that light
+// reaches the object from nowhere else (docs/scattering.md, *Light that leaves and comes
+// back*). roulette_ref: the flux that Russian roulette measures the walk against.
+bool enter_object(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_object, uint events,
+                  float roulette_ref)
 {
     uint medium = NS_NONE;
     for (uint crossing = 0u; crossing < NS_VRL_MAX_BOUNDARY_RUN; crossing++) {
@@ -157,7 +164,8 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
             continue;
         }
         vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
-        if (h.front && prim_at(h.prim).info.z == target_object && scatters(mat)) {
+        bool wanted = target_object == NS_NONE || prim_at(h.prim).info.z == target_object;
+        if (h.front && wanted && scatters(mat)) {
             float ior = mat.sigma_t.w;
             if (ior != 1.0) {
                 float eta = 1.0 / ior;
@@ -167,12 +175,13 @@ bool enter_target(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
                 flux *= 1.0 - f;
                 d = refract_direction(d, n, eta, cos_i, cos_t);
             }
-            w.origin = vec4(p - n * eps, max(flux.x, max(flux.y, flux.z)));
+            w.origin = vec4(p - n * eps, roulette_ref > 0.0 ? roulette_ref
+                                                             : max(flux.x, max(flux.y, flux.z)));
             w.direction = vec4(d, 0.0);
             w.flux = vec4(flux, 0.0);
-            w.state.y = 0u;
+            w.state.y = events;
             w.state.z = m;
-            return w.origin.w > 0.0;
+            return w.origin.w > 0.0 && max(flux.x, max(flux.y, flux.z)) > 0.0;
         }
         // Index-matched objects that do not scatter (or are left again) are crossed;
         // anything else (a refracting boundary, another scattering object) ends the path.
@@ -248,16 +257,26 @@ bool walk_step(inout GpuVrlWalk w)
     if (m != w.state.z)
         return false; // another object inside the medium: not modelled (docs)
     float ior = mm.sigma_t.w;
-    if (ior == 1.0)
-        return false; // leaves the medium: the path ends
     vec3 n = -h.normal; // inside: faces the incoming ray
-    float cos_t;
-    float f = fresnel(-dot(d, n), ior, cos_t);
-    if (f < 1.0 && rnd() >= f)
-        return false; // refracted out
-    w.origin.xyz = p + n * eps;
-    w.direction.xyz = normalize(reflect(d, n));
-    return true;
+    vec3 leaving = d;
+    if (ior != 1.0) {
+        float cos_i = -dot(d, n), cos_t;
+        float f = fresnel(cos_i, ior, cos_t);
+        if (!(f < 1.0) || rnd() < f) {
+            w.origin.xyz = p + n * eps;
+            w.direction.xyz = normalize(reflect(d, n));
+            return true;
+        }
+        leaving = refract_direction(d, n, ior, cos_i, cos_t);
+    }
+    // It leaves the medium. Where a non-convex object, or another one, lies ahead, the
+    // light enters again and the walk goes on there: a stretch that starts away from where
+    // the one before it ended (boundary.c: a positive source). Light that has not scattered
+    // yet is left out: the VRLs (vrl.comp) do not follow it either, and boundary.c could not
+    // tell its stretch from a path's first.
+    if (w.state.y == 0u)
+        return false;
+    return enter_object(w, p - n * eps, leaving, w.flux.xyz, NS_NONE, w.state.y, w.origin.w);
 }
 
 void main()
@@ -273,7 +292,8 @@ void main()
         vec3 o, d, flux;
         uint target_object;
         emit(path, o, d, flux, target_object);
-        w.state.w = enter_target(w, o, d, flux, target_object) ? NS_VRL_WALK_INSIDE : NS_VRL_WALK_DONE;
+        w.state.w = enter_object(w, o, d, flux, target_object, 0u, 0.0) ? NS_VRL_WALK_INSIDE
+                                                                       : NS_VRL_WALK_DONE;
     } else {
         rng_state = w.state.x;
     }

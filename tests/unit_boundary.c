@@ -153,6 +153,44 @@ static void test_sources_of_a_walk(void)
     ns_boundary_groups_free(&groups);
 }
 
+/* A walk that leaves its object after scattering and enters it (or another object of the
+ * same or another medium) again elsewhere (vrl_trace.comp): the stretch after the re-entry
+ * is a positive source with the events so far, besides the ghosts at both stretches' ends.
+ * Unscattered light never re-enters, so a stretch without events that starts elsewhere is a
+ * new path. */
+static void test_sources_of_a_reentry(void)
+{
+    GpuMaterial m[2];
+    memset(m, 0, sizeof m);
+    for (int k = 0; k < 2; k++)
+        for (int c = 0; c < 4; c++)
+            m[k].sigma_t[c] = 1.0f;
+    GpuVrl walk[] = {
+        stretch(0, 1, 0, 0, -1, 0, 2, 1.0, 0),      /* entry */
+        stretch(0, 0.5, 0, 1, 0, 0, 1.0, 0.8, 1),   /* after a scattering, leaves at x = 1 */
+        stretch(1.5, 0.5, 0, 1, 0, 0, 2.0, 0.6, 1), /* enters at x = 1.5 again */
+        stretch(4, 0.5, 0, 1, 0, 0, 1.0, 0.5, 1),   /* and another medium at x = 4 */
+        stretch(9, 1, 9, 0, -1, 0, 2, 1.0, 0),      /* the next path */
+    };
+    walk[3].material = 1;
+    CHECK_INT(ns_boundary_link_of(&walk[1], &walk[2]), NS_BOUNDARY_LINK_REENTERED);
+    CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REENTERED);
+    CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
+    GpuVrl out[10];
+    /* The ghost of 1; the re-entry at 2 and its ghost; the one at 3 and its ghost. */
+    uint32_t n = ns_boundary_sources(walk, 5, m, 0, out);
+    CHECK_INT(n, 5);
+    if (n != 5)
+        return;
+    CHECK(out[0].power[0] < 0 && fabsf(out[0].origin[0] - 1.0f) < 1e-6f);
+    CHECK(out[1].power[0] == 0.6f && out[1].origin[0] == 1.5f && out[1].direction[0] == 1.0f);
+    CHECK(out[1].length == 0.0f && out[1].events == 1 && out[1].material == 0);
+    CHECK(fabsf(out[2].power[0] + 0.6f * expf(-2.0f)) < 1e-6f);
+    CHECK(fabsf(out[2].origin[0] - 3.5f) < 1e-6f);
+    CHECK(out[3].power[0] == 0.5f && out[3].origin[0] == 4.0f && out[3].material == 1);
+    CHECK(out[4].power[0] < 0 && out[4].material == 1);
+}
+
 static void test_roulette(void)
 {
     /* 100000 weak sources (a tenth of the floor, half of them ghosts) and two strong ones:
@@ -218,5 +256,6 @@ int main(void)
     RUN(test_blurred_table_moments);
     RUN(test_orders);
     RUN(test_sources_of_a_walk);
+    RUN(test_sources_of_a_reentry);
     return harness_report();
 }
