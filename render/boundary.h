@@ -59,6 +59,13 @@ float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target);
  * NS_COMPONENT_MULTIPLE for J_multiple) a source after `events` scattering events reads for
  * the asked components (single, double, multiple); 0: none. */
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
+/* The orders source s reads: ns_boundary_orders of its events, less the blurred first order
+ * for a ghost (negative power), whose next event lies outside its object, unless
+ * ghosts_read_first (some walk came back into an object, so a ghost's line may pass through
+ * one again: boundary.c). */
+uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components, int ghosts_read_first);
+/* Whether any stretch of stretches[0, count) is a re-entry (NS_BOUNDARY_LINK_REENTERED). */
+int ns_boundary_any_reentry(const GpuVrl *stretches, uint32_t count);
 
 /* Sources grouped by (orders, sign): one gather each. Three sets of orders at most (events
  * 0, 1 and more), two signs. */
@@ -74,7 +81,7 @@ typedef struct ns_boundary_groups {
     uint32_t count;
 } ns_boundary_groups;
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
-                      ns_boundary_groups *out, ns_error *err);
+                      int ghosts_read_first, ns_boundary_groups *out, ns_error *err);
 void ns_boundary_groups_free(ns_boundary_groups *g);
 
 

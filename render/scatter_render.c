@@ -672,11 +672,12 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
     }
     uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
+    int ghosts_read_first = ns_boundary_any_reentry(walks.vrls, walks.count);
     ns_vrl_set_free(&walks);
     /* Only the sources whose orders the components ask for take part (or a budget). */
     uint32_t wanted = 0;
     for (uint32_t i = 0; i < n; i++)
-        if (ns_boundary_orders(sources[i].events, scene->render.components))
+        if (ns_boundary_source_orders(&sources[i], scene->render.components, ghosts_read_first))
             sources[wanted++] = sources[i];
     n = wanted;
     /* Long walks (milk's albedo 0.999) make many weak sources, each costing the gather as
@@ -685,7 +686,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
         v->set.count > NS_BOUNDARY_MIN_SOURCES ? v->set.count : NS_BOUNDARY_MIN_SOURCES;
     float floor = ns_boundary_floor(sources, n, target);
     n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
-    status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
+    status = ns_boundary_group(sources, n, scene->render.components, ghosts_read_first,
+                               &v->boundary, err);
     free(sources);
     if (!status && stats)
         for (uint32_t g = 0; g < v->boundary.count; g++)

@@ -79,6 +79,23 @@ static void test_orders(void)
     CHECK_INT(ns_boundary_orders(5, M), B | D | M);
     CHECK_INT(ns_boundary_orders(2, D), 0);
     CHECK_INT(ns_boundary_orders(3, NS_COMPONENT_SINGLE | NS_COMPONENT_SURFACE), 0);
+    /* A ghost's next event lies outside its object: it reads no blurred first order, unless
+     * some walk came back into an object (then its line may pass through one again); a
+     * reflected or re-entered beam (positive) always does. */
+    GpuVrl ghost, beam;
+    memset(&ghost, 0, sizeof ghost);
+    ghost.events = 2;
+    ghost.power[0] = ghost.power[1] = ghost.power[2] = -0.5f;
+    beam = ghost;
+    beam.power[0] = beam.power[1] = beam.power[2] = 0.5f;
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, 0), D | M);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, 1), B | D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M, 0), B | D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M, 1), B | D | M);
+    ghost.events = beam.events = 1;
+    CHECK_INT(ns_boundary_source_orders(&ghost, D, 0), 0);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D, 1), B);
+    CHECK_INT(ns_boundary_source_orders(&beam, D, 0), B);
 }
 
 static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
@@ -137,7 +154,7 @@ static void test_sources_of_a_walk(void)
 
     ns_boundary_groups groups;
     ns_error err = {0};
-    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, &groups, &err), NS_OK);
+    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, 0, &groups, &err), NS_OK);
     /* k = 0 ghosts read M, k = 1 ghosts and the reflected beam read D | M: three groups. */
     CHECK_INT(groups.count, 3);
     uint32_t total = 0;
@@ -145,7 +162,7 @@ static void test_sources_of_a_walk(void)
         total += groups.group[g].set.count;
         for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
             const GpuVrl *s = &groups.group[g].set.vrls[i];
-            CHECK_INT(ns_boundary_orders(s->events, NS_COMPONENT_MULTIPLE), groups.group[g].orders);
+            CHECK_INT(ns_boundary_source_orders(s, NS_COMPONENT_MULTIPLE, 0), groups.group[g].orders);
             CHECK((s->power[0] < 0) == groups.group[g].negative);
         }
     }
@@ -176,6 +193,8 @@ static void test_sources_of_a_reentry(void)
     CHECK_INT(ns_boundary_link_of(&walk[1], &walk[2]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
+    CHECK_INT(ns_boundary_any_reentry(walk, 5), 1);
+    CHECK_INT(ns_boundary_any_reentry(walk, 2), 0);
     GpuVrl out[10];
     /* The ghost of 1; the re-entry at 2 and its ghost; the one at 3 and its ghost. */
     uint32_t n = ns_boundary_sources(walk, 5, m, 0, out);
