@@ -192,7 +192,8 @@ static int is_ghost(const GpuVrl *s)
     return s->power[0] + s->power[1] + s->power[2] < 0.0f;
 }
 
-uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components, int ghosts_read_first)
+uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components,
+                                   const uint8_t *ghosts_read_first)
 {
     /* A ghost's light flies on outside the object, from where the walk left it: in a convex
      * object no camera segment meets its next event (order events + 1), so the ghost takes
@@ -200,21 +201,27 @@ uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components, int gho
      * line lies partly inside near the exit, and removed light that is really there (an
      * index-matched sphere 2 mfp across: double scattering 0.907 of pt with it, 0.959
      * without, which is exactly the bounded beams'; the bench's milk 0.948 -> 0.998 with
-     * Monte Carlo tables). Where a walk came back into an object, a ghost's line may pass
-     * through one again, and there its first order must go (two boxes face to face: +8 /
-     * +6 / +19% of pt without it, -3 / -5 / +8% with it): ghosts_read_first, which the
-     * renderer sets when any walk re-entered (ns_boundary_any_reentry). docs/scattering.md,
-     * *The blur at a ghost*. */
+     * Monte Carlo tables). Where a walk came back into an object of the ghost's medium, a
+     * ghost's line may pass through one again, and there its first order must go (two boxes
+     * face to face: +8 / +6 / +19% of pt without it, -3 / -5 / +8% with it):
+     * ghosts_read_first[medium], which the renderer sets from the walks
+     * (ns_boundary_reentered). A ghost is gathered onto its own medium's segments only, so
+     * re-entries into other media do not count. docs/scattering.md, *The blur at a ghost*. */
     uint32_t orders = ns_boundary_orders(s->events, components);
-    return is_ghost(s) && !ghosts_read_first ? orders & ~NS_TABLE_FIRST_BLURRED : orders;
+    int keep = ghosts_read_first && ghosts_read_first[s->material];
+    return is_ghost(s) && !keep ? orders & ~NS_TABLE_FIRST_BLURRED : orders;
 }
 
-int ns_boundary_any_reentry(const GpuVrl *stretches, uint32_t count)
+void ns_boundary_reentered(const GpuVrl *stretches, uint32_t count, uint32_t material_count,
+                           uint8_t *reentered)
 {
-    for (uint32_t i = 1; i < count; i++)
-        if (ns_boundary_link_of(&stretches[i - 1], &stretches[i]) == NS_BOUNDARY_LINK_REENTERED)
-            return 1;
-    return 0;
+    memset(reentered, 0, material_count);
+    for (uint32_t i = 1; i < count; i++) {
+        const GpuVrl *v = &stretches[i];
+        if (v->material < material_count && v->material == stretches[i - 1].material &&
+            ns_boundary_link_of(&stretches[i - 1], v) == NS_BOUNDARY_LINK_REENTERED)
+            reentered[v->material] = 1;
+    }
 }
 
 void ns_boundary_groups_free(ns_boundary_groups *g)
@@ -225,7 +232,7 @@ void ns_boundary_groups_free(ns_boundary_groups *g)
 }
 
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
-                      int ghosts_read_first, ns_boundary_groups *out, ns_error *err)
+                      const uint8_t *ghosts_read_first, ns_boundary_groups *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     /* Group by (table orders, sign): a grid cell's representative must never mix a ghost

@@ -666,13 +666,17 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
                                      scene->render.seed ^ 0x9e3779b9u, &walks, NULL, err);
     if (status)
         return status;
+    uint32_t materials = in->gs->material_count;
     GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count ? walks.count : 1));
-    if (!sources) {
+    uint8_t *ghosts_read_first = malloc(materials ? materials : 1);
+    if (!sources || !ghosts_read_first) {
+        free(sources);
+        free(ghosts_read_first);
         ns_vrl_set_free(&walks);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
     }
     uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
-    int ghosts_read_first = ns_boundary_any_reentry(walks.vrls, walks.count);
+    ns_boundary_reentered(walks.vrls, walks.count, materials, ghosts_read_first);
     ns_vrl_set_free(&walks);
     /* Only the sources whose orders the components ask for take part (or a budget). */
     uint32_t wanted = 0;
@@ -689,6 +693,7 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     status = ns_boundary_group(sources, n, scene->render.components, ghosts_read_first,
                                &v->boundary, err);
     free(sources);
+    free(ghosts_read_first);
     if (!status && stats)
         for (uint32_t g = 0; g < v->boundary.count; g++)
             stats->boundary_sources += v->boundary.group[g].set.count;

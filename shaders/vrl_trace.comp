@@ -181,6 +181,7 @@ bool enter_object(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
             w.flux = vec4(flux, 0.0);
             w.state.y = events;
             w.state.z = m;
+            w.count.z = 0u; // walk_step's cap counts boundary events within one object
             return w.origin.w > 0.0 && max(flux.x, max(flux.y, flux.z)) > 0.0;
         }
         // Index-matched objects that do not scatter (or are left again) are crossed;

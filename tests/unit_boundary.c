@@ -88,14 +88,17 @@ static void test_orders(void)
     ghost.power[0] = ghost.power[1] = ghost.power[2] = -0.5f;
     beam = ghost;
     beam.power[0] = beam.power[1] = beam.power[2] = 0.5f;
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, 0), D | M);
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, 1), B | D | M);
-    CHECK_INT(ns_boundary_source_orders(&beam, D | M, 0), B | D | M);
-    CHECK_INT(ns_boundary_source_orders(&beam, D | M, 1), B | D | M);
+    const uint8_t came_back[2] = {0, 1};
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, NULL), D | M);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, came_back), D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M, NULL), B | D | M);
+    ghost.material = beam.material = 1; /* the medium a walk came back into */
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, came_back), B | D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M, came_back), B | D | M);
     ghost.events = beam.events = 1;
-    CHECK_INT(ns_boundary_source_orders(&ghost, D, 0), 0);
-    CHECK_INT(ns_boundary_source_orders(&ghost, D, 1), B);
-    CHECK_INT(ns_boundary_source_orders(&beam, D, 0), B);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D, NULL), 0);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D, came_back), B);
+    CHECK_INT(ns_boundary_source_orders(&beam, D, NULL), B);
 }
 
 static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
@@ -154,7 +157,7 @@ static void test_sources_of_a_walk(void)
 
     ns_boundary_groups groups;
     ns_error err = {0};
-    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, 0, &groups, &err), NS_OK);
+    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, NULL, &groups, &err), NS_OK);
     /* k = 0 ghosts read M, k = 1 ghosts and the reflected beam read D | M: three groups. */
     CHECK_INT(groups.count, 3);
     uint32_t total = 0;
@@ -162,7 +165,7 @@ static void test_sources_of_a_walk(void)
         total += groups.group[g].set.count;
         for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
             const GpuVrl *s = &groups.group[g].set.vrls[i];
-            CHECK_INT(ns_boundary_source_orders(s, NS_COMPONENT_MULTIPLE, 0), groups.group[g].orders);
+            CHECK_INT(ns_boundary_source_orders(s, NS_COMPONENT_MULTIPLE, NULL), groups.group[g].orders);
             CHECK((s->power[0] < 0) == groups.group[g].negative);
         }
     }
@@ -193,8 +196,13 @@ static void test_sources_of_a_reentry(void)
     CHECK_INT(ns_boundary_link_of(&walk[1], &walk[2]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
-    CHECK_INT(ns_boundary_any_reentry(walk, 5), 1);
-    CHECK_INT(ns_boundary_any_reentry(walk, 2), 0);
+    /* Medium 0 was re-entered from medium 0; medium 1 only from medium 0, whose ghosts are
+     * never gathered onto medium 1's segments. */
+    uint8_t reentered[2] = {7, 7};
+    ns_boundary_reentered(walk, 5, 2, reentered);
+    CHECK(reentered[0] == 1 && reentered[1] == 0);
+    ns_boundary_reentered(walk, 2, 2, reentered);
+    CHECK(reentered[0] == 0 && reentered[1] == 0);
     GpuVrl out[10];
     /* The ghost of 1; the re-entry at 2 and its ghost; the one at 3 and its ghost. */
     uint32_t n = ns_boundary_sources(walk, 5, m, 0, out);
