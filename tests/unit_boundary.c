@@ -80,8 +80,8 @@ static void test_orders(void)
     CHECK_INT(ns_boundary_orders(2, D), 0);
     CHECK_INT(ns_boundary_orders(3, NS_COMPONENT_SINGLE | NS_COMPONENT_SURFACE), 0);
     /* A ghost's next event lies outside its object: it reads no blurred first order, unless
-     * some walk came back into an object (then its line may pass through one again); a
-     * reflected or re-entered beam (positive) always does. */
+     * a walk came back into an object of its medium (then its line may pass through one
+     * again); a reflected or re-entered beam (positive) always does. */
     GpuVrl ghost, beam;
     memset(&ghost, 0, sizeof ghost);
     ghost.events = 2;
