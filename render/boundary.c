@@ -48,6 +48,12 @@ static float dist3(const float *a, const float *b)
     return sqrtf(d0 * d0 + d1 * d1 + d2 * d2);
 }
 
+/* A stretch's or source's scattering events, without the NS_VRL_LINE_RETURNS flag. */
+static uint32_t events_of(const GpuVrl *v)
+{
+    return v->events & ~NS_VRL_LINE_RETURNS;
+}
+
 static void end_of(const GpuVrl *v, float end[3])
 {
     for (int c = 0; c < 3; c++)
@@ -56,12 +62,12 @@ static void end_of(const GpuVrl *v, float end[3])
 
 ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
 {
-    if (!previous || previous->events != v->events || !(previous->length > 0.0f))
+    if (!previous || events_of(previous) != events_of(v) || !(previous->length > 0.0f))
         return NS_BOUNDARY_LINK_START;
     /* Same events, so the same path (a path starts at 0 and only counts up), unless both are
      * 0: unscattered light never re-enters, so then v starts a path of its own. */
     ns_boundary_link elsewhere =
-        v->events > 0 ? NS_BOUNDARY_LINK_REENTERED : NS_BOUNDARY_LINK_START;
+        events_of(v) > 0 ? NS_BOUNDARY_LINK_REENTERED : NS_BOUNDARY_LINK_START;
     if (previous->material != v->material)
         return elsewhere;
     float end[3];
@@ -83,10 +89,11 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
     for (uint32_t i = 0; i < count; i++) {
         const GpuVrl *v = &stretches[i];
         ns_boundary_link link = ns_boundary_link_of(i ? &stretches[i - 1] : NULL, v);
-        int entry = v->events == 0 && link == NS_BOUNDARY_LINK_START;
+        int entry = events_of(v) == 0 && link == NS_BOUNDARY_LINK_START;
         if (link == NS_BOUNDARY_LINK_REFLECTED || link == NS_BOUNDARY_LINK_REENTERED) {
             GpuVrl r = *v;
             r.length = 0.0f;
+            r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
             out[n++] = r;
         }
         /* A stretch that the next one continues along the same line has no boundary event
@@ -192,8 +199,7 @@ static int is_ghost(const GpuVrl *s)
     return s->power[0] + s->power[1] + s->power[2] < 0.0f;
 }
 
-uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components,
-                                   const uint8_t *ghosts_read_first)
+uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components)
 {
     /* A ghost's light flies on outside the object, from where the walk left it: in a convex
      * object no camera segment meets its next event (order events + 1), so the ghost takes
@@ -203,25 +209,14 @@ uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components,
      * without, which is exactly the bounded beams'; the bench's milk 0.948 -> 0.998 with
      * Monte Carlo tables). Where a walk came back into an object of the ghost's medium, a
      * ghost's line may pass through one again, and there its first order must go (two boxes
-     * face to face: +8 / +6 / +19% of pt without it, -3 / -5 / +8% with it):
-     * ghosts_read_first[medium], which the renderer sets from the walks
-     * (ns_boundary_reentered). A ghost is gathered onto its own medium's segments only, so
-     * re-entries into other media do not count. docs/scattering.md, *The blur at a ghost*. */
-    uint32_t orders = ns_boundary_orders(s->events, components);
-    int keep = ghosts_read_first && ghosts_read_first[s->material];
+     * face to face: +8 / +6 / +19% of pt without it, -3 / -5 / +8% with it): the walk
+     * marks each stretch whose line past its end meets an object of its medium
+     * (NS_VRL_LINE_RETURNS, vrl_trace.comp), and that stretch's ghost keeps its first
+     * order. A ghost is gathered onto its own medium's segments only, so other media do not
+     * count. docs/scattering.md, *The blur at a ghost*. */
+    uint32_t orders = ns_boundary_orders(events_of(s), components);
+    int keep = (s->events & NS_VRL_LINE_RETURNS) != 0;
     return is_ghost(s) && !keep ? orders & ~NS_TABLE_FIRST_BLURRED : orders;
-}
-
-void ns_boundary_reentered(const GpuVrl *stretches, uint32_t count, uint32_t material_count,
-                           uint8_t *reentered)
-{
-    memset(reentered, 0, material_count);
-    for (uint32_t i = 1; i < count; i++) {
-        const GpuVrl *v = &stretches[i];
-        if (v->material < material_count && v->material == stretches[i - 1].material &&
-            ns_boundary_link_of(&stretches[i - 1], v) == NS_BOUNDARY_LINK_REENTERED)
-            reentered[v->material] = 1;
-    }
 }
 
 void ns_boundary_groups_free(ns_boundary_groups *g)
@@ -232,7 +227,7 @@ void ns_boundary_groups_free(ns_boundary_groups *g)
 }
 
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
-                      const uint8_t *ghosts_read_first, ns_boundary_groups *out, ns_error *err)
+                      ns_boundary_groups *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     /* Group by (table orders, sign): a grid cell's representative must never mix a ghost
@@ -240,7 +235,7 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
     for (uint32_t pass = 0; pass < 2; pass++) {
         for (uint32_t i = 0; i < count; i++) {
             const GpuVrl *s = &sources[i];
-            uint32_t orders = ns_boundary_source_orders(s, components, ghosts_read_first);
+            uint32_t orders = ns_boundary_source_orders(s, components);
             if (!orders)
                 continue;
             int negative = is_ghost(s);
@@ -258,8 +253,11 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
             ns_source_group *grp = &out->group[g];
             if (pass == 0)
                 grp->set.count++;
-            else
-                grp->set.vrls[grp->filled++] = *s;
+            else {
+                GpuVrl *kept = &grp->set.vrls[grp->filled++];
+                *kept = *s;
+                kept->events = events_of(s);
+            }
         }
         if (pass == 0)
             for (uint32_t g = 0; g < out->count; g++) {

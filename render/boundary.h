@@ -60,16 +60,10 @@ float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target);
  * the asked components (single, double, multiple); 0: none. */
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
 /* The orders source s reads: ns_boundary_orders of its events, less the blurred first order
- * for a ghost (negative power), whose next event lies outside its object, unless
- * ghosts_read_first[its medium] (a walk came back into an object of that medium, so a
- * ghost's line may pass through one again: boundary.c). ghosts_read_first may be NULL (none
- * did). */
-uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components,
-                                   const uint8_t *ghosts_read_first);
-/* reentered[m] (m < material_count) = 1 when a stretch of stretches[0, count) re-entered
- * medium m from a stretch of the same medium (NS_BOUNDARY_LINK_REENTERED), else 0. */
-void ns_boundary_reentered(const GpuVrl *stretches, uint32_t count, uint32_t material_count,
-                           uint8_t *reentered);
+ * for a ghost (negative power), whose next event lies outside its object, unless its events
+ * carry NS_VRL_LINE_RETURNS (the ghost's line passes through an object of its medium again:
+ * boundary.c). */
+uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components);
 
 /* Sources grouped by (orders, sign): one gather each. Three sets of orders at most (events
  * 0, 1 and more), two signs. */
@@ -85,7 +79,7 @@ typedef struct ns_boundary_groups {
     uint32_t count;
 } ns_boundary_groups;
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
-                      const uint8_t *ghosts_read_first, ns_boundary_groups *out, ns_error *err);
+                      ns_boundary_groups *out, ns_error *err);
 void ns_boundary_groups_free(ns_boundary_groups *g);
 
 

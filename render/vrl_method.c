@@ -240,8 +240,8 @@ static int offsets_from_counts(const GpuVrlWalk *walks, uint32_t paths, uint32_t
 }
 
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
-                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, ns_vrl_set *out,
-                        uint32_t *restarts, ns_error *err)
+                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, int mark_lines,
+                        ns_vrl_set *out, uint32_t *restarts, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     uint32_t restarts_here = 0;
@@ -277,7 +277,10 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
         {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, T_OWN, err);
-    GpuVrlTracePush push = {.path_count = paths, .emitter_count = emitters.count, .seed = seed};
+    GpuVrlTracePush push = {.path_count = paths,
+                            .emitter_count = emitters.count,
+                            .seed = seed,
+                            .mark_lines = mark_lines ? 1u : 0u};
     uint32_t *offsets = status ? NULL : malloc(sizeof *offsets * paths);
     if (!status && !offsets)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u paths", paths);
@@ -645,7 +648,7 @@ int ns_vrl_method_gather(ns_context *ctx, const ns_scene *scene, const ns_gpu_sc
     /* Progress: the light paths are the first tenth of this stage, the gather the rest. */
     ns_span outer = ns_progress_push(ctx, 0.0, 0.1);
     status = ns_vrl_method_trace(ctx, scene, gs, scene_buffers, scene->render.vrls,
-                                 scene->render.seed, &set, NULL, err);
+                                 scene->render.seed, 0, &set, NULL, err);
     ns_progress_pop(ctx, outer);
     uint8_t visibility[NS_MAX_MATERIALS];
     visibility_per_material(scene, visibility);

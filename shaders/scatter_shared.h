@@ -15,7 +15,10 @@
  * it; power = RGB flux carried by the stretch at its origin (W), already multiplied by the
  * Fresnel transmittance and divided by the number of light samples traced;
  * material = the medium's material index; events = scattering events before this stretch
- * (0 for a stretch that starts on the boundary). */
+ * (0 for a stretch that starts on the boundary). A light walk traced for render.boundary
+ * (vrl_trace.comp, GpuVrlTracePush.mark_lines) also sets NS_VRL_LINE_RETURNS in events when
+ * the stretch's straight line, continued past its end, passes through an object of its
+ * medium again (render/boundary.c: that stretch's ghost must read its first order). */
 struct GpuVrl {
     ns_vec3 origin;
     float length;
@@ -24,6 +27,9 @@ struct GpuVrl {
     ns_vec3 power;
     ns_uint events;
 };
+
+/* events' flag bit (above): the line past the stretch's end meets its medium again. */
+NS_CONST(uint, NS_VRL_LINE_RETURNS, 0x80000000u);
 
 /* One cell of a VRL grid level: its VRLs are vrls[first, first + count) of the cell-sorted
  * buffer, their origins lie in [bmin, bmax] (the bounding box of the VRLs' origins, not of

@@ -44,7 +44,7 @@ struct GpuVrlTracePush {
     ns_uint write;
     ns_uint report;
     ns_uint vrl_capacity;
-    ns_uint pad0;
+    ns_uint mark_lines; /* 1: set NS_VRL_LINE_RETURNS in the stored stretches' events */
 };
 
 /* Trace counters (binding 7). */
@@ -56,6 +56,10 @@ NS_CONST(uint, NS_VRL_TRACE_COUNTER_COUNT, 4);
 /* Boundary events (internal reflections, crossings of index-matched objects) a path may make
  * in a row without scattering; beyond it the path ends and is counted. */
 NS_CONST(uint, NS_VRL_MAX_BOUNDARY_RUN, 256);
+
+/* Surfaces a stretch's line past its end is followed through to find its medium again
+ * (vrl_trace.comp, line_meets_medium); a line that crosses more is taken not to return. */
+NS_CONST(uint, NS_VRL_LINE_CROSSINGS, 16);
 
 /* Russian roulette starts after this many scattering events (the flux relative to its value
  * at the medium entry is the survival probability). */

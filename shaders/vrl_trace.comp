@@ -197,13 +197,37 @@ bool enter_object(inout GpuVrlWalk w, vec3 o, vec3 d, vec3 flux, uint target_obj
 // ---------------------------------------------------------------------------------------
 // The walk inside the medium, one stretch at a time.
 // ---------------------------------------------------------------------------------------
+// Whether the straight line from p along d meets an object of `medium` (its front face).
+// p is the end of a stretch, on its own object's boundary: for render.boundary, the ghost
+// there stands for the infinite medium's light going on along this line, and only where
+// the line passes through that medium again does its first scattering reach a camera
+// segment (render/boundary.c). Everything on the way is crossed: the line is the infinite
+// medium's, not light's.
+bool line_meets_medium(vec3 p, vec3 d, uint medium)
+{
+    float tmin = ray_epsilon(p);
+    for (uint crossing = 0u; crossing < NS_VRL_LINE_CROSSINGS; crossing++) {
+        Hit h;
+        if (!trace_scene(p, d, tmin, NS_INF, h))
+            return false;
+        if (h.front && prim_at(h.prim).info.y == medium)
+            return true;
+        tmin = h.t + ray_epsilon(p + h.t * d);
+    }
+    return false;
+}
+
+// The stretch from o along d whose boundary ahead is at distance len.
 void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, float len)
 {
     if (push.write != 0u) {
         uint slot = w.count.y + w.count.x;
         if (slot < push.vrl_capacity) {
+            uint events = w.state.y;
+            if (push.mark_lines != 0u && line_meets_medium(o + len * d, d, w.state.z))
+                events |= NS_VRL_LINE_RETURNS;
             // A constructor: glslang reads `v.length` as the length() method.
-            vrls[slot] = GpuVrl(o, len, d, w.state.z, w.flux.xyz, w.state.y);
+            vrls[slot] = GpuVrl(o, len, d, w.state.z, w.flux.xyz, events);
         }
     }
     w.count.x++;

@@ -160,7 +160,9 @@ static void test_refracting_sphere(void)
  * the other. A walk that leaves its object goes on and enters the first scattering object
  * it meets (vrl_trace.comp; boundary.c makes the re-entered stretch a positive source), as
  * light that leaves a non-convex object and comes back does. Measured (2026-11-29): walks
- * -3.8 / -6.1 / +7.0%; without re-entry (the walk ended where it left) -23 / -24 / -14%. */
+ * -0.5 / -2.8 / +10.2% (-3.8 / -6.1 / +7.0% while every ghost of a medium that a walk
+ * re-entered read its first order, not only those whose line comes back); without
+ * re-entry (the walk ended where it left) -23 / -24 / -14%. */
 static void test_facing_boxes(void)
 {
     const double albedo[3] = {0.95, 0.8, 0.99};

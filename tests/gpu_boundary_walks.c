@@ -10,7 +10,9 @@
  * Per path the difference of the two is averaged; it must be 0 within 4 standard errors, for
  * a sphere, a box and a cylinder (a mesh) at ior 1, 1.3 and 1.5, for orders >= 2 and >= 3.
  * The infinite medium alone (corrected without the sources) must be off by more than 4
- * standard errors, so that each case can tell the two apart. */
+ * standard errors, so that each case can tell the two apart. Also: the walk's mark on the
+ * stretches whose line past the end meets their medium again (NS_VRL_LINE_RETURNS) against
+ * the same lines traced on the CPU. */
 #include <stdlib.h>
 
 #include "boundary.h"
@@ -168,7 +170,7 @@ static void run_case(int which, double ior)
     const uint32_t paths = 20000;
     ns_vrl_set walks = {0};
     ns_error err = {0};
-    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7, &walks, NULL, &err);
+    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7, 0, &walks, NULL, &err);
     if (status)
         fprintf(stderr, "trace: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -260,11 +262,100 @@ static void test_cylinder(void)
     run_case(CYLINDER, 1.5);
 }
 
+/* Whether the ray from o along d (t > 1e-4) passes through the box [lo, hi]. */
+static int ray_meets_box(const float o[3], const float d[3], const double lo[3], const double hi[3])
+{
+    double t0 = 1e-4, t1 = INFINITY;
+    for (int a = 0; a < 3; a++) {
+        if (d[a] == 0.0f) {
+            if (o[a] < lo[a] || o[a] > hi[a])
+                return 0;
+            continue;
+        }
+        double ta = (lo[a] - o[a]) / d[a], tb = (hi[a] - o[a]) / d[a];
+        t0 = fmax(t0, fmin(ta, tb));
+        t1 = fmin(t1, fmax(ta, tb));
+    }
+    return t0 < t1;
+}
+
+/* NS_VRL_LINE_RETURNS (the walk's mark on a stretch whose line, past its end, passes through
+ * an object of its medium again: the ghost there keeps its first order, boundary.c) against
+ * the line traced on the CPU. Two boxes of medium 0 face to face across a gap of 0.1, a third
+ * of medium 1 beyond the first; at ior 1 (the walks cross the gap) and 1.5 (they refract and
+ * reflect; the marked line is the straight one all the same). Without mark_lines nothing is
+ * marked. */
+static void line_flags_case(double ior)
+{
+    double sigma_s[3] = {0.9, 0.9, 0.9}, sigma_a[3] = {0.1, 0.1, 0.1};
+    ns_material m[2] = {medium(sigma_s, sigma_a, ior), medium(sigma_s, sigma_a, ior)};
+    m[1].g = 0.5f; /* another material, the same extinction */
+    const double box_lo[3][3] = {{-2.05, -1, -1}, {0.05, -1, -1}, {-4.1, -1, -1}};
+    const double box_hi[3][3] = {{-0.05, 1, 1}, {2.05, 1, 1}, {-2.1, 1, 1}};
+    const uint32_t box_medium[3] = {0, 0, 1};
+    ns_object o[3];
+    memset(o, 0, sizeof o);
+    for (int b = 0; b < 3; b++) {
+        o[b].shape = NS_SHAPE_BOX;
+        o[b].material = box_medium[b];
+        set3(o[b].min, box_lo[b][0], box_lo[b][1], box_lo[b][2]);
+        set3(o[b].max, box_hi[b][0], box_hi[b][1], box_hi[b][2]);
+    }
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0.2, -1, 0.1);
+    ns_scene s = base_scene(8, 8, 30);
+    scene_lists(&s, m, 2, o, 3, &sun, 1);
+    set3(s.camera.position, 0, 0, 20);
+    device_scene d;
+    if (device_scene_make(&s, &d))
+        return;
+    for (int mark = 0; mark < 2; mark++) {
+        ns_vrl_set walks = {0};
+        ns_error err = {0};
+        int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 11, mark,
+                                         &walks, NULL, &err);
+        CHECK_INT(status, NS_OK);
+        uint32_t marked = 0, expected = 0, wrong = 0;
+        for (uint32_t i = 0; !status && i < walks.count; i++) {
+            const GpuVrl *v = &walks.vrls[i];
+            float end[3];
+            for (int c = 0; c < 3; c++)
+                end[c] = v->origin[c] + v->length * v->direction[c];
+            int meets = 0;
+            for (int b = 0; b < 3; b++)
+                meets |= box_medium[b] == v->material &&
+                         ray_meets_box(end, v->direction, box_lo[b], box_hi[b]);
+            int flag = (v->events & NS_VRL_LINE_RETURNS) != 0;
+            marked += flag;
+            expected += meets;
+            wrong += mark && flag != meets;
+        }
+        fprintf(stderr, "  ior %.1f, mark_lines %d: %u stretches, %u marked, %u lines return, %u differ\n",
+                ior, mark, walks.count, marked, expected, wrong);
+        if (mark) {
+            CHECK(expected > walks.count / 20);
+            CHECK(walks.count - expected > walks.count / 20);
+            CHECK(wrong <= walks.count / 1000); /* grazing a box's edge within float error */
+        } else {
+            CHECK_INT(marked, 0);
+        }
+        ns_vrl_set_free(&walks);
+    }
+    device_scene_free(&d);
+}
+
+static void test_line_flags(void)
+{
+    line_flags_case(1.0);
+    line_flags_case(1.5);
+}
+
 int main(void)
 {
     RUN(test_sphere);
     RUN(test_box);
     RUN(test_cylinder);
+    RUN(test_line_flags);
     ns_context_destroy(test_context());
     return harness_report();
 }

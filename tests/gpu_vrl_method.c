@@ -286,7 +286,7 @@ static void test_loop_limit_retry(void)
     device_scene d;
     int status = device_scene_make(&s, &d);
     if (!status) {
-        status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, PATHS, 3u, &plain, NULL, &err);
+        status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, PATHS, 3u, 0, &plain, NULL, &err);
         device_scene_free(&d);
     }
     s.materials = mats;
@@ -297,7 +297,7 @@ static void test_loop_limit_retry(void)
         status = device_scene_make(&s, &d);
     if (!status)
         status =
-            ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, PATHS, 3u, &crowded, &restarts, &err);
+            ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, PATHS, 3u, 0, &crowded, &restarts, &err);
     if (status)
         fprintf(stderr, "trace: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -498,7 +498,7 @@ static int trace_flux(const ns_light *lights, uint32_t count, uint32_t paths, fl
     ns_vrl_set set;
     ns_error err = {0};
     int status =
-        ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 5u, &set, NULL, &err);
+        ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 5u, 0, &set, NULL, &err);
     if (status)
         fprintf(stderr, "trace: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -775,13 +775,13 @@ static void test_bad_input(void)
     CHECK_INT(status, NS_ERR_INVALID_ARGUMENT);
     CHECK_STR_CONTAINS(err.message, "out_double");
     ns_vrl_set set;
-    status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, NS_MAX_VRLS + 1, 1, &set, NULL, &err);
+    status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, NS_MAX_VRLS + 1, 1, 0, &set, NULL, &err);
     CHECK_INT(status, NS_ERR_LIMIT);
     CHECK_STR_CONTAINS(err.message, "render.vrls");
     /* A plane of scattering medium has no bounding sphere to aim at. */
     ns_object slab = plane(-1, 0);
     s.objects = &slab;
-    status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, 10, 1, &set, NULL, &err);
+    status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, 10, 1, 0, &set, NULL, &err);
     CHECK_INT(status, NS_ERR_NOT_AVAILABLE);
     CHECK_STR_CONTAINS(err.message, "objects[0]");
     gpu_buffer_destroy(&ctx->dev, &small);
@@ -840,7 +840,7 @@ static void bench(int runs)
         ns_vrl_set set;
         double t0 = ns_now_ms();
         status = ns_vrl_method_trace(ctx, &s, &d.gs, d.buffers, s.render.vrls, 1u + (uint32_t)r,
-                                     &set, NULL, &err);
+                                     0, &set, NULL, &err);
         double t1 = ns_now_ms();
         ns_vrl_gather_counts counts;
         if (!status)

@@ -80,25 +80,25 @@ static void test_orders(void)
     CHECK_INT(ns_boundary_orders(2, D), 0);
     CHECK_INT(ns_boundary_orders(3, NS_COMPONENT_SINGLE | NS_COMPONENT_SURFACE), 0);
     /* A ghost's next event lies outside its object: it reads no blurred first order, unless
-     * a walk came back into an object of its medium (then its line may pass through one
-     * again); a reflected or re-entered beam (positive) always does. */
+     * its line passes through an object of its medium again (NS_VRL_LINE_RETURNS, set by the
+     * walk); a reflected or re-entered beam (positive) always does. The flag is not an
+     * event. */
     GpuVrl ghost, beam;
     memset(&ghost, 0, sizeof ghost);
     ghost.events = 2;
     ghost.power[0] = ghost.power[1] = ghost.power[2] = -0.5f;
     beam = ghost;
     beam.power[0] = beam.power[1] = beam.power[2] = 0.5f;
-    const uint8_t came_back[2] = {0, 1};
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, NULL), D | M);
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, came_back), D | M);
-    CHECK_INT(ns_boundary_source_orders(&beam, D | M, NULL), B | D | M);
-    ghost.material = beam.material = 1; /* the medium a walk came back into */
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M, came_back), B | D | M);
-    CHECK_INT(ns_boundary_source_orders(&beam, D | M, came_back), B | D | M);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M), D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M), B | D | M);
+    ghost.events = beam.events = 2 | NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M), B | D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M), B | D | M);
     ghost.events = beam.events = 1;
-    CHECK_INT(ns_boundary_source_orders(&ghost, D, NULL), 0);
-    CHECK_INT(ns_boundary_source_orders(&ghost, D, came_back), B);
-    CHECK_INT(ns_boundary_source_orders(&beam, D, NULL), B);
+    CHECK_INT(ns_boundary_source_orders(&ghost, D), 0);
+    CHECK_INT(ns_boundary_source_orders(&beam, D), B);
+    ghost.events = 1 | NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_source_orders(&ghost, D), B);
 }
 
 static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
@@ -157,7 +157,7 @@ static void test_sources_of_a_walk(void)
 
     ns_boundary_groups groups;
     ns_error err = {0};
-    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, NULL, &groups, &err), NS_OK);
+    CHECK_INT(ns_boundary_group(out, 5, NS_COMPONENT_MULTIPLE, &groups, &err), NS_OK);
     /* k = 0 ghosts read M, k = 1 ghosts and the reflected beam read D | M: three groups. */
     CHECK_INT(groups.count, 3);
     uint32_t total = 0;
@@ -165,7 +165,7 @@ static void test_sources_of_a_walk(void)
         total += groups.group[g].set.count;
         for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
             const GpuVrl *s = &groups.group[g].set.vrls[i];
-            CHECK_INT(ns_boundary_source_orders(s, NS_COMPONENT_MULTIPLE, NULL), groups.group[g].orders);
+            CHECK_INT(ns_boundary_source_orders(s, NS_COMPONENT_MULTIPLE), groups.group[g].orders);
             CHECK((s->power[0] < 0) == groups.group[g].negative);
         }
     }
@@ -193,16 +193,13 @@ static void test_sources_of_a_reentry(void)
         stretch(9, 1, 9, 0, -1, 0, 2, 1.0, 0),      /* the next path */
     };
     walk[3].material = 1;
+    /* The walk marked stretch 1's line (past x = 1 it passes through medium 0 again at 1.5):
+     * the flag is no event, so the links are the same with it. */
+    walk[1].events |= NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_START);
     CHECK_INT(ns_boundary_link_of(&walk[1], &walk[2]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REENTERED);
     CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
-    /* Medium 0 was re-entered from medium 0; medium 1 only from medium 0, whose ghosts are
-     * never gathered onto medium 1's segments. */
-    uint8_t reentered[2] = {7, 7};
-    ns_boundary_reentered(walk, 5, 2, reentered);
-    CHECK(reentered[0] == 1 && reentered[1] == 0);
-    ns_boundary_reentered(walk, 2, 2, reentered);
-    CHECK(reentered[0] == 0 && reentered[1] == 0);
     GpuVrl out[10];
     /* The ghost of 1; the re-entry at 2 and its ghost; the one at 3 and its ghost. */
     uint32_t n = ns_boundary_sources(walk, 5, m, 0, out);
@@ -210,12 +207,31 @@ static void test_sources_of_a_reentry(void)
     if (n != 5)
         return;
     CHECK(out[0].power[0] < 0 && fabsf(out[0].origin[0] - 1.0f) < 1e-6f);
+    /* Only the ghost whose line comes back reads its first order. */
+    CHECK(out[0].events == (1 | NS_VRL_LINE_RETURNS));
+    const uint32_t DM = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    CHECK_INT(ns_boundary_source_orders(&out[0], DM), NS_TABLE_FIRST_BLURRED | DM);
+    CHECK_INT(ns_boundary_source_orders(&out[2], DM), DM);
     CHECK(out[1].power[0] == 0.6f && out[1].origin[0] == 1.5f && out[1].direction[0] == 1.0f);
     CHECK(out[1].length == 0.0f && out[1].events == 1 && out[1].material == 0);
     CHECK(fabsf(out[2].power[0] + 0.6f * expf(-2.0f)) < 1e-6f);
     CHECK(fabsf(out[2].origin[0] - 3.5f) < 1e-6f);
     CHECK(out[3].power[0] == 0.5f && out[3].origin[0] == 4.0f && out[3].material == 1);
     CHECK(out[4].power[0] < 0 && out[4].material == 1);
+    /* Grouped, the marked ghost is the only negative source that reads the first order, and
+     * what the gather gets carries its events alone. */
+    ns_boundary_groups groups;
+    ns_error err = {0};
+    CHECK_INT(ns_boundary_group(out, 5, DM, &groups, &err), NS_OK);
+    uint32_t ghosts_with_first = 0;
+    for (uint32_t g = 0; g < groups.count; g++)
+        for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
+            CHECK_INT(groups.group[g].set.vrls[i].events, 1);
+            if (groups.group[g].negative && (groups.group[g].orders & NS_TABLE_FIRST_BLURRED))
+                ghosts_with_first++;
+        }
+    CHECK_INT(ghosts_with_first, 1);
+    ns_boundary_groups_free(&groups);
 }
 
 static void test_roulette(void)
