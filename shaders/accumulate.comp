@@ -105,27 +105,13 @@ void count_steps(uint steps)
         atomicAdd(counters[NS_ACCUMULATE_COUNTER_STEPS_HIGH], 1u);
 }
 
-void main()
+// A along the line from the centre of cell (iz, ir, it) in phi bin ip, its own phi phi
+// (inside the bin); steps: the bins it crossed; capped: it stopped at the step cap.
+vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
 {
-    if (params.counts.x == 0u) // the warm-up
-        return;
-    fill_edges(); // before any invocation of the group returns: barrier() needs them all
-    uint order = push.first_cell + gl_GlobalInvocationID.x;
-    if (gl_GlobalInvocationID.x >= push.cell_count || order >= params.counts.x)
-        return;
-    uint rest = order;
-    int iz = int(rest % NS_TABLE_NZ);
-    rest /= NS_TABLE_NZ;
-    int ir = int(rest % NS_TABLE_NRHO);
-    rest /= NS_TABLE_NRHO;
-    int it = int(rest % NS_TABLE_NTHETA);
-    int ip = int(rest / NS_TABLE_NTHETA);
-    uint cell = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
-                    NS_TABLE_NPHI + uint(ip);
-
     float rho_lo = rho_edge(ir), rho_hi = rho_edge(ir + 1);
     float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1)), rho0 = 0.5 * (rho_lo + rho_hi);
-    float theta = (float(it) + 0.5) * ANGLE_STEP, phi = (float(ip) + 0.5) * ANGLE_STEP;
+    float theta = (float(it) + 0.5) * ANGLE_STEP;
     float cos_theta = cos(theta), sin_theta = sin(theta); // sin_theta > 0 at every centre
     float inv_cos = 1.0 / cos_theta, inv_sin = 1.0 / sin_theta; // |cos_theta| >= cos(85 deg)
     float t0 = rho0 * cos(phi), s = rho0 * sin(phi), s2 = s * s;
@@ -146,7 +132,7 @@ void main()
     // A line that never comes inside the radius from which J is 0 (counts.y, a rho bin edge)
     // meets only zeros: A is 0 without a walk, exactly what the walk would find, since it
     // crosses a cylinder inward only where lo * lo > s2 (next_rho), with the same edges. The
-    // blurred first order's table is 0 beyond about 1.5 mfp: half its cells need no walk.
+    // blurred first order's table is 0 beyond about 1.5 mfp: about 40% of its lines need no walk.
     int zero_from = int(params.counts.y);
     float zero_edge = rho_edge(zero_from);
     bool meets_j = ir < zero_from || zero_edge * zero_edge > s2;
@@ -154,8 +140,8 @@ void main()
 
     float u = 0.0, decay = 1.0; // decay = e^{-u}
     vec3 sum = vec3(0.0);
-    uint steps = 0u;
-    bool capped = meets_j;
+    steps = 0u;
+    capped = meets_j;
     while (steps < step_cap) {
         int event = 0;
         float u_event = uz;
@@ -210,6 +196,42 @@ void main()
         rho_dir = rho_moved ? dir : rho_dir;
         up = event == 2 ? next_phi(ip, t0, s, inv_sin) : up;
     }
+    return sum;
+}
+
+void main()
+{
+    if (params.counts.x == 0u) // the warm-up
+        return;
+    fill_edges(); // before any invocation of the group returns: barrier() needs them all
+    uint order = push.first_cell + gl_GlobalInvocationID.x;
+    if (gl_GlobalInvocationID.x >= push.cell_count || order >= params.counts.x)
+        return;
+    uint rest = order;
+    int iz = int(rest % NS_TABLE_NZ);
+    rest /= NS_TABLE_NZ;
+    int ir = int(rest % NS_TABLE_NRHO);
+    rest /= NS_TABLE_NRHO;
+    int it = int(rest % NS_TABLE_NTHETA);
+    int ip = int(rest / NS_TABLE_NTHETA);
+    uint cell = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
+                    NS_TABLE_NPHI + uint(ip);
+
+    // The mean over the phi bin (accumulate_shared.h). phi is the slowest index of `order`,
+    // so a whole group walks the same number of lines.
+    uint lines = ns_accumulate_phi_lines(uint(ip));
+    vec3 sum = vec3(0.0);
+    uint steps = 0u;
+    bool capped = false;
+    for (uint k = 0u; k < lines; k++) {
+        float phi = (float(ip) + (float(k) + 0.5) / float(lines)) * ANGLE_STEP;
+        uint line_steps;
+        bool line_capped;
+        sum += walk_line(iz, ir, it, ip, phi, line_steps, line_capped);
+        steps += line_steps;
+        capped = capped || line_capped;
+    }
+    sum /= float(lines);
     for (uint c = 0u; c < 3u; c++)
         a[c * NS_TABLE_CELLS + cell] = sum[c];
     count_steps(steps);

@@ -10,6 +10,7 @@
  *   (d) the cache: a second call is a hit with no reconstruction, other components reuse J,
  *       eviction keeps the byte bound; bad keys are refused naming the field.
  * Validation layers on (NSCATTER_VALIDATION=1). */
+#include "accumulate_shared.h"
 #include "boundary.h"
 #include "gpu_util.h"
 #include "scatter.h"
@@ -34,7 +35,17 @@ typedef struct centre {
     double p[3], w[3];
 } centre;
 
+static centre cell_line(size_t cell, uint32_t line);
+
 static centre cell_centre(size_t cell)
+{
+    return cell_line(cell, ns_accumulate_phi_lines((uint32_t)(cell % NS_TABLE_NPHI)) / 2);
+}
+
+/* The cell's line `line` of the ns_accumulate_phi_lines of its phi bin, whose mean A the
+ * cell holds (accumulate_shared.h): its centre, with phi at (ip + (line + 0.5) / n) bins. With
+ * an even count, cell_centre takes the line just past the bin's centre. */
+static centre cell_line(size_t cell, uint32_t line)
 {
     centre c;
     c.ip = (int)(cell % NS_TABLE_NPHI);
@@ -46,7 +57,8 @@ static centre cell_centre(size_t cell)
     double z = 0.5 * (grid.z[c.iz] + grid.z[c.iz + 1]);
     double rho = 0.5 * (grid.rho[c.ir] + grid.rho[c.ir + 1]);
     double theta = 0.5 * (grid.theta[c.it] + grid.theta[c.it + 1]);
-    double phi = 0.5 * (grid.phi[c.ip] + grid.phi[c.ip + 1]);
+    double n = ns_accumulate_phi_lines((uint32_t)c.ip);
+    double phi = grid.phi[c.ip] + (line + 0.5) / n * (grid.phi[c.ip + 1] - grid.phi[c.ip]);
     c.p[0] = rho;
     c.p[1] = 0.0;
     c.p[2] = z;
@@ -309,7 +321,7 @@ static void compare_skipped(const float *j, const char *what, uint64_t *steps_al
 }
 
 /* The blurred first order's table is 0 beyond ~1.5 mfp of the axis: the lines that stay
- * outside are not walked, and A is what walking them gives. A table with light in its last
+ * outside are not walked (about 40% of the lines), and A is what walking them gives. A table with light in its last
  * rho bin skips nothing. */
 static void test_radial_support_skips_walks(void)
 {
@@ -319,7 +331,7 @@ static void test_radial_support_skips_walks(void)
         j[2 * cells + i] = 0.5f * j[i]; /* channel 2 too; channel 1 stays 0 */
     uint64_t all = 0, skipped = 0;
     compare_skipped(j, "blurred first order", &all, &skipped);
-    CHECK(skipped > 0 && skipped < all / 2);
+    CHECK(skipped > 0 && skipped < all * 7 / 10);
     free(j);
 
     j = exponential_j();
@@ -492,7 +504,7 @@ static void test_network_tables_brute_force(void)
      * from that point (issue 15: what reading between cells gains), and the segment form with
      * each: mean and worst relative errors. */
     double exit_err[2] = {0, 0}, exit_worst[2] = {0, 0}, seg_err[2] = {0, 0}, seg_worst[2] = {0, 0};
-    int exit_n = 0;
+    int exit_n = 0, seg_n = 0;
     for (int ch = 0; ch < 3; ch++) {
         float *j = summed_j(&nn_key, ch);
         if (!j)
@@ -502,32 +514,50 @@ static void test_network_tables_brute_force(void)
         for (size_t i = 0; i < cells; i++)
             j_max = fmaxf(j_max, j[i]);
         for (int n = 0; n < 40; n++) {
-            centre c = cell_centre(random_near_cell());
-            size_t cell =
-                (((size_t)c.iz * NS_TABLE_NRHO + c.ir) * NS_TABLE_NTHETA + c.it) * NS_TABLE_NPHI +
-                c.ip;
-            /* A at the centre: the whole line (40 mfp leaves e^-40 of J_max behind). */
-            double want = brute_force(j, c.p, c.w, 40.0);
+            /* Half of the cells in the first two phi bins, where a cell holds the mean of
+             * several lines. */
+            size_t cell = random_near_cell();
+            if (n % 2)
+                cell = cell - cell % NS_TABLE_NPHI + (size_t)(n % 4 == 1 ? 0 : 1);
+            centre c = cell_centre(cell);
+            uint32_t lines = ns_accumulate_phi_lines((uint32_t)c.ip);
+            /* A in the cell: the mean over its lines of the whole line (40 mfp leaves e^-40
+             * of J_max behind). */
+            double want = 0;
+            for (uint32_t k = 0; k < lines; k++) {
+                centre line = cell_line(cell, k);
+                want += brute_force(j, line.p, line.w, 40.0) / lines;
+            }
             double tol = 3e-3 * want + 1e-13 * j_max;
             worst_point = fmax(worst_point, fabs(ac[cell] - want) / want);
             if (fabs(ac[cell] - want) > tol && point_failures++ < 5)
                 fprintf(stderr, "channel %d cell %zu: A %.7g, brute force %.7g\n", ch, cell,
                         ac[cell], want);
-            /* A segment of random length from the centre: the exact segment form. */
+            /* A segment of random length from the centre: the exact segment form, in the
+             * mean over the cell's lines. */
             double length = 0.2 + 4.0 * uniform01();
+            double a_exit = 0, spread = 0, direct = 0;
+            for (uint32_t k = 0; k < lines; k++) {
+                centre line = cell_line(cell, k);
+                double exit_k[3] = {line.p[0] - length * line.w[0], line.p[1] - length * line.w[1],
+                                    line.p[2] - length * line.w[2]};
+                double spread_k;
+                a_exit += table_value(ac, exit_k, line.w, &spread_k) / lines;
+                spread = fmax(spread, spread_k);
+                direct += brute_force(j, line.p, line.w, length) / lines;
+            }
+            double segment = ac[cell] - exp(-length) * a_exit;
+            double seg_tol = exp(-length) * spread + 3e-3 * want + 1e-13 * j_max;
+            /* Reading A at a point (the exit of a cell's one line) nearest and between cells. */
             double exit[3] = {c.p[0] - length * c.w[0], c.p[1] - length * c.w[1],
                               c.p[2] - length * c.w[2]};
-            double spread;
-            double a_exit = table_value(ac, exit, c.w, &spread);
-            double segment = ac[cell] - exp(-length) * a_exit;
-            double direct = brute_force(j, c.p, c.w, length);
-            double seg_tol = exp(-length) * spread + 3e-3 * want + 1e-13 * j_max;
-            double exit_want = brute_force(j, exit, c.w, 40.0);
+            double exit_want = lines == 1 ? brute_force(j, exit, c.w, 40.0) : 0;
             double got[2] = {a_exit, table_value_between(ac, exit, c.w)};
-            for (int k = 0; k < 2; k++) {
+            for (int k = 0; k < 2 && lines == 1; k++) {
                 double es = fabs(ac[cell] - exp(-length) * got[k] - direct) / want;
-                seg_err[k] += es / (3 * 40);
+                seg_err[k] += es;
                 seg_worst[k] = fmax(seg_worst[k], es);
+                seg_n += k;
                 if (exit_want > 1e-6 * j_max) {
                     double e = fabs(got[k] - exit_want) / exit_want;
                     exit_err[k] += e;
@@ -551,10 +581,10 @@ static void test_network_tables_brute_force(void)
            worst_point, worst_segment);
     if (exit_n > 0) {
         printf("A at %d exit points against brute force, mean / worst relative error: nearest cell "
-               "%.3f / %.3f, between cells %.3f / %.3f; segment form of all 120, of A(entry): "
-               "%.4f / %.3f, %.4f / %.3f\n",
+               "%.3f / %.3f, between cells %.3f / %.3f; segment form of the %d one-line cells, "
+               "of A(entry): %.4f / %.3f, %.4f / %.3f\n",
                exit_n, exit_err[0] / exit_n, exit_worst[0], exit_err[1] / exit_n, exit_worst[1],
-               seg_err[0], seg_worst[0], seg_err[1], seg_worst[1]);
+               seg_n, seg_err[0] / seg_n, seg_worst[0], seg_err[1] / seg_n, seg_worst[1]);
         /* The gather's reads between cells must do better than the nearest cell on average. */
         CHECK(exit_err[1] < exit_err[0]);
         CHECK(seg_err[1] < seg_err[0]);

@@ -120,8 +120,9 @@ static void test_slab(double thickness, double walks_tolerance, double off_off, 
 }
 
 /* Measured (2026-11-29), walks / off against pt per channel (albedo 0.909 / 0.5 / 0.99):
- * 0.5 mfp +19.1 / +9.2 / +10.1% against +614 / +163 / +2386%; 2 mfp +8.6 / +4.3 / +15.8%
- * against +97 / +17 / +467%; 8 mfp +5.9 / +4.0 / +10.4% against +35 / +9 / +172%. What is
+ * 0.5 mfp +14.4 / +4.9 / +5.2% against +614 / +165 / +2385%; 2 mfp +8.3 / +4.4 / +15.5%
+ * against +97 / +18 / +467%; 8 mfp +5.8 / +4.4 / +10.3% against +35 / +9 / +172% (while A
+ * held each phi bin's centre line, 0.5 mfp read +19.1 / +9.2 / +10.1%). What is
  * left is the tables' own error, magnified where the ghosts take most of the infinite
  * medium's light away again. Until the ghosts stopped reading the blurred first order (its
  * tube reached inside near each exit) walks read 4-8 points lower here (8 mfp: +1.7 / -0.2 /
@@ -160,7 +161,7 @@ static void test_refracting_sphere(void)
  * the other. A walk that leaves its object goes on and enters the first scattering object
  * it meets (vrl_trace.comp; boundary.c makes the re-entered stretch a positive source), as
  * light that leaves a non-convex object and comes back does. Measured (2026-11-29): walks
- * -0.5 / -2.8 / +10.2% (-3.8 / -6.1 / +7.0% while every ghost of a medium that a walk
+ * -1.1 / -3.2 / +9.7% (-3.8 / -6.1 / +7.0% while every ghost of a medium that a walk
  * re-entered read its first order, not only those whose line comes back); without
  * re-entry (the walk ended where it left) -23 / -24 / -14%. */
 static void test_facing_boxes(void)
