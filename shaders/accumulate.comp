@@ -1,7 +1,9 @@
 #version 450
 // accumulate.comp — the camera-side table A of DESIGN.md section 2, per RGB channel:
 //     A(x, w) = integral_0^inf e^{-u} J(x - u w, w) du        (mfp units)
-// at the centre (rho, z, theta, phi) of every cell of the default grid. One invocation walks
+// at the centre (rho, z, theta, phi) of every cell of the default grid (in phi the mean over
+// the bin's lines, and on the source's plane for the two cells beside it: accumulate_shared.h).
+// One invocation walks
 // the straight line x - u w from one cell centre through the table's bins, exactly: J is
 // constant inside a bin (it is the bin's average), so between two bin crossings the integral
 // is J_bin (e^{-u0} - e^{-u1}), and the steps are the bins themselves — fine near the source
@@ -110,7 +112,11 @@ void count_steps(uint steps)
 vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
 {
     float rho_lo = rho_edge(ir), rho_hi = rho_edge(ir + 1);
-    float z0 = 0.5 * (z_edge(iz) + z_edge(iz + 1)), rho0 = 0.5 * (rho_lo + rho_hi);
+    // The two cells beside the source's plane hold A on the plane itself (z = 0): see
+    // accumulate_shared.h.
+    bool beside_plane = iz == NZ / 2 - 1 || iz == NZ / 2;
+    float z0 = beside_plane ? 0.0 : 0.5 * (z_edge(iz) + z_edge(iz + 1));
+    float rho0 = 0.5 * (rho_lo + rho_hi);
     float theta = (float(it) + 0.5) * ANGLE_STEP;
     float cos_theta = cos(theta), sin_theta = sin(theta); // sin_theta > 0 at every centre
     float inv_cos = 1.0 / cos_theta, inv_sin = 1.0 / sin_theta; // |cos_theta| >= cos(85 deg)

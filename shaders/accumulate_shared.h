@@ -16,6 +16,16 @@
  * NS_ACCUMULATE_PHI_LINES_0 lines in the first bin and _1 in the second, the centre line
  * elsewhere, 0.3% below the converged mean. Each line is one walk: the stage costs
  * (8 + 4 + 16) / 18 = 1.56 times the walks of one line per cell.
+ *
+ * And the two cells beside the source's plane (z bins NZ / 2 - 1 and NZ / 2) hold A on the
+ * plane itself, z = 0, not at their centres (z = -/+0.029 mfp). A has a kink there: a line
+ * from just in front of the source that goes back across the plane passes through J's peak
+ * beside the beam's start, one from just behind does not. The gather reads z = 0 wherever a
+ * source and a camera segment start on the same face (a VRL where the light enters, a ghost
+ * where it leaves), halfway between those two cells: with A at their centres that read was
+ * 10.5% high for a camera going against the beams (ghosts) and 1% low going with them (a
+ * plane of beams, gpu_accumulate (e)); with A on the plane, -0.4% and -0.3%. Reads within a
+ * bin of the plane elsewhere move by at most that bin's change of A.
  */
 #ifndef NS_SHADERS_ACCUMULATE_SHARED_H
 #define NS_SHADERS_ACCUMULATE_SHARED_H

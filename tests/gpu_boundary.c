@@ -120,9 +120,10 @@ static void test_slab(double thickness, double walks_tolerance, double off_off, 
 }
 
 /* Measured (2026-11-29), walks / off against pt per channel (albedo 0.909 / 0.5 / 0.99):
- * 0.5 mfp +14.4 / +4.9 / +5.2% against +614 / +165 / +2385%; 2 mfp +8.3 / +4.4 / +15.5%
- * against +97 / +18 / +467%; 8 mfp +5.8 / +4.4 / +10.3% against +35 / +9 / +172% (while A
- * held each phi bin's centre line, 0.5 mfp read +19.1 / +9.2 / +10.1%). What is
+ * 0.5 mfp +16.3 / +6.5 / +7.1% against +616 / +166 / +2387%; 2 mfp +8.6 / +4.8 / +15.7%
+ * against +97 / +18 / +467%; 8 mfp +6.0 / +4.7 / +10.4% against +35 / +10 / +172% (while A
+ * held each phi bin's centre line, 0.5 mfp read +19.1 / +9.2 / +10.1%; then +14.4 / +4.9 /
+ * +5.2% while the cells beside a source's plane held A at their centres). What is
  * left is the tables' own error, magnified where the ghosts take most of the infinite
  * medium's light away again. Until the ghosts stopped reading the blurred first order (its
  * tube reached inside near each exit) walks read 4-8 points lower here (8 mfp: +1.7 / -0.2 /
