@@ -8,7 +8,8 @@
  *              (total order >= m, inside the object) of one infinite-medium walk from b
  *              along w after k events: what a table would return, estimated without one.
  * Per path the difference of the two is averaged; it must be 0 within 4 standard errors, for
- * a sphere, a box and a cylinder (a mesh) at ior 1, 1.3 and 1.5, for orders >= 2 and >= 3.
+ * a sphere, a box and a cylinder (a mesh) at ior 1, 1.3 and 1.5, for orders >= 2 and >= 3,
+ * and per channel on a sphere whose channels differ in extinction and albedo.
  * The infinite medium alone (corrected without the sources) must be off by more than 4
  * standard errors, so that each case can tell the two apart. Also: the walk's mark on the
  * stretches whose line past the end meets their medium again (NS_VRL_LINE_RETURNS) against
@@ -106,13 +107,13 @@ static void hg(double w[3], double g)
         w[i] = u[i] * s * cos(phi) + v[i] * s * sin(phi) + w[i] * c;
 }
 
-static double table_walk(const float origin[3], const float direction[3], uint32_t k, double albedo,
-                         double g, uint32_t min_order)
+static double table_walk(const float origin[3], const float direction[3], uint32_t k, double sigma_t,
+                         double albedo, double g, uint32_t min_order)
 {
     double p[3] = {origin[0], origin[1], origin[2]}, w[3] = {direction[0], direction[1], direction[2]};
     double weight = 1, sum = 0;
     for (int step = 0; step < 100000; step++) {
-        double t = -log(1 - rnd());
+        double t = -log(1 - rnd()) / sigma_t;
         for (int i = 0; i < 3; i++)
             p[i] += t * w[i];
         k++;
@@ -134,12 +135,19 @@ static double table_walk(const float origin[3], const float direction[3], uint32
 /* ---------------------------------------------------------------------------------------
  * One case.
  * ------------------------------------------------------------------------------------- */
-static void run_case(int which, double ior)
+/* sigma_t, albedo: per channel (scene units); channels: how many to check (1 when all are
+ * alike). */
+static void run_channels(int which, double ior, const double sigma_t[3], const double albedo[3],
+                         int channels)
 {
     static const char *const names[] = {"sphere 4 mfp", "box 3 mfp", "cylinder 2.6 x 3.8 mfp"};
-    const double albedo = 0.9, g = 0.5;
+    const double g = 0.5;
     shape = which;
-    double sigma_s[3] = {albedo, albedo, albedo}, sigma_a[3] = {1 - albedo, 1 - albedo, 1 - albedo};
+    double sigma_s[3], sigma_a[3];
+    for (int c = 0; c < 3; c++) {
+        sigma_s[c] = albedo[c] * sigma_t[c];
+        sigma_a[c] = (1 - albedo[c]) * sigma_t[c];
+    }
     ns_material m = medium(sigma_s, sigma_a, ior);
     m.g = (float)g;
     ns_object o;
@@ -185,7 +193,9 @@ static void run_case(int which, double ior)
     uint32_t source_count = ns_boundary_sources(walks.vrls, walks.count, d.gs.materials, 1, sources);
     CHECK(source_count > 0);
 
-    for (uint32_t min_order = 2; min_order <= 3; min_order++) {
+    for (int pass = 0; pass < 2 * channels; pass++) {
+        int c = pass / 2;
+        uint32_t min_order = 2 + (uint32_t)(pass % 2);
         /* Per path: truth, corrected and the infinite medium's T(entry) alone. The sources
          * come in stretch order, so path p's are those made from its stretches. */
         double sum_d = 0, sum_d2 = 0, sum_i = 0, sum_i2 = 0, sum_truth = 0;
@@ -202,17 +212,19 @@ static void run_case(int which, double ior)
                 const GpuVrl *v = &walks.vrls[j];
                 if (v->events >= min_order && v->events >= 1 &&
                     ns_boundary_link_of(&walks.vrls[j - 1], v) == NS_BOUNDARY_LINK_START)
-                    truth += v->power[0];
+                    truth += v->power[c];
             }
             const GpuVrl *entry = &walks.vrls[i];
-            double infinite = entry->power[0] * table_walk(entry->origin, entry->direction, 0, albedo, g, min_order);
+            double infinite = entry->power[c] * table_walk(entry->origin, entry->direction, 0, sigma_t[c],
+                                                           albedo[c], g, min_order);
             double corrected = infinite;
             /* This path's sources: those whose origin stretch lies in [i, end); sources are
              * written in stretch order, 0 to 2 per stretch, so recount them. */
             uint32_t made = ns_boundary_sources(walks.vrls + i, end - i, d.gs.materials, 1, sources + next_source);
             for (uint32_t k = next_source; k < next_source + made; k++)
-                corrected += sources[k].power[0] *
-                             table_walk(sources[k].origin, sources[k].direction, sources[k].events, albedo, g, min_order);
+                corrected += sources[k].power[c] * table_walk(sources[k].origin, sources[k].direction,
+                                                              sources[k].events, sigma_t[c], albedo[c], g,
+                                                              min_order);
             next_source += made;
             sum_d += corrected - truth;
             sum_d2 += (corrected - truth) * (corrected - truth);
@@ -228,9 +240,10 @@ static void run_case(int which, double ior)
         double mean_i = sum_i / n, se_i = sqrt((sum_i2 / n - mean_i * mean_i) / (n - 1));
         double truth = sum_truth / n;
         fprintf(stderr,
-                "  %s, ior %.1f, orders >= %u: truth %.5f, corrected - truth %+.5f (%.1f se, %+.2f%%), "
-                "infinite - truth %+.5f (%.1f se); %u paths entered, %u sources\n",
-                names[which], ior, min_order, truth, mean_d, mean_d / se_d, 100 * mean_d / truth, mean_i,
+                "  %s, ior %.1f, channel %d (sigma_t %.2f, albedo %.2f), orders >= %u: truth %.5f, "
+                "corrected - truth %+.5f (%.1f se, %+.2f%%), infinite - truth %+.5f (%.1f se); %u paths "
+                "entered, %u sources\n",
+                names[which], ior, c, sigma_t[c], albedo[c], min_order, truth, mean_d, mean_d / se_d, 100 * mean_d / truth, mean_i,
                 mean_i / se_i, path_count, source_count);
         CHECK(truth > 0);
         CHECK(fabs(mean_d) < 4 * se_d);
@@ -239,6 +252,21 @@ static void run_case(int which, double ior)
     free(sources);
     ns_vrl_set_free(&walks);
     device_scene_free(&d);
+}
+
+static void run_case(int which, double ior)
+{
+    const double sigma_t[3] = {1, 1, 1}, albedo[3] = {0.9, 0.9, 0.9};
+    run_channels(which, ior, sigma_t, albedo, 1);
+}
+
+/* Channels that differ in extinction and albedo: the walk picks one channel's free flight
+ * and weighs the others by the balance heuristic (vrl_trace.comp), the ghosts attenuate each
+ * channel by its own extinction (boundary.c); each channel must be exact on its own. */
+static void test_channels(void)
+{
+    const double sigma_t[3] = {0.8, 1.0, 1.3}, albedo[3] = {0.6, 0.9, 0.97};
+    run_channels(SPHERE, 1.3, sigma_t, albedo, 3);
 }
 
 static void test_sphere(void)
@@ -355,6 +383,7 @@ int main(void)
     RUN(test_sphere);
     RUN(test_box);
     RUN(test_cylinder);
+    RUN(test_channels);
     RUN(test_line_flags);
     ns_context_destroy(test_context());
     return harness_report();
