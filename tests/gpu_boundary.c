@@ -132,7 +132,10 @@ static void test_slabs(void)
 {
     test_slab(0.5, 0.25, 1.0, 3);
     test_slab(2.0, 0.25, 0.15, 3);
-    test_slab(8.0, 0.13, 0.08, 1.5);
+    /* 0.15: the blue channel reads +10.4% (the error that reads high, above), and one seed's
+     * image mean is good to only 2-3% (docs/scattering.md, *The phi bins' mean*): room for
+     * another CPU's lavapipe to draw other samples. Off is +35 / +10 / +172%. */
+    test_slab(8.0, 0.15, 0.08, 1.5);
 }
 
 /* Lit by a sphere light, not a directional one: behind a refracting boundary pt reaches a
@@ -182,7 +185,10 @@ static void test_facing_boxes(void)
     ns_scene s = medium_scene(&m, boxes, 2, &sun);
     set3(s.camera.position, 0, 0, 9);
     set3(s.camera.look_at, 0, 0, 0);
-    compare("facing boxes 2 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.12, 0.3, 2);
+    /* 0.15 (0.12 until the tables' own errors near a source were fixed, which raised the blue
+     * channel from +7 to +9.6%: the error that reads high) still fails without re-entry in
+     * the red and green channels (-23 / -24%). */
+    compare("facing boxes 2 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.15, 0.3, 2);
 }
 
 /* Double scattering in an index-matched convex object has no source beyond the bounded
