@@ -652,13 +652,16 @@ static int bounded_beams(const ns_scene *scene)
     return scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED || scene->render.boundary != NS_BOUNDARY_OFF;
 }
 
-/* Whether a straight line that leaves an object can pass through an object of the same
- * medium again: a mesh may be non-convex, and two objects of one medium may face each other.
- * A lone sphere, box or plane is convex, and its walks need not trace their lines again. */
+/* Whether a straight line that leaves an object of a medium can pass through an object of
+ * that medium again: a mesh may be non-convex, and two objects of one medium may face each
+ * other. A lone sphere, box or plane is convex, and its walks need not trace their lines
+ * again; objects of diffuse materials never count (walks live in media only). */
 static int lines_may_return(const ns_scene *scene)
 {
     for (uint32_t i = 0; i < scene->object_count; i++) {
         const ns_object *o = &scene->objects[i];
+        if (scene->materials[o->material].type != NS_MATERIAL_MEDIUM)
+            continue;
         if (o->shape == NS_SHAPE_MESH)
             return 1;
         for (uint32_t j = 0; j < i; j++)
