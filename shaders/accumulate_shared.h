@@ -24,7 +24,7 @@
  * source and a camera segment start on the same face (a VRL where the light enters, a ghost
  * where it leaves), halfway between those two cells: with A at their centres that read was
  * 10.5% high for a camera going against the beams (ghosts) and 1% low going with them (a
- * plane of beams, gpu_accumulate (e)); with A on the plane, -0.4% and -0.3%. Reads within a
+ * plane of beams, gpu_accumulate (e)); with A on the plane, -0.4% and -0.5%. Reads within a
  * bin of the plane elsewhere move by at most that bin's change of A.
  */
 #ifndef NS_SHADERS_ACCUMULATE_SHARED_H
@@ -56,8 +56,8 @@ NS_CONST(uint, NS_ACCUMULATE_GROUP, 64);
 
 /* Lines per cell (above): in phi bin 0, bin 1, and every other bin; line k of n in bin ip
  * has phi = (ip + (k + 0.5) / n) * 10 degrees. */
-NS_CONST(uint, NS_ACCUMULATE_PHI_LINES_0, 8);
-NS_CONST(uint, NS_ACCUMULATE_PHI_LINES_1, 4);
+NS_CONST(uint, NS_ACCUMULATE_PHI_LINES_0, 4);
+NS_CONST(uint, NS_ACCUMULATE_PHI_LINES_1, 2);
 #if defined(__STDC__) || defined(__cplusplus)
 static inline uint32_t ns_accumulate_phi_lines(uint32_t ip)
 #else
