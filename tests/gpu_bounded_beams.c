@@ -85,8 +85,9 @@ static void test_thin_slab(void)
     set3(s.camera.position, 0, 10, 17.32);
     set3(s.camera.look_at, 0, 0, 0);
     s.render.vrls = 100000; /* the slab is 60 wide: VRLs spread over all of it */
-    /* Measured (2026-11-29): bounded +3.5 to +3.8%, endless +32% (+2.4 to +2.7% and +27%
-     * while A held each phi bin's centre line, 5% low beside a beam's start). */
+    /* Measured (2026-11-29): bounded +5.5 to +5.8%, endless +33% (+2.4 to +2.7% and +27%
+     * while A held each phi bin's centre line, 5% low beside a beam's start; +3.5 to +3.8%
+     * before the cells beside a source's plane held A on the plane). */
     compare("slab 0.5 mfp, ior 1", s, 1, 0.08, 0.2);
 }
 
@@ -113,8 +114,8 @@ static void test_light_guide(void)
     s.camera.fov_deg = 28;
     set3(s.camera.position, 0, 3, 14);
     set3(s.camera.look_at, 0, 3, 0);
-    /* Measured: bounded -6 to -8% (pt at 256 and 512 spp), endless -55%; 2026-11-29 -8.0%
-     * and -54.5% (-6.5% while A held each phi bin's centre line; at 1 camera path per pixel
+    /* Measured: bounded -6 to -8% (pt at 256 and 512 spp), endless -55%; 2026-11-29 -7.9%
+     * and -54.7% (-6.5% while A held each phi bin's centre line; at 1 camera path per pixel
      * -9.1%: the rod is 4.6 pixels wide). */
     compare("glass rod, total internal reflection", s, 4, 0.12, 0.4);
 }
