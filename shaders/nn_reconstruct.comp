@@ -10,7 +10,7 @@
 // theta, phi) and (g, albedo, E_k, 0) normalised; out[order * points + point] = J and
 // out[(2 + order) * points + point] = the network output y.
 // Shape (DESIGN.md section 6, lavapipe): many points per invocation with the weights in a
-// uniform buffer, so each weight fetched is used 16 times. The loops over the 16 points and
+// uniform buffer, layer 1's weights fetched once for 16 points. The loops over the 16 points and
 // over a row's 13 vec4s are unrolled so the activation array is indexed by constants
 // (3x faster on lavapipe); the loops over hidden units stay loops (compile time: ~8 s cold,
 // 32 points took 36 s). Docs: docs/network.md.
@@ -86,22 +86,22 @@ void main()
         }
     }
 
+    // Layer 2 one point at a time: a single running sum per (unit, point) keeps the CPU's
+    // vector registers free. Sixteen sums at once (all points of a unit, the weight fetched
+    // once for all) spilled them to the stack on lavapipe and took 1.6x as long; a weight
+    // fetched again per point is a broadcast from L1 (docs/network.md, 2026-11-29).
     float y[NS_NN_POINTS];
-    for (uint p = 0u; p < NS_NN_POINTS; p++)
+    [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
         y[p] = P.net[net + NS_NN_B3_OFF].x;
     for (uint j = 0u; j < 50u; j++) {
         float bias = P.net[net + NS_NN_B2_OFF + (j >> 2)][j & 3u];
-        float acc[NS_NN_POINTS];
-        [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
-            acc[p] = bias;
-        [[unroll]] for (uint k4 = 0u; k4 < NS_NN_H4; k4++) {
-            vec4 w = P.net[net + NS_NN_W2_OFF + j * NS_NN_H4 + k4];
-            [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
-                acc[p] += dot(w, h1[k4 * NS_NN_POINTS + p]);
-        }
         float w3 = P.net[net + NS_NN_W3_OFF + (j >> 2)][j & 3u];
-        [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++)
-            y[p] += w3 * tanh(acc[p]);
+        [[unroll]] for (uint p = 0u; p < NS_NN_POINTS; p++) {
+            float acc = bias;
+            [[unroll]] for (uint k4 = 0u; k4 < NS_NN_H4; k4++)
+                acc += dot(P.net[net + NS_NN_W2_OFF + j * NS_NN_H4 + k4], h1[k4 * NS_NN_POINTS + p]);
+            y[p] += w3 * tanh(acc);
+        }
     }
 
     vec4 tt = P.target[order];
