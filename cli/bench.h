@@ -59,6 +59,9 @@ typedef struct bench_reference {
      * what it caps: the reference's own mean squared error variance / spp, and the PSNR a
      * noise-free image would score against it. 0 / NaN when not measured. */
     double variance, noise_mse, ceiling_db;
+    /* Progressive references (--ref-ceiling): spp = chunks * chunk_spp, and the noise above
+     * comes from the chunks' spread instead (cmd_bench.c). 0 for a reference of fixed spp. */
+    uint32_t chunk_spp;
 } bench_reference;
 
 #define BENCH_NOISE_SPP 16u

@@ -153,7 +153,8 @@ static void write_table2(FILE *f, const bench_run *run)
                 num(t ? t->stats.vrl_count / 1000.0 : NAN, 1).text, num(psnr_of(t), 2).text,
                 num(t ? t->stats.table_bytes / 1048576.0 : NAN, 1).text,
                 num(v ? v->stats.vrl_count / 1000.0 : NAN, 2).text, num(psnr_of(v), 2).text,
-                num(psnr_of(d), 2).text, s->ref_spp, num(ref->ok ? ref->ms / 1000.0 : NAN, 1).text);
+                num(psnr_of(d), 2).text, ref->ok ? ref->spp : s->ref_spp,
+                num(ref->ok ? ref->ms / 1000.0 : NAN, 1).text);
     }
     fputc('\n', f);
 }
@@ -294,17 +295,23 @@ static void write_references(FILE *f, const bench_run *run)
                "renders them again. Noise ceiling: the PSNR a noise-free image would score against "
                "the reference, from pt's per-sample variance of the same components (a "
                "%u-spp render on another seed; kept in the reference's .json): 20 log10(peak / "
-               "sqrt(variance / spp)). A PSNR near it says the reference cannot tell.\n\n"
-               "| scene | components | spp | time s | noise ceiling dB | device | this run | file |\n"
-               "|---|---|---|---|---|---|---|---|\n", BENCH_NOISE_SPP);
+               "sqrt(variance / spp)). A PSNR near it says the reference cannot tell. A reference "
+               "with chunks (`--ref-ceiling`) is the mean of that many renders of the chunk's spp "
+               "on successive seeds, and its noise comes from their spread instead.\n\n"
+               "| scene | components | spp | chunks | time s | noise ceiling dB | device | this run | file |\n"
+               "|---|---|---|---|---|---|---|---|---|\n", BENCH_NOISE_SPP);
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         for (int set = 0; set < BENCH_REF_SETS; set++) {
             const bench_reference *r = &s->refs[set];
             if (!r->wanted)
                 continue;
-            fprintf(f, "| %s | %s | %u | %s | %s | %s | %s | ", s->name, bench_components_name(bench_ref_components[set]),
-                    r->spp, num(r->ok ? r->ms / 1000.0 : NAN, 1).text, num(r->ok ? r->ceiling_db : NAN, 1).text,
+            char chunks[32] = "–";
+            if (r->ok && r->chunk_spp)
+                snprintf(chunks, sizeof chunks, "%u × %u", r->spp / r->chunk_spp, r->chunk_spp);
+            fprintf(f, "| %s | %s | %u | %s | %s | %s | %s | %s | ", s->name,
+                    bench_components_name(bench_ref_components[set]), r->spp, chunks,
+                    num(r->ok ? r->ms / 1000.0 : NAN, 1).text, num(r->ok ? r->ceiling_db : NAN, 1).text,
                     r->ok ? r->device : "n/a",
                     !r->ok ? "failed" : r->generated ? "rendered" : "cached");
             if (r->ok)

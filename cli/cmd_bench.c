@@ -45,6 +45,7 @@ typedef struct bench_args {
     const char *ladder, *boundary;
     uint32_t width, height, spp, ref_spp, repeat;
     double vrl_scale, mc_collisions;
+    double ref_ceiling_db, ref_budget_s; /* progressive references (0: off / no budget) */
     int references_only;
 } bench_args;
 
@@ -63,7 +64,14 @@ static void bench_usage(FILE *out)
             "                     pt (default: all)\n"
             "  --width N, --height N   image size (default: each scene's, 128x128)\n"
             "  --spp N            camera samples per pixel of the fast methods (default: scene's, 4)\n"
-            "  --ref-spp N        samples per pixel of the references (default: bench.json's, 256)\n"
+            "  --ref-spp N        samples per pixel of the references (default: bench.json's, 256);\n"
+            "                     with --ref-ceiling, of each of their chunks\n"
+            "  --ref-ceiling DB   progressive references: chunks of --ref-spp samples on new\n"
+            "                     seeds, merged, until each reference's noise ceiling (from the\n"
+            "                     chunks' spread) reaches DB; cached after every chunk, resumed\n"
+            "                     by the next run\n"
+            "  --ref-budget S     with --ref-ceiling: stop adding chunks after S seconds of\n"
+            "                     references in this run (the report gives the ceilings reached)\n"
             "  --pt-spp A,B,..    spp of the short pt renders (default 1,4,16)\n"
             "  --repeat N         renders per method; the time is the median after the first (2)\n"
             "  --vrl-scale F      multiplies the scenes' VRL counts (default 1)\n"
@@ -163,6 +171,10 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
             rc = parse_u32(arg, val, 1, NS_MAX_SPP, &a->spp);
         } else if (TAKES("--ref-spp")) {
             rc = parse_u32(arg, val, 1, NS_MAX_SPP, &a->ref_spp);
+        } else if (TAKES("--ref-ceiling")) {
+            rc = parse_real(arg, val, 1.0, 200.0, &a->ref_ceiling_db);
+        } else if (TAKES("--ref-budget")) {
+            rc = parse_real(arg, val, 1.0, 1e7, &a->ref_budget_s);
         } else if (TAKES("--repeat")) {
             rc = parse_u32(arg, val, 1, 50, &a->repeat);
         } else if (TAKES("--vrl-scale")) {
@@ -198,6 +210,11 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
     }
     if (bench_method_by_name(a->diff, strlen(a->diff)) < 0)
         return bench_bad("--diff", a->diff, "not a method name (see --methods)");
+    if (a->ref_budget_s > 0 && !(a->ref_ceiling_db > 0)) {
+        fprintf(stderr, "nscatter bench: --ref-budget: only with --ref-ceiling (a reference of "
+                        "fixed spp has no time to budget)\n");
+        return 2;
+    }
     return 0;
 }
 
@@ -276,6 +293,7 @@ typedef struct bench {
     char scene_dir[4096], cache_dir[4096], asset_dir[4200];
     uint32_t ladder[BENCH_MAX_LADDER], ladder_count;
     ns_mc_provider *mc; /* method "table": the server's Monte Carlo provider (mc_provider.h) */
+    double ref_chunks_ms; /* time spent on progressive chunks in this run (--ref-budget) */
 } bench;
 
 /* ---------------------------------------------------------------------------------------
@@ -597,8 +615,243 @@ static void measure_reference_noise(bench *b, bench_scene *s, bench_reference *r
             r->ceiling_db);
 }
 
+/* ---------------------------------------------------------------------------------------
+ * Progressive references (--ref-ceiling): chunks of --ref-spp samples, chunk k on seed
+ * BENCH_REF_SEED + k, merged into their mean until the reference's noise ceiling reaches the
+ * target. The noise comes from the chunks' own spread: per pixel and channel, Welford's
+ * running mean and M2 (the sum of squared deviations from it), so the mean's variance is
+ * M2 / (K (K - 1)) after K chunks, with no extra render and no assumption about how pt's
+ * noise falls with spp. Every chunk is a checkpoint: the mean and M2 are written under
+ * names that hold K, then the .json that names K, and only then is the previous pair
+ * removed, so an interrupted run leaves a consistent reference that the next run resumes.
+ * ------------------------------------------------------------------------------------- */
+typedef struct progressive_state {
+    char base[4096]; /* the path without its suffix: BASE.json, BASE-kK.exr, BASE-kK.m2.exr */
+    uint32_t chunks;
+    double ms;
+    ns_image mean, m2;
+} progressive_state;
+
+static void progressive_path(const progressive_state *p, uint32_t chunks, const char *suffix, char *out,
+                             size_t size)
+{
+    snprintf(out, size, "%.4000s-k%u%s", p->base, chunks, suffix);
+}
+
+/* The variance of the mean image (the mean over pixels and channels), NaN below 2 chunks. */
+static double progressive_noise_mse(const progressive_state *p)
+{
+    if (p->chunks < 2)
+        return NAN;
+    size_t n = (size_t)p->m2.width * p->m2.height * 3;
+    double sum = 0.0;
+    for (size_t i = 0; i < n; i++)
+        sum += p->m2.rgb[i];
+    return sum / (double)n / ((double)p->chunks * (p->chunks - 1));
+}
+
+static void progressive_measure(const progressive_state *p, bench_reference *r)
+{
+    image_metrics self;
+    image_compare(&p->mean, &p->mean, NULL, &self);
+    r->noise_mse = progressive_noise_mse(p);
+    r->spp = p->chunks * r->chunk_spp;
+    r->variance = r->noise_mse * r->spp; /* per sample, as the fixed-spp references keep it */
+    r->ceiling_db = r->noise_mse > 0 && self.peak > 0 ? 20.0 * log10(self.peak / sqrt(r->noise_mse)) : NAN;
+}
+
+/* Reads the checkpoint named by BASE.json; 0 chunks when there is none or it does not fit. */
+static void progressive_load(progressive_state *p, const bench_scene *s, bench_reference *r)
+{
+    char meta_path[4200];
+    snprintf(meta_path, sizeof meta_path, "%.4000s.json", p->base);
+    json_t *meta = json_load_file(meta_path, 0, NULL);
+    json_t *chunks = json_object_get(meta, "chunks"), *ms = json_object_get(meta, "ms");
+    json_t *chunk_spp = json_object_get(meta, "chunk_spp");
+    const char *dev = json_string_value(json_object_get(meta, "device"));
+    p->chunks = 0;
+    if (json_is_integer(chunks) && json_integer_value(chunks) >= 1 && json_is_integer(chunk_spp) &&
+        json_integer_value(chunk_spp) == r->chunk_spp) {
+        uint32_t k = (uint32_t)json_integer_value(chunks);
+        char mean_path[4200], m2_path[4200];
+        progressive_path(p, k, ".exr", mean_path, sizeof mean_path);
+        progressive_path(p, k, ".m2.exr", m2_path, sizeof m2_path);
+        ns_error err = {0};
+        if (image_load(mean_path, &p->mean, &err) == 0 && image_load(m2_path, &p->m2, &err) == 0 &&
+            p->mean.width == s->width && p->mean.height == s->height && p->m2.width == s->width &&
+            p->m2.height == s->height) {
+            p->chunks = k;
+            p->ms = json_is_number(ms) ? json_number_value(ms) : NAN;
+            snprintf(r->device, sizeof r->device, "%s", dev ? dev : "?");
+        } else {
+            fprintf(stderr, "bench: %s: checkpoint of %u chunks unreadable (%s); starting again\n",
+                    p->base, k, err.message);
+            ns_image_free(&p->mean);
+            ns_image_free(&p->m2);
+        }
+    }
+    json_decref(meta);
+}
+
+static int progressive_save(const progressive_state *p, const bench_scene *s, const bench_reference *r,
+                            uint32_t components)
+{
+    char mean_path[4200], m2_path[4200], meta_path[4200];
+    progressive_path(p, p->chunks, ".exr", mean_path, sizeof mean_path);
+    progressive_path(p, p->chunks, ".m2.exr", m2_path, sizeof m2_path);
+    snprintf(meta_path, sizeof meta_path, "%.4000s.json", p->base);
+    const ns_image *images[2] = {&p->mean, &p->m2};
+    const char *paths[2] = {mean_path, m2_path};
+    for (int i = 0; i < 2; i++) {
+        encode_buffer exr = {0};
+        ns_error err = {0};
+        int rc = encode_exr(images[i], 0, NULL, 0, &exr, &err) ||
+                 ns_write_file_atomic(paths[i], exr.data, exr.size, &err);
+        encode_buffer_free(&exr);
+        if (rc) {
+            fprintf(stderr, "nscatter bench: cannot write '%s': %s\n", paths[i], err.message);
+            return -1;
+        }
+    }
+    json_t *meta = json_pack("{s:s, s:s, s:I, s:I, s:I, s:I, s:f, s:s, s:f, s:f, s:f}", "scene", s->name,
+                             "components", bench_components_name(components), "chunk_spp",
+                             (json_int_t)r->chunk_spp, "chunks", (json_int_t)p->chunks, "spp",
+                             (json_int_t)r->spp, "first_seed", (json_int_t)BENCH_REF_SEED, "ms", p->ms,
+                             "device", r->device, "noise_mse", isfinite(r->noise_mse) ? r->noise_mse : 0.0,
+                             "ceiling_db", isfinite(r->ceiling_db) ? r->ceiling_db : 0.0, "variance",
+                             isfinite(r->variance) ? r->variance : 0.0);
+    char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
+    json_decref(meta);
+    int rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
+    free(text);
+    if (rc) {
+        fprintf(stderr, "nscatter bench: cannot write '%s'\n", meta_path);
+        return -1;
+    }
+    if (p->chunks > 1) { /* the .json names the new pair now: the old one can go */
+        char old[4200];
+        progressive_path(p, p->chunks - 1, ".exr", old, sizeof old);
+        remove(old);
+        progressive_path(p, p->chunks - 1, ".m2.exr", old, sizeof old);
+        remove(old);
+    }
+    return 0;
+}
+
+/* Welford: the chunk x joins the mean and M2 of the chunks before it. */
+static int progressive_add(progressive_state *p, const ns_image *x)
+{
+    size_t n = (size_t)x->width * x->height * 3;
+    if (!p->chunks) {
+        p->mean = (ns_image){.width = x->width, .height = x->height, .rgb = malloc(n * sizeof(float))};
+        p->m2 = (ns_image){.width = x->width, .height = x->height, .rgb = calloc(n, sizeof(float))};
+        if (!p->mean.rgb || !p->m2.rgb)
+            return -1;
+        memcpy(p->mean.rgb, x->rgb, n * sizeof(float));
+        p->chunks = 1;
+        return 0;
+    }
+    double k = (double)p->chunks + 1.0;
+    for (size_t i = 0; i < n; i++) {
+        double value = x->rgb[i], mean = p->mean.rgb[i];
+        double delta = value - mean, next = mean + delta / k;
+        p->mean.rgb[i] = (float)next;
+        p->m2.rgb[i] = (float)(p->m2.rgb[i] + delta * (value - next));
+    }
+    p->chunks++;
+    return 0;
+}
+
+static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int force)
+{
+    bench_reference *r = &s->refs[set];
+    uint32_t components = bench_ref_components[set];
+    const char *set_name = bench_components_name(components);
+    json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
+    json_object_del(json_object_get(scene_json, "render"), "vrls");
+    uint64_t key = reference_key(b, scene_json);
+    progressive_state p = {0};
+    snprintf(p.base, sizeof p.base, "%.3900s/%.63s-%s-%ux%u-%uspp-progressive-%016llx", b->cache_dir, s->name,
+             set_name, s->width, s->height, s->ref_spp, (unsigned long long)key);
+    for (char *c = strrchr(p.base, '/'); c && *c; c++)
+        if (*c == '+')
+            *c = '_';
+    r->chunk_spp = s->ref_spp;
+    r->noise_mse = r->ceiling_db = r->variance = NAN;
+    progressive_load(&p, s, r);
+    if (force && p.chunks) { /* --references: from the first chunk again */
+        char old[4200];
+        progressive_path(&p, p.chunks, ".exr", old, sizeof old);
+        remove(old);
+        progressive_path(&p, p.chunks, ".m2.exr", old, sizeof old);
+        remove(old);
+        ns_image_free(&p.mean);
+        ns_image_free(&p.m2);
+        p.chunks = 0;
+    }
+    if (p.chunks)
+        progressive_measure(&p, r);
+    double target = b->args.ref_ceiling_db, budget_ms = b->args.ref_budget_s * 1000.0;
+    uint32_t before = p.chunks;
+    int failed = 0;
+    while (!(p.chunks >= 2 && r->ceiling_db >= target)) {
+        if (budget_ms > 0 && b->ref_chunks_ms >= budget_ms) {
+            fprintf(stderr, "bench: %s reference (%s): --ref-budget spent at %u chunks, ceiling %.1f dB\n",
+                    s->name, set_name, p.chunks, r->ceiling_db);
+            break;
+        }
+        uint32_t seed = BENCH_REF_SEED + p.chunks;
+        json_object_set_new(json_object_get(scene_json, "render"), "seed", json_integer(seed));
+        ns_image chunk;
+        ns_render_stats stats;
+        double ms;
+        if (bench_render(b, scene_json, &chunk, &stats, &ms, r->error, sizeof r->error)) {
+            fprintf(stderr, "nscatter bench: %s reference (%s), chunk %u: %s\n", s->name, set_name,
+                    p.chunks + 1, r->error);
+            failed = 1;
+            break;
+        }
+        b->ref_chunks_ms += ms;
+        p.ms = (p.chunks ? p.ms : 0.0) + ms;
+        int added = progressive_add(&p, &chunk);
+        ns_image_free(&chunk);
+        if (added) {
+            snprintf(r->error, sizeof r->error, "out of host memory");
+            failed = 1;
+            break;
+        }
+        snprintf(r->device, sizeof r->device, "%s", b->run.device);
+        progressive_measure(&p, r);
+        if (progressive_save(&p, s, r, components)) {
+            snprintf(r->error, sizeof r->error, "cannot write the checkpoint under %.400s", b->cache_dir);
+            failed = 1;
+            break;
+        }
+        fprintf(stderr, "bench: %s reference (%s): chunk %u, %u spp, noise ceiling %.1f dB (target %.1f), %.1f s\n",
+                s->name, set_name, p.chunks, r->spp, r->ceiling_db, target, ms / 1000.0);
+    }
+    json_decref(scene_json);
+    ns_image_free(&p.m2);
+    if (failed || !p.chunks) {
+        ns_image_free(&p.mean);
+        if (!failed)
+            snprintf(r->error, sizeof r->error, "no chunk rendered within --ref-budget");
+        return 1;
+    }
+    r->image = p.mean;
+    r->ms = p.ms;
+    r->ok = 1;
+    r->generated = p.chunks > before;
+    progressive_path(&p, p.chunks, ".exr", r->path, sizeof r->path);
+    fprintf(stderr, "bench: %s reference (%s): %u chunks of %u spp, noise ceiling %.1f dB%s\n", s->name, set_name,
+            p.chunks, r->chunk_spp, r->ceiling_db, r->generated ? "" : " (cached)");
+    return 0;
+}
+
 static int ensure_reference(bench *b, bench_scene *s, int set, int force)
 {
+    if (b->args.ref_ceiling_db > 0)
+        return ensure_progressive_reference(b, s, set, force);
     bench_reference *r = &s->refs[set];
     uint32_t components = bench_ref_components[set];
     json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
@@ -798,7 +1051,7 @@ static void run_pt_ladder(bench *b, bench_scene *s)
     double sxy = 0, sxx = 0, tsy = 0, tss = 0;
     for (uint32_t i = 0; i < s->ladder_count; i++) {
         const bench_pt_point *p = &s->ladder[i];
-        double x = 1.0 / p->spp + 1.0 / s->ref_spp;
+        double x = 1.0 / p->spp + 1.0 / ref->spp;
         sxy += x * p->mse, sxx += x * x;
         tsy += p->spp * p->pass_ms, tss += (double)p->spp * p->spp;
     }
@@ -812,7 +1065,7 @@ static void run_pt_ladder(bench *b, bench_scene *s)
     if (!nn->ok || !(nn->metrics.pixels > 0))
         return;
     double nn_mse = nn->metrics.rmse[3] * nn->metrics.rmse[3];
-    e->nn_mse_true = nn_mse - e->variance / s->ref_spp;
+    e->nn_mse_true = nn_mse - e->variance / ref->spp;
     /* Within the reference's own noise nn's true error cannot be told from zero: the bound
      * uses the measured error, which only flatters pt. */
     e->lower_bound = !(e->nn_mse_true > 0.1 * nn_mse);

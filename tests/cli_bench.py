@@ -160,13 +160,124 @@ def test_report_and_reference_cache(t, d):
     t.check("references: 2 rendered" in err, "another size renders its own references")
 
 
+def compare(a, b):
+    p = subprocess.run([BIN, "compare", a, b], capture_output=True, timeout=TIMEOUT_S,
+                       env=sanitizer_env())
+    return json.loads(p.stdout) if p.returncode == 0 else None
+
+
+def progressive_refs(t, out):
+    """The References rows of a run with --ref-ceiling, each with its checkpoint's .json."""
+    text = open(os.path.join(out, "report.md"), encoding="utf-8").read()
+    refs = markdown_table(text, "## References")
+    for r in refs:
+        path = r["file"].strip("`")
+        r["path"] = path
+        r["meta"] = json.load(open(path.rsplit("-k", 1)[0] + ".json", encoding="utf-8"))
+    return refs
+
+
+def test_progressive_references(t, d):
+    """--ref-ceiling: chunks of --ref-spp (4) on successive seeds until the noise ceiling
+    reaches the target, checkpointed per chunk, resumed by the next run; the noise it claims
+    is the noise it has, against an independent render."""
+    cache = os.path.join(d, "progressive")
+    target = 28.0
+    args = [*TINY, "--ref-ceiling", str(target), "--cache", cache]
+    # The budget only bounds a broken estimate that would never reach the target.
+    code, _, err = run(*args, "--ref-budget", "60", "--out", os.path.join(d, "p1"))
+    t.equal(code, 0, f"progressive run ({err.strip()[-400:]})")
+    refs = progressive_refs(t, os.path.join(d, "p1"))
+    t.equal({r["components"] for r in refs}, {"full", "surface"}, "progressive reference sets")
+    chunks_of = {}
+    for r in refs:
+        chunks, chunk_spp = (int(x) for x in r["chunks"].split(" × "))
+        chunks_of[r["components"]] = chunks
+        t.check(chunks >= 2 and chunk_spp == 4, f"{r['components']}: {r['chunks']} chunks of 4 spp")
+        t.equal(int(r["spp"]), chunks * 4, f"{r['components']}: spp = chunks x chunk spp")
+        t.check(float(r["noise ceiling dB"]) >= target, f"{r['components']}: ceiling {r['noise ceiling dB']}"
+                f" reaches {target}")
+        t.equal(r["meta"]["chunks"], chunks, f"{r['components']}: the checkpoint names {chunks} chunks")
+        t.check(r["meta"]["ceiling_db"] >= target and r["meta"]["noise_mse"] > 0,
+                f"{r['components']}: checkpoint {r['meta']}")
+    files = sorted(f for f in os.listdir(cache) if f.endswith(".exr"))
+    t.equal(len(files), 4, f"one mean and one M2 per reference, older chunks' removed: {files}")
+
+    # Honest noise: the surface reference against an independent pt render of 256 spp on
+    # another seed. Their MSE is the reference's noise plus that render's (the per-sample
+    # variance over 256); the chunks' spread must predict it. Forgetting to divide the
+    # spread by the chunk count would be off by that count (>= 2).
+    surface = next(r for r in refs if r["components"] == "surface")
+    scene = json.load(open(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                        "scenes", "bench", "cloud.json"), encoding="utf-8"))
+    scene["camera"].update(width=SIZE, height=SIZE)
+    scene["render"].update(method="pt", components=["surface"], spp=256, seed=4242)
+    scene["render"].pop("vrls", None)
+    scene_path = os.path.join(d, "independent.json")
+    with open(scene_path, "w", encoding="utf-8") as f:
+        json.dump(scene, f)
+    independent = os.path.join(d, "independent.exr")
+    p = subprocess.run([BIN, "render", scene_path, "-o", independent], capture_output=True,
+                       timeout=TIMEOUT_S, env=sanitizer_env())
+    t.equal(p.returncode, 0, f"independent render ({p.stderr.decode(errors='replace')[-300:]})")
+    m = compare(surface["path"], independent)
+    if m:
+        measured = m["rmse"]["all"] ** 2
+        meta = surface["meta"]
+        expected = meta["noise_mse"] + meta["variance"] / 256
+        t.check(0.5 < measured / expected < 2.0,
+                f"MSE against an independent render {measured:.3g}, predicted {expected:.3g}")
+        print(f"progressive surface reference: {meta['chunks']} chunks, MSE against an independent "
+              f"256-spp render {measured:.4g}, predicted {expected:.4g}")
+
+    # Nothing to add: the second run reads the checkpoints and touches no file.
+    mtimes = {f: os.stat(os.path.join(cache, f)).st_mtime_ns for f in os.listdir(cache)}
+    code, _, err = run(*args, "--out", os.path.join(d, "p2"))
+    t.equal(code, 0, f"second progressive run ({err.strip()[-300:]})")
+    t.check("references: 0 rendered" in err, f"second run renders no chunk: {err[-300:]}")
+    t.check(all(os.stat(os.path.join(cache, f)).st_mtime_ns == m for f, m in mtimes.items()),
+            "checkpoints untouched")
+
+    # A higher target resumes: more chunks than before, the first ones kept (the chunk count
+    # grows from where it was, and the earlier pair is replaced by the new one).
+    code, _, err = run(*TINY, "--ref-ceiling", str(target + 4), "--cache", cache, "--out",
+                       os.path.join(d, "p3"))
+    t.equal(code, 0, f"resumed run ({err.strip()[-300:]})")
+    for r in progressive_refs(t, os.path.join(d, "p3")):
+        before = chunks_of[r["components"]]
+        t.check(r["meta"]["chunks"] > before, f"{r['components']}: {r['meta']['chunks']} chunks after {before}")
+        t.check(f"chunk {before + 1}," in err, f"{r['components']}: resumed at chunk {before + 1}")
+    t.check("chunk 1," not in err, "resumed, not started again")
+    t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "still one pair per reference")
+
+    # A budget stops early and says so; the report gives the ceiling reached.
+    code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-budget", "1", "--cache", cache, "--out",
+                       os.path.join(d, "p4"))
+    t.equal(code, 0, f"budgeted run ({err.strip()[-300:]})")
+    t.check("--ref-budget spent" in err, f"the budget's end is reported: {err[-300:]}")
+    for r in progressive_refs(t, os.path.join(d, "p4")):
+        t.check(float(r["noise ceiling dB"]) < 120, f"{r['components']}: below the target")
+
+    # --references starts again from the first chunk.
+    code, _, err = run(*args, "--references", "--out", os.path.join(d, "p5"))
+    t.equal(code, 0, f"--references with --ref-ceiling ({err.strip()[-300:]})")
+    t.check("chunk 1," in err and "references: 2 rendered" in err, f"rendered again: {err[-300:]}")
+    t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "the old chunks' files removed")
+
+    for bad, named in ((["--ref-budget", "5"], "--ref-budget"), (["--ref-ceiling", "0"], "--ref-ceiling"),
+                       (["--ref-ceiling", "loud"], "--ref-ceiling")):
+        code, _, err = run(*TINY, *bad, "--cache", cache, "--out", os.path.join(d, "bad"))
+        t.equal(code, 2, f"exit status of bench {' '.join(bad)}")
+        t.check(named in err, f"bench {' '.join(bad)}: message names {named!r}: {err.strip()[-200:]}")
+
+
 def main():
     t = Checks()
     if not BIN:
         print("NSCATTER_BIN is not set (run through ctest)", file=sys.stderr)
         return 1
     with tempfile.TemporaryDirectory(prefix="nscatter-bench-") as d:
-        for test in (test_bad_arguments, test_report_and_reference_cache):
+        for test in (test_bad_arguments, test_report_and_reference_cache, test_progressive_references):
             t.run(test, d)
     return t.report()
 
