@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "internal.h"
+#include "source_keep.h"
 #include "scatter.h"
 
 static int env_flag(const char *name)
@@ -68,6 +69,7 @@ void ns_context_destroy(ns_context *ctx)
     }
     gpu_device_destroy(&ctx->dev);
     ns_bvh_keep_free(&ctx->bvh);
+    ns_source_keep_free(ctx);
     pthread_mutex_destroy(&ctx->lock);
     free(ctx->pipeline_cache_path);
     free(ctx);

@@ -100,6 +100,7 @@ void ns_bvh_keep_free(ns_bvh_keep *keep);
 
 /* The context: made once, used by one render at a time (lock serialises them anyway). */
 struct ns_table_cache; /* render/scatter_tables.c */
+struct ns_source_keep; /* render/source_keep.c */
 struct ns_nn_state;    /* render/scatter_tables.c: the networks and their pipeline */
 
 struct ns_context {
@@ -117,6 +118,8 @@ struct ns_context {
     ns_run run;          /* the render in progress: its control, its progress */
     ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
     ns_camera_keep camera; /* the last camera pass, for the next render that makes the same */
+    struct ns_source_keep *sources; /* the last sources, for the next render that makes the
+                                       same (render/source_keep.h); NULL: none */
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);

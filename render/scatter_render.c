@@ -26,6 +26,7 @@
 #include <string.h>
 
 #include "boundary.h"
+#include "source_keep.h"
 #include "scatter.h"
 #include "vrl_method.h"
 #include "vrl_shared.h"
@@ -675,7 +676,7 @@ static int lines_may_return(const ns_scene *scene)
  * as render.vrls and at least NS_BOUNDARY_MIN_WALKS, on a seed of their own), turned into
  * grouped sources (boundary.c). */
 static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *v,
-                                 ns_render_stats *stats, ns_error *err)
+                                 ns_error *err)
 {
     const ns_scene *scene = in->scene;
     ns_vrl_set walks;
@@ -710,9 +711,6 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     n = ns_boundary_roulette(sources, n, floor, scene->render.seed ^ 0x85ebca6bu);
     status = ns_boundary_group(sources, n, scene->render.components, &v->boundary, err);
     free(sources);
-    if (!status && stats)
-        for (uint32_t g = 0; g < v->boundary.count; g++)
-            stats->boundary_sources += v->boundary.group[g].set.count;
     return status;
 }
 
@@ -731,22 +729,39 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     if (!v->grids || !v->grid_built || !v->table_bytes || !v->boundary_grids || !v->boundary_grid_built)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
     int boundary = scene->render.boundary != NS_BOUNDARY_OFF;
-    ns_stage stage = stage_begin(ctx, T_VRL, 0.0, boundary ? 0.5 : 1.0);
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
      * VRLs of their own; with the boundary correction its walks follow them instead, as far
      * as they go (the chain stops at NS_VRL_MAX_CHAIN). */
     uint32_t chain = bounded_beams(scene) && !boundary ? NS_VRL_MAX_CHAIN : 1;
-    int status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls,
-                                 chain, scene->render.seed, &v->set, err);
-    stage_end(ctx, times, T_VRL, &stage);
+    /* The sources do not depend on the camera: a render that makes the same ones as the
+     * context's last takes a copy of them (source_keep.c), and lists no stage "vrl" or
+     * "boundary". */
+    size_t signature_bytes = 0;
+    unsigned char *signature = ns_source_signature(scene, in->gs, chain, &signature_bytes);
+    int reused = ns_source_keep_take(ctx, signature, signature_bytes, &v->set, &v->boundary);
+    int status = NS_OK;
+    if (!reused) {
+        ns_stage stage = stage_begin(ctx, T_VRL, 0.0, boundary ? 0.5 : 1.0);
+        status = ns_vrl_generate(ctx, scene, in->gs, in->scene_buffers, scene->render.vrls, chain,
+                                 scene->render.seed, &v->set, err);
+        stage_end(ctx, times, T_VRL, &stage);
+        if (!status && boundary) {
+            stage = stage_begin(ctx, T_BOUNDARY, 0.5, 1.0);
+            status = boundary_sources_make(ctx, in, v, err);
+            stage_end(ctx, times, T_BOUNDARY, &stage);
+        }
+        if (!status) {
+            ns_source_keep_put(ctx, signature, signature_bytes, &v->set, &v->boundary);
+            signature = NULL;
+        }
+    }
+    free(signature);
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
-    }
-    if (!status && boundary) {
-        stage = stage_begin(ctx, T_BOUNDARY, 0.5, 1.0);
-        status = boundary_sources_make(ctx, in, v, stats, err);
-        stage_end(ctx, times, T_BOUNDARY, &stage);
+        for (uint32_t g = 0; g < v->boundary.count; g++)
+            stats->boundary_sources += v->boundary.group[g].set.count;
+        stats->sources_reused |= (uint32_t)reused;
     }
     return status;
 }

@@ -255,6 +255,8 @@ static json_t *reused_json(const ns_render_stats *s, job_state state)
         json_array_append_new(list, json_string("bvh"));
     if (s->camera_reused)
         json_array_append_new(list, json_string("camera"));
+    if (s->sources_reused)
+        json_array_append_new(list, json_string("sources"));
     if (s->tables_reused > 0 && s->tables_made == 0)
         json_array_append_new(list, json_string("tables"));
     return list;

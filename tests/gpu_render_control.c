@@ -18,7 +18,10 @@
  *     render that built its BVH), 0 after a geometry change; camera_reused 1 for another
  *     albedo and g at the same extinction (the image equal, bit for bit, to a render that
  *     traced), 0 after an extinction one ulp away, an ior or a light changed and for pt,
- *     the kept buffers not counted as live;
+ *     the kept buffers not counted as live; sources_reused 1 for another camera, image size
+ *     and spp with the boundary correction (the image equal, bit for bit, to a fresh
+ *     context's), 0 after a light, a material, the seed, the VRL count or the components
+ *     changed and for pt;
  *   - a zeroed control renders what ns_render renders.
  * Small images (16 x 12): a few seconds on lavapipe. */
 #include "gpu_util.h"
@@ -624,6 +627,90 @@ static void test_camera_reused(void)
     CHECK_INT(ctx->dev.live_buffers, buffers);
 }
 
+/* The light's sources (VRLs and the boundary correction's walks) kept across camera changes:
+ * reused for another camera, image size and sample count, with the image a fresh context
+ * gives; made again when a light, a material, the seed, the VRL count or the components
+ * change. */
+static ns_scene walks_scene(void)
+{
+    ns_scene s = nn_scene();
+    s.render.boundary = NS_BOUNDARY_WALKS;
+    s.render.vrls = 600;
+    return s;
+}
+
+static void test_sources_reused(void)
+{
+    ns_context *ctx = test_context();
+    ns_scene a = walks_scene();
+    ns_image img = {0}, built = {0};
+    ns_render_stats first = {0}, stats = {0}, fresh_stats = {0};
+    if (plain(ctx, &a, &img, &first)) {
+        CHECK_INT(first.sources_reused, 0); /* the context's last sources were others' */
+        CHECK(has_stage(&first, "vrl"));
+        CHECK(has_stage(&first, "boundary"));
+        CHECK(first.boundary_sources > 0);
+    }
+    ns_image_free(&img);
+    /* Another camera, image size and sample count: the same sources. */
+    ns_scene b = a;
+    b.camera.position[0] = 1.5f;
+    b.camera.fov_deg = 50.0f;
+    b.camera.width = 14;
+    b.render.spp = 2;
+    if (plain(ctx, &b, &img, &stats)) {
+        CHECK_INT(stats.sources_reused, 1);
+        CHECK(!has_stage(&stats, "vrl"));
+        CHECK(!has_stage(&stats, "boundary"));
+        CHECK(stats.vrl_count == first.vrl_count && stats.vrl_paths == first.vrl_paths);
+        CHECK(stats.boundary_sources == first.boundary_sources);
+    }
+    if (plain(fresh, &b, &built, &fresh_stats)) {
+        CHECK_INT(fresh_stats.sources_reused, 0);
+        CHECK(same_image(&img, &built));
+    }
+    ns_image_free(&img);
+    ns_image_free(&built);
+    /* What the sources depend on: each change traces them again. */
+    ns_light moved_lights[2];
+    memcpy(moved_lights, b.lights, sizeof moved_lights);
+    moved_lights[0].direction[0] = 0.2f;
+    ns_material other_mats[2];
+    memcpy(other_mats, b.materials, sizeof other_mats);
+    other_mats[1].sigma_s[2] *= 0.5f;
+    struct {
+        const char *what;
+        ns_scene scene;
+    } changes[5];
+    for (int i = 0; i < 5; i++)
+        changes[i].scene = b;
+    changes[0].what = "a light", changes[0].scene.lights = moved_lights;
+    changes[1].what = "a material", changes[1].scene.materials = other_mats;
+    changes[2].what = "the seed", changes[2].scene.render.seed = b.render.seed + 1;
+    changes[3].what = "the VRL count", changes[3].scene.render.vrls = b.render.vrls + 1;
+    changes[4].what = "the components", changes[4].scene.render.components = NS_COMPONENT_MULTIPLE;
+    for (int i = 0; i < 5; i++) {
+        /* Back to b's sources first, so that only this change differs. */
+        plain(ctx, &b, &img, NULL);
+        ns_image_free(&img);
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &changes[i].scene, &img, &stats)) {
+            if (stats.sources_reused)
+                fprintf(stderr, "sources reused after a change of %s\n", changes[i].what);
+            CHECK_INT(stats.sources_reused, 0);
+            CHECK(has_stage(&stats, "vrl"));
+        }
+        ns_image_free(&img);
+    }
+    /* pt makes no such sources. */
+    ns_scene pt = b;
+    pt.render.method = NS_METHOD_PT;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &pt, &img, &stats))
+        CHECK_INT(stats.sources_reused, 0);
+    ns_image_free(&img);
+}
+
 static void test_zeroed_control_is_ns_render(void)
 {
     ns_context *ctx = test_context();
@@ -651,6 +738,7 @@ int main(void)
     RUN(test_tables_counted);
     RUN(test_bvh_reused);
     RUN(test_camera_reused);
+    RUN(test_sources_reused);
     RUN(test_zeroed_control_is_ns_render);
     ns_image_free(&fresh_pt);
     ns_image_free(&fresh_nn);

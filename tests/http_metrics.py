@@ -63,6 +63,7 @@ FAMILIES = {
     "nscatter_table_cache_bytes": "gauge",
     "nscatter_bvh_reused": "counter",
     "nscatter_camera_reused": "counter",
+    "nscatter_sources_reused": "counter",
     "nscatter_device_info": "gauge",
     "nscatter_device_live_buffers": "gauge",
     "process_resident_memory_bytes": "gauge",
@@ -458,7 +459,8 @@ def test_table_cache(t, srv):
     conn = Conn(srv)
     try:
         names = ("nscatter_table_cache_hits_total", "nscatter_table_cache_misses_total",
-                 "nscatter_bvh_reused_total", "nscatter_camera_reused_total")
+                 "nscatter_bvh_reused_total", "nscatter_camera_reused_total",
+                 "nscatter_sources_reused_total")
         # A g no other test renders: its tables are not in the cache yet.
         scene = json.dumps(table_scene(0.37)).encode()
         h = {"Content-Type": "application/json"}
@@ -467,14 +469,15 @@ def test_table_cache(t, srv):
         b = scrape(conn)
         t.equal(conn.request("POST", "/v1/renders", scene, h)[0], 200, "the same again")
         c = scrape(conn)
-        hits, misses, bvh, camera = (b.value(n) - a.value(n) for n in names)
+        hits, misses, bvh, camera, sources = (b.value(n) - a.value(n) for n in names)
         t.check(misses > 0, f"the first render made tables: misses +{misses}")
         t.equal(hits, 0, "and found none in the cache")
-        hits, misses, bvh, camera = (c.value(n) - b.value(n) for n in names)
+        hits, misses, bvh, camera, sources = (c.value(n) - b.value(n) for n in names)
         t.check(hits > 0, f"the second render found its tables: hits +{hits}")
         t.equal(misses, 0, "and made none")
         t.equal(bvh, 1, "and kept the BVH")
         t.equal(camera, 1, "and the camera pass")
+        t.equal(sources, 1, "and the light's sources")
         t.check(c.value("nscatter_table_cache_bytes") > 0,
                 f"the cache holds bytes: {c.value('nscatter_table_cache_bytes')}")
         t.equal(c.value(RENDERS, method="nn", state="done") -

@@ -93,7 +93,7 @@ def check_sweep_json(t, sweep, overrides, what):
         t.equal(v.get("image"), sweep_path(sid, f"/images/{i}"), f"{what}: variant {i} image link")
         t.check(isinstance(v.get("timings_ms"), dict), f"{what}: variant {i} timings_ms")
         t.check(isinstance(v.get("reused"), list) and
-                set(v["reused"]) <= {"bvh", "camera", "tables"},
+                set(v["reused"]) <= {"bvh", "camera", "tables", "sources"},
                 f"{what}: variant {i} reused {v.get('reused')!r}")
     order = sweep.get("order")
     t.check(isinstance(order, list) and sorted(order) == list(range(len(overrides))),

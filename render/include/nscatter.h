@@ -411,6 +411,12 @@ typedef struct ns_render_stats {
      * and g: albedo at a fixed extinction, and g). No stage "ray_pass" is listed then. The
      * image is the same, bit for bit (render/camera_keep.c). */
     uint32_t camera_reused;
+    /* 1: the light's sources (the VRLs and, with render.boundary, the boundary sources of
+     * the table and dipole methods) were kept from the context's last render, which made the
+     * same ones: same geometry, media, lights, seed and VRL count (and components, with the
+     * boundary correction), whatever the camera. No stage "vrl" or "boundary" is listed then.
+     * The image is the same, bit for bit (render/source_keep.c). */
+    uint32_t sources_reused;
 } ns_render_stats;
 
 /* Renders scene into *out (allocated here). Render settings left 0 take their defaults
