@@ -36,6 +36,10 @@
 #define BENCH_REF_SEED 1u
 #define BENCH_LADDER_SEED 1000u /* pt ladder renders: seeds apart from the reference's */
 #define BENCH_NOISE_SEED 2000u  /* the short render that measures a reference's noise */
+/* Progressive references stop adding chunks here even below their target: pt's noise can
+ * be heavy-tailed enough (fireflies) that the estimated ceiling falls for a while as chunks
+ * come in (docs/bench.md), and a target must not mean an endless run. */
+#define BENCH_REF_MAX_SPP 65536u
 
 /* ---------------------------------------------------------------------------------------
  * Arguments.
@@ -46,6 +50,7 @@ typedef struct bench_args {
     uint32_t width, height, spp, ref_spp, repeat;
     double vrl_scale, mc_collisions;
     double ref_ceiling_db, ref_budget_s; /* progressive references (0: off / no budget) */
+    uint32_t ref_max_spp;                /* progressive references stop there */
     int references_only;
 } bench_args;
 
@@ -70,8 +75,10 @@ static void bench_usage(FILE *out)
             "                     seeds, merged, until each reference's noise ceiling (from the\n"
             "                     chunks' spread) reaches DB; cached after every chunk, resumed\n"
             "                     by the next run\n"
-            "  --ref-budget S     with --ref-ceiling: stop adding chunks after S seconds of\n"
-            "                     references in this run (the report gives the ceilings reached)\n"
+            "  --ref-budget S     with --ref-ceiling: at most S seconds of chunks in this run,\n"
+            "                     shared equally by the references still to make (the report\n"
+            "                     gives the ceilings reached)\n"
+            "  --ref-max-spp N    with --ref-ceiling: no chunk beyond N spp (default 65536)\n"
             "  --pt-spp A,B,..    spp of the short pt renders (default 1,4,16)\n"
             "  --repeat N         renders per method; the time is the median after the first (2)\n"
             "  --vrl-scale F      multiplies the scenes' VRL counts (default 1)\n"
@@ -175,6 +182,8 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
             rc = parse_real(arg, val, 1.0, 200.0, &a->ref_ceiling_db);
         } else if (TAKES("--ref-budget")) {
             rc = parse_real(arg, val, 1.0, 1e7, &a->ref_budget_s);
+        } else if (TAKES("--ref-max-spp")) {
+            rc = parse_u32(arg, val, 1, UINT32_MAX / 2, &a->ref_max_spp);
         } else if (TAKES("--repeat")) {
             rc = parse_u32(arg, val, 1, 50, &a->repeat);
         } else if (TAKES("--vrl-scale")) {
@@ -210,11 +219,13 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
     }
     if (bench_method_by_name(a->diff, strlen(a->diff)) < 0)
         return bench_bad("--diff", a->diff, "not a method name (see --methods)");
-    if (a->ref_budget_s > 0 && !(a->ref_ceiling_db > 0)) {
-        fprintf(stderr, "nscatter bench: --ref-budget: only with --ref-ceiling (a reference of "
-                        "fixed spp has no time to budget)\n");
+    if ((a->ref_budget_s > 0 || a->ref_max_spp) && !(a->ref_ceiling_db > 0)) {
+        fprintf(stderr, "nscatter bench: %s: only with --ref-ceiling (a reference of fixed spp "
+                        "has no chunks to bound)\n", a->ref_budget_s > 0 ? "--ref-budget" : "--ref-max-spp");
         return 2;
     }
+    if (!a->ref_max_spp)
+        a->ref_max_spp = BENCH_REF_MAX_SPP;
     return 0;
 }
 
@@ -293,7 +304,8 @@ typedef struct bench {
     char scene_dir[4096], cache_dir[4096], asset_dir[4200];
     uint32_t ladder[BENCH_MAX_LADDER], ladder_count;
     ns_mc_provider *mc; /* method "table": the server's Monte Carlo provider (mc_provider.h) */
-    double ref_chunks_ms; /* time spent on progressive chunks in this run (--ref-budget) */
+    double ref_chunks_ms;  /* time spent on progressive chunks in this run (--ref-budget) */
+    uint32_t ref_pending; /* progressive references not yet made in this run (its share) */
 } bench;
 
 /* ---------------------------------------------------------------------------------------
@@ -791,13 +803,25 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
     }
     if (p.chunks)
         progressive_measure(&p, r);
+    /* This reference's share of what is left of the budget: a hard scene does not take the
+     * time of the ones after it. */
     double target = b->args.ref_ceiling_db, budget_ms = b->args.ref_budget_s * 1000.0;
+    double share_ms = budget_ms > 0 ? (budget_ms - b->ref_chunks_ms) / (b->ref_pending ? b->ref_pending : 1) : 0;
+    double spent_ms = 0.0;
     uint32_t before = p.chunks;
     int failed = 0;
+    if (b->ref_pending)
+        b->ref_pending--;
     while (!(p.chunks >= 2 && r->ceiling_db >= target)) {
-        if (budget_ms > 0 && b->ref_chunks_ms >= budget_ms) {
-            fprintf(stderr, "bench: %s reference (%s): --ref-budget spent at %u chunks, ceiling %.1f dB\n",
-                    s->name, set_name, p.chunks, r->ceiling_db);
+        if (budget_ms > 0 && spent_ms >= share_ms) {
+            fprintf(stderr, "bench: %s reference (%s): its share of --ref-budget spent at %u chunks, "
+                            "ceiling %.1f dB\n", s->name, set_name, p.chunks, r->ceiling_db);
+            break;
+        }
+        if ((uint64_t)(p.chunks + 1) * r->chunk_spp > b->args.ref_max_spp) {
+            fprintf(stderr, "bench: %s reference (%s): --ref-max-spp %u reached at %u chunks, "
+                            "ceiling %.1f dB\n", s->name, set_name, b->args.ref_max_spp, p.chunks,
+                    r->ceiling_db);
             break;
         }
         uint32_t seed = BENCH_REF_SEED + p.chunks;
@@ -812,6 +836,7 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
             break;
         }
         b->ref_chunks_ms += ms;
+        spent_ms += ms;
         p.ms = (p.chunks ? p.ms : 0.0) + ms;
         int added = progressive_add(&p, &chunk);
         ns_image_free(&chunk);
@@ -835,7 +860,7 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
     if (failed || !p.chunks) {
         ns_image_free(&p.mean);
         if (!failed)
-            snprintf(r->error, sizeof r->error, "no chunk rendered within --ref-budget");
+            snprintf(r->error, sizeof r->error, "no chunk rendered within --ref-budget or --ref-max-spp");
         return 1;
     }
     r->image = p.mean;
@@ -1318,6 +1343,12 @@ int cmd_bench(int argc, char **argv)
      * made fails the run (exit 1) but not the other scenes: the report says what is missing. */
     int references_failed = 0, wrote = 0;
     uint32_t made = 0;
+    for (uint32_t i = 0; !rc && b->args.ref_ceiling_db > 0 && i < b->run.scene_count; i++) {
+        bench_scene *s = &b->run.scenes[i];
+        mark_wanted_references(b, s);
+        for (int set = 0; set < BENCH_REF_SETS && !s->skipped; set++)
+            b->ref_pending += (uint32_t)s->refs[set].wanted;
+    }
     double ref_ms = 0;
     for (uint32_t i = 0; !rc && i < b->run.scene_count; i++) {
         bench_scene *s = &b->run.scenes[i];

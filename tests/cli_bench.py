@@ -254,7 +254,7 @@ def test_progressive_references(t, d):
     code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-budget", "1", "--cache", cache, "--out",
                        os.path.join(d, "p4"))
     t.equal(code, 0, f"budgeted run ({err.strip()[-300:]})")
-    t.check("--ref-budget spent" in err, f"the budget's end is reported: {err[-300:]}")
+    t.check("share of --ref-budget spent" in err, f"the budget's end is reported: {err[-300:]}")
     for r in progressive_refs(t, os.path.join(d, "p4")):
         t.check(float(r["noise ceiling dB"]) < 120, f"{r['components']}: below the target")
 
@@ -264,8 +264,18 @@ def test_progressive_references(t, d):
     t.check("chunk 1," in err and "references: 2 rendered" in err, f"rendered again: {err[-300:]}")
     t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "the old chunks' files removed")
 
+    # --ref-max-spp stops a target that is out of reach: 3 chunks of 4 spp, then no more.
+    capped = os.path.join(d, "capped")
+    code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-max-spp", "12", "--cache", capped,
+                       "--out", os.path.join(d, "p6"))
+    t.equal(code, 0, f"--ref-max-spp run ({err.strip()[-300:]})")
+    t.check("--ref-max-spp 12 reached at 3 chunks" in err, f"the cap is reported: {err[-300:]}")
+    for r in progressive_refs(t, os.path.join(d, "p6")):
+        t.equal((r["meta"]["chunks"], r["spp"]), (3, "12"), f"{r['components']}: capped at 12 spp")
+
     for bad, named in ((["--ref-budget", "5"], "--ref-budget"), (["--ref-ceiling", "0"], "--ref-ceiling"),
-                       (["--ref-ceiling", "loud"], "--ref-ceiling")):
+                       (["--ref-ceiling", "loud"], "--ref-ceiling"), (["--ref-max-spp", "8"], "--ref-max-spp"),
+                       (["--ref-ceiling", "30", "--ref-max-spp", "0"], "--ref-max-spp")):
         code, _, err = run(*TINY, *bad, "--cache", cache, "--out", os.path.join(d, "bad"))
         t.equal(code, 2, f"exit status of bench {' '.join(bad)}")
         t.check(named in err, f"bench {' '.join(bad)}: message names {named!r}: {err.strip()[-200:]}")
