@@ -88,7 +88,7 @@ static void bench_usage(FILE *out)
             "  --cache DIR        reference cache (default: $NSCATTER_CACHE_DIR, else\n"
             "                     ~/.cache/nscatter/bench)\n"
             "  --references       (re)render the references of the chosen scenes, report the\n"
-            "                     time, and stop\n"
+            "                     time, and stop (with --ref-ceiling: resume their chunks)\n"
             "  --diff METHOD      method in the contact sheet's difference column (nn_full)\n"
             "  --boundary MODEL   render.boundary of the nn and table rows: off (the scenes'\n"
             "                     default) or walks\n"
@@ -790,17 +790,10 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
             *c = '_';
     r->chunk_spp = s->ref_spp;
     r->noise_mse = r->ceiling_db = r->variance = NAN;
+    /* --references (force) does not start them again: a progressive reference is hours of
+     * chunks, and a references-only run is how they are made; its checkpoint is resumed. */
+    (void)force;
     progressive_load(&p, s, r);
-    if (force && p.chunks) { /* --references: from the first chunk again */
-        char old[4200];
-        progressive_path(&p, p.chunks, ".exr", old, sizeof old);
-        remove(old);
-        progressive_path(&p, p.chunks, ".m2.exr", old, sizeof old);
-        remove(old);
-        ns_image_free(&p.mean);
-        ns_image_free(&p.m2);
-        p.chunks = 0;
-    }
     if (p.chunks)
         progressive_measure(&p, r);
     /* This reference's share of what is left of the budget: a hard scene does not take the

@@ -258,11 +258,14 @@ def test_progressive_references(t, d):
     for r in progressive_refs(t, os.path.join(d, "p4")):
         t.check(float(r["noise ceiling dB"]) < 120, f"{r['components']}: below the target")
 
-    # --references starts again from the first chunk.
-    code, _, err = run(*args, "--references", "--out", os.path.join(d, "p5"))
+    # --references works on the references only and resumes them (hours of chunks are not
+    # thrown away): a higher target adds chunks, writes no report.
+    code, _, err = run(*TINY, "--references", "--ref-ceiling", str(target + 6), "--cache", cache,
+                       "--out", os.path.join(d, "p5"))
     t.equal(code, 0, f"--references with --ref-ceiling ({err.strip()[-300:]})")
-    t.check("chunk 1," in err and "references: 2 rendered" in err, f"rendered again: {err[-300:]}")
-    t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "the old chunks' files removed")
+    t.check("chunk 1," not in err and "references: 0 rendered" not in err, f"resumed: {err[-300:]}")
+    t.check(not os.path.exists(os.path.join(d, "p5", "report.md")), "--references writes no report")
+    t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "one pair per reference")
 
     # --ref-max-spp stops a target that is out of reach: 3 chunks of 4 spp, then no more.
     capped = os.path.join(d, "capped")
