@@ -35,18 +35,9 @@ typedef struct source_inputs {
     uint32_t paths, chain, seed, boundary, components;
 } source_inputs;
 
-static void append(unsigned char **at, const void *data, size_t bytes)
-{
-    if (bytes)
-        memcpy(*at, data, bytes);
-    *at += bytes;
-}
-
 unsigned char *ns_source_signature(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t chain,
                                    size_t *bytes)
 {
-    size_t prims = gs->bvh_prim_count + gs->plane_count;
-    size_t counts[4] = {gs->node_count, prims, gs->material_count, gs->light_count};
     source_inputs inputs = {
         .paths = scene->render.vrls,
         .chain = chain,
@@ -62,21 +53,7 @@ unsigned char *ns_source_signature(const ns_scene *scene, const ns_gpu_scene *gs
     memset(params.cam_forward, 0, sizeof params.cam_forward);
     params.image[0] = params.image[1] = params.image[2] = 0; /* width, height, spp; not the seed */
     params.counts[2] = 0;                                     /* the segment buffer's capacity */
-    size_t size = sizeof inputs + sizeof counts + sizeof params + counts[0] * sizeof(GpuNode) +
-                  counts[1] * sizeof(GpuPrim) + counts[2] * sizeof(GpuMaterial) +
-                  counts[3] * sizeof(GpuLight);
-    unsigned char *sig = malloc(size), *at = sig;
-    if (!sig)
-        return NULL; /* no reuse: the sources are traced */
-    append(&at, &inputs, sizeof inputs);
-    append(&at, counts, sizeof counts);
-    append(&at, &params, sizeof params);
-    append(&at, gs->nodes, counts[0] * sizeof(GpuNode));
-    append(&at, gs->prims, counts[1] * sizeof(GpuPrim));
-    append(&at, gs->materials, counts[2] * sizeof(GpuMaterial));
-    append(&at, gs->lights, counts[3] * sizeof(GpuLight));
-    *bytes = size;
-    return sig;
+    return ns_scene_signature(gs, &params, 0, &inputs, sizeof inputs, bytes);
 }
 
 static int copy_set(ns_vrl_set *to, const ns_vrl_set *from)
