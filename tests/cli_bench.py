@@ -250,14 +250,6 @@ def test_progressive_references(t, d):
     t.check("chunk 1," not in err, "resumed, not started again")
     t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "still one pair per reference")
 
-    # A budget stops early and says so; the report gives the ceiling reached.
-    code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-budget", "1", "--cache", cache, "--out",
-                       os.path.join(d, "p4"))
-    t.equal(code, 0, f"budgeted run ({err.strip()[-300:]})")
-    t.check("share of --ref-budget spent" in err, f"the budget's end is reported: {err[-300:]}")
-    for r in progressive_refs(t, os.path.join(d, "p4")):
-        t.check(float(r["noise ceiling dB"]) < 120, f"{r['components']}: below the target")
-
     # --references works on the references only and resumes them (hours of chunks are not
     # thrown away): a higher target adds chunks, writes no report.
     code, _, err = run(*TINY, "--references", "--ref-ceiling", str(target + 6), "--cache", cache,
@@ -266,6 +258,14 @@ def test_progressive_references(t, d):
     t.check("chunk 1," not in err and "references: 0 rendered" not in err, f"resumed: {err[-300:]}")
     t.check(not os.path.exists(os.path.join(d, "p5", "report.md")), "--references writes no report")
     t.equal(len([f for f in os.listdir(cache) if f.endswith(".exr")]), 4, "one pair per reference")
+
+    # A budget stops early and says so; the report gives the ceiling reached.
+    code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-budget", "1", "--cache", cache, "--out",
+                       os.path.join(d, "p4"))
+    t.equal(code, 0, f"budgeted run ({err.strip()[-300:]})")
+    t.check("share of --ref-budget spent" in err, f"the budget's end is reported: {err[-300:]}")
+    for r in progressive_refs(t, os.path.join(d, "p4")):
+        t.check(float(r["noise ceiling dB"]) < 120, f"{r['components']}: below the target")
 
     # --ref-max-spp stops a target that is out of reach: 3 chunks of 4 spp, then no more.
     capped = os.path.join(d, "capped")
