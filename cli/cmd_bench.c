@@ -697,7 +697,9 @@ static void progressive_load(progressive_state *p, const bench_scene *s, bench_r
             p->mean.width == s->width && p->mean.height == s->height && p->m2.width == s->width &&
             p->m2.height == s->height) {
             p->chunks = k;
-            p->ms = json_is_number(ms) ? json_number_value(ms) : NAN;
+            /* Not a finite number (an edited file): 0, as json_pack refuses NaN and every
+             * later checkpoint would fail to write. */
+            p->ms = json_is_number(ms) && isfinite(json_number_value(ms)) ? json_number_value(ms) : 0.0;
             snprintf(r->device, sizeof r->device, "%s", dev ? dev : "?");
         } else {
             fprintf(stderr, "bench: %s: checkpoint of %u chunks unreadable (%s); starting again\n",
@@ -778,7 +780,9 @@ static int progressive_add(progressive_state *p, const ns_image *x)
     return 0;
 }
 
-static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int force)
+/* --references does not start these again: a progressive reference is hours of chunks, and a
+ * references-only run is how they are made; its checkpoint is resumed. */
+static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
 {
     bench_reference *r = &s->refs[set];
     uint32_t components = bench_ref_components[set];
@@ -794,9 +798,6 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
             *c = '_';
     r->chunk_spp = s->ref_spp;
     r->noise_mse = r->ceiling_db = r->variance = NAN;
-    /* --references (force) does not start them again: a progressive reference is hours of
-     * chunks, and a references-only run is how they are made; its checkpoint is resumed. */
-    (void)force;
     progressive_load(&p, s, r);
     if (p.chunks)
         progressive_measure(&p, r);
@@ -873,7 +874,7 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set, int f
 static int ensure_reference(bench *b, bench_scene *s, int set, int force)
 {
     if (b->args.ref_ceiling_db > 0)
-        return ensure_progressive_reference(b, s, set, force);
+        return ensure_progressive_reference(b, s, set);
     bench_reference *r = &s->refs[set];
     uint32_t components = bench_ref_components[set];
     json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
@@ -1071,9 +1072,9 @@ static void run_pt_ladder(bench *b, bench_scene *s)
     /* variance: least squares through the origin of MSE against 1/spp + 1/ref_spp;
      * time per spp: least squares of pt_pass against spp through the origin. */
     double sxy = 0, sxx = 0, tsy = 0, tss = 0;
-    for (uint32_t i = 0; i < s->ladder_count; i++) {
+    for (uint32_t i = 0; ref->ok && i < s->ladder_count; i++) {
         const bench_pt_point *p = &s->ladder[i];
-        double x = 1.0 / p->spp + 1.0 / ref->spp;
+        double x = 1.0 / p->spp + 1.0 / ref->spp; /* a reference that is ok has spp >= 1 */
         sxy += x * p->mse, sxx += x * x;
         tsy += p->spp * p->pass_ms, tss += (double)p->spp * p->spp;
     }

@@ -278,8 +278,26 @@ def test_progressive_references(t, d):
                        "--out", os.path.join(d, "p6"))
     t.equal(code, 0, f"--ref-max-spp run ({err.strip()[-300:]})")
     t.check("--ref-max-spp 12 reached at 3 chunks" in err, f"the cap is reported: {err[-300:]}")
+    metas = {}
     for r in progressive_refs(t, os.path.join(d, "p6")):
         t.equal((r["meta"]["chunks"], r["spp"]), (3, "12"), f"{r['components']}: capped at 12 spp")
+        metas[r["components"]] = r["path"].rsplit("-k", 1)[0] + ".json"
+
+    # Damaged checkpoints are bad input too: a .json that is not JSON starts that reference
+    # again, one whose time is not a number keeps its chunks (time 0); neither crashes.
+    if set(metas) == {"full", "surface"}:
+        with open(metas["surface"], "w", encoding="utf-8") as f:
+            f.write("{not json")
+        meta = json.load(open(metas["full"], encoding="utf-8"))
+        meta["ms"] = "soon"
+        with open(metas["full"], "w", encoding="utf-8") as f:
+            json.dump(meta, f)
+        code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-max-spp", "16", "--cache", capped,
+                           "--out", os.path.join(d, "p7"))
+        t.equal(code, 0, f"damaged checkpoints ({err.strip()[-300:]})")
+        got = {r["components"]: r["meta"]["chunks"] for r in progressive_refs(t, os.path.join(d, "p7"))}
+        t.equal(got, {"full": 4, "surface": 4}, "full resumed from 3 chunks, surface started again")
+        t.check("surface): chunk 1," in err and "full): chunk 4," in err, f"which resumed: {err[-400:]}")
 
     for bad, named in ((["--ref-budget", "5"], "--ref-budget"), (["--ref-ceiling", "0"], "--ref-ceiling"),
                        (["--ref-ceiling", "loud"], "--ref-ceiling"), (["--ref-max-spp", "8"], "--ref-max-spp"),
