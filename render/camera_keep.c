@@ -12,8 +12,8 @@
  * The bytes are compared whole, nothing hashed, so nothing can collide. A sweep of albedo at
  * one mean free path keeps its extinction bit for bit because the scene parser splits it so
  * (io/scene_json.c: sigma_s + sigma_a is exactly the float extinction), and the image is the
- * one a new camera pass would give, bit for bit. The signature (ns_scene_signature) is also
- * what render/source_keep.c compares, with other parts cleared. */
+ * one a new camera pass would give, bit for bit. The signature is ns_scene_signature's
+ * (scene_gpu.c), as for the sources render/source_keep.c keeps. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -23,44 +23,6 @@
  * memory (host memory on lavapipe) while the service idles. 256² at 4 samples per pixel
  * needs 33 MiB. */
 #define CAMERA_KEEP_BYTES_MAX (64ull << 20)
-
-static void append(unsigned char **at, const void *data, size_t bytes)
-{
-    if (bytes)
-        memcpy(*at, data, bytes);
-    *at += bytes;
-}
-
-/* Its cost is a copy and a compare of the scene buffers, 96 bytes a triangle (the bench
- * bunny: 6.7 MB, a few milliseconds, against a render of seconds); nodes and primitives are
- * also in the kept BVH, but that one compares geometry alone, without the materials'
- * indices, so each keep holds its own copy rather than share it. */
-unsigned char *ns_scene_signature(const ns_gpu_scene *gs, const GpuParams *params, int clear_sigma_s,
-                                  const void *prefix, size_t prefix_bytes, size_t *bytes)
-{
-    size_t prims = gs->bvh_prim_count + gs->plane_count;
-    size_t counts[4] = {gs->node_count, prims, gs->material_count, gs->light_count};
-    size_t size = prefix_bytes + sizeof counts + sizeof *params + counts[0] * sizeof(GpuNode) +
-                  counts[1] * sizeof(GpuPrim) + counts[2] * sizeof(GpuMaterial) +
-                  counts[3] * sizeof(GpuLight);
-    unsigned char *sig = malloc(size), *at = sig;
-    if (!sig)
-        return NULL; /* no reuse: the stage runs */
-    append(&at, prefix, prefix_bytes);
-    append(&at, counts, sizeof counts);
-    append(&at, params, sizeof *params);
-    append(&at, gs->nodes, counts[0] * sizeof(GpuNode));
-    append(&at, gs->prims, counts[1] * sizeof(GpuPrim));
-    for (size_t i = 0; i < counts[2]; i++) {
-        GpuMaterial m = gs->materials[i];
-        if (clear_sigma_s)
-            memset(m.sigma_s, 0, sizeof m.sigma_s);
-        append(&at, &m, sizeof m);
-    }
-    append(&at, gs->lights, counts[3] * sizeof(GpuLight));
-    *bytes = size;
-    return sig;
-}
 
 /* The signature: the scene buffers with every material's sigma_s (and g) cleared. */
 unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes)

@@ -155,7 +155,7 @@ int ns_gpu_scene_build_reusing(const ns_scene *scene, ns_bvh_keep *keep, ns_gpu_
                                int *reused, ns_error *err);
 void ns_gpu_scene_free(ns_gpu_scene *gs);
 
-/* The scene buffers as bytes to compare whole (render/camera_keep.c): prefix (the caller's
+/* The scene buffers as bytes to compare whole (render/scene_gpu.c): prefix (the caller's
  * other inputs), the counts, params (the caller's copy, with what does not matter cleared),
  * BVH nodes, primitives, materials (sigma_s and g cleared when clear_sigma_s), lights. NULL
  * when out of memory: then nothing is reused. */
