@@ -15,7 +15,8 @@
  * *The phi bins' mean*): A at the centres read double scattering 5.5% low; the mean over
  * NS_ACCUMULATE_PHI_LINES_0 lines in the first bin and _1 in the second, the centre line
  * elsewhere, 0.5% below the converged mean (8 and 4 lines: 0.3%, for 1.85 times the stage's
- * time; 4 and 2 cost 1.43 times: 1,601 against 1,117 ms for an RGB material).
+ * time; 4 and 2 cost 1.43 times: 1,601 against 1,117 ms for an RGB material; on a CPU
+ * without AVX-512, after the phi edges were computed, 1,186 against 852 ms, 1.39 times).
  *
  * And the two cells beside the source's plane (z bins NZ / 2 - 1 and NZ / 2) hold A on the
  * plane itself, z = 0, not at their centres (z = -/+0.029 mfp). A has a kink there: a line
