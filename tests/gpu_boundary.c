@@ -235,6 +235,56 @@ static void test_double_has_no_ghosts(void)
     ns_image_free(&walks);
 }
 
+/* The correction's own lattice (scatter_render.c, plan_round): with a tolerance the boundary
+ * sources are gathered at fewer tiles than the VRLs, which are gathered at the same tiles as
+ * with tolerance 0 (the correction at every one), and the image keeps its means (the same
+ * VRLs and sources in both: only the interpolation differs). The cloud sphere at 48 x 48,
+ * where the correction is smooth. Measured (2026-11-29): interactions -25.2%, means +0.27
+ * to +0.59% (64 x 64 with 40,000 VRLs: -26.6%, +0.18 to +0.43%). */
+static void test_correction_lattice(void)
+{
+    const double albedo[3] = {0.909, 0.8, 0.95};
+    ns_material m = material(albedo, 1.0, 0.0, 1.0);
+    ns_object ball = sphere(0, 0, 0, 1.65, 0);
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0.3, -1, -0.2);
+    ns_scene s = medium_scene(&m, &ball, 1, &sun);
+    set3(s.camera.position, 0, 0, 9);
+    set3(s.camera.look_at, 0, 0, 0);
+    s.camera.width = s.camera.height = 48;
+    s.render.vrls = 10000;
+    s.render.method = NS_METHOD_NN;
+    s.render.boundary = NS_BOUNDARY_WALKS;
+    s.render.components = NS_COMPONENT_MULTIPLE;
+    s.render.spp = 1;
+    ns_image every = {0}, lattice = {0};
+    ns_render_stats every_stats = {0}, lattice_stats = {0};
+    s.render.gather_tolerance = 0.0f;
+    int ok = render_ok(&s, &every, &every_stats);
+    s.render.gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE;
+    ok = ok && render_ok(&s, &lattice, &lattice_stats);
+    CHECK(ok);
+    if (ok) {
+        double a[3], b[3];
+        image_mean(&every, a);
+        image_mean(&lattice, b);
+        fprintf(stderr, "  interactions %llu -> %llu (%+.1f%%), segments %llu and %llu\n",
+                (unsigned long long)every_stats.interactions, (unsigned long long)lattice_stats.interactions,
+                100.0 * ((double)lattice_stats.interactions / (double)every_stats.interactions - 1),
+                (unsigned long long)every_stats.gather_segments, (unsigned long long)lattice_stats.gather_segments);
+        CHECK(lattice_stats.gather_segments == every_stats.gather_segments);
+        CHECK((double)lattice_stats.interactions < 0.8 * (double)every_stats.interactions);
+        for (int c = 0; c < 3; c++) {
+            fprintf(stderr, "  channel %d: every tile %.6g, lattice %.6g (%+.2f%%)\n", c, a[c], b[c],
+                    100 * (b[c] / a[c] - 1));
+            CHECK(a[c] > 0);
+            CHECK(fabs(b[c] / a[c] - 1) < 0.01);
+        }
+    }
+    ns_image_free(&every);
+    ns_image_free(&lattice);
+}
+
 static void test_bad_setting(void)
 {
     ns_material m = diffuse(0.5, 0.5, 0.5);
@@ -261,6 +311,7 @@ int main(int argc, char **argv)
     PICK(test_refracting_sphere);
     PICK(test_facing_boxes);
     PICK(test_double_has_no_ghosts);
+    PICK(test_correction_lattice);
     PICK(test_bad_setting);
     ns_context_destroy(test_context());
     return harness_report();

@@ -275,7 +275,9 @@ typedef struct ns_render_settings {
      * (relative, per channel) and see the same surface, else gathered. gather_levels 0 =
      * every tile, the default. gather_tolerance 0 is a tolerance of its own (interpolate only
      * where the estimated error is exactly 0) and stays 0: a caller that sets gather_levels
-     * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. */
+     * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. With boundary
+     * walks, at any gather_levels, the correction has a lattice one level coarser and is
+     * interpolated within 5 x gather_tolerance of the pixels' totals (0: at every tile). */
     uint32_t gather_levels;
     float gather_tolerance;
     /* Samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
