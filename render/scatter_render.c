@@ -78,6 +78,7 @@ typedef struct tile_plan {
     /* render.boundary: the boundary sources' part of radiance, Lbar of the correction alone
      * (not clamped), which has a lattice of its own one level coarser (below); else NULL. */
     float (*correction)[3];
+    uint64_t corrections_interpolated; /* tiles that gathered their VRLs, not their correction */
     uint32_t *segment_start;  /* pixel -> its segments [start[p], start[p + 1]) in by_pixel */
     uint32_t *by_pixel;
 } tile_plan;
@@ -367,8 +368,10 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
             }
             t->state[r] = PIXEL_GATHERED;
             round[r] = GATHER_BOTH;
-            if (t->correction && level < top && interpolate_tile(t, t->correction, t->correction_tolerance, tx, ty, step))
+            if (t->correction && level < top && interpolate_tile(t, t->correction, t->correction_tolerance, tx, ty, step)) {
                 round[r] = GATHER_VRLS;
+                t->corrections_interpolated++;
+            }
             marked++;
         }
     return marked;
@@ -1182,6 +1185,7 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     }
     if (stats) {
         stats->tiles_interpolated += interpolated;
+        stats->corrections_interpolated += plan.corrections_interpolated;
         uint64_t table_bytes = 0; /* of this call's media; a render may call once per sample batch */
         for (uint32_t i = 0; source.table_bytes && i < ORDER_SETS * in->gs->material_count; i++)
             table_bytes += source.table_bytes[i];

@@ -117,6 +117,10 @@ def test_boundary_walks(t, srv):
                 f"the walks' stage: {sorted(timing)} / {sorted(off_timing)}")
         t.check(counts.get("boundary_sources", 0) > 0, f"sources counted: {counts}")
         t.equal(off_counts.get("boundary_sources"), 0, "no source when off")
+        # The correction's own lattice (default gather_tolerance): some tiles take it from
+        # their neighbours.
+        t.check(counts.get("corrections_interpolated", 0) > 0, f"corrections interpolated: {counts}")
+        t.equal(off_counts.get("corrections_interpolated"), 0, "no correction when off")
         t.check(body != off_body, "the correction changes the image")
 
 

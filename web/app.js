@@ -96,6 +96,7 @@ const COUNT_ROWS = [
   { key: 'camera_segments', label: 'camera segments in media' },
   { key: 'gather_segments', label: 'segments gathered' },
   { key: 'tiles_interpolated', label: 'tiles interpolated' },
+  { key: 'corrections_interpolated', label: 'corrections interpolated' },
   { key: 'interactions', label: 'VRL–segment interactions' },
   { key: 'cells_culled', label: 'grid cells culled' },
   { key: 'cells_represented', label: 'grid cells by representative' },

@@ -392,6 +392,8 @@ typedef struct ns_render_stats {
     uint64_t boundary_sources;    /* render.boundary: sources (ghost and reflected beams) gathered */
     uint64_t gather_segments;     /* camera segments gathered (after tiling) */
     uint64_t tiles_interpolated;  /* tiles interpolated from coarser ones (render.gather_levels) */
+    uint64_t corrections_interpolated; /* render.boundary: tiles that gathered their VRLs and took
+                                          the correction from coarser ones */
     uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */
     uint64_t cells_culled;        /* hierarchy nodes skipped with their subtrees: beyond the table's reach */
     uint64_t cells_represented;   /* hierarchy nodes replaced by their representative VRL */
