@@ -51,7 +51,6 @@
  * interactions more than 1, of 35-39 M. */
 #define CORRECTION_LEVELS 1
 
-
 typedef struct pixel_key {
     uint32_t material;   /* of the first participating segment; NS_NONE: none */
     uint32_t first_rank; /* (sample, depth) of that segment, to find the first */
@@ -301,15 +300,16 @@ static int line_agrees(const tile_plan *t, const float (*values)[3], float toler
 /* Tile (tx, ty)'s value in `values` (t->radiance or t->correction) as the mean of its
  * neighbours on the lattice `step` tiles apart, when they agree within `tolerance`
  * (line_agrees; INFINITY: whenever they see its surface). */
-static int interpolate_tile(tile_plan *t, float (*values)[3], float tolerance, uint32_t tx, uint32_t ty,
-                            uint32_t step)
+static int interpolate_tile(tile_plan *t, float (*values)[3], float tolerance, uint32_t tx,
+                            uint32_t ty, uint32_t step)
 {
     uint32_t self = t->representative[ty * t->tiles_x + tx];
     int odd_x = (tx / step) & 1, odd_y = (ty / step) & 1;
     float sum[3] = {0, 0, 0};
-    int ok = odd_x && odd_y ? line_agrees(t, values, tolerance, tx, ty, 1, 1, step, self, sum) &&
-                                  line_agrees(t, values, tolerance, tx, ty, 1, -1, step, self, sum)
-                            : line_agrees(t, values, tolerance, tx, ty, odd_x, odd_y, step, self, sum);
+    int ok = odd_x && odd_y
+                 ? line_agrees(t, values, tolerance, tx, ty, 1, 1, step, self, sum) &&
+                       line_agrees(t, values, tolerance, tx, ty, 1, -1, step, self, sum)
+                 : line_agrees(t, values, tolerance, tx, ty, odd_x, odd_y, step, self, sum);
     if (!ok)
         return 0;
     float samples = odd_x && odd_y ? 4.0f : 2.0f;
@@ -368,7 +368,8 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
             }
             t->state[r] = PIXEL_GATHERED;
             round[r] = GATHER_BOTH;
-            if (t->correction && level < top && interpolate_tile(t, t->correction, t->correction_tolerance, tx, ty, step)) {
+            if (t->correction && level < top &&
+                interpolate_tile(t, t->correction, t->correction_tolerance, tx, ty, step)) {
                 round[r] = GATHER_VRLS;
                 t->corrections_interpolated++;
             }
@@ -600,11 +601,12 @@ static uint32_t morton_compact(uint32_t v)
     return v;
 }
 
-/* The pixels whose `round` has a bit of `want`, in Morton (Z) order: consecutive segments of the list, which
- * the gather runs side by side in one SIMD group, then lie close together on the image, so
- * their walks of the VRL hierarchy take the same branches (row order put 8 of them along
- * 16 pixels of one row). Returns the count; order holds room for every pixel. */
-static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint8_t want, uint32_t *order)
+/* The pixels whose `round` has a bit of `want`, in Morton (Z) order: consecutive segments of the
+ * list, which the gather runs side by side in one SIMD group, then lie close together on the image,
+ * so their walks of the VRL hierarchy take the same branches (row order put 8 of them along 16
+ * pixels of one row). Returns the count; order holds room for every pixel. */
+static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint8_t want,
+                                  uint32_t *order)
 {
     uint32_t side = 1, n = 0;
     while (side < t->width || side < t->height)
@@ -963,8 +965,9 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
                            &source->grid_built[m], times, err);
         /* Single scattering alone gathers only the boundary's reflected VRLs. */
         if (!status && orders)
-            status = gather_grid(ctx, in, source, m, &source->grids[m], orders, bounded_beams(scene),
-                                 list, &vrls->segments, &vrls->out, stats, times, err);
+            status =
+                gather_grid(ctx, in, source, m, &source->grids[m], orders, bounded_beams(scene),
+                            list, &vrls->segments, &vrls->out, stats, times, err);
         else if (!status)
             memset((float(*)[4])vrls->out.mapped + first, 0, 16ull * count);
         ns_progress_pop(ctx, one);
@@ -995,9 +998,10 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
     return status;
 }
 
-/* Adds throughput * radiance / spp of the list's segments into sum (per pixel). */
-static void sum_segments(const ns_scatter_inputs *in, const gather_list *list, const float (*radiance)[4],
-                         float (*sum)[3])
+/* Adds each segment's throughput * radiance / spp (times its exit factor, top of file) of the
+ * list into sum at its pixel. */
+static void sum_segments(const ns_scatter_inputs *in, const gather_list *list,
+                         const float (*radiance)[4], float (*sum)[3])
 {
     const ns_scene *scene = in->scene;
     float inv_spp = 1.0f / (float)scene->render.spp;
@@ -1068,7 +1072,8 @@ static void compose(const ns_scatter_inputs *in, const tile_plan *t)
 static int round_part_make(ns_context *ctx, const ns_scatter_inputs *in, const tile_plan *t,
                            const uint8_t *round, uint8_t want, round_part *part, ns_error *err)
 {
-    if (gather_list_build(t, in->segments->mapped, in->scene->render.method, round, want, &part->list))
+    if (gather_list_build(t, in->segments->mapped, in->scene->render.method, round, want,
+                          &part->list))
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
     uint32_t n = part->list.count;
     if (!n)
@@ -1080,8 +1085,9 @@ static int round_part_make(ns_context *ctx, const ns_scatter_inputs *in, const t
                                                       .label = "ns.gather.segments"},
                                    err);
     if (!status)
-        status = gpu_buffer_create(&ctx->dev, &part->out,
-                                   &(gpu_buffer_desc){.size = 16ull * n, .label = "ns.gather.radiance"}, err);
+        status = gpu_buffer_create(
+            &ctx->dev, &part->out,
+            &(gpu_buffer_desc){.size = 16ull * n, .label = "ns.gather.radiance"}, err);
     return status;
 }
 
@@ -1109,15 +1115,15 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
     /* The vrl method's second order, or the boundary sources' groups one at a time. */
     uint32_t scratch_count = t->correction ? correction.list.count : vrls.list.count;
     if (!status && scratch_count)
-        status = gpu_buffer_create(&ctx->dev, &scratch,
-                                   &(gpu_buffer_desc){.size = 16ull * scratch_count, .label = "ns.gather.radiance"},
-                                   err);
+        status = gpu_buffer_create(
+            &ctx->dev, &scratch,
+            &(gpu_buffer_desc){.size = 16ull * scratch_count, .label = "ns.gather.radiance"}, err);
     if (!status && vrls.list.count) {
         if (scene->render.method == NS_METHOD_VRL) {
             /* Light paths and gather in one stage; vrl_method.c shares its part out. */
             stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
-            status = ns_vrl_method_gather(ctx, scene, in->gs, in->scene_buffers, &vrls.segments, vrls.list.count,
-                                          &vrls.out, &scratch, stats, err);
+            status = ns_vrl_method_gather(ctx, scene, in->gs, in->scene_buffers, &vrls.segments,
+                                          vrls.list.count, &vrls.out, &scratch, stats, err);
             stage_end(ctx, times, T_GATHER, &stage);
             if (!status) {
                 /* Keep the orders asked for, summed into vrls.out. */
@@ -1130,8 +1136,8 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
                         d[i][c] = (want_double ? d[i][c] : 0.0f) + (want_multiple ? mult[i][c] : 0.0f);
             }
         } else {
-            status = gather_from_vrls(ctx, in, source, &vrls, t->correction ? &correction : NULL, &scratch,
-                                      stats, times, err);
+            status = gather_from_vrls(ctx, in, source, &vrls, t->correction ? &correction : NULL,
+                                      &scratch, stats, times, err);
         }
     }
     if (!status) {

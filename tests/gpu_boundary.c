@@ -273,16 +273,18 @@ static void test_correction_lattice(void)
         image_mean(&every, a);
         image_mean(&lattice, b);
         fprintf(stderr, "  interactions %llu -> %llu (%+.1f%%), segments %llu and %llu\n",
-                (unsigned long long)every_stats.interactions, (unsigned long long)lattice_stats.interactions,
+                (unsigned long long)every_stats.interactions,
+                (unsigned long long)lattice_stats.interactions,
                 100.0 * ((double)lattice_stats.interactions / (double)every_stats.interactions - 1),
-                (unsigned long long)every_stats.gather_segments, (unsigned long long)lattice_stats.gather_segments);
+                (unsigned long long)every_stats.gather_segments,
+                (unsigned long long)lattice_stats.gather_segments);
         CHECK(lattice_stats.gather_segments == every_stats.gather_segments);
         CHECK(every_stats.corrections_interpolated == 0);
         CHECK(lattice_stats.corrections_interpolated > 0);
         CHECK((double)lattice_stats.interactions < 0.8 * (double)every_stats.interactions);
         for (int c = 0; c < 3; c++) {
-            fprintf(stderr, "  channel %d: every tile %.6g, lattice %.6g (%+.2f%%)\n", c, a[c], b[c],
-                    100 * (b[c] / a[c] - 1));
+            fprintf(stderr, "  channel %d: every tile %.6g, lattice %.6g (%+.2f%%)\n", c, a[c],
+                    b[c], 100 * (b[c] / a[c] - 1));
             CHECK(a[c] > 0);
             CHECK(fabs(b[c] / a[c] - 1) < 0.01);
         }
