@@ -39,7 +39,7 @@ mkdir -p "$build/artifacts"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:allocator_may_return_null=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-halt_on_error=1:print_stacktrace=1}
 # One target per core at a time: libFuzzer runs an input at a time, so two targets on two
-# cores take the time of one (CI: 80 s instead of 160 for the four at 40 s each).
+# cores take the time of one (the four at 40 s each: about 85 s instead of 164 on 2 cores).
 jobs_max=${NS_FUZZ_JOBS:-$(nproc)}
 
 # Runs target $1 and writes its summary line and status to $build/fuzz-$1.result; always
