@@ -62,9 +62,21 @@ typedef struct bench_reference {
     /* Progressive references (--ref-ceiling): spp = chunks * chunk_spp, and the noise above
      * comes from the chunks' spread instead (cmd_bench.c). 0 for a reference of fixed spp. */
     uint32_t chunk_spp;
+    /* Progressive references from BENCH_REF_TAIL_CHUNKS chunks on: the ceiling's rise from
+     * half the chunks to all of them, and what a finite variance gives (10 log10 2); NaN
+     * otherwise. */
+    double ceiling_rise_db, ceiling_rise_expected_db;
 } bench_reference;
 
 #define BENCH_NOISE_SPP 16u
+
+/* From this many chunks on, the ceiling's rise since half as many says whether pt's noise
+ * falls as it should: its mean square error as 1 / chunks, 10 log10(2) = 3 dB per doubling,
+ * for a finite variance. A heavy tail (fireflies that keep coming: the bumpy sphere's and the
+ * candle's multiple scattering, docs/bench.md) rises less or falls, and more chunks may
+ * never reach the target; below half the rise the run says so (cmd_bench.c), and the
+ * report's References table gives the rise (bench_report.c). */
+#define BENCH_REF_TAIL_CHUNKS 16u
 
 typedef struct bench_result {
     int ran, ok;

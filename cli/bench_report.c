@@ -289,17 +289,23 @@ static void write_pt(FILE *f, const bench_run *run)
 
 static void write_references(FILE *f, const bench_run *run)
 {
-    fprintf(f, "## References\n\n"
-               "pt renders cached outside git, keyed by a hash of the scene JSON (with method pt, "
-               "the components, spp and seed) and its meshes; `nscatter bench --references` "
-               "renders them again. Noise ceiling: the PSNR a noise-free image would score against "
-               "the reference, from pt's per-sample variance of the same components (a "
-               "%u-spp render on another seed; kept in the reference's .json): 20 log10(peak / "
-               "sqrt(variance / spp)). A PSNR near it says the reference cannot tell. A reference "
-               "with chunks (`--ref-ceiling`) is the mean of that many renders of the chunk's spp "
-               "on successive seeds, and its noise comes from their spread instead.\n\n"
-               "| scene | components | spp | chunks | time s | noise ceiling dB | device | this run | file |\n"
-               "|---|---|---|---|---|---|---|---|---|\n", BENCH_NOISE_SPP);
+    fprintf(f,
+            "## References\n\n"
+            "pt renders cached outside git, keyed by a hash of the scene JSON (with method pt, "
+            "the components, spp and seed) and its meshes; `nscatter bench --references` "
+            "renders them again. Noise ceiling: the PSNR a noise-free image would score against "
+            "the reference, from pt's per-sample variance of the same components (a "
+            "%u-spp render on another seed; kept in the reference's .json): 20 log10(peak / "
+            "sqrt(variance / spp)). A PSNR near it says the reference cannot tell. A reference "
+            "with chunks (`--ref-ceiling`) is the mean of that many renders of the chunk's spp "
+            "on successive seeds, and its noise comes from their spread instead; from %u chunks "
+            "on, *ceiling rise* is its ceiling's rise from half the chunks to all of them, "
+            "against the 3 dB of a finite variance (far less: pt's noise has a heavy tail "
+            "there, and more chunks may not help).\n\n"
+            "| scene | components | spp | chunks | time s | noise ceiling dB | ceiling rise dB | "
+            "device | this run | file |\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n",
+            BENCH_NOISE_SPP, BENCH_REF_TAIL_CHUNKS);
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         for (int set = 0; set < BENCH_REF_SETS; set++) {
@@ -309,11 +315,17 @@ static void write_references(FILE *f, const bench_run *run)
             char chunks[32] = "–";
             if (r->ok && r->chunk_spp)
                 snprintf(chunks, sizeof chunks, "%u × %u", r->spp / r->chunk_spp, r->chunk_spp);
-            fprintf(f, "| %s | %s | %u | %s | %s | %s | %s | %s | ", s->name,
+            char rise[48] = "–";
+            if (r->ok && r->chunk_spp && isfinite(r->ceiling_rise_db))
+                snprintf(rise, sizeof rise, "%+.1f (of %.1f)", r->ceiling_rise_db,
+                         r->ceiling_rise_expected_db);
+            fprintf(f, "| %s | %s | %u | %s | %s | %s | %s | %s | %s | ", s->name,
                     bench_components_name(bench_ref_components[set]), r->spp, chunks,
-                    num(r->ok ? r->ms / 1000.0 : NAN, 1).text, num(r->ok ? r->ceiling_db : NAN, 1).text,
-                    r->ok ? r->device : "n/a",
-                    !r->ok ? "failed" : r->generated ? "rendered" : "cached");
+                    num(r->ok ? r->ms / 1000.0 : NAN, 1).text,
+                    num(r->ok ? r->ceiling_db : NAN, 1).text, rise, r->ok ? r->device : "n/a",
+                    !r->ok         ? "failed"
+                    : r->generated ? "rendered"
+                                   : "cached");
             if (r->ok)
                 fprintf(f, "`%s` |\n", r->path);
             else {

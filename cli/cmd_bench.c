@@ -646,7 +646,41 @@ typedef struct progressive_state {
     uint32_t chunks;
     double ms;
     ns_image mean, m2;
+    /* The ceiling after each chunk (index k - 1), NaN where unknown (a checkpoint written
+     * before they were kept, or below 2 chunks); room for `capacity`. */
+    double *ceilings;
+    uint32_t capacity;
 } progressive_state;
+
+/* Records the ceiling after chunk `chunks`; -1 out of memory. */
+static int progressive_record(progressive_state *p, uint32_t chunks, double ceiling_db)
+{
+    if (chunks > p->capacity) {
+        uint32_t capacity = chunks > 2 * p->capacity ? chunks : 2 * p->capacity;
+        double *grown = realloc(p->ceilings, capacity * sizeof *grown);
+        if (!grown)
+            return -1;
+        for (uint32_t i = p->capacity; i < capacity; i++)
+            grown[i] = NAN;
+        p->ceilings = grown;
+        p->capacity = capacity;
+    }
+    p->ceilings[chunks - 1] = ceiling_db;
+    return 0;
+}
+
+/* The ceiling's rise over the last doubling of the chunks (from chunks / 2 to chunks), and in
+ * *expected what a finite variance gives; NaN below BENCH_REF_TAIL_CHUNKS or where either
+ * ceiling is unknown. */
+static double progressive_rise(const progressive_state *p, double *expected)
+{
+    uint32_t k = p->chunks, half = k / 2;
+    *expected = half ? 10.0 * log10((double)k / half) : NAN;
+    if (k < BENCH_REF_TAIL_CHUNKS || k > p->capacity)
+        return NAN;
+    double now = p->ceilings[k - 1], then = p->ceilings[half - 1];
+    return isfinite(now) && isfinite(then) ? now - then : NAN;
+}
 
 static void progressive_path(const progressive_state *p, uint32_t chunks, const char *suffix, char *out,
                              size_t size)
@@ -697,6 +731,14 @@ static void progressive_load(progressive_state *p, const bench_scene *s, bench_r
             p->mean.width == s->width && p->mean.height == s->height && p->m2.width == s->width &&
             p->m2.height == s->height) {
             p->chunks = k;
+            /* The ceilings' history, as far as it was kept and is numbers. */
+            json_t *ceilings = json_object_get(meta, "ceilings");
+            for (uint32_t i = 0; i < k && i < json_array_size(ceilings); i++) {
+                json_t *v = json_array_get(ceilings, i);
+                if (json_is_number(v) && isfinite(json_number_value(v)) &&
+                    progressive_record(p, i + 1, json_number_value(v)))
+                    break;
+            }
             /* Not a finite number (an edited file): 0, as json_pack refuses NaN and every
              * later checkpoint would fail to write. */
             p->ms = json_is_number(ms) && isfinite(json_number_value(ms)) ? json_number_value(ms) : 0.0;
@@ -738,6 +780,12 @@ static int progressive_save(const progressive_state *p, const bench_scene *s, co
                              "device", r->device, "noise_mse", isfinite(r->noise_mse) ? r->noise_mse : 0.0,
                              "ceiling_db", isfinite(r->ceiling_db) ? r->ceiling_db : 0.0, "variance",
                              isfinite(r->variance) ? r->variance : 0.0);
+    json_t *ceilings = json_array();
+    for (uint32_t i = 0; i < p->chunks; i++)
+        json_array_append_new(ceilings, i < p->capacity && isfinite(p->ceilings[i])
+                                            ? json_real(p->ceilings[i])
+                                            : json_null());
+    json_object_set_new(meta, "ceilings", ceilings);
     char *text = meta ? json_dumps(meta, JSON_INDENT(1)) : NULL;
     json_decref(meta);
     int rc = text ? ns_write_file_atomic(meta_path, text, strlen(text), NULL) : -1;
@@ -798,9 +846,12 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
             *c = '_';
     r->chunk_spp = s->ref_spp;
     r->noise_mse = r->ceiling_db = r->variance = NAN;
+    r->ceiling_rise_db = r->ceiling_rise_expected_db = NAN;
     progressive_load(&p, s, r);
     if (p.chunks)
         progressive_measure(&p, r);
+    if (p.chunks && isfinite(r->ceiling_db))
+        progressive_record(&p, p.chunks, r->ceiling_db); /* out of memory: the rise is unknown */
     /* This reference's share of what is left of the budget: a hard scene does not take the
      * time of the ones after it. */
     double target = b->args.ref_ceiling_db, budget_ms = b->args.ref_budget_s * 1000.0;
@@ -845,6 +896,11 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
         }
         snprintf(r->device, sizeof r->device, "%s", b->run.device);
         progressive_measure(&p, r);
+        if (isfinite(r->ceiling_db) && progressive_record(&p, p.chunks, r->ceiling_db)) {
+            snprintf(r->error, sizeof r->error, "out of host memory");
+            failed = 1;
+            break;
+        }
         if (progressive_save(&p, s, r, components)) {
             snprintf(r->error, sizeof r->error, "cannot write the checkpoint under %.400s", b->cache_dir);
             failed = 1;
@@ -855,6 +911,8 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
     }
     json_decref(scene_json);
     ns_image_free(&p.m2);
+    r->ceiling_rise_db = progressive_rise(&p, &r->ceiling_rise_expected_db);
+    free(p.ceilings);
     if (failed || !p.chunks) {
         ns_image_free(&p.mean);
         if (!failed)
@@ -868,6 +926,13 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
     progressive_path(&p, p.chunks, ".exr", r->path, sizeof r->path);
     fprintf(stderr, "bench: %s reference (%s): %u chunks of %u spp, noise ceiling %.1f dB%s\n", s->name, set_name,
             p.chunks, r->chunk_spp, r->ceiling_db, r->generated ? "" : " (cached)");
+    if (r->ceiling_rise_db < 0.5 * r->ceiling_rise_expected_db)
+        fprintf(stderr,
+                "bench: %s reference (%s): its noise ceiling rose %.1f dB from %u to %u chunks, "
+                "where a finite variance gives %.1f dB: pt's noise there may have a heavy tail, "
+                "and more chunks may not reach a higher target\n",
+                s->name, set_name, r->ceiling_rise_db, p.chunks / 2, p.chunks,
+                r->ceiling_rise_expected_db);
     return 0;
 }
 

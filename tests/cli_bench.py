@@ -283,6 +283,32 @@ def test_progressive_references(t, d):
         t.equal((r["meta"]["chunks"], r["spp"]), (3, "12"), f"{r['components']}: capped at 12 spp")
         metas[r["components"]] = r["path"].rsplit("-k", 1)[0] + ".json"
 
+    # The ceiling's rise over the last doubling of the chunks: 16 chunks (the cap), the
+    # checkpoint keeps every chunk's ceiling, and the report gives the rise from 8 to 16
+    # chunks against the 3 dB of a finite variance, which pt's surface and full solution of
+    # this cloud have (measured +2.8 and +3.0 dB; no heavy-tail warning). Without the history the
+    # column reads "–".
+    tail = os.path.join(d, "tail")
+    code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-max-spp", "64", "--cache", tail,
+                       "--out", os.path.join(d, "p8"))
+    t.equal(code, 0, f"16-chunk run ({err.strip()[-300:]})")
+    t.check("heavy tail" not in err, f"no heavy-tail warning for the cloud: {err[-400:]}")
+    for r in progressive_refs(t, os.path.join(d, "p8")):
+        ceilings = r["meta"].get("ceilings") or []
+        t.equal(len(ceilings), 16, f"{r['components']}: a ceiling per chunk: {ceilings}")
+        t.check(ceilings[:1] == [None] and all(isinstance(c, float) for c in ceilings[1:]),
+                f"{r['components']}: none after one chunk, numbers after: {ceilings}")
+        if len(ceilings) == 16 and isinstance(ceilings[15], float):
+            t.check(abs(ceilings[15] - r["meta"]["ceiling_db"]) < 1e-6, f"{r['components']}: the last is the ceiling")
+        rise = r["ceiling rise dB"]
+        parts = rise.replace("(of", "").replace(")", "").split()
+        t.check(len(parts) == 2, f"{r['components']}: rise column {rise!r}")
+        if len(parts) == 2:
+            got, expected = float(parts[0]), float(parts[1])
+            t.check(abs(expected - 3.0) < 0.05, f"{r['components']}: 3 dB expected from 8 to 16 chunks: {rise}")
+            t.check(1.0 < got < 5.0, f"{r['components']}: the ceiling rose {got} dB from 8 to 16 chunks")
+            print(f"progressive {r['components']} reference: ceiling rose {got:+.1f} dB from 8 to 16 chunks")
+
     # Damaged checkpoints are bad input too: a .json that is not JSON starts that reference
     # again, one whose time is not a number keeps its chunks (time 0); neither crashes.
     if set(metas) == {"full", "surface"}:
