@@ -310,12 +310,14 @@ def test_progressive_references(t, d):
             print(f"progressive {r['components']} reference: ceiling rose {got:+.1f} dB from 8 to 16 chunks")
 
     # Damaged checkpoints are bad input too: a .json that is not JSON starts that reference
-    # again, one whose time is not a number keeps its chunks (time 0); neither crashes.
+    # again, one whose time is not a number and whose ceilings are not a list keeps its chunks
+    # (time 0, no history); neither crashes.
     if set(metas) == {"full", "surface"}:
         with open(metas["surface"], "w", encoding="utf-8") as f:
             f.write("{not json")
         meta = json.load(open(metas["full"], encoding="utf-8"))
         meta["ms"] = "soon"
+        meta["ceilings"] = "rising"
         with open(metas["full"], "w", encoding="utf-8") as f:
             json.dump(meta, f)
         code, _, err = run(*TINY, "--ref-ceiling", "120", "--ref-max-spp", "16", "--cache", capped,
