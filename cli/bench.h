@@ -137,6 +137,7 @@ typedef struct bench_run {
     double total_s;
     uint32_t repeat;
     double mc_collisions;
+    const char *boundary; /* --boundary; NULL: each scene file's render.boundary (default walks) */
 } bench_run;
 
 /* Writes DIR/report.md and DIR/contact_sheet.png. 0 or 1 after printing why. */

@@ -483,8 +483,9 @@ int bench_write_report(const bench_run *run, const char *dir)
     fprintf(f, "# nscatter bench\n\n"
                "- command: `%s`\n- date: %s\n- device: %s (%s)\n- renders per method: %u (time = "
                "median after the first)\n- Monte Carlo collisions per order and channel (method "
-               "table): %.3g\n- whole run: %.1f s\n\n",
-            run->command, run->date, run->device, run->driver, run->repeat, run->mc_collisions > 0 ? run->mc_collisions : NS_MC_PROVIDER_COLLISIONS, run->total_s);
+               "table): %.3g\n- render.boundary of the nn and table rows: %s\n- whole run: %.1f s\n\n",
+            run->command, run->date, run->device, run->driver, run->repeat, run->mc_collisions > 0 ? run->mc_collisions : NS_MC_PROVIDER_COLLISIONS,
+            run->boundary ? run->boundary : "the scene files' (walks where they do not say)", run->total_s);
     write_results(f, run);
     write_table2(f, run);
     write_stages(f, run);

@@ -94,8 +94,8 @@ static void bench_usage(FILE *out)
             "  --references       (re)render the references of the chosen scenes, report the\n"
             "                     time, and stop (with --ref-ceiling: resume their chunks)\n"
             "  --diff METHOD      method in the contact sheet's difference column (nn_full)\n"
-            "  --boundary MODEL   render.boundary of the nn and table rows: off (the scenes'\n"
-            "                     default) or walks\n"
+            "  --boundary MODEL   render.boundary of the nn and table rows: walks (the\n"
+            "                     default) or off (the paper's infinite-medium model)\n"
             "  --device D         Vulkan device: index or name substring (also NSCATTER_DEVICE)\n"
             "  --scene-dir DIR    folder holding bench.json and the scenes (default: the source's)\n"
             "  --bunny OBJ        the Stanford bunny (default: glmark2-data's " BENCH_DEFAULT_BUNNY ")\n"
@@ -1383,6 +1383,7 @@ int cmd_bench(int argc, char **argv)
     double t0 = ns_now_ms();
     b->run.repeat = b->args.repeat;
     b->run.mc_collisions = b->args.mc_collisions;
+    b->run.boundary = b->args.boundary;
     b->run.diff_method = bench_method_by_name(b->args.diff, strlen(b->args.diff));
     note_command_and_date(b, argc, argv);
     snprintf(b->scene_dir, sizeof b->scene_dir, "%s",

@@ -1434,7 +1434,7 @@ static void parse_render(parser *p, const json_t *v)
         pop(p, saved);
         return;
     }
-    int method_ok = 1, components_ok = 1;
+    int method_ok = 1, components_ok = 1, boundary_given = 0;
     const json_t *components = NULL;
     if (v) {
         check_keys(p, v, keys);
@@ -1487,7 +1487,8 @@ static void parse_render(parser *p, const json_t *v)
             }
         }
         int boundary;
-        if (json_object_get(v, "boundary") &&
+        boundary_given = json_object_get(v, "boundary") != NULL;
+        if (boundary_given &&
             field_enum(p, v, "boundary", 0, boundary_names, 2, "boundary", &boundary)) {
             r->boundary = (ns_boundary)boundary;
             /* Like vrl_beams: only the table methods gather through tables. */
@@ -1514,6 +1515,12 @@ static void parse_render(parser *p, const json_t *v)
             }
         }
     }
+    /* The boundary correction is the default where it applies: the bench shows every
+     * scene's nn image closer to pt with it (docs/scattering.md, "The object's boundary").
+     * The library keeps 0 = off, so renders built in C stay as they were; only the parser
+     * sees that the key was not written (as for gather_tolerance). */
+    if (!boundary_given && method_ok && (r->method == NS_METHOD_NN || r->method == NS_METHOD_TABLE))
+        r->boundary = NS_BOUNDARY_WALKS;
     /* The settings leave the parser resolved, as ns_render will render them: what the scene
      * reports (image metadata, --timings) is then the effective spp, max_depth and
      * components, not a 0 standing for them. */

@@ -237,9 +237,9 @@ async function run() {
         cull: await page.locator('#cull-solid-angle').inputValue(),
         cullPlaceholder: await page.locator('#cull-solid-angle').getAttribute('placeholder'),
       };
-      check('controls show it: nn, four components, 4000 VRLs, tile 4, 16 samples; absent keys as defaults (exact, endless, boundary off, empty cull with placeholder 0)',
+      check('controls show it: nn, four components, 4000 VRLs, tile 4, 16 samples; absent keys as defaults (exact, endless, boundary walks for nn, empty cull with placeholder 0)',
         JSON.stringify(shownControls) === JSON.stringify({
-          method: 'nn', components: 4, vrls: '4000', tile: '4', single: '16', accumulation: 'exact', beams: 'endless', boundary: 'off', cull: '', cullPlaceholder: '0',
+          method: 'nn', components: 4, vrls: '4000', tile: '4', single: '16', accumulation: 'exact', beams: 'endless', boundary: 'walks', cull: '', cullPlaceholder: '0',
         }), JSON.stringify(shownControls));
     });
 
@@ -322,7 +322,17 @@ async function run() {
       await page.locator('#method').selectOption('pt');
       scene = await editorScene(page);
       check('method selector writes render.method', scene.render.method === 'pt', `method ${scene.render.method}`);
+      // Without the key, the boundary select shows the method's default: walks where the
+      // correction applies, off for the methods that refuse it; the text stays without it.
+      await page.locator('#method').selectOption('vrl');
+      const vrlBoundary = await page.locator('#boundary').inputValue();
+      const vrlScene = await editorScene(page);
       await page.locator('#method').selectOption('nn');
+      const nnBoundary = await page.locator('#boundary').inputValue();
+      check('absent boundary shows the method\'s default: off for vrl, walks for nn; the key stays absent',
+        vrlBoundary === 'off' && nnBoundary === 'walks' && vrlScene.render.boundary === undefined
+        && (await editorScene(page)).render.boundary === undefined,
+        JSON.stringify({ vrlBoundary, nnBoundary, vrl: vrlScene.render.boundary }));
       await typeNumber(page, '#vrls', '2000');
       await typeNumber(page, '#gather-tile', '8');
       await typeNumber(page, '#gather-levels', '3');
@@ -332,14 +342,14 @@ async function run() {
       await page.locator('#accumulation').focus();
       await page.keyboard.press('ArrowDown');
       await page.locator('#vrl-beams').selectOption('bounded');
-      await page.locator('#boundary').selectOption('walks');
+      await page.locator('#boundary').selectOption('off');
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
       check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, vrl_beams, boundary, cull_solid_angle',
         r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
         && r.gather_tolerance === 0.01 && r.single_samples === 20
-        && r.accumulation === 'paper' && r.vrl_beams === 'bounded' && r.boundary === 'walks'
+        && r.accumulation === 'paper' && r.vrl_beams === 'bounded' && r.boundary === 'off'
         && r.cull_solid_angle === 0.05, JSON.stringify(r));
       await typeNumber(page, '#vrls', '0');
       scene = await editorScene(page);
@@ -653,6 +663,10 @@ async function run() {
     await step('Reference: pt beside the fast image, PSNR as nscatter compare, difference image', async () => {
       await page.locator('#preview-first').check();
       await page.locator('#method').selectOption('nn');
+      // Written out: the reference must drop it (pt refuses "boundary": "walks").
+      await page.locator('#boundary').selectOption('off');
+      await page.locator('#boundary').selectOption('walks');
+      check('the scene says boundary walks', (await editorScene(page)).render.boundary === 'walks');
       await typeNumber(page, '#spp', '1');
       await typeNumber(page, '#height', '48');
       await renderAndWait(page);

@@ -86,6 +86,9 @@ def check_report(t, out):
     if not os.path.isfile(report_path):
         return
     text = open(report_path, encoding="utf-8").read()
+    # Without --boundary the rows render as their scene files say (the default, walks).
+    t.check("- render.boundary of the nn and table rows: the scene files' (walks where they do not say)"
+            in text, "the report names the boundary model")
     rows = markdown_table(text, "## Results")
     methods = {r["method"]: r for r in rows if r["scene"] == "cloud"}
     t.check(set(methods) == {"nn_surface", "pt"}, f"result rows: {sorted(methods)}")

@@ -9,7 +9,7 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from nstest_http import Checks, Server, problem, server_timing, small_scene  # noqa: E402
+from nstest_http import Checks, Server, png_decode_rgb8, problem, server_timing, small_scene  # noqa: E402
 
 SCATTER_STAGES = ("reconstruct", "accumulate", "vrl", "grid", "gather", "single", "composite")
 
@@ -33,6 +33,10 @@ def test_full_render_reports_stages_and_counts(t, srv):
     if status != 200:
         return
     timing = server_timing(headers.get("server-timing", ""))
+    # The server's first render: walks (the default) gather through the bounded gather's
+    # shader, which the first render that needs it makes.
+    t.check("gather_pipeline" in timing and "boundary" in timing,
+            f"the walks' stage and the bounded gather's shader: {sorted(timing)}")
     for stage in SCATTER_STAGES:
         t.check(stage in timing, f"Server-Timing has {stage}: {headers.get('server-timing')}")
     stats = stats_of(headers)
@@ -85,16 +89,16 @@ def test_adaptive_gather_counts_interpolated_tiles(t, srv):
 def test_bounded_beams_add_reflected_vrls(t, srv):
     counts, timings = {}, []
     for beams in ("endless", "bounded", "bounded"):
+        # boundary "off": bounded beams alone (walks, the default, imply them).
         status, headers, body = srv.render(scatter_scene(components=("double", "multiple"),
-                                                         vrl_beams=beams))
+                                                         vrl_beams=beams, boundary="off"))
         t.equal(status, 200, f"vrl_beams {beams} ({body[:300]!r})")
         counts[beams] = stats_of(headers)
         timings.append(server_timing(headers.get("server-timing", "")))
-    # The bounded gather's shader is made by the server's first bounded render and kept.
-    if len(timings) == 3:
-        t.check("gather_pipeline" not in timings[0], f"endless: no shader to make: {timings[0]}")
-        t.check("gather_pipeline" in timings[1], f"first bounded render makes it: {timings[1]}")
-        t.check("gather_pipeline" not in timings[2], f"second one reuses it: {timings[2]}")
+    # The bounded gather's shader was made by the server's first render (walks use it) and
+    # is kept: no render here makes it again.
+    for beams, timing in zip(("endless", "bounded", "bounded"), timings):
+        t.check("gather_pipeline" not in timing, f"{beams}: the shader is kept: {timing}")
     if len(counts) == 2:
         # The wax sphere reflects part of each beam where it leaves: one more VRL each time.
         t.equal(counts["bounded"].get("vrl_paths"), counts["endless"].get("vrl_paths"),
@@ -105,13 +109,19 @@ def test_bounded_beams_add_reflected_vrls(t, srv):
 
 def test_boundary_walks(t, srv):
     # render.boundary "walks": the walks are a stage of their own and their sources are
-    # counted; "off" (the default) has neither. The image changes.
+    # counted; "off" (the paper's model) has neither. The image changes. Without the key,
+    # nn gets walks: the same image as "walks" written out.
     answers = {}
-    for boundary in ("off", "walks"):
-        status, headers, body = srv.render(scatter_scene(components=("multiple",), boundary=boundary))
+    for boundary in ("off", "walks", None):
+        extra = {"boundary": boundary} if boundary else {}
+        status, headers, body = srv.render(scatter_scene(components=("multiple",), **extra))
         t.equal(status, 200, f"boundary {boundary} ({body[:300]!r})")
         answers[boundary] = (stats_of(headers), server_timing(headers.get("server-timing", "")), body)
-    if len(answers) == 2:
+    if len(answers) == 3:
+        t.equal(answers[None][0].get("boundary_sources"), answers["walks"][0].get("boundary_sources"),
+                "no key: the walks' sources")
+        t.check(png_decode_rgb8(answers[None][2]) == png_decode_rgb8(answers["walks"][2]),
+                "no key: the walks' image, pixel for pixel")
         (off_counts, off_timing, off_body), (counts, timing, body) = answers["off"], answers["walks"]
         t.check("boundary" in timing and "boundary" not in off_timing,
                 f"the walks' stage: {sorted(timing)} / {sorted(off_timing)}")
@@ -150,6 +160,8 @@ def test_bad_settings_422(t, srv):
 def main():
     t = Checks()
     with Server() as srv:
+        # The first render of the server (walks, the default) makes the bounded gather's
+        # shader: test_bounded_beams_add_reflected_vrls sees it kept.
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
                      test_bounded_beams_add_reflected_vrls, test_boundary_walks,
                      test_adaptive_gather_counts_interpolated_tiles, test_bad_settings_422):

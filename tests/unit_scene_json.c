@@ -421,7 +421,7 @@ static void test_defaults_and_grey_colors(void)
         CHECK_INT(s->render.gather_levels, NS_DEFAULT_GATHER_LEVELS);
         CHECK_NEAR(s->render.gather_tolerance, NS_DEFAULT_GATHER_TOLERANCE, 0);
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_ENDLESS);
-        CHECK_INT(s->render.boundary, NS_BOUNDARY_OFF);
+        CHECK_INT(s->render.boundary, NS_BOUNDARY_WALKS); /* method nn, no "boundary" */
         CHECK_NEAR(s->lights[1].color[2], 1, 0); /* "radiance": 1 is grey */
         scene_doc_free(doc);
     }
@@ -464,6 +464,38 @@ static void test_integers_and_settings(void)
         CHECK(s->objects != NULL && s->lights != NULL && s->materials != NULL);
     }
     scene_doc_free(doc);
+}
+
+/* render.boundary without the key: walks for the table methods (the parser's default, the
+ * library's 0 is off), off for the methods that refuse it; written, as written. */
+static void test_boundary_default(void)
+{
+    static const struct {
+        const char *render;
+        ns_boundary expected;
+    } cases[] = {
+        {"{\"components\":[\"multiple\"]}", NS_BOUNDARY_WALKS},
+        {"{\"method\":\"table\",\"components\":[\"multiple\"]}", NS_BOUNDARY_WALKS},
+        {"{\"method\":\"nn\",\"vrl_beams\":\"bounded\"}", NS_BOUNDARY_WALKS},
+        {"{\"method\":\"nn\",\"boundary\":\"off\"}", NS_BOUNDARY_OFF},
+        {"{\"method\":\"table\",\"boundary\":\"off\"}", NS_BOUNDARY_OFF},
+        {"{\"method\":\"vrl\",\"components\":[\"multiple\"]}", NS_BOUNDARY_OFF},
+        {"{\"method\":\"dipole\",\"components\":[\"double\",\"multiple\"]}", NS_BOUNDARY_OFF},
+        {"{\"method\":\"pt\"}", NS_BOUNDARY_OFF},
+        {"{\"method\":\"pt\",\"boundary\":\"off\"}", NS_BOUNDARY_OFF},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char *text = make_scene(NULL, NULL, NULL, NULL, cases[i].render);
+        scene_doc *doc = parse_ok(text, NULL);
+        if (doc) {
+            if (scene_doc_scene(doc)->render.boundary != cases[i].expected)
+                fprintf(stderr, "render %s: boundary %d, expected %d\n", cases[i].render,
+                        (int)scene_doc_scene(doc)->render.boundary, (int)cases[i].expected);
+            CHECK_INT(scene_doc_scene(doc)->render.boundary, cases[i].expected);
+        }
+        scene_doc_free(doc);
+        free(text);
+    }
 }
 
 /* Plane normals and directional lights are normalised; the camera's up too. */
@@ -1203,6 +1235,7 @@ int main(void)
     RUN(test_preset_overrides);
     RUN(test_defaults_and_grey_colors);
     RUN(test_integers_and_settings);
+    RUN(test_boundary_default);
     RUN(test_normalisation);
     RUN(test_mesh_data_uri_and_asset);
     RUN(test_mesh_normals);

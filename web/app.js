@@ -81,11 +81,13 @@ const SCATTER_NUMBERS = [
   { key: 'single_samples', id: 'single-samples', integer: true },
   { key: 'cull_solid_angle', id: 'cull-solid-angle', integer: false },
 ];
-/* The scattering choices: a select per render key, with the server's default. */
+/* The scattering choices: a select per render key, with the server's default for a method.
+ * The boundary correction is on by default where it applies (nn, table). */
+const TABLE_METHODS = ['nn', 'table'];
 const SCATTER_CHOICES = [
-  { key: 'accumulation', id: 'accumulation', fallback: 'exact' },
-  { key: 'vrl_beams', id: 'vrl-beams', fallback: 'endless' },
-  { key: 'boundary', id: 'boundary', fallback: 'off' },
+  { key: 'accumulation', id: 'accumulation', fallback: () => 'exact' },
+  { key: 'vrl_beams', id: 'vrl-beams', fallback: () => 'endless' },
+  { key: 'boundary', id: 'boundary', fallback: (method) => (TABLE_METHODS.includes(method) ? 'walks' : 'off') },
 ];
 
 /* X-Nscatter-Stats keys shown under the timings, in this order. */
@@ -442,9 +444,7 @@ function readRenderSettings(render) {
   const method = render.method === undefined ? DEFAULT_METHOD : String(render.method);
   setSelectValue(controls.method, method);
   showMethodComponents(method);
-  for (const choice of controls.scatterChoices) {
-    setSelectValue(choice.select, render[choice.key] === undefined ? choice.fallback : String(render[choice.key]));
-  }
+  showScatterChoices(render, method);
   for (const field of controls.scatterNumbers) {
     const value = render[field.key];
     const isNumber = typeof value === 'number' && Number.isFinite(value);
@@ -453,6 +453,13 @@ function readRenderSettings(render) {
      * letting the empty field pass for the default. */
     if (value !== undefined && !isNumber) field.input.setAttribute('aria-invalid', 'true');
     else field.input.removeAttribute('aria-invalid');
+  }
+}
+
+/* Each choice as the text has it, or the method's default where the key is absent. */
+function showScatterChoices(render, method) {
+  for (const choice of controls.scatterChoices) {
+    setSelectValue(choice.select, render[choice.key] === undefined ? choice.fallback(method) : String(render[choice.key]));
   }
 }
 
@@ -1731,14 +1738,15 @@ function setRefStatus(text, kind = '') {
 }
 
 /* The same scene with "method": "pt" and the reference spp; everything else kept (the
- * components too, so like is compared with like). "vrl_beams": "bounded" is an nn/table
- * setting the path tracer refuses, so it goes. */
+ * components too, so like is compared with like). "vrl_beams": "bounded" and "boundary":
+ * "walks" are nn/table settings the path tracer refuses (it needs neither), so they go. */
 function referenceScene(scene, spp) {
   const copy = structuredClone(scene);
   const render = copy.render && typeof copy.render === 'object' ? copy.render : (copy.render = {});
   render.method = 'pt';
   render.spp = spp;
   if (render.vrl_beams === 'bounded') delete render.vrl_beams;
+  if (render.boundary === 'walks') delete render.boundary;
   return copy;
 }
 

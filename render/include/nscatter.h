@@ -285,7 +285,8 @@ typedef struct ns_render_settings {
     uint32_t single_samples;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
-    ns_boundary boundary;         /* nn and table only; 0: NS_BOUNDARY_OFF, the default */
+    ns_boundary boundary;         /* nn and table only; 0: NS_BOUNDARY_OFF (scene JSON without
+                                     the key: walks for nn and table, set by its parser) */
     float cull_solid_angle; /* sr; 0 = exact, the default (only cells beyond the table's reach
                                are culled) */
     /* Milliseconds the render may take, from when it starts (waiting for the context does
