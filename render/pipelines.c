@@ -16,7 +16,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
     /* J, read at every step of the walk (accumulate.comp), is a texel buffer of floats. */
-    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 4, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
+    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 5, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
                                 1u << 1, 1u << 1},
     [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START,
                          NS_TRACE_TEXEL_BINDINGS, 0},

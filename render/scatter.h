@@ -91,7 +91,19 @@ int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumu
 int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                 uint32_t zero_from_rho, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err);
+/* The same with an extra channel walked beside the three (shaders/accumulate_shared.h):
+ * extra_j float [NS_TABLE_CELLS], its A into extra_a (host, as many floats). Both come out
+ * as two separate accumulations would make them, bit for bit. */
+int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *extra_j,
+                               ns_accumulation accumulation, ns_scatter_tables *out,
+                               float *extra_a, uint64_t *steps, ns_error *err);
 void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
+/* Says that the render about to run reads the blurred first order (render.boundary) in this
+ * accumulation mode: the next table accumulated in that mode makes the context's unit blurred
+ * table beside its own, on the same walk, instead of a walk of its own later. */
+void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation);
+/* The context's unit blurred table in that mode (tests): NULL until made. */
+const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation);
 
 /* What the cache holds now (tests): bytes (device + host) and entries (J and A). */
 void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *entries);

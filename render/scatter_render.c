@@ -820,6 +820,11 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
         }
     }
     free(signature);
+    /* A group that reads the blurred first order: the first table this render accumulates
+     * can make its unit table on the same walk (scatter_tables.c). */
+    for (uint32_t g = 0; !status && g < v->boundary.count; g++)
+        if (v->boundary.group[g].orders & NS_TABLE_FIRST_BLURRED)
+            ns_tables_expect_blurred(ctx, scene->render.accumulation);
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;

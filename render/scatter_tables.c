@@ -55,6 +55,9 @@ struct ns_table_cache {
      * channel, host memory, made on first use and kept for the context's life (10.6 MB each,
      * outside `bytes`: every material's blurred table is made from it). */
     float *blur_unit[2];
+    /* Per mode: a render that reads it is running (ns_tables_expect_blurred); the next
+     * accumulation in that mode makes blur_unit beside its table. */
+    int blur_expected[2];
 };
 
 /* ---------------------------------------------------------------------------------------
@@ -94,9 +97,9 @@ static void destroy_kept_buffer(gpu_device *dev, gpu_buffer *b)
 /* ---------------------------------------------------------------------------------------
  * Accumulation
  * ------------------------------------------------------------------------------------- */
-static void channel_max(const float *j, float j_max[3])
+static void channel_max(const float *j, int channels, float *j_max)
 {
-    for (int c = 0; c < 3; c++) {
+    for (int c = 0; c < channels; c++) {
         const float *t = j + (size_t)c * NS_TABLE_CELLS;
         float m = 0.0f;
         for (size_t i = 0; i < NS_TABLE_CELLS; i++)
@@ -109,11 +112,11 @@ static void channel_max(const float *j, float j_max[3])
  * the last bin holds light). The blurred first order's Gaussian, 0.1 mfp wide, underflows to
  * 0 beyond about 1.5 mfp: its A is 0 along every line that stays farther out, about half the
  * cells (scatter.h, accumulate.comp). */
-static uint32_t zero_from_rho(const float *j)
+static uint32_t zero_from_rho(const float *j, int channels)
 {
     const size_t angles = (size_t)NS_TABLE_NTHETA * NS_TABLE_NPHI; /* cells of one (z, rho) */
     uint32_t from = 0;
-    for (size_t row = 0; row < 3 * (size_t)NS_TABLE_NZ * NS_TABLE_NRHO; row++) {
+    for (size_t row = 0; row < (size_t)channels * NS_TABLE_NZ * NS_TABLE_NRHO; row++) {
         uint32_t ir = (uint32_t)(row % NS_TABLE_NRHO);
         if (ir < from)
             continue;
@@ -127,9 +130,9 @@ static uint32_t zero_from_rho(const float *j)
     return from;
 }
 
-static int check_j(const float *j, ns_error *err)
+static int check_j(const float *j, int channels, ns_error *err)
 {
-    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
+    for (size_t i = 0; i < (size_t)channels * NS_TABLE_CELLS; i++)
         if (!(j[i] >= 0.0f) || isinf(j[i]))
             return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                            "J table: channel %zu cell %zu is %g (must be finite and >= 0)",
@@ -137,15 +140,19 @@ static int check_j(const float *j, ns_error *err)
     return NS_OK;
 }
 
-static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[3],
-                                             ns_accumulation accumulation, uint32_t zero_from)
+/* j_max: 3 channels, or 4 with the extra one (accumulate_shared.h) whose J is 0 from rho
+ * bin extra_zero_from. */
+static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float *j_max,
+                                             int extra, ns_accumulation accumulation,
+                                             uint32_t zero_from, uint32_t extra_zero_from)
 {
     GpuAccumulateParams p;
     memset(&p, 0, sizeof p);
     p.grid[0] = (float)grid->scale;
     p.grid[1] = (float)grid->step;
     p.grid[2] = (float)grid->extent;
-    memcpy(p.j_max, j_max, 3 * sizeof(float));
+    memcpy(p.j_max, j_max, (extra ? 4 : 3) * sizeof(float));
+    p.counts[3] = extra ? 1 + extra_zero_from : 0;
     p.cut[0] = CUT_RELATIVE;
     p.cut[1] = CUT_FLOOR;
     p.cut[2] = accumulation == NS_ACCUMULATION_PAPER ? (float)NS_PAPER_ACCUMULATION_MFP : 0.0f;
@@ -155,7 +162,7 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
     return p;
 }
 
-enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_COUNT };
+enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_EXTRA, B_COUNT };
 
 static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_error *err)
 {
@@ -182,16 +189,39 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
         err);
 }
 
+static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
+                      ns_accumulation accumulation, uint32_t zero_from, ns_scatter_tables *out,
+                      uint64_t *steps, ns_error *err);
+
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return ns_tables_accumulate_within(ctx, j, accumulation, j ? zero_from_rho(j) : NS_TABLE_NRHO,
-                                       out, steps, err);
+    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+                      out, steps, err);
 }
 
 int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                 uint32_t zero_from, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err)
+{
+    return accumulate(ctx, j, NULL, NULL, accumulation, zero_from, out, steps, err);
+}
+
+int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *extra_j,
+                               ns_accumulation accumulation, ns_scatter_tables *out,
+                               float *extra_a, uint64_t *steps, ns_error *err)
+{
+    if (!extra_j || !extra_a)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the extra channel needs its J and its A");
+    return accumulate(ctx, j, extra_j, extra_a, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+                      out, steps, err);
+}
+
+/* j: float [3][cells]; extra_j (may be NULL): the extra channel's float [cells], whose A goes
+ * to extra_a. */
+static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
+                      ns_accumulation accumulation, uint32_t zero_from, ns_scatter_tables *out,
+                      uint64_t *steps, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     if (zero_from > NS_TABLE_NRHO)
@@ -200,16 +230,30 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
     if (accumulation != NS_ACCUMULATION_EXACT && accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)accumulation);
-    int status = check_j(j, err);
+    int status = check_j(j, 3, err);
+    if (!status && extra_j)
+        status = check_j(extra_j, 1, err);
     if (status)
         return status;
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    float j_max[3];
-    channel_max(j, j_max);
-    GpuAccumulateParams params = accumulate_params(&grid, j_max, accumulation, zero_from);
-    int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f;
+    float j_max[4] = {0};
+    channel_max(j, 3, j_max);
+    if (extra_j)
+        channel_max(extra_j, 1, j_max + 3);
+    GpuAccumulateParams params = accumulate_params(&grid, j_max, extra_j != NULL, accumulation,
+                                                   zero_from, extra_j ? zero_from_rho(extra_j, 1) : 0);
+    int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f && j_max[3] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
+    uint64_t channel_bytes = (uint64_t)NS_TABLE_CELLS * sizeof(float);
+    /* With the extra channel J is one buffer of four channels: the three, then it. */
+    float *j4 = NULL;
+    if (extra_j) {
+        if (!(j4 = malloc(table_bytes + channel_bytes)))
+            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "accumulate: out of memory for J");
+        memcpy(j4, j, table_bytes);
+        memcpy(j4 + 3 * (size_t)NS_TABLE_CELLS, extra_j, channel_bytes);
+    }
 
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
@@ -219,18 +263,22 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
                       .data = &params,
                       .data_size = sizeof params,
                       .label = "ns.accumulate.params"},
-        [B_J] = {.size = table_bytes,
-                 .data = j,
-                 .data_size = table_bytes,
+        [B_J] = {.size = table_bytes + (j4 ? channel_bytes : 0),
+                 .data = j4 ? j4 : j,
+                 .data_size = table_bytes + (j4 ? channel_bytes : 0),
                  .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
         [B_A] = {.size = table_bytes, .uninitialized = !all_zero, .label = "ns.tables.a"},
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
+        /* Without the extra channel the shader never writes it: a word stands in. */
+        [B_EXTRA] = {.size = extra_j ? channel_bytes : sizeof(float), .label = "ns.accumulate.extra"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
+    free(j4);
     if (!status && !all_zero) {
-        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS]};
+        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],
+                                      &own[B_EXTRA]};
         status = dispatch_accumulate(ctx, bound, err);
     }
     if (!status) {
@@ -244,6 +292,8 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
             *steps = (uint64_t)c[NS_ACCUMULATE_COUNTER_STEPS_HIGH] << 32 |
                      c[NS_ACCUMULATE_COUNTER_STEPS];
     }
+    if (!status && extra_j)
+        memcpy(extra_a, own[B_EXTRA].mapped, channel_bytes);
     if (!status) {
         out->a = own[B_A];
         own[B_A] = (gpu_buffer){0};
@@ -645,7 +695,46 @@ static uint64_t weights_bytes(const ns_table_key *key)
                                        : 0;
 }
 
-/* The A of the blurred first order's spatial part, accumulated once per mode. */
+void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation)
+{
+    ctx->tables->blur_expected[accumulation == NS_ACCUMULATION_PAPER] = 1;
+}
+
+const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation)
+{
+    return ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
+}
+
+/* A of a material's J (float [3][cells]) in key's mode into *a, and beside it the unit
+ * blurred table when a render expects it and the context has none yet (one walk for both). */
+static int accumulate_table(ns_context *ctx, const ns_table_key *key, const float *j,
+                            ns_scatter_tables *a, ns_error *err)
+{
+    int mode = key->accumulation == NS_ACCUMULATION_PAPER;
+    struct ns_table_cache *cache = ctx->tables;
+    if (!cache->blur_expected[mode] || cache->blur_unit[mode])
+        return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
+    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
+    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
+    if (!blur_j || !unit) {
+        free(blur_j);
+        free(unit);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
+    }
+    ns_blurred_spatial(blur_j);
+    int status = ns_tables_accumulate_extra(ctx, j, blur_j, key->accumulation, a, unit, NULL, err);
+    free(blur_j);
+    if (status) {
+        free(unit);
+        return status;
+    }
+    cache->blur_unit[mode] = unit;
+    cache->blur_expected[mode] = 0;
+    return NS_OK;
+}
+
+/* The A of the blurred first order's spatial part, accumulated once per mode (unless a
+ * material's accumulation made it on its way: accumulate_table). */
 static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float **out, double *ms,
                      ns_error *err)
 {
@@ -767,7 +856,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
             status = sum_orders(ctx, key, &j, err);
         if (!status) {
             ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-            status = ns_tables_accumulate(ctx, j, key->accumulation, &e.a, NULL, err);
+            status = accumulate_table(ctx, key, j, &e.a, err);
             stats->accumulate_ms = ns_stage_end(ctx, &stage);
             stats->accumulated = 1;
         }

@@ -32,7 +32,8 @@
 // and a fixed short cut would lose it. The walk also stops where it leaves the table (J is 0
 // outside). Paper mode (cut.z = 5): the integral over the first 5 mfp only, no other cut.
 //
-// Binding 0 params, 1 J (float[3][cells]), 2 A out (same layout), 3 counters.
+// Binding 0 params, 1 J (float[3][cells], or [4][cells] with the extra channel of
+// accumulate_shared.h), 2 A out (float[3][cells]), 3 counters, 4 the extra channel's A.
 #extension GL_GOOGLE_include_directive : require
 #include "shared.h"
 #include "scatter_shared.h"
@@ -48,6 +49,7 @@ layout(binding = 1) uniform usamplerBuffer j_texels;
 float j_at(uint i) { return uintBitsToFloat(texelFetch(j_texels, int(i)).x); }
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
+layout(std430, binding = 4) writeonly buffer ExtraBlock { float a_extra[]; };
 layout(push_constant) uniform PushBlock { GpuAccumulatePush ns_push[1]; };
 #define push ns_push[NS_OPAQUE_ZERO]
 
@@ -99,8 +101,9 @@ void count_steps(uint steps)
 }
 
 // A along the line from the centre of cell (iz, ir, it) in phi bin ip, its own phi phi
-// (inside the bin); steps: the bins it crossed; capped: it stopped at the step cap.
-vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
+// (inside the bin), of the three channels (xyz) and the extra one (w, 0 without it); steps:
+// the bins it crossed; capped: it stopped at the step cap.
+vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
 {
     float rho_lo = rho_edge(ir), rho_hi = rho_edge(ir + 1);
     // The two cells beside the source's plane hold A on the plane itself (z = 0): see
@@ -135,12 +138,19 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     int zero_from = int(params.counts.y);
     float zero_edge = rho_edge(zero_from);
     bool meets_j = ir < zero_from || zero_edge * zero_edge > s2;
-    uint step_cap = meets_j ? params.counts.z : 0u;
+    // The extra channel's own test, with its own radius.
+    bool has_extra = params.counts.w > 0u;
+    int extra_zero_from = max(int(params.counts.w) - 1, 0);
+    float extra_edge = rho_edge(extra_zero_from);
+    bool meets_extra = has_extra && (ir < extra_zero_from || extra_edge * extra_edge > s2);
+    uint step_cap = meets_j || meets_extra ? params.counts.z : 0u;
+    // Each part adds until its own cut is met (accumulate_shared.h).
+    bool adding_j = meets_j, adding_extra = meets_extra;
 
     float u = 0.0, decay = 1.0; // decay = e^{-u}
-    vec3 sum = vec3(0.0);
+    vec4 sum = vec4(0.0);
     steps = 0u;
-    capped = meets_j;
+    capped = meets_j || meets_extra;
     while (steps < step_cap) {
         int event = 0;
         float u_event = uz;
@@ -159,7 +169,11 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
                          NS_TABLE_NPHI + uint(ip);
         vec3 jv = vec3(j_at(index), j_at(NS_TABLE_CELLS + index),
             j_at(2u * NS_TABLE_CELLS + index));
-        sum += jv * (decay - decay_next);
+        float weight = decay - decay_next;
+        if (adding_j)
+            sum.xyz += jv * weight;
+        if (adding_extra)
+            sum.w += j_at(3u * NS_TABLE_CELLS + index) * weight;
         steps++;
         u = u_next;
         decay = decay_next;
@@ -167,9 +181,15 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
             capped = false;
             break;
         }
-        if (!fixed_length && all(lessThanEqual(decay * j_max, params.cut.x * (sum + floor_abs)))) {
-            capped = false;
-            break;
+        if (!fixed_length) {
+            adding_j = adding_j &&
+                !all(lessThanEqual(decay * j_max, params.cut.x * (sum.xyz + floor_abs)));
+            adding_extra = adding_extra &&
+                !(decay * params.j_max.w <= params.cut.x * (sum.w + params.cut.y * params.j_max.w));
+            if (!adding_j && !adding_extra) {
+                capped = false;
+                break;
+            }
         }
         // Into the next bin. lavapipe runs every branch that its SIMD lanes disagree on, so
         // this is written without branches: one new edge per axis (the rho bin's new inner or
@@ -219,7 +239,7 @@ void main()
     // The mean over the phi bin (accumulate_shared.h). phi is the slowest index of `order`,
     // so a whole group walks the same number of lines.
     uint lines = ns_accumulate_phi_lines(uint(ip));
-    vec3 sum = vec3(0.0);
+    vec4 sum = vec4(0.0);
     uint steps = 0u;
     bool capped = false;
     for (uint k = 0u; k < lines; k++) {
@@ -233,6 +253,8 @@ void main()
     sum /= float(lines);
     for (uint c = 0u; c < 3u; c++)
         a[c * NS_TABLE_CELLS + cell] = sum[c];
+    if (params.counts.w > 0u)
+        a_extra[cell] = sum.w;
     count_steps(steps);
     if (capped)
         atomicAdd(counters[NS_ACCUMULATE_COUNTER_CAPPED], 1u);

@@ -43,8 +43,18 @@ struct GpuAccumulateParams {
     ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = the rho bin from
                         which J is 0 in every channel and cell (NS_TABLE_NRHO: none; a line
                         that never comes inside it meets only zeros, accumulate.comp),
-                        z = step cap per cell, w = unused */
+                        z = step cap per cell, w = 0, or 1 + the same rho bin of an extra
+                        channel walked beside the three (below) */
 };
+
+/* The extra channel. The blurred first order's spatial part (boundary.h) is a table of its
+ * own that every material's blurred table is composed from, walked once per context: it
+ * rides along the first material's walk instead of walking 53 M steps alone (the lines are
+ * the same; only the J read and the sum are its own). Its J follows the three channels
+ * (J is then float [4][cells]), j_max.w is its peak, and its A goes to binding 4 (a dummy
+ * when there is none). Each part stops where its own walk would: the three channels stop
+ * adding when their cut is met, the extra one when its is, and the walk ends when both have,
+ * so both come out bit for bit as two walks would make them (gpu_accumulate checks it). */
 
 /* Push block of one dispatch: cells [first_cell, first_cell + groups * NS_ACCUMULATE_GROUP). */
 struct GpuAccumulatePush {

@@ -890,6 +890,96 @@ static void bench(int n)
            median(synth, n), median(cpu, n), median(rate, n));
 }
 
+/* A of j (3 channels) and of extra (1 channel, as channel 0 of a table of its own), each
+ * walked alone, against both walked together (ns_tables_accumulate_extra): the same floats,
+ * bit for bit. */
+static void compare_extra(const float *j, const float *extra, ns_accumulation mode, const char *what)
+{
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    float *alone_j = calloc(3 * cells, sizeof(float));
+    memcpy(alone_j, extra, cells * sizeof(float));
+    float *extra_a = malloc(cells * sizeof(float));
+    ns_scatter_tables table, table_alone, together;
+    uint64_t steps_table = 0, steps_alone = 0, steps_together = 0;
+    CHECK_INT(ns_tables_accumulate(ctx, j, mode, &table, &steps_table, &err), NS_OK);
+    CHECK_INT(ns_tables_accumulate(ctx, alone_j, mode, &table_alone, &steps_alone, &err), NS_OK);
+    int status = ns_tables_accumulate_extra(ctx, j, extra, mode, &together, extra_a, &steps_together, &err);
+    CHECK_INT(status, NS_OK);
+    if (!status) {
+        CHECK(memcmp(table.a.mapped, together.a.mapped, 3 * cells * sizeof(float)) == 0);
+        CHECK(memcmp(table_alone.a.mapped, extra_a, cells * sizeof(float)) == 0);
+        /* One walk covers both: at most the longer of the two per line. */
+        CHECK(steps_together < steps_table + steps_alone);
+        printf("%s (%s): %llu + %llu steps alone, %llu together; both parts bit for bit\n", what,
+               mode == NS_ACCUMULATION_PAPER ? "paper" : "exact", (unsigned long long)steps_table,
+               (unsigned long long)steps_alone, (unsigned long long)steps_together);
+        ns_scatter_tables_free(ctx, &together);
+    }
+    ns_scatter_tables_free(ctx, &table);
+    ns_scatter_tables_free(ctx, &table_alone);
+    free(alone_j);
+    free(extra_a);
+}
+
+/* The blurred first order's unit table rides along a material's walk (accumulate_shared.h):
+ * with light everywhere and the extra channel near the axis only, and the other way round
+ * (lines that meet the extra channel's light and not the table's); a J that is not finite
+ * or a missing output is refused; through the cache, a render that expects the blurred
+ * order gets the unit table from the first accumulation, as a walk of its own makes it. */
+static void test_extra_channel_rides_along(void)
+{
+    float *j = exponential_j(), *blur = malloc(cells * sizeof(float));
+    ns_blurred_spatial(blur);
+    compare_extra(j, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred extra");
+    compare_extra(j, blur, NS_ACCUMULATION_PAPER, "exponential J, blurred extra");
+    float *blur3 = calloc(3 * cells, sizeof(float)), *exp1 = malloc(cells * sizeof(float));
+    for (size_t i = 0; i < cells; i++) {
+        blur3[2 * cells + i] = blur[i];
+        exp1[i] = j[i];
+    }
+    compare_extra(blur3, exp1, NS_ACCUMULATION_EXACT, "blurred J, exponential extra");
+
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    ns_scatter_tables t;
+    float *out = malloc(cells * sizeof(float));
+    exp1[cells / 2] = NAN;
+    CHECK_INT(ns_tables_accumulate_extra(ctx, j, exp1, NS_ACCUMULATION_EXACT, &t, out, NULL, &err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err.message, "J table") != NULL);
+    CHECK_INT(ns_tables_accumulate_extra(ctx, j, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
+              NS_ERR_INVALID_ARGUMENT);
+
+    /* Through the cache: a fresh context, a render that expects the blurred order. */
+    ns_context *fresh = NULL;
+    CHECK_INT(ns_context_create(&(ns_context_desc){0}, &fresh, &err), NS_OK);
+    if (fresh) {
+        CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT) == NULL);
+        ns_tables_expect_blurred(fresh, NS_ACCUMULATION_EXACT);
+        const ns_scatter_tables *got = NULL;
+        ns_table_stats stats;
+        CHECK_INT(ns_tables_get(fresh, &nn_key, &got, &stats, &err), NS_OK);
+        const float *unit = ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT);
+        CHECK(unit != NULL);
+        CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_PAPER) == NULL);
+        float *alone_j = calloc(3 * cells, sizeof(float));
+        memcpy(alone_j, blur, cells * sizeof(float));
+        float *alone = NULL;
+        if (unit && accumulate(alone_j, NS_ACCUMULATION_EXACT, &alone, NULL) == 0) {
+            CHECK(memcmp(alone, unit, cells * sizeof(float)) == 0);
+            free(alone);
+        }
+        free(alone_j);
+        ns_context_destroy(fresh);
+    }
+    free(out);
+    free(blur3);
+    free(exp1);
+    free(blur);
+    free(j);
+}
+
 int main(void)
 {
     ns_table_grid_default(&grid);
@@ -902,6 +992,7 @@ int main(void)
     }
     RUN(test_closed_form_exponential);
     RUN(test_radial_support_skips_walks);
+    RUN(test_extra_channel_rides_along);
     RUN(test_network_tables_brute_force);
     RUN(test_cache_hit_and_eviction);
     RUN(test_zero_albedo_costs_nothing);
