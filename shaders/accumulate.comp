@@ -184,8 +184,12 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         if (!fixed_length) {
             adding_j = adding_j &&
                 !all(lessThanEqual(decay * j_max, params.cut.x * (sum.xyz + floor_abs)));
+            // The extra channel also stops where nothing is left on the line: outside its
+            // radius and moving outwards (every rho ahead is at least this bin's inner edge),
+            // it reads only zeros, so what it holds is already its whole integral.
             adding_extra = adding_extra &&
-                !(decay * params.j_max.w <= params.cut.x * (sum.w + params.cut.y * params.j_max.w));
+                !(decay * params.j_max.w <= params.cut.x * (sum.w + params.cut.y * params.j_max.w)) &&
+                !(ir >= extra_zero_from && rho_dir > 0);
             if (!adding_j && !adding_extra) {
                 capped = false;
                 break;
