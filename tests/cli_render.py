@@ -63,8 +63,10 @@ def test_png_pixels_and_exposure(t, d):
     code, _, stderr = run(scene, "-o", out, "--exposure", "1.5")
     t.equal(code, 0, f"--exposure ({stderr})")
     uniform_pixel(t, read(out), bytes(srgb8(c * 2 ** 1.5) for c in radiance), "exposure 1.5")
-    t.equal(json.loads(png_texts(read(out))["nscatter:render"]).get("exposure"), 1.5,
-            "exposure recorded in the metadata")
+    settings = json.loads(png_texts(read(out))["nscatter:render"])
+    t.equal(settings.get("exposure"), 1.5, "exposure recorded in the metadata")
+    # The environment scene renders with nn, whose boundary model defaults to walks.
+    t.equal(settings.get("boundary"), "walks", "boundary model recorded in the metadata")
 
 
 def test_exr_float_and_half(t, d):

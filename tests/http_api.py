@@ -85,6 +85,7 @@ def test_png_render(t, srv):
     params = json.loads(texts.get("nscatter:render", "{}"))
     t.equal(params.get("width"), 48, "tEXt render width")
     t.equal(params.get("method"), "nn", "tEXt render method")
+    t.equal(params.get("boundary"), "walks", "tEXt render boundary (nn's default)")
     t.check("nscatter:timings_ms" in texts, "timings as tEXt")
     t.check("nscatter:device" in texts, "device as tEXt")
     timing = server_timing(headers.get("server-timing", ""))
