@@ -1008,7 +1008,7 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     r->vrls = info->vrls_key ? vrls : 0;
     r->spp = scene_spp(b, s);
     json_t *scene_json = scene_for(s, info->method, info->components, r->spp, 0, r->vrls);
-    if (b->args.boundary && (info->method == NS_METHOD_NN || info->method == NS_METHOD_TABLE))
+    if (b->args.boundary && ns_method_uses_tables(info->method))
         json_object_set_new(json_object_get(scene_json, "render"), "boundary", json_string(b->args.boundary));
     double times[64];
     uint32_t n = 0;

@@ -71,7 +71,7 @@ json_t *render_settings_json(const ns_scene *scene, float exposure_stops)
                      (json_int_t)r->spp, "seed", (json_int_t)r->seed, "max_depth",
                      (json_int_t)r->max_depth, "exposure", (double)exposure_stops, "width",
                      (json_int_t)scene->camera.width, "height", (json_int_t)scene->camera.height,
-                     "boundary", r->boundary == NS_BOUNDARY_WALKS ? "walks" : "off");
+                     "boundary", ns_boundary_name(r->boundary));
 }
 
 /* Metadata strings live here while the encoder reads them. */

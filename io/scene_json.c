@@ -1479,8 +1479,7 @@ static void parse_render(parser *p, const json_t *v)
             field_enum(p, v, "vrl_beams", 0, beam_names, 2, "vrl_beams", &beams)) {
             r->vrl_beams = (ns_vrl_beams)beams;
             /* The other methods have no table VRLs: the key would be silently meaningless. */
-            if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && method_ok && r->method != NS_METHOD_NN &&
-                r->method != NS_METHOD_TABLE) {
+            if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && method_ok && !ns_method_uses_tables(r->method)) {
                 size_t inner = push_key(p, "vrl_beams");
                 report(p, "vrl_beams \"bounded\" applies to methods \"nn\" and \"table\" only");
                 pop(p, inner);
@@ -1492,8 +1491,7 @@ static void parse_render(parser *p, const json_t *v)
             field_enum(p, v, "boundary", 0, boundary_names, 2, "boundary", &boundary)) {
             r->boundary = (ns_boundary)boundary;
             /* Like vrl_beams: only the table methods gather through tables. */
-            if (r->boundary != NS_BOUNDARY_OFF && method_ok && r->method != NS_METHOD_NN &&
-                r->method != NS_METHOD_TABLE) {
+            if (r->boundary != NS_BOUNDARY_OFF && method_ok && !ns_method_uses_tables(r->method)) {
                 size_t inner = push_key(p, "boundary");
                 report(p, "boundary \"walks\" applies to methods \"nn\" and \"table\" only");
                 pop(p, inner);
@@ -1519,8 +1517,8 @@ static void parse_render(parser *p, const json_t *v)
      * scene's nn image closer to pt with it (docs/scattering.md, "The object's boundary").
      * The library keeps 0 = off, so renders built in C stay as they were; only the parser
      * sees that the key was not written (as for gather_tolerance). */
-    if (!boundary_given && method_ok && (r->method == NS_METHOD_NN || r->method == NS_METHOD_TABLE))
-        r->boundary = NS_BOUNDARY_WALKS;
+    if (!boundary_given && method_ok)
+        r->boundary = ns_default_boundary(r->method);
     /* The settings leave the parser resolved, as ns_render will render them: what the scene
      * reports (image metadata, --timings) is then the effective spp, max_depth and
      * components, not a 0 standing for them. */

@@ -108,6 +108,21 @@ static const char *const component_names[NS_COMPONENT_COUNT] = {
 #undef NS_X_NAME
 };
 
+int ns_method_uses_tables(ns_method method)
+{
+    return method == NS_METHOD_NN || method == NS_METHOD_TABLE;
+}
+
+ns_boundary ns_default_boundary(ns_method method)
+{
+    return ns_method_uses_tables(method) ? NS_BOUNDARY_WALKS : NS_BOUNDARY_OFF;
+}
+
+const char *ns_boundary_name(ns_boundary boundary)
+{
+    return boundary == NS_BOUNDARY_OFF ? "off" : boundary == NS_BOUNDARY_WALKS ? "walks" : "unknown";
+}
+
 const char *ns_method_name(ns_method method)
 {
     return (unsigned)method < NS_METHOD_COUNT ? method_names[method] : "unknown";

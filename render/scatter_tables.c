@@ -55,9 +55,10 @@ struct ns_table_cache {
      * channel, host memory, made on first use and kept for the context's life (10.6 MB each,
      * outside `bytes`: every material's blurred table is made from it). */
     float *blur_unit[2];
-    /* Per mode: a render that reads it is running (ns_tables_expect_blurred); the next
-     * accumulation in that mode makes blur_unit beside its table. */
-    int blur_expected[2];
+    /* Per mode: 1 + ns_run.serial of the render that reads it (ns_tables_expect_blurred), 0
+     * for none; that render's next accumulation in that mode makes blur_unit beside its table. A
+     * render that failed before it accumulated leaves no hint for the next one. */
+    uint64_t blur_expected[2];
 };
 
 /* ---------------------------------------------------------------------------------------
@@ -272,7 +273,9 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
         /* Without the extra channel the shader never writes it: a word stands in. */
-        [B_EXTRA] = {.size = extra_j ? channel_bytes : sizeof(float), .label = "ns.accumulate.extra"},
+        [B_EXTRA] = {.size = extra_j ? channel_bytes : sizeof(float),
+                     .uninitialized = extra_j && !all_zero, /* the walk writes every cell */
+                     .label = "ns.accumulate.extra"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
     free(j4);
@@ -697,7 +700,7 @@ static uint64_t weights_bytes(const ns_table_key *key)
 
 void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation)
 {
-    ctx->tables->blur_expected[accumulation == NS_ACCUMULATION_PAPER] = 1;
+    ctx->tables->blur_expected[accumulation == NS_ACCUMULATION_PAPER] = ctx->run.serial + 1;
 }
 
 const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation)
@@ -712,7 +715,7 @@ static int accumulate_table(ns_context *ctx, const ns_table_key *key, const floa
 {
     int mode = key->accumulation == NS_ACCUMULATION_PAPER;
     struct ns_table_cache *cache = ctx->tables;
-    if (!cache->blur_expected[mode] || cache->blur_unit[mode])
+    if (cache->blur_expected[mode] != ctx->run.serial + 1 || cache->blur_unit[mode])
         return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
     float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
     float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
@@ -729,7 +732,6 @@ static int accumulate_table(ns_context *ctx, const ns_table_key *key, const floa
         return status;
     }
     cache->blur_unit[mode] = unit;
-    cache->blur_expected[mode] = 0;
     return NS_OK;
 }
 

@@ -158,13 +158,11 @@ static int check_render(const ns_render_settings *r, ns_error *err)
                        NS_MAX_SINGLE_SAMPLES);
         if ((unsigned)r->vrl_beams > NS_VRL_BEAMS_BOUNDED)
             return BAD("render.vrl_beams: %d is not a beam model", (int)r->vrl_beams);
-        if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && r->method != NS_METHOD_NN &&
-            r->method != NS_METHOD_TABLE)
+        if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && !ns_method_uses_tables(r->method))
             return BAD("render.vrl_beams: bounded beams apply to methods nn and table");
         if ((unsigned)r->boundary > NS_BOUNDARY_WALKS)
             return BAD("render.boundary: %d is not a boundary model", (int)r->boundary);
-        if (r->boundary != NS_BOUNDARY_OFF && r->method != NS_METHOD_NN &&
-            r->method != NS_METHOD_TABLE)
+        if (r->boundary != NS_BOUNDARY_OFF && !ns_method_uses_tables(r->method))
             return BAD("render.boundary: the boundary correction applies to methods nn and table");
         if ((unsigned)r->accumulation > NS_ACCUMULATION_PAPER)
             return BAD("render.accumulation: unknown value %d", (int)r->accumulation);

@@ -120,6 +120,7 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     float u_end = fixed_length ? params.cut.z : FAR;
     vec3 j_max = params.j_max.xyz;
     vec3 floor_abs = params.cut.y * j_max;
+    float extra_floor = params.cut.y * params.j_max.w; // the extra channel's, as its own walk's
 
     // The z-plane ahead is the bin's lower one while z decreases along the walk, else its
     // upper one.
@@ -188,7 +189,7 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
             // radius and moving outwards (every rho ahead is at least this bin's inner edge),
             // it reads only zeros, so what it holds is already its whole integral.
             adding_extra = adding_extra &&
-                !(decay * params.j_max.w <= params.cut.x * (sum.w + params.cut.y * params.j_max.w)) &&
+                !(decay * params.j_max.w <= params.cut.x * (sum.w + extra_floor)) &&
                 !(ir >= extra_zero_from && rho_dir > 0);
             if (!adding_j && !adding_extra) {
                 capped = false;

@@ -939,6 +939,7 @@ static void test_extra_channel_rides_along(void)
         exp1[i] = j[i];
     }
     compare_extra(blur3, exp1, NS_ACCUMULATION_EXACT, "blurred J, exponential extra");
+    compare_extra(blur3, exp1, NS_ACCUMULATION_PAPER, "blurred J, exponential extra");
 
     ns_context *ctx = test_context();
     ns_error err = {0};
@@ -951,10 +952,15 @@ static void test_extra_channel_rides_along(void)
     CHECK_INT(ns_tables_accumulate_extra(ctx, j, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
 
-    /* Through the cache: a fresh context, a render that expects the blurred order. */
+    /* Through the cache: a fresh context; without the hint an accumulation makes no unit
+     * table, after it the next one does. */
     ns_context *fresh = NULL;
     CHECK_INT(ns_context_create(&(ns_context_desc){0}, &fresh, &err), NS_OK);
     if (fresh) {
+        ns_table_key double_only = nn_key;
+        double_only.orders = NS_COMPONENT_DOUBLE;
+        const ns_scatter_tables *first = NULL;
+        CHECK_INT(ns_tables_get(fresh, &double_only, &first, NULL, &err), NS_OK);
         CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT) == NULL);
         ns_tables_expect_blurred(fresh, NS_ACCUMULATION_EXACT);
         const ns_scatter_tables *got = NULL;

@@ -227,6 +227,14 @@ typedef enum { NS_VRL_BEAMS_ENDLESS = 0, NS_VRL_BEAMS_BOUNDED = 1 } ns_vrl_beams
  * where scattered light leaves it and a positive one where the boundary reflects it back,
  * each gathered through the tables with its orders shifted. Walks imply bounded beams. */
 typedef enum { NS_BOUNDARY_OFF = 0, NS_BOUNDARY_WALKS = 1 } ns_boundary;
+/* Whether the method gathers through tables (nn, table): the ones that take vrl_beams and
+ * boundary. */
+int ns_method_uses_tables(ns_method method);
+/* A scene's render.boundary where it does not say: walks where the method takes it, else off
+ * (the scene parser; the library's own 0 is off). */
+ns_boundary ns_default_boundary(ns_method method);
+/* "off", "walks" ("unknown" outside the enum). */
+const char *ns_boundary_name(ns_boundary boundary);
 
 #define NS_MAX_VRLS 1000000u
 #define NS_MAX_GATHER_TILE 16u
@@ -249,10 +257,11 @@ typedef enum { NS_BOUNDARY_OFF = 0, NS_BOUNDARY_WALKS = 1 } ns_boundary;
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
  * max_scatter, gather_levels, accumulation, vrl_beams, boundary, cull_solid_angle) nothing needs
- * replacing. Two fields are exceptions, because 0 is a value of their own there: seed and
- * gather_tolerance keep a 0 as given, and their defaults (NS_DEFAULT_SEED,
+ * replacing. Three fields are exceptions. seed and gather_tolerance keep a 0 as given (0 is
+ * a value of their own there), and their defaults (NS_DEFAULT_SEED,
  * NS_DEFAULT_GATHER_TOLERANCE) are applied by the scene parser, which knows whether the key
- * was written. */
+ * was written; boundary is 0 (off) here, and the parser's default is
+ * ns_default_boundary(method): walks for nn and table. */
 typedef struct ns_render_settings {
     ns_method method;    /* 0: NS_METHOD_NN, the default */
     uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
