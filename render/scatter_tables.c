@@ -133,6 +133,8 @@ static uint32_t zero_from_rho(const float *j, int channels)
 
 static int check_j(const float *j, int channels, ns_error *err)
 {
+    if (!j)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "J table: missing (NULL)");
     for (size_t i = 0; i < (size_t)channels * NS_TABLE_CELLS; i++)
         if (!(j[i] >= 0.0f) || isinf(j[i]))
             return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
@@ -247,14 +249,6 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
     int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f && j_max[3] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
     uint64_t channel_bytes = (uint64_t)NS_TABLE_CELLS * sizeof(float);
-    /* With the extra channel J is one buffer of four channels: the three, then it. */
-    float *j4 = NULL;
-    if (extra_j) {
-        if (!(j4 = malloc(table_bytes + channel_bytes)))
-            return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "accumulate: out of memory for J");
-        memcpy(j4, j, table_bytes);
-        memcpy(j4 + 3 * (size_t)NS_TABLE_CELLS, extra_j, channel_bytes);
-    }
 
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
@@ -264,9 +258,11 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                       .data = &params,
                       .data_size = sizeof params,
                       .label = "ns.accumulate.params"},
-        [B_J] = {.size = table_bytes + (j4 ? channel_bytes : 0),
-                 .data = j4 ? j4 : j,
-                 .data_size = table_bytes + (j4 ? channel_bytes : 0),
+        /* With the extra channel J is one buffer of four channels: the three, then it
+         * (copied in below). */
+        [B_J] = {.size = table_bytes + (extra_j ? channel_bytes : 0),
+                 .data = j,
+                 .data_size = table_bytes,
                  .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
         [B_A] = {.size = table_bytes, .uninitialized = !all_zero, .label = "ns.tables.a"},
@@ -278,7 +274,8 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                      .label = "ns.accumulate.extra"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
-    free(j4);
+    if (!status && extra_j)
+        memcpy((float *)own[B_J].mapped + 3 * (size_t)NS_TABLE_CELLS, extra_j, channel_bytes);
     if (!status && !all_zero) {
         gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],
                                       &own[B_EXTRA]};
@@ -708,66 +705,63 @@ const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accum
     return ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
 }
 
+/* Makes the context's unit blurred table in this mode: the extra channel of the walk of j
+ * (a material's J, float [3][cells], whose A goes to *a), or of a J of zeros where j is NULL
+ * (*a is then zeros, which the caller frees). Bit for bit the same either way
+ * (accumulate_shared.h). */
+static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const float *j,
+                          ns_scatter_tables *a, ns_error *err)
+{
+    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
+    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
+    float *zeros = j ? NULL : calloc(3 * (size_t)NS_TABLE_CELLS, sizeof(float));
+    int status = NS_OK;
+    if (!blur_j || !unit || (!j && !zeros)) {
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
+    } else {
+        ns_blurred_spatial(blur_j);
+        status = ns_tables_accumulate_extra(ctx, j ? j : zeros, blur_j, accumulation, a, unit, NULL, err);
+    }
+    free(blur_j);
+    free(zeros);
+    if (status) {
+        free(unit);
+        return status;
+    }
+    ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
+    return NS_OK;
+}
+
 /* A of a material's J (float [3][cells]) in key's mode into *a, and beside it the unit
- * blurred table when a render expects it and the context has none yet (one walk for both). */
+ * blurred table when the render running expects it and the context has none yet (one walk
+ * for both). */
 static int accumulate_table(ns_context *ctx, const ns_table_key *key, const float *j,
                             ns_scatter_tables *a, ns_error *err)
 {
     int mode = key->accumulation == NS_ACCUMULATION_PAPER;
     struct ns_table_cache *cache = ctx->tables;
-    if (cache->blur_expected[mode] != ctx->run.serial + 1 || cache->blur_unit[mode])
-        return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
-    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
-    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
-    if (!blur_j || !unit) {
-        free(blur_j);
-        free(unit);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
-    }
-    ns_blurred_spatial(blur_j);
-    int status = ns_tables_accumulate_extra(ctx, j, blur_j, key->accumulation, a, unit, NULL, err);
-    free(blur_j);
-    if (status) {
-        free(unit);
-        return status;
-    }
-    cache->blur_unit[mode] = unit;
-    return NS_OK;
+    if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode])
+        return make_blur_unit(ctx, key->accumulation, j, a, err);
+    return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
 }
 
-/* The A of the blurred first order's spatial part, accumulated once per mode (unless a
- * material's accumulation made it on its way: accumulate_table). */
+/* The A of the blurred first order's spatial part, made once per mode: on a walk of its own
+ * unless a material's accumulation made it on its way (accumulate_table). */
 static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float **out, double *ms,
                      ns_error *err)
 {
     float **slot = &ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
-    if (*slot) {
-        *out = *slot;
-        return NS_OK;
+    if (!*slot) {
+        ns_scatter_tables zeros;
+        ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
+        int status = make_blur_unit(ctx, accumulation, NULL, &zeros, err);
+        *ms += ns_stage_end(ctx, &stage);
+        if (status)
+            return status;
+        ns_scatter_tables_free(ctx, &zeros);
     }
-    size_t cells = NS_TABLE_CELLS;
-    float *j = calloc(3 * cells, sizeof(float)); /* channel 0 only; the others stay 0 */
-    float *unit = malloc(cells * sizeof(float));
-    if (!j || !unit) {
-        free(j);
-        free(unit);
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
-    }
-    ns_blurred_spatial(j);
-    ns_scatter_tables a;
-    ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-    int status = ns_tables_accumulate(ctx, j, accumulation, &a, NULL, err);
-    *ms += ns_stage_end(ctx, &stage);
-    free(j);
-    if (!status) {
-        memcpy(unit, a.a.mapped, cells * sizeof(float));
-        ns_scatter_tables_free(ctx, &a);
-        *slot = unit;
-        *out = unit;
-    } else {
-        free(unit);
-    }
-    return status;
+    *out = *slot;
+    return NS_OK;
 }
 
 /* A of a key with the blurred first order: A of the same key without it (from the cache or

@@ -951,6 +951,9 @@ static void test_extra_channel_rides_along(void)
     CHECK(strstr(err.message, "J table") != NULL);
     CHECK_INT(ns_tables_accumulate_extra(ctx, j, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_tables_accumulate(ctx, NULL, NS_ACCUMULATION_EXACT, &t, NULL, &err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err.message, "missing") != NULL);
 
     /* Through the cache: a fresh context; without the hint an accumulation makes no unit
      * table, after it the next one does. */
@@ -974,6 +977,18 @@ static void test_extra_channel_rides_along(void)
         float *alone = NULL;
         if (unit && accumulate(alone_j, NS_ACCUMULATION_EXACT, &alone, NULL) == 0) {
             CHECK(memcmp(alone, unit, cells * sizeof(float)) == 0);
+            free(alone);
+        }
+        /* Without the hint a key that reads the blurred order makes the unit table on a walk
+         * of its own (paper mode here, whose walks are short): the same floats. */
+        ns_table_key blurred = nn_key;
+        blurred.orders |= NS_TABLE_FIRST_BLURRED;
+        blurred.accumulation = NS_ACCUMULATION_PAPER;
+        CHECK_INT(ns_tables_get(fresh, &blurred, &got, &stats, &err), NS_OK);
+        const float *paper_unit = ns_tables_blurred_unit(fresh, NS_ACCUMULATION_PAPER);
+        CHECK(paper_unit != NULL);
+        if (paper_unit && accumulate(alone_j, NS_ACCUMULATION_PAPER, &alone, NULL) == 0) {
+            CHECK(memcmp(alone, paper_unit, cells * sizeof(float)) == 0);
             free(alone);
         }
         free(alone_j);
