@@ -161,7 +161,7 @@ uint64_t ns_vrl_first_path_at(double cdf, uint32_t paths, double xi);
  * start at scene light `light` (gs->lights) and aim at targets[target]; p is the stratum's
  * share of the paths, so a path's flux weight is 1 / (p paths). */
 typedef struct ns_vrl_stratum {
-    uint32_t light, target, first_path;
+    uint32_t light, target, first_path, path_count;
     double p;
 } ns_vrl_stratum;
 

@@ -191,6 +191,7 @@ int ns_vrl_stratify(const ns_gpu_scene *gs, const ns_vrl_target *targets, uint32
         strata[n++] = (ns_vrl_stratum){.light = (uint32_t)(k / target_count),
                                        .target = (uint32_t)(k % target_count),
                                        .first_path = (uint32_t)first,
+                                       .path_count = (uint32_t)(end - first),
                                        .p = p};
     }
     free(power);
@@ -218,6 +219,7 @@ static int plan_strata(const ns_gpu_scene *gs, const ns_vrl_target *targets, uin
         s->ids[0] = st->first_path;
         s->ids[1] = st->light;
         s->ids[2] = targets[st->target].object;
+        s->ids[3] = st->path_count; /* the stratified emission's n (common.glsl) */
     }
     free(strata);
     return status;

@@ -115,6 +115,7 @@ static int plan_emitters(const ns_scene *scene, const ns_gpu_scene *gs, uint32_t
         e->ids[0] = st->first_path;
         e->ids[1] = light->info[0];
         e->ids[2] = targets_of[st->target].object;
+        e->ids[3] = st->path_count; /* the stratified emission's n (common.glsl) */
     }
     free(targets_of);
     free(strata);

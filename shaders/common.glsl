@@ -46,6 +46,43 @@ float rnd()
     return unit_float(rng_state);
 }
 
+// Stratified light paths. The n paths that leave one light towards one target take the
+// points of the 4-D Hammersley set (j / n, phi_2(j), phi_3(j), phi_5(j)), j = 0 .. n - 1,
+// for their emission instead of independent numbers, every coordinate shifted modulo 1 by
+// one random vector per (seed, stratum) (a Cranley-Patterson rotation). Each path's numbers
+// are still uniform on their own, so every estimate stays unbiased; together they cover the
+// light's disk, cone or surface evenly, without the clumps and gaps of independent draws
+// that moved a render's image mean by several per cent from one seed to the next
+// (docs/scattering.md, *Stratified light paths*).
+float radical_inverse(uint j, uint base)
+{
+    float inv_base = 1.0 / float(base), scale = inv_base, x = 0.0;
+    for (uint digit = 0u; digit < 32u && j > 0u; digit++) {
+        x += float(j % base) * scale;
+        j /= base;
+        scale *= inv_base;
+    }
+    return x;
+}
+
+// Point j of n, rotated by the hash of `key`; fract keeps every coordinate in [0, 1).
+vec4 stratified4(uint j, uint n, uint key)
+{
+    uint h0 = pcg_hash(key), h1 = pcg_hash(h0), h2 = pcg_hash(h1), h3 = pcg_hash(h2);
+    vec4 shift = vec4(unit_float(h0), unit_float(h1), unit_float(h2), unit_float(h3));
+    // phi_2(j) is j's bits mirrored about the binary point: unit_float keeps the top 24.
+    vec4 point = vec4(float(j) / float(max(n, 1u)), unit_float(bitfieldReverse(j)),
+                      radical_inverse(j, 3u), radical_inverse(j, 5u));
+    return fract(point + shift);
+}
+
+// The numbers of light path `path` of the stratum whose paths are [first, first + count),
+// rotated by `seed` and the stratum.
+vec4 stratum_point(uint path, uint first, uint count, uint seed)
+{
+    return stratified4(path - first, count, pcg_hash(seed ^ 0x2545f491u) + first);
+}
+
 // ---------------------------------------------------------------------------------------
 // Geometry and attenuation.
 // ---------------------------------------------------------------------------------------
@@ -175,28 +212,33 @@ vec3 hg_sample(vec3 d, float g)
 // Direction and point sampling.
 // ---------------------------------------------------------------------------------------
 
-// A unit direction uniform over the sphere, from z uniform in [-1, 1] (Archimedes).
-vec3 uniform_sphere()
+// A unit direction uniform over the sphere, from z uniform in [-1, 1] (Archimedes): z from
+// the uniform number u, the azimuth from v.
+vec3 uniform_sphere_at(float u, float v)
 {
-    float z = 1.0 - 2.0 * rnd(), phi = 2.0 * PI * rnd();
+    float z = 1.0 - 2.0 * u, phi = 2.0 * PI * v;
     float r = sqrt(max(0.0, 1.0 - z * z));
     return vec3(r * cos(phi), r * sin(phi), z);
 }
 
-// The same z and phi as uniform_sphere, as vrl.comp has always built the direction: through
-// around(+z), whose final normalize rounds the result differently from the direct formula.
-// The VRLs of the nn, table and dipole methods come from it, so it stays as it is.
-vec3 uniform_sphere_around_z()
+vec3 uniform_sphere()
 {
-    return around(vec3(0.0, 0.0, 1.0), 1.0 - 2.0 * rnd(), 2.0 * PI * rnd());
+    float u = rnd();
+    return uniform_sphere_at(u, rnd());
 }
 
 // A cosine-distributed direction about n (pdf cos / pi), which cancels the cosine and the
 // 1 / pi of a Lambertian surface or a uniform sphere light's emission.
+vec3 cosine_sample_at(vec3 n, float u, float v)
+{
+    float r = sqrt(u), phi = 2.0 * PI * v;
+    return around(n, sqrt(max(0.0, 1.0 - r * r)), phi);
+}
+
 vec3 cosine_sample(vec3 n)
 {
-    float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
-    return around(n, sqrt(max(0.0, 1.0 - r * r)), phi);
+    float u = rnd();
+    return cosine_sample_at(n, u, rnd());
 }
 
 // The same distribution as cosine_sample, as camera.comp has always built it: the sine of
@@ -214,14 +256,21 @@ vec3 cosine_sample_direct(vec3 n)
 // the cone's solid angle (1 / pdf). Sampling the cone rather than the sphere's surface
 // wastes no sample on its far side. The result means nothing for o inside the sphere, which
 // the callers test (or ignore) themselves.
-float sample_cone(vec4 sphere, vec3 o, out vec3 d)
+// sample_cone_at: the same for the uniform numbers u (the cosine's) and v (the azimuth's).
+float sample_cone_at(vec4 sphere, vec3 o, float u, float v, out vec3 d)
 {
-    vec3 v = sphere.xyz - o;
-    float d2 = dot(v, v);
+    vec3 to = sphere.xyz - o;
+    float d2 = dot(to, to);
     float r2 = sphere.w * sphere.w;
     float cos_max = sqrt(max(0.0, 1.0 - r2 / d2));
-    d = around(v / sqrt(d2), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+    d = around(to / sqrt(d2), 1.0 - u * (1.0 - cos_max), 2.0 * PI * v);
     return 2.0 * PI * (1.0 - cos_max);
+}
+
+float sample_cone(vec4 sphere, vec3 o, out vec3 d)
+{
+    float u = rnd();
+    return sample_cone_at(sphere, o, u, rnd(), d);
 }
 
 // Cosine of the half-angle of the cone from p that holds the sphere (c, r); -1 inside it,
@@ -239,12 +288,19 @@ float cone_cos(vec3 p, vec3 c, float r)
 // A point uniform on the disk through the centre c of a sphere of radius r across d, moved
 // back along d to just outside the sphere: parallel rays along d from such points cover the
 // sphere with uniform density, for lights that arrive from infinity.
-vec3 disk_before_sphere(vec3 c, float r, vec3 d)
+// disk_before_sphere_at: the same for the uniform numbers u (the radius's) and v (the angle's).
+vec3 disk_before_sphere_at(vec3 c, float r, vec3 d, float u, float v)
 {
     vec3 tx, ty;
     basis(d, tx, ty);
-    float rho = r * sqrt(rnd()), phi = 2.0 * PI * rnd();
+    float rho = r * sqrt(u), phi = 2.0 * PI * v;
     return c + rho * (cos(phi) * tx + sin(phi) * ty) - (1.001 * r + ray_epsilon(c)) * d;
+}
+
+vec3 disk_before_sphere(vec3 c, float r, vec3 d)
+{
+    float u = rnd();
+    return disk_before_sphere_at(c, r, d, u, rnd());
 }
 
 #ifdef NS_COMMON_TRACE

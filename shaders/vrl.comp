@@ -104,10 +104,12 @@ bool walk_to_target(vec3 o, vec3 d, uint medium, uint target_object, inout vec3 
 
 // ---------------------------------------------------------------------------------------
 // Emission: a start point o, a direction d, the medium o lies in, and beta = the flux the
-// sample carries (before the stratum's weight). Each estimator is unbiased for the flux the
-// light sends through the target sphere (c, r).
+// sample carries (before the stratum's weight), from the uniform numbers u (the stratum's
+// stratified point for this path: common.glsl, stratified4). Each estimator is unbiased
+// for the flux the light sends through the target sphere (c, r).
 // ---------------------------------------------------------------------------------------
-bool emit(GpuLight light, vec3 c, float r, out vec3 o, out vec3 d, out uint medium, out vec3 beta)
+bool emit(GpuLight light, vec3 c, float r, vec4 u, out vec3 o, out vec3 d, out uint medium,
+          out vec3 beta)
 {
     medium = NS_NONE;
     uint kind = light.info.x;
@@ -115,33 +117,33 @@ bool emit(GpuLight light, vec3 c, float r, out vec3 o, out vec3 d, out uint medi
         // A uniform point on the disk perpendicular to d covering the target sphere, moved
         // back just outside it: E * area (directional); the environment first draws d
         // uniformly over the sphere of directions: L * 4 pi * area.
-        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? light.direction.xyz : uniform_sphere_around_z();
+        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? light.direction.xyz : uniform_sphere_at(u.z, u.w);
         float area = PI * r * r;
         beta = light.color.rgb * (kind == NS_GPU_LIGHT_DIRECTIONAL ? area : 4.0 * PI * area);
-        o = disk_before_sphere(c, r, d);
+        o = disk_before_sphere_at(c, r, d, u.x, u.y);
         beta *= from_infinity(o, d, medium);
     } else if (kind == NS_GPU_LIGHT_POINT) {
         // Uniform directions in the cone subtending the sphere: I * solid angle.
         o = light.position.xyz;
         float cos_max = cone_cos(o, c, r);
         vec3 axis = cos_max > -1.0 ? normalize(c - o) : vec3(0.0, 0.0, 1.0);
-        d = around(axis, 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+        d = around(axis, 1.0 - u.x * (1.0 - cos_max), 2.0 * PI * u.y);
         beta = light.color.rgb * (2.0 * PI * (1.0 - cos_max));
     } else {
         // Sphere light of radiance L: a uniform point on its surface (pdf 1 / area), then a
         // uniform direction in the cone from there to the target (pdf 1 / solid angle):
         // L * cos * solid angle * area, zero when the direction goes into the light. From a
         // point inside the target sphere, cosine-distributed directions: L * pi * area.
-        vec3 n = uniform_sphere_around_z();
+        vec3 n = uniform_sphere_at(u.x, u.y);
         float radius = light.position.w;
         float area = 4.0 * PI * radius * radius;
         o = light.position.xyz + radius * n;
         float cos_max = cone_cos(o, c, r);
         if (cos_max > -1.0) {
-            d = around(normalize(c - o), 1.0 - rnd() * (1.0 - cos_max), 2.0 * PI * rnd());
+            d = around(normalize(c - o), 1.0 - u.z * (1.0 - cos_max), 2.0 * PI * u.w);
             beta = light.color.rgb * (max(dot(n, d), 0.0) * 2.0 * PI * (1.0 - cos_max) * area);
         } else {
-            d = cosine_sample(n);
+            d = cosine_sample_at(n, u.z, u.w);
             beta = light.color.rgb * (PI * area);
         }
         o += n * ray_epsilon(o);
@@ -228,7 +230,8 @@ void main()
     const GpuVrl none = GpuVrl(vec3(0.0), 0.0, vec3(0.0), NS_NONE, vec3(0.0), 0u);
     GpuVrl chain[NS_VRL_MAX_CHAIN];
     uint stored = 0u;
-    if (emit(lights[s.ids.y], s.target.xyz, s.target.w, o, d, medium, beta) &&
+    vec4 u = stratum_point(i, s.ids.x, s.ids.w, push.seed);
+    if (emit(lights[s.ids.y], s.target.xyz, s.target.w, u, o, d, medium, beta) &&
         walk_to_target(o, d, medium, s.ids.z, beta, h)) {
         GpuVrl v = enter(o, d, h, beta * s.weight.x, exit_hit);
         if (max(v.power.x, max(v.power.y, v.power.z)) > 0.0) {

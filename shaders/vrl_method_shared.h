@@ -14,7 +14,8 @@ struct GpuVrlEmitter {
     ns_vec4 position;  /* point / sphere light: centre; w = sphere light radius */
     ns_vec4 direction; /* directional: unit travel direction */
     ns_vec4 color;     /* light colour / (N p); w unused */
-    ns_uvec4 ids;      /* x = first path, y = light kind (NS_GPU_LIGHT_*), z = target object */
+    ns_uvec4 ids;      /* x = first path, y = light kind (NS_GPU_LIGHT_*), z = target object,
+                          w = its paths */
 };
 
 /* A light path's state between dispatches (lavapipe's loop limit: a path yields after a

@@ -10,7 +10,7 @@
 struct GpuVrlStratum {
     ns_vec4 target; /* xyz = centre, w = radius (scene units) */
     ns_vec4 weight; /* x = 1 / (N p), yzw unused */
-    ns_uvec4 ids;   /* x = first path, y = light index, z = target object index, w unused */
+    ns_uvec4 ids;   /* x = first path, y = light index, z = target object index, w = its paths */
 };
 
 /* Push block: path i in [0, path_count) runs in invocation i. budget = loop iterations an

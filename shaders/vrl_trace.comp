@@ -87,46 +87,49 @@ uint find_emitter(uint path)
 }
 
 // Direction from o uniform in the cone that the target sphere subtends (the whole sphere of
-// directions when o is inside it); returns the cone's solid angle (1 / pdf).
-float cone_towards(vec4 target, vec3 o, out vec3 d)
+// directions when o is inside it), from the uniform numbers u and v; returns the cone's
+// solid angle (1 / pdf).
+float cone_towards(vec4 target, vec3 o, float u, float v, out vec3 d)
 {
-    vec3 v = target.xyz - o;
-    float dist2 = dot(v, v);
+    vec3 to = target.xyz - o;
+    float dist2 = dot(to, to);
     float r2 = target.w * target.w;
     if (dist2 <= r2) {
-        d = uniform_sphere();
+        d = uniform_sphere_at(u, v);
         return 4.0 * PI;
     }
-    return sample_cone(target, o, d);
+    return sample_cone_at(target, o, u, v, d);
 }
 
 // Emits the ray of `path`; flux = 0 when it carries nothing (a sphere light's back side,
-// a directional or environment light blocked upstream).
+// a directional or environment light blocked upstream). Its numbers are the emitter's
+// stratified point for the path (common.glsl, stratified4).
 void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_object)
 {
     GpuVrlEmitter e = emitters[find_emitter(path)];
+    vec4 u = stratum_point(path, e.ids.x, e.ids.w, push.seed);
     target_object = e.ids.z;
     uint kind = e.ids.y;
     vec3 color = e.color.rgb;
     if (kind == NS_GPU_LIGHT_DIRECTIONAL || kind == NS_GPU_LIGHT_ENVIRONMENT) {
         // Flux through the target's disk: E pi r^2 for a directional light; for a uniform
         // environment L every direction (4 pi) brings L pi r^2.
-        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? e.direction.xyz : uniform_sphere();
-        o = disk_before_sphere(e.target.xyz, e.target.w, d);
+        d = kind == NS_GPU_LIGHT_DIRECTIONAL ? e.direction.xyz : uniform_sphere_at(u.z, u.w);
+        o = disk_before_sphere_at(e.target.xyz, e.target.w, d, u.x, u.y);
         float disk = PI * e.target.w * e.target.w;
         flux = color * disk * (kind == NS_GPU_LIGHT_DIRECTIONAL ? 1.0 : 4.0 * PI) *
                transmittance_to_infinity(o, -d);
     } else if (kind == NS_GPU_LIGHT_POINT) {
         o = e.position.xyz;
-        flux = color * cone_towards(e.target, o, d);
+        flux = color * cone_towards(e.target, o, u.x, u.y, d);
     } else {
         // Sphere light of radiance L: a uniform point on its surface (area A), a direction in
         // the cone towards the target (solid angle W); flux = L cos A W, zero where the
         // direction points into the light.
-        vec3 n = uniform_sphere();
+        vec3 n = uniform_sphere_at(u.x, u.y);
         float radius = e.position.w;
         o = e.position.xyz + n * radius;
-        float solid_angle = cone_towards(e.target, o, d);
+        float solid_angle = cone_towards(e.target, o, u.z, u.w, d);
         float cos_n = dot(n, d);
         o += n * ray_epsilon(o);
         flux = cos_n > 0.0 ? color * (cos_n * 4.0 * PI * radius * radius * solid_angle) : vec3(0.0);

@@ -585,6 +585,65 @@ static void test_sphere_light(void)
     ns_vrl_set_free(&set);
 }
 
+/* The paths of one light and target are stratified (common.glsl, stratified4): the flux
+ * they carry into an object that fills only part of the emission disk, or that each path
+ * brings with another weight, is right to far better than independent paths could be. Over
+ * sixteen seeds the error's root mean square, in standard errors of independent paths
+ * (sum_power's sigma), is below 0.4: independent paths reach it about once in 100,000
+ * (chi-square, 16 degrees of freedom, below 2.56); stratified ones measured 0.16-0.19. */
+enum { STRATIFIED_SEEDS = 16 };
+
+static void check_stratified(const char *name, const vrl_case *c, double want)
+{
+    double sq = 0;
+    for (uint32_t seed = 1; seed <= STRATIFIED_SEEDS; seed++) {
+        ns_vrl_set set = {0};
+        if (!generate_ok(c, PATHS / 5, seed, &set))
+            return;
+        power_sum p = sum_power(&set, 0, 0);
+        double z = (p.total - want) / p.sigma;
+        sq += z * z / STRATIFIED_SEEDS;
+        ns_vrl_set_free(&set);
+    }
+    fprintf(stderr, "    %s: rms error over %d seeds %.3f standard errors of independent paths\n",
+            name, STRATIFIED_SEEDS, sqrt(sq));
+    CHECK(sqrt(sq) < 0.4);
+}
+
+static void test_stratified_paths(void)
+{
+    /* A box under an oblique directional light (as test_directional_box, index matched):
+     * paths from the disk that miss it carry nothing. */
+    const double half[3] = {1, 0.5, 0.25}, d[3] = {0.3, -1, 0.2};
+    double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), want = 0;
+    vrl_case c;
+    memset(&c, 0, sizeof c);
+    const double sigma_s[3] = {1, 1, 1}, sigma_a[3] = {0, 0, 0};
+    c.materials[0] = medium(sigma_s, sigma_a, 1.0);
+    c.material_count = 1;
+    c.objects[0].shape = NS_SHAPE_BOX;
+    set3(c.objects[0].min, -half[0], -half[1], -half[2]);
+    set3(c.objects[0].max, half[0], half[1], half[2]);
+    c.object_count = 1;
+    c.lights[0] = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(c.lights[0].direction, d[0], d[1], d[2]);
+    c.light_count = 1;
+    for (int k = 0; k < 3; k++)
+        want += fabs(d[k]) / n * 4 * half[(k + 1) % 3] * half[(k + 2) % 3];
+    check_stratified("directional light, box", &c, want);
+
+    /* A sphere light (radius 0.5, 4 away) and a unit sphere: each path's flux L cos A W
+     * varies with its point and direction; the total is that of a point of intensity
+     * L pi r^2 (the sphere-to-sphere view factor). */
+    memset(&c, 0, sizeof c);
+    sphere_medium(&c, 1.0, 1.0);
+    c.lights[0] = light(NS_LIGHT_SPHERE, 1, 1, 1);
+    set3(c.lights[0].position, 0, 0, -4);
+    c.lights[0].radius = 0.5f;
+    c.light_count = 1;
+    check_stratified("sphere light, sphere", &c, M_PI * 0.25 * 2 * M_PI * (1 - sqrt(1 - 1.0 / 16.0)));
+}
+
 static void test_two_media_and_lights(void)
 {
     /* Two spheres side by side (no shadowing) under a directional light and a point light
@@ -809,6 +868,7 @@ int main(void)
     RUN(test_point_light);
     RUN(test_environment_light);
     RUN(test_sphere_light);
+    RUN(test_stratified_paths);
     RUN(test_two_media_and_lights);
     RUN(test_blocked);
     RUN(test_deterministic);
