@@ -91,10 +91,15 @@ typedef struct bench_result {
     double psnr_denoised;       /* PSNR with the reference's own noise taken out of the MSE
                                    (NaN when it is not known or the rest is within it) */
     double equal_time_ratio;    /* vrl: ms / nn_full's ms; 0 when there was none to match */
+    /* --seeds: the renders on other seeds (0 without), counting the row's own */
+    uint32_t seeds;
+    double seed_ratio_mean[3], seed_ratio_sd[3]; /* mean / ref per channel over the seeds */
+    double seed_psnr_median, seed_psnr_min, seed_psnr_max;
     ns_image image;             /* the last render */
 } bench_result;
 
 #define BENCH_MAX_LADDER 8
+#define BENCH_MAX_SEEDS 64
 typedef struct bench_pt_point {
     uint32_t spp;
     double ms, pass_ms, mse, psnr;
@@ -136,6 +141,7 @@ typedef struct bench_run {
     char command[2048], date[64], device[256], driver[256];
     double total_s;
     uint32_t repeat;
+    uint32_t seeds; /* --seeds */
     double mc_collisions;
     const char *boundary; /* --boundary; NULL: each scene file's render.boundary (default walks) */
 } bench_run;

@@ -120,6 +120,37 @@ static void write_results(FILE *f, const bench_run *run)
     fputc('\n', f);
 }
 
+/* --seeds N: each row's spread over seeds (its first seed is the Results row). */
+static void write_seeds(FILE *f, const bench_run *run)
+{
+    if (run->seeds < 2)
+        return;
+    fprintf(f, "## Seeds\n\n"
+               "Each row rendered on %u seeds (the scene's and those after it; light paths and "
+               "camera samples change), each compared with the same reference: mean / ref per "
+               "channel as the mean ± the standard deviation over the seeds, and the PSNR's "
+               "median and range. One seed's mean / ref in Results is one draw from this "
+               "spread.\n\n"
+               "| scene | method | components | seeds | mean / ref R | G | B | PSNR dB median | min | max |\n"
+               "|---|---|---|---|---|---|---|---|---|---|\n",
+            run->seeds);
+    for (uint32_t i = 0; i < run->scene_count; i++) {
+        const bench_scene *s = &run->scenes[i];
+        for (int m = 0; m < BENCH_METHOD_COUNT && !s->skipped; m++) {
+            const bench_result *r = &s->results[m];
+            if (!run->methods[m] || !r->ok || r->seeds < 2)
+                continue;
+            fprintf(f, "| %s | %s | %s | %u |", s->name, bench_methods[m].name,
+                    bench_components_name(bench_methods[m].components), r->seeds);
+            for (int c = 0; c < 3; c++)
+                fprintf(f, " %s ± %s |", num(r->seed_ratio_mean[c], 3).text, num(r->seed_ratio_sd[c], 3).text);
+            fprintf(f, " %s | %s | %s |\n", num(r->seed_psnr_median, 2).text, num(r->seed_psnr_min, 2).text,
+                    num(r->seed_psnr_max, 2).text);
+        }
+    }
+    fputc('\n', f);
+}
+
 static void table2_group(FILE *f, const bench_result *r)
 {
     if (!r)
@@ -487,6 +518,7 @@ int bench_write_report(const bench_run *run, const char *dir)
             run->command, run->date, run->device, run->driver, run->repeat, run->mc_collisions > 0 ? run->mc_collisions : NS_MC_PROVIDER_COLLISIONS,
             run->boundary ? run->boundary : "the scene files' (walks where they do not say)", run->total_s);
     write_results(f, run);
+    write_seeds(f, run);
     write_table2(f, run);
     write_stages(f, run);
     write_targets(f, run);

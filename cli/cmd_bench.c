@@ -51,7 +51,7 @@
 typedef struct bench_args {
     const char *scenes, *methods, *out_dir, *cache_dir, *device, *scene_dir, *bunny, *diff;
     const char *ladder, *boundary;
-    uint32_t width, height, spp, ref_spp, repeat;
+    uint32_t width, height, spp, ref_spp, repeat, seeds;
     double vrl_scale, mc_collisions;
     double ref_ceiling_db, ref_budget_s; /* progressive references (0: off / no budget) */
     uint32_t ref_max_spp;                /* progressive references stop there */
@@ -85,6 +85,8 @@ static void bench_usage(FILE *out)
             "  --ref-max-spp N    with --ref-ceiling: no chunk beyond N spp (default 65536)\n"
             "  --pt-spp A,B,..    spp of the short pt renders (default 1,4,16)\n"
             "  --repeat N         renders per method; the time is the median after the first (2)\n"
+            "  --seeds N          renders every row on N seeds (the scene's and the N - 1 after it)\n"
+            "                     and reports the spread of its mean / ref and PSNR (default 1)\n"
             "  --vrl-scale F      multiplies the scenes' VRL counts (default 1)\n"
             "  --mc-collisions N  Monte Carlo collisions per order and channel, method table\n"
             "                     (default: the provider's, 8e7; tables cached per machine)\n"
@@ -155,6 +157,7 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
 {
     memset(a, 0, sizeof *a);
     a->repeat = 2;
+    a->seeds = 1;
     a->vrl_scale = 1.0;
     a->out_dir = "bench-out";
     a->diff = "nn_full";
@@ -190,6 +193,8 @@ static int parse_bench_args(int argc, char **argv, bench_args *a, int *done)
             rc = parse_u32(arg, val, 1, UINT32_MAX / 2, &a->ref_max_spp);
         } else if (TAKES("--repeat")) {
             rc = parse_u32(arg, val, 1, 50, &a->repeat);
+        } else if (TAKES("--seeds")) {
+            rc = parse_u32(arg, val, 1, BENCH_MAX_SEEDS, &a->seeds);
         } else if (TAKES("--vrl-scale")) {
             rc = parse_real(arg, val, 1e-4, 1e3, &a->vrl_scale);
         } else if (TAKES("--mc-collisions")) {
@@ -997,6 +1002,18 @@ static uint32_t scene_spp(const bench *b, const bench_scene *s)
     return json_is_integer(spp) ? (uint32_t)json_integer_value(spp) : 1;
 }
 
+/* Method m's scene: its components, spp, seed (0: the scene's), render.vrls (0: the
+ * scene's) and --boundary for the methods that gather through tables. */
+static json_t *method_scene(const bench *b, const bench_scene *s, int m, uint32_t spp, uint32_t seed,
+                            uint32_t vrls)
+{
+    const bench_method_info *info = &bench_methods[m];
+    json_t *scene_json = scene_for(s, info->method, info->components, spp, seed, vrls);
+    if (b->args.boundary && ns_method_uses_tables(info->method))
+        json_object_set_new(json_object_get(scene_json, "render"), "boundary", json_string(b->args.boundary));
+    return scene_json;
+}
+
 /* Renders method m `repeat` times at `vrls`; the result keeps the last image. */
 static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32_t repeat)
 {
@@ -1007,9 +1024,7 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     r->ran = 1;
     r->vrls = info->vrls_key ? vrls : 0;
     r->spp = scene_spp(b, s);
-    json_t *scene_json = scene_for(s, info->method, info->components, r->spp, 0, r->vrls);
-    if (b->args.boundary && ns_method_uses_tables(info->method))
-        json_object_set_new(json_object_get(scene_json, "render"), "boundary", json_string(b->args.boundary));
+    json_t *scene_json = method_scene(b, s, m, r->spp, 0, r->vrls);
     double times[64];
     uint32_t n = 0;
     for (uint32_t i = 0; i < repeat && i < 64; i++) {
@@ -1052,6 +1067,62 @@ static void compare_with_reference(bench_scene *s, int m)
      * the measured MSE it cannot be told from 0. */
     double mse = r->metrics.rmse[3] * r->metrics.rmse[3], rest = mse - ref->noise_mse;
     r->psnr_denoised = ref->noise_mse > 0 && rest > 0.1 * mse ? 20.0 * log10(r->metrics.peak / sqrt(rest)) : NAN;
+}
+
+/* --seeds N: the row's render again on the N - 1 seeds after the scene's, each compared with
+ * the reference: how far one seed's mean / ref and PSNR can be from another's (light paths
+ * and camera samples both change). The row itself keeps its first seed's image and time. */
+static int scene_seed(const bench_scene *s)
+{
+    json_t *seed = json_object_get(json_object_get(s->scene, "render"), "seed");
+    return json_is_integer(seed) ? (int)json_integer_value(seed) : 1;
+}
+
+static void run_seeds(bench *b, bench_scene *s, int m)
+{
+    bench_result *r = &s->results[m];
+    int set = bench_ref_index(bench_methods[m].components);
+    uint32_t n = b->args.seeds;
+    if (n < 2 || !r->ok || !(r->metrics.pixels > 0) || set < 0 || !s->refs[set].ok)
+        return;
+    double ratio[BENCH_MAX_SEEDS][3], psnr[BENCH_MAX_SEEDS];
+    for (int c = 0; c < 3; c++)
+        ratio[0][c] = r->metrics.mean_ratio[c];
+    psnr[0] = r->metrics.psnr[3];
+    uint32_t done = 1, first = (uint32_t)scene_seed(s);
+    for (uint32_t k = 1; k < n; k++) {
+        json_t *scene_json = method_scene(b, s, m, r->spp, first + k, r->vrls);
+        ns_image img;
+        ns_render_stats stats;
+        double ms;
+        char error[512];
+        int failed = bench_render(b, scene_json, &img, &stats, &ms, error, sizeof error);
+        json_decref(scene_json);
+        if (failed) {
+            fprintf(stderr, "bench: %s %s seed %u: %s\n", s->name, bench_methods[m].name, first + k, error);
+            continue;
+        }
+        image_metrics metrics;
+        image_compare(&img, &s->refs[set].image, NULL, &metrics);
+        ns_image_free(&img);
+        for (int c = 0; c < 3; c++)
+            ratio[done][c] = metrics.mean_ratio[c];
+        psnr[done++] = metrics.psnr[3];
+    }
+    r->seeds = done;
+    for (int c = 0; c < 3; c++) {
+        double sum = 0, sq = 0;
+        for (uint32_t k = 0; k < done; k++)
+            sum += ratio[k][c];
+        r->seed_ratio_mean[c] = sum / done;
+        for (uint32_t k = 0; k < done; k++)
+            sq += (ratio[k][c] - r->seed_ratio_mean[c]) * (ratio[k][c] - r->seed_ratio_mean[c]);
+        r->seed_ratio_sd[c] = done > 1 ? sqrt(sq / (done - 1)) : NAN;
+    }
+    qsort(psnr, done, sizeof *psnr, compare_doubles);
+    r->seed_psnr_min = psnr[0];
+    r->seed_psnr_max = psnr[done - 1];
+    r->seed_psnr_median = done % 2 ? psnr[done / 2] : 0.5 * (psnr[done / 2 - 1] + psnr[done / 2]);
 }
 
 /* vrl at equal time: its cost grows linearly with render.vrls above a fixed part (the stages
@@ -1179,6 +1250,7 @@ static void run_scene(bench *b, bench_scene *s)
                               : 0,
                           b->run.repeat);
         compare_with_reference(s, m);
+        run_seeds(b, s, m);
         const bench_result *r = &s->results[m];
         if (r->ok)
             fprintf(stderr, "bench: %s %s: %.1f ms, PSNR %.2f dB (%.1f s)\n", s->name, bench_methods[m].name,
@@ -1382,6 +1454,7 @@ int cmd_bench(int argc, char **argv)
     }
     double t0 = ns_now_ms();
     b->run.repeat = b->args.repeat;
+    b->run.seeds = b->args.seeds;
     b->run.mc_collisions = b->args.mc_collisions;
     b->run.boundary = b->args.boundary;
     b->run.diff_method = bench_method_by_name(b->args.diff, strlen(b->args.diff));

@@ -65,6 +65,8 @@ def test_bad_arguments(t, d):
         (["--diff", "upbp"], "--diff"),
         (["--pt-spp", "1,,4"], "--pt-spp"),
         (["--boundary", "on"], "--boundary"),
+        (["--seeds", "0"], "--seeds"),
+        (["--seeds", "65"], "--seeds"),
         (["--cache"], "--cache"),
     ]
     for args, named in cases:
@@ -89,6 +91,7 @@ def check_report(t, out):
     # Without --boundary the rows render as their scene files say (the default, walks).
     t.check("- render.boundary of the nn and table rows: the scene files' (walks where they do not say)"
             in text, "the report names the boundary model")
+    t.check("## Seeds" not in text, "no Seeds section without --seeds")
     rows = markdown_table(text, "## Results")
     methods = {r["method"]: r for r in rows if r["scene"] == "cloud"}
     t.check(set(methods) == {"nn_surface", "pt"}, f"result rows: {sorted(methods)}")
@@ -161,6 +164,32 @@ def test_report_and_reference_cache(t, d):
                        "--out", os.path.join(d, "out4"))
     t.equal(code, 0, f"8x8 run ({err.strip()[-300:]})")
     t.check("references: 2 rendered" in err, "another size renders its own references")
+
+
+def test_seeds(t, d):
+    """--seeds 3: the nn row rendered on two more seeds; its spread is reported (camera
+    samples change with the seed, so the spread is not zero), and the row's own seed is one
+    of the three."""
+    out = os.path.join(d, "seeds")
+    code, _, err = run(*TINY, "--seeds", "3", "--cache", os.path.join(d, "cache"), "--out", out)
+    t.equal(code, 0, f"bench --seeds 3 ({err.strip()[-400:]})")
+    text = open(os.path.join(out, "report.md"), encoding="utf-8").read()
+    t.check("Each row rendered on 3 seeds" in text, "the Seeds section says how many")
+    rows = [r for r in markdown_table(text, "## Seeds") if r["scene"] == "cloud"]
+    t.equal([r["method"] for r in rows], ["nn_surface"], "one Seeds row: nn_surface (pt is the reference)")
+    if not rows:
+        return
+    row = rows[0]
+    t.equal(row["seeds"], "3", "seeds rendered")
+    own = markdown_table(text, "## Results")
+    own = next(r for r in own if r["method"] == "nn_surface")["mean / ref R G B"].split()
+    for channel, key in enumerate(("mean / ref R", "G", "B")):
+        mean, sd = (float(x) for x in row[key].split("±"))
+        t.check(0.5 < mean < 2 and 0 < sd < 0.5, f"{key}: {mean} ± {sd}")
+        # The row's own mean / ref is one of the three: within 2 sd of their mean (sd of 3).
+        t.check(abs(float(own[channel]) - mean) <= 2 * sd + 1e-3, f"{key}: row's own {own[channel]} in {mean} ± {sd}")
+    lo, median, hi = float(row["min"]), float(row["PSNR dB median"]), float(row["max"])
+    t.check(15 < lo <= median <= hi < 200, f"PSNR min {lo} <= median {median} <= max {hi}")
 
 
 def compare(a, b):
@@ -344,7 +373,8 @@ def main():
         print("NSCATTER_BIN is not set (run through ctest)", file=sys.stderr)
         return 1
     with tempfile.TemporaryDirectory(prefix="nscatter-bench-") as d:
-        for test in (test_bad_arguments, test_report_and_reference_cache, test_progressive_references):
+        for test in (test_bad_arguments, test_report_and_reference_cache, test_seeds,
+                     test_progressive_references):
             t.run(test, d)
     return t.report()
 
