@@ -27,7 +27,10 @@ struct GpuVrlWalk {
     ns_vec4 flux;   /* RGB flux carried now (W) */
     ns_uvec4 state; /* x = rng, y = scattering events, z = medium, w = phase (NS_VRL_WALK_*) */
     ns_uvec4 count; /* x = VRLs made so far, y = first VRL slot (write pass), z = boundary
-                       events since the last scattering event, w unused */
+                       events since the last scattering event, w = the hero channel (0-2)
+                       whose extinction samples the free flights */
+    ns_vec4 mis;    /* xyz = each channel's pdf of the path so far over their mean (spectral
+                       MIS, vrl_trace.comp); w unused */
 };
 
 NS_CONST(uint, NS_VRL_WALK_FRESH, 0);
@@ -105,7 +108,7 @@ typedef struct GpuVrlTracePush GpuVrlTracePush;
 typedef struct GpuVrlResult GpuVrlResult;
 typedef struct GpuVrlGatherPush GpuVrlGatherPush;
 _Static_assert(sizeof(GpuVrlEmitter) == 80 && offsetof(GpuVrlEmitter, ids) == 64, "GpuVrlEmitter");
-_Static_assert(sizeof(GpuVrlWalk) == 80 && offsetof(GpuVrlWalk, count) == 64, "GpuVrlWalk");
+_Static_assert(sizeof(GpuVrlWalk) == 96 && offsetof(GpuVrlWalk, mis) == 80, "GpuVrlWalk");
 _Static_assert(sizeof(GpuVrlTracePush) == 32, "GpuVrlTracePush");
 _Static_assert(sizeof(GpuVrlResult) == 32 && offsetof(GpuVrlResult, multiple_rgb) == 16,
                "GpuVrlResult");

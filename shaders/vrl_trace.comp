@@ -4,8 +4,9 @@
 // object (render/vrl_method.c picks the (light, object) pair and its weight), crosses what
 // lies between (index-matched objects attenuate, anything else ends the path), enters the
 // target through its boundary with the Fresnel transmittance (1 - F) as a weight, then walks
-// inside: free flights with one channel picked uniformly and the one-sample balance heuristic
-// over the three channels' pdfs (spectral MIS: unbiased per channel), Henyey-Greenstein
+// inside: free flights sampled with one hero channel's extinction, the channel picked
+// uniformly per path, and the one-sample balance heuristic over the three channels' pdfs of
+// the whole path (spectral MIS: unbiased per channel; mis_step), Henyey-Greenstein
 // scattering, internal reflection chosen with probability F at the boundary (total internal
 // reflection always reflects), Russian roulette. A path that leaves after scattering goes on
 // outside, as the emitted ray does, and enters the first scattering object it meets again
@@ -236,6 +237,26 @@ void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, float len)
     w.count.x++;
 }
 
+// Spectral MIS over the whole path. A path samples its free flights with the extinction of
+// one hero channel, drawn uniformly at its start; it could have been drawn with any of the
+// three, so its flux in channel c is f_c / mean_k(P_k), P_k the path's pdf under channel k's
+// sampling (the balance heuristic, one sample): at most 3 albedo_c^events times f_c / P_c.
+// w.mis keeps s_k = P_k / mean(P), and a step whose factor is a_c in f_c and b_k in P_k takes
+// the flux by a / mean(s b) and s to s b / mean(s b). Taking the mixture's pdf at every event
+// instead (as free_flight does) lets a channel whose extinction differs from the others'
+// gain up to 3x per event, and its flux grow without bound over a long walk: the bumpy
+// sphere's and the oil's red and blue walks made seed-to-seed spreads of 15-20%
+// (docs/scattering.md, *Spectral MIS in the walks*).
+bool mis_step(inout GpuVrlWalk w, vec3 a, vec3 b)
+{
+    float m = dot(w.mis.xyz * b, vec3(1.0 / 3.0));
+    if (!(m > 0.0))
+        return false;
+    w.flux.xyz *= a / m;
+    w.mis.xyz *= b / m;
+    return true;
+}
+
 // false: the path is over.
 bool walk_step(inout GpuVrlWalk w)
 {
@@ -248,10 +269,13 @@ bool walk_step(inout GpuVrlWalk w)
 
     GpuMaterial mm = materials[w.state.z];
     vec3 st = mm.sigma_t.xyz;
-    float t = free_flight(st);
+    float st_hero = st[min(w.count.w, 2u)];
+    float t = st_hero > 0.0 ? -log(1.0 - rnd()) / st_hero : NS_INF;
     if (t < h.t) {
+        // f: sigma_s e^{-sigma_t t}; P: sigma_t e^{-sigma_t t}.
         vec3 tr = exp(-st * t);
-        w.flux.xyz *= tr * mm.sigma_s.xyz / dot(st * tr, vec3(1.0 / 3.0));
+        if (!mis_step(w, mm.sigma_s.xyz * tr, st * tr))
+            return false;
         w.state.y++;
         w.count.z = 0u;
         if (w.state.y > NS_VRL_ROULETTE_AFTER) {
@@ -266,11 +290,10 @@ bool walk_step(inout GpuVrlWalk w)
         w.direction.xyz = hg_sample(d, mm.sigma_s.w);
         return true;
     }
+    // Past the boundary: f and P both take e^{-sigma_t len}.
     vec3 tr = exp(-st * h.t);
-    float survive = dot(tr, vec3(1.0 / 3.0));
-    if (!(survive > 0.0))
+    if (!mis_step(w, tr, tr))
         return false;
-    w.flux.xyz *= tr / survive;
     if (++w.count.z > NS_VRL_MAX_BOUNDARY_RUN) {
         atomicAdd(counters[NS_VRL_TRACE_TRUNCATED], 1u);
         return false;
@@ -317,6 +340,8 @@ void main()
         return;
     if (w.state.w == NS_VRL_WALK_FRESH) {
         rng_state = pcg_hash(pcg_hash(push.seed ^ 0x5bd1e995u) + path);
+        w.count.w = min(uint(rnd() * 3.0), 2u); // the hero channel
+        w.mis = vec4(1.0, 1.0, 1.0, 0.0);
         vec3 o, d, flux;
         uint target_object;
         emit(path, o, d, flux, target_object);

@@ -610,6 +610,51 @@ static void test_first_stretch_flux(void)
     }
 }
 
+/* Spectral MIS over the whole path (vrl_trace.comp, mis_step): a walk's flux in any channel
+ * stays within 3 times its flux at the entry, however long it walks, because the balance
+ * heuristic divides by the mean of the three channels' path pdfs. A medium whose channels'
+ * extinctions differ 5x, albedo 0.99, lit from one direction: taking the mixture's pdf at
+ * every event instead, the thinnest channel's flux grows up to 3x per event, and some
+ * stretches carry many times the entry flux. */
+static void test_walk_weights_bounded(void)
+{
+    const double albedo = 0.99, sigma_t[3] = {0.2, 0.5, 1.0};
+    double ss[3], sa[3];
+    for (int c = 0; c < 3; c++) {
+        ss[c] = albedo * sigma_t[c] * 4; /* the unit sphere is 0.8-4 mfp across */
+        sa[c] = (1 - albedo) * sigma_t[c] * 4;
+    }
+    ns_light sun = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
+    set3(sun.direction, 0, -1, 0);
+    ns_scene s = sphere_scene(&sun, 1, 1.0);
+    sphere_medium = medium(ss, sa, 1.0);
+    sphere_medium.g = 0.3f;
+    device_scene d;
+    if (device_scene_make(&s, &d))
+        return;
+    ns_vrl_set set;
+    ns_error err = {0};
+    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 7u, 0, &set, NULL, &err);
+    CHECK_INT(status, NS_OK);
+    double entry = 0, worst = 0;
+    uint32_t later = 0;
+    for (uint32_t i = 0; !status && i < set.count; i++)
+        if (!set.vrls[i].events)
+            entry = fmax(entry, set.vrls[i].power[0]);
+    for (uint32_t i = 0; !status && i < set.count; i++) {
+        later += set.vrls[i].events > 0;
+        for (int c = 0; c < 3; c++)
+            worst = fmax(worst, set.vrls[i].power[c] / entry);
+    }
+    fprintf(stderr, "  walk weights: %u stretches after an event, largest flux %.3g x the entry's\n",
+            later, worst);
+    CHECK(later > 5000); /* long walks: the bound is tested where it matters */
+    CHECK(worst <= 3.0 * (1 + 1e-4));
+    if (!status)
+        free(set.vrls);
+    device_scene_free(&d);
+}
+
 /* ---------------------------------------------------------------------------------------
  * (b) Double and multiple scattering in pixels against the path tracer.
  * ------------------------------------------------------------------------------------- */
@@ -905,6 +950,7 @@ int main(void)
     RUN(test_gather_visibility);
     RUN(test_loop_limit_retry);
     RUN(test_first_stretch_flux);
+    RUN(test_walk_weights_bounded);
     RUN(test_bad_input);
     RUN(test_against_path_tracer);
     RUN(test_against_path_tracer_refracting);
