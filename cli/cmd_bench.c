@@ -603,6 +603,23 @@ static void read_reference_meta(const char *path, bench_reference *r)
     json_decref(meta);
 }
 
+/* Renders scene_json (and releases it) and compares the image with `against` (the
+ * reference: image_compare's b). 0, or bench_render's failure with error set. */
+static int render_compared(bench *b, json_t *scene_json, const ns_image *against, image_metrics *m,
+                           char *error, size_t error_len)
+{
+    ns_image img;
+    ns_render_stats stats;
+    double ms;
+    int rc = bench_render(b, scene_json, &img, &stats, &ms, error, error_len);
+    json_decref(scene_json);
+    if (rc)
+        return rc;
+    image_compare(&img, against, NULL, m);
+    ns_image_free(&img);
+    return 0;
+}
+
 /* The reference's noise: one short pt render of the same components on another seed;
  * their MSE is variance (1/BENCH_NOISE_SPP + 1/spp). Kept in the reference's .json. */
 static void measure_reference_noise(bench *b, bench_scene *s, bench_reference *r, uint32_t components)
@@ -610,20 +627,13 @@ static void measure_reference_noise(bench *b, bench_scene *s, bench_reference *r
     if (!(r->variance > 0)) {
         json_t *scene_json = scene_for(s, NS_METHOD_PT, components, BENCH_NOISE_SPP, BENCH_NOISE_SEED, 0);
         json_object_del(json_object_get(scene_json, "render"), "vrls");
-        ns_image img;
-        ns_render_stats stats;
-        double ms;
         char error[512];
-        int rc = bench_render(b, scene_json, &img, &stats, &ms, error, sizeof error);
-        json_decref(scene_json);
-        if (rc) {
+        image_metrics m;
+        if (render_compared(b, scene_json, &r->image, &m, error, sizeof error)) {
             fprintf(stderr, "nscatter bench: %s reference (%s): its noise: %s\n", s->name,
                     bench_components_name(components), error);
             return;
         }
-        image_metrics m;
-        image_compare(&img, &r->image, NULL, &m);
-        ns_image_free(&img);
         r->variance = m.rmse[3] * m.rmse[3] / (1.0 / BENCH_NOISE_SPP + 1.0 / r->spp);
         if (write_reference_meta(r->path, r, s->name, components))
             fprintf(stderr, "nscatter bench: cannot update '%s.json': %s\n", r->path, strerror(errno));
@@ -1092,19 +1102,12 @@ static void run_seeds(bench *b, bench_scene *s, int m)
     uint32_t done = 1, first = (uint32_t)scene_seed(s);
     for (uint32_t k = 1; k < n; k++) {
         json_t *scene_json = method_scene(b, s, m, r->spp, first + k, r->vrls);
-        ns_image img;
-        ns_render_stats stats;
-        double ms;
         char error[512];
-        int failed = bench_render(b, scene_json, &img, &stats, &ms, error, sizeof error);
-        json_decref(scene_json);
-        if (failed) {
+        image_metrics metrics;
+        if (render_compared(b, scene_json, &s->refs[set].image, &metrics, error, sizeof error)) {
             fprintf(stderr, "bench: %s %s seed %u: %s\n", s->name, bench_methods[m].name, first + k, error);
             continue;
         }
-        image_metrics metrics;
-        image_compare(&img, &s->refs[set].image, NULL, &metrics);
-        ns_image_free(&img);
         for (int c = 0; c < 3; c++)
             ratio[done][c] = metrics.mean_ratio[c];
         psnr[done++] = metrics.psnr[3];

@@ -171,6 +171,19 @@ static void sphere_medium(vrl_case *c, double ior, double radius)
     c->objects[c->object_count++] = sphere(0, 0, 0, radius, c->material_count++);
 }
 
+/* One medium box of half extents `half` at the origin (c is cleared first). */
+static void box_medium(vrl_case *c, const double half[3], const double sigma_s[3],
+                       const double sigma_a[3], double ior)
+{
+    memset(c, 0, sizeof *c);
+    c->materials[0] = medium(sigma_s, sigma_a, ior);
+    c->material_count = 1;
+    c->objects[0].shape = NS_SHAPE_BOX;
+    set3(c->objects[0].min, -half[0], -half[1], -half[2]);
+    set3(c->objects[0].max, half[0], half[1], half[2]);
+    c->object_count = 1;
+}
+
 /* Origins on the sphere of `radius` at the origin; Snell's law between d_in and each
  * direction; length = the chord along it; unit directions; material and events. */
 static void check_geometry(const ns_vrl_set *set, const double *d_in, double radius, double ior,
@@ -295,20 +308,14 @@ static void test_directional_box(void)
         int glass = variant > 0, mesh = variant == 2;
         double ior = glass ? 1.5 : 1.0;
         vrl_case c;
-        memset(&c, 0, sizeof c);
         const double sigma_s[3] = {1, 1, 1}, sigma_a[3] = {0, 0, 0};
-        c.materials[0] = medium(sigma_s, sigma_a, ior);
-        c.material_count = 1;
-        c.objects[0].shape = NS_SHAPE_BOX;
-        set3(c.objects[0].min, -half[0], -half[1], -half[2]);
-        set3(c.objects[0].max, half[0], half[1], half[2]);
+        box_medium(&c, half, sigma_s, sigma_a, ior);
         if (mesh) {
             box_triangles(half, c.triangles);
             c.triangle_count = 12;
             c.objects[0].shape = NS_SHAPE_MESH;
             c.objects[0].triangle_count = 12;
         }
-        c.object_count = 1;
         c.lights[0] = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
         set3(c.lights[0].direction, d[0], d[1], d[2]);
         c.light_count = 1;
@@ -409,13 +416,7 @@ static void test_internal_reflections(void)
     for (int variant = 0; variant < 2; variant++) {
         double ior = variant ? 1.0 : 1.5;
         vrl_case c;
-        memset(&c, 0, sizeof c);
-        c.materials[0] = medium(sigma_s, sigma_a, ior);
-        c.material_count = 1;
-        c.objects[0].shape = NS_SHAPE_BOX;
-        set3(c.objects[0].min, -half[0], -half[1], -half[2]);
-        set3(c.objects[0].max, half[0], half[1], half[2]);
-        c.object_count = 1;
+        box_medium(&c, half, sigma_s, sigma_a, ior);
         c.lights[0] = light(NS_LIGHT_POINT, 1, 1, 1);
         set3(c.lights[0].position, 0, half[1] + 0.3, 0);
         c.light_count = 1;
@@ -617,14 +618,8 @@ static void test_stratified_paths(void)
     const double half[3] = {1, 0.5, 0.25}, d[3] = {0.3, -1, 0.2};
     double n = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), want = 0;
     vrl_case c;
-    memset(&c, 0, sizeof c);
     const double sigma_s[3] = {1, 1, 1}, sigma_a[3] = {0, 0, 0};
-    c.materials[0] = medium(sigma_s, sigma_a, 1.0);
-    c.material_count = 1;
-    c.objects[0].shape = NS_SHAPE_BOX;
-    set3(c.objects[0].min, -half[0], -half[1], -half[2]);
-    set3(c.objects[0].max, half[0], half[1], half[2]);
-    c.object_count = 1;
+    box_medium(&c, half, sigma_s, sigma_a, 1.0);
     c.lights[0] = light(NS_LIGHT_DIRECTIONAL, 1, 1, 1);
     set3(c.lights[0].direction, d[0], d[1], d[2]);
     c.light_count = 1;
