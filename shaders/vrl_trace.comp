@@ -245,8 +245,8 @@ void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, float len)
 // the flux by a / mean(s b) and s to s b / mean(s b). Taking the mixture's pdf at every event
 // instead (as free_flight does) lets a channel whose extinction differs from the others'
 // gain up to 3x per event, and its flux grow without bound over a long walk: the bumpy
-// sphere's and the oil's red and blue walks made seed-to-seed spreads of 15-20%
-// (docs/scattering.md, *Spectral MIS in the walks*).
+// sphere's red walks made a seed-to-seed spread of 16% in its multiple scattering (6% with
+// this; docs/scattering.md, *Spectral MIS in the walks*).
 bool mis_step(inout GpuVrlWalk w, vec3 a, vec3 b)
 {
     float m = dot(w.mis.xyz * b, vec3(1.0 / 3.0));
