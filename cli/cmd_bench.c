@@ -526,6 +526,12 @@ static int compare_doubles(const void *a, const void *b)
     return (x > y) - (x < y);
 }
 
+/* The median of n >= 1 values sorted in ascending order. */
+static double median_of_sorted(const double *v, uint32_t n)
+{
+    return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
 /* ---------------------------------------------------------------------------------------
  * References: pt with the components of the methods compared with them.
  * ------------------------------------------------------------------------------------- */
@@ -1061,7 +1067,7 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     double *warm = n > 1 ? times + 1 : times;
     uint32_t warm_n = n > 1 ? n - 1 : n;
     qsort(warm, warm_n, sizeof *warm, compare_doubles);
-    r->ms = warm_n % 2 ? warm[warm_n / 2] : 0.5 * (warm[warm_n / 2 - 1] + warm[warm_n / 2]);
+    r->ms = median_of_sorted(warm, warm_n);
     r->ok = 1;
 }
 
@@ -1082,10 +1088,18 @@ static void compare_with_reference(bench_scene *s, int m)
 /* --seeds N: the row's render again on the N - 1 seeds after the scene's, each compared with
  * the reference: how far one seed's mean / ref and PSNR can be from another's (light paths
  * and camera samples both change). The row itself keeps its first seed's image and time. */
-static int scene_seed(const bench_scene *s)
+static uint32_t scene_seed(const bench_scene *s)
 {
     json_t *seed = json_object_get(json_object_get(s->scene, "render"), "seed");
-    return json_is_integer(seed) ? (int)json_integer_value(seed) : 1;
+    return json_is_integer(seed) ? (uint32_t)json_integer_value(seed) : 1u;
+}
+
+/* The k-th seed after `first`, wrapping past UINT32_MAX but never to 0: scene_for reads a
+ * seed of 0 as "the scene's own", which would render the first seed again. */
+static uint32_t seed_after(uint32_t first, uint32_t k)
+{
+    uint32_t seed = first + k;
+    return seed < first ? seed + 1 : seed;
 }
 
 static void run_seeds(bench *b, bench_scene *s, int m)
@@ -1099,13 +1113,14 @@ static void run_seeds(bench *b, bench_scene *s, int m)
     for (int c = 0; c < 3; c++)
         ratio[0][c] = r->metrics.mean_ratio[c];
     psnr[0] = r->metrics.psnr[3];
-    uint32_t done = 1, first = (uint32_t)scene_seed(s);
+    uint32_t done = 1, first = scene_seed(s);
     for (uint32_t k = 1; k < n; k++) {
-        json_t *scene_json = method_scene(b, s, m, r->spp, first + k, r->vrls);
+        uint32_t seed = seed_after(first, k);
+        json_t *scene_json = method_scene(b, s, m, r->spp, seed, r->vrls);
         char error[512];
         image_metrics metrics;
         if (render_compared(b, scene_json, &s->refs[set].image, &metrics, error, sizeof error)) {
-            fprintf(stderr, "bench: %s %s seed %u: %s\n", s->name, bench_methods[m].name, first + k, error);
+            fprintf(stderr, "bench: %s %s seed %u: %s\n", s->name, bench_methods[m].name, seed, error);
             continue;
         }
         for (int c = 0; c < 3; c++)
@@ -1125,7 +1140,7 @@ static void run_seeds(bench *b, bench_scene *s, int m)
     qsort(psnr, done, sizeof *psnr, compare_doubles);
     r->seed_psnr_min = psnr[0];
     r->seed_psnr_max = psnr[done - 1];
-    r->seed_psnr_median = done % 2 ? psnr[done / 2] : 0.5 * (psnr[done / 2 - 1] + psnr[done / 2]);
+    r->seed_psnr_median = median_of_sorted(psnr, done);
 }
 
 /* vrl at equal time: its cost grows linearly with render.vrls above a fixed part (the stages

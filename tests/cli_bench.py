@@ -191,6 +191,28 @@ def test_seeds(t, d):
     lo, median, hi = float(row["min"]), float(row["PSNR dB median"]), float(row["max"])
     t.check(15 < lo <= median <= hi < 200, f"PSNR min {lo} <= median {median} <= max {hi}")
 
+    # A scene whose seed is the largest there is: the seed after it wraps to 1, never to 0
+    # (which the bench reads as "the scene's own" and would render the same image again, a
+    # spread of exactly 0).
+    scene_dir = os.path.join(d, "max-seed-scenes")
+    os.makedirs(scene_dir, exist_ok=True)
+    source = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenes", "bench")
+    for name in os.listdir(source):
+        if name.endswith(".json"):
+            scene = json.load(open(os.path.join(source, name), encoding="utf-8"))
+            if name == "cloud.json":
+                scene.setdefault("render", {})["seed"] = 4294967295
+            json.dump(scene, open(os.path.join(scene_dir, name), "w", encoding="utf-8"))
+    out = os.path.join(d, "seeds-max")
+    code, _, err = run(*TINY, "--seeds", "2", "--scene-dir", scene_dir, "--cache", os.path.join(d, "cache-max"),
+                       "--out", out)
+    t.equal(code, 0, f"bench --seeds 2 at seed 4294967295 ({err.strip()[-400:]})")
+    if code == 0:
+        rows = [r for r in markdown_table(open(os.path.join(out, "report.md"), encoding="utf-8").read(), "## Seeds")
+                if r["method"] == "nn_surface"]
+        sd = float(rows[0]["mean / ref R"].split("±")[1]) if rows else 0.0
+        t.check(sd > 0, f"the seed after 4294967295 renders another image: sd {sd}")
+
 
 def compare(a, b):
     p = subprocess.run([BIN, "compare", a, b], capture_output=True, timeout=TIMEOUT_S,
