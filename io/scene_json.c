@@ -1418,9 +1418,10 @@ static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
-                                       "gather_tolerance", "single_samples", "deadline_ms", "accumulation",
+                                       "gather_tolerance", "single_samples", "deadline_ms", "accumulation", "tables",
                                        "vrl_beams", "boundary", "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
+    static const char *const tables_names[] = {"exact", "interpolated"};
     static const char *const beam_names[] = {"endless", "bounded"};
     static const char *const boundary_names[] = {"off", "walks"};
     ns_render_settings *r = &p->render;
@@ -1474,6 +1475,18 @@ static void parse_render(parser *p, const json_t *v)
         if (json_object_get(v, "accumulation") &&
             field_enum(p, v, "accumulation", 0, accumulation_names, 2, "accumulation", &accumulation))
             r->accumulation = (ns_accumulation)accumulation;
+        int tables;
+        if (json_object_get(v, "tables") &&
+            field_enum(p, v, "tables", 0, tables_names, 2, "tables", &tables)) {
+            r->tables = (ns_tables_mode)tables;
+            /* Only the networks' tables have nodes to blend (method table's Monte Carlo runs
+             * per albedo): the key would be silently meaningless elsewhere. */
+            if (r->tables == NS_TABLES_INTERPOLATED && method_ok && r->method != NS_METHOD_NN) {
+                size_t inner = push_key(p, "tables");
+                report(p, "tables \"interpolated\" applies to method \"nn\" only");
+                pop(p, inner);
+            }
+        }
         int beams;
         if (json_object_get(v, "vrl_beams") &&
             field_enum(p, v, "vrl_beams", 0, beam_names, 2, "vrl_beams", &beams)) {

@@ -149,7 +149,7 @@ double ns_nn_grid_energy(const ns_nn_grid *grid, const float *j)
     return total;
 }
 
-static double exact_energy(int order, double a)
+double ns_nn_exact_energy(int order, double a)
 {
     return order == 0 ? a * a : a * a * a / (1.0 - a);
 }
@@ -343,7 +343,7 @@ static void finish_tables(const ns_nn_reconstruct_desc *desc, uint32_t cells, ui
         for (uint32_t c = 0; c < channels; c++) {
             float *j = desc->out + ((size_t)o * 3 + c) * cells;
             s->energy_raw[o][c] = ns_nn_grid_energy(&desc->grid, j);
-            s->energy_exact[o][c] = exact_energy(o, desc->albedo[c]);
+            s->energy_exact[o][c] = ns_nn_exact_energy(o, desc->albedo[c]);
             if (desc->renormalise && s->energy_raw[o][c] > 0) {
                 float k = (float)(s->energy_exact[o][c] / s->energy_raw[o][c]);
                 for (uint32_t i = 0; i < cells; i++)
@@ -377,8 +377,8 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     for (int c = 0; c < 3; c++) {
         gp->channel[c][0] = ns_nn_map_g(h, desc->g);
         gp->channel[c][1] = ns_nn_map_albedo(h, desc->albedo[c]);
-        gp->channel[c][2] = (float)exact_energy(0, desc->albedo[c]);
-        gp->channel[c][3] = (float)exact_energy(1, desc->albedo[c]);
+        gp->channel[c][2] = (float)ns_nn_exact_energy(0, desc->albedo[c]);
+        gp->channel[c][3] = (float)ns_nn_exact_energy(1, desc->albedo[c]);
     }
     gpu_buffer out = {0};
     status = gpu_buffer_create(dev, &out,

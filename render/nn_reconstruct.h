@@ -25,6 +25,10 @@ typedef struct ns_nn_gpu {
 int ns_nn_gpu_create(gpu_device *dev, ns_nn_gpu *nn, ns_error *err);
 void ns_nn_gpu_destroy(gpu_device *dev, ns_nn_gpu *nn);
 
+/* The exact energy E_k of a table (DESIGN.md section 2): a^2 (order 0, double), a^3 / (1 - a)
+ * (order 1, multiple); what renormalisation rescales each table to. */
+double ns_nn_exact_energy(int order, double albedo);
+
 int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_desc *desc,
                       ns_nn_reconstruct_stats *stats, ns_error *err);
 

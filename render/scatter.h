@@ -32,6 +32,7 @@ typedef struct ns_table_key {
     uint32_t orders;      /* NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE and/or
                              NS_TABLE_FIRST_BLURRED (summed) */
     ns_accumulation accumulation; /* exact: A to infinity; paper: A over 5 mfp */
+    ns_tables_mode tables;        /* exact, or blended from albedo nodes (nn only) */
 } ns_table_key;
 
 typedef struct ns_scatter_tables {
@@ -63,6 +64,12 @@ typedef struct ns_table_stats {
  * before each Monte Carlo channel (the provider runs on the CPU). */
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err);
+
+/* The albedos of the nodes that interpolated tables (ns_table_key.tables) are blended from,
+ * for the context's networks, in increasing order (scatter_tables.c says how they are
+ * placed); NS_ERR_NOT_AVAILABLE without networks. */
+#define NS_TABLE_ALBEDO_NODES 15u
+int ns_tables_node_albedos(ns_context *ctx, double albedo[NS_TABLE_ALBEDO_NODES], ns_error *err);
 
 /* Context hooks (context.c): the networks (built-in weights) and their pipeline, created and
  * warmed at start-up, and the empty cache. A build without weights still makes a context;

@@ -667,6 +667,7 @@ static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32
         key->albedo[c] = m->sigma_t[c] > 0 ? m->sigma_s[c] / m->sigma_t[c] : 0.0f;
     key->orders = orders;
     key->accumulation = scene->render.accumulation;
+    key->tables = scene->render.tables;
 }
 
 /* What the table and dipole methods gather from, kept across the rounds of an adaptive

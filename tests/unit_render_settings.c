@@ -20,6 +20,7 @@ static void test_zero_means_default(void)
     CHECK_INT(r.gather_levels, 0);
     CHECK_INT(r.single_samples, 64);
     CHECK_INT(r.accumulation, NS_ACCUMULATION_EXACT);
+    CHECK_INT(r.tables, NS_TABLES_EXACT);
     CHECK_INT(r.vrl_beams, NS_VRL_BEAMS_ENDLESS);
     CHECK_NEAR(r.cull_solid_angle, 0, 0);
     /* 0 is a seed and a tolerance like any other: kept, not replaced. */
@@ -42,6 +43,7 @@ static void test_given_fields_are_kept(void)
         .gather_tolerance = 0.5f,
         .single_samples = 4,
         .accumulation = NS_ACCUMULATION_PAPER,
+        .tables = NS_TABLES_INTERPOLATED,
         .cull_solid_angle = 0.1f,
     };
     ns_render_settings r = ns_render_settings_resolve(given);

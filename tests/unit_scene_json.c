@@ -421,6 +421,7 @@ static void test_defaults_and_grey_colors(void)
         CHECK_INT(s->render.gather_levels, NS_DEFAULT_GATHER_LEVELS);
         CHECK_NEAR(s->render.gather_tolerance, NS_DEFAULT_GATHER_TOLERANCE, 0);
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_ENDLESS);
+        CHECK_INT(s->render.tables, NS_TABLES_EXACT);
         CHECK_INT(s->render.boundary, NS_BOUNDARY_WALKS); /* method nn, no "boundary" */
         CHECK_NEAR(s->lights[1].color[2], 1, 0); /* "radiance": 1 is grey */
         scene_doc_free(doc);
@@ -434,7 +435,8 @@ static void test_integers_and_settings(void)
         "{\"position\":[0,0,5],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":45.5,\"width\":256.0,\"height\":1e2}",
         NULL, NULL, NULL,
         "{\"method\":\"nn\",\"components\":[\"surface\"],\"spp\":16.0,\"seed\":4294967295,\"max_depth\":64,"
-        "\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\"}");
+        "\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
+        "\"tables\":\"interpolated\"}");
     scene_doc *doc = parse_ok(text, NULL);
     if (doc) {
         const ns_scene *s = scene_doc_scene(doc);
@@ -449,6 +451,7 @@ static void test_integers_and_settings(void)
         CHECK_NEAR(s->render.gather_tolerance, 0.01, 1e-9);
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_BOUNDED);
         CHECK_INT(s->render.boundary, NS_BOUNDARY_WALKS);
+        CHECK_INT(s->render.tables, NS_TABLES_INTERPOLATED);
     }
     scene_doc_free(doc);
     free(text);
@@ -642,6 +645,8 @@ static const bad_case bad_cases[] = {
     {RENDER, "{\"components\":[\"multiple\"],\"boundary\":\"on\"}", "/render/boundary", "allowed: \"off\", \"walks\"", 1},
     {RENDER, "{\"components\":[\"multiple\"],\"boundary\":true}", "/render/boundary", "must be a string", 1},
     {RENDER, "{\"method\":\"vrl\",\"boundary\":\"walks\"}", "/render/boundary", "methods \"nn\" and \"table\" only", 1},
+    {RENDER, "{\"components\":[\"multiple\"],\"tables\":\"blended\"}", "/render/tables", "allowed: \"exact\", \"interpolated\"", 1},
+    {RENDER, "{\"method\":\"table\",\"tables\":\"interpolated\"}", "/render/tables", "method \"nn\" only", 1},
     {MATERIALS, MAT("{\"type\":\"diffuse\",\"reflectance\":\"red\"}"), "/materials/wax/reflectance", "[r, g, b] or one number", 1},
     /* numbers that do not fit */
     {CAMERA, "{\"position\":[0,2,6],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":1e999,\"width\":64,\"height\":48}", "/camera/fov", "overflow", 1},

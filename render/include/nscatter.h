@@ -216,6 +216,11 @@ int ns_component_parse(const char *name, uint32_t *out);
 /* How a camera segment reads the accumulated table: exactly, A(entry) - e^{-s Lc} A(exit)
  * (DESIGN.md section 2), or the paper's 5-mfp table with its length weight W (Eq. 5). */
 typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumulation;
+/* How a material's tables are made (nn only; docs/rendering.md, *Interpolated tables*):
+ * exact, the networks evaluated and accumulated at the material's own albedos; or
+ * interpolated, blended from tables made once per g at fixed albedos (nodes), so that a new
+ * albedo at a g seen before costs a blend instead of a reconstruction and an accumulation. */
+typedef enum { NS_TABLES_EXACT = 0, NS_TABLES_INTERPOLATED = 1 } ns_tables_mode;
 /* The beams of the table methods' VRLs: endless, as the paper's tables assume, or bounded by
  * the medium (each VRL ends where its beam leaves; the beam's internal reflections are VRLs
  * of their own). docs/scattering.md. */
@@ -256,7 +261,7 @@ const char *ns_boundary_name(ns_boundary boundary);
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
- * max_scatter, gather_levels, accumulation, vrl_beams, boundary, cull_solid_angle) nothing needs
+ * max_scatter, gather_levels, accumulation, tables, vrl_beams, boundary, cull_solid_angle) nothing needs
  * replacing. Three fields are exceptions. seed and gather_tolerance keep a 0 as given (0 is
  * a value of their own there), and their defaults (NS_DEFAULT_SEED,
  * NS_DEFAULT_GATHER_TOLERANCE) are applied by the scene parser, which knows whether the key
@@ -293,6 +298,7 @@ typedef struct ns_render_settings {
      * 0: NS_DEFAULT_SINGLE_SAMPLES. */
     uint32_t single_samples;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
+    ns_tables_mode tables;        /* nn only; 0: NS_TABLES_EXACT, the default */
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
     ns_boundary boundary;         /* nn and table only; 0: NS_BOUNDARY_OFF (scene JSON without
                                      the key: walks for nn and table, set by its parser) */
