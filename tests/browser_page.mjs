@@ -341,15 +341,20 @@ async function run() {
       // By keyboard, as a user without a mouse would: focus and arrow down to "paper".
       await page.locator('#accumulation').focus();
       await page.keyboard.press('ArrowDown');
+      await page.locator('#tables').selectOption('interpolated');
+      const interpolated = (await editorScene(page)).render.tables;
+      // Back to exact: the render below would otherwise make a new g's albedo nodes.
+      await page.locator('#tables').selectOption('exact');
       await page.locator('#vrl-beams').selectOption('bounded');
       await page.locator('#boundary').selectOption('off');
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
-      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, vrl_beams, boundary, cull_solid_angle',
+      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, tables, vrl_beams, boundary, cull_solid_angle',
         r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
         && r.gather_tolerance === 0.01 && r.single_samples === 20
-        && r.accumulation === 'paper' && r.vrl_beams === 'bounded' && r.boundary === 'off'
+        && r.accumulation === 'paper' && interpolated === 'interpolated' && r.tables === 'exact'
+        && r.vrl_beams === 'bounded' && r.boundary === 'off'
         && r.cull_solid_angle === 0.05, JSON.stringify(r));
       await typeNumber(page, '#vrls', '0');
       scene = await editorScene(page);
@@ -472,7 +477,7 @@ async function run() {
 
     await step('invalid scattering settings list their JSON pointers', async () => {
       const scene = structuredClone(defaultScene);
-      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', accumulation: 'fast', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
+      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', accumulation: 'fast', tables: 'sideways', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
       await setEditor(page, JSON.stringify(scene, null, 2));
       // The controls follow typing after a short pause.
       const followed = await page.waitForFunction(() => document.getElementById('accumulation').value === 'fast', null, { timeout: 5000 })
@@ -483,7 +488,7 @@ async function run() {
       await renderAndWait(page);
       const text = await problemText(page);
       check('error panel names status 422', /\b422\b/.test(text), text);
-      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'accumulation', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
+      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'accumulation', 'tables', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
         const pointer = `/render/${key}`;
         check(`pointer ${pointer} is listed`, (await page.locator('#problem-errors button.pointer', { hasText: pointer }).count()) === 1, text);
       }

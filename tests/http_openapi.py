@@ -671,6 +671,8 @@ REFUSED = [
     ("cull_solid_angle 13", set_in("/render/cull_solid_angle", 13)),
     ("vrls 0", set_in("/render/vrls", 0)),
     ("accumulation sloppy", set_in("/render/accumulation", "sloppy")),
+    ("tables blended", set_in("/render/tables", "blended")),
+    ("tables interpolated with pt", set_in("/render", {"method": "pt", "components": ["surface"], "tables": "interpolated"})),
     ("version 2", set_in("/version", 2)),
 ]
 # Refused by the parser for reasons a JSON Schema cannot state (docs in the Scene schema's
