@@ -2,7 +2,6 @@
  * on disk (see mc_provider.h). */
 #include "mc_provider.h"
 
-#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -27,54 +26,6 @@ struct ns_mc_provider {
     double unit_g;
 };
 
-/* ---------------------------------------------------------------------------------------
- * The cache directory
- * ------------------------------------------------------------------------------------- */
-static int resolve_dir(const char *given, char *dir, ns_error *err)
-{
-    const char *env = getenv("NSCATTER_CACHE_DIR");
-    const char *xdg = getenv("XDG_CACHE_HOME");
-    const char *home = getenv("HOME");
-    int n;
-    if (given && *given)
-        n = snprintf(dir, DIR_CAP, "%s", given);
-    else if (env && *env)
-        n = snprintf(dir, DIR_CAP, "%s", env);
-    else if (xdg && *xdg)
-        n = snprintf(dir, DIR_CAP, "%s/nscatter", xdg);
-    else if (home && *home)
-        n = snprintf(dir, DIR_CAP, "%s/.cache/nscatter", home);
-    else
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                    "Monte Carlo cache: set NSCATTER_CACHE_DIR (no XDG_CACHE_HOME or HOME)");
-    if (n < 0 || n >= DIR_CAP)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "Monte Carlo cache: directory name too long");
-    return NS_OK;
-}
-
-/* mkdir -p: every missing parent, then the directory itself. */
-static int make_dirs(const char *dir, ns_error *err)
-{
-    char path[DIR_CAP];
-    snprintf(path, sizeof path, "%s", dir);
-    for (char *p = path + 1;; p++) {
-        if (*p != '/' && *p != '\0')
-            continue;
-        char saved = *p;
-        *p = '\0';
-        if (mkdir(path, 0755) != 0 && errno != EEXIST)
-            return ns_fail(err, NS_ERR_IO, "Monte Carlo cache: cannot create '%s': %s", path,
-                        strerror(errno));
-        *p = saved;
-        if (saved == '\0')
-            break;
-    }
-    struct stat st;
-    if (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode))
-        return ns_fail(err, NS_ERR_IO, "Monte Carlo cache: '%s' is not a directory", dir);
-    return NS_OK;
-}
-
 int ns_mc_provider_create(const ns_mc_provider_desc *desc, ns_mc_provider **out, ns_error *err)
 {
     *out = NULL;
@@ -87,7 +38,7 @@ int ns_mc_provider_create(const ns_mc_provider_desc *desc, ns_mc_provider **out,
     ns_mc_provider *p = calloc(1, sizeof *p);
     if (!p)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "Monte Carlo cache: out of memory");
-    int status = resolve_dir(desc->cache_dir, p->dir, err);
+    int status = ns_cache_dir(desc->cache_dir, "Monte Carlo cache", p->dir, sizeof p->dir, err);
     if (status) {
         free(p);
         return status;
@@ -270,7 +221,7 @@ static void write_cached(ns_mc_provider *p, const ns_table *t, double g, double 
     char prefix[PATH_CAP];
     file_prefix(p, g, albedo, order, prefix);
     ns_error err = {0};
-    int status = make_dirs(p->dir, &err);
+    int status = ns_make_dirs(p->dir, "Monte Carlo cache", &err);
     if (!status)
         status = ns_table_write(t, prefix, &err);
     if (status) {

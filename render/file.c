@@ -1,6 +1,6 @@
 /* file.c — files written atomically (nscatter.h): the one copy of "temporary file, fsync,
  * rename" that the pipeline cache, the network weights, the scattering tables, the training
- * checkpoints, the bench cache and rendered images all use. */
+ * checkpoints, the bench cache and rendered images all use; and the cache folder on disk. */
 #include <errno.h>
 #include <fcntl.h>
 #include <stdio.h>
@@ -104,4 +104,54 @@ int ns_write_file_atomic(const char *path, const void *data, size_t size, ns_err
 {
     const ns_file_part part = {data, size};
     return ns_write_file_atomic_parts(path, &part, 1, err);
+}
+
+int ns_cache_dir(const char *given, const char *what, char *dir, size_t cap, ns_error *err)
+{
+    const char *env = getenv("NSCATTER_CACHE_DIR");
+    const char *xdg = getenv("XDG_CACHE_HOME");
+    const char *home = getenv("HOME");
+    int n;
+    if (given && *given)
+        n = snprintf(dir, cap, "%s", given);
+    else if (env && *env)
+        n = snprintf(dir, cap, "%s", env);
+    else if (xdg && *xdg)
+        n = snprintf(dir, cap, "%s/nscatter", xdg);
+    else if (home && *home)
+        n = snprintf(dir, cap, "%s/.cache/nscatter", home);
+    else
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "%s: set NSCATTER_CACHE_DIR (no XDG_CACHE_HOME or HOME)", what);
+    if (n < 0 || (size_t)n >= cap)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "%s: directory name too long", what);
+    return NS_OK;
+}
+
+int ns_make_dirs(const char *dir, const char *what, ns_error *err)
+{
+    size_t len = strlen(dir);
+    char *path = malloc(len + 1);
+    if (!path)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "%s: out of memory", what);
+    memcpy(path, dir, len + 1);
+    int status = NS_OK;
+    for (char *p = path + 1; len > 0; p++) {
+        if (*p != '/' && *p != '\0')
+            continue;
+        char saved = *p;
+        *p = '\0';
+        if (mkdir(path, 0755) != 0 && errno != EEXIST) {
+            status = ns_fail(err, NS_ERR_IO, "%s: cannot create '%s': %s", what, path, strerror(errno));
+            break;
+        }
+        *p = saved;
+        if (saved == '\0')
+            break;
+    }
+    free(path);
+    struct stat st;
+    if (!status && (stat(dir, &st) != 0 || !S_ISDIR(st.st_mode)))
+        status = ns_fail(err, NS_ERR_IO, "%s: '%s' is not a directory", what, dir);
+    return status;
 }

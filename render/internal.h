@@ -115,6 +115,7 @@ struct ns_context {
     uint64_t table_cache_bytes;
     pthread_mutex_t lock;
     char *pipeline_cache_path;
+    char *table_node_dir; /* ns_context_desc.table_node_dir, or NULL */
     ns_run run;          /* the render in progress: its control, its progress */
     ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
     ns_camera_keep camera; /* the last camera pass, for the next render that makes the same */

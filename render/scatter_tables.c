@@ -10,8 +10,10 @@
  * leaves behind, and a cached table is kept on purpose.
  */
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "accumulate_shared.h"
 #include "boundary.h"
@@ -821,6 +823,150 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
     return NULL;
 }
 
+/* Nodes on disk (ns_context_desc.table_node_dir): one file per (networks, g, accumulation,
+ * node), this header then A / E_k of the double and the multiple order (float [2][cells],
+ * native byte order). A file is never trusted: every header field is checked against what
+ * the node must be, and the payload against the hash recorded when it was written; a file
+ * that fails is made again and overwritten (stderr says which and why). Writes are atomic;
+ * a folder that cannot be written costs only the next process the node. */
+typedef struct node_file_header {
+    char magic[8];            /* NODE_FILE_MAGIC */
+    uint32_t grid[4];         /* NZ, NRHO, NTHETA, NPHI */
+    uint32_t node, accumulation;
+    uint32_t weights_crc[2];  /* the networks' payload CRC-32s: the weights that made it */
+    double g, albedo, scale, extent;
+    uint64_t payload_hash;    /* payload_hash() of the data */
+} node_file_header;
+static const char NODE_FILE_MAGIC[8] = "NSNODE1";
+
+/* 64-bit FNV-1a over 8-byte words: a changed, swapped or truncated value shows, at a few
+ * milliseconds per node (a byte-wise CRC would cost ten times that). */
+static uint64_t payload_hash(float *const a[2])
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (int o = 0; o < 2; o++) {
+        const unsigned char *bytes = (const unsigned char *)a[o];
+        for (size_t i = 0; i < NS_TABLE_CELLS * sizeof(float); i += 8) {
+            uint64_t w;
+            memcpy(&w, bytes + i, 8);
+            h = (h ^ w) * 0x100000001b3ull;
+        }
+    }
+    return h;
+}
+
+static node_file_header node_header(const ns_context *ctx, const ns_table_key *key, uint32_t node)
+{
+    const ns_nn_weights *nets = ctx->nn->nets;
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    node_file_header h;
+    memset(&h, 0, sizeof h); /* the padding too: the header is written as bytes */
+    memcpy(h.magic, NODE_FILE_MAGIC, sizeof h.magic);
+    h.grid[0] = NS_TABLE_NZ;
+    h.grid[1] = NS_TABLE_NRHO;
+    h.grid[2] = NS_TABLE_NTHETA;
+    h.grid[3] = NS_TABLE_NPHI;
+    h.node = node;
+    h.accumulation = (uint32_t)key->accumulation;
+    h.weights_crc[0] = nets[0].h.payload_crc32;
+    h.weights_crc[1] = nets[1].h.payload_crc32;
+    h.g = key->g;
+    h.albedo = node_albedo(&nets[0].h, node);
+    h.scale = grid.scale;
+    h.extent = grid.extent;
+    return h;
+}
+
+static void node_path(const ns_context *ctx, const node_file_header *h, char *path, size_t cap)
+{
+    snprintf(path, cap, "%s/node_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
+             h->weights_crc[0], h->weights_crc[1], h->g, h->accumulation ? "paper" : "exact",
+             h->node);
+}
+
+/* Why the file at path cannot be node `want` (its payload read into e), or NULL. */
+static const char *read_node_file(const char *path, const node_file_header *want, cache_entry *e)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return "it cannot be opened";
+    node_file_header h;
+    const char *problem = NULL;
+    if (fread(&h, sizeof h, 1, f) != 1)
+        problem = "its header is cut short";
+    else if (memcmp(h.magic, want->magic, sizeof h.magic) != 0)
+        problem = "it is not a node file";
+    else if (memcmp(h.grid, want->grid, sizeof h.grid) != 0 || h.scale != want->scale ||
+             h.extent != want->extent)
+        problem = "its grid is not the default grid";
+    else if (h.node != want->node || h.accumulation != want->accumulation || h.g != want->g ||
+             h.albedo != want->albedo)
+        problem = "it holds another node";
+    else if (memcmp(h.weights_crc, want->weights_crc, sizeof h.weights_crc) != 0)
+        problem = "other networks made it";
+    for (int o = 0; o < 2 && !problem; o++)
+        if (fread(e->j[o], sizeof(float), NS_TABLE_CELLS, f) != NS_TABLE_CELLS)
+            problem = "its data are cut short";
+    if (!problem && fgetc(f) != EOF)
+        problem = "it is longer than a node";
+    if (!problem && payload_hash(e->j) != h.payload_hash)
+        problem = "its data do not match their recorded hash";
+    fclose(f);
+    return problem;
+}
+
+/* Node `node` of key's g and accumulation from the folder into the cache: 1 when read. */
+static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns_table_stats *stats)
+{
+    node_file_header want = node_header(ctx, key, node);
+    char path[4096];
+    node_path(ctx, &want, path, sizeof path);
+    struct stat st;
+    if (stat(path, &st) != 0)
+        return 0;
+    cache_entry e;
+    ns_error err = {0};
+    if (alloc_j_entry(&e, key, 0.0f, &err))
+        return 0;
+    e.kind = ENTRY_NODE;
+    e.node = node;
+    e.accumulation = key->accumulation;
+    e.bytes = node_entry_bytes;
+    const char *problem = read_node_file(path, &want, &e);
+    if (problem) {
+        fprintf(stderr, "nscatter: table node file %s rejected (%s); making it again\n", path, problem);
+        free(e.j[0]);
+        free(e.j[1]);
+        return 0;
+    }
+    e.counted = ctx->run.serial;
+    if (!insert(ctx->tables, &e)) {
+        free(e.j[0]);
+        free(e.j[1]);
+        return 0;
+    }
+    stats->tables_reused++;
+    return 1;
+}
+
+static void save_node(ns_context *ctx, const ns_table_key *key, const cache_entry *e)
+{
+    node_file_header h = node_header(ctx, key, e->node);
+    h.payload_hash = payload_hash((float *const *)e->j);
+    char path[4096];
+    node_path(ctx, &h, path, sizeof path);
+    ns_file_part parts[3] = {{&h, sizeof h},
+                             {e->j[0], NS_TABLE_CELLS * sizeof(float)},
+                             {e->j[1], NS_TABLE_CELLS * sizeof(float)}};
+    ns_error err = {0};
+    int status = ns_make_dirs(ctx->table_node_dir, "table nodes", &err);
+    if (!status)
+        status = ns_write_file_atomic_parts(path, parts, 3, &err);
+    if (status) /* the render still gets its table; only the next process pays again */
+        fprintf(stderr, "nscatter: %s\n", err.message);
+}
+
 /* Makes the n (<= 3) nodes of key's g and accumulation listed in node[], one per channel of
  * one reconstruction and of one accumulation per order, and caches them. */
 static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t *node, uint32_t n,
@@ -887,9 +1033,11 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
         if (status) {
             free(e[c].j[0]);
             free(e[c].j[1]);
-        } else {
-            status = insert_j_entry(ctx, &e[c], stats, err);
+            continue;
         }
+        if (ctx->table_node_dir)
+            save_node(ctx, key, &e[c]);
+        status = insert_j_entry(ctx, &e[c], stats, err);
     }
     return status;
 }
@@ -922,6 +1070,14 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
         }
     }
     int status = NS_OK;
+    if (ctx->table_node_dir && n_missing) {
+        ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.0, 0.0);
+        for (uint32_t k = 0; k < n_missing; k++)
+            if (load_node(ctx, key, missing[k], stats))
+                missing[k--] = missing[--n_missing];
+        stats->accumulate_ms += ns_stage_end(ctx, &stage);
+        stats->accumulated = 1;
+    }
     uint32_t batches = (n_missing + 2) / 3;
     for (uint32_t b = 0; b < batches && !status; b++) {
         uint32_t n = n_missing - 3 * b < 3 ? n_missing - 3 * b : 3;

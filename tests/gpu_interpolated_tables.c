@@ -10,8 +10,15 @@
  *       nothing else added to the cache;
  *   (d) a render with render.tables "interpolated" whose nodes are cached reconstructs
  *       nothing, and its image means are the exact path's within 0.5%;
- *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode.
+ *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode;
+ *   (f) nodes on disk (ns_context_desc.table_node_dir): a second context reads them instead of
+ *       making them, bit for bit the same table; a corrupted and a cut file are each made
+ *       again (and rewritten: a fourth context reads them); a folder that cannot be written
+ *       still gives the table.
  * Validation layers on (NSCATTER_VALIDATION=1). */
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include "gpu_util.h"
 #include "scatter.h"
 
@@ -194,6 +201,97 @@ static void test_bad_keys(void)
     CHECK_STR_CONTAINS(err.message, "render.tables");
 }
 
+/* Key's tables from a fresh context whose nodes live in dir: a copy, and whether the networks
+ * ran. */
+static float *from_context_with(const char *dir, const ns_table_key *key, int *reconstructed)
+{
+    ns_context *ctx = NULL;
+    ns_error err = {0};
+    int status = ns_context_create(&(ns_context_desc){.table_node_dir = dir}, &ctx, &err);
+    CHECK_INT(status, NS_OK);
+    if (status)
+        return NULL;
+    const ns_scatter_tables *t = NULL;
+    ns_table_stats stats;
+    status = ns_tables_get(ctx, key, &t, &stats, &err);
+    CHECK_INT(status, NS_OK);
+    float *copy = NULL;
+    if (!status) {
+        copy = malloc(3 * cells * sizeof(float));
+        memcpy(copy, t->a.mapped, 3 * cells * sizeof(float));
+        *reconstructed = stats.reconstructed;
+    }
+    ns_context_destroy(ctx);
+    return copy;
+}
+
+static int count_node_files(const char *dir, char names[][512], int cap)
+{
+    int n = 0;
+    char command[600];
+    snprintf(command, sizeof command, "ls %s", dir);
+    FILE *p = popen(command, "r");
+    while (p && n < cap && fgets(names[n], 512, p)) {
+        names[n][strcspn(names[n], "\n")] = 0;
+        n += strncmp(names[n], "node_", 5) == 0;
+    }
+    if (p)
+        pclose(p);
+    return n;
+}
+
+static void test_nodes_on_disk(void)
+{
+    char dir[] = "/tmp/nscatter_nodes_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches. */
+    ns_table_key key = key_of(0.6f, 0.9f, 0.9f, 0.9f, NS_TABLES_INTERPOLATED);
+    int reconstructed = -1;
+    float *made = from_context_with(dir, &key, &reconstructed);
+    CHECK_INT(reconstructed, 1);
+    char names[8][512];
+    CHECK_INT(count_node_files(dir, names, 8), 4);
+
+    float *read = from_context_with(dir, &key, &reconstructed);
+    CHECK_INT(reconstructed, 0);
+    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    free(read);
+
+    /* One byte of one file's data changed, another file cut short: both made again. */
+    char path[1100];
+    snprintf(path, sizeof path, "%s/%s", dir, names[0]);
+    FILE *f = fopen(path, "r+b");
+    CHECK(f != NULL);
+    if (f) {
+        fseek(f, 5000000, SEEK_SET);
+        int c = fgetc(f);
+        fseek(f, 5000000, SEEK_SET);
+        fputc(c ^ 0x10, f);
+        fclose(f);
+    }
+    snprintf(path, sizeof path, "%s/%s", dir, names[1]);
+    CHECK_INT(truncate(path, 1000000), 0);
+    read = from_context_with(dir, &key, &reconstructed);
+    CHECK_INT(reconstructed, 1);
+    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    free(read);
+    read = from_context_with(dir, &key, &reconstructed); /* rewritten */
+    CHECK_INT(reconstructed, 0);
+    free(read);
+
+    /* A folder that cannot be made (under a regular file): the table all the same. */
+    char blocked[600];
+    snprintf(blocked, sizeof blocked, "%s/%s/sub", dir, names[2]);
+    read = from_context_with(blocked, &key, &reconstructed);
+    CHECK_INT(reconstructed, 1);
+    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    free(read);
+    free(made);
+    char command[600];
+    snprintf(command, sizeof command, "rm -rf %s", dir);
+    CHECK_INT(system(command), 0);
+}
+
 int main(void)
 {
     ns_table_grid grid;
@@ -211,6 +309,7 @@ int main(void)
     RUN(test_cached_nodes_make_a_blend);
     RUN(test_at_nodes_and_beyond);
     RUN(test_render);
+    RUN(test_nodes_on_disk);
     RUN(test_bad_keys);
     ns_context_destroy(test_context());
     free(cell_volume);

@@ -354,6 +354,9 @@ typedef struct ns_context_desc {
     ns_mc_tables_fn mc_tables;        /* NULL: method "table" is not available */
     void *mc_user;
     uint64_t table_cache_bytes;       /* bound on cached tables; 0: 1 GiB */
+    /* Folder where the albedo nodes of interpolated tables (render.tables) are kept between
+     * processes, checked on every read (e.g. ns_cache_dir's); NULL: in memory only. */
+    const char *table_node_dir;
 } ns_context_desc;
 
 int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err);
@@ -537,6 +540,14 @@ typedef struct ns_file_part {
 } ns_file_part;
 int ns_write_file_atomic_parts(const char *path, const ns_file_part *parts, size_t count,
                                ns_error *err);
+
+/* The folder of nscatter's caches on disk (Monte Carlo tables, albedo nodes): `given` when
+ * not NULL or empty, else $NSCATTER_CACHE_DIR, else $XDG_CACHE_HOME/nscatter, else
+ * $HOME/.cache/nscatter; written into dir (cap bytes). `what` names the cache in messages.
+ * NS_ERR_INVALID_ARGUMENT when none is set or the name does not fit. */
+int ns_cache_dir(const char *given, const char *what, char *dir, size_t cap, ns_error *err);
+/* mkdir -p dir, then checks that it is a folder; NS_ERR_IO naming `what` and the path. */
+int ns_make_dirs(const char *dir, const char *what, ns_error *err);
 
 #ifdef __cplusplus
 }
