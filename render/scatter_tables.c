@@ -828,9 +828,17 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
  * native byte order). A file is never trusted: every header field is checked against what
  * the node must be, and the payload against the hash recorded when it was written; a file
  * that fails is made again and overwritten (stderr says which and why). Writes are atomic;
- * a folder that cannot be written costs only the next process the node. */
+ * a folder that cannot be written costs only the next process the node.
+ *
+ * What made a node is part of its identity: the networks (their CRCs), the SPIR-V of the
+ * three shaders that compute it (nn_reconstruct, nn_interpolate, accumulate), and
+ * NODE_CODE_VERSION for what the C side decides (the renormalisation, the networks' sampling
+ * of the grid, the accumulation's cut, the node albedos): bump it when any of those change,
+ * or files made before would be read as if they were still right. */
+#define NODE_CODE_VERSION 1u
 typedef struct node_file_header {
     char magic[8];            /* NODE_FILE_MAGIC */
+    uint64_t code_hash;       /* node_code_hash() */
     uint32_t grid[4];         /* NZ, NRHO, NTHETA, NPHI */
     uint32_t node, accumulation;
     uint32_t weights_crc[2];  /* the networks' payload CRC-32s: the weights that made it */
@@ -855,6 +863,27 @@ static uint64_t payload_hash(float *const a[2])
     return h;
 }
 
+static uint64_t fnv_bytes(uint64_t h, const void *data, size_t size)
+{
+    const unsigned char *p = data;
+    for (size_t i = 0; i < size; i++)
+        h = (h ^ p[i]) * 0x100000001b3ull;
+    return h;
+}
+
+static uint64_t node_code_hash(void)
+{
+    static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate"};
+    uint32_t version = NODE_CODE_VERSION;
+    uint64_t h = fnv_bytes(0xcbf29ce484222325ull, &version, sizeof version);
+    for (size_t i = 0; i < sizeof shaders / sizeof shaders[0]; i++) {
+        size_t size = 0;
+        const uint32_t *code = ns_shader_code(shaders[i], &size);
+        h = code ? fnv_bytes(h, code, size) : h;
+    }
+    return h;
+}
+
 static node_file_header node_header(const ns_context *ctx, const ns_table_key *key, uint32_t node)
 {
     const ns_nn_weights *nets = ctx->nn->nets;
@@ -863,6 +892,7 @@ static node_file_header node_header(const ns_context *ctx, const ns_table_key *k
     node_file_header h;
     memset(&h, 0, sizeof h); /* the padding too: the header is written as bytes */
     memcpy(h.magic, NODE_FILE_MAGIC, sizeof h.magic);
+    h.code_hash = node_code_hash();
     h.grid[0] = NS_TABLE_NZ;
     h.grid[1] = NS_TABLE_NRHO;
     h.grid[2] = NS_TABLE_NTHETA;
@@ -905,6 +935,8 @@ static const char *read_node_file(const char *path, const node_file_header *want
         problem = "it holds another node";
     else if (memcmp(h.weights_crc, want->weights_crc, sizeof h.weights_crc) != 0)
         problem = "other networks made it";
+    else if (h.code_hash != want->code_hash)
+        problem = "another version of nscatter made it";
     for (int o = 0; o < 2 && !problem; o++)
         if (fread(e->j[o], sizeof(float), NS_TABLE_CELLS, f) != NS_TABLE_CELLS)
             problem = "its data are cut short";

@@ -12,9 +12,10 @@
  *       nothing, and its image means are the exact path's within 0.5%;
  *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode;
  *   (f) nodes on disk (ns_context_desc.table_node_dir): a second context reads them instead of
- *       making them, bit for bit the same table; a corrupted and a cut file are each made
- *       again (and rewritten: a fourth context reads them); a folder that cannot be written
- *       still gives the table.
+ *       making them, bit for bit the same table; a corrupted file, a cut one and one that
+ *       another version of the code made are each made again, within the accumulation's cut
+ *       of the first (and rewritten: a fourth context reads them); a folder that cannot be
+ *       written still gives the table.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include <sys/stat.h>
 #include <unistd.h>
@@ -225,6 +226,19 @@ static float *from_context_with(const char *dir, const ns_table_key *key, int *r
     return copy;
 }
 
+/* Nodes made again in other batches of three: a walk stops when all three channels it
+ * carries meet the accumulation's cut (1e-4 of each), so a node's A depends on its batch
+ * within that, not bit for bit. */
+static int same_within_cut(const float *a, const float *b)
+{
+    for (int c = 0; c < 3; c++) {
+        double ratio, l1 = channel_l1(b, a, c, &ratio);
+        if (!(l1 < 2e-4))
+            return 0;
+    }
+    return 1;
+}
+
 static int count_node_files(const char *dir, char names[][512], int cap)
 {
     int n = 0;
@@ -271,9 +285,18 @@ static void test_nodes_on_disk(void)
     }
     snprintf(path, sizeof path, "%s/%s", dir, names[1]);
     CHECK_INT(truncate(path, 1000000), 0);
+    /* A third made by another version of the code (its code hash, after the magic). */
+    snprintf(path, sizeof path, "%s/%s", dir, names[3]);
+    f = fopen(path, "r+b");
+    CHECK(f != NULL);
+    if (f) {
+        fseek(f, 8, SEEK_SET);
+        fputc(fgetc(f) ^ 1, f);
+        fclose(f);
+    }
     read = from_context_with(dir, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
-    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    CHECK(made && read && same_within_cut(made, read));
     free(read);
     read = from_context_with(dir, &key, &reconstructed); /* rewritten */
     CHECK_INT(reconstructed, 0);
@@ -284,7 +307,7 @@ static void test_nodes_on_disk(void)
     snprintf(blocked, sizeof blocked, "%s/%s/sub", dir, names[2]);
     read = from_context_with(blocked, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
-    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    CHECK(made && read && same_within_cut(made, read));
     free(read);
     free(made);
     char command[600];
