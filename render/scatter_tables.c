@@ -58,8 +58,9 @@ struct ns_table_cache {
     uint64_t bytes; /* changed atomically: ns_context_table_cache_bytes reads it anywhere */
     uint64_t clock;
     /* Per accumulation mode: A of the blurred first order's spatial part (boundary.h), one
-     * channel, host memory, made on first use and kept for the context's life (10.6 MB each,
-     * outside `bytes`: every material's blurred table is made from it). */
+     * channel, host memory, made (or read from the table folder) on first use and kept for
+     * the context's life (10.6 MB each, outside `bytes`: every material's blurred table is
+     * made from it). */
     float *blur_unit[2];
     /* Per mode: 1 + ns_run.serial of the render that reads it (ns_tables_expect_blurred), 0
      * for none; that render's next accumulation in that mode makes blur_unit beside its table. A
@@ -716,6 +717,10 @@ const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accum
     return ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
 }
 
+/* The unit blurred table on disk, with the albedo nodes (the table files below). */
+static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation);
+static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit);
+
 /* Makes the context's unit blurred table in this mode: the extra channel of the walk of j
  * (a material's J, float [3][cells], whose A goes to *a), or of a J of zeros where j is NULL
  * (*a is then zeros, which the caller frees). Bit for bit the same either way
@@ -740,6 +745,7 @@ static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const f
         return status;
     }
     ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
+    save_blur_unit(ctx, accumulation, unit);
     return NS_OK;
 }
 
@@ -823,45 +829,34 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
     return NULL;
 }
 
-/* Nodes on disk (ns_context_desc.table_node_dir): one file per (networks, g, accumulation,
- * node), this header then A / E_k of the double and the multiple order (float [2][cells],
- * native byte order). A file is never trusted: every header field is checked against what
- * the node must be, and the payload against the hash recorded when it was written; a file
- * that fails is made again and overwritten (stderr says which and why). Writes are atomic;
- * a folder that cannot be written costs only the next process the node.
+/* Tables on disk (ns_context_desc.table_node_dir): each albedo node, one file per (networks,
+ * g, accumulation, node), and the unit blurred table of each accumulation mode. A file is
+ * this header, then its tables (float [tables][cells], native byte order). It is never
+ * trusted: every header field is checked against what the table must be, and the payload
+ * against the hash recorded when it was written; a file that fails is made again and
+ * overwritten (stderr says which and why). Writes are atomic; a folder that cannot be written
+ * costs only the next process the table.
  *
- * What made a node is part of its identity: the networks (their CRCs), the SPIR-V of the
- * three shaders that compute it (nn_reconstruct, nn_interpolate, accumulate), and
- * NODE_CODE_VERSION for what the C side decides (the renormalisation, the networks' sampling
- * of the grid, the accumulation's cut, the node albedos): bump it when any of those change,
- * or files made before would be read as if they were still right. */
-#define NODE_CODE_VERSION 1u
-typedef struct node_file_header {
-    char magic[8];            /* NODE_FILE_MAGIC */
-    uint64_t code_hash;       /* node_code_hash() */
+ * What made a table is part of its identity: the networks (their CRCs; nodes only), the
+ * SPIR-V of the three shaders that compute them (nn_reconstruct, nn_interpolate, accumulate),
+ * and TABLE_FILE_CODE_VERSION for what the C side decides (the renormalisation, the networks'
+ * sampling of the grid, the accumulation's cut, the node albedos, the blurred first order's
+ * Gaussian): bump it when any of those change, or files made before would be read as if they
+ * were still right. */
+#define TABLE_FILE_CODE_VERSION 1u
+enum { TABLE_FILE_NODE = 1, TABLE_FILE_BLUR_UNIT = 2 };
+typedef struct table_file_header {
+    char magic[8];            /* TABLE_FILE_MAGIC */
+    uint64_t code_hash;       /* table_code_hash() */
+    uint32_t kind;            /* TABLE_FILE_* */
+    uint32_t tables;          /* float [cells] arrays in the payload */
     uint32_t grid[4];         /* NZ, NRHO, NTHETA, NPHI */
     uint32_t node, accumulation;
-    uint32_t weights_crc[2];  /* the networks' payload CRC-32s: the weights that made it */
+    uint32_t weights_crc[2];  /* the networks' payload CRC-32s (nodes; 0 for the blur unit) */
     double g, albedo, scale, extent;
-    uint64_t payload_hash;    /* payload_hash() of the data */
-} node_file_header;
-static const char NODE_FILE_MAGIC[8] = "NSNODE1";
-
-/* 64-bit FNV-1a over 8-byte words: a changed, swapped or truncated value shows, at a few
- * milliseconds per node (a byte-wise CRC would cost ten times that). */
-static uint64_t payload_hash(float *const a[2])
-{
-    uint64_t h = 0xcbf29ce484222325ull;
-    for (int o = 0; o < 2; o++) {
-        const unsigned char *bytes = (const unsigned char *)a[o];
-        for (size_t i = 0; i < NS_TABLE_CELLS * sizeof(float); i += 8) {
-            uint64_t w;
-            memcpy(&w, bytes + i, 8);
-            h = (h ^ w) * 0x100000001b3ull;
-        }
-    }
-    return h;
-}
+    uint64_t payload_hash;    /* payload_hash() of the tables */
+} table_file_header;
+static const char TABLE_FILE_MAGIC[8] = "NSTABLE";
 
 static uint64_t fnv_bytes(uint64_t h, const void *data, size_t size)
 {
@@ -871,10 +866,26 @@ static uint64_t fnv_bytes(uint64_t h, const void *data, size_t size)
     return h;
 }
 
-static uint64_t node_code_hash(void)
+/* 64-bit FNV-1a over 8-byte words: a changed, swapped or truncated value shows, at a few
+ * milliseconds per table (byte by byte, or a CRC, costs several times that). */
+static uint64_t payload_hash(float *const *tables, uint32_t n)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (uint32_t t = 0; t < n; t++) {
+        const unsigned char *bytes = (const unsigned char *)tables[t];
+        for (size_t i = 0; i < NS_TABLE_CELLS * sizeof(float); i += 8) {
+            uint64_t w;
+            memcpy(&w, bytes + i, 8);
+            h = (h ^ w) * 0x100000001b3ull;
+        }
+    }
+    return h;
+}
+
+static uint64_t table_code_hash(void)
 {
     static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate"};
-    uint32_t version = NODE_CODE_VERSION;
+    uint32_t version = TABLE_FILE_CODE_VERSION;
     uint64_t h = fnv_bytes(0xcbf29ce484222325ull, &version, sizeof version);
     for (size_t i = 0; i < sizeof shaders / sizeof shaders[0]; i++) {
         size_t size = 0;
@@ -884,79 +895,116 @@ static uint64_t node_code_hash(void)
     return h;
 }
 
-static node_file_header node_header(const ns_context *ctx, const ns_table_key *key, uint32_t node)
+static table_file_header file_header(uint32_t kind, uint32_t tables, ns_accumulation accumulation)
 {
-    const ns_nn_weights *nets = ctx->nn->nets;
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    node_file_header h;
+    table_file_header h;
     memset(&h, 0, sizeof h); /* the padding too: the header is written as bytes */
-    memcpy(h.magic, NODE_FILE_MAGIC, sizeof h.magic);
-    h.code_hash = node_code_hash();
+    memcpy(h.magic, TABLE_FILE_MAGIC, sizeof h.magic);
+    h.code_hash = table_code_hash();
+    h.kind = kind;
+    h.tables = tables;
     h.grid[0] = NS_TABLE_NZ;
     h.grid[1] = NS_TABLE_NRHO;
     h.grid[2] = NS_TABLE_NTHETA;
     h.grid[3] = NS_TABLE_NPHI;
-    h.node = node;
-    h.accumulation = (uint32_t)key->accumulation;
-    h.weights_crc[0] = nets[0].h.payload_crc32;
-    h.weights_crc[1] = nets[1].h.payload_crc32;
-    h.g = key->g;
-    h.albedo = node_albedo(&nets[0].h, node);
+    h.accumulation = (uint32_t)accumulation;
     h.scale = grid.scale;
     h.extent = grid.extent;
     return h;
 }
 
-static void node_path(const ns_context *ctx, const node_file_header *h, char *path, size_t cap)
+static table_file_header node_header(const ns_context *ctx, const ns_table_key *key, uint32_t node)
 {
-    snprintf(path, cap, "%s/node_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
-             h->weights_crc[0], h->weights_crc[1], h->g, h->accumulation ? "paper" : "exact",
-             h->node);
+    const ns_nn_weights *nets = ctx->nn->nets;
+    table_file_header h = file_header(TABLE_FILE_NODE, 2, key->accumulation);
+    h.node = node;
+    h.weights_crc[0] = nets[0].h.payload_crc32;
+    h.weights_crc[1] = nets[1].h.payload_crc32;
+    h.g = key->g;
+    h.albedo = node_albedo(&nets[0].h, node);
+    return h;
 }
 
-/* Why the file at path cannot be node `want` (its payload read into e), or NULL. */
-static const char *read_node_file(const char *path, const node_file_header *want, cache_entry *e)
+static void file_path(const ns_context *ctx, const table_file_header *h, char *path, size_t cap)
+{
+    const char *mode = h->accumulation ? "paper" : "exact";
+    if (h->kind == TABLE_FILE_NODE)
+        snprintf(path, cap, "%s/node_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
+                 h->weights_crc[0], h->weights_crc[1], h->g, mode, h->node);
+    else
+        snprintf(path, cap, "%s/blur_unit_%s.bin", ctx->table_node_dir, mode);
+}
+
+/* Why the file at path cannot be the table `want` describes (its tables read into out), or
+ * NULL. */
+static const char *read_file_problem(const char *path, const table_file_header *want, float *const *out)
 {
     FILE *f = fopen(path, "rb");
     if (!f)
         return "it cannot be opened";
-    node_file_header h;
+    table_file_header h;
     const char *problem = NULL;
     if (fread(&h, sizeof h, 1, f) != 1)
         problem = "its header is cut short";
     else if (memcmp(h.magic, want->magic, sizeof h.magic) != 0)
-        problem = "it is not a node file";
+        problem = "it is not an nscatter table file";
+    else if (h.code_hash != want->code_hash)
+        problem = "another version of nscatter made it";
     else if (memcmp(h.grid, want->grid, sizeof h.grid) != 0 || h.scale != want->scale ||
              h.extent != want->extent)
         problem = "its grid is not the default grid";
-    else if (h.node != want->node || h.accumulation != want->accumulation || h.g != want->g ||
-             h.albedo != want->albedo)
-        problem = "it holds another node";
+    else if (h.kind != want->kind || h.tables != want->tables || h.node != want->node ||
+             h.accumulation != want->accumulation || h.g != want->g || h.albedo != want->albedo)
+        problem = "it holds another table";
     else if (memcmp(h.weights_crc, want->weights_crc, sizeof h.weights_crc) != 0)
         problem = "other networks made it";
-    else if (h.code_hash != want->code_hash)
-        problem = "another version of nscatter made it";
-    for (int o = 0; o < 2 && !problem; o++)
-        if (fread(e->j[o], sizeof(float), NS_TABLE_CELLS, f) != NS_TABLE_CELLS)
+    for (uint32_t t = 0; t < want->tables && !problem; t++)
+        if (fread(out[t], sizeof(float), NS_TABLE_CELLS, f) != NS_TABLE_CELLS)
             problem = "its data are cut short";
     if (!problem && fgetc(f) != EOF)
-        problem = "it is longer than a node";
-    if (!problem && payload_hash(e->j) != h.payload_hash)
+        problem = "it is longer than its header says";
+    if (!problem && payload_hash(out, want->tables) != h.payload_hash)
         problem = "its data do not match their recorded hash";
     fclose(f);
     return problem;
 }
 
-/* Node `node` of key's g and accumulation from the folder into the cache: 1 when read. */
-static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns_table_stats *stats)
+/* The tables of `want` from the folder into out: 1 when read (a missing file is not news; a
+ * rejected one is said on stderr). */
+static int read_table_file(const ns_context *ctx, const table_file_header *want, float *const *out)
 {
-    node_file_header want = node_header(ctx, key, node);
     char path[4096];
-    node_path(ctx, &want, path, sizeof path);
+    file_path(ctx, want, path, sizeof path);
     struct stat st;
     if (stat(path, &st) != 0)
         return 0;
+    const char *problem = read_file_problem(path, want, out);
+    if (problem)
+        fprintf(stderr, "nscatter: table file %s rejected (%s); making it again\n", path, problem);
+    return problem == NULL;
+}
+
+static void write_table_file(const ns_context *ctx, table_file_header h, float *const *tables)
+{
+    h.payload_hash = payload_hash(tables, h.tables);
+    char path[4096];
+    file_path(ctx, &h, path, sizeof path);
+    ns_file_part parts[3] = {{&h, sizeof h}};
+    for (uint32_t t = 0; t < h.tables; t++)
+        parts[1 + t] = (ns_file_part){tables[t], NS_TABLE_CELLS * sizeof(float)};
+    ns_error err = {0};
+    int status = ns_make_dirs(ctx->table_node_dir, "table files", &err);
+    if (!status)
+        status = ns_write_file_atomic_parts(path, parts, 1 + h.tables, &err);
+    if (status) /* the render still gets its table; only the next process pays again */
+        fprintf(stderr, "nscatter: %s\n", err.message);
+}
+
+/* Node `node` of key's g and accumulation from the folder into the cache: 1 when read. */
+static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns_table_stats *stats)
+{
     cache_entry e;
     ns_error err = {0};
     if (alloc_j_entry(&e, key, 0.0f, &err))
@@ -965,9 +1013,8 @@ static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns
     e.node = node;
     e.accumulation = key->accumulation;
     e.bytes = node_entry_bytes;
-    const char *problem = read_node_file(path, &want, &e);
-    if (problem) {
-        fprintf(stderr, "nscatter: table node file %s rejected (%s); making it again\n", path, problem);
+    table_file_header want = node_header(ctx, key, node);
+    if (!read_table_file(ctx, &want, e.j)) {
         free(e.j[0]);
         free(e.j[1]);
         return 0;
@@ -984,19 +1031,27 @@ static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns
 
 static void save_node(ns_context *ctx, const ns_table_key *key, const cache_entry *e)
 {
-    node_file_header h = node_header(ctx, key, e->node);
-    h.payload_hash = payload_hash((float *const *)e->j);
-    char path[4096];
-    node_path(ctx, &h, path, sizeof path);
-    ns_file_part parts[3] = {{&h, sizeof h},
-                             {e->j[0], NS_TABLE_CELLS * sizeof(float)},
-                             {e->j[1], NS_TABLE_CELLS * sizeof(float)}};
-    ns_error err = {0};
-    int status = ns_make_dirs(ctx->table_node_dir, "table nodes", &err);
-    if (!status)
-        status = ns_write_file_atomic_parts(path, parts, 3, &err);
-    if (status) /* the render still gets its table; only the next process pays again */
-        fprintf(stderr, "nscatter: %s\n", err.message);
+    write_table_file(ctx, node_header(ctx, key, e->node), e->j);
+}
+
+static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
+{
+    if (!ctx->table_node_dir)
+        return 0;
+    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
+    table_file_header want = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
+    if (!unit || !read_table_file(ctx, &want, &unit)) {
+        free(unit);
+        return 0;
+    }
+    ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
+    return 1;
+}
+
+static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit)
+{
+    if (ctx->table_node_dir)
+        write_table_file(ctx, file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation), &unit);
 }
 
 /* Makes the n (<= 3) nodes of key's g and accumulation listed in node[], one per channel of
@@ -1185,7 +1240,8 @@ static int accumulate_table(ns_context *ctx, const ns_table_key *key, const floa
 {
     int mode = key->accumulation == NS_ACCUMULATION_PAPER;
     struct ns_table_cache *cache = ctx->tables;
-    if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode])
+    if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode] &&
+        !load_blur_unit(ctx, key->accumulation))
         return make_blur_unit(ctx, key->accumulation, j, a, err);
     return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
 }
@@ -1197,13 +1253,17 @@ static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float 
 {
     float **slot = &ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
     if (!*slot) {
-        ns_scatter_tables zeros;
         ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-        int status = make_blur_unit(ctx, accumulation, NULL, &zeros, err);
+        int status = NS_OK;
+        if (!load_blur_unit(ctx, accumulation)) {
+            ns_scatter_tables zeros;
+            status = make_blur_unit(ctx, accumulation, NULL, &zeros, err);
+            if (!status)
+                ns_scatter_tables_free(ctx, &zeros);
+        }
         *ms += ns_stage_end(ctx, &stage);
         if (status)
             return status;
-        ns_scatter_tables_free(ctx, &zeros);
     }
     *out = *slot;
     return NS_OK;

@@ -11,9 +11,10 @@
  *   (d) a render with render.tables "interpolated" whose nodes are cached reconstructs
  *       nothing, and its image means are the exact path's within 0.5%;
  *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode;
- *   (f) nodes on disk (ns_context_desc.table_node_dir): a second context reads them instead of
- *       making them, bit for bit the same table; a corrupted file, a cut one and one that
- *       another version of the code made are each made again, within the accumulation's cut
+ *   (f) nodes and the unit blurred table on disk (ns_context_desc.table_node_dir): a second
+ *       context reads them instead of making them, bit for bit the same table; a corrupted file, a cut one and one that
+ *       another version of the code made are each made again (and a changed blurred table),
+ *       within the accumulation's cut
  *       of the first (and rewritten: a fourth context reads them); a folder that cannot be
  *       written still gives the table.
  * Validation layers on (NSCATTER_VALIDATION=1). */
@@ -258,13 +259,19 @@ static void test_nodes_on_disk(void)
 {
     char dir[] = "/tmp/nscatter_nodes_XXXXXX";
     CHECK(mkdtemp(dir) != NULL);
-    /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches. */
+    /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches; with the blurred
+     * first order, whose unit table is kept beside them. */
     ns_table_key key = key_of(0.6f, 0.9f, 0.9f, 0.9f, NS_TABLES_INTERPOLATED);
+    key.orders |= NS_TABLE_FIRST_BLURRED;
     int reconstructed = -1;
     float *made = from_context_with(dir, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
     char names[8][512];
     CHECK_INT(count_node_files(dir, names, 8), 4);
+    char blur_path[600];
+    snprintf(blur_path, sizeof blur_path, "%s/blur_unit_exact.bin", dir);
+    struct stat st;
+    CHECK(stat(blur_path, &st) == 0 && st.st_size > (off_t)(cells * sizeof(float)));
 
     float *read = from_context_with(dir, &key, &reconstructed);
     CHECK_INT(reconstructed, 0);
@@ -285,6 +292,16 @@ static void test_nodes_on_disk(void)
     }
     snprintf(path, sizeof path, "%s/%s", dir, names[1]);
     CHECK_INT(truncate(path, 1000000), 0);
+    /* The blur unit's data changed: made again (bit for bit: it has no batch). */
+    f = fopen(blur_path, "r+b");
+    CHECK(f != NULL);
+    if (f) {
+        fseek(f, 3000000, SEEK_SET);
+        int c = fgetc(f);
+        fseek(f, 3000000, SEEK_SET);
+        fputc(c ^ 0x20, f);
+        fclose(f);
+    }
     /* A third made by another version of the code (its code hash, after the magic). */
     snprintf(path, sizeof path, "%s/%s", dir, names[3]);
     f = fopen(path, "r+b");

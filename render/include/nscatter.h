@@ -354,8 +354,9 @@ typedef struct ns_context_desc {
     ns_mc_tables_fn mc_tables;        /* NULL: method "table" is not available */
     void *mc_user;
     uint64_t table_cache_bytes;       /* bound on cached tables; 0: 1 GiB */
-    /* Folder where the albedo nodes of interpolated tables (render.tables) are kept between
-     * processes, checked on every read (e.g. ns_cache_dir's); NULL: in memory only. */
+    /* Folder where tables that outlive a material are kept between processes, checked on
+     * every read (e.g. ns_cache_dir's): the albedo nodes of interpolated tables
+     * (render.tables) and the unit blurred table of boundary walks. NULL: memory only. */
     const char *table_node_dir;
 } ns_context_desc;
 
