@@ -239,11 +239,9 @@ static int render_scene(const render_args *a, const scene_doc *doc, ns_render_st
     ns_context *ctx = NULL;
     double t0 = ns_now_ms();
     ns_context_desc desc = {.device = a->device};
-    ns_mc_provider_attach(&desc); /* method "table": Monte Carlo tables, cached on disk */
-    char node_dir[3000];          /* render.tables "interpolated": its albedo nodes, on disk */
-    ns_error dir_err = {0};
-    if (ns_cache_dir(NULL, "table nodes", node_dir, sizeof node_dir, &dir_err) == NS_OK)
-        desc.table_node_dir = node_dir;
+    /* Monte Carlo tables for method "table", the albedo nodes of render.tables "interpolated"
+     * and the boundary walks' unit blurred table: cached on disk. */
+    ns_table_caches_attach(&desc);
     int rc = ns_context_create(&desc, &ctx, &err);
     if (rc) {
         fprintf(stderr, "nscatter render: %s: %s\n", ns_status_name(rc), err.message);

@@ -90,6 +90,13 @@ void ns_mc_provider_attach(ns_context_desc *desc)
     desc->mc_user = process_provider;
 }
 
+void ns_table_caches_attach(ns_context_desc *desc)
+{
+    ns_mc_provider_attach(desc);
+    if (process_provider)
+        desc->table_node_dir = process_provider->dir;
+}
+
 /* ---------------------------------------------------------------------------------------
  * One order's table: read and check, or simulate and write
  * ------------------------------------------------------------------------------------- */

@@ -27,9 +27,11 @@ int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *e
     ctx->mc_tables = desc->mc_tables;
     ctx->mc_user = desc->mc_user;
     ctx->table_cache_bytes = desc->table_cache_bytes ? desc->table_cache_bytes : (1ull << 30);
+    ctx->table_dir_bytes = desc->table_dir_bytes ? desc->table_dir_bytes : (2ull << 30);
     if ((desc->pipeline_cache_path &&
          !(ctx->pipeline_cache_path = strdup(desc->pipeline_cache_path))) ||
-        (desc->table_node_dir && !(ctx->table_node_dir = strdup(desc->table_node_dir)))) {
+        (desc->table_node_dir && *desc->table_node_dir &&
+         !(ctx->table_node_dir = strdup(desc->table_node_dir)))) {
         ns_context_destroy(ctx);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
     }

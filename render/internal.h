@@ -115,7 +115,8 @@ struct ns_context {
     uint64_t table_cache_bytes;
     pthread_mutex_t lock;
     char *pipeline_cache_path;
-    char *table_node_dir; /* ns_context_desc.table_node_dir, or NULL */
+    char *table_node_dir;     /* ns_context_desc.table_node_dir, or NULL */
+    uint64_t table_dir_bytes; /* its bound (2 GiB when the desc gives 0) */
     ns_run run;          /* the render in progress: its control, its progress */
     ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
     ns_camera_keep camera; /* the last camera pass, for the next render that makes the same */

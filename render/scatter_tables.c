@@ -13,7 +13,10 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <dirent.h>
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include "accumulate_shared.h"
 #include "boundary.h"
@@ -174,6 +177,17 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
 
 enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_EXTRA, B_COUNT };
 
+/* The grid fields every A table carries (the default grid) and its device bytes. */
+static void set_default_grid(ns_scatter_tables *t, uint64_t bytes)
+{
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    t->scale = (float)grid.scale;
+    t->inv_step = (float)(1.0 / grid.step);
+    t->extent = (float)grid.extent;
+    t->bytes = bytes;
+}
+
 static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_error *err)
 {
     gpu_pipeline *pipeline;
@@ -304,10 +318,7 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
     if (!status) {
         out->a = own[B_A];
         own[B_A] = (gpu_buffer){0};
-        out->scale = (float)grid.scale;
-        out->inv_step = (float)(1.0 / grid.step);
-        out->extent = (float)grid.extent;
-        out->bytes = table_bytes;
+        set_default_grid(out, table_bytes);
     }
     for (int i = 0; i < B_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
@@ -529,30 +540,40 @@ static int insert_j_entry(ns_context *ctx, cache_entry *e, ns_table_stats *stats
     return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
 }
 
-static int network_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
-                     ns_table_stats *stats, ns_error *err)
+/* J of both orders from the networks for n (1 to 3) channels of albedo[c] and g, into out
+ * (float [2][3][cells]; only the n channels are defined). */
+static int network_tables(ns_context *ctx, float g, const double *albedo, uint32_t n, float *out,
+                          ns_error *err)
 {
     struct ns_nn_state *nn = ctx->nn;
-    if (!nn->nets_ok)
-        return ns_fail(err, NS_ERR_NOT_AVAILABLE, "method nn: %s", nn->nets_error.message);
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    size_t cells = NS_TABLE_CELLS;
-    float *out = malloc(2 * 3 * cells * sizeof(float));
-    if (!out)
-        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
     ns_nn_reconstruct_desc desc = {
         .nets = {&nn->nets[0], &nn->nets[1]},
         .grid = {.n = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI},
                  .edges = {grid.z, grid.rho, grid.theta, grid.phi}},
-        .g = key->g,
+        .g = g,
         .renormalise = 1, /* the default of `nscatter table`: each table carries E_k exactly */
         .channels = n,
         .out = out,
     };
     for (uint32_t c = 0; c < 3; c++)
         desc.albedo[c] = albedo[c < n ? c : 0];
-    int status = ns_nn_reconstruct(&ctx->dev, &nn->gpu, &desc, NULL, err);
+    return ns_nn_reconstruct(&ctx->dev, &nn->gpu, &desc, NULL, err);
+}
+
+static int network_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
+                     ns_table_stats *stats, ns_error *err)
+{
+    struct ns_nn_state *nn = ctx->nn;
+    if (!nn->nets_ok)
+        return ns_fail(err, NS_ERR_NOT_AVAILABLE, "method nn: %s", nn->nets_error.message);
+    size_t cells = NS_TABLE_CELLS;
+    float *out = malloc(2 * 3 * cells * sizeof(float));
+    if (!out)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+    const double channel_albedo[3] = {albedo[0], n > 1 ? albedo[1] : 0, n > 2 ? albedo[2] : 0};
+    int status = network_tables(ctx, key->g, channel_albedo, n, out, err);
     for (uint32_t c = 0; c < n && !status; c++) {
         cache_entry e;
         status = alloc_j_entry(&e, key, albedo[c], err);
@@ -760,14 +781,26 @@ static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const f
  * accumulation of the exact path, three at a time (one per channel), when a material first
  * needs them, and stay in the cache like any table.
  *
- * Measured (docs/rendering.md): 14 intervals put the interpolated A within 0.2% (energy-
+ * Measured (docs/rendering.md): 14 intervals put the interpolated A within 0.35% (energy-
  * weighted L1) of the exact one, against the networks' own 3-15% from Monte Carlo.
  * ------------------------------------------------------------------------------------- */
 #define ALBEDO_NODE_INTERVALS (NS_TABLE_ALBEDO_NODES - 1u)
 /* Node 0 stands for u = 0, where the energies vanish and A / E_k is their limit: the
  * networks are evaluated at this albedo instead (its u is 0.002 of an interval). */
 #define ALBEDO_NODE_FIRST 1e-3
-static const uint64_t node_entry_bytes = 2ull * NS_TABLE_CELLS * sizeof(float);
+
+/* An empty cache entry for node `node` of key's g and accumulation (the size of a J entry:
+ * two orders of one channel). */
+static int alloc_node_entry(cache_entry *e, const ns_table_key *key, uint32_t node, ns_error *err)
+{
+    int status = alloc_j_entry(e, key, 0.0f, err);
+    if (status)
+        return status;
+    e->kind = ENTRY_NODE;
+    e->node = node;
+    e->accumulation = key->accumulation;
+    return NS_OK;
+}
 
 static double node_u_max(const ns_nn_header *h)
 {
@@ -837,12 +870,15 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
  * overwritten (stderr says which and why). Writes are atomic; a folder that cannot be written
  * costs only the next process the table.
  *
- * What made a table is part of its identity: the networks (their CRCs; nodes only), the
- * SPIR-V of the three shaders that compute them (nn_reconstruct, nn_interpolate, accumulate),
- * and TABLE_FILE_CODE_VERSION for what the C side decides (the renormalisation, the networks'
- * sampling of the grid, the accumulation's cut, the node albedos, the blurred first order's
- * Gaussian): bump it when any of those change, or files made before would be read as if they
- * were still right. */
+ * What made a table is part of its identity, in its header and its name (so that two builds
+ * sharing a folder keep their own files instead of overwriting each other's): the networks
+ * (their CRCs; nodes only), the SPIR-V of the three shaders that compute them
+ * (nn_reconstruct, nn_interpolate, accumulate), the accumulation's parameters in both modes
+ * (its cut, its floor, the paper's length, the step cap), the networks' sampling of the grid
+ * and the node albedos' placement, the blurred first order's J itself (the blur unit), and
+ * TABLE_FILE_CODE_VERSION for what none of those show (the renormalisation, the blend):
+ * bump it when that changes. The folder is kept within ns_context_desc.table_dir_bytes, the
+ * least recently used files first (prune_table_files). */
 #define TABLE_FILE_CODE_VERSION 1u
 enum { TABLE_FILE_NODE = 1, TABLE_FILE_BLUR_UNIT = 2 };
 typedef struct table_file_header {
@@ -854,6 +890,7 @@ typedef struct table_file_header {
     uint32_t node, accumulation;
     uint32_t weights_crc[2];  /* the networks' payload CRC-32s (nodes; 0 for the blur unit) */
     double g, albedo, scale, extent;
+    uint64_t input_hash;      /* the blur unit: payload_hash() of its J; nodes: 0 */
     uint64_t payload_hash;    /* payload_hash() of the tables */
 } table_file_header;
 static const char TABLE_FILE_MAGIC[8] = "NSTABLE";
@@ -892,7 +929,19 @@ static uint64_t table_code_hash(void)
         const uint32_t *code = ns_shader_code(shaders[i], &size);
         h = code ? fnv_bytes(h, code, size) : h;
     }
-    return h;
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    const float no_j[4] = {0};
+    for (int mode = 0; mode < 2; mode++) {
+        GpuAccumulateParams p =
+            accumulate_params(&grid, no_j, 0, (ns_accumulation)mode, NS_TABLE_NRHO, 0);
+        h = fnv_bytes(h, &p, sizeof p);
+    }
+    ns_nn_sampling sampling = ns_nn_sampling_default();
+    h = fnv_bytes(h, sampling.stride, sizeof sampling.stride);
+    h = fnv_bytes(h, &sampling.full_radius, sizeof sampling.full_radius);
+    const double nodes[2] = {ALBEDO_NODE_FIRST, ALBEDO_NODE_INTERVALS};
+    return fnv_bytes(h, nodes, sizeof nodes);
 }
 
 static table_file_header file_header(uint32_t kind, uint32_t tables, ns_accumulation accumulation)
@@ -927,14 +976,88 @@ static table_file_header node_header(const ns_context *ctx, const ns_table_key *
     return h;
 }
 
-static void file_path(const ns_context *ctx, const table_file_header *h, char *path, size_t cap)
+/* The file of the table h describes; 0 when its name does not fit in cap (the folder is then
+ * not used: a cut name could be another table's). */
+static int file_path(const ns_context *ctx, const table_file_header *h, char *path, size_t cap)
 {
     const char *mode = h->accumulation ? "paper" : "exact";
+    int n;
     if (h->kind == TABLE_FILE_NODE)
-        snprintf(path, cap, "%s/node_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
-                 h->weights_crc[0], h->weights_crc[1], h->g, mode, h->node);
+        n = snprintf(path, cap, "%s/node_%016llx_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
+                     (unsigned long long)h->code_hash, h->weights_crc[0], h->weights_crc[1], h->g,
+                     mode, h->node);
     else
-        snprintf(path, cap, "%s/blur_unit_%s.bin", ctx->table_node_dir, mode);
+        n = snprintf(path, cap, "%s/blur_unit_%016llx_%s.bin", ctx->table_node_dir,
+                     (unsigned long long)h->code_hash, mode);
+    return n > 0 && (size_t)n < cap;
+}
+
+/* Whether a name in the folder is one of the table files (prune_table_files may remove it). */
+static int is_table_file(const char *name)
+{
+    size_t len = strlen(name);
+    return (strncmp(name, "node_", 5) == 0 || strncmp(name, "blur_unit_", 10) == 0) && len > 4 &&
+           strcmp(name + len - 4, ".bin") == 0;
+}
+
+typedef struct table_file_use {
+    struct timespec used; /* modification time: written, or last read (read_table_file) */
+    off_t size;
+    char name[256];
+} table_file_use;
+
+static int older_first(const void *a, const void *b)
+{
+    const struct timespec *x = &((const table_file_use *)a)->used;
+    const struct timespec *y = &((const table_file_use *)b)->used;
+    if (x->tv_sec != y->tv_sec)
+        return x->tv_sec < y->tv_sec ? -1 : 1;
+    return x->tv_nsec < y->tv_nsec ? -1 : x->tv_nsec > y->tv_nsec;
+}
+
+/* Removes the least recently used table files until the folder's hold at most
+ * ctx->table_dir_bytes; other files are never touched. */
+static void prune_table_files(const ns_context *ctx)
+{
+    DIR *dir = ctx->table_node_dir ? opendir(ctx->table_node_dir) : NULL;
+    if (!dir)
+        return;
+    table_file_use *files = NULL;
+    size_t count = 0, capacity = 0;
+    uint64_t total = 0;
+    struct dirent *d;
+    while ((d = readdir(dir))) {
+        if (!is_table_file(d->d_name) || strlen(d->d_name) >= sizeof files->name)
+            continue;
+        char path[4096];
+        struct stat st;
+        int n = snprintf(path, sizeof path, "%s/%s", ctx->table_node_dir, d->d_name);
+        if (n < 0 || (size_t)n >= sizeof path || stat(path, &st) != 0 || !S_ISREG(st.st_mode))
+            continue;
+        if (count == capacity) {
+            size_t grown_capacity = capacity ? 2 * capacity : 64;
+            table_file_use *grown = realloc(files, grown_capacity * sizeof *files);
+            if (!grown)
+                break;
+            files = grown;
+            capacity = grown_capacity;
+        }
+        files[count] = (table_file_use){.used = st.st_mtim, .size = st.st_size};
+        snprintf(files[count].name, sizeof files[count].name, "%s", d->d_name);
+        total += (uint64_t)st.st_size;
+        count++;
+    }
+    closedir(dir);
+    if (total > ctx->table_dir_bytes) {
+        qsort(files, count, sizeof *files, older_first);
+        for (size_t i = 0; i < count && total > ctx->table_dir_bytes; i++) {
+            char path[4096];
+            snprintf(path, sizeof path, "%s/%s", ctx->table_node_dir, files[i].name);
+            if (unlink(path) == 0)
+                total -= (uint64_t)files[i].size;
+        }
+    }
+    free(files);
 }
 
 /* Why the file at path cannot be the table `want` describes (its tables read into out), or
@@ -956,7 +1079,8 @@ static const char *read_file_problem(const char *path, const table_file_header *
              h.extent != want->extent)
         problem = "its grid is not the default grid";
     else if (h.kind != want->kind || h.tables != want->tables || h.node != want->node ||
-             h.accumulation != want->accumulation || h.g != want->g || h.albedo != want->albedo)
+             h.accumulation != want->accumulation || h.g != want->g || h.albedo != want->albedo ||
+             h.input_hash != want->input_hash)
         problem = "it holds another table";
     else if (memcmp(h.weights_crc, want->weights_crc, sizeof h.weights_crc) != 0)
         problem = "other networks made it";
@@ -976,13 +1100,14 @@ static const char *read_file_problem(const char *path, const table_file_header *
 static int read_table_file(const ns_context *ctx, const table_file_header *want, float *const *out)
 {
     char path[4096];
-    file_path(ctx, want, path, sizeof path);
     struct stat st;
-    if (stat(path, &st) != 0)
+    if (!file_path(ctx, want, path, sizeof path) || stat(path, &st) != 0)
         return 0;
     const char *problem = read_file_problem(path, want, out);
     if (problem)
         fprintf(stderr, "nscatter: table file %s rejected (%s); making it again\n", path, problem);
+    else
+        utimensat(AT_FDCWD, path, NULL, 0); /* used now: the last to be pruned */
     return problem == NULL;
 }
 
@@ -990,7 +1115,10 @@ static void write_table_file(const ns_context *ctx, table_file_header h, float *
 {
     h.payload_hash = payload_hash(tables, h.tables);
     char path[4096];
-    file_path(ctx, &h, path, sizeof path);
+    if (!file_path(ctx, &h, path, sizeof path)) {
+        fprintf(stderr, "nscatter: table files: the folder's name is too long; not kept\n");
+        return;
+    }
     ns_file_part parts[3] = {{&h, sizeof h}};
     for (uint32_t t = 0; t < h.tables; t++)
         parts[1 + t] = (ns_file_part){tables[t], NS_TABLE_CELLS * sizeof(float)};
@@ -1000,6 +1128,8 @@ static void write_table_file(const ns_context *ctx, table_file_header h, float *
         status = ns_write_file_atomic_parts(path, parts, 1 + h.tables, &err);
     if (status) /* the render still gets its table; only the next process pays again */
         fprintf(stderr, "nscatter: %s\n", err.message);
+    else
+        prune_table_files(ctx);
 }
 
 /* Node `node` of key's g and accumulation from the folder into the cache: 1 when read. */
@@ -1007,12 +1137,8 @@ static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns
 {
     cache_entry e;
     ns_error err = {0};
-    if (alloc_j_entry(&e, key, 0.0f, &err))
+    if (alloc_node_entry(&e, key, node, &err))
         return 0;
-    e.kind = ENTRY_NODE;
-    e.node = node;
-    e.accumulation = key->accumulation;
-    e.bytes = node_entry_bytes;
     table_file_header want = node_header(ctx, key, node);
     if (!read_table_file(ctx, &want, e.j)) {
         free(e.j[0]);
@@ -1034,12 +1160,25 @@ static void save_node(ns_context *ctx, const ns_table_key *key, const cache_entr
     write_table_file(ctx, node_header(ctx, key, e->node), e->j);
 }
 
+/* The blur unit's header: its J (ns_blurred_spatial) is part of what made it. */
+static int blur_unit_header(ns_accumulation accumulation, table_file_header *h)
+{
+    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
+    if (!blur_j)
+        return 0;
+    ns_blurred_spatial(blur_j);
+    *h = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
+    h->input_hash = payload_hash(&blur_j, 1);
+    free(blur_j);
+    return 1;
+}
+
 static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
 {
-    if (!ctx->table_node_dir)
+    table_file_header want;
+    if (!ctx->table_node_dir || !blur_unit_header(accumulation, &want))
         return 0;
     float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
-    table_file_header want = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
     if (!unit || !read_table_file(ctx, &want, &unit)) {
         free(unit);
         return 0;
@@ -1050,8 +1189,9 @@ static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
 
 static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit)
 {
-    if (ctx->table_node_dir)
-        write_table_file(ctx, file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation), &unit);
+    table_file_header h;
+    if (ctx->table_node_dir && blur_unit_header(accumulation, &h))
+        write_table_file(ctx, h, &unit);
 }
 
 /* Makes the n (<= 3) nodes of key's g and accumulation listed in node[], one per channel of
@@ -1059,40 +1199,25 @@ static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float 
 static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t *node, uint32_t n,
                        ns_table_stats *stats, ns_error *err)
 {
-    struct ns_nn_state *nn = ctx->nn;
-    const ns_nn_header *h = &nn->nets[0].h;
+    const ns_nn_header *h = &ctx->nn->nets[0].h;
     size_t cells = NS_TABLE_CELLS;
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
     cache_entry e[3];
     uint32_t made = 0;
     int status = NS_OK;
     for (; made < n && !status; made++) {
-        status = alloc_j_entry(&e[made], key, 0.0f, err);
+        status = alloc_node_entry(&e[made], key, node[made], err);
         if (status)
             break;
-        e[made].kind = ENTRY_NODE;
-        e[made].node = node[made];
-        e[made].accumulation = key->accumulation;
-        e[made].bytes = node_entry_bytes;
     }
     float *j = status ? NULL : calloc(2 * 3 * cells, sizeof(float));
     if (!status && !j)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
-    ns_nn_reconstruct_desc desc = {
-        .nets = {&nn->nets[0], &nn->nets[1]},
-        .grid = {.n = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI},
-                 .edges = {grid.z, grid.rho, grid.theta, grid.phi}},
-        .g = key->g,
-        .renormalise = 1,
-        .channels = n,
-        .out = j,
-    };
+    double albedo[3];
     for (uint32_t c = 0; c < 3; c++)
-        desc.albedo[c] = node_albedo(h, node[c < n ? c : 0]);
+        albedo[c] = node_albedo(h, node[c < n ? c : 0]);
     if (!status) {
         ns_stage stage = ns_stage_begin(ctx, "reconstruct", 0.0, 0.3);
-        status = ns_nn_reconstruct(&ctx->dev, &nn->gpu, &desc, NULL, err);
+        status = network_tables(ctx, key->g, albedo, n, j, err);
         stats->reconstruct_ms += ns_stage_end(ctx, &stage);
         stats->reconstructed = 1;
     }
@@ -1109,7 +1234,7 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
             break;
         const float *src = a.a.mapped;
         for (uint32_t c = 0; c < n; c++) {
-            float scale = (float)(1.0 / ns_nn_exact_energy(o, desc.albedo[c]));
+            float scale = (float)(1.0 / ns_nn_exact_energy(o, albedo[c]));
             for (size_t i = 0; i < cells; i++)
                 e[c].j[o][i] = src[c * cells + i] * scale;
         }
@@ -1223,12 +1348,7 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
         gpu_buffer_destroy(&ctx->dev, &out->a);
         return status;
     }
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
-    out->scale = (float)grid.scale;
-    out->inv_step = (float)(1.0 / grid.step);
-    out->extent = (float)grid.extent;
-    out->bytes = table_bytes;
+    set_default_grid(out, table_bytes);
     return NS_OK;
 }
 
@@ -1315,13 +1435,8 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
         for (size_t i = 0; i < cells; i++)
             channel[i] += per_theta[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[i];
     }
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
-    *out = (ns_scatter_tables){.a = a,
-                               .scale = (float)grid.scale,
-                               .inv_step = (float)(1.0 / grid.step),
-                               .extent = (float)grid.extent,
-                               .bytes = table_bytes};
+    *out = (ns_scatter_tables){.a = a};
+    set_default_grid(out, table_bytes);
     stats->accumulated = 1;
     return NS_OK;
 }
@@ -1402,6 +1517,7 @@ int ns_tables_init(ns_context *ctx, ns_error *err)
     if (!ctx->tables || !ctx->nn)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "context: out of memory");
     ctx->nn->nets_ok = load_networks(ctx->nn);
+    prune_table_files(ctx); /* a bound smaller than before applies at once */
     /* Created and compiled now even without weights: lavapipe compiles at the first
      * dispatch (seconds for this unrolled shader), which must never land in a request. */
     int status = ns_nn_gpu_create(&ctx->dev, &ctx->nn->gpu, err);

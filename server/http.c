@@ -1928,11 +1928,9 @@ static void make_context(http_server *srv, const char *device)
 {
     double t0 = ns_now_ms();
     ns_context_desc desc = {.device = device};
-    ns_mc_provider_attach(&desc); /* method "table": Monte Carlo tables, cached on disk */
-    char node_dir[3000];          /* render.tables "interpolated": its albedo nodes, on disk */
-    ns_error dir_err = {0};
-    if (ns_cache_dir(NULL, "table nodes", node_dir, sizeof node_dir, &dir_err) == NS_OK)
-        desc.table_node_dir = node_dir;
+    /* Monte Carlo tables for method "table", the albedo nodes of render.tables "interpolated"
+     * and the boundary walks' unit blurred table: cached on disk. */
+    ns_table_caches_attach(&desc);
     int rc = ns_context_create(&desc, &srv->ctx, &srv->ctx_err);
     if (rc) {
         srv->ctx = NULL;

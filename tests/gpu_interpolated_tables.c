@@ -6,6 +6,7 @@
  *       sum within 0.2%;
  *   (b) at a node's albedo, and beyond the networks' albedo_max (which they clamp), the
  *       exact table itself, within the accumulation's cut (1e-4 of each walk); albedo 0 is 0;
+ *       the ends of the stencil (the first and the last interval) as in (a);
  *   (c) a material whose nodes are cached is a blend: no reconstruction, one table made and
  *       nothing else added to the cache;
  *   (d) a render with render.tables "interpolated" whose nodes are cached reconstructs
@@ -15,8 +16,9 @@
  *       context reads them instead of making them, bit for bit the same table; a corrupted file, a cut one and one that
  *       another version of the code made are each made again (and a changed blurred table),
  *       within the accumulation's cut
- *       of the first (and rewritten: a fourth context reads them); a folder that cannot be
- *       written still gives the table.
+ *       of the first (and rewritten: a fourth context reads them, the blurred table's file
+ *       keeps its inode); a bound on the folder keeps it within the bound, the least recently
+ *       used first; a folder that cannot be written still gives the table.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include <sys/stat.h>
 #include <unistd.h>
@@ -115,6 +117,9 @@ static void test_at_nodes_and_beyond(void)
     /* Beyond the last node the networks see their albedo_max: the last node, scaled by the
      * exact energies. Albedo 0 is 0 in both paths. */
     compare_with_exact(key_of(0.7f, 0.9995f, 0.0f, 0.9999f, NS_TABLES_INTERPOLATED), 3e-4, 3e-4);
+    /* The ends of the stencil: the first interval (node 0 evaluated at albedo 1e-3) and the
+     * last one below albedo_max. */
+    compare_with_exact(key_of(0.7f, 0.05f, 0.3f, 0.9985f, NS_TABLES_INTERPOLATED), 0.01, 0.002);
 }
 
 static void test_cached_nodes_make_a_blend(void)
@@ -205,11 +210,13 @@ static void test_bad_keys(void)
 
 /* Key's tables from a fresh context whose nodes live in dir: a copy, and whether the networks
  * ran. */
-static float *from_context_with(const char *dir, const ns_table_key *key, int *reconstructed)
+static float *from_context_with(const char *dir, uint64_t dir_bytes, const ns_table_key *key,
+                                int *reconstructed)
 {
     ns_context *ctx = NULL;
     ns_error err = {0};
-    int status = ns_context_create(&(ns_context_desc){.table_node_dir = dir}, &ctx, &err);
+    int status = ns_context_create(&(ns_context_desc){.table_node_dir = dir, .table_dir_bytes = dir_bytes},
+                                   &ctx, &err);
     CHECK_INT(status, NS_OK);
     if (status)
         return NULL;
@@ -240,7 +247,8 @@ static int same_within_cut(const float *a, const float *b)
     return 1;
 }
 
-static int count_node_files(const char *dir, char names[][512], int cap)
+/* The files in dir whose names start with prefix, in name order (up to cap). */
+static int list_files(const char *dir, const char *prefix, char names[][512], int cap)
 {
     int n = 0;
     char command[600];
@@ -248,11 +256,51 @@ static int count_node_files(const char *dir, char names[][512], int cap)
     FILE *p = popen(command, "r");
     while (p && n < cap && fgets(names[n], 512, p)) {
         names[n][strcspn(names[n], "\n")] = 0;
-        n += strncmp(names[n], "node_", 5) == 0;
+        n += strncmp(names[n], prefix, strlen(prefix)) == 0;
     }
     if (p)
         pclose(p);
     return n;
+}
+
+/* Changes the byte at offset of the file at path by xor with mask. */
+static void flip_bits(const char *path, long offset, int mask)
+{
+    FILE *f = fopen(path, "r+b");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    fseek(f, offset, SEEK_SET);
+    int c = fgetc(f);
+    fseek(f, offset, SEEK_SET);
+    fputc(c ^ mask, f);
+    fclose(f);
+}
+
+/* The inode of dir/name: a file rewritten (atomically, by rename) gets a new one. */
+static ino_t inode_of(const char *dir, const char *name)
+{
+    char path[1100];
+    snprintf(path, sizeof path, "%s/%s", dir, name);
+    struct stat st;
+    return stat(path, &st) == 0 ? st.st_ino : 0;
+}
+
+/* Bytes of the table files in dir. */
+static uint64_t table_file_bytes(const char *dir)
+{
+    char names[64][512];
+    uint64_t total = 0;
+    for (int prefix = 0; prefix < 2; prefix++) {
+        int n = list_files(dir, prefix ? "blur_unit_" : "node_", names, 64);
+        for (int i = 0; i < n; i++) {
+            char path[1100];
+            snprintf(path, sizeof path, "%.500s/%.500s", dir, names[i]);
+            struct stat st;
+            total += stat(path, &st) == 0 ? (uint64_t)st.st_size : 0;
+        }
+    }
+    return total;
 }
 
 static void test_nodes_on_disk(void)
@@ -264,67 +312,68 @@ static void test_nodes_on_disk(void)
     ns_table_key key = key_of(0.6f, 0.9f, 0.9f, 0.9f, NS_TABLES_INTERPOLATED);
     key.orders |= NS_TABLE_FIRST_BLURRED;
     int reconstructed = -1;
-    float *made = from_context_with(dir, &key, &reconstructed);
+    float *made = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
-    char names[8][512];
-    CHECK_INT(count_node_files(dir, names, 8), 4);
-    char blur_path[600];
-    snprintf(blur_path, sizeof blur_path, "%s/blur_unit_exact.bin", dir);
-    struct stat st;
-    CHECK(stat(blur_path, &st) == 0 && st.st_size > (off_t)(cells * sizeof(float)));
+    char names[8][512], blur[1][512];
+    CHECK_INT(list_files(dir, "node_", names, 8), 4);
+    CHECK_INT(list_files(dir, "blur_unit_", blur, 1), 1);
+    CHECK(strstr(blur[0], "exact") != NULL);
+    char blur_path[1100];
+    snprintf(blur_path, sizeof blur_path, "%s/%s", dir, blur[0]);
+    ino_t blur_inode = inode_of(dir, blur[0]);
+    CHECK(blur_inode != 0);
 
-    float *read = from_context_with(dir, &key, &reconstructed);
+    /* Read, not made again: no reconstruction, and the blurred table's file is not rewritten
+     * (it would be, with a new inode, had it been made). */
+    float *read = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 0);
     CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    CHECK(inode_of(dir, blur[0]) == blur_inode);
     free(read);
 
     /* One byte of one file's data changed, another file cut short: both made again. */
     char path[1100];
     snprintf(path, sizeof path, "%s/%s", dir, names[0]);
-    FILE *f = fopen(path, "r+b");
-    CHECK(f != NULL);
-    if (f) {
-        fseek(f, 5000000, SEEK_SET);
-        int c = fgetc(f);
-        fseek(f, 5000000, SEEK_SET);
-        fputc(c ^ 0x10, f);
-        fclose(f);
-    }
+    flip_bits(path, 5000000, 0x10);
     snprintf(path, sizeof path, "%s/%s", dir, names[1]);
     CHECK_INT(truncate(path, 1000000), 0);
     /* The blur unit's data changed: made again (bit for bit: it has no batch). */
-    f = fopen(blur_path, "r+b");
-    CHECK(f != NULL);
-    if (f) {
-        fseek(f, 3000000, SEEK_SET);
-        int c = fgetc(f);
-        fseek(f, 3000000, SEEK_SET);
-        fputc(c ^ 0x20, f);
-        fclose(f);
-    }
+    flip_bits(blur_path, 3000000, 0x20);
     /* A third made by another version of the code (its code hash, after the magic). */
     snprintf(path, sizeof path, "%s/%s", dir, names[3]);
-    f = fopen(path, "r+b");
-    CHECK(f != NULL);
-    if (f) {
-        fseek(f, 8, SEEK_SET);
-        fputc(fgetc(f) ^ 1, f);
-        fclose(f);
-    }
-    read = from_context_with(dir, &key, &reconstructed);
+    flip_bits(path, 8, 0x01);
+    read = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
     CHECK(made && read && same_within_cut(made, read));
     free(read);
-    read = from_context_with(dir, &key, &reconstructed); /* rewritten */
+    ino_t rewritten = inode_of(dir, blur[0]);
+    CHECK(rewritten != 0 && rewritten != blur_inode);
+    read = from_context_with(dir, 0, &key, &reconstructed); /* all rewritten */
     CHECK_INT(reconstructed, 0);
+    CHECK(inode_of(dir, blur[0]) == rewritten);
     free(read);
 
-    /* A folder that cannot be made (under a regular file): the table all the same. */
-    char blocked[600];
-    snprintf(blocked, sizeof blocked, "%s/%s/sub", dir, names[2]);
-    read = from_context_with(blocked, &key, &reconstructed);
-    CHECK_INT(reconstructed, 1);
+    /* A bound on the folder below what is there: the least recently used files go when the
+     * context starts, and what it makes next keeps the folder within the bound. */
+    uint64_t bound = 50000000;
+    CHECK(table_file_bytes(dir) > bound);
+    read = from_context_with(dir, bound, &key, &reconstructed);
     CHECK(made && read && same_within_cut(made, read));
+    CHECK(table_file_bytes(dir) <= bound);
+    free(read);
+
+    /* A folder that cannot be made (under a regular file): the table all the same (the
+     * exact path's, which writes the blurred table: one walk instead of two batches). */
+    char blocked[1100];
+    snprintf(blocked, sizeof blocked, "%s/%s/sub", dir, names[2]);
+    ns_table_key exact = key;
+    exact.tables = NS_TABLES_EXACT;
+    read = from_context_with(blocked, 0, &exact, &reconstructed);
+    CHECK_INT(reconstructed, 1);
+    if (made && read) {
+        double ratio;
+        CHECK(channel_l1(read, made, 0, &ratio) < 0.01);
+    }
     free(read);
     free(made);
     char command[600];
@@ -344,7 +393,9 @@ int main(void)
         cell_volume[i] = (grid.rho[r + 1] * grid.rho[r + 1] - grid.rho[r] * grid.rho[r]) *
                          (grid.z[z + 1] - grid.z[z]) * (cos(grid.theta[t]) - cos(grid.theta[t + 1]));
     }
-    test_context();
+    /* Room for every node and table the tests make: an eviction would make test_render's
+     * nodes again. */
+    test_context()->table_cache_bytes = 4ull << 30;
     RUN(test_off_the_nodes);
     RUN(test_cached_nodes_make_a_blend);
     RUN(test_at_nodes_and_beyond);

@@ -356,8 +356,11 @@ typedef struct ns_context_desc {
     uint64_t table_cache_bytes;       /* bound on cached tables; 0: 1 GiB */
     /* Folder where tables that outlive a material are kept between processes, checked on
      * every read (e.g. ns_cache_dir's): the albedo nodes of interpolated tables
-     * (render.tables) and the unit blurred table of boundary walks. NULL: memory only. */
+     * (render.tables) and the unit blurred table of boundary walks. NULL or "": memory only.
+     * Their files there are kept within table_dir_bytes (0: 2 GiB), the least recently used
+     * removed first. */
     const char *table_node_dir;
+    uint64_t table_dir_bytes;
 } ns_context_desc;
 
 int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err);
