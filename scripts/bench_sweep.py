@@ -28,8 +28,8 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-def start(binary):
-    proc = subprocess.Popen([binary, "serve", "--port", "0", "--queue", "4"],
+def start(binary, extra_args=()):
+    proc = subprocess.Popen([binary, "serve", "--port", "0", "--queue", "4", *extra_args],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     line = proc.stdout.readline()
     if not line.startswith("listening on http://"):

@@ -1,11 +1,14 @@
 #!/usr/bin/env python3
 """The material change (docs/bench.md, "The material change with interpolated tables"): one
 fresh server per render.tables mode, and seven synchronous renders of one scene whose medium
-changes albedo each time (its mean free path, g and ior kept), as a user moving an albedo
-slider does. Prints each render's reconstruct and accumulate stages and its total from
-Server-Timing, then the medians over the renders after the first.
+changes albedo each time (the preset's mean free path, g and ior kept), as a user moving an
+albedo slider does. The albedos: the base one, then six with 1 - albedo scaled by 1.3, 0.8,
+1.15, 0.9, 1.05 and 0.95 in every channel. Prints each render's reconstruct and accumulate
+stages and its total from Server-Timing, then the medians over the renders after the first.
 
     python3 scripts/material_change.py --bin build/nscatter [--tables exact,interpolated]
+    python3 scripts/material_change.py --scene scenes/bench/milk.json --material milk \\
+        --preset milk --albedo 0.999,0.999,0.999 --size 256 --assets ~/.cache/nscatter/bench/assets
 
 Python standard library only.
 """
@@ -17,11 +20,7 @@ import sys
 
 from bench_sweep import ROOT, request, start
 
-# The default scene's wax (the candle preset: albedo 0.98 / 0.962 / 0.75, mfp 0.65 / 0.63 /
-# 0.59, g 0.8, ior 1.45), then six neighbours of it.
-ALBEDOS = [[0.980, 0.962, 0.750], [0.970, 0.950, 0.800], [0.985, 0.970, 0.700],
-           [0.990, 0.960, 0.780], [0.975, 0.955, 0.720], [0.982, 0.965, 0.760],
-           [0.978, 0.958, 0.740]]
+FACTORS = [1.0, 1.3, 0.8, 1.15, 0.9, 1.05, 0.95]
 
 
 def stages(header):
@@ -40,22 +39,26 @@ def main():
     ap.add_argument("--bin", default=os.path.join(ROOT, "build", "nscatter"))
     ap.add_argument("--scene", default=os.path.join(ROOT, "scenes", "default.json"))
     ap.add_argument("--material", default="wax")
-    ap.add_argument("--mfp", default="0.65,0.63,0.59")
-    ap.add_argument("--g", type=float, default=0.8)
-    ap.add_argument("--ior", type=float, default=1.45)
+    ap.add_argument("--preset", default="candle", help="the medium's preset (mfp, g, ior kept)")
+    ap.add_argument("--albedo", default="0.98,0.962,0.75", help="the preset's albedo: the first render's")
+    ap.add_argument("--size", type=int, default=0, help="image width and height (0: the scene's)")
+    ap.add_argument("--assets", default=None, help="the server's --assets folder")
     ap.add_argument("--tables", default="exact,interpolated")
     args = ap.parse_args()
-    mfp = [float(x) for x in args.mfp.split(",")]
+    base = [float(x) for x in args.albedo.split(",")]
+    albedos = [[round(min(0.9999, max(0.0, 1 - f * (1 - a))), 6) for a in base] for f in FACTORS]
     result = {}
     for mode in args.tables.split(","):
         scene = json.load(open(args.scene))
-        scene["render"]["tables"] = mode
-        proc, host, port = start(args.bin)
+        scene.setdefault("render", {})["tables"] = mode
+        if args.size:
+            scene["camera"]["width"] = scene["camera"]["height"] = args.size
+        proc, host, port = start(args.bin, ("--assets", args.assets) if args.assets else ())
         rows = []
         try:
-            for albedo in ALBEDOS:
-                scene["materials"][args.material] = {"type": "medium", "albedo": albedo, "mfp": mfp,
-                                                     "g": args.g, "ior": args.ior}
+            for albedo in albedos:
+                scene["materials"][args.material] = {"type": "medium", "preset": args.preset,
+                                                     "albedo": albedo}
                 status, h, data = request(host, port, "POST", "/v1/renders", json.dumps(scene),
                                           {"Content-Type": "application/json"})
                 if status != 200:
