@@ -740,7 +740,8 @@ const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accum
 
 /* The unit blurred table on disk, with the albedo nodes (the table files below). */
 static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation);
-static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit);
+static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit,
+                           float *blur_j);
 
 /* Makes the context's unit blurred table in this mode: the extra channel of the walk of j
  * (a material's J, float [3][cells], whose A goes to *a), or of a J of zeros where j is NULL
@@ -759,14 +760,15 @@ static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const f
         ns_blurred_spatial(blur_j);
         status = ns_tables_accumulate_extra(ctx, j ? j : zeros, blur_j, accumulation, a, unit, NULL, err);
     }
-    free(blur_j);
     free(zeros);
     if (status) {
+        free(blur_j);
         free(unit);
         return status;
     }
     ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
-    save_blur_unit(ctx, accumulation, unit);
+    save_blur_unit(ctx, accumulation, unit, blur_j);
+    free(blur_j);
     return NS_OK;
 }
 
@@ -905,6 +907,7 @@ static uint64_t fnv_bytes(uint64_t h, const void *data, size_t size)
 
 /* 64-bit FNV-1a over 8-byte words: a changed, swapped or truncated value shows, at a few
  * milliseconds per table (byte by byte, or a CRC, costs several times that). */
+_Static_assert(NS_TABLE_CELLS * sizeof(float) % 8 == 0, "payload_hash reads 8-byte words");
 static uint64_t payload_hash(float *const *tables, uint32_t n)
 {
     uint64_t h = 0xcbf29ce484222325ull;
@@ -1161,25 +1164,27 @@ static void save_node(ns_context *ctx, const ns_table_key *key, const cache_entr
 }
 
 /* The blur unit's header: its J (ns_blurred_spatial) is part of what made it. */
-static int blur_unit_header(ns_accumulation accumulation, table_file_header *h)
+static table_file_header blur_unit_header(ns_accumulation accumulation, float *blur_j)
 {
-    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
-    if (!blur_j)
-        return 0;
-    ns_blurred_spatial(blur_j);
-    *h = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
-    h->input_hash = payload_hash(&blur_j, 1);
-    free(blur_j);
-    return 1;
+    table_file_header h = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
+    h.input_hash = payload_hash(&blur_j, 1);
+    return h;
 }
 
 static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
 {
-    table_file_header want;
-    if (!ctx->table_node_dir || !blur_unit_header(accumulation, &want))
+    if (!ctx->table_node_dir)
         return 0;
+    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
     float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
-    if (!unit || !read_table_file(ctx, &want, &unit)) {
+    int read = 0;
+    if (blur_j && unit) {
+        ns_blurred_spatial(blur_j);
+        table_file_header want = blur_unit_header(accumulation, blur_j);
+        read = read_table_file(ctx, &want, &unit);
+    }
+    free(blur_j);
+    if (!read) {
         free(unit);
         return 0;
     }
@@ -1187,11 +1192,12 @@ static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
     return 1;
 }
 
-static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit)
+/* The unit just made from blur_j, into the folder. */
+static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit,
+                           float *blur_j)
 {
-    table_file_header h;
-    if (ctx->table_node_dir && blur_unit_header(accumulation, &h))
-        write_table_file(ctx, h, &unit);
+    if (ctx->table_node_dir)
+        write_table_file(ctx, blur_unit_header(accumulation, blur_j), &unit);
 }
 
 /* Makes the n (<= 3) nodes of key's g and accumulation listed in node[], one per channel of
@@ -1254,6 +1260,20 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
     return status;
 }
 
+/* One order's part of a channel's blend: dst = (or +=, with add) the cubic of its four nodes,
+ * clamped at 0 with clamp (the cubic may undershoot where A is ~0). The sum runs in the same
+ * order for one order or two. */
+static void blend_order(float *restrict dst, const float *const node[4], const float coef[4],
+                        int add, int clamp)
+{
+    for (size_t i = 0; i < NS_TABLE_CELLS; i++) {
+        float v = add ? dst[i] : 0.0f;
+        v = (add ? v + coef[0] * node[0][i] : coef[0] * node[0][i]) + coef[1] * node[1][i] +
+            coef[2] * node[2][i] + coef[3] * node[3][i];
+        dst[i] = clamp && !(v > 0.0f) ? 0.0f : v;
+    }
+}
+
 /* A of key (float [3][cells]) into *out, from its channels' nodes, made first where the
  * cache lacks them. */
 static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatter_tables *out,
@@ -1314,13 +1334,17 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
             memset(channel, 0, cells * sizeof(float));
             continue;
         }
-        /* Pointers taken now: making nodes above may have moved the entries. */
-        const float *node[2][4];
-        float coef[2][4];
-        for (int o = 0; o < 2; o++) {
-            uint32_t bit = o ? NS_COMPONENT_MULTIPLE : NS_COMPONENT_DOUBLE;
-            double energy = key->orders & bit ? ns_nn_exact_energy(o, key->albedo[c]) : 0.0;
-            for (uint32_t k = 0; k < 4; k++) {
+        /* Only the orders the key asks for (a walk's shifted key often has one), their node
+         * pointers taken now: making nodes above may have moved the entries. */
+        int want[2] = {(key->orders & NS_COMPONENT_DOUBLE) != 0,
+                       (key->orders & NS_COMPONENT_MULTIPLE) != 0};
+        for (int o = 0; o < 2 && !status; o++) {
+            if (!want[o])
+                continue;
+            const float *node[4];
+            float coef[4];
+            double energy = ns_nn_exact_energy(o, key->albedo[c]);
+            for (uint32_t k = 0; k < 4 && !status; k++) {
                 cache_entry *e = find_node(cache, key->g, key->accumulation, first[c] + k);
                 if (!e) {
                     status = ns_fail(err, NS_ERR_INTERNAL, "tables: albedo node %u vanished",
@@ -1328,18 +1352,11 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
                     break;
                 }
                 touch(cache, e);
-                node[o][k] = e->j[o];
-                coef[o][k] = (float)(energy * w[c][k]);
+                node[k] = e->j[o];
+                coef[k] = (float)(energy * w[c][k]);
             }
-        }
-        if (status)
-            break;
-        for (size_t i = 0; i < cells; i++) {
-            float v = coef[0][0] * node[0][0][i] + coef[0][1] * node[0][1][i] +
-                      coef[0][2] * node[0][2][i] + coef[0][3] * node[0][3][i] +
-                      coef[1][0] * node[1][0][i] + coef[1][1] * node[1][1][i] +
-                      coef[1][2] * node[1][2][i] + coef[1][3] * node[1][3][i];
-            channel[i] = v > 0.0f ? v : 0.0f; /* the cubic may undershoot where A is ~0 */
+            if (!status)
+                blend_order(channel, node, coef, o == 1 && want[0], o == 1 || !want[1]);
         }
     }
     stats->accumulate_ms += ns_stage_end(ctx, &stage);
