@@ -31,10 +31,13 @@ static void version_string(uint32_t v, char *out, size_t size)
 static int print_json(const ns_device_info *info, const char *api)
 {
     json_t *obj =
-        json_pack("{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:s}", "device", info->device_name, "driver",
-                  info->driver_name, "driver_info", info->driver_info, "api_version", api, "is_cpu",
-                  info->is_cpu, "vendor_id", (json_int_t)info->vendor_id, "device_id",
-                  (json_int_t)info->device_id, "version", NS_VERSION);
+        json_pack("{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:I, s:I, s:b, s:b, s:s}", "device",
+                  info->device_name, "driver", info->driver_name, "driver_info", info->driver_info,
+                  "api_version", api, "is_cpu", info->is_cpu, "vendor_id",
+                  (json_int_t)info->vendor_id, "device_id", (json_int_t)info->device_id,
+                  "subgroup_size", (json_int_t)info->subgroup_size, "device_local_bytes",
+                  (json_int_t)info->device_local_bytes, "ray_query", info->ray_query,
+                  "ray_tracing_pipeline", info->ray_tracing_pipeline, "version", NS_VERSION);
     if (!obj)
         return 1;
     char *text = json_dumps(obj, JSON_COMPACT);
@@ -85,5 +88,12 @@ int cmd_info(int argc, char **argv)
     printf("driver info:  %s\n", info.driver_info);
     printf("api version:  %s\n", api);
     printf("vendor/device id: 0x%04x / 0x%04x\n", info.vendor_id, info.device_id);
+    printf("subgroup size: %u\n", info.subgroup_size);
+    printf("device memory: %.1f GiB (largest device-local heap)\n",
+           (double)info.device_local_bytes / (1024.0 * 1024.0 * 1024.0));
+    /* Hardware traversal is reported so that a user can see what a GPU offers; nscatter
+     * traces through its compute BVH everywhere (docs/rendering.md, *Ray traversal*). */
+    printf("ray query:    %s\n", info.ray_query ? "yes (not used)" : "no");
+    printf("ray tracing pipelines: %s\n", info.ray_tracing_pipeline ? "yes (not used)" : "no");
     return 0;
 }

@@ -31,6 +31,10 @@ static void test_text(void)
     CHECK_STR_CONTAINS(out, "type:         cpu");
     CHECK_STR_CONTAINS(out, "driver:");
     CHECK_STR_CONTAINS(out, "api version:  1.");
+    /* lavapipe 22.3 has subgroups of 8 lanes (256-bit vectors) and no ray queries. */
+    CHECK_STR_CONTAINS(out, "subgroup size: 8");
+    CHECK_STR_CONTAINS(out, "ray query:    no");
+    CHECK_STR_CONTAINS(out, "device memory:");
 }
 
 static void test_json(void)
@@ -40,6 +44,10 @@ static void test_json(void)
     CHECK_STR_CONTAINS(out, "\"device\":\"llvmpipe");
     CHECK_STR_CONTAINS(out, "\"is_cpu\":true");
     CHECK_STR_CONTAINS(out, "\"api_version\":\"1.");
+    CHECK_STR_CONTAINS(out, "\"subgroup_size\":8");
+    CHECK_STR_CONTAINS(out, "\"ray_query\":false");
+    CHECK_STR_CONTAINS(out, "\"ray_tracing_pipeline\":false");
+    CHECK_STR_CONTAINS(out, "\"device_local_bytes\":");
 }
 
 static void test_missing_device(void)

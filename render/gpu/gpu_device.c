@@ -361,6 +361,32 @@ uint32_t gpu_lavapipe_threads(void)
     return n < 1 ? 1u : n > 16 ? 16u : (uint32_t)n;
 }
 
+static int has_device_extension(VkPhysicalDevice physical, const char *name)
+{
+    uint32_t count = 0;
+    if (vkEnumerateDeviceExtensionProperties(physical, NULL, &count, NULL) != VK_SUCCESS || !count)
+        return 0;
+    VkExtensionProperties *exts = calloc(count, sizeof *exts);
+    int found = 0;
+    if (exts && vkEnumerateDeviceExtensionProperties(physical, NULL, &count, exts) == VK_SUCCESS)
+        for (uint32_t i = 0; i < count && !found; i++)
+            found = strcmp(exts[i].extensionName, name) == 0;
+    free(exts);
+    return found;
+}
+
+static uint64_t largest_device_local_heap(VkPhysicalDevice physical)
+{
+    VkPhysicalDeviceMemoryProperties memory;
+    vkGetPhysicalDeviceMemoryProperties(physical, &memory);
+    uint64_t largest = 0;
+    for (uint32_t i = 0; i < memory.memoryHeapCount; i++)
+        if ((memory.memoryHeaps[i].flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT) &&
+            memory.memoryHeaps[i].size > largest)
+            largest = memory.memoryHeaps[i].size;
+    return largest;
+}
+
 static void fill_device_info(gpu_device *dev)
 {
     ns_device_info *info = &dev->info;
@@ -373,6 +399,15 @@ static void fill_device_info(gpu_device *dev)
     dev->loop_limited = contains_nocase(dev->properties.deviceName, "llvmpipe");
     dev->cpu_threads = dev->loop_limited ? gpu_lavapipe_threads() : 0;
     dev->subgroup_size = compute_subgroup_size(dev->physical);
+    info->subgroup_size = dev->subgroup_size;
+    info->device_local_bytes = largest_device_local_heap(dev->physical);
+    int acceleration_structure =
+        has_device_extension(dev->physical, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME);
+    info->ray_query =
+        acceleration_structure && has_device_extension(dev->physical, VK_KHR_RAY_QUERY_EXTENSION_NAME);
+    info->ray_tracing_pipeline =
+        acceleration_structure &&
+        has_device_extension(dev->physical, VK_KHR_RAY_TRACING_PIPELINE_EXTENSION_NAME);
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {
         VkPhysicalDeviceDriverProperties driver = {

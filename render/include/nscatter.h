@@ -373,6 +373,12 @@ typedef struct ns_device_info {
     uint32_t api_version;
     uint32_t vendor_id, device_id;
     int is_cpu; /* 1 for lavapipe and other CPU devices */
+    uint32_t subgroup_size;
+    uint64_t device_local_bytes; /* the largest device-local memory heap */
+    /* What the device offers for hardware traversal (VK_KHR_ray_query, and ray-tracing
+     * pipelines), each with VK_KHR_acceleration_structure. Reported, not used: every stage
+     * traces through the compute BVH (trace.glsl) on every device. */
+    int ray_query, ray_tracing_pipeline;
 } ns_device_info;
 
 void ns_context_device_info(const ns_context *ctx, ns_device_info *out);
