@@ -384,6 +384,7 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     status = gpu_buffer_create(dev, &out,
                                &(gpu_buffer_desc){.size = (VkDeviceSize)cells * 6 * sizeof(float),
                                                   .uninitialized = 1,
+                                                  .host_reads = 1,
                                                   .label = "ns.nn.out"},
                                err);
     if (status)
@@ -429,6 +430,7 @@ int ns_nn_eval_points(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_weights *nets[
     if (!status)
         status = gpu_buffer_create(dev, &res,
                                    &(gpu_buffer_desc){.size = (VkDeviceSize)n * 4 * sizeof(float),
+                                                      .host_reads = 1,
                                                       .label = "ns.nn.points_out"},
                                    err);
     if (!status) {

@@ -146,6 +146,7 @@ static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *er
      * next". */
     descs[PT_PIXELS] = (gpu_buffer_desc){.size = (uint64_t)pixels * 4 * sizeof(float),
                                          .kind = GPU_BUFFER_STORAGE,
+                                         .host_reads = 1,
                                          .label = "ns.pt.pixels"};
     descs[PT_PATHS] = (gpu_buffer_desc){.size = (uint64_t)pixels * sizeof(GpuPtPath),
                                         .kind = GPU_BUFFER_STORAGE,

@@ -75,11 +75,13 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
     descs[B_PIXELS] = (gpu_buffer_desc){.size = (uint64_t)pixels * 4 * sizeof(float),
                                         .kind = GPU_BUFFER_STORAGE,
                                         .uninitialized = 1,
+                                        .host_reads = 1,
                                         .label = "ns.render.pixels"};
     descs[B_SEGMENTS] =
         (gpu_buffer_desc){.size = (uint64_t)job->scene.params.counts[2] * sizeof(GpuSegment),
                           .kind = GPU_BUFFER_STORAGE,
                           .uninitialized = 1,
+                          .host_reads = 1,
                           .label = "ns.render.segments"};
     descs[B_COUNTERS] = (gpu_buffer_desc){.size = NS_COUNTER_COUNT * sizeof(uint32_t),
                                           .kind = GPU_BUFFER_STORAGE,
@@ -176,6 +178,7 @@ static int resize_segments(ns_context *ctx, render_job *job, uint64_t capacity, 
                              &(gpu_buffer_desc){.size = capacity * sizeof(GpuSegment),
                                                 .kind = GPU_BUFFER_STORAGE,
                                                 .uninitialized = 1,
+                                                .host_reads = 1,
                                                 .label = "ns.render.segments"},
                              err);
 }

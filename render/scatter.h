@@ -92,6 +92,11 @@ void ns_table_grid_default(ns_table_grid *g);
  * steps (may be NULL): bins walked in all, the unit of work (one J lookup per channel). */
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err);
+/* The same with A in memory the host reads fast (gpu_buffer_desc.host_reads), for a table
+ * read on the CPU, as the interpolated tables' nodes are; a gather would read it over PCIe
+ * on a discrete GPU. */
+int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulation accumulation,
+                                  ns_scatter_tables *out, uint64_t *steps, ns_error *err);
 /* The same, told the rho bin from which J is 0 everywhere (ns_tables_accumulate finds it in
  * j; NS_TABLE_NRHO walks every cell's line): cells whose lines never come inside that radius
  * are 0 without a walk, exactly as a walk would make them (the test compares both). */

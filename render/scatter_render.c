@@ -559,7 +559,9 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a,
                                    err);
         if (!status)
             status = gpu_buffer_create(&ctx->dev, &out,
-                                       &(gpu_buffer_desc){.size = 16ull * n, .label = "ns.single.radiance"},
+                                       &(gpu_buffer_desc){.size = 16ull * n,
+                                                          .host_reads = 1,
+                                                          .label = "ns.single.radiance"},
                                        err);
         if (!status)
             status = ns_single_scatter(ctx, in->scene_buffers, &segments, n,
@@ -1093,7 +1095,8 @@ static int round_part_make(ns_context *ctx, const ns_scatter_inputs *in, const t
     if (!status)
         status = gpu_buffer_create(
             &ctx->dev, &part->out,
-            &(gpu_buffer_desc){.size = 16ull * n, .label = "ns.gather.radiance"}, err);
+            &(gpu_buffer_desc){.size = 16ull * n, .host_reads = 1, .label = "ns.gather.radiance"},
+            err);
     return status;
 }
 
@@ -1123,7 +1126,10 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
     if (!status && scratch_count)
         status = gpu_buffer_create(
             &ctx->dev, &scratch,
-            &(gpu_buffer_desc){.size = 16ull * scratch_count, .label = "ns.gather.radiance"}, err);
+            &(gpu_buffer_desc){.size = 16ull * scratch_count,
+                               .host_reads = 1,
+                               .label = "ns.gather.radiance"},
+            err);
     if (!status && vrls.list.count) {
         if (scene->render.method == NS_METHOD_VRL) {
             /* Light paths and gather in one stage; vrl_method.c shares its part out. */

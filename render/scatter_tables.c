@@ -214,13 +214,20 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
 }
 
 static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
-                      ns_accumulation accumulation, uint32_t zero_from, ns_scatter_tables *out,
-                      uint64_t *steps, ns_error *err);
+                      ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
+                      ns_scatter_tables *out, uint64_t *steps, ns_error *err);
 
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0,
+                      out, steps, err);
+}
+
+int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulation accumulation,
+                                  ns_scatter_tables *out, uint64_t *steps, ns_error *err)
+{
+    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 1,
                       out, steps, err);
 }
 
@@ -228,7 +235,7 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
                                 uint32_t zero_from, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err)
 {
-    return accumulate(ctx, j, NULL, NULL, accumulation, zero_from, out, steps, err);
+    return accumulate(ctx, j, NULL, NULL, accumulation, zero_from, 0, out, steps, err);
 }
 
 int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *extra_j,
@@ -238,14 +245,14 @@ int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *ext
     if (!extra_j || !extra_a)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the extra channel needs its J and its A");
     return accumulate(ctx, j, extra_j, extra_a, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
-                      out, steps, err);
+                      0, out, steps, err);
 }
 
 /* j: float [3][cells]; extra_j (may be NULL): the extra channel's float [cells], whose A goes
  * to extra_a. */
 static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
-                      ns_accumulation accumulation, uint32_t zero_from, ns_scatter_tables *out,
-                      uint64_t *steps, ns_error *err)
+                      ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
+                      ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     if (zero_from > NS_TABLE_NRHO)
@@ -286,12 +293,16 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                  .data_size = table_bytes,
                  .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
-        [B_A] = {.size = table_bytes, .uninitialized = !all_zero, .label = "ns.tables.a"},
+        [B_A] = {.size = table_bytes,
+                 .uninitialized = !all_zero,
+                 .host_reads = a_host_reads,
+                 .label = "ns.tables.a"},
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
         /* Without the extra channel the shader never writes it: a word stands in. */
         [B_EXTRA] = {.size = extra_j ? channel_bytes : sizeof(float),
                      .uninitialized = extra_j && !all_zero, /* the walk writes every cell */
+                     .host_reads = 1,
                      .label = "ns.accumulate.extra"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
@@ -1233,7 +1244,8 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
     for (int o = 0; o < 2 && !status; o++) {
         ns_scatter_tables a;
         ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.3 + 0.35 * o, 0.65 + 0.35 * o);
-        status = ns_tables_accumulate(ctx, j + (size_t)o * 3 * cells, key->accumulation, &a, NULL, err);
+        status = ns_tables_accumulate_for_host(ctx, j + (size_t)o * 3 * cells, key->accumulation, &a,
+                                               NULL, err);
         stats->accumulate_ms += ns_stage_end(ctx, &stage);
         stats->accumulated = 1;
         if (status)

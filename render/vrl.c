@@ -258,7 +258,10 @@ static int trace_paths(ns_context *ctx, gpu_buffer *scene_buffers, const vrl_pla
          .data = plan->strata,
          .data_size = (uint64_t)plan->count * sizeof(GpuVrlStratum),
          .label = "ns.vrl.strata"},
-        {.size = slot_count * sizeof(GpuVrl), .uninitialized = 1, .label = "ns.vrl.slots"},
+        {.size = slot_count * sizeof(GpuVrl),
+         .uninitialized = 1,
+         .host_reads = 1,
+         .label = "ns.vrl.slots"},
         {.size = NS_VRL_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl.counters"},
     };
     gpu_pipeline *pipeline = NULL;

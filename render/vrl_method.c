@@ -273,7 +273,7 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
          .data = emitters.items,
          .data_size = sizeof(GpuVrlEmitter) * emitters.count,
          .label = "ns.vrl_method.emitters"},
-        {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .label = "ns.vrl_method.walks"},
+        {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .host_reads = 1, .label = "ns.vrl_method.walks"},
         {.size = sizeof(GpuVrl), .label = "ns.vrl_method.vrls"},
         {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
     };
@@ -306,6 +306,7 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
         status = gpu_buffer_create(&ctx->dev, &own[T_VRLS],
                                    &(gpu_buffer_desc){.size = (uint64_t)sizeof(GpuVrl) * total,
                                                       .uninitialized = 1,
+                                                      .host_reads = 1,
                                                       .label = "ns.vrl_method.vrls"},
                                    err);
         push.write = 1;
@@ -465,7 +466,9 @@ static int run_gather(ns_context *ctx, gpu_buffer *scene_buffers, const ns_gpu_s
          .data = sorted,
          .data_size = (uint64_t)sizeof(GpuVrl) * vrl_count,
          .label = "ns.vrl_method.vrls"},
-        {.size = (uint64_t)sizeof(GpuVrlResult) * segment_count, .label = "ns.vrl_method.results"},
+        {.size = (uint64_t)sizeof(GpuVrlResult) * segment_count,
+         .host_reads = 1,
+         .label = "ns.vrl_method.results"},
         {.size = NS_VRL_GATHER_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
     };
     int status = gpu_buffers_create(&ctx->dev, own, descs, G_OWN, err);

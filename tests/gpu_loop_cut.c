@@ -1,9 +1,13 @@
 /* gpu_loop_cut.c — the camera pass never returns a silently wrong image when lavapipe cuts
- * an invocation's loops short (65535 iterations in all, shared.h). 4000 planes that no
- * camera ray can reach (behind the camera, facing away) are still tested by every ray, and a
+ * an invocation's loops short (65535 iterations in all, shared.h). 4000 planes that are never
+ * a ray's nearest hit (below the floor, parallel to it: every ray that goes down meets the
+ * floor first, and the sun's shadow rays go up) are still tested by every ray, and a
  * refracting sphere multiplies the rays per pixel: the iterations lavapipe counts run far past
  * its limit while the pass's own count stays within its budget. Either the render is
- * refused with NS_ERR_LIMIT, or its image equals the one without the planes. */
+ * refused with NS_ERR_LIMIT (lavapipe), or its image equals the one without the planes (a
+ * device without the limit, such as NVIDIA's driver: there the image is checked). The planes
+ * once stood behind the camera; planes are two-sided, and the rays that the sphere sends back
+ * met them, which only a device without the limit showed. */
 #include "gpu_util.h"
 
 #define PLANES 4000
@@ -24,14 +28,37 @@ static ns_scene build(ns_material mats[2], ns_light *sun, uint32_t planes)
         ns_object *o = &objects[2 + i];
         memset(o, 0, sizeof *o);
         o->shape = NS_SHAPE_PLANE;
-        set3(o->point, 0, 0, 10 + 0.01 * i);
-        set3(o->normal, 0, 0, 1);
+        set3(o->point, 0, -10 - 0.01 * i, 0);
+        set3(o->normal, 0, 1, 0);
         o->material = 0;
     }
     *sun = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
     set3(sun->direction, 0, -1, 0);
     scene_lists(&s, mats, 2, objects, 2 + planes, sun, 1);
     return s;
+}
+
+/* Renders the scene with `planes` planes; 1 when it was refused with NS_ERR_LIMIT, else
+ * checks that its image equals `want` and returns 0. */
+static int render_with_planes(uint32_t planes, const ns_image *want)
+{
+    ns_material mats[2];
+    ns_light sun;
+    ns_scene heavy = build(mats, &sun, planes);
+    ns_image got = {0};
+    ns_error err = {0};
+    int status = ns_render(test_context(), &heavy, &got, NULL, &err);
+    printf("with %u planes: %s (%s)\n", planes, ns_status_name(status), err.message);
+    CHECK(status == NS_OK || status == NS_ERR_LIMIT);
+    if (status == NS_OK) {
+        double worst = 0;
+        for (size_t i = 0; i < 8 * 8 * 3; i++)
+            worst = fmax(worst, fabs(got.rgb[i] - want->rgb[i]));
+        printf("  worst difference from the image without the planes: %g\n", worst);
+        CHECK(worst < 1e-5);
+    }
+    ns_image_free(&got);
+    return status == NS_ERR_LIMIT;
 }
 
 static void test_cut_is_never_silent(void)
@@ -42,20 +69,11 @@ static void test_cut_is_never_silent(void)
     ns_image want = {0};
     if (!render_ok(&plain, &want, NULL))
         return;
-    ns_scene heavy = build(mats, &sun, PLANES);
-    ns_image got = {0};
-    ns_error err = {0};
-    int status = ns_render(test_context(), &heavy, &got, NULL, &err);
-    printf("with %d planes: %s (%s)\n", PLANES, ns_status_name(status), err.message);
-    CHECK(status == NS_OK || status == NS_ERR_LIMIT);
-    if (status == NS_OK) {
-        double worst = 0;
-        for (size_t i = 0; i < 8 * 8 * 3; i++)
-            worst = fmax(worst, fabs(got.rgb[i] - want.rgb[i]));
-        CHECK(worst < 1e-5);
-    }
+    /* A few planes stay within every device's limit: the image must not change, which
+     * proves the planes are never a nearest hit, on lavapipe too. */
+    CHECK_INT(render_with_planes(40, &want), 0);
+    render_with_planes(PLANES, &want);
     ns_image_free(&want);
-    ns_image_free(&got);
 }
 
 int main(void)

@@ -281,9 +281,17 @@ static void test_pt_progress(void)
             last = r->events[i].fraction;
         }
     printf("pt_pass: %u ticks, fraction %.3f -> %.3f\n", ticks, first, last);
-    CHECK(ticks >= 3);
-    CHECK(last > first);
-    CHECK(first < 0.9);           /* the first submission does not finish the samples */
+    /* lavapipe's loop limit splits the pass into many submissions, each a tick; a GPU's
+     * driver has no such limit and runs the pass in one (NVIDIA's did), which ticks once. */
+    ns_device_info info;
+    ns_context_device_info(ctx, &info);
+    if (info.is_cpu) {
+        CHECK(ticks >= 3);
+        CHECK(last > first);
+        CHECK(first < 0.9); /* the first submission does not finish the samples */
+    } else {
+        CHECK(ticks >= 1);
+    }
     CHECK_NEAR(last, 0.99, 1e-9); /* every sample done: the end of pt_pass's part */
     CHECK(same_image(&img, &fresh_pt));
     ns_image_free(&img);

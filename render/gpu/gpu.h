@@ -111,6 +111,13 @@ typedef struct gpu_buffer_desc {
     const void *data; /* copied in when not NULL (data_size bytes); the rest is zeroed */
     VkDeviceSize data_size;
     int uninitialized; /* skip zeroing: the GPU writes every byte that is read back */
+    /* The host reads this buffer in bulk (images, segments, reconstructed tables): it goes
+     * in host-cached memory where the device offers it. On a discrete GPU the default,
+     * device-local memory mapped through the BAR, is write-combined and uncached, and a CPU
+     * loop over it ran ~100x slower than over host memory (docs/bench.md, *On an NVIDIA
+     * GPU*); the GPU writes such a buffer once, over PCIe. Leave it 0 for buffers the GPU
+     * reads heavily or updates with atomics. lavapipe has one memory type: no change. */
+    int host_reads;
     const char *label;
 } gpu_buffer_desc;
 
@@ -123,6 +130,12 @@ typedef struct gpu_buffer {
 } gpu_buffer;
 
 int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *desc, ns_error *err);
+/* The memory type a buffer gets among those `allowed` (a bit per type): host-visible and
+ * coherent always; of those, the first host-cached one for a buffer the host reads
+ * (host_reads), else the first device-local one; else the first host-visible, coherent one.
+ * 0 when there is none. */
+int gpu_pick_memory_type(const VkPhysicalDeviceMemoryProperties *memory, uint32_t allowed,
+                         int host_reads, uint32_t *index);
 void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroyed: no-op */
 /* Creates bufs[0..count) from descs, stopping at the first failure. The buffers made
  * before it stay alive: the caller destroys all count of them on every path (a buffer that

@@ -3,21 +3,25 @@
  * On lavapipe all memory is host memory, so a staging copy would only cost time. On a
  * discrete GPU a device-local + host-visible type is preferred when offered (resizable BAR);
  * otherwise the buffer lives in host memory the GPU reads over PCIe, which is correct but
- * slower (a staging path is future work, see docs/rendering.md). */
+ * slower (a staging path is future work, see docs/rendering.md). A buffer the host reads
+ * back in bulk (gpu_buffer_desc.host_reads) prefers host-cached memory instead. */
 #include <string.h>
 
 #include "gpu.h"
 
-static int find_memory_type(const gpu_device *dev, uint32_t allowed, uint32_t *index)
+int gpu_pick_memory_type(const VkPhysicalDeviceMemoryProperties *memory, uint32_t allowed,
+                         int host_reads, uint32_t *index)
 {
     const VkMemoryPropertyFlags required =
         VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT | VK_MEMORY_PROPERTY_HOST_COHERENT_BIT;
+    const VkMemoryPropertyFlags preferred =
+        host_reads ? VK_MEMORY_PROPERTY_HOST_CACHED_BIT : VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT;
     int fallback = -1;
-    for (uint32_t i = 0; i < dev->memory.memoryTypeCount; i++) {
-        VkMemoryPropertyFlags flags = dev->memory.memoryTypes[i].propertyFlags;
+    for (uint32_t i = 0; i < memory->memoryTypeCount; i++) {
+        VkMemoryPropertyFlags flags = memory->memoryTypes[i].propertyFlags;
         if (!(allowed & (1u << i)) || (flags & required) != required)
             continue;
-        if (flags & VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT) {
+        if ((flags & preferred) == preferred) {
             *index = i;
             return 1;
         }
@@ -63,7 +67,7 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
     VkMemoryRequirements req;
     vkGetBufferMemoryRequirements(dev->device, buf->buffer, &req);
     uint32_t type;
-    if (!find_memory_type(dev, req.memoryTypeBits, &type)) {
+    if (!gpu_pick_memory_type(&dev->memory, req.memoryTypeBits, desc->host_reads, &type)) {
         gpu_buffer_destroy(dev, buf);
         return ns_fail(err, NS_ERR_VULKAN, "no host-visible coherent memory type for buffer '%s'",
                        desc->label ? desc->label : "?");
