@@ -4,11 +4,16 @@
 # in .gl/, then, each stage bounded by `timeout` and its output written under $OUT at once:
 #   1. nscatter info on the NVIDIA Vulkan driver (ray queries, subgroup size, memory);
 #   2. bench_rays: the compute BVH's ray throughput against Embree on the host's cores;
-#   3. the bench at 512² (nn multiple only and full), timings per stage;
-#   4. the bench's progressive references pushed towards a 40 dB ceiling (a tarball of the
-#      cache comes back), with the gpu_* tests running beside them on the NVIDIA device;
+#   3. the bench at 512² (nn multiple only and full; references of REF512_SPP samples, there
+#      only for the bench to run: the times per stage are what this stage is for);
+#   4. the bench's progressive references pushed towards a 40 dB ceiling in chunks of
+#      REF_SPP samples (a tarball of the cache comes back), with the gpu_* tests running
+#      beside them on the NVIDIA device;
 #   5. the whole bench at 128² against those references.
 # Run from the repository root there; stage budgets in seconds come from the environment.
+# The first run (2026-11-30, docs/bench.md) taught: a 64-spp chunk costs ~0.1 s of overhead
+# on an H200, so chunks of 1,024 spp (a new chunk size starts new references); and 512²
+# references of 16 spp took 1-11 s each, so 4.
 set -u
 t0=$(date +%s)
 log() { echo "[$(($(date +%s) - t0)) s] $*"; }
@@ -53,7 +58,7 @@ done
 
 log "bench 512x512"
 timeout "${B512_S:-110}" $bin/nscatter bench "${common[@]}" --width 512 --height 512 \
-    --methods nn_multiple,nn_full --ref-spp 16 --repeat 5 --out /tmp/b512 --cache /tmp/c512 \
+    --methods nn_multiple,nn_full --ref-spp "${REF512_SPP:-4}" --repeat 5 --out /tmp/b512 --cache /tmp/c512 \
     >/tmp/bench512.log 2>&1
 log "bench 512 exit $?"
 { cat /tmp/b512/report.md; echo '## log'; cat /tmp/bench512.log; } >"$OUT/bench512.md" 2>&1
@@ -68,7 +73,7 @@ tcache=/tmp/tcache && mkdir -p $tcache && cp $dev/test-cache/* $tcache/ 2>/dev/n
             echo \"{} exit \$?\" >>/tmp/tests.txt"
 ) &
 tests_pid=$!
-timeout "${REFS_S:-230}" $bin/nscatter bench "${common[@]}" --references --ref-spp 64 \
+timeout "${REFS_S:-230}" $bin/nscatter bench "${common[@]}" --references --ref-spp "${REF_SPP:-1024}" \
     --ref-ceiling 40 --ref-budget "${REFS_BUDGET_S:-200}" --ref-max-spp 262144 \
     --cache $dev/cache --out /tmp/brefs >/tmp/refs.log 2>&1
 log "references exit $?"
@@ -82,7 +87,7 @@ grep -v ' exit 0$' /tmp/tests.txt | while read -r t _; do tail -20 /tmp/tlog.$t;
 
 log "bench 128x128"
 timeout "${B128_S:-100}" $bin/nscatter bench "${common[@]}" \
-    --methods nn_surface,nn_multiple,nn_double,nn_full,dipole,vrl,pt --ref-spp 64 \
+    --methods nn_surface,nn_multiple,nn_double,nn_full,dipole,vrl,pt --ref-spp "${REF_SPP:-1024}" \
     --ref-ceiling 40 --ref-budget 1 --ref-max-spp 262144 --cache $dev/cache --out /tmp/b128 \
     >/tmp/bench128.log 2>&1
 log "bench 128 exit $?"
