@@ -148,8 +148,10 @@ static int pt_upload(ns_context *ctx, pt_job *job, uint32_t pixels, ns_error *er
                                          .kind = GPU_BUFFER_STORAGE,
                                          .host_reads = 1,
                                          .label = "ns.pt.pixels"};
+    /* Progress scans every path's sample count after each submission. */
     descs[PT_PATHS] = (gpu_buffer_desc){.size = (uint64_t)pixels * sizeof(GpuPtPath),
                                         .kind = GPU_BUFFER_STORAGE,
+                                        .host_reads = 1,
                                         .label = "ns.pt.paths"};
     descs[PT_COUNTERS] = (gpu_buffer_desc){.size = NS_PT_COUNTER_COUNT * sizeof(uint32_t),
                                            .kind = GPU_BUFFER_STORAGE,

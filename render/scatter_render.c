@@ -1090,6 +1090,9 @@ static int round_part_make(ns_context *ctx, const ns_scatter_inputs *in, const t
                                    &(gpu_buffer_desc){.size = sizeof(GpuSegment) * n,
                                                       .data = part->list.segments,
                                                       .data_size = sizeof(GpuSegment) * n,
+                                                      /* the vrl method's CPU side reads
+                                                       * each segment's material */
+                                                      .host_reads = 1,
                                                       .label = "ns.gather.segments"},
                                    err);
     if (!status)

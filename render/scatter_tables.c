@@ -1339,7 +1339,13 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
     ns_stage stage = ns_stage_begin(ctx, "accumulate", 1.0, 1.0);
     status = gpu_buffer_create(&ctx->dev, &out->a,
                                &(gpu_buffer_desc){.size = table_bytes, .label = "ns.tables.a"}, err);
-    float *dst = status ? NULL : out->a.mapped;
+    /* The blend reads what it wrote (the second order adds to the first): it works in host
+     * memory where the table's own mapping is not host-cached (a discrete GPU's), and the
+     * table is written once at the end. */
+    float *scratch = NULL;
+    if (!status && !out->a.host_cached && !(scratch = malloc(table_bytes)))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a blend");
+    float *dst = status ? NULL : scratch ? scratch : out->a.mapped;
     for (int c = 0; c < 3 && !status; c++) {
         float *channel = dst + c * cells;
         if (key->albedo[c] == 0.0f) {
@@ -1371,6 +1377,9 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
                 blend_order(channel, node, coef, o == 1 && want[0], o == 1 || !want[1]);
         }
     }
+    if (!status && scratch)
+        memcpy(out->a.mapped, scratch, table_bytes);
+    free(scratch);
     stats->accumulate_ms += ns_stage_end(ctx, &stage);
     stats->accumulated = 1;
     if (status) {
@@ -1418,6 +1427,31 @@ static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float 
     return NS_OK;
 }
 
+/* A host-cached view of a table's first `bytes`: its own mapping where that is host-cached
+ * (lavapipe), else a copy made on the device into *staging (a host_reads buffer, destroyed by
+ * the caller; zeroed when there is none). */
+static int host_readable(ns_context *ctx, const gpu_buffer *table, uint64_t bytes,
+                         gpu_buffer *staging, const float **out, ns_error *err)
+{
+    *staging = (gpu_buffer){0};
+    if (table->host_cached) {
+        *out = table->mapped;
+        return NS_OK;
+    }
+    int status = gpu_buffer_create(&ctx->dev, staging,
+                                   &(gpu_buffer_desc){.size = bytes, .uninitialized = 1, .host_reads = 1,
+                                                      .label = "ns.tables.staging"},
+                                   err);
+    if (!status)
+        status = gpu_copy_buffer(&ctx->dev, table, staging, bytes, err);
+    if (status) {
+        gpu_buffer_destroy(&ctx->dev, staging);
+        return status;
+    }
+    *out = staging->mapped;
+    return NS_OK;
+}
+
 /* A of a key with the blurred first order: A of the same key without it (from the cache or
  * made) plus, per channel, albedo * angular_g(theta) * the unit A (boundary.h says why). */
 static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_tables *out,
@@ -1442,20 +1476,39 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
     const float *unit = NULL;
     if (!status)
         status = blur_unit(ctx, key->accumulation, &unit, &stats->accumulate_ms, err);
-    gpu_buffer a = {0};
+    /* The base table is read, and the sum built, in host-cached memory: on a discrete GPU
+     * the tables' own mappings are uncached (reading one took seconds), so the base is first
+     * copied on the device into a host_reads buffer, which then holds the sum. */
+    gpu_buffer a = {0}, staging = {0};
+    const float *base_host = NULL;
     /* Read before anything is inserted: the base's entry may be evicted after. */
+    if (!status && base_tables)
+        status = host_readable(ctx, &base_tables->a, table_bytes, &staging, &base_host, err);
     if (!status)
         status = gpu_buffer_create(&ctx->dev, &a,
-                                   &(gpu_buffer_desc){.size = table_bytes,
-                                                      .data = base_tables ? base_tables->a.mapped : NULL,
-                                                      .data_size = base_tables ? table_bytes : 0,
+                                   &(gpu_buffer_desc){.size = table_bytes, .uninitialized = 1,
                                                       .label = "ns.tables.a"},
                                    err);
-    if (status)
+    float *work = NULL, *scratch = NULL;
+    if (!status) {
+        work = a.host_cached ? a.mapped : staging.mapped ? staging.mapped : (scratch = malloc(table_bytes));
+        if (!work)
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a sum");
+    }
+    if (!status && work != (const float *)base_host) {
+        if (base_host)
+            memcpy(work, base_host, table_bytes);
+        else
+            memset(work, 0, table_bytes);
+    }
+    if (status) {
+        gpu_buffer_destroy(&ctx->dev, &staging);
+        gpu_buffer_destroy(&ctx->dev, &a);
         return status;
+    }
     double angular[NS_TABLE_NTHETA];
     ns_blurred_angular(key->g, angular);
-    float *dst = a.mapped;
+    float *dst = work;
     for (int c = 0; c < 3; c++) {
         float per_theta[NS_TABLE_NTHETA];
         for (uint32_t t = 0; t < NS_TABLE_NTHETA; t++)
@@ -1464,6 +1517,10 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
         for (size_t i = 0; i < cells; i++)
             channel[i] += per_theta[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[i];
     }
+    if (work != a.mapped)
+        memcpy(a.mapped, work, table_bytes);
+    free(scratch);
+    gpu_buffer_destroy(&ctx->dev, &staging);
     *out = (ns_scatter_tables){.a = a};
     set_default_grid(out, table_bytes);
     stats->accumulated = 1;

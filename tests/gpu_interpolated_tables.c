@@ -19,11 +19,18 @@
  *       within the accumulation's cut
  *       of the first (and rewritten: a fourth context reads them, the blurred table's file
  *       keeps its inode); a bound on the folder keeps it within the bound, the least recently
- *       used first; a folder that cannot be written still gives the table.
+ *       used first; a folder that cannot be written still gives the table;
+ *   (g) where a table's mapping is not host-cached (a discrete GPU's device memory; lavapipe
+ *       pretends, gpu_device.pretend_uncached), the blend is built in host memory and the
+ *       blurred table's base copied out on the device (gpu_copy_buffer) first: both come out
+ *       as they do in place, a blend of both orders the sum of each alone made the usual way
+ *       (1e-6), and the blurred table its base plus albedo x angular x the unit table, float
+ *       for float.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "boundary.h"
 #include "gpu_util.h"
 #include "scatter.h"
 
@@ -173,6 +180,55 @@ static void test_cached_nodes_make_a_blend(void)
     }
     free(blend);
     free(other);
+}
+
+static void test_uncached_mappings(void)
+{
+    ns_context *ctx = test_context();
+    /* Albedos no other test asks for, between nodes 3-9 at g 0.7 (made above). */
+    ns_table_key both = key_of(0.7f, 0.88f, 0.925f, 0.965f, NS_TABLES_INTERPOLATED);
+    ns_table_key blurred = both;
+    blurred.orders |= NS_TABLE_FIRST_BLURRED;
+    ns_table_stats stats;
+    const ns_scatter_tables *t = NULL;
+    ns_error err = {0};
+    ctx->dev.pretend_uncached = 1;
+    CHECK_INT(ns_tables_get(ctx, &both, &t, &stats, &err), NS_OK);
+    CHECK(t && !t->a.host_cached); /* the pretence holds: the blend took the host-memory path */
+    CHECK(!stats.reconstructed && stats.tables_made == 1);
+    float *blend = tables_copy(&both, &stats);
+    float *with_blur = tables_copy(&blurred, &stats); /* its base (the blend) copied out first */
+    ctx->dev.pretend_uncached = 0;
+    ns_table_key one[2] = {both, both};
+    one[0].orders = NS_COMPONENT_DOUBLE;
+    one[1].orders = NS_COMPONENT_MULTIPLE;
+    float *parts[2] = {tables_copy(&one[0], &stats), tables_copy(&one[1], &stats)};
+    const float *unit = ns_tables_blurred_unit(ctx, NS_ACCUMULATION_EXACT);
+    CHECK(unit != NULL);
+    if (blend && with_blur && parts[0] && parts[1] && unit) {
+        double angular[NS_TABLE_NTHETA];
+        ns_blurred_angular(both.g, angular);
+        size_t off_by_blur = 0;
+        for (int c = 0; c < 3; c++) {
+            double diff = 0, sum = 0;
+            float per_theta[NS_TABLE_NTHETA];
+            for (uint32_t k = 0; k < NS_TABLE_NTHETA; k++)
+                per_theta[k] = (float)(both.albedo[c] * angular[k]);
+            for (size_t i = c * cells; i < (c + 1) * cells; i++) {
+                size_t cell = i % cells;
+                diff += cell_volume[cell] * fabs((double)parts[0][i] + parts[1][i] - blend[i]);
+                sum += cell_volume[cell] * blend[i];
+                float want = blend[i] + per_theta[(cell / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[cell];
+                off_by_blur += with_blur[i] != want;
+            }
+            CHECK(sum > 0 && diff < 1e-6 * sum);
+        }
+        CHECK_INT(off_by_blur, 0);
+    }
+    free(blend);
+    free(with_blur);
+    free(parts[0]);
+    free(parts[1]);
 }
 
 static int has_stage(const ns_render_stats *stats, const char *name)
@@ -425,6 +481,7 @@ int main(void)
     test_context()->table_cache_bytes = 4ull << 30;
     RUN(test_off_the_nodes);
     RUN(test_cached_nodes_make_a_blend);
+    RUN(test_uncached_mappings);
     RUN(test_at_nodes_and_beyond);
     RUN(test_render);
     RUN(test_nodes_on_disk);

@@ -51,6 +51,9 @@ typedef struct gpu_device {
     /* Invocations per subgroup in compute shaders: the exact gather walks its hierarchy once
      * per subgroup (votes), and its CPU reference groups segments the same way. */
     uint32_t subgroup_size;
+    /* Tests: buffers not created with host_reads report host_cached = 0, as on a discrete
+     * GPU, so that lavapipe runs the paths that copy them out first (gpu_copy_buffer). */
+    int pretend_uncached;
     /* Validation warnings/errors seen so far (written by the messenger callback). */
     uint32_t validation_messages;
     char last_validation_message[384];
@@ -127,6 +130,9 @@ typedef struct gpu_buffer {
     void *mapped;
     VkDeviceSize size;
     gpu_buffer_kind kind;
+    /* The mapping is host-cached: the host may read it in bulk (lavapipe: every buffer). A
+     * buffer without it is read through gpu_copy_buffer into a host_reads one. */
+    int host_cached;
 } gpu_buffer;
 
 int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *desc, ns_error *err);
@@ -140,6 +146,10 @@ void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroye
 /* Creates bufs[0..count) from descs, stopping at the first failure. The buffers made
  * before it stay alive: the caller destroys all count of them on every path (a buffer that
  * was never made is zeroed, and destroying it is a no-op). */
+/* Copies the first `bytes` of src into dst on the device, submitted and waited for (one
+ * command buffer, freed on every path), dst's writes visible to the host after. */
+int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkDeviceSize bytes,
+                    ns_error *err);
 int gpu_buffers_create(gpu_device *dev, gpu_buffer *bufs, const gpu_buffer_desc *descs, int count,
                        ns_error *err);
 

@@ -52,9 +52,11 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
         .size = size,
         /* A storage buffer may also be bound as a uniform texel buffer (gpu_pipeline_desc's
          * texel_bindings). */
+        /* A storage buffer may also be copied from or into (gpu_copy_buffer). */
         .usage = desc->kind == GPU_BUFFER_UNIFORM
                      ? VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
-                     : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT,
+                     : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                           VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
         .sharingMode = VK_SHARING_MODE_EXCLUSIVE,
     };
     int status =
@@ -72,6 +74,9 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
         return ns_fail(err, NS_ERR_VULKAN, "no host-visible coherent memory type for buffer '%s'",
                        desc->label ? desc->label : "?");
     }
+    buf->host_cached =
+        (dev->memory.memoryTypes[type].propertyFlags & VK_MEMORY_PROPERTY_HOST_CACHED_BIT) != 0 &&
+        !(dev->pretend_uncached && !desc->host_reads);
     VkMemoryAllocateInfo alloc = {
         .sType = VK_STRUCTURE_TYPE_MEMORY_ALLOCATE_INFO,
         .allocationSize = req.size,

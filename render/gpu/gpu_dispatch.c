@@ -274,3 +274,64 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
         status = gpu_validation_check(dev, validation_before, err);
     return status;
 }
+
+int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkDeviceSize bytes,
+                    ns_error *err)
+{
+    if (bytes > src->size || bytes > dst->size)
+        return ns_fail(err, NS_ERR_INTERNAL, "copy of %llu bytes between buffers of %llu and %llu",
+                       (unsigned long long)bytes, (unsigned long long)src->size,
+                       (unsigned long long)dst->size);
+    int status = gpu_cancel_check(dev, err);
+    if (status)
+        return status;
+    uint32_t validation_before = gpu_validation_count(dev);
+    dispatch_objects o;
+    memset(&o, 0, sizeof o);
+    VkCommandBufferAllocateInfo alloc = {
+        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
+        .commandPool = dev->command_pool,
+        .level = VK_COMMAND_BUFFER_LEVEL_PRIMARY,
+        .commandBufferCount = 1,
+    };
+    status = gpu_check(vkAllocateCommandBuffers(dev->device, &alloc, &o.cmd),
+                       "vkAllocateCommandBuffers", err);
+    VkCommandBufferBeginInfo begin = {
+        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO,
+        .flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT,
+    };
+    if (!status)
+        status = gpu_check(vkBeginCommandBuffer(o.cmd, &begin), "vkBeginCommandBuffer", err);
+    if (!status) {
+        /* The shaders' earlier writes to src are complete (every dispatch waits for its
+         * fence); the copy's writes are made visible to the host's reads after the fence. */
+        vkCmdCopyBuffer(o.cmd, src->buffer, dst->buffer, 1,
+                        &(VkBufferCopy){.srcOffset = 0, .dstOffset = 0, .size = bytes});
+        VkMemoryBarrier barrier = {
+            .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
+            .srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT,
+            .dstAccessMask = VK_ACCESS_HOST_READ_BIT,
+        };
+        vkCmdPipelineBarrier(o.cmd, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_HOST_BIT, 0, 1,
+                             &barrier, 0, NULL, 0, NULL);
+        status = gpu_check(vkEndCommandBuffer(o.cmd), "vkEndCommandBuffer", err);
+    }
+    VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+    if (!status)
+        status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
+    if (!status) {
+        VkSubmitInfo submit = {
+            .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,
+            .commandBufferCount = 1,
+            .pCommandBuffers = &o.cmd,
+        };
+        status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o.fence), "vkQueueSubmit", err);
+    }
+    if (!status)
+        status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),
+                           "vkWaitForFences", err);
+    destroy_objects(dev, &o);
+    if (!status)
+        status = gpu_validation_check(dev, validation_before, err);
+    return status;
+}
