@@ -92,7 +92,7 @@ int cmd_info(int argc, char **argv)
     printf("device memory: %.1f GiB (largest device-local heap)\n",
            (double)info.device_local_bytes / (1024.0 * 1024.0 * 1024.0));
     /* Hardware traversal is reported so that a user can see what a GPU offers; nscatter
-     * traces through its compute BVH everywhere (docs/rendering.md, *Ray traversal*). */
+     * traces through its compute BVH everywhere (docs/rendering.md, *Ray tracing*). */
     printf("ray query:    %s\n", info.ray_query ? "yes (not used)" : "no");
     printf("ray tracing pipelines: %s\n", info.ray_tracing_pipeline ? "yes (not used)" : "no");
     return 0;

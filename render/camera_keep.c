@@ -19,9 +19,9 @@
 
 #include "internal.h"
 
-/* Kept only when the two buffers together are at most this big: they stay in device
- * memory (host memory on lavapipe) while the service idles. 256² at 4 samples per pixel
- * needs 33 MiB. */
+/* Kept only when the two buffers together are at most this big: they stay allocated (host
+ * memory, being read back: gpu_buffer_desc.host_reads) while the service idles. 256² at 4
+ * samples per pixel needs 33 MiB. */
 #define CAMERA_KEEP_BYTES_MAX (64ull << 20)
 
 /* The signature: the scene buffers with every material's sigma_s (and g) cleared. */

@@ -11,7 +11,7 @@
 #      beside them on the NVIDIA device;
 #   5. the whole bench at 128² against those references.
 # Run from the repository root there; stage budgets in seconds come from the environment.
-# The first run (2026-11-30, docs/bench.md) taught: a 64-spp chunk costs ~0.1 s of overhead
+# The first run (2026-11-30, docs/bench.md) taught: a 64-spp chunk costs ~0.2 s of overhead
 # on an H200, so chunks of 1,024 spp (a new chunk size starts new references); and 512²
 # references of 16 spp took 1-11 s each, so 4.
 set -u
@@ -26,6 +26,8 @@ if [ -z "${SKIP_GL:-}" ]; then
     ldconfig
 fi
 dev=/tmp/dev
+# A warm machine keeps /tmp between calls: start from nothing.
+rm -rf $dev /tmp/tests.txt /tmp/tlog.* /tmp/b512 /tmp/c512 /tmp/b128 /tmp/brefs /tmp/tcache
 mkdir -p $dev && tar xJf .dev/pack.tar.xz -C $dev
 export LD_LIBRARY_PATH=$dev/lib
 icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
@@ -66,11 +68,12 @@ head -c 5000 /tmp/b512/report.md
 
 log "tests (background) and references"
 tcache=/tmp/tcache && mkdir -p $tcache && cp $dev/test-cache/* $tcache/ 2>/dev/null
+# The whole stage is bounded too (TESTS_S), whatever the tests' count and each one's bound.
 (
     cd /tmp && ls $bin | grep '^gpu_' |
-        xargs -P 6 -I{} sh -c "NSCATTER_BIN=$bin/nscatter NSCATTER_SOURCE_DIR=$root \
-            NSCATTER_CACHE_DIR=$tcache timeout ${TEST_S:-200} $bin/{} >/tmp/tlog.{} 2>&1; \
-            echo \"{} exit \$?\" >>/tmp/tests.txt"
+        timeout "${TESTS_S:-240}" xargs -P 6 -I{} sh -c "NSCATTER_BIN=$bin/nscatter \
+            NSCATTER_SOURCE_DIR=$root NSCATTER_CACHE_DIR=$tcache timeout ${TEST_S:-200} $bin/{} \
+            >/tmp/tlog.{} 2>&1; echo \"{} exit \$?\" >>/tmp/tests.txt"
 ) &
 tests_pid=$!
 timeout "${REFS_S:-230}" $bin/nscatter bench "${common[@]}" --references --ref-spp "${REF_SPP:-1024}" \

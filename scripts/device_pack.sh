@@ -3,7 +3,7 @@
 # an NVIDIA driver but none of nscatter's Debian libraries: the stripped binaries (nscatter,
 # the gpu_* tests, bench_rays), the shared libraries they load beyond glibc and libstdc++, the
 # bench's bunny, the bench's reference cache and the tests' Monte Carlo tables. Writes
-# .dev/pack.tar.xz (ignored by git); run from the repository root after building `build/`.
+.dev/pack.tar.xz (ignored by git); run from the repository root after building `build/`.
 #   usage: scripts/device_pack.sh [REFERENCE_CACHE_DIR]   (default ~/.cache/nscatter/bench)
 set -euo pipefail
 refs=${1:-$HOME/.cache/nscatter/bench}

@@ -116,9 +116,9 @@ typedef struct gpu_buffer_desc {
     int uninitialized; /* skip zeroing: the GPU writes every byte that is read back */
     /* The host reads this buffer in bulk (images, segments, reconstructed tables): it goes
      * in host-cached memory where the device offers it. On a discrete GPU the default,
-     * device-local memory mapped through the BAR, is write-combined and uncached, and a CPU
-     * loop over it ran ~100x slower than over host memory (docs/bench.md, *On an NVIDIA
-     * GPU*); the GPU writes such a buffer once, over PCIe. Leave it 0 for buffers the GPU
+     * device-local memory mapped through the BAR, is write-combined and uncached, and the
+     * CPU's loops over it read a few MB/s (docs/bench.md, *On an NVIDIA GPU*); the GPU writes
+     * such a buffer once, or once per dispatch, over PCIe. Leave it 0 for buffers the GPU
      * reads heavily or updates with atomics. lavapipe has one memory type: no change. */
     int host_reads;
     const char *label;

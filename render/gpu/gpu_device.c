@@ -375,16 +375,47 @@ static int has_device_extension(VkPhysicalDevice physical, const char *name)
     return found;
 }
 
-static uint64_t largest_device_local_heap(VkPhysicalDevice physical)
+static uint64_t largest_device_local_heap(const VkPhysicalDeviceMemoryProperties *memory)
 {
-    VkPhysicalDeviceMemoryProperties memory;
-    vkGetPhysicalDeviceMemoryProperties(physical, &memory);
     uint64_t largest = 0;
-    for (uint32_t i = 0; i < memory.memoryHeapCount; i++)
-        if ((memory.memoryHeaps[i].flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT) &&
-            memory.memoryHeaps[i].size > largest)
-            largest = memory.memoryHeaps[i].size;
+    for (uint32_t i = 0; i < memory->memoryHeapCount; i++)
+        if ((memory->memoryHeaps[i].flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT) &&
+            memory->memoryHeaps[i].size > largest)
+            largest = memory->memoryHeaps[i].size;
     return largest;
+}
+
+/* Hardware traversal as the device offers it: each extension with its feature bit (an
+ * extension is listed on some drivers whose feature is off), both with acceleration
+ * structures. Only extensions the device lists are chained into the query. */
+static void ray_tracing_support(VkPhysicalDevice physical, int *ray_query, int *pipelines)
+{
+    *ray_query = *pipelines = 0;
+    if (!has_device_extension(physical, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME))
+        return;
+    int query_listed = has_device_extension(physical, VK_KHR_RAY_QUERY_EXTENSION_NAME);
+    int pipeline_listed = has_device_extension(physical, VK_KHR_RAY_TRACING_PIPELINE_EXTENSION_NAME);
+    VkPhysicalDeviceAccelerationStructureFeaturesKHR structures = {
+        .sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR};
+    VkPhysicalDeviceRayQueryFeaturesKHR query = {
+        .sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR};
+    VkPhysicalDeviceRayTracingPipelineFeaturesKHR pipeline = {
+        .sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_RAY_TRACING_PIPELINE_FEATURES_KHR};
+    void *chain = &structures;
+    if (query_listed) {
+        query.pNext = chain;
+        chain = &query;
+    }
+    if (pipeline_listed) {
+        pipeline.pNext = chain;
+        chain = &pipeline;
+    }
+    VkPhysicalDeviceFeatures2 features = {.sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2,
+                                          .pNext = chain};
+    vkGetPhysicalDeviceFeatures2(physical, &features);
+    int structures_on = structures.accelerationStructure == VK_TRUE;
+    *ray_query = structures_on && query_listed && query.rayQuery == VK_TRUE;
+    *pipelines = structures_on && pipeline_listed && pipeline.rayTracingPipeline == VK_TRUE;
 }
 
 static void fill_device_info(gpu_device *dev)
@@ -400,14 +431,8 @@ static void fill_device_info(gpu_device *dev)
     dev->cpu_threads = dev->loop_limited ? gpu_lavapipe_threads() : 0;
     dev->subgroup_size = compute_subgroup_size(dev->physical);
     info->subgroup_size = dev->subgroup_size;
-    info->device_local_bytes = largest_device_local_heap(dev->physical);
-    int acceleration_structure =
-        has_device_extension(dev->physical, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME);
-    info->ray_query =
-        acceleration_structure && has_device_extension(dev->physical, VK_KHR_RAY_QUERY_EXTENSION_NAME);
-    info->ray_tracing_pipeline =
-        acceleration_structure &&
-        has_device_extension(dev->physical, VK_KHR_RAY_TRACING_PIPELINE_EXTENSION_NAME);
+    info->device_local_bytes = largest_device_local_heap(&dev->memory);
+    ray_tracing_support(dev->physical, &info->ray_query, &info->ray_tracing_pipeline);
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {
         VkPhysicalDeviceDriverProperties driver = {
