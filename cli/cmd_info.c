@@ -28,6 +28,26 @@ static void version_string(uint32_t v, char *out, size_t size)
     snprintf(out, size, "%u.%u.%u", (v >> 22) & 0x7fu, (v >> 12) & 0x3ffu, v & 0xfffu);
 }
 
+/* A memory type's bits as "device-local+host-visible+..." ("none" without any). */
+static void memory_type_name(uint32_t bits, char *out, size_t size)
+{
+    static const struct {
+        uint32_t bit;
+        const char *name;
+    } names[] = {{NS_MEMORY_DEVICE_LOCAL, "device-local"},
+                 {NS_MEMORY_HOST_VISIBLE, "host-visible"},
+                 {NS_MEMORY_HOST_COHERENT, "coherent"},
+                 {NS_MEMORY_HOST_CACHED, "cached"}};
+    size_t used = 0;
+    out[0] = '\0';
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++)
+        if (bits & names[i].bit)
+            used += (size_t)snprintf(out + used, used < size ? size - used : 0, "%s%s",
+                                     used ? "+" : "", names[i].name);
+    if (!used)
+        snprintf(out, size, "none");
+}
+
 static int print_json(const ns_device_info *info, const char *api)
 {
     json_t *obj =
@@ -38,8 +58,16 @@ static int print_json(const ns_device_info *info, const char *api)
                   "subgroup_size", (json_int_t)info->subgroup_size, "device_local_bytes",
                   (json_int_t)info->device_local_bytes, "ray_query", info->ray_query,
                   "ray_tracing_pipeline", info->ray_tracing_pipeline, "version", NS_VERSION);
-    if (!obj)
+    json_t *types = obj ? json_array() : NULL;
+    for (uint32_t i = 0; types && i < info->memory_type_count; i++) {
+        char name[96];
+        memory_type_name(info->memory_types[i], name, sizeof name);
+        json_array_append_new(types, json_string(name));
+    }
+    if (!obj || !types || json_object_set_new(obj, "memory_types", types)) {
+        json_decref(obj);
         return 1;
+    }
     char *text = json_dumps(obj, JSON_COMPACT);
     json_decref(obj);
     if (!text)
@@ -91,6 +119,13 @@ int cmd_info(int argc, char **argv)
     printf("subgroup size: %u\n", info.subgroup_size);
     printf("device memory: %.1f GiB (largest device-local heap)\n",
            (double)info.device_local_bytes / (1024.0 * 1024.0 * 1024.0));
+    printf("memory types:");
+    for (uint32_t i = 0; i < info.memory_type_count; i++) {
+        char name[96];
+        memory_type_name(info.memory_types[i], name, sizeof name);
+        printf("%s %s", i ? "," : "", name);
+    }
+    printf("\n");
     /* Hardware traversal is reported so that a user can see what a GPU offers; nscatter
      * traces through its compute BVH everywhere (docs/rendering.md, *Ray tracing*). */
     printf("ray query:    %s\n", info.ray_query ? "yes (not used)" : "no");

@@ -53,6 +53,7 @@ static void test_text(void)
     CHECK_STR_CONTAINS(out, "api version:  1.");
     CHECK_STR_CONTAINS(out, "subgroup size: ");
     CHECK_STR_CONTAINS(out, "ray query:    ");
+    CHECK_STR_CONTAINS(out, "memory types: ");
     if (!on_lavapipe())
         return;
     CHECK_STR_CONTAINS(out, "device:       llvmpipe");
@@ -65,6 +66,8 @@ static void test_text(void)
     CHECK_STR_CONTAINS(out, want);
     CHECK_STR_CONTAINS(out, "ray query:    no");
     CHECK_STR_CONTAINS(out, "device memory:");
+    /* One memory type with every property: every buffer gets it (render/gpu/gpu_buffer.c). */
+    CHECK_STR_CONTAINS(out, "memory types: device-local+host-visible+coherent+cached\n");
 }
 
 static void test_json(void)
@@ -82,6 +85,7 @@ static void test_json(void)
     CHECK_STR_CONTAINS(out, "\"ray_query\":false");
     CHECK_STR_CONTAINS(out, "\"ray_tracing_pipeline\":false");
     CHECK_STR_CONTAINS(out, "\"device_local_bytes\":");
+    CHECK_STR_CONTAINS(out, "\"memory_types\":[\"device-local+host-visible+coherent+cached\"]");
 }
 
 static void test_missing_device(void)

@@ -432,6 +432,16 @@ static void fill_device_info(gpu_device *dev)
     dev->subgroup_size = compute_subgroup_size(dev->physical);
     info->subgroup_size = dev->subgroup_size;
     info->device_local_bytes = largest_device_local_heap(&dev->memory);
+    _Static_assert((uint32_t)NS_MEMORY_DEVICE_LOCAL == (uint32_t)VK_MEMORY_PROPERTY_DEVICE_LOCAL_BIT &&
+                       (uint32_t)NS_MEMORY_HOST_VISIBLE == (uint32_t)VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT &&
+                       (uint32_t)NS_MEMORY_HOST_COHERENT == (uint32_t)VK_MEMORY_PROPERTY_HOST_COHERENT_BIT &&
+                       (uint32_t)NS_MEMORY_HOST_CACHED == (uint32_t)VK_MEMORY_PROPERTY_HOST_CACHED_BIT,
+                   "NS_MEMORY_* are Vulkan's memory property bits");
+    info->memory_type_count = dev->memory.memoryTypeCount < 32 ? dev->memory.memoryTypeCount : 32;
+    for (uint32_t i = 0; i < info->memory_type_count; i++)
+        info->memory_types[i] = dev->memory.memoryTypes[i].propertyFlags &
+                                (NS_MEMORY_DEVICE_LOCAL | NS_MEMORY_HOST_VISIBLE |
+                                 NS_MEMORY_HOST_COHERENT | NS_MEMORY_HOST_CACHED);
     ray_tracing_support(dev->physical, &info->ray_query, &info->ray_tracing_pipeline);
     /* Driver name/info are core in Vulkan 1.2; older devices report only the version. */
     if (dev->properties.apiVersion >= VK_API_VERSION_1_2) {

@@ -366,6 +366,14 @@ typedef struct ns_context_desc {
 int ns_context_create(const ns_context_desc *desc, ns_context **out, ns_error *err);
 void ns_context_destroy(ns_context *ctx); /* NULL is allowed */
 
+/* ns_device_info.memory_types' bits (Vulkan's VkMemoryPropertyFlagBits, which they equal). */
+enum {
+    NS_MEMORY_DEVICE_LOCAL = 1u << 0,
+    NS_MEMORY_HOST_VISIBLE = 1u << 1,
+    NS_MEMORY_HOST_COHERENT = 1u << 2,
+    NS_MEMORY_HOST_CACHED = 1u << 3,
+};
+
 typedef struct ns_device_info {
     char device_name[256];
     char driver_name[256];
@@ -375,6 +383,10 @@ typedef struct ns_device_info {
     int is_cpu; /* 1 for lavapipe and other CPU devices */
     uint32_t subgroup_size;
     uint64_t device_local_bytes; /* the largest device-local memory heap */
+    /* The memory types in the device's order, each as NS_MEMORY_* bits: which one a buffer
+     * gets depends on them (docs/rendering.md, *Device choice*). */
+    uint32_t memory_type_count;
+    uint32_t memory_types[32];
     /* What the device offers for hardware traversal (VK_KHR_ray_query, and ray-tracing
      * pipelines), each with VK_KHR_acceleration_structure. Reported, not used: every stage
      * traces through the compute BVH (trace.glsl) on every device. */
