@@ -110,6 +110,10 @@ int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *ext
                                ns_accumulation accumulation, ns_scatter_tables *out,
                                float *extra_a, uint64_t *steps, ns_error *err);
 void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
+/* A copy of t's A (float [3][NS_TABLE_CELLS]) in out, read through a host-cached buffer
+ * where t's own mapping is not host-cached (a discrete GPU's device memory: reading it
+ * directly took seconds). */
+int ns_scatter_tables_read(ns_context *ctx, const ns_scatter_tables *t, float *out, ns_error *err);
 /* Says that the render about to run reads the blurred first order (render.boundary) in this
  * accumulation mode: the next table accumulated in that mode makes the context's unit blurred
  * table beside its own, on the same walk, instead of a walk of its own later. */

@@ -1452,6 +1452,21 @@ static int host_readable(ns_context *ctx, const gpu_buffer *table, uint64_t byte
     return NS_OK;
 }
 
+int ns_scatter_tables_read(ns_context *ctx, const ns_scatter_tables *t, float *out, ns_error *err)
+{
+    uint64_t bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
+    if (t->a.size < bytes)
+        return ns_fail(err, NS_ERR_INTERNAL, "tables: a table of %llu bytes, not %llu",
+                       (unsigned long long)t->a.size, (unsigned long long)bytes);
+    gpu_buffer staging;
+    const float *host = NULL;
+    int status = host_readable(ctx, &t->a, bytes, &staging, &host, err);
+    if (!status)
+        memcpy(out, host, bytes);
+    gpu_buffer_destroy(&ctx->dev, &staging);
+    return status;
+}
+
 /* A of a key with the blurred first order: A of the same key without it (from the cache or
  * made) plus, per channel, albedo * angular_g(theta) * the unit A (boundary.h says why). */
 static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_tables *out,

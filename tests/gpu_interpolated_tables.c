@@ -58,8 +58,14 @@ static float *tables_copy(const ns_table_key *key, ns_table_stats *stats)
     CHECK_INT(status, NS_OK);
     if (status)
         return NULL;
+    /* Through the host-cached path: on a discrete GPU the table's mapping is uncached. */
     float *copy = malloc(3 * cells * sizeof(float));
-    memcpy(copy, t->a.mapped, 3 * cells * sizeof(float));
+    status = copy ? ns_scatter_tables_read(test_context(), t, copy, &err) : NS_ERR_OUT_OF_HOST_MEMORY;
+    CHECK_INT(status, NS_OK);
+    if (status) {
+        free(copy);
+        return NULL;
+    }
     return copy;
 }
 
@@ -310,7 +316,12 @@ static float *from_context_with(const char *dir, uint64_t dir_bytes, const ns_ta
     float *copy = NULL;
     if (!status) {
         copy = malloc(3 * cells * sizeof(float));
-        memcpy(copy, t->a.mapped, 3 * cells * sizeof(float));
+        int read = copy ? ns_scatter_tables_read(ctx, t, copy, &err) : NS_ERR_OUT_OF_HOST_MEMORY;
+        CHECK_INT(read, NS_OK);
+        if (read) {
+            free(copy);
+            copy = NULL;
+        }
         *reconstructed = stats.reconstructed;
     }
     ns_context_destroy(ctx);
