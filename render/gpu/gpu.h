@@ -143,13 +143,13 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
 int gpu_pick_memory_type(const VkPhysicalDeviceMemoryProperties *memory, uint32_t allowed,
                          int host_reads, uint32_t *index);
 void gpu_buffer_destroy(gpu_device *dev, gpu_buffer *buf); /* zeroed or destroyed: no-op */
-/* Creates bufs[0..count) from descs, stopping at the first failure. The buffers made
- * before it stay alive: the caller destroys all count of them on every path (a buffer that
- * was never made is zeroed, and destroying it is a no-op). */
 /* Copies the first `bytes` of src into dst on the device, submitted and waited for (one
  * command buffer, freed on every path), dst's writes visible to the host after. */
 int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkDeviceSize bytes,
                     ns_error *err);
+/* Creates bufs[0..count) from descs, stopping at the first failure. The buffers made
+ * before it stay alive: the caller destroys all count of them on every path (a buffer that
+ * was never made is zeroed, and destroying it is a no-op). */
 int gpu_buffers_create(gpu_device *dev, gpu_buffer *bufs, const gpu_buffer_desc *descs, int count,
                        ns_error *err);
 

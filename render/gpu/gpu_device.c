@@ -128,18 +128,29 @@ static int has_instance_layer(const char *name)
     return found;
 }
 
-static int has_instance_extension(const char *name)
+/* Whether the instance (physical NULL) or a physical device offers the extension. */
+static int has_extension(VkPhysicalDevice physical, const char *name)
 {
     uint32_t count = 0;
-    if (vkEnumerateInstanceExtensionProperties(NULL, &count, NULL) != VK_SUCCESS || count == 0)
+    VkResult listed = physical ? vkEnumerateDeviceExtensionProperties(physical, NULL, &count, NULL)
+                               : vkEnumerateInstanceExtensionProperties(NULL, &count, NULL);
+    if (listed != VK_SUCCESS || count == 0)
         return 0;
     VkExtensionProperties *exts = calloc(count, sizeof *exts);
     int found = 0;
-    if (exts && vkEnumerateInstanceExtensionProperties(NULL, &count, exts) == VK_SUCCESS)
+    if (exts)
+        listed = physical ? vkEnumerateDeviceExtensionProperties(physical, NULL, &count, exts)
+                          : vkEnumerateInstanceExtensionProperties(NULL, &count, exts);
+    if (exts && listed == VK_SUCCESS)
         for (uint32_t i = 0; i < count && !found; i++)
             found = strcmp(exts[i].extensionName, name) == 0;
     free(exts);
     return found;
+}
+
+static int has_instance_extension(const char *name)
+{
+    return has_extension(VK_NULL_HANDLE, name);
 }
 
 static VkDebugUtilsMessengerCreateInfoEXT messenger_info(gpu_device *dev)
@@ -363,16 +374,7 @@ uint32_t gpu_lavapipe_threads(void)
 
 static int has_device_extension(VkPhysicalDevice physical, const char *name)
 {
-    uint32_t count = 0;
-    if (vkEnumerateDeviceExtensionProperties(physical, NULL, &count, NULL) != VK_SUCCESS || !count)
-        return 0;
-    VkExtensionProperties *exts = calloc(count, sizeof *exts);
-    int found = 0;
-    if (exts && vkEnumerateDeviceExtensionProperties(physical, NULL, &count, exts) == VK_SUCCESS)
-        for (uint32_t i = 0; i < count && !found; i++)
-            found = strcmp(exts[i].extensionName, name) == 0;
-    free(exts);
-    return found;
+    return has_extension(physical, name);
 }
 
 static uint64_t largest_device_local_heap(const VkPhysicalDeviceMemoryProperties *memory)

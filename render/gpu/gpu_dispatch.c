@@ -135,11 +135,9 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
     return NS_OK;
 }
 
-static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o,
-                  VkDescriptorSet set, ns_error *err)
+/* A one-time command buffer, begun. */
+static int begin_commands(gpu_device *dev, dispatch_objects *o, ns_error *err)
 {
-    const gpu_pipeline *pipe = desc->pipeline;
-    uint32_t count = desc->dispatch_count ? desc->dispatch_count : 1;
     VkCommandBufferAllocateInfo alloc = {
         .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
         .commandPool = dev->command_pool,
@@ -154,7 +152,36 @@ static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objec
         .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO,
         .flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT,
     };
-    status = gpu_check(vkBeginCommandBuffer(o->cmd, &begin), "vkBeginCommandBuffer", err);
+    return gpu_check(vkBeginCommandBuffer(o->cmd, &begin), "vkBeginCommandBuffer", err);
+}
+
+/* Submits the recorded commands and waits for them. No timeout: the buffers may not be
+ * freed while the device could still use them. */
+static int submit_and_wait(gpu_device *dev, dispatch_objects *o, ns_error *err)
+{
+    VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+    int status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o->fence), "vkCreateFence", err);
+    VkSubmitInfo submit = {
+        .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,
+        .commandBufferCount = 1,
+        .pCommandBuffers = &o->cmd,
+    };
+    if (!status)
+        status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o->fence), "vkQueueSubmit", err);
+    if (!status)
+        dev->submissions++;
+    if (!status)
+        status = gpu_check(vkWaitForFences(dev->device, 1, &o->fence, VK_TRUE, UINT64_MAX),
+                           "vkWaitForFences", err);
+    return status;
+}
+
+static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o,
+                  VkDescriptorSet set, ns_error *err)
+{
+    const gpu_pipeline *pipe = desc->pipeline;
+    uint32_t count = desc->dispatch_count ? desc->dispatch_count : 1;
+    int status = begin_commands(dev, o, err);
     if (status)
         return status;
     vkCmdBindPipeline(o->cmd, VK_PIPELINE_BIND_POINT_COMPUTE, pipe->pipeline);
@@ -235,8 +262,9 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
             return ns_fail(err, NS_ERR_LIMIT,
                            "dispatch of %s: %u groups in dimension %d (device allows %u)",
                            pipe->name, groups[i], i, max_groups[i]);
-    /* Every device submission of a render comes through here: a cancelled render stops
-     * before its next one, with nothing made that would need freeing. */
+    /* Every device submission of a render comes through here (or gpu_copy_buffer, which
+     * checks the same): a cancelled render stops before its next one, with nothing made
+     * that would need freeing. */
     int status = gpu_cancel_check(dev, err);
     if (status)
         return status;
@@ -249,26 +277,10 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
         status = make_timestamps(dev, desc, &o, err);
     if (!status)
         status = record(dev, desc, &o, set, err);
-    VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     if (!status)
-        status =
-            gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
-    if (!status) {
-        VkSubmitInfo submit = {
-            .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,
-            .commandBufferCount = 1,
-            .pCommandBuffers = &o.cmd,
-        };
-        status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o.fence), "vkQueueSubmit", err);
-        if (!status)
-            dev->submissions++;
-        /* No timeout: the buffers may not be freed while the device could still use them. */
-        if (!status)
-            status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),
-                               "vkWaitForFences", err);
-        if (!status && desc->device_ms)
-            status = read_timestamps(dev, &o, desc->device_ms, err);
-    }
+        status = submit_and_wait(dev, &o, err);
+    if (!status && desc->device_ms)
+        status = read_timestamps(dev, &o, desc->device_ms, err);
     destroy_objects(dev, &o);
     if (!status)
         status = gpu_validation_check(dev, validation_before, err);
@@ -288,20 +300,7 @@ int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkD
     uint32_t validation_before = gpu_validation_count(dev);
     dispatch_objects o;
     memset(&o, 0, sizeof o);
-    VkCommandBufferAllocateInfo alloc = {
-        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO,
-        .commandPool = dev->command_pool,
-        .level = VK_COMMAND_BUFFER_LEVEL_PRIMARY,
-        .commandBufferCount = 1,
-    };
-    status = gpu_check(vkAllocateCommandBuffers(dev->device, &alloc, &o.cmd),
-                       "vkAllocateCommandBuffers", err);
-    VkCommandBufferBeginInfo begin = {
-        .sType = VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO,
-        .flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT,
-    };
-    if (!status)
-        status = gpu_check(vkBeginCommandBuffer(o.cmd, &begin), "vkBeginCommandBuffer", err);
+    status = begin_commands(dev, &o, err);
     if (!status) {
         /* The shaders' earlier writes to src are complete (every dispatch waits for its
          * fence); the copy's writes are made visible to the host's reads after the fence. */
@@ -316,20 +315,8 @@ int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkD
                              &barrier, 0, NULL, 0, NULL);
         status = gpu_check(vkEndCommandBuffer(o.cmd), "vkEndCommandBuffer", err);
     }
-    VkFenceCreateInfo fence = {.sType = VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
     if (!status)
-        status = gpu_check(vkCreateFence(dev->device, &fence, NULL, &o.fence), "vkCreateFence", err);
-    if (!status) {
-        VkSubmitInfo submit = {
-            .sType = VK_STRUCTURE_TYPE_SUBMIT_INFO,
-            .commandBufferCount = 1,
-            .pCommandBuffers = &o.cmd,
-        };
-        status = gpu_check(vkQueueSubmit(dev->queue, 1, &submit, o.fence), "vkQueueSubmit", err);
-    }
-    if (!status)
-        status = gpu_check(vkWaitForFences(dev->device, 1, &o.fence, VK_TRUE, UINT64_MAX),
-                           "vkWaitForFences", err);
+        status = submit_and_wait(dev, &o, err);
     destroy_objects(dev, &o);
     if (!status)
         status = gpu_validation_check(dev, validation_before, err);
