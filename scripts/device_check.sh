@@ -10,7 +10,9 @@
 #      REF_SPP samples (a tarball of the cache comes back), with the gpu_* tests running
 #      beside them on the NVIDIA device;
 #   5. the whole bench at 128² against those references.
-# Run from the repository root there; stage budgets in seconds come from the environment.
+# Run from the repository root there; stage budgets in seconds come from the environment;
+# the defaults add up to about 560 s with the set-up, within one call's 600 s (give the
+# device tool timeout_s 590).
 # The first run (2026-11-30, docs/bench.md) taught: a 64-spp chunk costs ~0.2 s of overhead
 # on an H200, so chunks of 1,024 spp (a new chunk size starts new references); and 512²
 # references of 16 spp took 1-11 s each, so 4.
@@ -53,13 +55,13 @@ cat "$OUT/info.txt"
 
 log "bench_rays"
 for size in 512x512 1024x1024; do
-    timeout "${RAYS_S:-40}" $bin/bench_rays --device $device --bunny $dev/bunny.obj \
+    timeout "${RAYS_S:-30}" $bin/bench_rays --device $device --bunny $dev/bunny.obj \
         --scene "$root/scenes/bench/bunny.json" --size $size --repeat 7 --threads "$(nproc)" 2>&1 |
         tee -a "$OUT/rays.txt" | tail -12
 done
 
 log "bench 512x512"
-timeout "${B512_S:-110}" $bin/nscatter bench "${common[@]}" --width 512 --height 512 \
+timeout "${B512_S:-150}" $bin/nscatter bench "${common[@]}" --width 512 --height 512 \
     --methods nn_multiple,nn_full --ref-spp "${REF512_SPP:-4}" --repeat 5 --out /tmp/b512 --cache /tmp/c512 \
     >/tmp/bench512.log 2>&1
 log "bench 512 exit $?"
@@ -71,13 +73,13 @@ tcache=/tmp/tcache && mkdir -p $tcache && cp $dev/test-cache/* $tcache/ 2>/dev/n
 # The whole stage is bounded too (TESTS_S), whatever the tests' count and each one's bound.
 (
     cd /tmp && ls $bin | grep '^gpu_' |
-        timeout "${TESTS_S:-240}" xargs -P 6 -I{} sh -c "NSCATTER_BIN=$bin/nscatter \
+        timeout "${TESTS_S:-210}" xargs -P 6 -I{} sh -c "NSCATTER_BIN=$bin/nscatter \
             NSCATTER_SOURCE_DIR=$root NSCATTER_CACHE_DIR=$tcache timeout ${TEST_S:-200} $bin/{} \
             >/tmp/tlog.{} 2>&1; echo \"{} exit \$?\" >>/tmp/tests.txt"
 ) &
 tests_pid=$!
-timeout "${REFS_S:-230}" $bin/nscatter bench "${common[@]}" --references --ref-spp "${REF_SPP:-1024}" \
-    --ref-ceiling 40 --ref-budget "${REFS_BUDGET_S:-200}" --ref-max-spp 262144 \
+timeout "${REFS_S:-200}" $bin/nscatter bench "${common[@]}" --references --ref-spp "${REF_SPP:-1024}" \
+    --ref-ceiling 40 --ref-budget "${REFS_BUDGET_S:-170}" --ref-max-spp 262144 \
     --cache $dev/cache --out /tmp/brefs >/tmp/refs.log 2>&1
 log "references exit $?"
 cp /tmp/refs.log "$OUT/refs.log"
