@@ -302,8 +302,16 @@ int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkD
     memset(&o, 0, sizeof o);
     status = begin_commands(dev, &o, err);
     if (!status) {
-        /* The shaders' earlier writes to src are complete (every dispatch waits for its
-         * fence); the copy's writes are made visible to the host's reads after the fence. */
+        /* The shaders' earlier writes to src (an earlier submission's) are made visible to
+         * the copy; the host's writes are, by the submission itself. The copy's writes are
+         * made visible to the host's reads after the fence. */
+        VkMemoryBarrier before = {
+            .sType = VK_STRUCTURE_TYPE_MEMORY_BARRIER,
+            .srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT,
+            .dstAccessMask = VK_ACCESS_TRANSFER_READ_BIT,
+        };
+        vkCmdPipelineBarrier(o.cmd, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_TRANSFER_BIT,
+                             0, 1, &before, 0, NULL, 0, NULL);
         vkCmdCopyBuffer(o.cmd, src->buffer, dst->buffer, 1,
                         &(VkBufferCopy){.srcOffset = 0, .dstOffset = 0, .size = bytes});
         VkMemoryBarrier barrier = {
