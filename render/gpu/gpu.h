@@ -3,9 +3,11 @@
  * in every build and an error names it (as a VkResult string) and maps it to ns_status.
  *
  *   gpu_device.c    instance, device, queue, debug messenger, pipeline cache, labels
- *   gpu_buffer.c    host-visible buffers: create/destroy, upload by mapping, readback
+ *   gpu_buffer.c    host-visible buffers: create/destroy, upload by mapping, readback, the
+ *                   memory type each gets (host-cached for what the host reads back)
  *   gpu_pipeline.c  compute pipelines from the embedded SPIR-V
- *   gpu_dispatch.c  one-shot dispatch: descriptor set, command buffer, submit, wait
+ *   gpu_dispatch.c  one-shot dispatch: descriptor set, command buffer, submit, wait; and
+ *                   one-shot buffer copies on the device
  */
 #ifndef NS_GPU_H
 #define NS_GPU_H
