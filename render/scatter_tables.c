@@ -1272,6 +1272,23 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
     return status;
 }
 
+/* Where the host builds a table's A (float [3][cells] in `a`): a's own mapping where it is
+ * host-cached (lavapipe), else host memory, written into a once by table_work_end. A discrete
+ * GPU's device memory is mapped uncached: a loop that reads what it wrote there (a sum)
+ * crawls. NULL out of memory. */
+static float *table_work_begin(const gpu_buffer *a, float **scratch)
+{
+    *scratch = a->host_cached ? NULL : malloc(a->size);
+    return a->host_cached ? a->mapped : *scratch;
+}
+
+static void table_work_end(gpu_buffer *a, float *scratch)
+{
+    if (scratch)
+        memcpy(a->mapped, scratch, a->size);
+    free(scratch);
+}
+
 /* One order's part of a channel's blend: dst = (or +=, with add) the cubic of its four nodes,
  * clamped at 0 with clamp (the cubic may undershoot where A is ~0). The sum runs in the same
  * order for one order or two. */
@@ -1339,13 +1356,10 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
     ns_stage stage = ns_stage_begin(ctx, "accumulate", 1.0, 1.0);
     status = gpu_buffer_create(&ctx->dev, &out->a,
                                &(gpu_buffer_desc){.size = table_bytes, .label = "ns.tables.a"}, err);
-    /* The blend reads what it wrote (the second order adds to the first): it works in host
-     * memory where the table's own mapping is not host-cached (a discrete GPU's), and the
-     * table is written once at the end. */
-    float *scratch = NULL;
-    if (!status && !out->a.host_cached && !(scratch = malloc(table_bytes)))
+    /* The blend reads what it wrote (the second order adds to the first). */
+    float *scratch = NULL, *dst = status ? NULL : table_work_begin(&out->a, &scratch);
+    if (!status && !dst)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a blend");
-    float *dst = status ? NULL : scratch ? scratch : out->a.mapped;
     for (int c = 0; c < 3 && !status; c++) {
         float *channel = dst + c * cells;
         if (key->albedo[c] == 0.0f) {
@@ -1377,9 +1391,10 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
                 blend_order(channel, node, coef, o == 1 && want[0], o == 1 || !want[1]);
         }
     }
-    if (!status && scratch)
-        memcpy(out->a.mapped, scratch, table_bytes);
-    free(scratch);
+    if (status)
+        free(scratch);
+    else
+        table_work_end(&out->a, scratch);
     stats->accumulate_ms += ns_stage_end(ctx, &stage);
     stats->accumulated = 1;
     if (status) {
@@ -1493,7 +1508,7 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
         status = blur_unit(ctx, key->accumulation, &unit, &stats->accumulate_ms, err);
     /* The base table is read, and the sum built, in host-cached memory: on a discrete GPU
      * the tables' own mappings are uncached (reading one took seconds), so the base is first
-     * copied on the device into a host_reads buffer, which then holds the sum. */
+     * copied out on the device (host_readable). */
     gpu_buffer a = {0}, staging = {0};
     const float *base_host = NULL;
     /* Read before anything is inserted: the base's entry may be evicted after. */
@@ -1504,17 +1519,14 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
                                    &(gpu_buffer_desc){.size = table_bytes, .uninitialized = 1,
                                                       .label = "ns.tables.a"},
                                    err);
-    float *work = NULL, *scratch = NULL;
+    float *scratch = NULL, *dst = status ? NULL : table_work_begin(&a, &scratch);
+    if (!status && !dst)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a sum");
     if (!status) {
-        work = a.host_cached ? a.mapped : staging.mapped ? staging.mapped : (scratch = malloc(table_bytes));
-        if (!work)
-            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a sum");
-    }
-    if (!status && work != (const float *)base_host) {
         if (base_host)
-            memcpy(work, base_host, table_bytes);
+            memcpy(dst, base_host, table_bytes);
         else
-            memset(work, 0, table_bytes);
+            memset(dst, 0, table_bytes);
     }
     if (status) {
         gpu_buffer_destroy(&ctx->dev, &staging);
@@ -1523,7 +1535,6 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
     }
     double angular[NS_TABLE_NTHETA];
     ns_blurred_angular(key->g, angular);
-    float *dst = work;
     for (int c = 0; c < 3; c++) {
         float per_theta[NS_TABLE_NTHETA];
         for (uint32_t t = 0; t < NS_TABLE_NTHETA; t++)
@@ -1532,9 +1543,7 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
         for (size_t i = 0; i < cells; i++)
             channel[i] += per_theta[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[i];
     }
-    if (work != a.mapped)
-        memcpy(a.mapped, work, table_bytes);
-    free(scratch);
+    table_work_end(&a, scratch);
     gpu_buffer_destroy(&ctx->dev, &staging);
     *out = (ns_scatter_tables){.a = a};
     set_default_grid(out, table_bytes);

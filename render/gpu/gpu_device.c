@@ -148,11 +148,6 @@ static int has_extension(VkPhysicalDevice physical, const char *name)
     return found;
 }
 
-static int has_instance_extension(const char *name)
-{
-    return has_extension(VK_NULL_HANDLE, name);
-}
-
 static VkDebugUtilsMessengerCreateInfoEXT messenger_info(gpu_device *dev)
 {
     return (VkDebugUtilsMessengerCreateInfoEXT){
@@ -181,7 +176,7 @@ static int create_instance(gpu_device *dev, ns_error *err)
     }
     const char *extensions[1];
     uint32_t extension_count = 0;
-    int debug_utils = has_instance_extension(VK_EXT_DEBUG_UTILS_EXTENSION_NAME);
+    int debug_utils = has_extension(VK_NULL_HANDLE, VK_EXT_DEBUG_UTILS_EXTENSION_NAME);
     if (debug_utils)
         extensions[extension_count++] = VK_EXT_DEBUG_UTILS_EXTENSION_NAME;
     else if (dev->validation)
@@ -372,11 +367,6 @@ uint32_t gpu_lavapipe_threads(void)
     return n < 1 ? 1u : n > 16 ? 16u : (uint32_t)n;
 }
 
-static int has_device_extension(VkPhysicalDevice physical, const char *name)
-{
-    return has_extension(physical, name);
-}
-
 static uint64_t largest_device_local_heap(const VkPhysicalDeviceMemoryProperties *memory)
 {
     uint64_t largest = 0;
@@ -393,10 +383,10 @@ static uint64_t largest_device_local_heap(const VkPhysicalDeviceMemoryProperties
 static void ray_tracing_support(VkPhysicalDevice physical, int *ray_query, int *pipelines)
 {
     *ray_query = *pipelines = 0;
-    if (!has_device_extension(physical, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME))
+    if (!has_extension(physical, VK_KHR_ACCELERATION_STRUCTURE_EXTENSION_NAME))
         return;
-    int query_listed = has_device_extension(physical, VK_KHR_RAY_QUERY_EXTENSION_NAME);
-    int pipeline_listed = has_device_extension(physical, VK_KHR_RAY_TRACING_PIPELINE_EXTENSION_NAME);
+    int query_listed = has_extension(physical, VK_KHR_RAY_QUERY_EXTENSION_NAME);
+    int pipeline_listed = has_extension(physical, VK_KHR_RAY_TRACING_PIPELINE_EXTENSION_NAME);
     VkPhysicalDeviceAccelerationStructureFeaturesKHR structures = {
         .sType = VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR};
     VkPhysicalDeviceRayQueryFeaturesKHR query = {

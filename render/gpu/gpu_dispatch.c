@@ -176,6 +176,28 @@ static int submit_and_wait(gpu_device *dev, dispatch_objects *o, ns_error *err)
     return status;
 }
 
+/* Every device submission starts here (a dispatch or a copy): a cancelled render stops
+ * before its next one, with nothing made that would need freeing. The validation count is
+ * taken to compare after. */
+static int submission_begin(gpu_device *dev, dispatch_objects *o, uint32_t *validation_before,
+                            ns_error *err)
+{
+    memset(o, 0, sizeof *o);
+    *validation_before = gpu_validation_count(dev);
+    return gpu_cancel_check(dev, err);
+}
+
+/* ... and ends here: what it made freed on every path, and any validation message since it
+ * began turned into its error. */
+static int submission_end(gpu_device *dev, dispatch_objects *o, int status,
+                          uint32_t validation_before, ns_error *err)
+{
+    destroy_objects(dev, o);
+    if (!status)
+        status = gpu_validation_check(dev, validation_before, err);
+    return status;
+}
+
 static int record(gpu_device *dev, const gpu_dispatch_desc *desc, dispatch_objects *o,
                   VkDescriptorSet set, ns_error *err)
 {
@@ -262,15 +284,11 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
             return ns_fail(err, NS_ERR_LIMIT,
                            "dispatch of %s: %u groups in dimension %d (device allows %u)",
                            pipe->name, groups[i], i, max_groups[i]);
-    /* Every device submission of a render comes through here (or gpu_copy_buffer, which
-     * checks the same): a cancelled render stops before its next one, with nothing made
-     * that would need freeing. */
-    int status = gpu_cancel_check(dev, err);
+    dispatch_objects o;
+    uint32_t validation_before;
+    int status = submission_begin(dev, &o, &validation_before, err);
     if (status)
         return status;
-    uint32_t validation_before = gpu_validation_count(dev);
-    dispatch_objects o;
-    memset(&o, 0, sizeof o);
     VkDescriptorSet set = VK_NULL_HANDLE;
     status = write_descriptors(dev, pipe, &o, buffers, &set, err);
     if (!status)
@@ -281,10 +299,7 @@ int gpu_dispatch_many(gpu_device *dev, const gpu_dispatch_desc *desc, ns_error *
         status = submit_and_wait(dev, &o, err);
     if (!status && desc->device_ms)
         status = read_timestamps(dev, &o, desc->device_ms, err);
-    destroy_objects(dev, &o);
-    if (!status)
-        status = gpu_validation_check(dev, validation_before, err);
-    return status;
+    return submission_end(dev, &o, status, validation_before, err);
 }
 
 int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkDeviceSize bytes,
@@ -294,13 +309,11 @@ int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkD
         return ns_fail(err, NS_ERR_INTERNAL, "copy of %llu bytes between buffers of %llu and %llu",
                        (unsigned long long)bytes, (unsigned long long)src->size,
                        (unsigned long long)dst->size);
-    int status = gpu_cancel_check(dev, err);
-    if (status)
-        return status;
-    uint32_t validation_before = gpu_validation_count(dev);
     dispatch_objects o;
-    memset(&o, 0, sizeof o);
-    status = begin_commands(dev, &o, err);
+    uint32_t validation_before;
+    int status = submission_begin(dev, &o, &validation_before, err);
+    if (!status)
+        status = begin_commands(dev, &o, err);
     if (!status) {
         /* The shaders' earlier writes to src (an earlier submission's) are made visible to
          * the copy; the host's writes are, by the submission itself. The copy's writes are
@@ -325,8 +338,5 @@ int gpu_copy_buffer(gpu_device *dev, const gpu_buffer *src, gpu_buffer *dst, VkD
     }
     if (!status)
         status = submit_and_wait(dev, &o, err);
-    destroy_objects(dev, &o);
-    if (!status)
-        status = gpu_validation_check(dev, validation_before, err);
-    return status;
+    return submission_end(dev, &o, status, validation_before, err);
 }
