@@ -38,6 +38,7 @@ json_t *render_stats_counts_json(const ns_render_stats *stats)
         {"boundary_sources", stats->boundary_sources},
         {"gather_segments", stats->gather_segments},
         {"tiles_interpolated", stats->tiles_interpolated},
+        {"single_interpolated", stats->single_interpolated},
         {"corrections_interpolated", stats->corrections_interpolated},
         {"interactions", stats->interactions},
         {"cells_culled", stats->cells_culled},

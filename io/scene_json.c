@@ -1418,7 +1418,7 @@ static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
-                                       "gather_tolerance", "single_samples", "deadline_ms", "accumulation", "tables",
+                                       "gather_tolerance", "single_samples", "single_levels", "single_tolerance", "deadline_ms", "accumulation", "tables",
                                        "vrl_beams", "boundary", "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
     static const char *const tables_names[] = {"exact", "interpolated"};
@@ -1426,10 +1426,15 @@ static void parse_render(parser *p, const json_t *v)
     static const char *const boundary_names[] = {"off", "walks"};
     ns_render_settings *r = &p->render;
     /* An absent key is left 0, which the render library reads as its default (resolved at
-     * the end). Not so for seed and gather_tolerance: 0 is a value of their own there, which
-     * the library keeps, so only the parser, which sees whether the key was written, can
-     * give them their defaults. */
-    *r = (ns_render_settings){.seed = NS_DEFAULT_SEED, .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE};
+     * the end). Not so for seed, gather_tolerance and single_tolerance: 0 is a value of their
+     * own there, which the library keeps, so only the parser, which sees whether the key was
+     * written, can give them their defaults. single_levels too: the library's 0 computes
+     * every pixel, as renders built in C always did, and a scene file gets the adaptive
+     * single scattering the bench measured (docs/bench.md, *Adaptive single scattering*). */
+    *r = (ns_render_settings){.seed = NS_DEFAULT_SEED,
+                              .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
+                              .single_levels = NS_DEFAULT_SINGLE_LEVELS,
+                              .single_tolerance = NS_DEFAULT_SINGLE_TOLERANCE};
     size_t saved = push_key(p, "render");
     if (v && !expect_object(p, v, "render")) {
         pop(p, saved);
@@ -1471,6 +1476,10 @@ static void parse_render(parser *p, const json_t *v)
                     "gather_tolerance (relative spread that still interpolates)", &r->gather_tolerance);
         field_uint(p, v, "single_samples", 0, 1, NS_MAX_SINGLE_SAMPLES,
                    "single_samples (samples per camera segment)", &r->single_samples);
+        field_uint(p, v, "single_levels", 0, 0, NS_MAX_GATHER_LEVELS,
+                   "single_levels (coarser lattices of pixels; 0 = every pixel)", &r->single_levels);
+        field_float(p, v, "single_tolerance", 0, R_UNIT,
+                    "single_tolerance (relative error that still interpolates)", &r->single_tolerance);
         int accumulation;
         if (json_object_get(v, "accumulation") &&
             field_enum(p, v, "accumulation", 0, accumulation_names, 2, "accumulation", &accumulation))

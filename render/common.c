@@ -81,9 +81,9 @@ uint32_t ns_unsupported_components(ns_method method, uint32_t components)
 
 ns_render_settings ns_render_settings_resolve(ns_render_settings r)
 {
-    /* The fields whose default is 0 need nothing; seed and gather_tolerance keep their 0,
-     * a value of its own there (nscatter.h). The others: 0 is outside their range, so it
-     * can only mean "not set". */
+    /* The fields whose default is 0 need nothing; seed, gather_tolerance and single_tolerance
+     * keep their 0, a value of its own there (nscatter.h). The others: 0 is outside their
+     * range, so it can only mean "not set". */
     if (!r.components)
         r.components = NS_DEFAULT_COMPONENTS;
     if (!r.spp)

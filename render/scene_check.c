@@ -160,6 +160,10 @@ static int check_render(const ns_render_settings *r, ns_error *err)
             (r->single_samples < 1 || r->single_samples > NS_MAX_SINGLE_SAMPLES))
             return BAD("render.single_samples: %u outside 1..%u", r->single_samples,
                        NS_MAX_SINGLE_SAMPLES);
+        if (r->single_levels > NS_MAX_GATHER_LEVELS)
+            return BAD("render.single_levels: %u over %u", r->single_levels, NS_MAX_GATHER_LEVELS);
+        if (!(r->single_tolerance >= 0.0f && r->single_tolerance <= 1.0f))
+            return BAD("render.single_tolerance: %g outside 0..1", (double)r->single_tolerance);
         if ((unsigned)r->vrl_beams > NS_VRL_BEAMS_BOUNDED)
             return BAD("render.vrl_beams: %d is not a beam model", (int)r->vrl_beams);
         if (r->vrl_beams == NS_VRL_BEAMS_BOUNDED && !ns_method_uses_tables(r->method))

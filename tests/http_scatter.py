@@ -86,6 +86,21 @@ def test_adaptive_gather_counts_interpolated_tiles(t, srv):
                 f"fewer segments gathered: {renders[2]} against {renders[0]}")
 
 
+def test_adaptive_single_is_the_default(t, srv):
+    # A scene without single_levels gets adaptive single scattering (the parser's default);
+    # single_levels 0 computes every pixel.
+    renders = {}
+    for name, extra in (("default", {}), ("every pixel", {"single_levels": 0})):
+        status, headers, body = srv.render(scatter_scene(components=("single",), **extra))
+        t.equal(status, 200, f"single scattering, {name} ({body[:300]!r})")
+        renders[name] = stats_of(headers)
+    if len(renders) == 2:
+        t.check(renders["default"].get("single_interpolated", 0) > 0,
+                f"pixels interpolated by default: {renders['default']}")
+        t.equal(renders["every pixel"].get("single_interpolated"), 0,
+                f"every pixel computed: {renders['every pixel']}")
+
+
 def test_bounded_beams_add_reflected_vrls(t, srv):
     counts, timings = {}, []
     for beams in ("endless", "bounded", "bounded"):
@@ -147,6 +162,9 @@ def test_bad_settings_422(t, srv):
                "tolerance above 1")
     expect_422(t, srv, scatter_scene(gather_tolerance="loose"), "/render/gather_tolerance",
                "tolerance not a number")
+    expect_422(t, srv, scatter_scene(single_levels=5), "/render/single_levels", "too many levels")
+    expect_422(t, srv, scatter_scene(single_tolerance=-0.5), "/render/single_tolerance",
+               "negative tolerance")
     expect_422(t, srv, scatter_scene(method="dipole", components=("double",)), "/render/components",
                "dipole cannot give double alone")
     expect_422(t, srv, scatter_scene(vrl_beams="finite"), "/render/vrl_beams", "unknown beam model")
@@ -164,7 +182,8 @@ def main():
         # shader: test_bounded_beams_add_reflected_vrls sees it kept.
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
                      test_bounded_beams_add_reflected_vrls, test_boundary_walks,
-                     test_adaptive_gather_counts_interpolated_tiles, test_bad_settings_422):
+                     test_adaptive_gather_counts_interpolated_tiles, test_adaptive_single_is_the_default,
+                     test_bad_settings_422):
             t.run(test, srv)
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")

@@ -1,7 +1,7 @@
 /* unit_render_settings.c — the render settings' defaults live in the library
  * (ns_render_settings_resolve, render/common.c): a field left 0 takes the default nscatter.h
  * documents for it, a field given is kept (in range or not: ns_render checks it), and seed
- * and gather_tolerance keep their 0, which is a value of its own there. */
+ * gather_tolerance and single_tolerance keep their 0, which is a value of its own there. */
 #include "harness.h"
 #include "nscatter.h"
 
@@ -19,6 +19,7 @@ static void test_zero_means_default(void)
     CHECK_INT(r.gather_tile, 2);
     CHECK_INT(r.gather_levels, 0);
     CHECK_INT(r.single_samples, 64);
+    CHECK_INT(r.single_levels, 0);
     CHECK_INT(r.accumulation, NS_ACCUMULATION_EXACT);
     CHECK_INT(r.tables, NS_TABLES_EXACT);
     CHECK_INT(r.vrl_beams, NS_VRL_BEAMS_ENDLESS);
@@ -26,6 +27,7 @@ static void test_zero_means_default(void)
     /* 0 is a seed and a tolerance like any other: kept, not replaced. */
     CHECK_INT(r.seed, 0);
     CHECK_NEAR(r.gather_tolerance, 0, 0);
+    CHECK_NEAR(r.single_tolerance, 0, 0);
 }
 
 static void test_given_fields_are_kept(void)
@@ -42,6 +44,8 @@ static void test_given_fields_are_kept(void)
         .gather_levels = 2,
         .gather_tolerance = 0.5f,
         .single_samples = 4,
+        .single_levels = 3,
+        .single_tolerance = 0.25f,
         .accumulation = NS_ACCUMULATION_PAPER,
         .tables = NS_TABLES_INTERPOLATED,
         .cull_solid_angle = 0.1f,

@@ -257,16 +257,22 @@ const char *ns_boundary_name(ns_boundary boundary);
 #define NS_DEFAULT_GATHER_LEVELS 0u
 #define NS_DEFAULT_GATHER_TOLERANCE 0.02f
 #define NS_DEFAULT_SINGLE_SAMPLES 64u
+/* The scene parser's defaults for render.single_levels and single_tolerance; the library's 0
+ * levels computes every pixel (ns_render_settings). */
+#define NS_DEFAULT_SINGLE_LEVELS 2u
+#define NS_DEFAULT_SINGLE_TOLERANCE 0.05f
 
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
- * max_scatter, gather_levels, accumulation, tables, vrl_beams, boundary, cull_solid_angle) nothing needs
- * replacing. Three fields are exceptions. seed and gather_tolerance keep a 0 as given (0 is
- * a value of their own there), and their defaults (NS_DEFAULT_SEED,
- * NS_DEFAULT_GATHER_TOLERANCE) are applied by the scene parser, which knows whether the key
+ * max_scatter, gather_levels, single_levels, accumulation, tables, vrl_beams, boundary,
+ * cull_solid_angle) nothing needs replacing. Five fields are exceptions. seed,
+ * gather_tolerance and single_tolerance keep a 0 as given (0 is a value of their own there),
+ * and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
+ * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
  * was written; boundary is 0 (off) here, and the parser's default is
- * ns_default_boundary(method): walks for nn and table. */
+ * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
+ * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS. */
 typedef struct ns_render_settings {
     ns_method method;    /* 0: NS_METHOD_NN, the default */
     uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
@@ -297,6 +303,15 @@ typedef struct ns_render_settings {
     /* Samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
      * 0: NS_DEFAULT_SINGLE_SAMPLES. */
     uint32_t single_samples;
+    /* Adaptive single scattering, the adaptive gather's rule at every pixel: single
+     * scattering is first computed on a lattice of pixels 2^single_levels apart, and a pixel
+     * between computed ones takes their mean where they see its surface and agree within
+     * single_tolerance (relative, per channel), else it is computed. single_levels 0 =
+     * every pixel, the library's default; the scene parser's for an absent key is
+     * NS_DEFAULT_SINGLE_LEVELS (as boundary's). single_tolerance keeps its 0, as
+     * gather_tolerance does (the parser's default: NS_DEFAULT_SINGLE_TOLERANCE). */
+    uint32_t single_levels;
+    float single_tolerance;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
     ns_tables_mode tables;        /* nn only; 0: NS_TABLES_EXACT, the default */
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
@@ -433,6 +448,8 @@ typedef struct ns_render_stats {
     uint64_t boundary_sources;    /* render.boundary: sources (ghost and reflected beams) gathered */
     uint64_t gather_segments;     /* camera segments gathered (after tiling) */
     uint64_t tiles_interpolated;  /* tiles interpolated from coarser ones (render.gather_levels) */
+    uint64_t single_interpolated; /* pixels whose single scattering was interpolated
+                                     (render.single_levels) */
     uint64_t corrections_interpolated; /* render.boundary: tiles that gathered their VRLs and took
                                           the correction from coarser ones */
     uint64_t interactions;        /* VRL-segment pairs evaluated by the gather */
