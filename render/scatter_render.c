@@ -531,6 +531,35 @@ static float exit_factor(const GpuMaterial *m)
     return 1.0f / (ior * ior);
 }
 
+/* Even bits of v packed into the low half: one coordinate of a Morton code. */
+static uint32_t morton_compact(uint32_t v)
+{
+    v &= 0x55555555u;
+    v = (v | (v >> 1)) & 0x33333333u;
+    v = (v | (v >> 2)) & 0x0f0f0f0fu;
+    v = (v | (v >> 4)) & 0x00ff00ffu;
+    v = (v | (v >> 8)) & 0x0000ffffu;
+    return v;
+}
+
+/* The pixels whose `round` has a bit of `want`, in Morton (Z) order: consecutive segments of the
+ * list, which the gather runs side by side in one SIMD group, then lie close together on the image,
+ * so their walks of the VRL hierarchy take the same branches (row order put 8 of them along 16
+ * pixels of one row). Returns the count; order holds room for every pixel. */
+static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint8_t want,
+                                  uint32_t *order)
+{
+    uint32_t side = 1, n = 0;
+    while (side < t->width || side < t->height)
+        side *= 2;
+    for (uint64_t code = 0; code < (uint64_t)side * side; code++) {
+        uint32_t x = morton_compact((uint32_t)code), y = morton_compact((uint32_t)(code >> 1));
+        if (x < t->width && y < t->height && (round[y * t->width + x] & want))
+            order[n++] = y * t->width + x;
+    }
+    return n;
+}
+
 /* ---------------------------------------------------------------------------------------
  * Single scattering: every segment, full resolution.
  * ------------------------------------------------------------------------------------- */
@@ -614,9 +643,10 @@ static void compose(const ns_scatter_inputs *in, const tile_plan *t);
 /* Adaptive single scattering (render.single_levels > 0): the adaptive gather's rounds with
  * every pixel its own tile. A round computes the segments of the pixels plan_round marked
  * and stores their Lbar (top of file) for the finer rounds to interpolate from; at the end
- * every pixel takes its throughput times its Lbar, computed or interpolated. The segments
- * keep the order of `kept` (pixel order on a loop-limited device), so a round's dispatches
- * are sized alike from run to run (visible_segments). */
+ * every pixel takes its throughput times its Lbar, computed or interpolated. A round's
+ * segments follow its pixels in Z order and each pixel's in the order of `kept` (the camera
+ * pass's on a loop-limited device, visible_segments), so its dispatches are sized alike from
+ * run to run. */
 static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const GpuSegment *kept,
                            uint32_t n, uint64_t *interpolated, ns_error *err)
 {
@@ -625,18 +655,23 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     tile_plan plan = {0};
     uint8_t *round = malloc(pixels ? pixels : 1);
     GpuSegment *list = malloc(sizeof *list * (n ? n : 1));
+    uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
     int status = NS_OK;
-    if (!round || !list || tile_plan_build(scene, kept, n, PLAN_SINGLE, &plan))
+    if (!round || !list || !order || tile_plan_build(scene, kept, n, PLAN_SINGLE, &plan))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", n);
     /* Each round's part of the stage's progress: the pixels it examines, as the gather's. */
     double at = 0.0;
     int top = (int)plan.levels;
     for (int level = top; level >= 0 && !status; level--) {
         double part = level == top ? pow(0.25, level) : 3.0 * pow(0.25, level + 1);
-        uint32_t marked = plan_round(&plan, (uint32_t)level, round, interpolated), count = 0;
-        for (uint32_t i = 0; marked && i < n; i++)
-            if (round[kept[i].pixel])
-                list[count++] = kept[i];
+        /* In Z order, as the gather's lists: a round's pixels are spread over the image, and
+         * pixel order would put far-apart segments side by side in a SIMD group. */
+        uint32_t count = 0, marked = plan_round(&plan, (uint32_t)level, round, interpolated)
+                                         ? marked_in_z_order(&plan, round, GATHER_BOTH, order)
+                                         : 0;
+        for (uint32_t j = 0; j < marked; j++)
+            for (uint32_t k = plan.segment_start[order[j]]; k < plan.segment_start[order[j] + 1]; k++)
+                list[count++] = kept[plan.by_pixel[k]];
         ns_span span = ns_progress_push(ctx, at, at + part);
         status = single_segments(ctx, in, list, count, plan.radiance, err);
         ns_progress_pop(ctx, span);
@@ -650,6 +685,7 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     if (!status)
         compose(in, &plan);
     tile_plan_free(&plan);
+    free(order);
     free(list);
     free(round);
     return status;
@@ -686,35 +722,6 @@ typedef struct gather_list {
     uint32_t count;
     uint32_t material_first[NS_MAX_MATERIALS + 1]; /* material m: [first[m], first[m + 1]) */
 } gather_list;
-
-/* Even bits of v packed into the low half: one coordinate of a Morton code. */
-static uint32_t morton_compact(uint32_t v)
-{
-    v &= 0x55555555u;
-    v = (v | (v >> 1)) & 0x33333333u;
-    v = (v | (v >> 2)) & 0x0f0f0f0fu;
-    v = (v | (v >> 4)) & 0x00ff00ffu;
-    v = (v | (v >> 8)) & 0x0000ffffu;
-    return v;
-}
-
-/* The pixels whose `round` has a bit of `want`, in Morton (Z) order: consecutive segments of the
- * list, which the gather runs side by side in one SIMD group, then lie close together on the image,
- * so their walks of the VRL hierarchy take the same branches (row order put 8 of them along 16
- * pixels of one row). Returns the count; order holds room for every pixel. */
-static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint8_t want,
-                                  uint32_t *order)
-{
-    uint32_t side = 1, n = 0;
-    while (side < t->width || side < t->height)
-        side *= 2;
-    for (uint64_t code = 0; code < (uint64_t)side * side; code++) {
-        uint32_t x = morton_compact((uint32_t)code), y = morton_compact((uint32_t)(code >> 1));
-        if (x < t->width && y < t->height && (round[y * t->width + x] & want))
-            order[n++] = y * t->width + x;
-    }
-    return n;
-}
 
 /* The participating segments of the pixels whose `round` has a bit of `want`. */
 static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_method method,

@@ -211,6 +211,21 @@ async function run() {
       check('footer shows the version', typeof info.version === 'string' && footer.includes(info.version), `footer "${footer}"`);
     });
 
+    await step('scattering fields show the server\'s defaults', async () => {
+      // An empty field means the key is absent, so its placeholder must be what the server
+      // then renders with: the default /openapi.json documents.
+      const spec = await (await fetch(`${base}/openapi.json`)).json();
+      const props = spec.components.schemas.RenderSettings.properties;
+      const fields = await page.locator('#scatter-settings input[type=number]').evaluateAll(
+        (inputs) => inputs.map((i) => ({ id: i.id, placeholder: i.getAttribute('placeholder') })));
+      const wrong = fields.filter(({ id, placeholder }) => {
+        const key = id.replace(/-/g, '_');
+        return !(key in props) || Number(placeholder) !== Number(props[key].default ?? 0);
+      });
+      check('every number field of the scattering settings has the documented default as its placeholder',
+        fields.length >= 8 && wrong.length === 0, JSON.stringify({ fields, wrong }));
+    });
+
     let pageDefault = null; // the editor's first scene, which Reset must bring back
     await step('default scene', async () => {
       const text = await page.locator('#editor').inputValue();
@@ -338,6 +353,8 @@ async function run() {
       await typeNumber(page, '#gather-levels', '3');
       await typeNumber(page, '#gather-tolerance', '0.01');
       await typeNumber(page, '#single-samples', '20');
+      await typeNumber(page, '#single-levels', '0');
+      await typeNumber(page, '#single-tolerance', '0.1');
       // By keyboard, as a user without a mouse would: focus and arrow down to "paper".
       await page.locator('#accumulation').focus();
       await page.keyboard.press('ArrowDown');
@@ -350,9 +367,10 @@ async function run() {
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
-      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, accumulation, tables, vrl_beams, boundary, cull_solid_angle',
+      check('scattering controls write vrls, gather_tile, gather_levels, gather_tolerance, single_samples, single_levels, single_tolerance, accumulation, tables, vrl_beams, boundary, cull_solid_angle',
         r.method === 'nn' && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
         && r.gather_tolerance === 0.01 && r.single_samples === 20
+        && r.single_levels === 0 && r.single_tolerance === 0.1
         && r.accumulation === 'paper' && interpolated === 'interpolated' && r.tables === 'exact'
         && r.vrl_beams === 'bounded' && r.boundary === 'off'
         && r.cull_solid_angle === 0.05, JSON.stringify(r));
@@ -477,7 +495,7 @@ async function run() {
 
     await step('invalid scattering settings list their JSON pointers', async () => {
       const scene = structuredClone(defaultScene);
-      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', accumulation: 'fast', tables: 'sideways', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
+      Object.assign(scene.render, { vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, single_samples: 'many', single_levels: 9, single_tolerance: -1, accumulation: 'fast', tables: 'sideways', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
       await setEditor(page, JSON.stringify(scene, null, 2));
       // The controls follow typing after a short pause.
       const followed = await page.waitForFunction(() => document.getElementById('accumulation').value === 'fast', null, { timeout: 5000 })
@@ -488,7 +506,7 @@ async function run() {
       await renderAndWait(page);
       const text = await problemText(page);
       check('error panel names status 422', /\b422\b/.test(text), text);
-      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'accumulation', 'tables', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
+      for (const key of ['vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'single_samples', 'single_levels', 'single_tolerance', 'accumulation', 'tables', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
         const pointer = `/render/${key}`;
         check(`pointer ${pointer} is listed`, (await page.locator('#problem-errors button.pointer', { hasText: pointer }).count()) === 1, text);
       }

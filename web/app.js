@@ -79,6 +79,8 @@ const SCATTER_NUMBERS = [
   { key: 'gather_levels', id: 'gather-levels', integer: true },
   { key: 'gather_tolerance', id: 'gather-tolerance', integer: false },
   { key: 'single_samples', id: 'single-samples', integer: true },
+  { key: 'single_levels', id: 'single-levels', integer: true },
+  { key: 'single_tolerance', id: 'single-tolerance', integer: false },
   { key: 'cull_solid_angle', id: 'cull-solid-angle', integer: false },
 ];
 /* The scattering choices: a select per render key, with the server's default for a method.
@@ -99,6 +101,7 @@ const COUNT_ROWS = [
   { key: 'camera_segments', label: 'camera segments in media' },
   { key: 'gather_segments', label: 'segments gathered' },
   { key: 'tiles_interpolated', label: 'tiles interpolated' },
+  { key: 'single_interpolated', label: 'single scattering: pixels interpolated' },
   { key: 'corrections_interpolated', label: 'corrections interpolated' },
   { key: 'interactions', label: 'VRL–segment interactions' },
   { key: 'cells_culled', label: 'grid cells culled' },
