@@ -318,9 +318,11 @@ typedef struct ns_scatter_inputs {
  * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the
  * radiance of a pixel the rounds gather, from the caller's field (a struct the test
  * defines: the library only passes it on). Fills every pixel's radiance (gathered or
- * interpolated) and interpolated[p]. Returns 0, or -1 out of memory. */
+ * interpolated) and interpolated[p]. curved: the interpolated values of adaptive single
+ * scattering (a cubic or a parabola through the outer samples) instead of the gather's
+ * means. Returns 0, or -1 out of memory. */
 typedef struct ns_tile_field ns_tile_field;
-int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);

@@ -1,5 +1,6 @@
 /* scatter_render.c — the scattering components of a render, after the camera pass (paper
- * Sections 3.8 and 4.1): single scattering at every camera segment; double and multiple
+ * Sections 3.8 and 4.1): single scattering at every camera segment (or, with
+ * render.single_levels, at those of the pixels the adaptive rounds pick); double and multiple
  * scattering gathered from the VRLs (tables of the network or of Monte Carlo, the dipole,
  * or the brute-force `vrl` method) for one pixel per tile, then edge-aware upsampling; and
  * the composition into pixels.
@@ -19,7 +20,8 @@
  * (so coverage and Fresnel stay its own). A pixel that no neighbour can stand for is
  * gathered itself: light never bleeds across silhouettes or between objects. With
  * render.gather_levels the tiles' own pixels are gathered coarse to fine and interpolated
- * where that is accurate (the adaptive gather, below).
+ * where that is accurate (the adaptive gather, below); render.single_levels does the same
+ * for single scattering with every pixel its own tile.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -283,11 +285,11 @@ static uint32_t same_surface_at(const tile_plan *t, int64_t tx, int64_t ty, uint
 
 /* Twice the midpoint's value on a line through fa (at -h) and fb (at +h), with the outer
  * samples fa_out (-3h) and fb_out (+3h) where they exist (else NAN): the cubic through all
- * four, (9 (fa + fb) - fa_out - fb_out) / 16, or the parabola through three, whose error is
- * of higher order than the mean's f'' h^2 / 2 that the tolerance bounds. The mean of the
- * two misses a curved field by as much as the tolerance allows: a sphere's single
- * scattering, bright near its lit side, came out 1% low in the mean with the plain mean at
- * 0.05 (tests/gpu_single.c, test_adaptive). Never below 0: what is interpolated is light. */
+ * four, (9 (fa + fb) - fa_out - fb_out) / 16, or the parabola through three, exact for
+ * fields of degree 3 and 2 (unit_adaptive_gather). The plain mean misses by f'' h^2 / 2, as
+ * much as the tolerance lets through: while this was written, a sphere's single scattering
+ * (brightest by its lit face, falling off inward) came out 1% low over the sphere with the
+ * mean at 0.05, 0.4% with this. Never below 0: what is interpolated is light. */
 static float curved_pair(float fa, float fb, float fa_out, float fb_out)
 {
     float twice;
@@ -415,17 +417,35 @@ static uint32_t plan_round(tile_plan *t, uint32_t level, uint8_t *round, uint64_
     return marked;
 }
 
+/* A round's part of its stage's progress: the tiles it examines, 4^-L of them on the coarsest
+ * lattice L (top), 3 * 4^-(l+1) on a lattice l below it. */
+static double round_share(int level, int top)
+{
+    return level == top ? pow(0.25, level) : 3.0 * pow(0.25, level + 1);
+}
+
+/* The sums of throughput * L that a round added for its marked pixels, divided by the
+ * pixels' throughput: Lbar (top of file), what the finer rounds interpolate from. */
+static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*values)[3])
+{
+    for (uint32_t p = 0; p < t->width * t->height; p++)
+        for (int c = 0; c < 3 && round[p]; c++) {
+            float w = t->keys[p].weight[c];
+            values[p][c] = w > 0 ? values[p][c] / w : 0.0f;
+        }
+}
+
 /* The rounds as render_double_multiple runs them, on tiles of one pixel whose keys and
  * radiance the caller gives: coarsest lattice first, plan_round marks the pixels to gather,
  * and they are gathered (their Lbar filled) before the next, finer round reads them. */
-int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance,
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
     uint32_t pixels = width * height;
     tile_plan t = {.width = width, .height = height, .tile = 1, .tiles_x = width,
-                   .tiles_y = height, .levels = levels, .tolerance = tolerance};
+                   .tiles_y = height, .levels = levels, .tolerance = tolerance, .curved = curved};
     t.keys = calloc(pixels, sizeof *t.keys);
     t.representative = malloc(sizeof *t.representative * pixels);
     t.state = calloc(pixels, 1);
@@ -487,10 +507,11 @@ static void add_times(ns_render_stats *stats, const scatter_times *t)
 
 /* ---------------------------------------------------------------------------------------
  * Progress (internal.h): how a camera batch's part of the render is shared out, by nominal
- * relative costs. With the material's tables cached, as in a sweep, single scattering is
- * typically 70-87% of a full nn render on lavapipe (docs/scattering.md, docs/bench.md), and
- * the ray pass and the gather share the rest; the vrl method's brute-force gather costs more
- * than its single scattering. A part the render does not run weighs nothing. Within the
+ * relative costs. With boundary walks and adaptive single scattering (the scene file's
+ * defaults) the gather is 59-79% of a full nn render of the bench's scenes on lavapipe,
+ * single scattering 1-22%, the ray pass 1-5% (docs/bench.md, *Adaptive single
+ * scattering*; before adaptive single scattering it was 70-87% of a render); the vrl
+ * method's brute-force gather costs more than its single scattering. A part the render does not run weighs nothing. Within the
  * double and multiple part: the VRLs take 10% of the first round that gathers; the rounds of
  * the adaptive gather share it by the tiles each examines (4^-L of them on the coarsest
  * lattice L, 3 * 4^-(l+1) on lattice l < L); a round shares its part among the media by
@@ -501,8 +522,8 @@ static void add_times(ns_render_stats *stats, const scatter_times *t)
 static const struct {
     double ray, single, scattered;
 } batch_costs[NS_METHOD_COUNT] = {
-    [NS_METHOD_NN] = {0.10, 0.75, 0.15},
-    [NS_METHOD_TABLE] = {0.10, 0.75, 0.15},
+    [NS_METHOD_NN] = {0.05, 0.15, 0.80},
+    [NS_METHOD_TABLE] = {0.05, 0.15, 0.80},
     [NS_METHOD_VRL] = {0.05, 0.35, 0.60},
     [NS_METHOD_DIPOLE] = {0.10, 0.80, 0.10},
     [NS_METHOD_PT] = {1.0, 0.0, 0.0}, /* pt.c plans its own */
@@ -561,7 +582,7 @@ static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint
 }
 
 /* ---------------------------------------------------------------------------------------
- * Single scattering: every segment, full resolution.
+ * Single scattering: every visible segment, or those of the pixels the adaptive rounds pick.
  * ------------------------------------------------------------------------------------- */
 static int compare_u64(const void *a, const void *b)
 {
@@ -574,9 +595,9 @@ static int compare_u64(const void *a, const void *b)
  * invocations finish, an order that differs from run to run; single scattering's SIMD groups
  * are made from this order, and there its dispatches are sized from their loop counts
  * (render/single.c; trace.glsl counts a group's, subgroupMax), so without the sort its float
- * sums could differ from one run of a render to the next. Elsewhere nothing is sized from
- * loop counts, and the sort (75 ms for a million segments) is skipped. Returns the count, or
- * UINT32_MAX when out of memory. */
+ * sums could differ from one run of a render to the next; adaptive single scattering's
+ * decisions (render_single) need it on every device. Elsewhere the sort (75 ms for a million
+ * segments) is skipped. Returns the count, or UINT32_MAX when out of memory. */
 static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixel_order,
                                  GpuSegment *kept)
 {
@@ -659,11 +680,13 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     int status = NS_OK;
     if (!round || !list || !order || tile_plan_build(scene, kept, n, PLAN_SINGLE, &plan))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", n);
-    /* Each round's part of the stage's progress: the pixels it examines, as the gather's. */
     double at = 0.0;
     int top = (int)plan.levels;
     for (int level = top; level >= 0 && !status; level--) {
-        double part = level == top ? pow(0.25, level) : 3.0 * pow(0.25, level + 1);
+        double part = round_share(level, top);
+        status = ns_run_check(ctx, err);
+        if (status)
+            break;
         /* In Z order, as the gather's lists: a round's pixels are spread over the image, and
          * pixel order would put far-apart segments side by side in a SIMD group. */
         uint32_t count = 0, marked = plan_round(&plan, (uint32_t)level, round, interpolated)
@@ -676,11 +699,8 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
         status = single_segments(ctx, in, list, count, plan.radiance, err);
         ns_progress_pop(ctx, span);
         at += part;
-        for (uint32_t p = 0; p < pixels && marked && !status; p++)
-            for (int c = 0; c < 3 && round[p]; c++) {
-                float w = plan.keys[p].weight[c];
-                plan.radiance[p][c] = w > 0 ? plan.radiance[p][c] / w : 0.0f;
-            }
+        if (marked && !status)
+            per_unit_throughput(&plan, round, plan.radiance);
     }
     if (!status)
         compose(in, &plan);
@@ -697,8 +717,11 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a,
     ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
-    uint32_t n = kept ? visible_segments(all, in->segment_count, ctx->dev.loop_limited, kept)
-                      : UINT32_MAX;
+    /* Adaptive rounds decide from sums over a pixel's segments, so those must add in the same
+     * order from run to run on every device: pixel order (each pixel's segments in the order
+     * its camera path wrote them). */
+    int pixel_order = ctx->dev.loop_limited || in->scene->render.single_levels;
+    uint32_t n = kept ? visible_segments(all, in->segment_count, pixel_order, kept) : UINT32_MAX;
     int status = NS_OK;
     uint64_t interpolated = 0;
     if (n == UINT32_MAX)
@@ -1134,19 +1157,17 @@ static void store_round(const ns_scatter_inputs *in, tile_plan *t, const uint8_t
         sum_segments(in, &vrls->list, vrls->out.mapped, t->radiance);
     if (correction && correction->list.count)
         sum_segments(in, &correction->list, correction->out.mapped, t->correction);
+    per_unit_throughput(t, round, t->radiance);
+    if (!t->correction)
+        return;
     /* With the boundary correction ghost sources subtract: the pixel's total, never a
      * source's or a segment's part, is kept from going negative by their noise. */
     for (uint32_t p = 0; p < t->width * t->height; p++)
         for (int c = 0; c < 3 && round[p]; c++) {
             float w = t->keys[p].weight[c];
-            float v = w > 0 ? t->radiance[p][c] / w : 0.0f;
-            if (!t->correction) {
-                t->radiance[p][c] = v;
-                continue;
-            }
             if (round[p] & GATHER_CORRECTION)
                 t->correction[p][c] = w > 0 ? t->correction[p][c] / w : 0.0f;
-            t->radiance[p][c] = fmaxf(v + t->correction[p][c], 0.0f);
+            t->radiance[p][c] = fmaxf(t->radiance[p][c] + t->correction[p][c], 0.0f);
         }
 }
 
@@ -1288,7 +1309,7 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     double at = 0.0;
     int top = (int)top_level(&plan);
     for (int level = top; level >= 0 && !status; level--) {
-        double part = level == top ? pow(0.25, level) : 3.0 * pow(0.25, level + 1);
+        double part = round_share(level, top);
         status = ns_run_check(ctx, err);
         if (status)
             break;

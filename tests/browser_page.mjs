@@ -220,7 +220,7 @@ async function run() {
         (inputs) => inputs.map((i) => ({ id: i.id, placeholder: i.getAttribute('placeholder') })));
       const wrong = fields.filter(({ id, placeholder }) => {
         const key = id.replace(/-/g, '_');
-        return !(key in props) || Number(placeholder) !== Number(props[key].default ?? 0);
+        return !(key in props) || props[key].default === undefined || Number(placeholder) !== Number(props[key].default);
       });
       check('every number field of the scattering settings has the documented default as its placeholder',
         fields.length >= 8 && wrong.length === 0, JSON.stringify({ fields, wrong }));

@@ -824,8 +824,9 @@ static void test_camera_segments_refracting(void)
  * between it and the bright sphere casts a shadow on the face the camera sees, with edges
  * single scattering shows sharply (no environment: the shadow is dark). Every render shares
  * the camera segments (one seed); the converged image has 16 times the camera samples:
- *   - tolerance 0 interpolates only where the estimate is exactly 0 (in the shadow): the
- *     image is that of every pixel computed, to float rounding;
+ *   - tolerance 0 interpolates only where the estimate is exactly 0 (nowhere here: the
+ *     shadow's view rays cross lit medium too), so the rounds must compose the image that
+ *     every pixel computed gives, to float rounding;
  *   - the default tolerance interpolates a good part of the spheres, keeps each sphere's
  *     mean, and its error against the converged image is not much above that of computing
  *     every pixel: the shadow's edges and the two media are computed, not blurred. A blind
@@ -926,12 +927,12 @@ static void test_adaptive(void)
     CHECK_INT(st_full.single_interpolated, 0);
     CHECK(worst_exact < 1e-5);
     /* Measured: 770 of about 1,340 lit pixels interpolated; rms 1.14 and 1.62 times every
-     * pixel's; the means 0.4% from every pixel's, the blind ones 0.7 and 1.1%. */
+     * pixel's; the means 0.43 and 0.41% from every pixel's, the blind ones 0.73 and 1.09%. */
     CHECK(st_adaptive.single_interpolated > lit / 3 / 3);
     CHECK(e_adaptive.rms < 1.25 * e_full.rms);
     CHECK(e_blind.rms > 1.4 * e_full.rms); /* the shadow's edges are there to blur */
     for (int side = 0; side < 2; side++)
-        CHECK(fabs(e_adaptive.mean[side] - e_full.mean[side]) < 0.0075);
+        CHECK(fabs(e_adaptive.mean[side] - e_full.mean[side]) < 0.006);
     CHECK_INT(e_adaptive.lit_background, 0);
 done:
     ns_image_free(&converged);

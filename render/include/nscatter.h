@@ -305,7 +305,8 @@ typedef struct ns_render_settings {
     uint32_t single_samples;
     /* Adaptive single scattering, the adaptive gather's rule at every pixel: single
      * scattering is first computed on a lattice of pixels 2^single_levels apart, and a pixel
-     * between computed ones takes their mean where they see its surface and agree within
+     * between computed ones takes a value interpolated from them (a cubic, or a parabola
+     * near a silhouette) where they see its surface and the error of their mean is within
      * single_tolerance (relative, per channel), else it is computed. single_levels 0 =
      * every pixel, the library's default; the scene parser's for an absent key is
      * NS_DEFAULT_SINGLE_LEVELS (as boundary's). single_tolerance keeps its 0, as
