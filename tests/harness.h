@@ -21,12 +21,22 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 /* CTest's SKIP_RETURN_CODE for every C test program (tests/CMakeLists.txt). */
 #define HARNESS_SKIP_STATUS 77
 
 static int harness_passed, harness_failed, harness_skipped;
 static const char *harness_current = "";
+
+/* Wall-clock seconds, for each test function's line: the suite's time budget is spent where
+ * these say (docs/development.md, "Test time"). */
+static inline double harness_seconds(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
 
 #define CHECK(cond)                                                                          \
     do {                                                                                     \
@@ -93,12 +103,13 @@ static const char *harness_current = "";
     do {                                                                                     \
         harness_current = #fn;                                                               \
         int before_ = harness_failed, skipped_ = harness_skipped;                            \
+        double start_ = harness_seconds();                                                   \
         fn();                                                                                \
-        fprintf(stderr, "%s %s\n",                                                           \
+        fprintf(stderr, "%s %s (%.1f s)\n",                                                  \
                 harness_failed != before_       ? "FAIL"                                     \
                 : harness_skipped != skipped_ ? "skip"                                       \
                                               : "ok  ",                                      \
-                #fn);                                                                        \
+                #fn, harness_seconds() - start_);                                            \
     } while (0)
 
 /* The summary line and the exit status: 1 if a check failed or none ran at all,

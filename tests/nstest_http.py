@@ -47,14 +47,15 @@ class Checks:
     def run(self, fn, *args):
         self.current = fn.__name__
         before = self.failed
+        start = time.monotonic()
         try:
             fn(self, *args)
         except Exception as e:  # a crash in one test is a failure, not the end of the run
             self.failed += 1
             print(f"FAIL {fn.__name__}: exception {type(e).__name__}: {e}", file=sys.stderr,
                   flush=True)
-        print(f"{'ok  ' if self.failed == before else 'FAIL'} {fn.__name__}", file=sys.stderr,
-              flush=True)
+        print(f"{'ok  ' if self.failed == before else 'FAIL'} {fn.__name__} "
+              f"({time.monotonic() - start:.1f} s)", file=sys.stderr, flush=True)
 
     def report(self):
         print(f"{self.passed} passed, {self.failed} failed", flush=True)
