@@ -1418,8 +1418,10 @@ static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
-                                       "gather_tolerance", "single_samples", "single_levels", "single_tolerance", "deadline_ms", "accumulation", "tables",
-                                       "vrl_beams", "boundary", "cull_solid_angle", NULL};
+                                       "gather_tolerance", "gather_camera_samples", "single_samples",
+                                       "single_levels", "single_tolerance", "deadline_ms",
+                                       "accumulation", "tables", "vrl_beams", "boundary",
+                                       "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
     static const char *const tables_names[] = {"exact", "interpolated"};
     static const char *const beam_names[] = {"endless", "bounded"};
@@ -1430,9 +1432,11 @@ static void parse_render(parser *p, const json_t *v)
      * own there, which the library keeps, so only the parser, which sees whether the key was
      * written, can give them their defaults. single_levels too: the library's 0 computes
      * every pixel, as renders built in C always did, and a scene file gets the adaptive
-     * single scattering the bench measured (docs/bench.md, *Adaptive single scattering*). */
+     * single scattering the bench measured (docs/bench.md, *Adaptive single scattering*);
+     * gather_camera_samples likewise (*One camera sample per gathered pixel*). */
     *r = (ns_render_settings){.seed = NS_DEFAULT_SEED,
                               .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
+                              .gather_camera_samples = NS_DEFAULT_GATHER_CAMERA_SAMPLES,
                               .single_levels = NS_DEFAULT_SINGLE_LEVELS,
                               .single_tolerance = NS_DEFAULT_SINGLE_TOLERANCE};
     size_t saved = push_key(p, "render");
@@ -1474,6 +1478,9 @@ static void parse_render(parser *p, const json_t *v)
                    "gather_levels (coarser lattices of tiles; 0 = gather every tile)", &r->gather_levels);
         field_float(p, v, "gather_tolerance", 0, R_UNIT,
                     "gather_tolerance (relative spread that still interpolates)", &r->gather_tolerance);
+        field_uint(p, v, "gather_camera_samples", 0, 0, NS_MAX_SPP,
+                   "gather_camera_samples (camera samples a gathered pixel takes; 0 = all)",
+                   &r->gather_camera_samples);
         field_uint(p, v, "single_samples", 0, 1, NS_MAX_SINGLE_SAMPLES,
                    "single_samples (samples per camera segment)", &r->single_samples);
         field_uint(p, v, "single_levels", 0, 0, NS_MAX_GATHER_LEVELS,

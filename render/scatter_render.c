@@ -58,6 +58,12 @@ typedef struct pixel_key {
     uint32_t first_rank; /* (sample, depth) of that segment, to find the first */
     float distance;      /* camera to its entry point */
     float weight[3];     /* sum of throughput / spp over participating segments */
+    /* The gather takes the segments of camera samples [gather_first_sample,
+     * gather_first_sample + gather_samples) of this pixel (NS_NONE: every sample's;
+     * choose_gathered_samples), and gather_weight is the sum of throughput / spp over those:
+     * Lbar's denominator. */
+    uint32_t gather_first_sample, gather_samples;
+    float gather_weight[3];
 } pixel_key;
 
 /* How a pixel's double and multiple scattering is found. */
@@ -177,6 +183,76 @@ static int upsample_sources(const tile_plan *t, uint32_t x, uint32_t y, uint32_t
  * single scattering (render.single_*; every pixel its own tile, every visible segment). */
 typedef enum plan_use { PLAN_GATHER, PLAN_SINGLE } plan_use;
 
+static int compare_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* Whether the gather takes segment s (choose_gathered_samples, below). */
+static int gathered(const tile_plan *t, const GpuSegment *s, ns_method method)
+{
+    const pixel_key *k = &t->keys[s->pixel];
+    return participates(s, method) &&
+           (k->gather_first_sample == NS_NONE || s->sample_index - k->gather_first_sample < k->gather_samples);
+}
+
+/* Which segments of a pixel the gather takes (render.gather_camera_samples N > 0): those of
+ * N camera samples, from the sample of its first segment on, where every sample's first
+ * segment sees the same surface (same medium, entry within SAME_SURFACE_DISTANCE); a pixel on
+ * a silhouette, whose samples see two media or one medium at two depths, gathers every
+ * sample's. Double and multiple scattering vary over a mean free path, many pixels; a
+ * pixel's samples lie a fraction of a pixel apart, and their paths inside split alike, so
+ * Lbar (top of file) of some of them stands for Lbar of all of them as a tile's
+ * representative stands for its tile. The vrl method's estimates are independent per
+ * segment: it gathers every sample. Runs after the keys and by_pixel are made. */
+static int choose_gathered_samples(const ns_scene *scene, const GpuSegment *segs, plan_use use,
+                                   tile_plan *t)
+{
+    uint32_t pixels = t->width * t->height, samples = scene->render.gather_camera_samples;
+    ns_method method = scene->render.method;
+    int some = use == PLAN_GATHER && samples > 0 && samples < scene->render.spp && method != NS_METHOD_VRL;
+    uint64_t *ranks = NULL; /* a pixel's participating segments: rank << 32 | index */
+    if (some && !(ranks = malloc(sizeof *ranks * (t->segment_start[pixels] ? t->segment_start[pixels] : 1))))
+        return -1;
+    float inv_spp = 1.0f / (float)scene->render.spp;
+    for (uint32_t p = 0; p < pixels; p++) {
+        pixel_key *k = &t->keys[p];
+        k->gather_first_sample = NS_NONE;
+        k->gather_samples = samples;
+        memcpy(k->gather_weight, k->weight, sizeof k->gather_weight);
+        if (!some || k->material == NS_NONE)
+            continue;
+        uint32_t count = 0;
+        for (uint32_t j = t->segment_start[p]; j < t->segment_start[p + 1]; j++) {
+            const GpuSegment *g = &segs[t->by_pixel[j]];
+            if (participates(g, method))
+                ranks[count++] = (uint64_t)(g->sample_index * 256u + (g->depth & 255u)) << 32 | t->by_pixel[j];
+        }
+        qsort(ranks, count, sizeof *ranks, compare_u64);
+        int same = 1;
+        for (uint32_t j = 0; j < count && same; j++) {
+            const GpuSegment *g = &segs[(uint32_t)ranks[j]];
+            if (j && segs[(uint32_t)ranks[j - 1]].sample_index == g->sample_index)
+                continue; /* not its sample's first */
+            pixel_key first = {.material = g->material, .distance = distance3(g->entry, scene->camera.position)};
+            same = compatible(k, &first);
+        }
+        if (!same)
+            continue;
+        k->gather_first_sample = k->first_rank / 256u;
+        memset(k->gather_weight, 0, sizeof k->gather_weight);
+        for (uint32_t j = 0; j < count; j++) {
+            const GpuSegment *g = &segs[(uint32_t)ranks[j]];
+            if (g->sample_index - k->gather_first_sample < samples)
+                for (int c = 0; c < 3; c++)
+                    k->gather_weight[c] += g->throughput[c] * inv_spp;
+        }
+    }
+    free(ranks);
+    return 0;
+}
+
 static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32_t n, plan_use use,
                            tile_plan *t)
 {
@@ -238,6 +314,8 @@ static int tile_plan_build(const ns_scene *scene, const GpuSegment *segs, uint32
         }
     }
     free(fill);
+    if (choose_gathered_samples(scene, segs, use, t))
+        return -1;
     for (uint32_t ty = 0; ty < t->tiles_y; ty++)
         for (uint32_t tx = 0; tx < t->tiles_x; tx++)
             t->representative[ty * t->tiles_x + tx] = choose_representative(t, tx, ty);
@@ -430,7 +508,7 @@ static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*valu
 {
     for (uint32_t p = 0; p < t->width * t->height; p++)
         for (int c = 0; c < 3 && round[p]; c++) {
-            float w = t->keys[p].weight[c];
+            float w = t->keys[p].gather_weight[c];
             values[p][c] = w > 0 ? values[p][c] / w : 0.0f;
         }
 }
@@ -453,7 +531,8 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
     uint8_t *round = malloc(pixels ? pixels : 1);
     int status = t.keys && t.representative && t.state && t.radiance && round ? NS_OK : -1;
     for (uint32_t p = 0; p < pixels && !status; p++) {
-        t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1}};
+        t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1},
+                                .gather_first_sample = NS_NONE, .gather_weight = {1, 1, 1}};
         t.representative[p] = material[p] == NS_NONE ? NS_NONE : p;
     }
     uint64_t count = 0;
@@ -584,12 +663,6 @@ static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint
 /* ---------------------------------------------------------------------------------------
  * Single scattering: every visible segment, or those of the pixels the adaptive rounds pick.
  * ------------------------------------------------------------------------------------- */
-static int compare_u64(const void *a, const void *b)
-{
-    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
-    return (x > y) - (x < y);
-}
-
 /* The visible segments of all, into kept: on a loop-limited device (lavapipe) in pixel order,
  * each pixel's in the order the camera pass wrote them. That pass appends segments as its
  * invocations finish, an order that differs from run to run; single scattering's SIMD groups
@@ -758,7 +831,7 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
     uint32_t marked = marked_in_z_order(t, round, want, order);
     for (uint32_t j = 0; j < marked; j++)
         for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++)
-            if (participates(&segs[t->by_pixel[k]], method)) {
+            if (gathered(t, &segs[t->by_pixel[k]], method)) {
                 g->material_first[segs[t->by_pixel[k]].material + 1]++;
                 n++;
             }
@@ -775,7 +848,7 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
     for (uint32_t j = 0; j < marked; j++)
         for (uint32_t k = t->segment_start[order[j]]; k < t->segment_start[order[j] + 1]; k++) {
             uint32_t i = t->by_pixel[k];
-            if (!participates(&segs[i], method))
+            if (!gathered(t, &segs[i], method))
                 continue;
             uint32_t at = g->material_first[segs[i].material] + fill[segs[i].material]++;
             g->segments[at] = segs[i];
@@ -1164,7 +1237,7 @@ static void store_round(const ns_scatter_inputs *in, tile_plan *t, const uint8_t
      * source's or a segment's part, is kept from going negative by their noise. */
     for (uint32_t p = 0; p < t->width * t->height; p++)
         for (int c = 0; c < 3 && round[p]; c++) {
-            float w = t->keys[p].weight[c];
+            float w = t->keys[p].gather_weight[c];
             if (round[p] & GATHER_CORRECTION)
                 t->correction[p][c] = w > 0 ? t->correction[p][c] / w : 0.0f;
             t->radiance[p][c] = fmaxf(t->radiance[p][c] + t->correction[p][c], 0.0f);

@@ -156,6 +156,8 @@ static int check_render(const ns_render_settings *r, ns_error *err)
             return BAD("render.gather_levels: %u over %u", r->gather_levels, NS_MAX_GATHER_LEVELS);
         if (!(r->gather_tolerance >= 0.0f && r->gather_tolerance <= 1.0f))
             return BAD("render.gather_tolerance: %g outside 0..1", (double)r->gather_tolerance);
+        if (r->gather_camera_samples > NS_MAX_SPP)
+            return BAD("render.gather_camera_samples: %u over %u", r->gather_camera_samples, NS_MAX_SPP);
         if ((r->components & NS_COMPONENT_SINGLE) &&
             (r->single_samples < 1 || r->single_samples > NS_MAX_SINGLE_SAMPLES))
             return BAD("render.single_samples: %u outside 1..%u", r->single_samples,

@@ -661,6 +661,7 @@ REFUSED = [
     ("gather_levels 5", set_in("/render/gather_levels", 5)),
     ("gather_levels 1.5", set_in("/render/gather_levels", 1.5)),
     ("gather_tolerance -0.1", set_in("/render/gather_tolerance", -0.1)),
+    ("gather_camera_samples 4097", set_in("/render/gather_camera_samples", 4097)),
     ("single_levels 5", set_in("/render/single_levels", 5)),
     ("single_tolerance 2", set_in("/render/single_tolerance", 2)),
     ("vrl_beams finite", set_in("/render/vrl_beams", "finite")),

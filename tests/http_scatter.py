@@ -101,6 +101,19 @@ def test_adaptive_single_is_the_default(t, srv):
                 f"every pixel computed: {renders['every pixel']}")
 
 
+def test_gather_takes_one_camera_sample_by_default(t, srv):
+    # At 4 spp a scene without gather_camera_samples gathers one camera sample of each
+    # gathered pixel (the parser's default); 0 gathers all four: about 4 times the segments.
+    renders = {}
+    for name, extra in (("default", {}), ("every sample", {"gather_camera_samples": 0})):
+        status, headers, body = srv.render(scatter_scene(components=("multiple",), spp=4, **extra))
+        t.equal(status, 200, f"multiple scattering at 4 spp, {name} ({body[:300]!r})")
+        renders[name] = stats_of(headers).get("gather_segments", 0)
+    if len(renders) == 2:
+        t.check(0 < 3 * renders["default"] < renders["every sample"],
+                f"gathered segments, one sample against every sample: {renders}")
+
+
 def test_bounded_beams_add_reflected_vrls(t, srv):
     counts, timings = {}, []
     for beams in ("endless", "bounded", "bounded"):
@@ -162,6 +175,10 @@ def test_bad_settings_422(t, srv):
                "tolerance above 1")
     expect_422(t, srv, scatter_scene(gather_tolerance="loose"), "/render/gather_tolerance",
                "tolerance not a number")
+    expect_422(t, srv, scatter_scene(gather_camera_samples=-1), "/render/gather_camera_samples",
+               "negative camera samples")
+    expect_422(t, srv, scatter_scene(gather_camera_samples="one"), "/render/gather_camera_samples",
+               "camera samples not a number")
     expect_422(t, srv, scatter_scene(single_levels=5), "/render/single_levels", "too many levels")
     expect_422(t, srv, scatter_scene(single_tolerance=-0.5), "/render/single_tolerance",
                "negative tolerance")
@@ -183,6 +200,7 @@ def main():
         for test in (test_full_render_reports_stages_and_counts, test_sweep_returns_to_cached_material,
                      test_bounded_beams_add_reflected_vrls, test_boundary_walks,
                      test_adaptive_gather_counts_interpolated_tiles, test_adaptive_single_is_the_default,
+                     test_gather_takes_one_camera_sample_by_default,
                      test_bad_settings_422):
             t.run(test, srv)
         code = srv.stop()

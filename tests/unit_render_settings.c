@@ -18,6 +18,7 @@ static void test_zero_means_default(void)
     CHECK_INT(r.vrls, 10000);
     CHECK_INT(r.gather_tile, 2);
     CHECK_INT(r.gather_levels, 0);
+    CHECK_INT(r.gather_camera_samples, 0); /* every sample: the parser's default is 1 */
     CHECK_INT(r.single_samples, 64);
     CHECK_INT(r.single_levels, 0);
     CHECK_INT(r.accumulation, NS_ACCUMULATION_EXACT);
@@ -43,6 +44,7 @@ static void test_given_fields_are_kept(void)
         .gather_tile = 1,
         .gather_levels = 2,
         .gather_tolerance = 0.5f,
+        .gather_camera_samples = 2,
         .single_samples = 4,
         .single_levels = 3,
         .single_tolerance = 0.25f,

@@ -420,6 +420,7 @@ static void test_defaults_and_grey_colors(void)
         CHECK_NEAR(s->render.exposure, 0, 0);
         CHECK_INT(s->render.gather_levels, NS_DEFAULT_GATHER_LEVELS);
         CHECK_NEAR(s->render.gather_tolerance, NS_DEFAULT_GATHER_TOLERANCE, 0);
+        CHECK_INT(s->render.gather_camera_samples, NS_DEFAULT_GATHER_CAMERA_SAMPLES);
         CHECK_INT(s->render.single_levels, NS_DEFAULT_SINGLE_LEVELS);
         CHECK_NEAR(s->render.single_tolerance, NS_DEFAULT_SINGLE_TOLERANCE, 0);
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_ENDLESS);
@@ -437,7 +438,7 @@ static void test_integers_and_settings(void)
         "{\"position\":[0,0,5],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":45.5,\"width\":256.0,\"height\":1e2}",
         NULL, NULL, NULL,
         "{\"method\":\"nn\",\"components\":[\"surface\"],\"spp\":16.0,\"seed\":4294967295,\"max_depth\":64,"
-        "\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
+        "\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"gather_camera_samples\":0,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
         "\"tables\":\"interpolated\"}");
     scene_doc *doc = parse_ok(text, NULL);
     if (doc) {
@@ -451,6 +452,7 @@ static void test_integers_and_settings(void)
         CHECK_NEAR(s->render.exposure, -1.5, 0);
         CHECK_INT(s->render.gather_levels, 3);
         CHECK_NEAR(s->render.gather_tolerance, 0.01, 1e-9);
+        CHECK_INT(s->render.gather_camera_samples, 0); /* 0 written: every sample */
         CHECK_INT(s->render.single_levels, 4);
         CHECK_NEAR(s->render.single_tolerance, 0, 0); /* 0 is a tolerance of its own */
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_BOUNDED);
@@ -643,6 +645,8 @@ static const bad_case bad_cases[] = {
     {RENDER, "{\"components\":[\"multiple\"],\"gather_levels\":5}", "/render/gather_levels", "integer in [0, 4]", 1},
     {RENDER, "{\"components\":[\"multiple\"],\"gather_levels\":1.5}", "/render/gather_levels", "must be an integer", 1},
     {RENDER, "{\"components\":[\"multiple\"],\"gather_tolerance\":-0.1}", "/render/gather_tolerance", "in [0, 1]", 1},
+    {RENDER, "{\"components\":[\"multiple\"],\"gather_camera_samples\":4097}", "/render/gather_camera_samples", "integer in [0, 4096]", 1},
+    {RENDER, "{\"components\":[\"multiple\"],\"gather_camera_samples\":-1}", "/render/gather_camera_samples", "integer in [0, 4096]", 1},
     {RENDER, "{\"components\":[\"single\"],\"single_levels\":5}", "/render/single_levels", "integer in [0, 4]", 1},
     {RENDER, "{\"components\":[\"single\"],\"single_levels\":\"2\"}", "/render/single_levels", "must be an integer", 1},
     {RENDER, "{\"components\":[\"single\"],\"single_tolerance\":1.5}", "/render/single_tolerance", "in [0, 1]", 1},

@@ -261,18 +261,22 @@ const char *ns_boundary_name(ns_boundary boundary);
  * levels computes every pixel (ns_render_settings). */
 #define NS_DEFAULT_SINGLE_LEVELS 2u
 #define NS_DEFAULT_SINGLE_TOLERANCE 0.05f
+/* The scene parser's default for render.gather_camera_samples; the library's 0 gathers every
+ * camera sample's segments. */
+#define NS_DEFAULT_GATHER_CAMERA_SAMPLES 1u
 
 /* How to render. A field left 0 means its default: ns_render replaces it once, first
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
- * max_scatter, gather_levels, single_levels, accumulation, tables, vrl_beams, boundary,
- * cull_solid_angle) nothing needs replacing. Five fields are exceptions. seed,
+ * max_scatter, gather_levels, gather_camera_samples, single_levels, accumulation, tables,
+ * vrl_beams, boundary, cull_solid_angle) nothing needs replacing. Five fields are exceptions. seed,
  * gather_tolerance and single_tolerance keep a 0 as given (0 is a value of their own there),
  * and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
  * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
  * was written; boundary is 0 (off) here, and the parser's default is
  * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
- * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS. */
+ * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS; gather_camera_samples is 0
+ * (every sample) here, and the parser's default is NS_DEFAULT_GATHER_CAMERA_SAMPLES. */
 typedef struct ns_render_settings {
     ns_method method;    /* 0: NS_METHOD_NN, the default */
     uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
@@ -300,6 +304,14 @@ typedef struct ns_render_settings {
      * interpolated within 5 x gather_tolerance of the pixels' totals (0: at every tile). */
     uint32_t gather_levels;
     float gather_tolerance;
+    /* How many of a gathered pixel's camera samples the gather takes, 0..NS_MAX_SPP: the
+     * segments of its first N samples that reach a medium, where all of its segments are in
+     * one medium (else every sample's); the pixel's other samples take their radiance per
+     * unit throughput. Double and multiple scattering vary over a mean free path, and the
+     * samples of a pixel lie a fraction of a pixel apart. 0 = every sample, the library's
+     * default; the scene parser's is NS_DEFAULT_GATHER_CAMERA_SAMPLES. The vrl method, whose
+     * estimate is independent per segment, gathers every sample. */
+    uint32_t gather_camera_samples;
     /* Samples per camera segment for single scattering, 1..NS_MAX_SINGLE_SAMPLES;
      * 0: NS_DEFAULT_SINGLE_SAMPLES. */
     uint32_t single_samples;
