@@ -78,6 +78,7 @@ const SCATTER_NUMBERS = [
   { key: 'gather_tile', id: 'gather-tile', integer: true },
   { key: 'gather_levels', id: 'gather-levels', integer: true },
   { key: 'gather_tolerance', id: 'gather-tolerance', integer: false },
+  { key: 'gather_camera_samples', id: 'gather-camera-samples', integer: true },
   { key: 'single_samples', id: 'single-samples', integer: true },
   { key: 'single_levels', id: 'single-levels', integer: true },
   { key: 'single_tolerance', id: 'single-tolerance', integer: false },
