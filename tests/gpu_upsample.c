@@ -278,8 +278,8 @@ static void test_camera_samples(void)
            (unsigned long long)st[ONE].gather_segments, (unsigned long long)st[ALL].gather_segments,
            e_all, e_one, s[ONE_SAME_COST].render.vrls, e_same_cost);
     CHECK(st[ONE].gather_segments < 0.3 * (double)st[ALL].gather_segments);
-    CHECK(e_one < 1.5 * e_all);
-    CHECK(e_same_cost < 1.1 * e_all);
+    CHECK(e_one < 1.6 * e_all); /* measured 0.0187 against 0.0133 */
+    CHECK(e_same_cost < 1.1 * e_all); /* 0.0113 */
     check_against_full(&s[ALL], &img[ALL], &img[ONE], 0.05);
     CHECK_INT(st[FOUR].gather_segments, st[ALL].gather_segments);
     CHECK(memcmp(img[FOUR].rgb, img[ALL].rgb, sizeof(float) * 3 * W * H) == 0);
@@ -289,7 +289,9 @@ static void test_camera_samples(void)
     printf("dark sphere in front: one sample against every sample, %.4f on the %u pixels of the "
            "silhouette, %.4f inside\n", e_band, band, e_inside);
     CHECK(band > 40);
-    CHECK(e_band < 3 * e_inside); /* without the rule: 0.133 against 0.017 */
+    /* 0.025 against 0.015 inside; without the rule 0.133 against 0.017 (when the first
+     * sample was taken, not the nearest to the centre) */
+    CHECK(e_band < 3 * e_inside);
 done:
     for (int r = 0; r < RUNS; r++)
         ns_image_free(&img[r]);

@@ -305,9 +305,9 @@ typedef struct ns_render_settings {
     uint32_t gather_levels;
     float gather_tolerance;
     /* How many of a gathered pixel's camera samples the gather takes, 0..NS_MAX_SPP: the
-     * segments of its first N samples that reach a medium, where all of its segments are in
-     * one medium (else every sample's); the pixel's other samples take their radiance per
-     * unit throughput. Double and multiple scattering vary over a mean free path, and the
+     * segments of the N samples that start nearest its centre, where every sample's first
+     * segment sees the same surface (else every sample's); the pixel's other samples take
+     * their radiance per unit throughput. Double and multiple scattering vary over a mean free path, and the
      * samples of a pixel lie a fraction of a pixel apart. 0 = every sample, the library's
      * default; the scene parser's is NS_DEFAULT_GATHER_CAMERA_SAMPLES. The vrl method, whose
      * estimate is independent per segment, gathers every sample. */
