@@ -10,8 +10,8 @@
  * docs/scattering.md, not here: pt's reference of it is too noisy to test against.)
  * Each case checks the image mean of nn with the correction within a tolerance of pt's per
  * channel, and that without it nn is off by more (so that the scene tells them apart).
- * Image means over 32 x 32 pixels. Also: off is the default and adds no source; the other
- * methods refuse the setting naming it. */
+ * Image means over 32 x 32 pixels (the slabs: 16 x 16). Also: off is the default and adds no
+ * source; the other methods refuse the setting naming it. */
 #include "gpu_util.h"
 
 typedef struct means {
@@ -130,12 +130,19 @@ static void test_slab(double thickness, double walks_tolerance, double off_off, 
     set3(s.camera.position, 0, 10, 17.32);
     set3(s.camera.look_at, 0, 0, 0);
     s.render.vrls = 100000; /* the slab is 60 wide: VRLs spread over all of it */
+    /* 16 x 16 pixels: the slab fills the image, whose mean's noise is the VRLs' for nn (and
+     * pt keeps its paths at 1024 spp), and the gather costs in proportion to the pixels (the
+     * slabs 68.7 s to 49.5 s; the means moved by at most 0.8 points, 2026-11-30). */
+    s.camera.width = s.camera.height = 16;
     char name[64];
     snprintf(name, sizeof name, "slab %g mfp, ior 1", thickness);
-    compare(name, s, NS_COMPONENT_MULTIPLE, 256, walks_tolerance, off_off, closer);
+    compare(name, s, NS_COMPONENT_MULTIPLE, 1024, walks_tolerance, off_off, closer);
 }
 
-/* Measured (2026-11-29, light paths stratified, walks with spectral MIS over the path),
+/* Measured at 16 x 16 (2026-11-30): walks / off 0.5 mfp +8.0 / +1.6 / -8.6% against +592 /
+ * +154 / +2340%; 2 mfp +4.5 / +1.1 / +7.7% against +91 / +14 / +458%; 8 mfp +3.3 / +0.9 /
+ * +7.8% against +31 / +5.6 / +168%.
+ * Measured at 32 x 32 (2026-11-29, light paths stratified, walks with spectral MIS over the path),
  * walks / off against pt per channel (albedo 0.909 / 0.5 / 0.99): 0.5 mfp +7.2 / +0.9 /
  * -9.4% against +596 / +156 / +2349%; 2 mfp +5.0 / +1.5 / +8.2% against +92 / +14 / +460%;
  * 8 mfp +3.9 / +1.4 / +8.1% against +32 / +6.0 / +168% (stratified, MIS per event: 8 mfp
