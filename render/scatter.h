@@ -313,6 +313,12 @@ typedef struct ns_scatter_inputs {
     float *pixels;             /* linear RGB, 3 floats per pixel */
 } ns_scatter_inputs;
 
+/* Squared distance, in pixels, from the centre of pixel p of a width x height image to where
+ * the camera of `cam` (the camera pass's pinhole: cam_position.w = tan of half the horizontal
+ * field, cam_right.w of the vertical) sees point x; INFINITY behind the camera. The gather
+ * takes the camera samples nearest a pixel's centre by it (render.gather_camera_samples). */
+float ns_from_pixel_centre(const GpuParams *cam, uint32_t width, uint32_t height, uint32_t p, const float x[3]);
+
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
  * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
  * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the

@@ -196,17 +196,14 @@ static int gathered(const tile_plan *t, const GpuSegment *segs, uint32_t i, ns_m
     return participates(&segs[i], method) && (!t->taken || t->taken[i]);
 }
 
-/* Squared distance, in pixels, from the centre of pixel p to where the camera sees point x
- * (the camera pass's pinhole, GpuParams: cam_position.w = tan of half the horizontal field,
- * cam_right.w of the vertical). */
-static float from_pixel_centre(const GpuParams *cam, uint32_t width, uint32_t height, uint32_t p,
-                               const float x[3])
+float ns_from_pixel_centre(const GpuParams *cam, uint32_t width, uint32_t height, uint32_t p, const float x[3])
 {
     float v[3] = {x[0] - cam->cam_position[0], x[1] - cam->cam_position[1], x[2] - cam->cam_position[2]};
     float z = v[0] * cam->cam_forward[0] + v[1] * cam->cam_forward[1] + v[2] * cam->cam_forward[2];
     if (!(z > 0.0f))
         return INFINITY;
-    float r = (v[0] * cam->cam_right[0] + v[1] * cam->cam_right[1] + v[2] * cam->cam_right[2]) / (z * cam->cam_position[3]);
+    float r = (v[0] * cam->cam_right[0] + v[1] * cam->cam_right[1] + v[2] * cam->cam_right[2]) /
+              (z * cam->cam_position[3]);
     float u = (v[0] * cam->cam_up[0] + v[1] * cam->cam_up[1] + v[2] * cam->cam_up[2]) / (z * cam->cam_right[3]);
     float dx = 0.5f * (r + 1.0f) * (float)width - ((float)(p % width) + 0.5f);
     float dy = 0.5f * (1.0f - u) * (float)height - ((float)(p / width) + 0.5f);
@@ -268,7 +265,7 @@ static int choose_gathered_samples(const ns_scene *scene, const GpuParams *cam, 
             /* (a sample index beyond spp, from a caller other than the camera pass: every
              * sample's) */
             same = compatible(k, &first) && g->sample_index < scene->render.spp;
-            float d = from_pixel_centre(cam, t->width, t->height, p, g->entry);
+            float d = ns_from_pixel_centre(cam, t->width, t->height, p, g->entry);
             uint32_t bits;
             memcpy(&bits, &d, sizeof bits);
             nearest[sample_count++] = (uint64_t)bits << 32 | g->sample_index;

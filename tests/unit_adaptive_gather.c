@@ -14,6 +14,7 @@
  *    through three): the same decisions, and a parabola comes back exactly. */
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "harness.h"
 #include "scatter.h"
@@ -263,6 +264,43 @@ static void test_curved_values_are_exact_for_a_parabola(void)
     CHECK(worst > 0.001);
 }
 
+/* ns_from_pixel_centre against the camera pass's own ray (camera.comp: d = forward +
+ * right (2u - 1) tan_x + up (1 - 2v) tan_y for u = (x + jx) / width, v = (y + jy) / height):
+ * a point on the ray of pixel (x, y) at jitter (jx, jy) is (jx - 0.5)^2 + (jy - 0.5)^2 pixels^2
+ * from that pixel's centre, at any distance along it; behind the camera it is infinitely far. */
+static void test_pixel_centre_distance_is_the_jitter(void)
+{
+    const uint32_t width = 40, height = 30;
+    const float tan_x = 0.6f, tan_y = 0.6f * 30 / 40;
+    GpuParams cam;
+    memset(&cam, 0, sizeof cam);
+    const float position[3] = {1, 2, 3}, forward[3] = {0, 0, -1}, right[3] = {1, 0, 0}, up[3] = {0, 1, 0};
+    for (int i = 0; i < 3; i++) {
+        cam.cam_position[i] = position[i];
+        cam.cam_forward[i] = forward[i];
+        cam.cam_right[i] = right[i];
+        cam.cam_up[i] = up[i];
+    }
+    cam.cam_position[3] = tan_x;
+    cam.cam_right[3] = tan_y;
+    const uint32_t pixels[3][2] = {{0, 0}, {17, 11}, {39, 29}};
+    const float jitters[3][2] = {{0.5f, 0.5f}, {0.1f, 0.8f}, {0.95f, 0.05f}};
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) {
+            float u = ((float)pixels[a][0] + jitters[b][0]) / (float)width;
+            float v = ((float)pixels[a][1] + jitters[b][1]) / (float)height;
+            float along = 2.5f + (float)(a + b);
+            float x[3];
+            for (int i = 0; i < 3; i++)
+                x[i] = position[i] + along * (forward[i] + right[i] * (2 * u - 1) * tan_x + up[i] * (1 - 2 * v) * tan_y);
+            float jx = jitters[b][0] - 0.5f, jy = jitters[b][1] - 0.5f;
+            uint32_t p = pixels[a][1] * width + pixels[a][0];
+            CHECK_NEAR(ns_from_pixel_centre(&cam, width, height, p, x), jx * jx + jy * jy, 1e-4);
+        }
+    const float behind[3] = {1, 2, 4};
+    CHECK(isinf(ns_from_pixel_centre(&cam, width, height, 0, behind)));
+}
+
 int main(void)
 {
     RUN(test_linear_field_is_interpolated_exactly);
@@ -270,5 +308,6 @@ int main(void)
     RUN(test_nothing_crosses_media_or_surfaces);
     RUN(test_no_levels_or_no_tolerance_gathers_everything);
     RUN(test_curved_values_are_exact_for_a_parabola);
+    RUN(test_pixel_centre_distance_is_the_jitter);
     return harness_report();
 }
