@@ -2,6 +2,9 @@
  * that gets a context's pipeline by id (making it on first use where the table says so). */
 #include "pipelines.h"
 
+#include <pthread.h>
+#include <unistd.h>
+
 #include "internal.h"
 #include "accumulate_shared.h"
 #include "pt_shared.h"
@@ -39,7 +42,8 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                                           NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
                                    NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
-    /* The reference path tracer is not on the fast path: its compile (~0.3 s on lavapipe) is
+    /* The reference path tracer is not on the fast path: its compile (1.9-2.5 s on lavapipe
+     * with Mesa's cache warm, 2026-11-30: NIR passes before the cache is looked up) is
      * paid once per context by the first pt render (stage "pt_pipeline" and its first
      * dispatch), never by a context that renders no pt. */
     [NS_PIPELINE_PT] = {"pt", 8, sizeof(GpuPtPush), NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS,
@@ -70,12 +74,72 @@ int ns_pipeline_make(gpu_device *dev, ns_pipeline_id id, gpu_pipeline *pipe, ns_
                                err);
 }
 
+/* The start-up pipelines are made by a few threads at once: lavapipe translates and
+ * optimises each shader's NIR inside vkCreateComputePipelines (single.comp about 0.9 s,
+ * camera.comp 0.4 s, the seven 1.8 s in a row on the 2-core machine), and the Vulkan spec
+ * makes pipeline creation (and the pipeline cache) safe from several threads. Each thread
+ * takes the next pipeline not yet taken, the largest shaders first (their size is the best
+ * guess at their cost), so that the longest one does not start last. */
+typedef struct pipeline_maker {
+    ns_context *ctx;
+    pthread_mutex_t lock;
+    ns_pipeline_id order[NS_PIPELINE_CONTEXT_COUNT];
+    int count, next;
+    int status;     /* the first failure's */
+    ns_error error; /* its message */
+} pipeline_maker;
+
+static void *make_start_pipelines(void *arg)
+{
+    pipeline_maker *m = arg;
+    for (;;) {
+        pthread_mutex_lock(&m->lock);
+        int stop = m->status != NS_OK || m->next >= m->count;
+        ns_pipeline_id id = stop ? NS_PIPELINE_CONTEXT_COUNT : m->order[m->next++];
+        pthread_mutex_unlock(&m->lock);
+        if (stop)
+            return NULL;
+        ns_error err = {0};
+        int status = ns_pipeline_make(&m->ctx->dev, id, &m->ctx->pipelines[id], &err);
+        if (status) {
+            pthread_mutex_lock(&m->lock);
+            if (m->status == NS_OK) {
+                m->status = status;
+                m->error = err;
+            }
+            pthread_mutex_unlock(&m->lock);
+        }
+    }
+}
+
 int ns_pipelines_create(ns_context *ctx, ns_error *err)
 {
-    int status = NS_OK;
-    for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT && !status; id++)
-        if (pipeline_rows[id].when == NS_PIPELINE_AT_START)
-            status = ns_pipeline_make(&ctx->dev, (ns_pipeline_id)id, &ctx->pipelines[id], err);
+    pipeline_maker maker = {.ctx = ctx, .status = NS_OK};
+    size_t spirv_bytes[NS_PIPELINE_CONTEXT_COUNT];
+    for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT; id++) {
+        if (pipeline_rows[id].when != NS_PIPELINE_AT_START)
+            continue;
+        ns_shader_code(pipeline_rows[id].shader, &spirv_bytes[id]);
+        int at = maker.count++;
+        for (; at > 0 && spirv_bytes[maker.order[at - 1]] < spirv_bytes[id]; at--)
+            maker.order[at] = maker.order[at - 1];
+        maker.order[at] = (ns_pipeline_id)id;
+    }
+    pthread_mutex_init(&maker.lock, NULL);
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    pthread_t helpers[3];
+    int helper_count = 0;
+    /* The calling thread makes pipelines too; a helper that cannot start leaves it more. */
+    for (int i = 0; i < (int)(sizeof helpers / sizeof helpers[0]) && i + 1 < cores; i++)
+        if (pthread_create(&helpers[helper_count], NULL, make_start_pipelines, &maker) == 0)
+            helper_count++;
+    make_start_pipelines(&maker);
+    for (int i = 0; i < helper_count; i++)
+        pthread_join(helpers[i], NULL);
+    pthread_mutex_destroy(&maker.lock);
+    int status = maker.status;
+    if (status && err)
+        *err = maker.error;
     /* All made first, then all warmed: lavapipe compiles inside the first dispatch. */
     for (int id = 0; id < NS_PIPELINE_CONTEXT_COUNT && !status; id++)
         if (pipeline_rows[id].when == NS_PIPELINE_AT_START)
