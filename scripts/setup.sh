@@ -122,20 +122,17 @@ case "$mode" in
     install_available "${OPTIONAL_TEST_PACKAGES[@]}"
     install_node
     build build -DNS_WERROR=ON
-    # One busy test per core at a time, four at most, and one that mostly waits beside them
-    # (tests/CMakeLists.txt: a busy test counts as two of ctest's processors, a waiting one as
-    # one): lavapipe's renders share the cores, but the HTTP, CLI and browser tests spend
-    # much of their time waiting (2 cores: 813 s serial, 502 s two at a time); every lavapipe
-    # render takes all the cores, so dozens at once on a large machine would only contend
-    # (and stretch the tests' own deadlines).
+    # One test per core at a time, four at most: lavapipe's renders share the cores, but the
+    # HTTP, CLI and browser tests spend much of their time waiting (2 cores: 813 s serial,
+    # 502 s); every lavapipe render takes all the cores, so dozens at once on a large machine
+    # would only contend (and stretch the tests' own deadlines).
     test_jobs=$(nproc)
     [ "$test_jobs" -le 4 ] || test_jobs=4
-    test_slots=$((2 * test_jobs + 1))
-    (cd build && ctest --output-on-failure --timeout 900 -j "$test_slots")
+    (cd build && ctest --output-on-failure --timeout 900 -j "$test_jobs")
     # The sanitized build runs the tests that exercise our own code paths hardest
     # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
-    (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -j "$test_slots" -L 'unit|http|cli')
+    (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -j "$test_jobs" -L 'unit|http|cli')
     # The parsers that read untrusted bytes, fuzzed: 40 s per target, one per core at a time
     # (docs/development.md, "Fuzzing"); any crash, leak, UB report or timeout fails.
     scripts/fuzz.sh 40
