@@ -38,7 +38,8 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
 
 /* The sources of stretches[0, count) (the `vrl` method's light paths, in path order): a
  * ghost (negative power) at the end of every stretch, except the entry stretch's unless
- * entry_ghosts (the renderer's bounded VRLs subtract that one), and a positive beam at the
+ * entry_ghosts (the renderer asks for them: they are its endless VRLs' beams past their
+ * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam at the
  * start of every stretch that begins with an internal reflection or a re-entry, all
  * endless (length 0). out has room for 2 count. Returns how many were written. */
 uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,

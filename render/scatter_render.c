@@ -949,11 +949,16 @@ static uint32_t order_set(uint32_t orders)
            (orders & NS_TABLE_FIRST_BLURRED ? 4u : 0u);
 }
 
-/* The beams end at their exit: asked for, or implied by the boundary correction, whose
- * unscattered part they are. */
-static int bounded_beams(const ns_scene *scene)
+/* The VRLs end at their exit, in the gather's bounded form (the beam past the exit
+ * subtracted with the same tables), and their internal reflections are VRLs of their own:
+ * asked for, and only without the boundary correction. With it the VRLs are endless beams:
+ * the walks' ghost at the end of each entry stretch (ns_boundary_sources' entry_ghosts) is
+ * the beam past its exit, subtracted as a source on the correction's lattice at the endless
+ * form's rate (the bounded form reads the table twice per VRL: docs/bench.md, *End to end at
+ * 256², again*), and the walks follow the reflections. */
+static int vrls_bounded(const ns_scene *scene)
 {
-    return scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED || scene->render.boundary != NS_BOUNDARY_OFF;
+    return scene->render.vrl_beams == NS_VRL_BEAMS_BOUNDED && scene->render.boundary == NS_BOUNDARY_OFF;
 }
 
 /* Whether a straight line that leaves an object of a medium can pass through an object of
@@ -998,7 +1003,7 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
         ns_vrl_set_free(&walks);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
     }
-    uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 0, sources);
+    uint32_t n = ns_boundary_sources(walks.vrls, walks.count, in->gs->materials, 1, sources);
     ns_vrl_set_free(&walks);
     /* Only the sources whose orders the components ask for take part (or a budget). */
     uint32_t wanted = 0;
@@ -1033,9 +1038,8 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
     int boundary = scene->render.boundary != NS_BOUNDARY_OFF;
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
-     * VRLs of their own; with the boundary correction its walks follow them instead, as far
-     * as they go (the chain stops at NS_VRL_MAX_CHAIN). */
-    uint32_t chain = bounded_beams(scene) && !boundary ? NS_VRL_MAX_CHAIN : 1;
+     * VRLs of their own, as far as they go (the chain stops at NS_VRL_MAX_CHAIN). */
+    uint32_t chain = vrls_bounded(scene) ? NS_VRL_MAX_CHAIN : 1;
     /* The sources do not depend on the camera: a render that makes the same ones as the
      * context's last takes a copy of them (source_keep.c), and lists no stage "vrl" or
      * "boundary". */
@@ -1210,7 +1214,7 @@ static int gather_from_vrls(ns_context *ctx, const ns_scatter_inputs *in, vrl_so
         /* Single scattering alone gathers only the boundary's reflected VRLs. */
         if (!status && orders)
             status =
-                gather_grid(ctx, in, source, m, &source->grids[m], orders, bounded_beams(scene),
+                gather_grid(ctx, in, source, m, &source->grids[m], orders, vrls_bounded(scene),
                             list, &vrls->segments, &vrls->out, stats, times, err);
         else if (!status)
             memset((float(*)[4])vrls->out.mapped + first, 0, 16ull * count);

@@ -213,13 +213,18 @@ static void test_facing_boxes(void)
     compare("facing boxes 2 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.15, 0.3, 2);
 }
 
-/* Double scattering in an index-matched convex object has no source beyond the bounded
- * beams: the light scattered once on a VRL that leaves the object never scatters again
- * inside it, so its ghosts take nothing away (boundary.c, ns_boundary_source_orders). With
- * walks the image is the bounded beams' image, value for value; when the ghosts read the
- * blurred first-order table, its tube reached inside near each exit and removed light that
- * is there (this sphere: 0.907 of pt against the bounded beams' 0.959, 2026-11-29). */
-static void test_double_has_no_ghosts(void)
+/* Double scattering in an index-matched convex object: the light scattered once on a VRL
+ * that leaves the object never scatters again inside it, so the only sources with walks are
+ * the ghosts of the entry stretches, the beams past their exits (scatter_render.c,
+ * vrls_bounded), which the bounded beams subtract VRL by VRL: the two images agree within
+ * the light paths' noise. The other ghosts take nothing away (boundary.c,
+ * ns_boundary_source_orders): when they read the blurred first-order table, its tube reached
+ * inside near each exit and removed light that is there (this sphere: 0.907 of pt against
+ * the bounded beams' 0.959, 2026-11-29). */
+/* Measured 2026-11-30: walks +0.2% of the bounded beams in every channel, endless beams
+ * +7.7% (what the beams past the exits add). */
+#define WALKS_VS_BOUNDED 0.015
+static void test_double_walks_are_bounded_beams(void)
 {
     const double albedo[3] = {0.999, 0.9, 0.95};
     ns_material m = material(albedo, 1.0, 0.0, 1.0);
@@ -232,24 +237,34 @@ static void test_double_has_no_ghosts(void)
     s.render.vrls = 4000;
     s.render.components = NS_COMPONENT_DOUBLE;
     s.render.method = NS_METHOD_NN;
-    ns_image bounded = {0}, walks = {0};
+    ns_image bounded = {0}, walks = {0}, endless = {0};
     ns_render_stats stats = {0};
     s.render.vrl_beams = NS_VRL_BEAMS_BOUNDED;
     int ok = render_ok(&s, &bounded, NULL);
     s.render.vrl_beams = NS_VRL_BEAMS_ENDLESS;
+    ok = ok && render_ok(&s, &endless, NULL);
     s.render.boundary = NS_BOUNDARY_WALKS;
     ok = ok && render_ok(&s, &walks, &stats);
     CHECK(ok);
     if (ok) {
-        CHECK_INT(stats.boundary_sources, 0);
-        double mean[3];
-        image_mean(&bounded, mean);
-        CHECK(mean[0] > 0 && mean[1] > 0 && mean[2] > 0);
-        CHECK(memcmp(bounded.rgb, walks.rgb, sizeof(float) * 3 * bounded.width * bounded.height) ==
-              0);
+        CHECK(stats.boundary_sources > 0);
+        double mean_bounded[3], mean_walks[3], mean_endless[3];
+        image_mean(&bounded, mean_bounded);
+        image_mean(&walks, mean_walks);
+        image_mean(&endless, mean_endless);
+        for (int c = 0; c < 3; c++) {
+            double ratio = mean_walks[c] / mean_bounded[c];
+            printf("  channel %d: bounded beams %.6g, walks %.6g (%+.1f%%), endless %.6g (%+.1f%%)\n", c,
+                   mean_bounded[c], mean_walks[c], 100 * (ratio - 1), mean_endless[c],
+                   100 * (mean_endless[c] / mean_bounded[c] - 1));
+            CHECK(mean_bounded[c] > 0 && fabs(ratio - 1) < WALKS_VS_BOUNDED);
+            /* What the entry ghosts take away: far more than the two estimates differ. */
+            CHECK(mean_endless[c] / mean_bounded[c] - 1 > 0.05);
+        }
     }
     ns_image_free(&bounded);
     ns_image_free(&walks);
+    ns_image_free(&endless);
 }
 
 /* The correction's own lattice (scatter_render.c, plan_round): with a tolerance the boundary
@@ -324,7 +339,7 @@ int main(int argc, char **argv)
     PICK(test_slabs);
     PICK(test_refracting_sphere);
     PICK(test_facing_boxes);
-    PICK(test_double_has_no_ghosts);
+    PICK(test_double_walks_are_bounded_beams);
     PICK(test_correction_lattice);
     PICK(test_bad_setting);
     ns_context_destroy(test_context());

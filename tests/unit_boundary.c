@@ -136,7 +136,7 @@ static void test_sources_of_a_walk(void)
     CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
 
     GpuVrl out[10];
-    /* Without the entries' ghosts, as the renderer asks (its bounded VRLs subtract those): ghost of stretch 1
+    /* Without the entries' ghosts (the renderer asks for them, below): ghost of stretch 1
      * at (0, 1, 0) going up; the reflected beam (stretch 2's start); no ghost at stretch 2's
      * end (stretch 3 continues it); ghost at stretch 3's end (0, -0.25, 0). */
     uint32_t n = ns_boundary_sources(walk, 5, &m, 0, out);
@@ -152,7 +152,8 @@ static void test_sources_of_a_walk(void)
     CHECK(fabsf(out[2].origin[1] + 0.25f) < 1e-6f);
     for (int c = 0; c < 3; c++)
         CHECK(fabsf(out[2].power[c] + 0.3f * expf(-m.sigma_t[c] * 0.25f)) < 1e-6f);
-    /* With them, the entries' ghosts at their exits too. */
+    /* With them, as the renderer asks (they stand for its endless VRLs' beams past their
+     * exits), the entries' ghosts at their exits too. */
     CHECK_INT(ns_boundary_sources(walk, 5, &m, 1, out), 5);
 
     ns_boundary_groups groups;
