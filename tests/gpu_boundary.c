@@ -220,9 +220,8 @@ static void test_facing_boxes(void)
  * the light paths' noise. The other ghosts take nothing away (boundary.c,
  * ns_boundary_source_orders): when they read the blurred first-order table, its tube reached
  * inside near each exit and removed light that is there (this sphere: 0.907 of pt against
- * the bounded beams' 0.959, 2026-11-29). */
-/* Measured 2026-11-30: walks +0.2% of the bounded beams in every channel, endless beams
- * +7.7% (what the beams past the exits add). */
+ * the bounded beams' 0.959, 2026-11-29). Measured 2026-11-30: walks +0.2% of the bounded
+ * beams in every channel, endless beams +7.7% (what the beams past the exits add). */
 #define WALKS_VS_BOUNDED 0.015
 static void test_double_walks_are_bounded_beams(void)
 {
