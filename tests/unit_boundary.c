@@ -153,8 +153,21 @@ static void test_sources_of_a_walk(void)
     for (int c = 0; c < 3; c++)
         CHECK(fabsf(out[2].power[c] + 0.3f * expf(-m.sigma_t[c] * 0.25f)) < 1e-6f);
     /* With them, as the renderer asks (they stand for its endless VRLs' beams past their
-     * exits), the entries' ghosts at their exits too. */
+     * exits), the entries' ghosts at their exits too: each path's entry stretch ends in a
+     * ghost that carries on along it, -e^{-s L} times its flux, no events; exactly what a
+     * bounded VRL of that stretch subtracts. First path: from (0, 1, 0) down 2 to
+     * (0, -1, 0); second: from (5, 1, 5) down 2 to (5, -1, 5). */
     CHECK_INT(ns_boundary_sources(walk, 5, &m, 1, out), 5);
+    const int entry_ghost[2] = {0, 4};
+    const float entry_end[2][3] = {{0, -1, 0}, {5, -1, 5}};
+    for (int k = 0; k < 2; k++) {
+        const GpuVrl *g = &out[entry_ghost[k]];
+        for (int i = 0; i < 3; i++) {
+            CHECK(fabsf(g->origin[i] - entry_end[k][i]) < 1e-6f);
+            CHECK(fabsf(g->power[i] + expf(-m.sigma_t[i] * 2.0f)) < 1e-6f);
+        }
+        CHECK(g->direction[1] == -1.0f && g->length == 0.0f && g->events == 0);
+    }
 
     ns_boundary_groups groups;
     ns_error err = {0};
