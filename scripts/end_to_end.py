@@ -19,6 +19,7 @@ import sys
 from bench_sweep import ROOT, request, start
 from material_change import stages
 
+SCENES = ["bumpy_sphere", "bunny", "candle", "milk", "oil", "cloud"]
 SHOWN = ["reconstruct", "accumulate", "ray_pass", "vrl", "boundary", "gather", "single"]
 
 
@@ -27,11 +28,17 @@ def main():
     ap.add_argument("--bin", default=os.path.join(ROOT, "build", "nscatter"))
     ap.add_argument("--assets", default=None, help="the server's --assets folder")
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--scenes", default="bumpy_sphere,bunny,candle,milk,oil,cloud")
+    ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--renders", type=int, default=3)
     args = ap.parse_args()
+    scenes = args.scenes.split(",")
+    unknown = [n for n in scenes if n not in SCENES]
+    if unknown:
+        ap.error(f"--scenes: {', '.join(unknown)} not a bench scene ({', '.join(SCENES)})")
+    if args.size < 1 or args.renders < 1:
+        ap.error("--size and --renders: at least 1")
     result = {}
-    for name in args.scenes.split(","):
+    for name in scenes:
         scene = json.load(open(os.path.join(ROOT, "scenes", "bench", f"{name}.json")))
         scene["camera"]["width"] = scene["camera"]["height"] = args.size
         proc, host, port = start(args.bin, ("--assets", args.assets) if args.assets else ())
