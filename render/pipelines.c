@@ -42,7 +42,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                                           NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
     [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
                                    NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
-    /* The reference path tracer is not on the fast path: its compile (1.9-2.5 s on lavapipe
+    /* The reference path tracer is not on the fast path: its compile (0.8-1.2 s on lavapipe
      * with Mesa's cache warm, 2026-11-30: NIR passes before the cache is looked up) is
      * paid once per context by the first pt render (stage "pt_pipeline" and its first
      * dispatch), never by a context that renders no pt. */
@@ -75,8 +75,8 @@ int ns_pipeline_make(gpu_device *dev, ns_pipeline_id id, gpu_pipeline *pipe, ns_
 }
 
 /* The start-up pipelines are made by a few threads at once: lavapipe translates and
- * optimises each shader's NIR inside vkCreateComputePipelines (single.comp about 0.9 s,
- * camera.comp 0.4 s, the seven 1.8 s in a row on the 2-core machine), and the Vulkan spec
+ * optimises each shader's NIR inside vkCreateComputePipelines (single.comp about 0.45 s,
+ * vrl_trace.comp 0.27 s, camera.comp 0.2 s on the 2-core machine), and the Vulkan spec
  * makes pipeline creation (and the pipeline cache) safe from several threads. Each thread
  * takes the next pipeline not yet taken, the largest shaders first (their size is the best
  * guess at their cost), so that the longest one does not start last. */

@@ -39,35 +39,10 @@ vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
     for (uint i = 0u; i < params.counts.y; i++) {
         if (out_of_budget())
             break;
-        GpuLight light = lights[i];
-        uint kind = light.info.x;
-        if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
-            vec3 wi = -light.direction.xyz;
-            float c = dot(n, wi);
-            if (c > 0.0)
-                sum += light.color.rgb * (c / PI) *
-                    transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_POINT) {
-            vec3 v = light.position.xyz - o;
-            float d2 = dot(v, v);
-            float dist = sqrt(d2);
-            vec3 wi = v / dist;
-            float c = dot(n, wi);
-            if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) *
-                    transmittance(o, wi, dist, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_SPHERE) {
-            // Uniform sampling of the cone the sphere subtends (pdf 1 / solid angle).
-            vec3 wi;
-            float t_light, solid_angle;
-            if (!sample_sphere_light(light, o, wi, t_light, solid_angle))
-                continue;
-            float c = dot(n, wi);
-            if (c <= 0.0)
-                continue;
-            sum += light.color.rgb * (c / PI) * solid_angle *
-                transmittance(o, wi, t_light, medium, SHADOW_RAYS);
-        }
+        vec3 wi, weight;
+        float t_light;
+        if (lambert_light(lights[i], o, n, wi, t_light, weight))
+            sum += weight * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
     }
     // Every environment light together: one cosine-distributed ray, whose pdf cancels the
     // cosine and 1/pi of the Lambertian BRDF.

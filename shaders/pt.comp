@@ -65,33 +65,10 @@ vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
     for (uint i = 0u; i < params.counts.y; i++) {
         if (out_of_budget())
             break;
-        GpuLight light = lights[i];
-        uint kind = light.info.x;
-        if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
-            vec3 wi = -light.direction.xyz;
-            float c = dot(n, wi);
-            if (c > 0.0)
-                sum += light.color.rgb * (c / PI) *
-                    transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_POINT) {
-            vec3 v = light.position.xyz - o;
-            float d2 = dot(v, v);
-            float dist = sqrt(d2);
-            vec3 wi = v / dist;
-            float c = dot(n, wi);
-            if (c > 0.0)
-                sum += light.color.rgb * (c / (PI * d2)) *
-                    transmittance(o, wi, dist, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_SPHERE) {
-            vec3 wi;
-            float t_light, solid_angle;
-            if (!sample_sphere_light(light, o, wi, t_light, solid_angle))
-                continue;
-            float c = dot(n, wi);
-            if (c > 0.0)
-                sum += light.color.rgb * (c / PI) * solid_angle *
-                    transmittance(o, wi, t_light, medium, SHADOW_RAYS);
-        }
+        vec3 wi, weight;
+        float t_light;
+        if (lambert_light(lights[i], o, n, wi, t_light, weight))
+            sum += weight * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
     }
     if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
         vec3 wi = cosine_sample(n);
@@ -109,26 +86,10 @@ vec3 direct_light_medium(vec3 p, vec3 d, float g, uint medium)
     for (uint i = 0u; i < params.counts.y; i++) {
         if (out_of_budget())
             break;
-        GpuLight light = lights[i];
-        uint kind = light.info.x;
-        if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
-            vec3 wi = -light.direction.xyz;
-            sum += light.color.rgb * hg_phase(dot(d, wi), g) *
-                transmittance(p, wi, NS_INF, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_POINT) {
-            vec3 v = light.position.xyz - p;
-            float d2 = dot(v, v);
-            float dist = sqrt(d2);
-            vec3 wi = v / dist;
-            sum += light.color.rgb * (hg_phase(dot(d, wi), g) / d2) *
-                transmittance(p, wi, dist, medium, SHADOW_RAYS);
-        } else if (kind == NS_GPU_LIGHT_SPHERE) {
-            vec3 wi;
-            float t_light, solid_angle;
-            if (sample_sphere_light(light, p, wi, t_light, solid_angle))
-                sum += light.color.rgb * hg_phase(dot(d, wi), g) * solid_angle *
-                       transmittance(p, wi, t_light, medium, SHADOW_RAYS);
-        }
+        vec3 wi, weight;
+        float t_light;
+        if (phase_light(lights[i], p, d, g, wi, t_light, weight))
+            sum += weight * transmittance(p, wi, t_light, medium, SHADOW_RAYS);
     }
     return sum;
 }
@@ -214,23 +175,28 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
         if (cos_i > 0.0 && fresnel(cos_i, 1.0 / ior, cos_t) < 1.0)
             v = -normalize(travel / ior + (cos_i / ior - cos_t) * h.normal);
     }
+    // Where v leaves the medium; each step below finds it for the next v as it tries it.
+    vec3 y, n, o;
+    float transmit;
+    if (!leave_medium(x, v, medium, y, n, o, transmit))
+        return vec3(0.0);
     for (int it = 0; it < NS_PT_MNEE_ITERATIONS; it++) {
-        vec3 y, n, o;
-        float transmit;
-        if (!leave_medium(x, v, medium, y, n, o, transmit))
-            return vec3(0.0);
         vec3 t1, t2, b1, b2;
         basis(v, t1, t2);
         basis(point ? o : -light.direction.xyz, b1, b2);
-        vec2 miss, p1, m1, p2, m2;
+        vec2 miss;
         const float h = NS_PT_MNEE_STEP;
-        if (!miss_at_light(y, o, light, b1, b2, miss) ||
-            !light_miss(x, normalize(v + h * t1), medium, light, b1, b2, p1) ||
-            !light_miss(x, normalize(v - h * t1), medium, light, b1, b2, m1) ||
-            !light_miss(x, normalize(v + h * t2), medium, light, b1, b2, p2) ||
-            !light_miss(x, normalize(v - h * t2), medium, light, b1, b2, m2))
+        if (!miss_at_light(y, o, light, b1, b2, miss))
             return vec3(0.0);
-        mat2 jacobian = mat2((p1 - m1) / (2.0 * h), (p2 - m2) / (2.0 * h));
+        // The four central differences v + h t1, v - h t1, v + h t2, v - h t2 in a loop, not
+        // four calls: lavapipe inlines every call, each another copy of the traversal.
+        vec2 probe[4];
+        for (int q = 0; q < 4; q++) {
+            vec3 offset = (q < 2 ? t1 : t2) * ((q & 1) == 0 ? h : -h);
+            if (!light_miss(x, normalize(v + offset), medium, light, b1, b2, probe[q]))
+                return vec3(0.0);
+        }
+        mat2 jacobian = mat2((probe[0] - probe[1]) / (2.0 * h), (probe[2] - probe[3]) / (2.0 * h));
         float det = determinant(jacobian);
         if (!(abs(det) > 0.0))
             return vec3(0.0);
