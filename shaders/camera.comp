@@ -30,29 +30,6 @@ layout(push_constant) uniform PushBlock { GpuSamplePush ns_push[1]; };
 // How this pass traces its shadow rays (common.glsl, transmittance).
 const uint SHADOW_RAYS = SHADOW_ANY_HIT;
 
-// Outgoing radiance of a Lambertian surface of reflectance rho at p (n faces the viewer)
-// from all lights, one shadow ray each.
-vec3 direct_light(vec3 p, vec3 n, vec3 rho, uint medium)
-{
-    vec3 o = p + n * ray_epsilon(p);
-    vec3 sum = vec3(0.0);
-    for (uint i = 0u; i < params.counts.y; i++) {
-        if (out_of_budget())
-            break;
-        vec3 wi, weight;
-        float t_light;
-        if (lambert_light(lights[i], o, n, wi, t_light, weight))
-            sum += weight * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
-    }
-    // Every environment light together: one cosine-distributed ray, whose pdf cancels the
-    // cosine and 1/pi of the Lambertian BRDF.
-    if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
-        vec3 wi = cosine_sample_direct(n);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
-    }
-    return rho * sum;
-}
-
 void record_segment(vec3 a, vec3 b, vec3 d, vec3 w, uint material, uint pixel, uint s, uint depth)
 {
     uint index = atomicAdd(counters[NS_COUNTER_SEGMENTS], 1u);
@@ -118,7 +95,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
             GpuMaterial mat = materials[m];
             vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
             if (mat.reflectance.w == 0.0) {
-                radiance += s.w * direct_light(p, n, mat.reflectance.rgb, s.medium);
+                radiance += s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, true);
             } else if (s.depth < params.counts.x) {
                 terminated = false;
                 float eps = ray_epsilon(p);

@@ -484,6 +484,43 @@ float free_flight(vec3 st)
 #endif
 
 #if defined(NS_COMMON_TRACE) && defined(NS_COMMON_LIGHTS)
+// Radiance leaving a Lambertian surface of reflectance rho at p (n faces the viewer) from
+// every light, one shadow ray each (`how` as transmittance's), the environment's along one
+// cosine-distributed direction, whose pdf cancels the cosine and 1/pi of the BRDF. The
+// environment is one more turn of the lights' loop, so that every shadow ray leaves from
+// one call site (lambert_light); out of budget, the lights stop and the environment still
+// counts, as it always did. camera_sampler: draw the environment's direction as camera.comp
+// always has (cosine_sample_direct), not as pt.comp does (cosine_sample).
+vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, bool camera_sampler)
+{
+    vec3 o = p + n * ray_epsilon(p);
+    vec3 sum = vec3(0.0);
+    uint count = params.counts.y;
+    bool environment = params.environment.r + params.environment.g + params.environment.b > 0.0;
+    for (uint i = 0u; i <= count; i++) {
+        vec3 wi, weight;
+        float t_light;
+        bool lit;
+        if (i < count) {
+            if (out_of_budget()) {
+                i = count - 1u; // on to the environment
+                continue;
+            }
+            lit = lambert_light(lights[i], o, n, wi, t_light, weight);
+        } else {
+            lit = environment;
+            wi = n;
+            if (environment)
+                wi = camera_sampler ? cosine_sample_direct(n) : cosine_sample(n);
+            t_light = NS_INF;
+            weight = params.environment.rgb;
+        }
+        if (lit)
+            sum += weight * transmittance(o, wi, t_light, medium, how);
+    }
+    return rho * sum;
+}
+
 // The nearest sphere light along the ray before tmax, with which = NS_NONE when there is
 // none. Sphere lights are seen by camera rays but are not scene geometry: they cast no
 // shadows.

@@ -56,27 +56,6 @@ bool order_counts(uint events)
     return (push.components & bit) != 0u && events <= push.max_events;
 }
 
-// Radiance leaving a Lambertian surface (n faces the viewer) from every light; the path
-// ends here. The environment: one cosine-distributed ray.
-vec3 direct_light_surface(vec3 p, vec3 n, vec3 rho, uint medium)
-{
-    vec3 o = p + n * ray_epsilon(p);
-    vec3 sum = vec3(0.0);
-    for (uint i = 0u; i < params.counts.y; i++) {
-        if (out_of_budget())
-            break;
-        vec3 wi, weight;
-        float t_light;
-        if (lambert_light(lights[i], o, n, wi, t_light, weight))
-            sum += weight * transmittance(o, wi, t_light, medium, SHADOW_RAYS);
-    }
-    if (params.environment.r + params.environment.g + params.environment.b > 0.0) {
-        vec3 wi = cosine_sample(n);
-        sum += params.environment.rgb * transmittance(o, wi, NS_INF, medium, SHADOW_RAYS);
-    }
-    return rho * sum;
-}
-
 // Next-event estimation at a scattering event at p inside `medium` (d = the direction the
 // path arrived in): point, directional and sphere lights. The environment is left to the
 // phase-sampled continuation, which reaches it with weight 1.
@@ -558,7 +537,7 @@ bool path_step(inout PathState s)
         // outside the shared model (the VRLs, the tables and the camera pass all start
         // from the lights themselves), so a path that scattered first ends here dark.
         if (s.events == 0u && order_counts(0u))
-            s.radiance += s.w * direct_light_surface(p, n, mat.reflectance.rgb, s.medium);
+            s.radiance += s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, false);
         return false;
     }
     if (++s.boundary_run > NS_PT_MAX_BOUNDARY_RUN) {
