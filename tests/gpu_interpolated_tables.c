@@ -402,16 +402,20 @@ static void test_nodes_on_disk(void)
     char dir[] = "/tmp/nscatter_nodes_XXXXXX";
     CHECK(mkdtemp(dir) != NULL);
     /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches; with the blurred
-     * first order, whose unit table is kept beside them. */
+     * first order, whose unit table is kept beside them. The paper's accumulation, whose
+     * walks are short: what is stored and read is the same for both (the mode is part of
+     * each file's name), and the exact one's nodes are held to the exact tables above; with
+     * it this test took 41 s of the suite's time, 31 s now (alone, 2026-11-30). */
     ns_table_key key = key_of(0.6f, 0.9f, 0.9f, 0.9f, NS_TABLES_INTERPOLATED);
     key.orders |= NS_TABLE_FIRST_BLURRED;
+    key.accumulation = NS_ACCUMULATION_PAPER;
     int reconstructed = -1;
     float *made = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
     char names[8][512], blur[1][512];
     CHECK_INT(list_files(dir, "node_", names, 8), 4);
     CHECK_INT(list_files(dir, "blur_unit_", blur, 1), 1);
-    CHECK(strstr(blur[0], "exact") != NULL);
+    CHECK(strstr(blur[0], "paper") != NULL);
     char blur_path[1100];
     snprintf(blur_path, sizeof blur_path, "%s/%s", dir, blur[0]);
     ino_t blur_inode = inode_of(dir, blur[0]);
