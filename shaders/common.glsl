@@ -409,65 +409,57 @@ bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light,
 // pipeline took 2.4 s to make with one per kind, 1.2 s with one). The expressions are the
 // ones each kind always had: the images are the same bit for bit.
 //
-// lambert_light: into a Lambertian surface of unit reflectance with normal n at o.
-bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_light, out vec3 weight)
+// toward_light: the direction and distance, and what the weights need: a point light's
+// squared distance d2, a sphere light's solid angle (uniform in the cone it subtends: pdf
+// 1 / solid angle). Directional, point and sphere lights; false for any other kind.
+bool toward_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float d2,
+                  out float solid_angle)
 {
     uint kind = light.info.x;
     wi = vec3(0.0, 0.0, 1.0);
     t_light = 0.0;
-    weight = vec3(0.0);
+    d2 = 1.0;
+    solid_angle = 0.0;
     if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
         wi = -light.direction.xyz;
         t_light = NS_INF;
-        float c = dot(n, wi);
-        weight = light.color.rgb * (c / PI);
-        return c > 0.0;
+        return true;
     }
     if (kind == NS_GPU_LIGHT_POINT) {
         vec3 v = light.position.xyz - o;
-        float d2 = dot(v, v);
+        d2 = dot(v, v);
         t_light = sqrt(d2);
         wi = v / t_light;
-        float c = dot(n, wi);
-        weight = light.color.rgb * (c / (PI * d2));
-        return c > 0.0;
+        return true;
     }
-    // A sphere light: uniform in the cone it subtends (pdf 1 / solid angle).
-    float solid_angle;
-    if (kind != NS_GPU_LIGHT_SPHERE || !sample_sphere_light(light, o, wi, t_light, solid_angle))
-        return false;
+    return kind == NS_GPU_LIGHT_SPHERE && sample_sphere_light(light, o, wi, t_light, solid_angle);
+}
+
+// lambert_light: into a Lambertian surface of unit reflectance with normal n at o.
+bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_light, out vec3 weight)
+{
+    float d2, solid_angle;
+    bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);
     float c = dot(n, wi);
-    weight = light.color.rgb * (c / PI) * solid_angle;
-    return c > 0.0;
+    uint kind = light.info.x;
+    weight = kind == NS_GPU_LIGHT_POINT    ? light.color.rgb * (c / (PI * d2))
+           : kind == NS_GPU_LIGHT_SPHERE ? light.color.rgb * (c / PI) * solid_angle
+                                          : light.color.rgb * (c / PI);
+    return reaches && c > 0.0;
 }
 
 // phase_light: scattered at o towards d (the direction the path arrived in) by a
 // Henyey-Greenstein phase function of asymmetry g.
 bool phase_light(GpuLight light, vec3 o, vec3 d, float g, out vec3 wi, out float t_light, out vec3 weight)
 {
+    float d2, solid_angle;
+    bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);
+    float phase = hg_phase(dot(d, wi), g);
     uint kind = light.info.x;
-    wi = vec3(0.0, 0.0, 1.0);
-    t_light = 0.0;
-    weight = vec3(0.0);
-    if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
-        wi = -light.direction.xyz;
-        t_light = NS_INF;
-        weight = light.color.rgb * hg_phase(dot(d, wi), g);
-        return true;
-    }
-    if (kind == NS_GPU_LIGHT_POINT) {
-        vec3 v = light.position.xyz - o;
-        float d2 = dot(v, v);
-        t_light = sqrt(d2);
-        wi = v / t_light;
-        weight = light.color.rgb * (hg_phase(dot(d, wi), g) / d2);
-        return true;
-    }
-    float solid_angle;
-    if (kind != NS_GPU_LIGHT_SPHERE || !sample_sphere_light(light, o, wi, t_light, solid_angle))
-        return false;
-    weight = light.color.rgb * hg_phase(dot(d, wi), g) * solid_angle;
-    return true;
+    weight = kind == NS_GPU_LIGHT_POINT    ? light.color.rgb * (phase / d2)
+           : kind == NS_GPU_LIGHT_SPHERE ? light.color.rgb * phase * solid_angle
+                                          : light.color.rgb * phase;
+    return reaches;
 }
 
 // A free-flight distance in a medium of extinction st for spectral MIS: one channel picked
