@@ -95,7 +95,8 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
             GpuMaterial mat = materials[m];
             vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
             if (mat.reflectance.w == 0.0) {
-                radiance += s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, true);
+                radiance +=
+                    s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, true);
             } else if (s.depth < params.counts.x) {
                 terminated = false;
                 float eps = ray_epsilon(p);

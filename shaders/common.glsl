@@ -436,7 +436,8 @@ bool toward_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out fl
 }
 
 // lambert_light: into a Lambertian surface of unit reflectance with normal n at o.
-bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_light, out vec3 weight)
+bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_light,
+                   out vec3 weight)
 {
     float d2, solid_angle;
     bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);
@@ -450,7 +451,8 @@ bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_ligh
 
 // phase_light: scattered at o towards d (the direction the path arrived in) by a
 // Henyey-Greenstein phase function of asymmetry g.
-bool phase_light(GpuLight light, vec3 o, vec3 d, float g, out vec3 wi, out float t_light, out vec3 weight)
+bool phase_light(GpuLight light, vec3 o, vec3 d, float g, out vec3 wi, out float t_light,
+                 out vec3 weight)
 {
     float d2, solid_angle;
     bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);

@@ -175,7 +175,8 @@ vec3 specular_light(vec3 x, vec3 d, float g, uint medium, GpuLight light)
             if (!light_miss(x, normalize(v + offset), medium, light, b1, b2, probe[q]))
                 return vec3(0.0);
         }
-        mat2 jacobian = mat2((probe[0] - probe[1]) / (2.0 * h), (probe[2] - probe[3]) / (2.0 * h));
+        mat2 jacobian =
+            mat2((probe[0] - probe[1]) / (2.0 * h), (probe[2] - probe[3]) / (2.0 * h));
         float det = determinant(jacobian);
         if (!(abs(det) > 0.0))
             return vec3(0.0);
@@ -537,7 +538,8 @@ bool path_step(inout PathState s)
         // outside the shared model (the VRLs, the tables and the camera pass all start
         // from the lights themselves), so a path that scattered first ends here dark.
         if (s.events == 0u && order_counts(0u))
-            s.radiance += s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, false);
+            s.radiance +=
+                s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, false);
         return false;
     }
     if (++s.boundary_run > NS_PT_MAX_BOUNDARY_RUN) {

@@ -317,8 +317,8 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
         before = vec3(ior * ior * (1.0 - f));
         after = beer_lambert(mat.sigma_t.xyz, h.t);
     }
-    return params.environment.rgb * before * transmittance(from, toward, NS_INF, through, SHADOW_RAYS) *
-           after;
+    return params.environment.rgb * before *
+           transmittance(from, toward, NS_INF, through, SHADOW_RAYS) * after;
 }
 
 // The environment's in-scattering at x (before sigma_s): integral of p_HG L_in over the
