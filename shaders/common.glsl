@@ -406,8 +406,8 @@ bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light,
 // shadow ray's transmittance (weight); false where the light cannot reach o. The caller
 // traces one shadow ray for every kind of light: lavapipe inlines every call, so each
 // transmittance() call site is another copy of the traversal for its compiler (the pt
-// pipeline took 2.4 s to make with one per kind, 1.2 s with one). The expressions are the
-// ones each kind always had: the images are the same bit for bit.
+// pipeline took 2.4 s to make with one per kind, 1.2 s with one; docs/rendering.md). The
+// expressions are the ones each kind always had: the images are the same bit for bit.
 //
 // toward_light: the direction and distance, and what the weights need: a point light's
 // squared distance d2, a sphere light's solid angle (uniform in the cone it subtends: pdf
@@ -492,14 +492,12 @@ vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, bool camera
     uint count = params.counts.y;
     bool environment = params.environment.r + params.environment.g + params.environment.b > 0.0;
     for (uint i = 0u; i <= count; i++) {
+        if (i < count && out_of_budget())
+            i = count; // the lights stop here: on to the environment
         vec3 wi, weight;
         float t_light;
         bool lit;
         if (i < count) {
-            if (out_of_budget()) {
-                i = count - 1u; // on to the environment
-                continue;
-            }
             lit = lambert_light(lights[i], o, n, wi, t_light, weight);
         } else {
             lit = environment;
