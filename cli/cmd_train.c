@@ -15,7 +15,8 @@ static const char usage_text[] =
     "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
     "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
     "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
-    "                      [--oversample-albedo A:F] [--g-map linear|log] [--no-calibrate]\n"
+    "                      [--oversample-albedo A:F] [--near-samples R:N]\n"
+    "                      [--g-map linear|log] [--no-calibrate]\n"
     "                      [--threads T] [--quiet]\n"
     "\n"
     "Trains the 6->50->50->1 tanh network on the tables DIR/g<G>_a<A>_<order>.* written by\n"
@@ -29,6 +30,9 @@ static const char usage_text[] =
     "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
     "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
     "far-reaching high-albedo tables are the ones the network fits worst).\n"
+    "--near-samples R:N: N more samples per table (times F above where it applies), drawn\n"
+    "in proportion to the energy of the cells within R mfp of the source: the near field\n"
+    "a small object integrates, which holds under 1% of a high-albedo table's energy.\n"
     "--g-map log: g enters as the mean of g/0.99 and ln(1 - g)/ln(0.01), which widens the\n"
     "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
 
@@ -94,6 +98,15 @@ static int parse_value(ns_train_options *o, const char *arg, const char *val)
                                val);
         o->oversample_albedo = a;
         o->oversample_factor = f;
+    } else if (!strcmp(arg, "--near-samples")) {
+        double r = NAN, n = NAN;
+        if (cli_number_pair(val, ':', &r, &n) || !(r > 0 && r <= 1000) || !(n >= 0 && n <= 1e7) ||
+            n != floor(n))
+            return usage_error("--near-samples: '%s' is not R:N with R in (0, 1000] mfp and N a "
+                               "whole number in [0, 10000000]",
+                               val);
+        o->near_radius = r;
+        o->near_samples = (uint32_t)n;
     } else if (!strcmp(arg, "--zero-floor"))
         rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);
     else if (!strcmp(arg, "--time-budget"))

@@ -25,7 +25,8 @@ typedef struct ns_train_options {
     int epochs, resume, quiet, threads, calibrate;
     uint32_t input_map; /* NS_NN_INPUT_MAP_*: how g enters the network */
     uint32_t batch, samples_per_table;
-    double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor;
+    uint32_t near_samples; /* more per table, energy-proportional within near_radius mfp */
+    double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor, near_radius;
     uint64_t seed;
     char command[2048];
 } ns_train_options;

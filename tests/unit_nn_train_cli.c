@@ -127,6 +127,22 @@ static void test_train_and_resume(void)
     CHECK_STR_CONTAINS(text, "\"train_samples\": 1600,");
     CHECK_STR_CONTAINS(text, "\"oversample_factor\": 3,");
 
+    /* Near-field samples: 100 more per table (x3 where oversampled) from the cells whose
+     * centre lies within R of the source: 400 + 1200 + 100 + 300. The nearest centre is 3.0
+     * away (z 2.5, rho 1.67), so R = 2 has none to draw from and adds nothing. */
+    const char *near[] = {"train",     "--data",  dir,        "--order", "double",
+                          "--out-dir", out,       "--epochs", "1",       "--samples-per-table",
+                          "400",       "--batch", "64",       "--oversample-albedo", "0.9:3",
+                          "--near-samples", "8:100", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, near), 0);
+    text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"train_samples\": 2000,");
+    CHECK_STR_CONTAINS(text, "\"near_samples_per_table\": 100, \"near_radius\": 8,");
+    near[16] = "2:100";
+    CHECK_INT(run(cmd_train, near), 0);
+    text = read_text(json);
+    CHECK_STR_CONTAINS(text, "\"train_samples\": 1600,");
+
     /* --g-map log: input map 2 in the header and the JSON; a checkpoint of map 1 is not
      * resumed into it (the inputs would mean something else). */
     const char *logg[] = {"train",     "--data",  dir,        "--order",  "double",
@@ -170,6 +186,11 @@ static void test_argument_errors(void)
                                        {"--oversample-albedo", "0.9:2x"}};
     for (int i = 0; i < 4; i++) {
         const char *bad[] = {"train", "--data", dir, bad_oversample[i][0], bad_oversample[i][1], NULL};
+        CHECK_INT(run(cmd_train, bad), 2);
+    }
+    const char *bad_near[] = {"0", "8", "8:-1", "8:1.5", "-2:10", "8:1e8", "x:10"};
+    for (int i = 0; i < 7; i++) {
+        const char *bad[] = {"train", "--data", dir, "--near-samples", bad_near[i], NULL};
         CHECK_INT(run(cmd_train, bad), 2);
     }
     const char *bad_g[] = {"table", "--source", "nn",  "--order", "double", "--g",
