@@ -642,6 +642,11 @@ int ns_train(const ns_train_options *o)
 {
     if (mkdir(o->out_dir, 0755) != 0 && errno != EEXIST)
         return usage_error("--out-dir: cannot create '%s': %s", o->out_dir, strerror(errno));
+    /* A run of an hour without its checkpoints cannot be resumed: refuse at once rather
+     * than warn at every epoch. */
+    if (o->ckpt_dir && mkdir(o->ckpt_dir, 0755) != 0 && errno != EEXIST)
+        return usage_error("--checkpoint-dir: cannot create '%s': %s", o->ckpt_dir,
+                           strerror(errno));
     if (o->threads)
         openblas_set_num_threads(o->threads);
     int rc = 0;

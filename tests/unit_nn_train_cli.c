@@ -193,6 +193,12 @@ static void test_argument_errors(void)
         const char *bad[] = {"train", "--data", dir, "--near-samples", bad_near[i], NULL};
         CHECK_INT(run(cmd_train, bad), 2);
     }
+    /* A checkpoint folder that cannot be made is refused before any training. */
+    char out[300];
+    snprintf(out, sizeof out, "%s/w", dir);
+    const char *bad_ckpt[] = {"train", "--data", dir, "--out-dir", out, "--checkpoint-dir",
+                              "/proc/nscatter-no/ckpt", NULL};
+    CHECK_INT(run(cmd_train, bad_ckpt), 2);
     const char *bad_g[] = {"table", "--source", "nn",  "--order", "double", "--g",
                            "1.5",   "--albedo", "0.5", "--out",   "/tmp/x", NULL};
     CHECK_INT(run(cmd_table, bad_g), 2);
