@@ -530,16 +530,43 @@ static int write_json(const ns_train_options *o, ns_order order, const ns_nn_wei
     return fclose(f) ? usage_error("%s: write failed", path) : 0;
 }
 
+/* The header the options ask for, before the data gives it its extent and standardisation. */
+static void header_for(const ns_train_options *o, ns_order order, ns_nn_header *h)
+{
+    ns_nn_header_init(h, (uint32_t)order, o->target);
+    if (o->input_map == NS_NN_INPUT_MAP_ASINH_LOGG) {
+        h->input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
+        h->g_max = 0.99f; /* the grid's largest g; ln(1 - g) needs g_max < 1 */
+    }
+    if (o->target == NS_NN_TARGET_LOGREL)
+        h->target_eps = (float)o->eps;
+}
+
+int ns_train_samples_load(const ns_train_options *o, ns_order order, ns_train_samples *s)
+{
+    memset(s, 0, sizeof *s);
+    header_for(o, order, &s->h);
+    dataset d;
+    int rc = load_dataset(o, order, &s->h, &d);
+    if (rc)
+        return rc;
+    s->x = d.train.x, s->t = d.train.t, s->n = d.train.n, s->regular = d.regular;
+    free(d.test.x);
+    free(d.test.t);
+    return 0;
+}
+
+void ns_train_samples_free(ns_train_samples *s)
+{
+    free(s->x);
+    free(s->t);
+    memset(s, 0, sizeof *s);
+}
+
 static int train_order(const ns_train_options *o, ns_order order)
 {
     ns_nn_weights w;
-    ns_nn_header_init(&w.h, (uint32_t)order, o->target);
-    if (o->input_map == NS_NN_INPUT_MAP_ASINH_LOGG) {
-        w.h.input_map = NS_NN_INPUT_MAP_ASINH_LOGG;
-        w.h.g_max = 0.99f; /* the grid's largest g; ln(1 - g) needs g_max < 1 */
-    }
-    if (o->target == NS_NN_TARGET_LOGREL)
-        w.h.target_eps = (float)o->eps;
+    header_for(o, order, &w.h);
     dataset d;
     double t0 = now_seconds();
     int rc = load_dataset(o, order, &w.h, &d);

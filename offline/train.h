@@ -33,6 +33,18 @@ typedef struct ns_train_options {
 
 ns_train_options ns_train_options_default(void);
 
+/* The training samples `nscatter train` draws for one order, before standardisation: the
+ * first `regular` alternate uniform / energy-proportional (the energy calibration reads the
+ * odd ones), the near-field ones (--near-samples) follow. For tests of the sampling. 0, or
+ * 2 with the message on stderr. */
+typedef struct ns_train_samples {
+    ns_nn_header h;      /* the inputs' map and extent (from the tables) */
+    float *x, *t;        /* n x NS_NN_INPUTS inputs; n targets */
+    uint32_t n, regular;
+} ns_train_samples;
+int ns_train_samples_load(const ns_train_options *o, ns_order order, ns_train_samples *s);
+void ns_train_samples_free(ns_train_samples *s);
+
 /* Trains the orders o->orders asks for, one after the other, writing OUT_DIR/<order>.bin and
  * .json; progress on stderr. 0 done, 2 bad input (the message is on stderr), 1 failure. */
 int ns_train(const ns_train_options *o);

@@ -11,6 +11,7 @@
 #include "commands.h"
 #include "harness.h"
 #include "nn_weights.h"
+#include "train.h"
 
 static char dir[256];
 
@@ -166,6 +167,60 @@ static void test_train_and_resume(void)
     CHECK(!memcmp(mapped.p, fresh.p, sizeof fresh.p));
 }
 
+/* The near-field samples themselves (through the loader `nscatter train` uses, on the tables
+ * test_train_and_resume wrote: a = 0.5 and 0.9 trained, 0.8 held out). write_table's cells
+ * are 5 long in z from -20 and 3.33 wide in rho; their centres within 8 of the source are
+ * z = -2.5, 2.5 at rho 1.67 and 5, and z = -7.5, 7.5 at rho 1.67. Every near sample must be
+ * one of those, in proportion to their energy (J e^{-0.1 (iz + ir)} times the ring volume,
+ * the angular factor being the same in every spatial cell), and come after the regular ones. */
+static void test_near_samples_are_near(void)
+{
+    ns_train_options o = ns_train_options_default();
+    o.data = dir;
+    o.samples_per_table = 400;
+    o.oversample_albedo = 0.9;
+    o.oversample_factor = 3;
+    o.near_radius = 8;
+    o.near_samples = 100;
+    ns_train_samples s;
+    CHECK_INT(ns_train_samples_load(&o, NS_ORDER_DOUBLE, &s), 0);
+    CHECK_INT(s.regular, 1600);
+    CHECK_INT(s.n, 2000);
+    const double rho_mid[2] = {10.0 / 6, 5.0}, z_mid[4] = {-7.5, -2.5, 2.5, 7.5};
+    const int iz_of[4] = {2, 3, 4, 5};
+    double weight[2] = {0, 0}; /* energy of the near cells with rho bin 0 and 1 */
+    for (int r = 0; r < 2; r++)
+        for (int k = 0; k < 4; k++)
+            if (hypot(rho_mid[r], z_mid[k]) < 8)
+                weight[r] += exp(-0.1 * (iz_of[k] + r)) * M_PI *
+                             (pow(20.0 * (r + 1) / 6, 2) - pow(20.0 * r / 6, 2));
+    uint32_t outer = 0, unmatched = 0, far_regular = 0;
+    for (uint32_t i = 0; i < s.n; i++) {
+        const float *x = s.x + (size_t)i * NS_NN_INPUTS;
+        int near = 0;
+        for (int r = 0; r < 2; r++)
+            for (int k = 0; k < 4; k++) {
+                float c[NS_NN_INPUTS];
+                ns_nn_normalise(&s.h, rho_mid[r], z_mid[k], 0, 0, 0, 0, c);
+                if (hypot(rho_mid[r], z_mid[k]) < 8 && fabsf(x[0] - c[0]) < 1e-6f &&
+                    fabsf(x[1] - c[1]) < 1e-6f) {
+                    near = 1;
+                    outer += i >= s.regular && r == 1;
+                }
+            }
+        if (i >= s.regular)
+            unmatched += !near;
+        else
+            far_regular += !near;
+    }
+    CHECK_INT(unmatched, 0);
+    CHECK(far_regular > 800); /* the regular ones cover the whole table */
+    double p = weight[1] / (weight[0] + weight[1]), n = s.n - s.regular;
+    printf("near samples in the outer ring: %u of %.0f, expected %.1f\n", outer, n, n * p);
+    CHECK(fabs(outer - n * p) < 4 * sqrt(n * p * (1 - p)));
+    ns_train_samples_free(&s);
+}
+
 static void test_argument_errors(void)
 {
     const char *no_data[] = {"train", NULL};
@@ -234,6 +289,7 @@ int main(void)
     snprintf(dir, sizeof dir, "/tmp/unit_nn_train_cli_%d", (int)getpid());
     mkdir(dir, 0755);
     RUN(test_train_and_resume);
+    RUN(test_near_samples_are_near);
     RUN(test_argument_errors);
     char cmd[600];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
