@@ -131,7 +131,7 @@ case "$mode" in
     (cd build && ctest --output-on-failure --timeout 900 -j "$test_jobs")
     # The sanitized build runs the tests that exercise our own code paths hardest
     # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
-    build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug
+    build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug -DNS_GPU_TESTS=OFF
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -j "$test_jobs" -L 'unit|http|cli')
     # The parsers that read untrusted bytes, fuzzed: 40 s per target, one per core at a time
     # (docs/development.md, "Fuzzing"); any crash, leak, UB report or timeout fails.
