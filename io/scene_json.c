@@ -1433,8 +1433,10 @@ static void parse_render(parser *p, const json_t *v)
      * written, can give them their defaults. single_levels too: the library's 0 computes
      * every pixel, as renders built in C always did, and a scene file gets the adaptive
      * single scattering the bench measured (docs/bench.md, *Adaptive single scattering*);
-     * gather_camera_samples likewise (*One camera sample per gathered pixel*). */
+     * gather_levels likewise (*The adaptive gather by default*), and gather_camera_samples
+     * (*One camera sample per gathered pixel*). */
     *r = (ns_render_settings){.seed = NS_DEFAULT_SEED,
+                              .gather_levels = NS_DEFAULT_GATHER_LEVELS,
                               .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
                               .gather_camera_samples = NS_DEFAULT_GATHER_CAMERA_SAMPLES,
                               .single_levels = NS_DEFAULT_SINGLE_LEVELS,

@@ -471,7 +471,18 @@ static void test_integers_and_settings(void)
         CHECK_INT(s->object_count, 0);
         CHECK_INT(s->light_count, 0);
         CHECK(s->objects != NULL && s->lights != NULL && s->materials != NULL);
+        /* No gather_levels: the parser's adaptive default, not the library's 0. */
+        CHECK_INT(s->render.gather_levels, 2);
     }
+    scene_doc_free(doc);
+
+    /* gather_levels 0 written: every tile, the paper's gather, kept as written. */
+    const char *every_tile = "{\"version\":1,\"camera\":{\"position\":[0,0,1],\"look_at\":[0,0,0],"
+                             "\"up\":[0,1,0],\"fov\":60,\"width\":1,\"height\":1},\"materials\":{},"
+                             "\"objects\":[],\"lights\":[],\"render\":{\"gather_levels\":0}}";
+    doc = parse_ok(every_tile, NULL);
+    if (doc)
+        CHECK_INT(scene_doc_scene(doc)->render.gather_levels, 0);
     scene_doc_free(doc);
 }
 

@@ -254,7 +254,8 @@ const char *ns_boundary_name(ns_boundary boundary);
 #define NS_DEFAULT_MAX_DEPTH 8u
 #define NS_DEFAULT_VRLS 10000u
 #define NS_DEFAULT_GATHER_TILE 2u
-#define NS_DEFAULT_GATHER_LEVELS 0u
+/* The scene parser's default for render.gather_levels; the library's 0 gathers every tile. */
+#define NS_DEFAULT_GATHER_LEVELS 2u
 #define NS_DEFAULT_GATHER_TOLERANCE 0.02f
 #define NS_DEFAULT_SINGLE_SAMPLES 64u
 /* The scene parser's defaults for render.single_levels and single_tolerance; the library's 0
@@ -275,8 +276,9 @@ const char *ns_boundary_name(ns_boundary boundary);
  * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
  * was written; boundary is 0 (off) here, and the parser's default is
  * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
- * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS; gather_camera_samples is 0
- * (every sample) here, and the parser's default is NS_DEFAULT_GATHER_CAMERA_SAMPLES. */
+ * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS; gather_levels likewise (every
+ * tile here, NS_DEFAULT_GATHER_LEVELS in the parser); gather_camera_samples is 0 (every
+ * sample) here, and the parser's default is NS_DEFAULT_GATHER_CAMERA_SAMPLES. */
 typedef struct ns_render_settings {
     ns_method method;    /* 0: NS_METHOD_NN, the default */
     uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
@@ -297,7 +299,8 @@ typedef struct ns_render_settings {
     /* Adaptive gather: the tiles are first gathered on a lattice 2^gather_levels tiles apart;
      * a tile between gathered ones is interpolated when they agree within gather_tolerance
      * (relative, per channel) and see the same surface, else gathered. gather_levels 0 =
-     * every tile, the default. gather_tolerance 0 is a tolerance of its own (interpolate only
+     * every tile, the library's default (as the paper); the scene parser's for an absent key
+     * is NS_DEFAULT_GATHER_LEVELS. gather_tolerance 0 is a tolerance of its own (interpolate only
      * where the estimated error is exactly 0) and stays 0: a caller that sets gather_levels
      * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. With boundary
      * walks, at any gather_levels, the correction has a lattice one level coarser and is
