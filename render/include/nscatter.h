@@ -270,9 +270,9 @@ const char *ns_boundary_name(ns_boundary boundary);
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
  * max_scatter, gather_levels, gather_camera_samples, single_levels, accumulation, tables,
- * vrl_beams, boundary, cull_solid_angle) nothing needs replacing. Five fields are exceptions. seed,
- * gather_tolerance and single_tolerance keep a 0 as given (0 is a value of their own there),
- * and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
+ * vrl_beams, boundary, cull_solid_angle) nothing needs replacing in the library. Seven fields
+ * are exceptions. seed, gather_tolerance and single_tolerance keep a 0 as given (0 is a value
+ * of their own there), and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
  * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
  * was written; boundary is 0 (off) here, and the parser's default is
  * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
