@@ -299,6 +299,18 @@ def test_version_and_enums_agree_with_sources(t, srv, d):
     t.check(methods and components, "methods and components read from nscatter.h")
     t.equal(schemas["RenderMethod"]["enum"], methods, "RenderMethod is NS_METHODS")
     t.equal(schemas["Component"]["enum"], components, "Component is NS_COMPONENTS")
+    # The render settings' defaults are written in three places: nscatter.h (what the parser
+    # applies), the document, and the web page's placeholders. They must say the same.
+    defaults = {m.group(1).lower(): float(m.group(2)) for m in
+                re.finditer(r"#define NS_DEFAULT_([A-Z_]+) ([0-9.]+)[uf]?\b", header)}
+    t.check(len(defaults) >= 10, f"numeric defaults read from nscatter.h: {sorted(defaults)}")
+    page = read_source("web/index.html")
+    for key, value in defaults.items():
+        prop = schemas["RenderSettings"]["properties"].get(key, {})
+        t.equal(prop.get("default"), value, f"RenderSettings.{key}.default is NS_DEFAULT_{key.upper()}")
+        field = re.search(r'id="%s"[^>]*data-default="([^"]*)"' % key.replace("_", "-"), page)
+        if field:
+            t.equal(float(field.group(1)), value, f"the web page's {key} default is NS_DEFAULT_{key.upper()}")
     status, _, raw = srv.request("GET", "/v1/materials")
     presets = [m["name"] for m in json.loads(raw)["materials"]]
     t.equal(sorted(schemas["PresetName"]["enum"]), sorted(presets), "PresetName is /v1/materials")

@@ -73,13 +73,17 @@ def expect_422(t, srv, scene, pointer, what):
 
 
 def test_adaptive_gather_counts_interpolated_tiles(t, srv):
+    # None: the key left out, which a scene file reads as the parser's default (2 levels).
     renders = {}
-    for levels in (0, 2):
+    for levels in (0, 2, None):
+        extra = {} if levels is None else {"gather_levels": levels}
         status, headers, body = srv.render(scatter_scene(components=("multiple",), gather_tile=1,
-                                                         gather_levels=levels, gather_tolerance=0.5))
+                                                         gather_tolerance=0.5, **extra))
         t.equal(status, 200, f"gather_levels {levels} ({body[:300]!r})")
         renders[levels] = stats_of(headers)
-    if len(renders) == 2:
+    if len(renders) == 3:
+        t.check(renders[None].get("tiles_interpolated", 0) > 0,
+                f"tiles interpolated without gather_levels: {renders[None]}")
         t.equal(renders[0].get("tiles_interpolated"), 0, f"every tile gathered: {renders[0]}")
         t.check(renders[2].get("tiles_interpolated", 0) > 0, f"tiles interpolated: {renders[2]}")
         t.check(0 < renders[2].get("gather_segments", 0) < renders[0].get("gather_segments", 0),
