@@ -19,7 +19,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
     /* J, read at every step of the walk (accumulate.comp), is a texel buffer of floats. */
-    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 5, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
+    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 6, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
                                 1u << 1, 1u << 1},
     [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START,
                          NS_TRACE_TEXEL_BINDINGS, 0},
@@ -51,6 +51,10 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     /* Only the BVH tests trace rays on their own (ns_trace_rays): a service never does. */
     [NS_PIPELINE_TRACE_TEST] = {"trace_test", 5, 0, NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS,
                                 0},
+    /* Only renders that read two order sets of one material (multiple scattering alone,
+     * with walks) take it: not charged to every start-up. */
+    [NS_PIPELINE_ACCUMULATE_SECOND] = {"accumulate_second", 6, sizeof(GpuAccumulatePush),
+                                       NS_PIPELINE_FIRST_USE, 1u << 1, 1u << 1},
     [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
     [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
 };

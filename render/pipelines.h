@@ -23,6 +23,9 @@ typedef enum ns_pipeline_id {
     NS_PIPELINE_GATHER_DIPOLE,
     NS_PIPELINE_PT,         /* shaders/pt.comp (method pt) */
     NS_PIPELINE_TRACE_TEST, /* shaders/trace_test.comp (tests: render/trace_rays.c) */
+    /* shaders/accumulate_second.comp: two tables of one material on one walk
+     * (scatter_tables.c, ns_tables_expect_orders) */
+    NS_PIPELINE_ACCUMULATE_SECOND,
     /* The pipelines above are kept in ns_context.pipelines; the networks' below are kept in
      * ns_nn_gpu (render/nn_reconstruct.h), which an nn session uses without a context. */
     NS_PIPELINE_CONTEXT_COUNT,

@@ -103,11 +103,14 @@ int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulati
 int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                 uint32_t zero_from_rho, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err);
-/* The same with an extra channel walked beside the three (shaders/accumulate_shared.h):
- * extra_j float [NS_TABLE_CELLS], its A into extra_a (host, as many floats). Both come out
- * as two separate accumulations would make them, bit for bit. */
-int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *extra_j,
-                               ns_accumulation accumulation, ns_scatter_tables *out,
+/* The same with parts walked beside the three (shaders/accumulate_shared.h), each NULL where
+ * absent: the second three (second_j float [3][NS_TABLE_CELLS], their A created in
+ * *second_out) and the extra channel (extra_j float [NS_TABLE_CELLS], its A into extra_a:
+ * host, as many floats). Every part comes out as its own accumulation would make it, bit
+ * for bit. */
+int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
+                               const float *extra_j, ns_accumulation accumulation,
+                               ns_scatter_tables *out, ns_scatter_tables *second_out,
                                float *extra_a, uint64_t *steps, ns_error *err);
 void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
 /* A copy of t's A (float [3][NS_TABLE_CELLS]) in out, read through a host-cached buffer
@@ -118,6 +121,14 @@ int ns_scatter_tables_read(ns_context *ctx, const ns_scatter_tables *t, float *o
  * accumulation mode: the next table accumulated in that mode makes the context's unit blurred
  * table beside its own, on the same walk, instead of a walk of its own later. */
 void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation);
+/* Says that the render about to run reads tables of these orders (double and/or multiple;
+ * the blurred first order's bit is ignored) for its materials: an exact table it makes of
+ * one announced set is walked together with that of another not cached yet, which then
+ * waits in the cache (accumulate_shared.h, the second three). A render of multiple
+ * scattering alone with boundary walks reads multiple for its VRLs and double + multiple for
+ * the sources after an event (their orders shift by it: ns_boundary_orders): one walk
+ * instead of two. */
+void ns_tables_expect_orders(ns_context *ctx, uint32_t orders);
 /* The context's unit blurred table in that mode (tests): NULL until made. */
 const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation);
 

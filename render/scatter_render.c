@@ -1064,7 +1064,13 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     }
     free(signature);
     /* A group that reads the blurred first order: the first table this render accumulates
-     * can make its unit table on the same walk (scatter_tables.c). */
+     * can make its unit table on the same walk (scatter_tables.c); and the VRLs' orders and
+     * the groups' are announced, so that a material's tables of two of them share a walk. */
+    if (!status && scene->render.method != NS_METHOD_DIPOLE) {
+        ns_tables_expect_orders(ctx, scene->render.components);
+        for (uint32_t g = 0; g < v->boundary.count; g++)
+            ns_tables_expect_orders(ctx, v->boundary.group[g].orders);
+    }
     for (uint32_t g = 0; !status && g < v->boundary.count; g++)
         if (v->boundary.group[g].orders & NS_TABLE_FIRST_BLURRED)
             ns_tables_expect_blurred(ctx, scene->render.accumulation);

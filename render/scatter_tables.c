@@ -69,6 +69,11 @@ struct ns_table_cache {
      * for none; that render's next accumulation in that mode makes blur_unit beside its table. A
      * render that failed before it accumulated leaves no hint for the next one. */
     uint64_t blur_expected[2];
+    /* The base order sets (double and/or multiple) that the render of serial + 1 ==
+     * orders_expected_serial reads (ns_tables_expect_orders): an exact table of one is
+     * walked together with another's (accumulate_shared.h, the second three). */
+    uint64_t orders_expected_serial;
+    uint32_t orders_expected[4], orders_expected_count;
 };
 
 /* ---------------------------------------------------------------------------------------
@@ -153,19 +158,34 @@ static int check_j(const float *j, int channels, ns_error *err)
     return NS_OK;
 }
 
-/* j_max: 3 channels, or 4 with the extra one (accumulate_shared.h) whose J is 0 from rho
- * bin extra_zero_from. */
-static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float *j_max,
-                                             int extra, ns_accumulation accumulation,
-                                             uint32_t zero_from, uint32_t extra_zero_from)
+/* What one walk makes beside the three channels' A (accumulate_shared.h): the extra channel
+ * (extra_j float [cells], its A into extra_a, host) and the second three (second_j float
+ * [3][cells], their A created in *second_out); NULL where absent. */
+typedef struct accumulate_parts {
+    const float *extra_j;
+    float *extra_a;
+    const float *second_j;
+    ns_scatter_tables *second_out;
+} accumulate_parts;
+
+/* j_max: the three channels, the extra one ([3], accumulate_shared.h) and the second three
+ * ([4..6]); each part's J is 0 from its own rho bin (*_zero_from). */
+static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[7],
+                                             const accumulate_parts *parts,
+                                             ns_accumulation accumulation, uint32_t zero_from,
+                                             uint32_t extra_zero_from, uint32_t second_zero_from)
 {
     GpuAccumulateParams p;
     memset(&p, 0, sizeof p);
     p.grid[0] = (float)grid->scale;
     p.grid[1] = (float)grid->step;
     p.grid[2] = (float)grid->extent;
+    int extra = parts && parts->extra_j, second = parts && parts->second_j;
     memcpy(p.j_max, j_max, (extra ? 4 : 3) * sizeof(float));
     p.counts[3] = extra ? 1 + extra_zero_from : 0;
+    if (second)
+        memcpy(p.second_j_max, j_max + 4, 3 * sizeof(float));
+    p.second[0] = second ? 1 + second_zero_from : 0;
     p.cut[0] = CUT_RELATIVE;
     p.cut[1] = CUT_FLOOR;
     p.cut[2] = accumulation == NS_ACCUMULATION_PAPER ? (float)NS_PAPER_ACCUMULATION_MFP : 0.0f;
@@ -175,7 +195,7 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
     return p;
 }
 
-enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_EXTRA, B_COUNT };
+enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_EXTRA, B_SECOND, B_COUNT };
 
 /* The grid fields every A table carries (the default grid) and its device bytes. */
 static void set_default_grid(ns_scatter_tables *t, uint64_t bytes)
@@ -188,10 +208,12 @@ static void set_default_grid(ns_scatter_tables *t, uint64_t bytes)
     t->bytes = bytes;
 }
 
-static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_error *err)
+static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], int second,
+                               ns_error *err)
 {
     gpu_pipeline *pipeline;
-    int status = ns_pipeline(ctx, NS_PIPELINE_ACCUMULATE, &pipeline, NULL, err);
+    int status = ns_pipeline(ctx, second ? NS_PIPELINE_ACCUMULATE_SECOND : NS_PIPELINE_ACCUMULATE,
+                             &pipeline, NULL, err);
     if (status)
         return status;
     uint32_t dispatches = (NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH;
@@ -213,21 +235,21 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], ns_e
         err);
 }
 
-static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
+static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
                       ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
                       ns_scatter_tables *out, uint64_t *steps, ns_error *err);
 
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0,
+    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0,
                       out, steps, err);
 }
 
 int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                   ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return accumulate(ctx, j, NULL, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 1,
+    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 1,
                       out, steps, err);
 }
 
@@ -235,26 +257,34 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
                                 uint32_t zero_from, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err)
 {
-    return accumulate(ctx, j, NULL, NULL, accumulation, zero_from, 0, out, steps, err);
+    return accumulate(ctx, j, NULL, accumulation, zero_from, 0, out, steps, err);
 }
 
-int ns_tables_accumulate_extra(ns_context *ctx, const float *j, const float *extra_j,
-                               ns_accumulation accumulation, ns_scatter_tables *out,
+int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
+                               const float *extra_j, ns_accumulation accumulation,
+                               ns_scatter_tables *out, ns_scatter_tables *second_out,
                                float *extra_a, uint64_t *steps, ns_error *err)
 {
-    if (!extra_j || !extra_a)
+    if (!extra_j != !extra_a)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the extra channel needs its J and its A");
-    return accumulate(ctx, j, extra_j, extra_a, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
-                      0, out, steps, err);
+    if (!second_j != !second_out)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the second three need their J and their A");
+    accumulate_parts parts = {.extra_j = extra_j, .extra_a = extra_a, .second_j = second_j,
+                              .second_out = second_out};
+    return accumulate(ctx, j, &parts, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0, out,
+                      steps, err);
 }
 
-/* j: float [3][cells]; extra_j (may be NULL): the extra channel's float [cells], whose A goes
- * to extra_a. */
-static int accumulate(ns_context *ctx, const float *j, const float *extra_j, float *extra_a,
+/* j: float [3][cells]; parts (may be NULL): what the same walk makes beside it. */
+static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
                       ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
                       ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
+    const float *extra_j = parts ? parts->extra_j : NULL;
+    const float *second_j = parts ? parts->second_j : NULL;
     memset(out, 0, sizeof *out);
+    if (second_j)
+        memset(parts->second_out, 0, sizeof *parts->second_out);
     if (zero_from > NS_TABLE_NRHO)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: rho bin %u beyond the grid's %u",
                        zero_from, NS_TABLE_NRHO);
@@ -264,19 +294,28 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
     int status = check_j(j, 3, err);
     if (!status && extra_j)
         status = check_j(extra_j, 1, err);
+    if (!status && second_j)
+        status = check_j(second_j, 3, err);
     if (status)
         return status;
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    float j_max[4] = {0};
+    float j_max[7] = {0};
     channel_max(j, 3, j_max);
     if (extra_j)
         channel_max(extra_j, 1, j_max + 3);
-    GpuAccumulateParams params = accumulate_params(&grid, j_max, extra_j != NULL, accumulation,
-                                                   zero_from, extra_j ? zero_from_rho(extra_j, 1) : 0);
-    int all_zero = j_max[0] == 0.0f && j_max[1] == 0.0f && j_max[2] == 0.0f && j_max[3] == 0.0f;
+    if (second_j)
+        channel_max(second_j, 3, j_max + 4);
+    GpuAccumulateParams params =
+        accumulate_params(&grid, j_max, parts, accumulation, zero_from,
+                          extra_j ? zero_from_rho(extra_j, 1) : 0, second_j ? zero_from_rho(second_j, 3) : 0);
+    int all_zero = 1;
+    for (int c = 0; c < 7; c++)
+        all_zero = all_zero && j_max[c] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
     uint64_t channel_bytes = (uint64_t)NS_TABLE_CELLS * sizeof(float);
+    /* J in one buffer: the three, the second three, the extra channel (accumulate_shared.h). */
+    uint64_t j_bytes = table_bytes + (second_j ? table_bytes : 0) + (extra_j ? channel_bytes : 0);
 
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
@@ -286,9 +325,8 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                       .data = &params,
                       .data_size = sizeof params,
                       .label = "ns.accumulate.params"},
-        /* With the extra channel J is one buffer of four channels: the three, then it
-         * (copied in below). */
-        [B_J] = {.size = table_bytes + (extra_j ? channel_bytes : 0),
+        /* The parts beside the three are copied in below. */
+        [B_J] = {.size = j_bytes,
                  .data = j,
                  .data_size = table_bytes,
                  .label = "ns.accumulate.j"},
@@ -304,14 +342,24 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                      .uninitialized = extra_j && !all_zero, /* the walk writes every cell */
                      .host_reads = 1,
                      .label = "ns.accumulate.extra"},
+        /* A table of its own, as the three's: a word stands in without the second three. */
+        [B_SECOND] = {.size = second_j ? table_bytes : sizeof(float),
+                      .uninitialized = second_j && !all_zero,
+                      .host_reads = a_host_reads,
+                      .label = second_j ? "ns.tables.a" : "ns.accumulate.second"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
+    float *j_rest = status ? NULL : (float *)own[B_J].mapped + 3 * (size_t)NS_TABLE_CELLS;
+    if (!status && second_j) {
+        memcpy(j_rest, second_j, table_bytes);
+        j_rest += 3 * (size_t)NS_TABLE_CELLS;
+    }
     if (!status && extra_j)
-        memcpy((float *)own[B_J].mapped + 3 * (size_t)NS_TABLE_CELLS, extra_j, channel_bytes);
+        memcpy(j_rest, extra_j, channel_bytes);
     if (!status && !all_zero) {
-        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],
-                                      &own[B_EXTRA]};
-        status = dispatch_accumulate(ctx, bound, err);
+        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS],   &own[B_J],     &own[B_A],
+                                      &own[B_COUNTERS], &own[B_EXTRA], &own[B_SECOND]};
+        status = dispatch_accumulate(ctx, bound, second_j != NULL, err);
     }
     if (!status) {
         const uint32_t *c = own[B_COUNTERS].mapped;
@@ -325,11 +373,16 @@ static int accumulate(ns_context *ctx, const float *j, const float *extra_j, flo
                      c[NS_ACCUMULATE_COUNTER_STEPS];
     }
     if (!status && extra_j)
-        memcpy(extra_a, own[B_EXTRA].mapped, channel_bytes);
+        memcpy(parts->extra_a, own[B_EXTRA].mapped, channel_bytes);
     if (!status) {
         out->a = own[B_A];
         own[B_A] = (gpu_buffer){0};
         set_default_grid(out, table_bytes);
+    }
+    if (!status && second_j) {
+        parts->second_out->a = own[B_SECOND];
+        own[B_SECOND] = (gpu_buffer){0};
+        set_default_grid(parts->second_out, table_bytes);
     }
     for (int i = 0; i < B_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
@@ -739,6 +792,23 @@ static uint64_t weights_bytes(const ns_table_key *key)
                                        : 0;
 }
 
+void ns_tables_expect_orders(ns_context *ctx, uint32_t orders)
+{
+    struct ns_table_cache *cache = ctx->tables;
+    uint64_t serial = ctx->run.serial + 1;
+    if (cache->orders_expected_serial != serial) {
+        cache->orders_expected_serial = serial;
+        cache->orders_expected_count = 0;
+    }
+    orders &= NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    int listed = !orders;
+    for (uint32_t i = 0; i < cache->orders_expected_count; i++)
+        listed |= cache->orders_expected[i] == orders;
+    uint32_t cap = sizeof cache->orders_expected / sizeof cache->orders_expected[0];
+    if (!listed && cache->orders_expected_count < cap)
+        cache->orders_expected[cache->orders_expected_count++] = orders;
+}
+
 void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation)
 {
     ctx->tables->blur_expected[accumulation == NS_ACCUMULATION_PAPER] = ctx->run.serial + 1;
@@ -755,11 +825,12 @@ static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float 
                            float *blur_j);
 
 /* Makes the context's unit blurred table in this mode: the extra channel of the walk of j
- * (a material's J, float [3][cells], whose A goes to *a), or of a J of zeros where j is NULL
- * (*a is then zeros, which the caller frees). Bit for bit the same either way
- * (accumulate_shared.h). */
+ * (a material's J, float [3][cells], whose A goes to *a; with second_j, the second three's
+ * to *second_a), or of a J of zeros where j is NULL (*a is then zeros, which the caller
+ * frees). Bit for bit the same either way (accumulate_shared.h). */
 static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const float *j,
-                          ns_scatter_tables *a, ns_error *err)
+                          const float *second_j, ns_scatter_tables *a, ns_scatter_tables *second_a,
+                          ns_error *err)
 {
     float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
     float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
@@ -769,7 +840,8 @@ static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const f
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
     } else {
         ns_blurred_spatial(blur_j);
-        status = ns_tables_accumulate_extra(ctx, j ? j : zeros, blur_j, accumulation, a, unit, NULL, err);
+        status = ns_tables_accumulate_parts(ctx, j ? j : zeros, second_j, blur_j, accumulation, a,
+                                            second_a, unit, NULL, err);
     }
     free(zeros);
     if (status) {
@@ -945,10 +1017,10 @@ static uint64_t table_code_hash(void)
     }
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    const float no_j[4] = {0};
+    const float no_j[7] = {0};
     for (int mode = 0; mode < 2; mode++) {
         GpuAccumulateParams p =
-            accumulate_params(&grid, no_j, 0, (ns_accumulation)mode, NS_TABLE_NRHO, 0);
+            accumulate_params(&grid, no_j, NULL, (ns_accumulation)mode, NS_TABLE_NRHO, 0, 0);
         h = fnv_bytes(h, &p, sizeof p);
     }
     ns_nn_sampling sampling = ns_nn_sampling_default();
@@ -1405,18 +1477,39 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
     return NS_OK;
 }
 
-/* A of a material's J (float [3][cells]) in key's mode into *a, and beside it the unit
- * blurred table when the render running expects it and the context has none yet (one walk
- * for both). */
+/* A of a material's J (float [3][cells]) in key's mode into *a, and on the same walk the A
+ * of second_j (the companion's J, or NULL) into *second_a and the unit blurred table when the
+ * render running expects it and the context has none yet. */
 static int accumulate_table(ns_context *ctx, const ns_table_key *key, const float *j,
-                            ns_scatter_tables *a, ns_error *err)
+                            const float *second_j, ns_scatter_tables *a, ns_scatter_tables *second_a,
+                            ns_error *err)
 {
     int mode = key->accumulation == NS_ACCUMULATION_PAPER;
     struct ns_table_cache *cache = ctx->tables;
     if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode] &&
         !load_blur_unit(ctx, key->accumulation))
-        return make_blur_unit(ctx, key->accumulation, j, a, err);
+        return make_blur_unit(ctx, key->accumulation, j, second_j, a, second_a, err);
+    if (second_j)
+        return ns_tables_accumulate_parts(ctx, j, second_j, NULL, key->accumulation, a, second_a,
+                                          NULL, NULL, err);
     return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
+}
+
+/* The key that the render running will also ask for (ns_tables_expect_orders): key with
+ * another of the announced order sets, not cached yet; 0 when there is none. Exact tables
+ * only: an interpolated one is a blend, with no walk to share. */
+static int companion_key(ns_context *ctx, const ns_table_key *key, ns_table_key *companion)
+{
+    const struct ns_table_cache *cache = ctx->tables;
+    if (key->tables != NS_TABLES_EXACT || cache->orders_expected_serial != ctx->run.serial + 1)
+        return 0;
+    for (uint32_t i = 0; i < cache->orders_expected_count; i++) {
+        *companion = *key;
+        companion->orders = cache->orders_expected[i];
+        if (companion->orders != key->orders && !find_a(ctx->tables, companion))
+            return 1;
+    }
+    return 0;
 }
 
 /* The A of the blurred first order's spatial part, made once per mode: on a walk of its own
@@ -1430,7 +1523,7 @@ static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float 
         int status = NS_OK;
         if (!load_blur_unit(ctx, accumulation)) {
             ns_scatter_tables zeros;
-            status = make_blur_unit(ctx, accumulation, NULL, &zeros, err);
+            status = make_blur_unit(ctx, accumulation, NULL, NULL, &zeros, NULL, err);
             if (!status)
                 ns_scatter_tables_free(ctx, &zeros);
         }
@@ -1573,23 +1666,41 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
         return NS_OK;
     }
     cache_entry e = {.kind = ENTRY_A, .key = *key};
-    float *j = NULL;
+    cache_entry second = {.kind = ENTRY_A};
+    float *j = NULL, *second_j = NULL;
     if (key->orders & NS_TABLE_FIRST_BLURRED) {
         status = compose_blurred(ctx, key, &e.a, stats, err);
     } else if (key->tables == NS_TABLES_INTERPOLATED) {
         status = interpolate_table(ctx, key, &e.a, stats, err);
     } else {
+        int paired = companion_key(ctx, key, &second.key);
         status = ensure_j(ctx, key, stats, err);
         if (!status)
             status = sum_orders(ctx, key, &j, err);
+        if (!status && paired)
+            status = sum_orders(ctx, &second.key, &second_j, err);
         if (!status) {
             ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-            status = accumulate_table(ctx, key, j, &e.a, err);
+            status = accumulate_table(ctx, key, j, second_j, &e.a, paired ? &second.a : NULL, err);
             stats->accumulate_ms = ns_stage_end(ctx, &stage);
             stats->accumulated = 1;
         }
     }
     free(j);
+    free(second_j);
+    /* The companion first: inserting may move the entries, and the key's own slot is the
+     * one returned. Out of memory for it only costs its walk again later. */
+    if (!status && second.a.a.buffer) {
+        second.bytes = second.a.bytes;
+        keep_buffer(&ctx->dev);
+        cache_entry *slot = insert(cache, &second);
+        if (slot)
+            count_made(ctx, slot, stats);
+        else
+            destroy_kept_buffer(&ctx->dev, &second.a.a);
+    } else {
+        ns_scatter_tables_free(ctx, &second.a);
+    }
     if (status) {
         /* J made before the failure stays cached; keep the bound anyway. */
         while (cache->bytes > ctx->table_cache_bytes && cache->count)

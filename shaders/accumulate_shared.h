@@ -45,6 +45,8 @@ struct GpuAccumulateParams {
                         that never comes inside it meets only zeros, accumulate.comp),
                         z = step cap per cell, w = 0, or 1 + the same rho bin of an extra
                         channel walked beside the three (below) */
+    ns_vec4 second_j_max; /* xyz: the largest J of each channel of the second three (below) */
+    ns_uvec4 second;      /* x = 0 (none), or 1 + the rho bin from which their J is 0; yzw 0 */
 };
 
 /* The extra channel. The blurred first order's spatial part (boundary.h) is a table of its
@@ -55,6 +57,15 @@ struct GpuAccumulateParams {
  * when there is none). Each part stops where its own walk would: the three channels stop
  * adding when their cut is met, the extra one when its is, and the walk ends when both have,
  * so both come out bit for bit as two walks would make them (gpu_accumulate checks it). */
+
+/* The second three (shaders/accumulate_second.comp). A render may ask for two tables of
+ * one material: of multiple scattering alone with boundary walks, its VRLs read multiple
+ * scattering and the walks' sources after an event double + multiple (scatter.h,
+ * ns_tables_expect_orders). Their lines are the same; only J differs. So one walk can make
+ * both: J is then float [6][cells] (the three, then the second three; the extra channel,
+ * where there is one, after them), the second A goes to binding 5 (a dummy when there is
+ * none), and the second three stop adding where their own walk would, so each table comes
+ * out bit for bit as its own walk would make it (gpu_accumulate checks it). */
 
 /* Push block of one dispatch: cells [first_cell, first_cell + groups * NS_ACCUMULATE_GROUP). */
 struct GpuAccumulatePush {
@@ -94,7 +105,7 @@ NS_CONST(uint, NS_ACCUMULATE_COUNTER_COUNT, 4);
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuAccumulateParams GpuAccumulateParams;
 typedef struct GpuAccumulatePush GpuAccumulatePush;
-_Static_assert(sizeof(GpuAccumulateParams) == 64, "GpuAccumulateParams std140 size");
+_Static_assert(sizeof(GpuAccumulateParams) == 96, "GpuAccumulateParams std140 size");
 _Static_assert(sizeof(GpuAccumulatePush) == 16, "GpuAccumulatePush size");
 #endif
 

@@ -890,37 +890,47 @@ static void bench(int n)
            median(synth, n), median(cpu, n), median(rate, n));
 }
 
-/* A of j (3 channels) and of extra (1 channel, as channel 0 of a table of its own), each
- * walked alone, against both walked together (ns_tables_accumulate_extra): the same floats,
- * bit for bit. extra_alone (may be NULL): a copy of extra's A walked alone (one channel). */
-static void compare_extra(const float *j, const float *extra, ns_accumulation mode, const char *what,
-                          float **extra_alone)
+/* A of j (3 channels), of second (3 channels; may be NULL) and of extra (1 channel, as
+ * channel 0 of a table of its own), each walked alone, against all walked together
+ * (ns_tables_accumulate_parts): the same floats, bit for bit. extra_alone (may be NULL): a
+ * copy of extra's A walked alone (one channel). */
+static void compare_parts(const float *j, const float *second, const float *extra,
+                          ns_accumulation mode, const char *what, float **extra_alone)
 {
     ns_context *ctx = test_context();
     ns_error err = {0};
     float *alone_j = calloc(3 * cells, sizeof(float));
     memcpy(alone_j, extra, cells * sizeof(float));
     float *extra_a = malloc(cells * sizeof(float));
-    ns_scatter_tables table, table_alone, together;
-    uint64_t steps_table = 0, steps_alone = 0, steps_together = 0;
+    ns_scatter_tables table, table_alone, together, second_alone = {0}, second_together = {0};
+    uint64_t steps_table = 0, steps_alone = 0, steps_second = 0, steps_together = 0;
     CHECK_INT(ns_tables_accumulate(ctx, j, mode, &table, &steps_table, &err), NS_OK);
     CHECK_INT(ns_tables_accumulate(ctx, alone_j, mode, &table_alone, &steps_alone, &err), NS_OK);
-    int status = ns_tables_accumulate_extra(ctx, j, extra, mode, &together, extra_a, &steps_together, &err);
+    if (second)
+        CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err), NS_OK);
+    int status = ns_tables_accumulate_parts(ctx, j, second, extra, mode, &together,
+                                            second ? &second_together : NULL, extra_a,
+                                            &steps_together, &err);
     CHECK_INT(status, NS_OK);
     if (!status) {
         CHECK(memcmp(table.a.mapped, together.a.mapped, 3 * cells * sizeof(float)) == 0);
         CHECK(memcmp(table_alone.a.mapped, extra_a, cells * sizeof(float)) == 0);
+        if (second)
+            CHECK(memcmp(second_alone.a.mapped, second_together.a.mapped, 3 * cells * sizeof(float)) == 0);
         if (extra_alone && (*extra_alone = malloc(cells * sizeof(float))))
             memcpy(*extra_alone, table_alone.a.mapped, cells * sizeof(float));
-        /* One walk covers both: at most the longer of the two per line. */
-        CHECK(steps_together < steps_table + steps_alone);
-        printf("%s (%s): %llu + %llu steps alone, %llu together; both parts bit for bit\n", what,
-               mode == NS_ACCUMULATION_PAPER ? "paper" : "exact", (unsigned long long)steps_table,
+        /* One walk covers all: at most the longest of them per line. */
+        CHECK(steps_together < steps_table + steps_alone + steps_second);
+        printf("%s (%s): %llu + %llu + %llu steps alone, %llu together; every part bit for bit\n",
+               what, mode == NS_ACCUMULATION_PAPER ? "paper" : "exact",
+               (unsigned long long)steps_table, (unsigned long long)steps_second,
                (unsigned long long)steps_alone, (unsigned long long)steps_together);
         ns_scatter_tables_free(ctx, &together);
+        ns_scatter_tables_free(ctx, &second_together);
     }
     ns_scatter_tables_free(ctx, &table);
     ns_scatter_tables_free(ctx, &table_alone);
+    ns_scatter_tables_free(ctx, &second_alone);
     free(alone_j);
     free(extra_a);
 }
@@ -936,25 +946,42 @@ static void test_extra_channel_rides_along(void)
     ns_blurred_spatial(blur);
     /* The unit table walked alone, in both modes: what the cache must make below. */
     float *unit_alone[2] = {NULL, NULL};
-    compare_extra(j, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred extra", &unit_alone[0]);
-    compare_extra(j, blur, NS_ACCUMULATION_PAPER, "exponential J, blurred extra", &unit_alone[1]);
+    /* The second three: light near the axis only in one channel (their own radius), beside
+     * light everywhere, and the other way round. */
     float *blur3 = calloc(3 * cells, sizeof(float)), *exp1 = malloc(cells * sizeof(float));
     for (size_t i = 0; i < cells; i++) {
         blur3[2 * cells + i] = blur[i];
         exp1[i] = j[i];
     }
-    compare_extra(blur3, exp1, NS_ACCUMULATION_EXACT, "blurred J, exponential extra", NULL);
-    compare_extra(blur3, exp1, NS_ACCUMULATION_PAPER, "blurred J, exponential extra", NULL);
+    compare_parts(j, blur3, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred second and extra",
+                  &unit_alone[0]);
+    compare_parts(j, blur3, blur, NS_ACCUMULATION_PAPER, "exponential J, blurred second and extra",
+                  &unit_alone[1]);
+    compare_parts(blur3, j, exp1, NS_ACCUMULATION_EXACT, "blurred J, exponential second and extra", NULL);
+    compare_parts(blur3, NULL, exp1, NS_ACCUMULATION_PAPER, "blurred J, exponential extra", NULL);
 
     ns_context *ctx = test_context();
     ns_error err = {0};
-    ns_scatter_tables t;
+    ns_scatter_tables t, t2;
     float *out = malloc(cells * sizeof(float));
     exp1[cells / 2] = NAN;
-    CHECK_INT(ns_tables_accumulate_extra(ctx, j, exp1, NS_ACCUMULATION_EXACT, &t, out, NULL, &err),
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, NULL, exp1, NS_ACCUMULATION_EXACT, &t, NULL, out,
+                                         NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(err.message, "J table") != NULL);
-    CHECK_INT(ns_tables_accumulate_extra(ctx, j, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
+    float *bad3 = malloc(3 * cells * sizeof(float));
+    memcpy(bad3, j, 3 * cells * sizeof(float));
+    bad3[2 * cells + 7] = INFINITY;
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, bad3, NULL, NS_ACCUMULATION_EXACT, &t, &t2, NULL,
+                                         NULL, &err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err.message, "J table") != NULL);
+    free(bad3);
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, NULL, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL,
+                                         NULL, &err),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, blur3, NULL, NS_ACCUMULATION_EXACT, &t, NULL, NULL,
+                                         NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK_INT(ns_tables_accumulate(ctx, NULL, NS_ACCUMULATION_EXACT, &t, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
@@ -971,13 +998,42 @@ static void test_extra_channel_rides_along(void)
         CHECK_INT(ns_tables_get(fresh, &double_only, &first, NULL, &err), NS_OK);
         CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT) == NULL);
         ns_tables_expect_blurred(fresh, NS_ACCUMULATION_EXACT);
+        /* The render also reads multiple scattering alone (a walk's sources shifted by one
+         * event; the blurred bit is ignored): its table rides along as the second three. */
+        ns_tables_expect_orders(fresh, nn_key.orders);
+        ns_tables_expect_orders(fresh, NS_COMPONENT_MULTIPLE | NS_TABLE_FIRST_BLURRED);
         const ns_scatter_tables *got = NULL;
         ns_table_stats stats;
         CHECK_INT(ns_tables_get(fresh, &nn_key, &got, &stats, &err), NS_OK);
+        CHECK_INT(stats.tables_made, 2); /* its A and the companion's; the J were there */
         const float *unit = ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT);
         CHECK(unit != NULL);
         CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_PAPER) == NULL);
         CHECK(unit && unit_alone[0] && memcmp(unit_alone[0], unit, cells * sizeof(float)) == 0);
+        ns_table_key multiple_only = nn_key;
+        multiple_only.orders = NS_COMPONENT_MULTIPLE;
+        CHECK_INT(ns_tables_get(fresh, &multiple_only, &got, &stats, &err), NS_OK);
+        CHECK(stats.cache_hit && !stats.accumulated && stats.tables_made == 0);
+        /* As its own walk of the channels' J of multiple scattering makes it. */
+        float *j_multiple = malloc(3 * cells * sizeof(float));
+        int have_j = 1;
+        for (int c = 0; c < 3; c++) {
+            const float *jc = ns_tables_cached_j(fresh, NS_METHOD_NN, nn_key.g, nn_key.albedo[c], 1);
+            have_j = have_j && jc;
+            if (jc)
+                memcpy(j_multiple + c * cells, jc, cells * sizeof(float));
+        }
+        CHECK(have_j);
+        ns_scatter_tables own_walk;
+        int walked = have_j && got ? ns_tables_accumulate(fresh, j_multiple, NS_ACCUMULATION_EXACT,
+                                                          &own_walk, NULL, &err)
+                                   : NS_ERR_INTERNAL;
+        CHECK_INT(walked, NS_OK);
+        if (!walked) {
+            CHECK(memcmp(own_walk.a.mapped, got->a.mapped, 3 * cells * sizeof(float)) == 0);
+            ns_scatter_tables_free(fresh, &own_walk);
+        }
+        free(j_multiple);
         /* Without the hint a key that reads the blurred order makes the unit table on a walk
          * of its own (paper mode here, whose walks are short): the same floats. */
         ns_table_key blurred = nn_key;

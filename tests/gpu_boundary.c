@@ -13,6 +13,7 @@
  * Image means over 32 x 32 pixels (the slabs: 16 x 16). Also: off is the default and adds no
  * source; the other methods refuse the setting naming it. */
 #include "gpu_util.h"
+#include "pipelines.h"
 
 typedef struct means {
     double v[3];
@@ -113,6 +114,10 @@ static void test_cloud(void)
     /* Measured (2026-11-29, ghosts without the blurred first order): walks -2.4 / -2.1 /
      * -1.3%, off +83 / +57 / +106% (2026-11-27, with it: walks -5.1 / -5.0 / -4.0%). */
     compare("cloud sphere 3.3 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.08, 0.3, 8);
+    /* Multiple scattering alone: the VRLs read its table, the walks' sources double +
+     * multiple. The render says so, and both tables come from one walk: the shader of the
+     * second three was made (docs/rendering.md, *The second three*). */
+    CHECK(test_context()->pipelines[NS_PIPELINE_ACCUMULATE_SECOND].pipeline != VK_NULL_HANDLE);
 }
 
 static void test_slab(double thickness, double walks_tolerance, double off_off, double closer)
