@@ -4,8 +4,9 @@
 #   scripts/setup.sh run    install, build, render scenes/default.json to out/default.png,
 #                           then serve the web page and API on http://127.0.0.1:8080
 #   scripts/setup.sh test   install (test tools too), build with warnings as errors, run
-#                           every test (ctest), then the sanitizer build's tests, then
-#                           each libFuzzer target for a bounded time (scripts/fuzz.sh)
+#                           the GPU and browser tests (ctest), then the unit, HTTP and CLI
+#                           tests on the sanitizer build, then each libFuzzer target for a
+#                           bounded time (scripts/fuzz.sh)
 #   scripts/setup.sh deps   only install what is missing
 #   scripts/setup.sh build  install and build build/nscatter
 #   scripts/setup.sh http-test-deps
@@ -128,9 +129,12 @@ case "$mode" in
     # would only contend (and stretch the tests' own deadlines).
     test_jobs=$(nproc)
     [ "$test_jobs" -le 4 ] || test_jobs=4
-    (cd build && ctest --output-on-failure --timeout 900 -j "$test_jobs")
-    # The sanitized build runs the tests that exercise our own code paths hardest
-    # (parsers, HTTP, Monte Carlo); lavapipe itself is not built with sanitizers.
+    # The GPU and browser tests on the release build (the browser's server is the shipped
+    # binary); the unit, HTTP and CLI tests once, on the sanitized build, which runs the same
+    # code with ASan and UBSan checking it (lavapipe itself is not built with sanitizers).
+    # Running those twice cost CI about three minutes (docs/development.md, *Test time*);
+    # the Dockerfile's test stage runs the HTTP and CLI tests on its release build.
+    (cd build && ctest --output-on-failure --timeout 900 -j "$test_jobs" -LE 'unit|http|cli')
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug -DNS_GPU_TESTS=OFF
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -j "$test_jobs" -L 'unit|http|cli')
     # The parsers that read untrusted bytes, fuzzed: 40 s per target, one per core at a time
