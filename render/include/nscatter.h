@@ -256,7 +256,7 @@ const char *ns_boundary_name(ns_boundary boundary);
 #define NS_DEFAULT_GATHER_TILE 2u
 /* The scene parser's default for render.gather_levels; the library's 0 gathers every tile. */
 #define NS_DEFAULT_GATHER_LEVELS 2u
-#define NS_DEFAULT_GATHER_TOLERANCE 0.02f
+#define NS_DEFAULT_GATHER_TOLERANCE 0.05f
 #define NS_DEFAULT_SINGLE_SAMPLES 64u
 /* The scene parser's defaults for render.single_levels and single_tolerance; the library's 0
  * levels computes every pixel (ns_render_settings). */
@@ -304,7 +304,7 @@ typedef struct ns_render_settings {
      * where the estimated error is exactly 0) and stays 0: a caller that sets gather_levels
      * sets it too, e.g. to NS_DEFAULT_GATHER_TOLERANCE as the parser does. With boundary
      * walks, at any gather_levels, the correction has a lattice one level coarser and is
-     * interpolated within 5 x gather_tolerance of the pixels' totals (0: at every tile). */
+     * interpolated within 2 x gather_tolerance of the pixels' totals (0: at every tile). */
     uint32_t gather_levels;
     float gather_tolerance;
     /* How many of a gathered pixel's camera samples the gather takes, 0..NS_MAX_SPP: the
