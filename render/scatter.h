@@ -107,7 +107,7 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
  * absent: the second three (second_j float [3][NS_TABLE_CELLS], their A created in
  * *second_out) and the extra channel (extra_j float [NS_TABLE_CELLS], its A into extra_a:
  * host, as many floats). Every part comes out as its own accumulation would make it, bit
- * for bit. */
+ * for bit; steps counts the bins of the one walk, which lasts as long as its longest part. */
 int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
                                const float *extra_j, ns_accumulation accumulation,
                                ns_scatter_tables *out, ns_scatter_tables *second_out,

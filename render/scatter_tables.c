@@ -1007,7 +1007,9 @@ static uint64_t payload_hash(float *const *tables, uint32_t n)
 
 static uint64_t table_code_hash(void)
 {
-    static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate"};
+    /* accumulate_second makes the blur unit too when it rides along a paired walk. */
+    static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate",
+                                          "accumulate_second"};
     uint32_t version = TABLE_FILE_CODE_VERSION;
     uint64_t h = fnv_bytes(0xcbf29ce484222325ull, &version, sizeof version);
     for (size_t i = 0; i < sizeof shaders / sizeof shaders[0]; i++) {
@@ -1489,15 +1491,15 @@ static int accumulate_table(ns_context *ctx, const ns_table_key *key, const floa
     if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode] &&
         !load_blur_unit(ctx, key->accumulation))
         return make_blur_unit(ctx, key->accumulation, j, second_j, a, second_a, err);
-    if (second_j)
-        return ns_tables_accumulate_parts(ctx, j, second_j, NULL, key->accumulation, a, second_a,
-                                          NULL, NULL, err);
-    return ns_tables_accumulate(ctx, j, key->accumulation, a, NULL, err);
+    return ns_tables_accumulate_parts(ctx, j, second_j, NULL, key->accumulation, a, second_a, NULL,
+                                      NULL, err);
 }
 
 /* The key that the render running will also ask for (ns_tables_expect_orders): key with
  * another of the announced order sets, not cached yet; 0 when there is none. Exact tables
- * only: an interpolated one is a blend, with no walk to share. */
+ * only: an interpolated one is a blend, with no walk to share. The sets are the render's,
+ * not each material's: a material none of whose boundary sources reach a camera segment
+ * still gets its companion (rare; a walk of about 0.8 more). */
 static int companion_key(ns_context *ctx, const ns_table_key *key, ns_table_key *companion)
 {
     const struct ns_table_cache *cache = ctx->tables;
@@ -1644,6 +1646,20 @@ static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_
     return NS_OK;
 }
 
+/* A made now (e->a) into the cache, kept out of the live-buffer count and counted as made;
+ * NULL out of memory, its buffer destroyed. Inserting may move the other entries. */
+static cache_entry *insert_a(ns_context *ctx, cache_entry *e, ns_table_stats *stats)
+{
+    e->bytes = e->a.bytes;
+    keep_buffer(&ctx->dev);
+    cache_entry *slot = insert(ctx->tables, e);
+    if (slot)
+        count_made(ctx, slot, stats);
+    else
+        destroy_kept_buffer(&ctx->dev, &e->a.a);
+    return slot;
+}
+
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err)
 {
@@ -1690,31 +1706,19 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     free(second_j);
     /* The companion first: inserting may move the entries, and the key's own slot is the
      * one returned. Out of memory for it only costs its walk again later. */
-    if (!status && second.a.a.buffer) {
-        second.bytes = second.a.bytes;
-        keep_buffer(&ctx->dev);
-        cache_entry *slot = insert(cache, &second);
-        if (slot)
-            count_made(ctx, slot, stats);
-        else
-            destroy_kept_buffer(&ctx->dev, &second.a.a);
-    } else {
+    if (!status && second.a.a.buffer)
+        insert_a(ctx, &second, stats);
+    else
         ns_scatter_tables_free(ctx, &second.a);
-    }
     if (status) {
         /* J made before the failure stays cached; keep the bound anyway. */
         while (cache->bytes > ctx->table_cache_bytes && cache->count)
             remove_entry(ctx, cache, lru_index(cache));
         return status;
     }
-    e.bytes = e.a.bytes;
-    keep_buffer(&ctx->dev);
-    cache_entry *slot = insert(cache, &e);
-    if (!slot) {
-        destroy_kept_buffer(&ctx->dev, &e.a.a);
+    cache_entry *slot = insert_a(ctx, &e, stats);
+    if (!slot)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
-    }
-    count_made(ctx, slot, stats);
     slot = evict(ctx, cache, slot);
     *out = &slot->a;
     return NS_OK;

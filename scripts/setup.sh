@@ -123,10 +123,9 @@ case "$mode" in
     install_available "${OPTIONAL_TEST_PACKAGES[@]}"
     install_node
     build build -DNS_WERROR=ON
-    # One test per core at a time, four at most: lavapipe's renders share the cores, but the
-    # HTTP, CLI and browser tests spend much of their time waiting (2 cores: 813 s serial,
-    # 502 s); every lavapipe render takes all the cores, so dozens at once on a large machine
-    # would only contend (and stretch the tests' own deadlines).
+    # One test per core at a time, four at most: every lavapipe render takes all the cores,
+    # so dozens at once on a large machine would only contend (and stretch the tests' own
+    # deadlines); a third slot on 2 cores was measured no faster (docs/development.md).
     test_jobs=$(nproc)
     [ "$test_jobs" -le 4 ] || test_jobs=4
     # The GPU and browser tests on the release build (the browser's server is the shipped

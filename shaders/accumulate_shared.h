@@ -1,5 +1,5 @@
-/* accumulate_shared.h — the accumulation stage's GPU blocks (shaders/accumulate.comp and
- * render/scatter_tables.c), shared by C and GLSL like shared.h (include that and
+/* accumulate_shared.h — the accumulation stage's GPU blocks (shaders/accumulate.glsl, in
+ * accumulate.comp and accumulate_second.comp, and render/scatter_tables.c), shared by C and GLSL like shared.h (include that and
  * scatter_shared.h, included here); sizes checked at the bottom.
  *
  * The stage turns J (float [3][NS_TABLE_CELLS], one table per RGB channel, on the default
@@ -52,11 +52,12 @@ struct GpuAccumulateParams {
 /* The extra channel. The blurred first order's spatial part (boundary.h) is a table of its
  * own that every material's blurred table is composed from, walked once per context: it
  * rides along the first material's walk instead of walking 53 M steps alone (the lines are
- * the same; only the J read and the sum are its own). Its J follows the three channels
- * (J is then float [4][cells]), j_max.w is its peak, and its A goes to binding 4 (a dummy
- * when there is none). Each part stops where its own walk would: the three channels stop
- * adding when their cut is met, the extra one when its is, and the walk ends when both have,
- * so both come out bit for bit as two walks would make them (gpu_accumulate checks it). */
+ * the same; only the J read and the sum are its own). Its J is the last plane (J is then
+ * float [4][cells], or [7][cells] with the second three below), j_max.w is its peak, and its
+ * A goes to binding 4 (a dummy when there is none). Each part stops where its own walk
+ * would: the three channels stop adding when their cut is met, the extra one when its is,
+ * and the walk ends when every part has, so each comes out bit for bit as its own walk
+ * would make it (gpu_accumulate checks it). */
 
 /* The second three (shaders/accumulate_second.comp). A render may ask for two tables of
  * one material: of multiple scattering alone with boundary walks, its VRLs read multiple
