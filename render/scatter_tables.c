@@ -266,9 +266,11 @@ int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *sec
                                float *extra_a, uint64_t *steps, ns_error *err)
 {
     if (!extra_j != !extra_a)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the extra channel needs its J and its A");
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "accumulate: the extra channel needs its J and its A");
     if (!second_j != !second_out)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: the second three need their J and their A");
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                       "accumulate: the second three need their J and their A");
     accumulate_parts parts = {.extra_j = extra_j, .extra_a = extra_a, .second_j = second_j,
                               .second_out = second_out};
     return accumulate(ctx, j, &parts, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0, out,
@@ -308,7 +310,8 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
         channel_max(second_j, 3, j_max + 4);
     GpuAccumulateParams params =
         accumulate_params(&grid, j_max, parts, accumulation, zero_from,
-                          extra_j ? zero_from_rho(extra_j, 1) : 0, second_j ? zero_from_rho(second_j, 3) : 0);
+                          extra_j ? zero_from_rho(extra_j, 1) : 0,
+                          second_j ? zero_from_rho(second_j, 3) : 0);
     int all_zero = 1;
     for (int c = 0; c < 7; c++)
         all_zero = all_zero && j_max[c] == 0.0f;
@@ -1483,8 +1486,8 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
  * of second_j (the companion's J, or NULL) into *second_a and the unit blurred table when the
  * render running expects it and the context has none yet. */
 static int accumulate_table(ns_context *ctx, const ns_table_key *key, const float *j,
-                            const float *second_j, ns_scatter_tables *a, ns_scatter_tables *second_a,
-                            ns_error *err)
+                            const float *second_j, ns_scatter_tables *a,
+                            ns_scatter_tables *second_a, ns_error *err)
 {
     int mode = key->accumulation == NS_ACCUMULATION_PAPER;
     struct ns_table_cache *cache = ctx->tables;

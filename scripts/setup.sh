@@ -131,8 +131,8 @@ case "$mode" in
     # The GPU and browser tests on the release build (the browser's server is the shipped
     # binary); the unit, HTTP and CLI tests once, on the sanitized build, which runs the same
     # code with ASan and UBSan checking it (lavapipe itself is not built with sanitizers).
-    # Running those twice cost CI about three minutes (docs/development.md, *Test time*);
-    # the Dockerfile's test stage runs the HTTP and CLI tests on its release build.
+    # Running those twice cost CI about two minutes (docs/development.md, *Each test
+    # once*); the Dockerfile's test stage runs the HTTP and CLI tests on its release build.
     (cd build && ctest --output-on-failure --timeout 900 -j "$test_jobs" -LE 'unit|http|cli')
     build build-asan -DNS_WERROR=ON -DNS_SANITIZE=ON -DCMAKE_BUILD_TYPE=Debug -DNS_GPU_TESTS=OFF
     (cd build-asan && ASAN_OPTIONS=detect_leaks=1 ctest --output-on-failure --timeout 900 -j "$test_jobs" -L 'unit|http|cli')

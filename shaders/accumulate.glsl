@@ -208,7 +208,8 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
             sum.w += j_at(extra_base + index) * weight;
 #if NS_ACCUMULATE_SECOND
         if (adding_second)
-            second_sum += vec3(j_at(second_base + index), j_at(second_base + NS_TABLE_CELLS + index),
+            second_sum += vec3(j_at(second_base + index),
+                               j_at(second_base + NS_TABLE_CELLS + index),
                                j_at(second_base + 2u * NS_TABLE_CELLS + index)) * weight;
 #endif
         steps++;
@@ -229,7 +230,8 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
                 !(ir >= extra_zero_from && rho_dir > 0);
 #if NS_ACCUMULATE_SECOND
             adding_second = adding_second &&
-                !all(lessThanEqual(decay * second_j_max, params.cut.x * (second_sum + second_floor)));
+                !all(lessThanEqual(decay * second_j_max,
+                                   params.cut.x * (second_sum + second_floor)));
             if (!adding_j && !adding_extra && !adding_second) {
 #else
             if (!adding_j && !adding_extra) {

@@ -1,6 +1,7 @@
 /* accumulate_shared.h — the accumulation stage's GPU blocks (shaders/accumulate.glsl, in
- * accumulate.comp and accumulate_second.comp, and render/scatter_tables.c), shared by C and GLSL like shared.h (include that and
- * scatter_shared.h, included here); sizes checked at the bottom.
+ * accumulate.comp and accumulate_second.comp, and render/scatter_tables.c), shared by C and
+ * GLSL like shared.h (include that and scatter_shared.h, included here); sizes checked at
+ * the bottom.
  *
  * The stage turns J (float [3][NS_TABLE_CELLS], one table per RGB channel, on the default
  * grid) into A(x, w) = integral_0^inf e^{-u} J(x - u w, w) du at every cell centre

@@ -907,9 +907,11 @@ static void compare_parts(const float *j, const float *second, const float *extr
     uint64_t steps_table = 0, steps_extra = 0, steps_second = 0, steps_together = 0;
     CHECK_INT(ns_tables_accumulate(ctx, j, mode, &table, &steps_table, &err), NS_OK);
     if (extra)
-        CHECK_INT(ns_tables_accumulate(ctx, alone_j, mode, &extra_table, &steps_extra, &err), NS_OK);
+        CHECK_INT(ns_tables_accumulate(ctx, alone_j, mode, &extra_table, &steps_extra, &err),
+                  NS_OK);
     if (second)
-        CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err), NS_OK);
+        CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err),
+                  NS_OK);
     int status = ns_tables_accumulate_parts(ctx, j, second, extra, mode, &together,
                                             second ? &second_together : NULL, extra_a,
                                             &steps_together, &err);
@@ -919,7 +921,8 @@ static void compare_parts(const float *j, const float *second, const float *extr
         if (extra)
             CHECK(memcmp(extra_table.a.mapped, extra_a, cells * sizeof(float)) == 0);
         if (second)
-            CHECK(memcmp(second_alone.a.mapped, second_together.a.mapped, 3 * cells * sizeof(float)) == 0);
+            CHECK(memcmp(second_alone.a.mapped, second_together.a.mapped,
+                         3 * cells * sizeof(float)) == 0);
         if (extra && extra_alone && (*extra_alone = malloc(cells * sizeof(float))))
             memcpy(*extra_alone, extra_table.a.mapped, cells * sizeof(float));
         /* One walk covers all: at most the longest of them per line. */
@@ -959,7 +962,8 @@ static void test_extra_channel_rides_along(void)
         blur3[2 * cells + i] = blur[i];
         exp1[i] = j[i];
     }
-    compare_parts(j, NULL, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred extra", &unit_alone[0]);
+    compare_parts(j, NULL, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred extra",
+                  &unit_alone[0]);
     compare_parts(blur3, j, NULL, NS_ACCUMULATION_EXACT, "blurred J, exponential second", NULL);
     compare_parts(j, blur3, blur, NS_ACCUMULATION_PAPER, "exponential J, blurred second and extra",
                   &unit_alone[1]);
@@ -1023,7 +1027,8 @@ static void test_extra_channel_rides_along(void)
         float *j_multiple = malloc(3 * cells * sizeof(float));
         int have_j = 1;
         for (int c = 0; c < 3; c++) {
-            const float *jc = ns_tables_cached_j(fresh, NS_METHOD_NN, nn_key.g, nn_key.albedo[c], 1);
+            const float *jc =
+                ns_tables_cached_j(fresh, NS_METHOD_NN, nn_key.g, nn_key.albedo[c], 1);
             have_j = have_j && jc;
             if (jc)
                 memcpy(j_multiple + c * cells, jc, cells * sizeof(float));
