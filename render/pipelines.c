@@ -12,9 +12,13 @@
 #include "vrl_method_shared.h"
 #include "vrl_shared.h"
 
+/* The gather's binding of the table (gather.glsl). */
+#define GATHER_TABLE_TEXELS (1u << 5)
+
 /* The push-constant sizes are the sizeof of the structs the shaders declare their push
  * blocks with (each header checks its struct's size with _Static_assert), so a block that
  * grows on one side cannot leave the pipeline layout behind. */
+
 static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
@@ -23,7 +27,12 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                                 1u << 1, 1u << 1},
     [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START,
                          NS_TRACE_TEXEL_BINDINGS, 0},
-    [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START, 0, 0},
+    /* The table A, read at per-lane addresses four times per channel and point (gather.glsl),
+     * is a texel buffer of floats in every form of the gather: on lavapipe a storage buffer's
+     * per-lane read is a loop over the lanes, a texel fetch goes through the texture path
+     * (1.6-1.9x shorter gather; docs/bench.md, *The gather's table as texels*). */
+    [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START,
+                            GATHER_TABLE_TEXELS, GATHER_TABLE_TEXELS},
     [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_VRL_TRACE] = {"vrl_trace", 8, sizeof(GpuVrlTracePush), NS_PIPELINE_AT_START,
@@ -35,13 +44,17 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
      * compiled at start-up; the others are warmed when made so that their render reports the
      * compile as the stage "gather_pipeline". */
     [NS_PIPELINE_GATHER_BOUNDED] = {"gather_bounded", 8, sizeof(GpuGatherPush),
-                                    NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
+                                    NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
+                                    GATHER_TABLE_TEXELS},
     [NS_PIPELINE_GATHER_PAPER] = {"gather_paper", 8, sizeof(GpuGatherPush),
-                                  NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
+                                  NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
+                                  GATHER_TABLE_TEXELS},
     [NS_PIPELINE_GATHER_PAPER_BOUNDED] = {"gather_paper_bounded", 8, sizeof(GpuGatherPush),
-                                          NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
+                                          NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
+                                          GATHER_TABLE_TEXELS},
     [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
-                                   NS_PIPELINE_FIRST_USE_WARMED, 0, 0},
+                                   NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
+                                   GATHER_TABLE_TEXELS},
     /* The reference path tracer is not on the fast path: its compile (0.8-1.2 s on lavapipe
      * with Mesa's cache warm, 2026-11-30: NIR passes before the cache is looked up) is
      * paid once per context by the first pt render (stage "pt_pipeline" and its first

@@ -34,7 +34,10 @@ layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
 // vrl_gather.comp: glslang takes `vrl.length` for the length() method.
 layout(std430, binding = 3) readonly buffer RepresentativeBlock { vec4 representative_words[]; };
 layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
-layout(std430, binding = 5) readonly buffer TableBlock { float table[]; };
+// The table A as a texel buffer of floats (render/pipelines.c): its reads are at per-lane
+// addresses, which lavapipe serves one lane at a time from a storage buffer and through its
+// texture path from a texel buffer, 1.6-1.9x faster over the whole gather.
+layout(binding = 5) uniform usamplerBuffer table_texels;
 layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuGatherPush ns_push[1]; };
@@ -103,11 +106,13 @@ const uint TABLE_DIRS = NS_TABLE_NTHETA * NS_TABLE_NPHI;
 const uint STEP_Z = NS_TABLE_NRHO * TABLE_DIRS, STEP_RHO = TABLE_DIRS, STEP_THETA = NS_TABLE_NPHI;
 
 // One corner of the interpolation, per channel: the table at index base + offset of each
-// channel's slice.
+// channel's slice (the texels hold the floats' bits).
 vec3 table_corner(uvec3 base, uvec3 offset)
 {
     uvec3 i = base + offset;
-    return vec3(table[i.x], table[i.y], table[i.z]);
+    return vec3(uintBitsToFloat(texelFetch(table_texels, int(i.x)).x),
+                uintBitsToFloat(texelFetch(table_texels, int(i.y)).x),
+                uintBitsToFloat(texelFetch(table_texels, int(i.z)).x));
 }
 
 // A at point p for light arriving along w, per channel, in mfp units; row (the lower theta
@@ -117,7 +122,7 @@ vec3 table_corner(uvec3 base, uvec3 offset)
 // Between the 8 cells around the point (z, rho, theta) the value is the linear interpolation
 // on one of the cube's 6 tetrahedra (Kuhn's triangulation: the path from the lower corner to
 // the upper one that steps along the axes in decreasing order of the fractions), 4 reads per
-// channel instead of trilinear's 8: on lavapipe each read is a loop over the lanes and the
+// channel instead of trilinear's 8: on lavapipe each read is paid lane by lane and the
 // reads are most of the gather's time (docs/scattering.md, *Reading the table between cells*).
 // Continuous, exact for a linear A, of the same order of accuracy as trilinear.
 vec3 table_at(Vrl v, vec3 p, vec3 w, uint row, float theta_t)
