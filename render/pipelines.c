@@ -30,7 +30,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     /* The table A, read at per-lane addresses four times per channel and point (gather.glsl),
      * is a texel buffer of floats in every form of the gather: on lavapipe a storage buffer's
      * per-lane read is a loop over the lanes, a texel fetch goes through the texture path
-     * (1.6-1.9x shorter gather; docs/bench.md, *The gather's table as texels*). */
+     * (1.7-1.9x shorter gather; docs/bench.md, *The gather's table as texels*). */
     [NS_PIPELINE_GATHER] = {"gather", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START,
                             GATHER_TABLE_TEXELS, GATHER_TABLE_TEXELS},
     [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START,
