@@ -626,11 +626,13 @@ static void add_times(ns_render_stats *stats, const scatter_times *t)
 
 /* ---------------------------------------------------------------------------------------
  * Progress (internal.h): how a camera batch's part of the render is shared out, by nominal
- * relative costs. With boundary walks and adaptive single scattering (the scene file's
- * defaults) the gather is 59-79% of a full nn render of the bench's scenes on lavapipe,
- * single scattering 1-22%, the ray pass 1-5% (docs/bench.md, *Adaptive single
- * scattering*; before adaptive single scattering it was 70-87% of a render); the vrl
- * method's brute-force gather costs more than its single scattering. A part the render does not run weighs nothing. Within the
+ * relative costs. With the scene files' defaults, a full nn render of a bench scene at 256x256
+ * on lavapipe with a new material spends 71-87% of its time in the scattered part (tables,
+ * sources, gather) on the analytic scenes and 27-39% on the meshes, single scattering 6-15%
+ * and 48-66%, the ray pass 6-14% (docs/bench.md, *The gather's table as texels*, its
+ * paired run); with the tables cached single scattering is 20-41% and 76-80%. The shares
+ * below follow the analytic scenes. The vrl method's brute-force gather costs more than
+ * its single scattering. A part the render does not run weighs nothing. Within the
  * double and multiple part: the VRLs take 10% of the first round that gathers; the rounds of
  * the adaptive gather share it by the tiles each examines (4^-L of them on the coarsest
  * lattice L, 3 * 4^-(l+1) on lattice l < L); a round shares its part among the media by
