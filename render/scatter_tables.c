@@ -277,6 +277,18 @@ int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *sec
                       steps, err);
 }
 
+/* J's texels (accumulate_shared.h): cell i of the three planes of j (float [3][cells]) and
+ * of extra (float [cells], NULL: 0) as texel i. */
+static void interleave_j(float (*texel)[4], const float *j, const float *extra)
+{
+    for (size_t i = 0; i < NS_TABLE_CELLS; i++) {
+        texel[i][0] = j[i];
+        texel[i][1] = j[NS_TABLE_CELLS + i];
+        texel[i][2] = j[2 * (size_t)NS_TABLE_CELLS + i];
+        texel[i][3] = extra ? extra[i] : 0.0f;
+    }
+}
+
 /* j: float [3][cells]; parts (may be NULL): what the same walk makes beside it. */
 static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
                       ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
@@ -317,8 +329,10 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
         all_zero = all_zero && j_max[c] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
     uint64_t channel_bytes = (uint64_t)NS_TABLE_CELLS * sizeof(float);
-    /* J in one buffer: the three, the second three, the extra channel (accumulate_shared.h). */
-    uint64_t j_bytes = table_bytes + (second_j ? table_bytes : 0) + (extra_j ? channel_bytes : 0);
+    /* J in one buffer of 16-byte texels: per cell the three and the extra channel, then per
+     * cell the second three (accumulate_shared.h). */
+    uint64_t texels_bytes = 4ull * NS_TABLE_CELLS * sizeof(float);
+    uint64_t j_bytes = texels_bytes * (second_j ? 2 : 1);
 
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
@@ -328,11 +342,8 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
                       .data = &params,
                       .data_size = sizeof params,
                       .label = "ns.accumulate.params"},
-        /* The parts beside the three are copied in below. */
-        [B_J] = {.size = j_bytes,
-                 .data = j,
-                 .data_size = table_bytes,
-                 .label = "ns.accumulate.j"},
+        /* Interleaved below. */
+        [B_J] = {.size = j_bytes, .uninitialized = 1, .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
         [B_A] = {.size = table_bytes,
                  .uninitialized = !all_zero,
@@ -352,13 +363,12 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
                       .label = second_j ? "ns.tables.a" : "ns.accumulate.second"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
-    float *j_rest = status ? NULL : (float *)own[B_J].mapped + 3 * (size_t)NS_TABLE_CELLS;
-    if (!status && second_j) {
-        memcpy(j_rest, second_j, table_bytes);
-        j_rest += 3 * (size_t)NS_TABLE_CELLS;
+    if (!status) {
+        float(*texel)[4] = own[B_J].mapped;
+        interleave_j(texel, j, extra_j);
+        if (second_j)
+            interleave_j(texel + NS_TABLE_CELLS, second_j, NULL);
     }
-    if (!status && extra_j)
-        memcpy(j_rest, extra_j, channel_bytes);
     if (!status && !all_zero) {
         gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS],   &own[B_J],     &own[B_A],
                                       &own[B_COUNTERS], &own[B_EXTRA], &own[B_SECOND]};

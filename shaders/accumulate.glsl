@@ -31,8 +31,9 @@
 // and a fixed short cut would lose it. The walk also stops where it leaves the table (J is 0
 // outside). Paper mode (cut.z = 5): the integral over the first 5 mfp only, no other cut.
 //
-// Binding 0 params, 1 J (float[3][cells]; then the second three's [3][cells] and the extra
-// channel's [cells] where they are walked: accumulate_shared.h), 2 A out (float[3][cells]),
+// Binding 0 params, 1 J (16-byte texels: [cells] of the three channels and the extra one,
+// then [cells] of the second three where they are walked: accumulate_shared.h), 2 A out
+// (float[3][cells]),
 // 3 counters, 4 the extra channel's A, 5 the second three's A.
 //
 // Two shaders include this file: accumulate.comp (NS_ACCUMULATE_SECOND 0) and
@@ -48,10 +49,13 @@ layout(local_size_x = NS_ACCUMULATE_GROUP) in;
 
 layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
-// J as a texel buffer of floats: lavapipe fetches texels through its texture path, where a
-// storage buffer's per-lane reads are a loop over the lanes (docs/bench.md, *Texel buffers*).
+// J as a texel buffer: lavapipe fetches texels through its texture path, where a storage
+// buffer's per-lane reads are a loop over the lanes (docs/bench.md, *Texel buffers*). One
+// 16-byte texel per cell holds the three channels and the extra one (0 without it), so a
+// step reads one texel where it read one float per channel; the second three's texels
+// follow (accumulate_shared.h).
 layout(binding = 1) uniform usamplerBuffer j_texels;
-float j_at(uint i) { return uintBitsToFloat(texelFetch(j_texels, int(i)).x); }
+vec4 j_at(uint i) { return uintBitsToFloat(texelFetch(j_texels, int(i))); }
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
 layout(std430, binding = 4) writeonly buffer ExtraBlock { float a_extra[]; };
@@ -157,8 +161,7 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     float extra_edge = rho_edge(extra_zero_from);
     bool meets_extra = has_extra && (ir < extra_zero_from || extra_edge * extra_edge > s2);
 #if NS_ACCUMULATE_SECOND
-    // The second three's own test, with their own radius; the extra channel's J follows
-    // theirs.
+    // The second three's own test, with their own radius.
     bool has_second = params.second.x > 0u;
     int second_zero_from = max(int(params.second.x) - 1, 0);
     float second_edge = rho_edge(second_zero_from);
@@ -166,13 +169,10 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         has_second && (ir < second_zero_from || second_edge * second_edge > s2);
     vec3 second_j_max = params.second_j_max.xyz;
     vec3 second_floor = params.cut.y * second_j_max;
-    uint second_base = NS_TABLE_CELLS * 3u;
-    uint extra_base = NS_TABLE_CELLS * (has_second ? 6u : 3u);
     bool meets_any = meets_j || meets_extra || meets_second;
     bool adding_second = meets_second;
     second_sum = vec3(0.0);
 #else
-    uint extra_base = NS_TABLE_CELLS * 3u;
     bool meets_any = meets_j || meets_extra;
 #endif
     uint step_cap = meets_any ? params.counts.z : 0u;
@@ -199,18 +199,15 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         float decay_next = exp(-u_next);
         uint index = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
                          NS_TABLE_NPHI + uint(ip);
-        vec3 jv = vec3(j_at(index), j_at(NS_TABLE_CELLS + index),
-            j_at(2u * NS_TABLE_CELLS + index));
+        vec4 jv = j_at(index);
         float weight = decay - decay_next;
         if (adding_j)
-            sum.xyz += jv * weight;
+            sum.xyz += jv.xyz * weight;
         if (adding_extra)
-            sum.w += j_at(extra_base + index) * weight;
+            sum.w += jv.w * weight;
 #if NS_ACCUMULATE_SECOND
         if (adding_second)
-            second_sum += vec3(j_at(second_base + index),
-                               j_at(second_base + NS_TABLE_CELLS + index),
-                               j_at(second_base + 2u * NS_TABLE_CELLS + index)) * weight;
+            second_sum += j_at(NS_TABLE_CELLS + index).xyz * weight;
 #endif
         steps++;
         u = u_next;

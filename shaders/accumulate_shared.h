@@ -53,9 +53,9 @@ struct GpuAccumulateParams {
 /* The extra channel. The blurred first order's spatial part (boundary.h) is a table of its
  * own that every material's blurred table is composed from, walked once per context: it
  * rides along the first material's walk instead of walking 53 M steps alone (the lines are
- * the same; only the J read and the sum are its own). Its J is the last plane (J is then
- * float [4][cells], or [7][cells] with the second three below), j_max.w is its peak, and its
- * A goes to binding 4 (a dummy when there is none). Each part stops where its own walk
+ * the same; only the J read and the sum are its own). Its J is the fourth float of each
+ * cell's texel of J (below; 0 without it), j_max.w is its peak, and its A goes to binding 4
+ * (a dummy when there is none). Each part stops where its own walk
  * would: the three channels stop adding when their cut is met, the extra one when its is,
  * and the walk ends when every part has, so each comes out bit for bit as its own walk
  * would make it (gpu_accumulate checks it). */
@@ -64,10 +64,17 @@ struct GpuAccumulateParams {
  * one material: of multiple scattering alone with boundary walks, its VRLs read multiple
  * scattering and the walks' sources after an event double + multiple (scatter.h,
  * ns_tables_expect_orders). Their lines are the same; only J differs. So one walk can make
- * both: J is then float [6][cells] (the three, then the second three; the extra channel,
- * where there is one, after them), the second A goes to binding 5 (a dummy when there is
- * none), and the second three stop adding where their own walk would, so each table comes
- * out bit for bit as its own walk would make it (gpu_accumulate checks it). */
+ * both: J then holds a second texel per cell (below), the second A goes to binding 5 (a
+ * dummy when there is none), and the second three stop adding where their own walk would,
+ * so each table comes out bit for bit as its own walk would make it (gpu_accumulate checks
+ * it).
+ *
+ * J's layout (binding 1, a texel buffer of 16-byte texels): texel i holds cell i of the three
+ * channels and of the extra channel (0 without it), as four floats; with the second three,
+ * texel NS_TABLE_CELLS + i holds their cell i (and 0). One texel fetch per step of the walk
+ * reads every part it adds, where one float per channel took three or four: lavapipe pays
+ * for each fetch lane by lane (docs/rendering.md, *The accumulation*). The C side
+ * interleaves the planes it is given (float [3][cells] per part, the .npy order). */
 
 /* Push block of one dispatch: cells [first_cell, first_cell + groups * NS_ACCUMULATE_GROUP). */
 struct GpuAccumulatePush {
