@@ -18,7 +18,6 @@
 /* The push-constant sizes are the sizeof of the structs the shaders declare their push
  * blocks with (each header checks its struct's size with _Static_assert), so a block that
  * grows on one side cannot leave the pipeline layout behind. */
-
 static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
     [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},

@@ -33,8 +33,7 @@
 //
 // Binding 0 params, 1 J (16-byte texels: [cells] of the three channels and the extra one,
 // then [cells] of the second three where they are walked: accumulate_shared.h), 2 A out
-// (float[3][cells]),
-// 3 counters, 4 the extra channel's A, 5 the second three's A.
+// (float[3][cells]), 3 counters, 4 the extra channel's A, 5 the second three's A.
 //
 // Two shaders include this file: accumulate.comp (NS_ACCUMULATE_SECOND 0) and
 // accumulate_second.comp (1, the second three walked beside the rest). The default walk
