@@ -86,6 +86,10 @@ typedef struct tile_plan {
     /* render.boundary: the boundary sources' part of radiance, Lbar of the correction alone
      * (not clamped), which has a lattice of its own one level coarser (below); else NULL. */
     float (*correction)[3];
+    /* The gather's: per pixel, the scattered light it already holds (single scattering, and
+     * the camera batches before this one), per unit of its gather weight, so in Lbar's units;
+     * NULL: none. The error allowed is a fraction of the pixel's whole value (line_agrees). */
+    float (*other)[3];
     uint64_t corrections_interpolated; /* tiles that gathered their VRLs, not their correction */
     uint32_t *segment_start;  /* pixel -> its segments [start[p], start[p + 1]) in by_pixel */
     uint32_t *by_pixel;
@@ -101,6 +105,7 @@ static void tile_plan_free(tile_plan *t)
     free(t->state);
     free(t->radiance);
     free(t->correction);
+    free(t->other);
     free(t->segment_start);
     free(t->by_pixel);
     free(t->taken);
@@ -425,8 +430,10 @@ static float curved_pair(float fa, float fb, float fa_out, float fb_out)
 /* The line from tile (tx, ty) through (tx + dx * step, ty + dy * step) and its mirror: adds
  * the two inner samples of `values` (t->radiance, or t->correction) to sum; returns 0 when
  * they cannot stand for the tile. The error allowed is the tolerance of the pixels' totals
- * (t->radiance), whichever part is interpolated: a correction near 0 needs no more precision
- * than the image it corrects. */
+ * (t->radiance, plus t->other: the scattered light the pixels show besides), whichever part
+ * is interpolated: a correction near 0 needs no more precision than the image it corrects,
+ * and double and multiple scattering under much brighter single scattering (the bench's
+ * oil) no more than the pixel shows. */
 static int line_agrees(const tile_plan *t, const float (*values)[3], float tolerance, uint32_t tx,
                        uint32_t ty, int dx, int dy, uint32_t step, uint32_t self, float sum[3])
 {
@@ -445,7 +452,10 @@ static int line_agrees(const tile_plan *t, const float (*values)[3], float toler
             error = fmaxf(error, fabsf(fa - 2.0f * fb + values[b_out][c]) / 8.0f);
         if (a_out == NS_NONE && b_out == NS_NONE)
             error = fabsf(fa - fb);
-        if (error > tolerance * 0.5f * (t->radiance[a][c] + t->radiance[b][c]))
+        float total = t->radiance[a][c] + t->radiance[b][c];
+        if (t->other)
+            total += t->other[a][c] + t->other[b][c];
+        if (error > tolerance * 0.5f * total)
             return 0;
         sum[c] += t->curved ? curved_pair(fa, fb, a_out != NS_NONE ? values[a_out][c] : NAN,
                                           b_out != NS_NONE ? values[b_out][c] : NAN)
@@ -1414,6 +1424,26 @@ static int gather_round(ns_context *ctx, const ns_scatter_inputs *in, tile_plan 
     return status;
 }
 
+/* t->other from what in->pixels already holds (single scattering, earlier camera batches);
+ * left NULL where they hold nothing. Returns -1 out of memory. */
+static int other_light(const ns_scatter_inputs *in, tile_plan *t)
+{
+    size_t pixels = (size_t)t->width * t->height;
+    int any = 0;
+    for (size_t i = 0; i < 3 * pixels && !any; i++)
+        any = in->pixels[i] != 0.0f;
+    if (!any)
+        return 0;
+    if (!(t->other = calloc(pixels, sizeof *t->other)))
+        return -1;
+    for (size_t p = 0; p < pixels; p++)
+        for (int c = 0; c < 3; c++) {
+            float w = t->keys[p].weight[c];
+            t->other[p][c] = t->keys[p].material != NS_NONE && w > 0 ? in->pixels[3 * p + c] / w : 0.0f;
+        }
+    return 0;
+}
+
 static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, ns_render_stats *stats,
                                   scatter_times *times, ns_error *err)
 {
@@ -1423,7 +1453,8 @@ static int render_double_multiple(ns_context *ctx, const ns_scatter_inputs *in, 
     vrl_source source = {0};
     uint8_t *round = malloc((size_t)scene->camera.width * scene->camera.height + 1);
     int status = NS_OK;
-    if (!round || tile_plan_build(scene, &in->gs->params, in->segments->mapped, in->segment_count, PLAN_GATHER, &plan))
+    if (!round || tile_plan_build(scene, &in->gs->params, in->segments->mapped, in->segment_count, PLAN_GATHER, &plan) ||
+        other_light(in, &plan))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u segments", in->segment_count);
     stage_end(ctx, times, T_COMPOSITE, &stage);
     uint64_t interpolated = 0;

@@ -12,7 +12,10 @@
  * One camera sample per gathered pixel (render.gather_camera_samples) at 4 spp: about a
  * quarter of the segments gathered, the same rules against gathering every sample (a pixel
  * whose samples see both spheres must gather them all), and as many samples as the pixel has
- * is every sample, bit for bit. */
+ * is every sample, bit for bit. The tolerance is of the pixel's scattered light: with single
+ * scattering rendered too, the dark sphere's faint double and multiple scattering interpolates
+ * where alone it would not, and the image stays within half the tolerance of every tile
+ * gathered. */
 #include "gpu_util.h"
 
 #define W 96
@@ -216,6 +219,50 @@ static void test_adaptive(void)
     ns_image_free(&strict);
 }
 
+/* The adaptive gather's tolerance is of the pixel's whole scattered value: where single
+ * scattering outshines double and multiple (the dark sphere, albedo 0.2), the gather's noise
+ * is small against what the pixel shows, and more tiles are interpolated than when double
+ * and multiple scattering are rendered alone (then the tolerance is of them: the same
+ * decisions as before). */
+static void test_tolerance_of_the_pixel(void)
+{
+    ns_scene sd, sf;
+    ns_material md[3], mf[3];
+    ns_object od[3], of[3];
+    ns_light ld, lf;
+    build(&sd, md, od, &ld, 1);
+    build(&sf, mf, of, &lf, 1);
+    sd.render.gather_levels = sf.render.gather_levels = 2;
+    sd.render.gather_tolerance = sf.render.gather_tolerance = 0.05f;
+    sf.render.components |= NS_COMPONENT_SINGLE;
+    ns_image dm = {0}, full = {0};
+    ns_render_stats std = {0}, stf = {0};
+    if (!render_ok(&sd, &dm, &std) || !render_ok(&sf, &full, &stf))
+        return;
+    printf("tolerance of the pixel: %llu tiles interpolated with double and multiple alone, "
+           "%llu with single scattering too (%llu / %llu segments gathered)\n",
+           (unsigned long long)std.tiles_interpolated, (unsigned long long)stf.tiles_interpolated,
+           (unsigned long long)std.gather_segments, (unsigned long long)stf.gather_segments);
+    CHECK(stf.tiles_interpolated > std.tiles_interpolated);
+    CHECK(10 * stf.gather_segments < 9 * std.gather_segments);
+    /* And the pixels still show what gathering every tile shows, within the tolerance. */
+    ns_scene s0;
+    ns_material m0[3];
+    ns_object o0[3];
+    ns_light l0;
+    build(&s0, m0, o0, &l0, 1);
+    s0.render.components = sf.render.components;
+    ns_image every = {0};
+    if (render_ok(&s0, &every, NULL)) {
+        double e = interior_difference(&sf, &full, &every);
+        printf("against every tile gathered: %.4f\n", e);
+        CHECK(e < 0.5 * sf.render.gather_tolerance);
+    }
+    ns_image_free(&every);
+    ns_image_free(&dm);
+    ns_image_free(&full);
+}
+
 /* Mean |a - b| / mean b over the pixels whose 3 x 3 neighbourhood sees both spheres: where
  * one sphere's silhouette crosses the other. */
 static double band_difference(const ns_scene *s, const ns_image *a, const ns_image *b, uint32_t *pixels)
@@ -302,5 +349,6 @@ int main(void)
     RUN(test_no_bleeding);
     RUN(test_adaptive);
     RUN(test_camera_samples);
+    RUN(test_tolerance_of_the_pixel);
     return harness_report();
 }
