@@ -568,6 +568,7 @@ static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*valu
  * and they are gathered (their Lbar filled) before the next, finer round reads them. */
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
+                      const float (*other)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
@@ -579,7 +580,10 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
     t.state = calloc(pixels, 1);
     t.radiance = calloc(pixels, sizeof *t.radiance);
     uint8_t *round = malloc(pixels ? pixels : 1);
-    int status = t.keys && t.representative && t.state && t.radiance && round ? NS_OK : -1;
+    if (other && (t.other = malloc(sizeof *t.other * (pixels ? pixels : 1))))
+        memcpy(t.other, other, sizeof *t.other * pixels);
+    int ready = t.keys && t.representative && t.state && t.radiance && round && (!other || t.other);
+    int status = ready ? NS_OK : -1;
     for (uint32_t p = 0; p < pixels && !status; p++) {
         t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1},
                                 .gather_weight = {1, 1, 1}};

@@ -11,7 +11,10 @@
  *  - two media side by side, or one surface at two distances: no value crosses between them;
  *  - levels 0 or tolerance 0: everything is gathered;
  *  - adaptive single scattering's curved values (a cubic through four samples, a parabola
- *    through three): the same decisions, and a parabola comes back exactly. */
+ *    through three): the same decisions, and a parabola comes back exactly;
+ *  - light the pixels show besides (the render's single scattering, `other`) counts in the
+ *    mean the error is weighed against: with K beside a parabola, a tile is interpolated if
+ *    and only if c h^2 <= tolerance x (the mean + K). */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -60,6 +63,10 @@ static uint32_t materials[W * H];
 static float distances[W * H];
 static float radiance[W * H][3];
 static uint8_t interpolated[W * H];
+/* The light beside the gathered part, K (k + 1) in channel k as the field's own channels; 0:
+ * the rounds are given none (NULL). */
+static double other_k;
+static float other_light[W * H][3];
 
 static void one_surface(void)
 {
@@ -100,7 +107,7 @@ static int expected_interpolated(const field *fd, int x, int y, int levels, floa
         double a = fd->f(fd, x - dx, y - dy), b = fd->f(fd, x + dx, y + dy);
         int outer = in_image(x - 3 * dx, y - 3 * dy) || in_image(x + 3 * dx, y + 3 * dy);
         double error = outer ? fd->c * dx * dx : fabs(a - b);
-        if (error > tolerance * 0.5 * (a + b))
+        if (error > tolerance * 0.5 * (a + b + 2 * other_k))
             return 0;
         sum += a + b;
     }
@@ -113,8 +120,12 @@ static int expected_interpolated(const field *fd, int x, int y, int levels, floa
 static int run_as(field *fd, uint32_t levels, float tolerance, int curved)
 {
     fd->gathered = 0;
-    int status = ns_adaptive_tiles(W, H, levels, tolerance, curved, materials, distances, gather, fd,
-                                   radiance, interpolated);
+    for (int p = 0; p < W * H; p++)
+        for (int k = 0; k < 3; k++)
+            other_light[p][k] = (float)(other_k * (k + 1));
+    int status = ns_adaptive_tiles(W, H, levels, tolerance, curved, materials, distances,
+                                   other_k > 0 ? (const float(*)[3])other_light : NULL, gather,
+                                   fd, radiance, interpolated);
     if (status)
         fprintf(stderr, "ns_adaptive_tiles: status %d (out of memory)\n", status);
     CHECK_INT(status, 0);
@@ -169,6 +180,26 @@ static void test_parabola_interpolated_where_its_error_is_within_tolerance(void)
     int count = check_against_rule(&fd, 3, 1.5e-4f);
     printf("parabola: %d of %d tiles interpolated\n", count, W * H);
     CHECK(count > 0 && count < W * H - 25);
+}
+
+static void test_other_light_counts_in_the_tolerance(void)
+{
+    one_surface();
+    /* Alone, a line along x misses by c h^2 = 4e-4 at h = 1, outside 1.5e-4 x the mean (1 to
+     * 1.4): only the tiles whose line runs along y, where the parabola is flat, are
+     * interpolated. Beside K = 3 the h = 1 lines along x pass (4e-4 <= 1.5e-4 x (mean + 3)),
+     * the h = 2 ones (1.6e-3) still do not. check_against_rule holds every decision. */
+    field fd = {.f = parabola, .c = 4e-4};
+    other_k = 0;
+    if (!run(&fd, 3, 1.5e-4f))
+        return;
+    int alone = check_against_rule(&fd, 3, 1.5e-4f);
+    other_k = 3;
+    int beside = run(&fd, 3, 1.5e-4f) ? check_against_rule(&fd, 3, 1.5e-4f) : 0;
+    other_k = 0;
+    printf("parabola beside other light: %d tiles interpolated alone, %d beside K = 3\n", alone,
+           beside);
+    CHECK(beside > alone + W * H / 4);
 }
 
 static void test_nothing_crosses_media_or_surfaces(void)
@@ -305,6 +336,7 @@ int main(void)
 {
     RUN(test_linear_field_is_interpolated_exactly);
     RUN(test_parabola_interpolated_where_its_error_is_within_tolerance);
+    RUN(test_other_light_counts_in_the_tolerance);
     RUN(test_nothing_crosses_media_or_surfaces);
     RUN(test_no_levels_or_no_tolerance_gathers_everything);
     RUN(test_curved_values_are_exact_for_a_parabola);
