@@ -21,9 +21,19 @@
 #define W 96
 #define H 48
 
-static void build(ns_scene *s, ns_material mats[3], ns_object objs[3], ns_light *sun, uint32_t tile)
+/* What the two spheres' scene points into: it must outlive the scene build() returns. */
+typedef struct spheres {
+    ns_material mats[3];
+    ns_object objs[3];
+    ns_light sun;
+} spheres;
+
+static ns_scene build(spheres *k, uint32_t tile)
 {
-    *s = base_scene(W, H, 40);
+    ns_material *mats = k->mats;
+    ns_object *objs = k->objs;
+    ns_light *sun = &k->sun;
+    ns_scene scene = base_scene(W, H, 40), *s = &scene;
     s->render.components = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     s->render.spp = 1;
     s->render.vrls = 3000;
@@ -48,6 +58,7 @@ static void build(ns_scene *s, ns_material mats[3], ns_object objs[3], ns_light 
     *sun = light(NS_LIGHT_DIRECTIONAL, 3, 3, 3);
     set3(sun->direction, 0, -0.6, -0.8);
     scene_lists(s, mats, 3, objs, 3, sun, 1);
+    return scene;
 }
 
 /* Which medium the centre of pixel (x, y) sees first: 0 wall/none, 1 bright, 2 dark (the
@@ -134,12 +145,8 @@ static void check_against_full(const ns_scene *s1, const ns_image *full, const n
 
 static void test_no_bleeding(void)
 {
-    ns_scene s1, s4;
-    ns_material m1[3], m4[3];
-    ns_object o1[3], o4[3];
-    ns_light l1, l4;
-    build(&s1, m1, o1, &l1, 1);
-    build(&s4, m4, o4, &l4, 4);
+    spheres k1, k4;
+    ns_scene s1 = build(&k1, 1), s4 = build(&k4, 4);
     ns_image full = {0}, up = {0};
     ns_render_stats st1 = {0}, st4 = {0};
     if (!render_ok(&s1, &full, &st1) || !render_ok(&s4, &up, &st4))
@@ -178,14 +185,8 @@ static double interior_difference(const ns_scene *s, const ns_image *a, const ns
  * reads 1.43% from the judge and the adaptive gather 1.92%.) */
 static void test_adaptive(void)
 {
-    ns_scene sr, s1, sa, s0;
-    ns_material mr[3], m1[3], ma[3], m0[3];
-    ns_object orr[3], o1[3], oa[3], o0[3];
-    ns_light lr, l1, la, l0;
-    build(&sr, mr, orr, &lr, 1);
-    build(&s1, m1, o1, &l1, 1);
-    build(&sa, ma, oa, &la, 1);
-    build(&s0, m0, o0, &l0, 1);
+    spheres kr, k1, ka, k0;
+    ns_scene sr = build(&kr, 1), s1 = build(&k1, 1), sa = build(&ka, 1), s0 = build(&k0, 1);
     sr.render.vrls = 30000;
     sa.render.gather_levels = s0.render.gather_levels = 3;
     sa.render.gather_tolerance = 0.02f;
@@ -226,12 +227,8 @@ static void test_adaptive(void)
  * decisions as before). */
 static void test_tolerance_of_the_pixel(void)
 {
-    ns_scene sd, sf;
-    ns_material md[3], mf[3];
-    ns_object od[3], of[3];
-    ns_light ld, lf;
-    build(&sd, md, od, &ld, 1);
-    build(&sf, mf, of, &lf, 1);
+    spheres kd, kf;
+    ns_scene sd = build(&kd, 1), sf = build(&kf, 1);
     sd.render.gather_levels = sf.render.gather_levels = 2;
     sd.render.gather_tolerance = sf.render.gather_tolerance = 0.05f;
     sf.render.components |= NS_COMPONENT_SINGLE;
@@ -246,11 +243,8 @@ static void test_tolerance_of_the_pixel(void)
     CHECK(stf.tiles_interpolated > std.tiles_interpolated);
     CHECK(10 * stf.gather_segments < 9 * std.gather_segments);
     /* And the pixels still show what gathering every tile shows, within the tolerance. */
-    ns_scene s0;
-    ns_material m0[3];
-    ns_object o0[3];
-    ns_light l0;
-    build(&s0, m0, o0, &l0, 1);
+    spheres k0;
+    ns_scene s0 = build(&k0, 1);
     s0.render.components = sf.render.components;
     ns_image every = {0};
     if (render_ok(&s0, &every, NULL)) {
@@ -295,21 +289,19 @@ static double band_difference(const ns_scene *s, const ns_image *a, const ns_ima
 static void test_camera_samples(void)
 {
     enum { JUDGE, ALL, ONE, ONE_SAME_COST, FOUR, FRONT_ALL, FRONT_ONE, RUNS };
+    spheres k[RUNS];
     ns_scene s[RUNS];
-    ns_material m[RUNS][3];
-    ns_object o[RUNS][3];
-    ns_light l[RUNS];
     ns_image img[RUNS];
     ns_render_stats st[RUNS];
     memset(img, 0, sizeof img);
     memset(st, 0, sizeof st);
     const uint32_t samples[RUNS] = {[JUDGE] = 1, [ONE] = 1, [ONE_SAME_COST] = 1, [FOUR] = 4, [FRONT_ONE] = 1};
     for (int r = 0; r < RUNS; r++) {
-        build(&s[r], m[r], o[r], &l[r], 1);
+        s[r] = build(&k[r], 1);
         s[r].render.spp = 4;
         s[r].render.gather_camera_samples = samples[r];
         if (r >= FRONT_ALL)
-            o[r][1] = sphere(-0.5, 0.2, 1.8, 0.6, 2);
+            k[r].objs[1] = sphere(-0.5, 0.2, 1.8, 0.6, 2);
     }
     s[JUDGE].render.vrls = 30000;
     s[JUDGE].render.seed = 2;
