@@ -90,6 +90,11 @@ typedef struct tile_plan {
      * the camera batches before this one), per unit of its gather weight, so in Lbar's units;
      * NULL: none. The error allowed is a fraction of the pixel's whole value (line_agrees). */
     float (*other)[3];
+    /* Single scattering's: per pixel, the variance of its Lbar (its Monte Carlo noise, from
+     * the spread of its camera samples; interpolated: of the interpolation), for the rule
+     * that an interpolation no noisier than computing the pixel may stand for it
+     * (line_agrees); NULL: none, the tolerance alone decides. */
+    float (*noise)[3];
     uint64_t corrections_interpolated; /* tiles that gathered their VRLs, not their correction */
     uint32_t *segment_start;  /* pixel -> its segments [start[p], start[p + 1]) in by_pixel */
     uint32_t *by_pixel;
@@ -106,6 +111,7 @@ static void tile_plan_free(tile_plan *t)
     free(t->radiance);
     free(t->correction);
     free(t->other);
+    free(t->noise);
     free(t->segment_start);
     free(t->by_pixel);
     free(t->taken);
@@ -427,6 +433,69 @@ static float curved_pair(float fa, float fb, float fa_out, float fb_out)
     return fmaxf(twice, 0.0f);
 }
 
+/* The variance of curved_pair's value (or of the plain sum fa + fb) from its samples'
+ * variances: the weights squared. */
+static float interpolation_noise(const float (*noise)[3], int c, uint32_t a, uint32_t b,
+                                 uint32_t a_out, uint32_t b_out, int curved)
+{
+    float va = noise[a][c], vb = noise[b][c];
+    if (!curved)
+        return va + vb;
+    if (a_out != NS_NONE && b_out != NS_NONE)
+        return (81.0f * (va + vb) + noise[a_out][c] + noise[b_out][c]) / 64.0f;
+    if (a_out != NS_NONE)
+        return (noise[a_out][c] + 36.0f * va + 9.0f * vb) / 16.0f;
+    if (b_out != NS_NONE)
+        return (noise[b_out][c] + 36.0f * vb + 9.0f * va) / 16.0f;
+    return va + vb;
+}
+
+/* line_agrees' test where the values are noisy (t->noise): the error of the interpolation
+ * is its bias, f'' h^2 / 2, estimated as before from the second differences d (an eighth of
+ * each), whose own noise (weights 1, 4, 1: 6 v at the line's noise level v) is taken off
+ * their square, since a second difference of pure noise is not curvature. The pixel is
+ * interpolated when that bias is within the tolerance, or within what interpolating saves in
+ * noise: computed, the pixel would carry the noise v; interpolated, the bias and the noise
+ * of the interpolation (the cubic 164/256 v, the parabola through three 46/64 v, the mean of
+ * two v/2), so where the curvature is buried in the noise an interpolation is no worse than
+ * computing. In squares: max(0, d^2 - 6 v) / 64 <= allowed^2 + v - v_interpolated; without
+ * outer samples, the spread's square less 2 v.
+ *
+ * v is the outer samples' (the inner two's smaller where there are none). A pixel's variance
+ * comes from its own few camera samples, so a sample that drew a bright outlier also has a
+ * large variance: taken from the inner samples, which weigh 9/16 each in the value, that
+ * variance excused the very curvature the outlier made and spread it to the pixels around
+ * (their mean: the bench's bumpy sphere's single scattering +1.1% against a converged image;
+ * their median: +0.4%, and +1.7% on gpu_single's noisy slab); the outer samples weigh -1/16
+ * (-0.5% and -0.8%). */
+static int noisy_line_agrees(const float (*noise)[3], int c, float fa, float fb, uint32_t a,
+                             uint32_t b, uint32_t a_out, uint32_t b_out, float fa_out,
+                             float fb_out, float allowed)
+{
+    float v = a_out != NS_NONE && b_out != NS_NONE ? 0.5f * (noise[a_out][c] + noise[b_out][c])
+              : a_out != NS_NONE ? noise[a_out][c]
+              : b_out != NS_NONE ? noise[b_out][c]
+                                 : fminf(noise[a][c], noise[b][c]);
+    float bias2 = 0.0f, saved;
+    if (a_out != NS_NONE) {
+        float d = fb - 2.0f * fa + fa_out;
+        bias2 = fmaxf(bias2, (d * d - 6.0f * v) / 64.0f);
+    }
+    if (b_out != NS_NONE) {
+        float d = fa - 2.0f * fb + fb_out;
+        bias2 = fmaxf(bias2, (d * d - 6.0f * v) / 64.0f);
+    }
+    if (a_out != NS_NONE && b_out != NS_NONE) {
+        saved = 1.0f - 164.0f / 256.0f;
+    } else if (a_out != NS_NONE || b_out != NS_NONE) {
+        saved = 1.0f - 46.0f / 64.0f;
+    } else {
+        bias2 = fmaxf(0.0f, (fa - fb) * (fa - fb) - 2.0f * v);
+        saved = 0.5f;
+    }
+    return bias2 <= allowed * allowed + saved * v;
+}
+
 /* The line from tile (tx, ty) through (tx + dx * step, ty + dy * step) and its mirror: adds
  * the two inner samples of `values` (t->radiance, or t->correction) to sum; returns 0 when
  * they cannot stand for the tile. The error allowed is the tolerance of the pixels' totals
@@ -435,7 +504,8 @@ static float curved_pair(float fa, float fb, float fa_out, float fb_out)
  * and double and multiple scattering under much brighter single scattering (the bench's
  * oil) no more than the pixel shows. */
 static int line_agrees(const tile_plan *t, const float (*values)[3], float tolerance, uint32_t tx,
-                       uint32_t ty, int dx, int dy, uint32_t step, uint32_t self, float sum[3])
+                       uint32_t ty, int dx, int dy, uint32_t step, uint32_t self, float sum[3],
+                       float noise_sum[3])
 {
     int64_t sx = (int64_t)dx * step, sy = (int64_t)dy * step;
     uint32_t a = same_surface_at(t, (int64_t)tx - sx, (int64_t)ty - sy, self);
@@ -455,8 +525,17 @@ static int line_agrees(const tile_plan *t, const float (*values)[3], float toler
         float total = t->radiance[a][c] + t->radiance[b][c];
         if (t->other)
             total += t->other[a][c] + t->other[b][c];
-        if (error > tolerance * 0.5f * total)
+        float allowed = tolerance * 0.5f * total;
+        /* (Tolerance 0 asks for every pixel whose estimate is not exactly 0: noise or not.) */
+        if (t->noise && tolerance > 0.0f && values == (const float(*)[3])t->radiance) {
+            if (!noisy_line_agrees(t->noise, c, fa, fb, a, b, a_out, b_out,
+                                   a_out != NS_NONE ? values[a_out][c] : 0.0f,
+                                   b_out != NS_NONE ? values[b_out][c] : 0.0f, allowed))
+                return 0;
+            noise_sum[c] += interpolation_noise(t->noise, c, a, b, a_out, b_out, t->curved);
+        } else if (error > allowed) {
             return 0;
+        }
         sum[c] += t->curved ? curved_pair(fa, fb, a_out != NS_NONE ? values[a_out][c] : NAN,
                                           b_out != NS_NONE ? values[b_out][c] : NAN)
                             : fa + fb;
@@ -472,16 +551,20 @@ static int interpolate_tile(tile_plan *t, float (*values)[3], float tolerance, u
 {
     uint32_t self = t->representative[ty * t->tiles_x + tx];
     int odd_x = (tx / step) & 1, odd_y = (ty / step) & 1;
-    float sum[3] = {0, 0, 0};
+    float sum[3] = {0, 0, 0}, noise_sum[3] = {0, 0, 0};
     int ok = odd_x && odd_y
-                 ? line_agrees(t, values, tolerance, tx, ty, 1, 1, step, self, sum) &&
-                       line_agrees(t, values, tolerance, tx, ty, 1, -1, step, self, sum)
-                 : line_agrees(t, values, tolerance, tx, ty, odd_x, odd_y, step, self, sum);
+                 ? line_agrees(t, values, tolerance, tx, ty, 1, 1, step, self, sum, noise_sum) &&
+                       line_agrees(t, values, tolerance, tx, ty, 1, -1, step, self, sum, noise_sum)
+                 : line_agrees(t, values, tolerance, tx, ty, odd_x, odd_y, step, self, sum, noise_sum);
     if (!ok)
         return 0;
     float samples = odd_x && odd_y ? 4.0f : 2.0f;
-    for (int c = 0; c < 3; c++)
+    for (int c = 0; c < 3; c++) {
         values[self][c] = sum[c] / samples;
+        /* The finer lattices weigh this value's noise as a computed one's. */
+        if (t->noise && values == t->radiance)
+            t->noise[self][c] = noise_sum[c] / (samples * samples);
+    }
     return 1;
 }
 
@@ -563,12 +646,28 @@ static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*valu
         }
 }
 
+/* The variance of the marked pixels' Lbar, into t->noise, from their sums (before
+ * per_unit_throughput) and the squares of their camera samples' parts: the pixel's sum P is
+ * the mean of spp independent estimates spp X_j, so var P = (spp sum X_j^2 - P^2) / (spp - 1),
+ * and Lbar = P / w. (The pixel's segments take the same segment-by-segment noise into
+ * every sample; a medium seen by some samples and not others counts as noise too.) */
+static void pixel_noise(tile_plan *t, const uint8_t *round, const float (*sum)[3],
+                        const float (*square)[3], uint32_t spp)
+{
+    for (uint32_t p = 0; p < t->width * t->height; p++)
+        for (int c = 0; c < 3 && round[p]; c++) {
+            float w = t->keys[p].gather_weight[c];
+            float spread = fmaxf(0.0f, (float)spp * square[p][c] - sum[p][c] * sum[p][c]);
+            t->noise[p][c] = w > 0 ? spread / ((float)(spp - 1) * w * w) : 0.0f;
+        }
+}
+
 /* The rounds as render_double_multiple runs them, on tiles of one pixel whose keys and
  * radiance the caller gives: coarsest lattice first, plan_round marks the pixels to gather,
  * and they are gathered (their Lbar filled) before the next, finer round reads them. */
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
-                      const float (*other)[3],
+                      const float (*other)[3], const float (*noise)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
@@ -582,7 +681,10 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
     uint8_t *round = malloc(pixels ? pixels : 1);
     if (other && (t.other = malloc(sizeof *t.other * (pixels ? pixels : 1))))
         memcpy(t.other, other, sizeof *t.other * pixels);
-    int ready = t.keys && t.representative && t.state && t.radiance && round && (!other || t.other);
+    if (noise && (t.noise = malloc(sizeof *t.noise * (pixels ? pixels : 1))))
+        memcpy(t.noise, noise, sizeof *t.noise * pixels);
+    int ready = t.keys && t.representative && t.state && t.radiance && round && (!other || t.other) &&
+                (!noise || t.noise);
     int status = ready ? NS_OK : -1;
     for (uint32_t p = 0; p < pixels && !status; p++) {
         t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1},
@@ -751,10 +853,43 @@ static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixe
     return n;
 }
 
+/* Per pixel, the sum over its camera samples of the square of what each added (the sums of
+ * its segments' contributions, sample by sample), into `square`: with the sum itself, the
+ * spread of the samples, from which single_adaptive takes the pixel's noise. `segs` holds
+ * each pixel's segments together; contribution[i] is segment i's. Returns 0, or -1 out of
+ * memory. */
+static int add_sample_squares(const GpuSegment *segs, const float (*contribution)[3], uint32_t count,
+                              float (*square)[3])
+{
+    uint64_t *key = malloc(sizeof *key * (count ? count : 1));
+    if (!key)
+        return -1;
+    for (uint32_t start = 0, end; start < count; start = end) {
+        for (end = start; end < count && segs[end].pixel == segs[start].pixel; end++)
+            key[end - start] = (uint64_t)segs[end].sample_index << 32 | end;
+        qsort(key, end - start, sizeof *key, compare_u64);
+        float sample[3] = {0, 0, 0};
+        for (uint32_t k = 0; k < end - start; k++) {
+            uint32_t i = (uint32_t)key[k];
+            for (int c = 0; c < 3; c++)
+                sample[c] += contribution[i][c];
+            if (k + 1 == end - start || key[k + 1] >> 32 != key[k] >> 32)
+                for (int c = 0; c < 3; c++) {
+                    square[segs[start].pixel][c] += sample[c] * sample[c];
+                    sample[c] = 0.0f;
+                }
+        }
+    }
+    free(key);
+    return 0;
+}
+
 /* Single scattering of `count` segments: each one's throughput * L / spp (times its exit
- * factor, top of file) added into sum at its pixel. */
+ * factor, top of file) added into sum at its pixel; with `square` (else NULL), the squares of
+ * its camera samples' parts too (add_sample_squares; `segs` holds each pixel's segments
+ * together). */
 static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const GpuSegment *segs,
-                           uint32_t count, float (*sum)[3], ns_error *err)
+                           uint32_t count, float (*sum)[3], float (*square)[3], ns_error *err)
 {
     if (!count)
         return NS_OK;
@@ -774,15 +909,25 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
     if (!status)
         status = ns_single_scatter(ctx, in->scene_buffers, &segments, count,
                                    in->scene->render.single_samples, &out, err);
+    float (*contribution)[3] = NULL;
+    if (!status && square && !(contribution = malloc(sizeof *contribution * count)))
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
     if (!status) {
         const float(*radiance)[4] = out.mapped;
         float inv_spp = 1.0f / (float)in->scene->render.spp;
         for (uint32_t i = 0; i < count; i++) {
             float f = inv_spp * exit_factor(&in->gs->materials[segs[i].material]);
-            for (int c = 0; c < 3; c++)
-                sum[segs[i].pixel][c] += segs[i].throughput[c] * radiance[i][c] * f;
+            for (int c = 0; c < 3; c++) {
+                float added = segs[i].throughput[c] * radiance[i][c] * f;
+                sum[segs[i].pixel][c] += added;
+                if (contribution)
+                    contribution[i][c] = added;
+            }
         }
+        if (contribution && add_sample_squares(segs, contribution, count, square))
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
     }
+    free(contribution);
     gpu_buffer_destroy(&ctx->dev, &segments);
     gpu_buffer_destroy(&ctx->dev, &out);
     return status;
@@ -806,8 +951,13 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     uint8_t *round = malloc(pixels ? pixels : 1);
     GpuSegment *list = malloc(sizeof *list * (n ? n : 1));
     uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
+    /* The pixels' noise needs two camera samples or more to show. */
+    uint32_t spp = scene->render.spp;
+    float (*square)[3] = spp > 1 ? calloc(pixels ? pixels : 1, sizeof *square) : NULL;
     int status = NS_OK;
-    if (!round || !list || !order || tile_plan_build(scene, &in->gs->params, kept, n, PLAN_SINGLE, &plan))
+    if (!round || !list || !order || (spp > 1 && !square) ||
+        tile_plan_build(scene, &in->gs->params, kept, n, PLAN_SINGLE, &plan) ||
+        (spp > 1 && !(plan.noise = calloc(pixels ? pixels : 1, sizeof *plan.noise))))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", n);
     double at = 0.0;
     int top = (int)plan.levels;
@@ -825,15 +975,19 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
             for (uint32_t k = plan.segment_start[order[j]]; k < plan.segment_start[order[j] + 1]; k++)
                 list[count++] = kept[plan.by_pixel[k]];
         ns_span span = ns_progress_push(ctx, at, at + part);
-        status = single_segments(ctx, in, list, count, plan.radiance, err);
+        status = single_segments(ctx, in, list, count, plan.radiance, square, err);
         ns_progress_pop(ctx, span);
         at += part;
-        if (marked && !status)
+        if (marked && !status) {
+            if (plan.noise)
+                pixel_noise(&plan, round, plan.radiance, square, spp);
             per_unit_throughput(&plan, round, plan.radiance);
+        }
     }
     if (!status)
         compose(in, &plan);
     tile_plan_free(&plan);
+    free(square);
     free(order);
     free(list);
     free(round);
@@ -858,7 +1012,7 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a,
     else if (in->scene->render.single_levels)
         status = single_adaptive(ctx, in, kept, n, &interpolated, err);
     else
-        status = single_segments(ctx, in, kept, n, (float(*)[3])in->pixels, err);
+        status = single_segments(ctx, in, kept, n, (float(*)[3])in->pixels, NULL, err);
     if (stats)
         stats->single_interpolated += interpolated;
     free(kept);

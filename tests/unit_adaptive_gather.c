@@ -14,7 +14,14 @@
  *    through three): the same decisions, and a parabola comes back exactly;
  *  - light the pixels show besides (the render's single scattering, `other`) counts in the
  *    mean the error is weighed against: with K beside a parabola, a tile is interpolated if
- *    and only if c h^2 <= tolerance x (the mean + K). */
+ *    and only if c h^2 <= tolerance x (the mean + K);
+ *  - noisy values (adaptive single scattering's, `noise` their variance v): a second
+ *    difference d has the noise v (1 + 4 + 1) of its samples, which is taken off its square,
+ *    and an interpolation whose bias is within what it saves in noise (v, computed, against
+ *    the cubic's 0.64 v) stands for the pixel: interpolated if and only if
+ *    max(0, d^2 - 6 v) / 64 <= (tolerance x the mean)^2 + v - v_interpolated, v the outer
+ *    samples' variance (the inner ones' smaller without them): a large variance on an inner
+ *    sample (an outlier's, which weighs 9/16 in the value) excuses nothing. */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -67,6 +74,12 @@ static uint8_t interpolated[W * H];
  * the rounds are given none (NULL). */
 static double other_k;
 static float other_light[W * H][3];
+/* The variance of every gathered value, v (k + 1)^2 in channel k (the field's channels are
+ * (k + 1) times channel 0); 0: the rounds are given none (NULL). */
+static double noise_v;
+static float noise[W * H][3];
+/* The variance of the pixels on the lattice 8 apart, times noise_v (1: like the others). */
+static double noise_outlier = 1;
 
 static void one_surface(void)
 {
@@ -123,9 +136,14 @@ static int run_as(field *fd, uint32_t levels, float tolerance, int curved)
     for (int p = 0; p < W * H; p++)
         for (int k = 0; k < 3; k++)
             other_light[p][k] = (float)(other_k * (k + 1));
+    for (int p = 0; p < W * H; p++)
+        for (int k = 0; k < 3; k++)
+            noise[p][k] = (float)(noise_v * (k + 1) * (k + 1) *
+                                  (p % W % 8 == 0 && p / W % 8 == 0 ? noise_outlier : 1));
     int status = ns_adaptive_tiles(W, H, levels, tolerance, curved, materials, distances,
-                                   other_k > 0 ? (const float(*)[3])other_light : NULL, gather,
-                                   fd, radiance, interpolated);
+                                   other_k > 0 ? (const float(*)[3])other_light : NULL,
+                                   noise_v > 0 ? (const float(*)[3])noise : NULL, gather, fd,
+                                   radiance, interpolated);
     if (status)
         fprintf(stderr, "ns_adaptive_tiles: status %d (out of memory)\n", status);
     CHECK_INT(status, 0);
@@ -295,6 +313,90 @@ static void test_curved_values_are_exact_for_a_parabola(void)
     CHECK(worst > 0.001);
 }
 
+/* The variance run_as gives pixel (x, y) in channel 0. */
+static double variance_at(int x, int y)
+{
+    return noise_v * (x % 8 == 0 && y % 8 == 0 ? noise_outlier : 1);
+}
+
+/* The noisy rule on one level (every value interpolated from is gathered), curved values,
+ * stated on the parabola itself in channel 0 (the others scale alike): a line whose outer
+ * samples exist on both sides has the cubic (noise (81 + 81 + 1 + 1) / 64 / 4 v), on one side
+ * the parabola through three ((1 + 36 + 9) / 16 / 4 v), on neither the mean (v / 2), whose
+ * error is the spread; v is the outer samples' mean variance, else the inner ones' smaller. */
+static int expected_noisy(const field *fd, int x, int y, float tolerance)
+{
+    if (x % 2 == 0 && y % 2 == 0)
+        return 0;
+    int odd_x = x % 2, odd_y = y % 2;
+    int line_count = odd_x && odd_y ? 2 : 1;
+    int lines[2][2] = {{odd_x, odd_y}, {1, -1}};
+    for (int i = 0; i < line_count; i++) {
+        int dx = lines[i][0], dy = lines[i][1];
+        double a = fd->f(fd, x - dx, y - dy), b = fd->f(fd, x + dx, y + dy);
+        int a_out = in_image(x - 3 * dx, y - 3 * dy), b_out = in_image(x + 3 * dx, y + 3 * dy);
+        double va_out = a_out ? variance_at(x - 3 * dx, y - 3 * dy) : 0,
+               vb_out = b_out ? variance_at(x + 3 * dx, y + 3 * dy) : 0;
+        double v = a_out && b_out ? 0.5 * (va_out + vb_out) : a_out ? va_out : b_out ? vb_out
+                 : fmin(variance_at(x - dx, y - dy), variance_at(x + dx, y + dy));
+        double d = 8 * fd->c * dx * dx; /* both second differences of the parabola */
+        double bias2 = a_out || b_out ? fmax(0, (d * d - 6 * v) / 64) : fmax(0, (a - b) * (a - b) - 2 * v);
+        double interpolated_v = a_out && b_out ? 164.0 / 256 * v : a_out || b_out ? 46.0 / 64 * v : 0.5 * v;
+        double allowed = tolerance * 0.5 * (a + b);
+        if (bias2 > allowed * allowed + fmax(0, v - interpolated_v))
+            return 0;
+    }
+    return 1;
+}
+
+static void test_noise_lets_an_interpolation_no_worse_than_computing_through(void)
+{
+    one_surface();
+    /* c h^2 = 1e-4 on the lines along x, far outside 1e-7 x the mean without noise. With
+     * v = 4e-8 their bias^2 1e-8 (less 6 v / 64) is within the 0.36 v the cubic saves and
+     * they pass too; at v = 1e-8 they do not (9.1e-9 against 3.6e-9). */
+    field fd = {.f = parabola, .c = 1e-4};
+    const double variances[3] = {0, 1e-8, 4e-8};
+    int counts[3] = {0, 0, 0};
+    for (int i = 0; i < 3; i++) {
+        noise_v = variances[i];
+        if (!run_as(&fd, 1, 1e-7f, 1))
+            break;
+        int decisions_ok = 1;
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++) {
+                decisions_ok &= interpolated[y * W + x] == expected_noisy(&fd, x, y, 1e-7f);
+                counts[i] += interpolated[y * W + x];
+            }
+        CHECK(decisions_ok);
+    }
+    /* A hundred times the variance on the lattice 8 apart: the lines along x that have such a
+     * pixel as an outer sample pass at v = 1e-8, those that have it as an inner one do not
+     * (with the variances of every sample, the median or their mean, some of those would). */
+    noise_v = variances[1];
+    noise_outlier = 100;
+    if (run_as(&fd, 1, 1e-7f, 1)) {
+        int decisions_ok = 1, inner_passed = 0, outer_passed = 0;
+        for (int y = 0; y < H; y++)
+            for (int x = 0; x < W; x++) {
+                int p = y * W + x, along_x = x % 2 == 1 && y % 2 == 0 && y % 8 == 0;
+                decisions_ok &= interpolated[p] == expected_noisy(&fd, x, y, 1e-7f);
+                inner_passed += along_x && (x % 8 == 1 || x % 8 == 7) && interpolated[p];
+                outer_passed += along_x && (x % 8 == 3 || x % 8 == 5) && interpolated[p];
+            }
+        CHECK(decisions_ok);
+        CHECK_INT(inner_passed, 0);
+        CHECK(outer_passed > 0);
+    }
+    noise_outlier = 1;
+    noise_v = 0;
+    printf("noisy parabola: %d / %d / %d tiles interpolated at v = 0 / 1e-8 / 4e-8\n", counts[0],
+           counts[1], counts[2]);
+    /* The lines along y alone (a quarter of the image), then every line. */
+    CHECK(counts[0] == counts[1] && counts[0] > W * H / 5);
+    CHECK(counts[2] > counts[1] + W * H / 3);
+}
+
 /* ns_from_pixel_centre against the camera pass's own ray (camera.comp: d = forward +
  * right (2u - 1) tan_x + up (1 - 2v) tan_y for u = (x + jx) / width, v = (y + jy) / height):
  * a point on the ray of pixel (x, y) at jitter (jx, jy) is (jx - 0.5)^2 + (jy - 0.5)^2 pixels^2
@@ -340,6 +442,7 @@ int main(void)
     RUN(test_nothing_crosses_media_or_surfaces);
     RUN(test_no_levels_or_no_tolerance_gathers_everything);
     RUN(test_curved_values_are_exact_for_a_parabola);
+    RUN(test_noise_lets_an_interpolation_no_worse_than_computing_through);
     RUN(test_pixel_centre_distance_is_the_jitter);
     return harness_report();
 }
