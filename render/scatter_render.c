@@ -461,21 +461,27 @@ static float interpolation_noise(const float (*noise)[3], int c, uint32_t a, uin
  * computing. In squares: max(0, d^2 - 6 v) / 64 <= allowed^2 + v - v_interpolated; without
  * outer samples, the spread's square less 2 v.
  *
- * v is the outer samples' (the inner two's smaller where there are none). A pixel's variance
- * comes from its own few camera samples, so a sample that drew a bright outlier also has a
- * large variance: taken from the inner samples, which weigh 9/16 each in the value, that
- * variance excused the very curvature the outlier made and spread it to the pixels around
- * (their mean: the bench's bumpy sphere's single scattering +1.1% against a converged image;
- * their median: +0.4%, and +1.7% on gpu_single's noisy slab); the outer samples weigh -1/16
- * (-0.5% and -0.8%). */
+ * v is the line's noise level where its inner and outer samples agree on one: the outer
+ * samples' mean variance, at most the larger of the inner two's (the smaller of those where
+ * there are no outer samples). A pixel's variance comes from its own few camera samples, so
+ * one that drew a bright outlier also has a large variance, which must not excuse the
+ * curvature the outlier made: taken from the inner samples, which weigh 9/16 each in the
+ * value, it spread the outlier around (their mean: the bench's bumpy sphere's single
+ * scattering +1.1% against a converged image at 128²); from the outer samples alone, which
+ * weigh -1/16, a bright outer outlier lowered the value (-0.5% at 128², -0.7% at 256²);
+ * the two together: -0.1% and +0.1%. gpu_single's noisy slab, at 17% noise per pixel, still
+ * comes out 1.1% high. */
 static int noisy_line_agrees(const float (*noise)[3], int c, float fa, float fb, uint32_t a,
                              uint32_t b, uint32_t a_out, uint32_t b_out, float fa_out,
                              float fb_out, float allowed)
 {
-    float v = a_out != NS_NONE && b_out != NS_NONE ? 0.5f * (noise[a_out][c] + noise[b_out][c])
-              : a_out != NS_NONE ? noise[a_out][c]
-              : b_out != NS_NONE ? noise[b_out][c]
-                                 : fminf(noise[a][c], noise[b][c]);
+    float inner_max = fmaxf(noise[a][c], noise[b][c]), v;
+    if (a_out != NS_NONE && b_out != NS_NONE)
+        v = fminf(0.5f * (noise[a_out][c] + noise[b_out][c]), inner_max);
+    else if (a_out != NS_NONE || b_out != NS_NONE)
+        v = fminf(noise[a_out != NS_NONE ? a_out : b_out][c], inner_max);
+    else
+        v = fminf(noise[a][c], noise[b][c]);
     float bias2 = 0.0f, saved;
     if (a_out != NS_NONE) {
         float d = fb - 2.0f * fa + fa_out;
