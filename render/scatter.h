@@ -338,13 +338,13 @@ float ns_from_pixel_centre(const GpuParams *cam, uint32_t width, uint32_t height
  * interpolated) and interpolated[p]. curved: the interpolated values of adaptive single
  * scattering (a cubic or a parabola through the outer samples) instead of the gather's
  * means. other (NULL: none): per pixel, the light it shows besides the gathered part, in the
- * gather's units, which the tolerance counts too (the render's single scattering). noise
+ * gather's units, which the tolerance counts too (the render's single scattering). variance
  * (NULL: none): per pixel, the variance of the value gather() gives it (adaptive single
- * scattering's rule for noisy values, line_agrees). Returns 0, or -1 out of memory. */
+ * scattering's rule for noisy values, noisy_line_agrees). Returns 0, or -1 out of memory. */
 typedef struct ns_tile_field ns_tile_field;
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
-                      const float (*other)[3], const float (*noise)[3],
+                      const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);
 

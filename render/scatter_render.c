@@ -93,8 +93,8 @@ typedef struct tile_plan {
     /* Single scattering's: per pixel, the variance of its Lbar (its Monte Carlo noise, from
      * the spread of its camera samples; interpolated: of the interpolation), for the rule
      * that an interpolation no noisier than computing the pixel may stand for it
-     * (line_agrees); NULL: none, the tolerance alone decides. */
-    float (*noise)[3];
+     * (noisy_line_agrees); NULL: none, the tolerance alone decides. */
+    float (*variance)[3];
     uint64_t corrections_interpolated; /* tiles that gathered their VRLs, not their correction */
     uint32_t *segment_start;  /* pixel -> its segments [start[p], start[p + 1]) in by_pixel */
     uint32_t *by_pixel;
@@ -111,7 +111,7 @@ static void tile_plan_free(tile_plan *t)
     free(t->radiance);
     free(t->correction);
     free(t->other);
-    free(t->noise);
+    free(t->variance);
     free(t->segment_start);
     free(t->by_pixel);
     free(t->taken);
@@ -433,73 +433,81 @@ static float curved_pair(float fa, float fb, float fa_out, float fb_out)
     return fmaxf(twice, 0.0f);
 }
 
-/* The variance of curved_pair's value (or of the plain sum fa + fb) from its samples'
- * variances: the weights squared. */
-static float interpolation_noise(const float (*noise)[3], int c, uint32_t a, uint32_t b,
-                                 uint32_t a_out, uint32_t b_out, int curved)
+/* The error of the midpoint's mean from a line's second differences da (through the outer
+ * sample at -3h) and db (+3h), NAN where that sample is missing: the larger one's eighth;
+ * without either, the spread of the two inner samples. */
+static float line_error(float fa, float fb, float da, float db)
 {
-    float va = noise[a][c], vb = noise[b][c];
-    if (!curved)
-        return va + vb;
-    if (a_out != NS_NONE && b_out != NS_NONE)
-        return (81.0f * (va + vb) + noise[a_out][c] + noise[b_out][c]) / 64.0f;
-    if (a_out != NS_NONE)
-        return (noise[a_out][c] + 36.0f * va + 9.0f * vb) / 16.0f;
-    if (b_out != NS_NONE)
-        return (noise[b_out][c] + 36.0f * vb + 9.0f * va) / 16.0f;
-    return va + vb;
+    if (isnan(da) && isnan(db))
+        return fabsf(fa - fb);
+    return fmaxf(isnan(da) ? 0.0f : fabsf(da), isnan(db) ? 0.0f : fabsf(db)) / 8.0f;
 }
 
-/* line_agrees' test where the values are noisy (t->noise): the error of the interpolation
+/* The variance of a line's interpolated value over its samples' common variance: the cubic
+ * through four ((81 + 81 + 1 + 1) / 64 of twice the value, so 164/256), the parabola through
+ * three ((1 + 36 + 9) / 16 / 4), the mean of two (1/2). interpolation_variance is the same
+ * with each sample's own variance. */
+static float interpolation_share(int curved, int has_a_out, int has_b_out)
+{
+    if (!curved || (!has_a_out && !has_b_out))
+        return 0.5f;
+    return has_a_out && has_b_out ? 164.0f / 256.0f : 46.0f / 64.0f;
+}
+
+/* The variance of twice a line's interpolated value (curved_pair's, or the plain sum
+ * fa + fb) from its samples' variances: the weights squared. */
+static float interpolation_variance(const float (*variance)[3], int c, uint32_t a, uint32_t b,
+                                    uint32_t a_out, uint32_t b_out, int curved)
+{
+    float va = variance[a][c], vb = variance[b][c];
+    if (!curved || (a_out == NS_NONE && b_out == NS_NONE))
+        return va + vb;
+    if (a_out != NS_NONE && b_out != NS_NONE)
+        return (81.0f * (va + vb) + variance[a_out][c] + variance[b_out][c]) / 64.0f;
+    if (a_out != NS_NONE)
+        return (variance[a_out][c] + 36.0f * va + 9.0f * vb) / 16.0f;
+    return (variance[b_out][c] + 36.0f * vb + 9.0f * va) / 16.0f;
+}
+
+/* line_agrees' test where the values are noisy (t->variance): the error of the interpolation
  * is its bias, f'' h^2 / 2, estimated as before from the second differences d (an eighth of
  * each), whose own noise (weights 1, 4, 1: 6 v at the line's noise level v) is taken off
  * their square, since a second difference of pure noise is not curvature. The pixel is
  * interpolated when that bias is within the tolerance, or within what interpolating saves in
  * noise: computed, the pixel would carry the noise v; interpolated, the bias and the noise
- * of the interpolation (the cubic 164/256 v, the parabola through three 46/64 v, the mean of
- * two v/2), so where the curvature is buried in the noise an interpolation is no worse than
- * computing. In squares: max(0, d^2 - 6 v) / 64 <= allowed^2 + v - v_interpolated; without
- * outer samples, the spread's square less 2 v.
+ * of the interpolation (interpolation_share of v), so where the curvature is buried in the
+ * noise an interpolation is no worse than computing. In squares:
+ * max(0, d^2 - 6 v) / 64 <= allowed^2 + (1 - share) v; without outer samples, the spread's
+ * square less 2 v. (What this leaves out: the finer lattices' samples, interpolated from the
+ * same coarser ones, are correlated; and curved_pair's clamp at 0.)
  *
  * v is the line's noise level where its inner and outer samples agree on one: the outer
- * samples' mean variance, at most the larger of the inner two's (the smaller of those where
- * there are no outer samples). A pixel's variance comes from its own few camera samples, so
+ * samples' mean variance, at most the larger of the inner two's (without outer samples, the
+ * smaller of the inner two's). A pixel's variance comes from its own few camera samples, so
  * one that drew a bright outlier also has a large variance, which must not excuse the
- * curvature the outlier made: taken from the inner samples, which weigh 9/16 each in the
- * value, it spread the outlier around (their mean: the bench's bumpy sphere's single
- * scattering +1.1% against a converged image at 128²); from the outer samples alone, which
- * weigh -1/16, a bright outer outlier lowered the value (-0.5% at 128², -0.7% at 256²);
- * the two together: -0.1% and +0.1%. gpu_single's noisy slab, at 17% noise per pixel, still
- * comes out 1.1% high. */
-static int noisy_line_agrees(const float (*noise)[3], int c, float fa, float fb, uint32_t a,
-                             uint32_t b, uint32_t a_out, uint32_t b_out, float fa_out,
-                             float fb_out, float allowed)
+ * curvature the outlier made. Measured as the image mean of the bench's bumpy sphere's
+ * single scattering over a converged image's (1.000 computing every pixel; docs/bench.md):
+ * the mean of the four samples' variances, 1.011 (an inner sample weighs 9/16 in the value,
+ * so its outlier was spread around); their median, 1.002; the outer samples' alone, which
+ * weigh -1/16, 0.993 at 128² and 0.990 at 256²; the two together, 0.999 and 0.998. */
+static int noisy_line_agrees(const float (*variance)[3], int c, uint32_t a, uint32_t b,
+                             uint32_t a_out, uint32_t b_out, float fa, float fb, float da,
+                             float db, float allowed, int curved)
 {
-    float inner_max = fmaxf(noise[a][c], noise[b][c]), v;
+    float inner_max = fmaxf(variance[a][c], variance[b][c]), v;
     if (a_out != NS_NONE && b_out != NS_NONE)
-        v = fminf(0.5f * (noise[a_out][c] + noise[b_out][c]), inner_max);
+        v = fminf(0.5f * (variance[a_out][c] + variance[b_out][c]), inner_max);
     else if (a_out != NS_NONE || b_out != NS_NONE)
-        v = fminf(noise[a_out != NS_NONE ? a_out : b_out][c], inner_max);
+        v = fminf(variance[a_out != NS_NONE ? a_out : b_out][c], inner_max);
     else
-        v = fminf(noise[a][c], noise[b][c]);
-    float bias2 = 0.0f, saved;
-    if (a_out != NS_NONE) {
-        float d = fb - 2.0f * fa + fa_out;
-        bias2 = fmaxf(bias2, (d * d - 6.0f * v) / 64.0f);
-    }
-    if (b_out != NS_NONE) {
-        float d = fa - 2.0f * fb + fb_out;
-        bias2 = fmaxf(bias2, (d * d - 6.0f * v) / 64.0f);
-    }
-    if (a_out != NS_NONE && b_out != NS_NONE) {
-        saved = 1.0f - 164.0f / 256.0f;
-    } else if (a_out != NS_NONE || b_out != NS_NONE) {
-        saved = 1.0f - 46.0f / 64.0f;
-    } else {
-        bias2 = fmaxf(0.0f, (fa - fb) * (fa - fb) - 2.0f * v);
-        saved = 0.5f;
-    }
-    return bias2 <= allowed * allowed + saved * v;
+        v = fminf(variance[a][c], variance[b][c]);
+    float bias2;
+    if (isnan(da) && isnan(db))
+        bias2 = (fa - fb) * (fa - fb) - 2.0f * v;
+    else
+        bias2 = (fmaxf(isnan(da) ? 0.0f : da * da, isnan(db) ? 0.0f : db * db) - 6.0f * v) / 64.0f;
+    float saved = 1.0f - interpolation_share(curved, a_out != NS_NONE, b_out != NS_NONE);
+    return fmaxf(bias2, 0.0f) <= allowed * allowed + saved * v;
 }
 
 /* The line from tile (tx, ty) through (tx + dx * step, ty + dy * step) and its mirror: adds
@@ -508,10 +516,11 @@ static int noisy_line_agrees(const float (*noise)[3], int c, float fa, float fb,
  * (t->radiance, plus t->other: the scattered light the pixels show besides), whichever part
  * is interpolated: a correction near 0 needs no more precision than the image it corrects,
  * and double and multiple scattering under much brighter single scattering (the bench's
- * oil) no more than the pixel shows. */
-static int line_agrees(const tile_plan *t, const float (*values)[3], float tolerance, uint32_t tx,
-                       uint32_t ty, int dx, int dy, uint32_t step, uint32_t self, float sum[3],
-                       float noise_sum[3])
+ * oil) no more than the pixel shows. With `variance` (else NULL) the values' variances
+ * decide too (noisy_line_agrees), and the interpolation's is added to variance_sum. */
+static int line_agrees(const tile_plan *t, const float (*values)[3], const float (*variance)[3],
+                       float tolerance, uint32_t tx, uint32_t ty, int dx, int dy, uint32_t step,
+                       uint32_t self, float sum[3], float variance_sum[3])
 {
     int64_t sx = (int64_t)dx * step, sy = (int64_t)dy * step;
     uint32_t a = same_surface_at(t, (int64_t)tx - sx, (int64_t)ty - sy, self);
@@ -521,30 +530,21 @@ static int line_agrees(const tile_plan *t, const float (*values)[3], float toler
     uint32_t a_out = same_surface_at(t, (int64_t)tx - 3 * sx, (int64_t)ty - 3 * sy, self);
     uint32_t b_out = same_surface_at(t, (int64_t)tx + 3 * sx, (int64_t)ty + 3 * sy, self);
     for (int c = 0; c < 3; c++) {
-        float fa = values[a][c], fb = values[b][c], error = 0.0f;
-        if (a_out != NS_NONE)
-            error = fabsf(fb - 2.0f * fa + values[a_out][c]) / 8.0f;
-        if (b_out != NS_NONE)
-            error = fmaxf(error, fabsf(fa - 2.0f * fb + values[b_out][c]) / 8.0f);
-        if (a_out == NS_NONE && b_out == NS_NONE)
-            error = fabsf(fa - fb);
+        float fa = values[a][c], fb = values[b][c];
+        float fa_out = a_out != NS_NONE ? values[a_out][c] : NAN;
+        float fb_out = b_out != NS_NONE ? values[b_out][c] : NAN;
+        float da = fb - 2.0f * fa + fa_out, db = fa - 2.0f * fb + fb_out; /* NAN: no sample */
         float total = t->radiance[a][c] + t->radiance[b][c];
         if (t->other)
             total += t->other[a][c] + t->other[b][c];
         float allowed = tolerance * 0.5f * total;
-        /* (Tolerance 0 asks for every pixel whose estimate is not exactly 0: noise or not.) */
-        if (t->noise && tolerance > 0.0f && values == (const float(*)[3])t->radiance) {
-            if (!noisy_line_agrees(t->noise, c, fa, fb, a, b, a_out, b_out,
-                                   a_out != NS_NONE ? values[a_out][c] : 0.0f,
-                                   b_out != NS_NONE ? values[b_out][c] : 0.0f, allowed))
-                return 0;
-            noise_sum[c] += interpolation_noise(t->noise, c, a, b, a_out, b_out, t->curved);
-        } else if (error > allowed) {
+        if (variance ? !noisy_line_agrees(variance, c, a, b, a_out, b_out, fa, fb, da, db, allowed,
+                                          t->curved)
+                     : line_error(fa, fb, da, db) > allowed)
             return 0;
-        }
-        sum[c] += t->curved ? curved_pair(fa, fb, a_out != NS_NONE ? values[a_out][c] : NAN,
-                                          b_out != NS_NONE ? values[b_out][c] : NAN)
-                            : fa + fb;
+        if (variance)
+            variance_sum[c] += interpolation_variance(variance, c, a, b, a_out, b_out, t->curved);
+        sum[c] += t->curved ? curved_pair(fa, fb, fa_out, fb_out) : fa + fb;
     }
     return 1;
 }
@@ -557,19 +557,26 @@ static int interpolate_tile(tile_plan *t, float (*values)[3], float tolerance, u
 {
     uint32_t self = t->representative[ty * t->tiles_x + tx];
     int odd_x = (tx / step) & 1, odd_y = (ty / step) & 1;
-    float sum[3] = {0, 0, 0}, noise_sum[3] = {0, 0, 0};
+    /* Single scattering's noise weighs in, except at tolerance 0, which asks for every pixel
+     * whose estimate is not exactly 0, noisy or not. */
+    const float(*variance)[3] =
+        t->variance && values == t->radiance && tolerance > 0.0f ? (const float(*)[3])t->variance : NULL;
+    float sum[3] = {0, 0, 0}, variance_sum[3] = {0, 0, 0};
     int ok = odd_x && odd_y
-                 ? line_agrees(t, values, tolerance, tx, ty, 1, 1, step, self, sum, noise_sum) &&
-                       line_agrees(t, values, tolerance, tx, ty, 1, -1, step, self, sum, noise_sum)
-                 : line_agrees(t, values, tolerance, tx, ty, odd_x, odd_y, step, self, sum, noise_sum);
+                 ? line_agrees(t, values, variance, tolerance, tx, ty, 1, 1, step, self, sum,
+                               variance_sum) &&
+                       line_agrees(t, values, variance, tolerance, tx, ty, 1, -1, step, self, sum,
+                                   variance_sum)
+                 : line_agrees(t, values, variance, tolerance, tx, ty, odd_x, odd_y, step, self, sum,
+                               variance_sum);
     if (!ok)
         return 0;
     float samples = odd_x && odd_y ? 4.0f : 2.0f;
     for (int c = 0; c < 3; c++) {
         values[self][c] = sum[c] / samples;
         /* The finer lattices weigh this value's noise as a computed one's. */
-        if (t->noise && values == t->radiance)
-            t->noise[self][c] = noise_sum[c] / (samples * samples);
+        if (variance)
+            t->variance[self][c] = variance_sum[c] / (samples * samples);
     }
     return 1;
 }
@@ -652,19 +659,35 @@ static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*valu
         }
 }
 
-/* The variance of the marked pixels' Lbar, into t->noise, from their sums (before
- * per_unit_throughput) and the squares of their camera samples' parts: the pixel's sum P is
- * the mean of spp independent estimates spp X_j, so var P = (spp sum X_j^2 - P^2) / (spp - 1),
- * and Lbar = P / w. (The pixel's segments take the same segment-by-segment noise into
- * every sample; a medium seen by some samples and not others counts as noise too.) */
-static void pixel_noise(tile_plan *t, const uint8_t *round, const float (*sum)[3],
-                        const float (*square)[3], uint32_t spp)
+/* Per pixel, sums over its camera samples j of what sample j added (X_j, the sum of its
+ * segments' throughput * L / spp with the exit factor) and of its weight (W_j, the sum of
+ * their throughput / spp): X_j^2, X_j W_j and W_j^2, per channel. The pixel's Lbar is the
+ * ratio sum X / sum W, and these give its variance (pixel_variance). */
+typedef struct sample_moments {
+    float xx[3], xw[3], ww[3];
+} sample_moments;
+
+/* The variance of the marked pixels' Lbar, into t->variance, from their sums (before
+ * per_unit_throughput) and their samples' moments: Lbar = sum X_j / w (w = sum W_j, the
+ * pixel's gather weight) is a ratio of spp independent samples' parts, whose variance is
+ * spp / (spp - 1) sum_j (X_j - Lbar W_j)^2 / w^2. What varies with the weights alone is not
+ * noise: a sample that misses the medium (X = W = 0) or sees it through other Fresnel
+ * factors adds nothing, so a silhouette's or an edge's pixel has the noise of its estimates
+ * only. Where that is not finite (a weight so small that w^2 underflows), 0: the tolerance
+ * alone decides there. */
+static void pixel_variance(tile_plan *t, const uint8_t *round, const float (*sum)[3],
+                           const sample_moments *moments, uint32_t spp)
 {
     for (uint32_t p = 0; p < t->width * t->height; p++)
         for (int c = 0; c < 3 && round[p]; c++) {
-            float w = t->keys[p].gather_weight[c];
-            float spread = fmaxf(0.0f, (float)spp * square[p][c] - sum[p][c] * sum[p][c]);
-            t->noise[p][c] = w > 0 ? spread / ((float)(spp - 1) * w * w) : 0.0f;
+            float w = t->keys[p].gather_weight[c], variance = 0.0f;
+            if (w > 0.0f) {
+                const sample_moments *m = &moments[p];
+                float lbar = sum[p][c] / w;
+                float spread = m->xx[c] - 2.0f * lbar * m->xw[c] + lbar * lbar * m->ww[c];
+                variance = fmaxf(spread, 0.0f) * ((float)spp / (float)(spp - 1)) / w / w;
+            }
+            t->variance[p][c] = isfinite(variance) ? variance : 0.0f;
         }
 }
 
@@ -673,7 +696,7 @@ static void pixel_noise(tile_plan *t, const uint8_t *round, const float (*sum)[3
  * and they are gathered (their Lbar filled) before the next, finer round reads them. */
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
                       const uint32_t *material, const float *distance,
-                      const float (*other)[3], const float (*noise)[3],
+                      const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
@@ -687,10 +710,10 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float to
     uint8_t *round = malloc(pixels ? pixels : 1);
     if (other && (t.other = malloc(sizeof *t.other * (pixels ? pixels : 1))))
         memcpy(t.other, other, sizeof *t.other * pixels);
-    if (noise && (t.noise = malloc(sizeof *t.noise * (pixels ? pixels : 1))))
-        memcpy(t.noise, noise, sizeof *t.noise * pixels);
+    if (variance && (t.variance = malloc(sizeof *t.variance * (pixels ? pixels : 1))))
+        memcpy(t.variance, variance, sizeof *t.variance * pixels);
     int ready = t.keys && t.representative && t.state && t.radiance && round && (!other || t.other) &&
-                (!noise || t.noise);
+                (!variance || t.variance);
     int status = ready ? NS_OK : -1;
     for (uint32_t p = 0; p < pixels && !status; p++) {
         t.keys[p] = (pixel_key){.material = material[p], .distance = distance[p], .weight = {1, 1, 1},
@@ -859,13 +882,11 @@ static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixe
     return n;
 }
 
-/* Per pixel, the sum over its camera samples of the square of what each added (the sums of
- * its segments' contributions, sample by sample), into `square`: with the sum itself, the
- * spread of the samples, from which single_adaptive takes the pixel's noise. `segs` holds
- * each pixel's segments together; contribution[i] is segment i's. Returns 0, or -1 out of
- * memory. */
-static int add_sample_squares(const GpuSegment *segs, const float (*contribution)[3], uint32_t count,
-                              float (*square)[3])
+/* Adds each pixel's camera samples' moments (sample_moments) into `moments`: `segs` holds
+ * each pixel's segments together; added[i] and weight[i] are segment i's parts of X and W.
+ * Returns 0, or -1 out of memory. */
+static int add_sample_moments(const GpuSegment *segs, const float (*added)[3],
+                              const float (*weight)[3], uint32_t count, sample_moments *moments)
 {
     uint64_t *key = malloc(sizeof *key * (count ? count : 1));
     if (!key)
@@ -874,16 +895,22 @@ static int add_sample_squares(const GpuSegment *segs, const float (*contribution
         for (end = start; end < count && segs[end].pixel == segs[start].pixel; end++)
             key[end - start] = (uint64_t)segs[end].sample_index << 32 | end;
         qsort(key, end - start, sizeof *key, compare_u64);
-        float sample[3] = {0, 0, 0};
+        sample_moments *m = &moments[segs[start].pixel];
+        float x[3] = {0, 0, 0}, w[3] = {0, 0, 0};
         for (uint32_t k = 0; k < end - start; k++) {
             uint32_t i = (uint32_t)key[k];
-            for (int c = 0; c < 3; c++)
-                sample[c] += contribution[i][c];
-            if (k + 1 == end - start || key[k + 1] >> 32 != key[k] >> 32)
-                for (int c = 0; c < 3; c++) {
-                    square[segs[start].pixel][c] += sample[c] * sample[c];
-                    sample[c] = 0.0f;
-                }
+            for (int c = 0; c < 3; c++) {
+                x[c] += added[i][c];
+                w[c] += weight[i][c];
+            }
+            if (k + 1 < end - start && key[k + 1] >> 32 == key[k] >> 32)
+                continue; /* the sample goes on */
+            for (int c = 0; c < 3; c++) {
+                m->xx[c] += x[c] * x[c];
+                m->xw[c] += x[c] * w[c];
+                m->ww[c] += w[c] * w[c];
+                x[c] = w[c] = 0.0f;
+            }
         }
     }
     free(key);
@@ -891,11 +918,11 @@ static int add_sample_squares(const GpuSegment *segs, const float (*contribution
 }
 
 /* Single scattering of `count` segments: each one's throughput * L / spp (times its exit
- * factor, top of file) added into sum at its pixel; with `square` (else NULL), the squares of
- * its camera samples' parts too (add_sample_squares; `segs` holds each pixel's segments
+ * factor, top of file) added into sum at its pixel; with `moments` (else NULL), the moments
+ * of its camera samples' parts too (add_sample_moments; `segs` holds each pixel's segments
  * together). */
 static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const GpuSegment *segs,
-                           uint32_t count, float (*sum)[3], float (*square)[3], ns_error *err)
+                           uint32_t count, float (*sum)[3], sample_moments *moments, ns_error *err)
 {
     if (!count)
         return NS_OK;
@@ -915,8 +942,9 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
     if (!status)
         status = ns_single_scatter(ctx, in->scene_buffers, &segments, count,
                                    in->scene->render.single_samples, &out, err);
-    float (*contribution)[3] = NULL;
-    if (!status && square && !(contribution = malloc(sizeof *contribution * count)))
+    float (*added)[3] = NULL, (*weight)[3] = NULL;
+    if (!status && moments &&
+        (!(added = malloc(sizeof *added * count)) || !(weight = malloc(sizeof *weight * count))))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
     if (!status) {
         const float(*radiance)[4] = out.mapped;
@@ -924,16 +952,20 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
         for (uint32_t i = 0; i < count; i++) {
             float f = inv_spp * exit_factor(&in->gs->materials[segs[i].material]);
             for (int c = 0; c < 3; c++) {
-                float added = segs[i].throughput[c] * radiance[i][c] * f;
-                sum[segs[i].pixel][c] += added;
-                if (contribution)
-                    contribution[i][c] = added;
+                float x = segs[i].throughput[c] * radiance[i][c] * f;
+                sum[segs[i].pixel][c] += x;
+                if (moments) {
+                    added[i][c] = x;
+                    weight[i][c] = segs[i].throughput[c] * inv_spp;
+                }
             }
         }
-        if (contribution && add_sample_squares(segs, contribution, count, square))
+        if (moments && add_sample_moments(segs, (const float(*)[3])added, (const float(*)[3])weight,
+                                          count, moments))
             status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
     }
-    free(contribution);
+    free(added);
+    free(weight);
     gpu_buffer_destroy(&ctx->dev, &segments);
     gpu_buffer_destroy(&ctx->dev, &out);
     return status;
@@ -959,11 +991,11 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
     /* The pixels' noise needs two camera samples or more to show. */
     uint32_t spp = scene->render.spp;
-    float (*square)[3] = spp > 1 ? calloc(pixels ? pixels : 1, sizeof *square) : NULL;
+    sample_moments *moments = spp > 1 ? calloc(pixels ? pixels : 1, sizeof *moments) : NULL;
     int status = NS_OK;
-    if (!round || !list || !order || (spp > 1 && !square) ||
+    if (!round || !list || !order || (spp > 1 && !moments) ||
         tile_plan_build(scene, &in->gs->params, kept, n, PLAN_SINGLE, &plan) ||
-        (spp > 1 && !(plan.noise = calloc(pixels ? pixels : 1, sizeof *plan.noise))))
+        (spp > 1 && !(plan.variance = calloc(pixels ? pixels : 1, sizeof *plan.variance))))
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", n);
     double at = 0.0;
     int top = (int)plan.levels;
@@ -981,19 +1013,19 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
             for (uint32_t k = plan.segment_start[order[j]]; k < plan.segment_start[order[j] + 1]; k++)
                 list[count++] = kept[plan.by_pixel[k]];
         ns_span span = ns_progress_push(ctx, at, at + part);
-        status = single_segments(ctx, in, list, count, plan.radiance, square, err);
+        status = single_segments(ctx, in, list, count, plan.radiance, moments, err);
         ns_progress_pop(ctx, span);
         at += part;
         if (marked && !status) {
-            if (plan.noise)
-                pixel_noise(&plan, round, plan.radiance, square, spp);
+            if (plan.variance)
+                pixel_variance(&plan, round, plan.radiance, moments, spp);
             per_unit_throughput(&plan, round, plan.radiance);
         }
     }
     if (!status)
         compose(in, &plan);
     tile_plan_free(&plan);
-    free(square);
+    free(moments);
     free(order);
     free(list);
     free(round);

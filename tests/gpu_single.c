@@ -926,8 +926,9 @@ static void test_adaptive(void)
     CHECK(lit > width * height);
     CHECK_INT(st_full.single_interpolated, 0);
     CHECK(worst_exact < 1e-5);
-    /* Measured: 770 of about 1,340 lit pixels interpolated; rms 1.14 and 1.62 times every
-     * pixel's; the means 0.43 and 0.41% from every pixel's, the blind ones 0.73 and 1.09%. */
+    /* Measured: 778 of about 1,340 lit pixels interpolated (770 before the pixels' noise
+     * weighed in); rms 1.14 and 1.62 times every pixel's; the means 0.45 and 0.41% from
+     * every pixel's, the blind ones 0.73 and 1.09%. */
     CHECK(st_adaptive.single_interpolated > lit / 3 / 3);
     CHECK(e_adaptive.rms < 1.25 * e_full.rms);
     CHECK(e_blind.rms > 1.4 * e_full.rms); /* the shadow's edges are there to blur */

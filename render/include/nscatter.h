@@ -322,7 +322,10 @@ typedef struct ns_render_settings {
      * scattering is first computed on a lattice of pixels 2^single_levels apart, and a pixel
      * between computed ones takes a value interpolated from them (a cubic, or a parabola
      * near a silhouette) where they see its surface and the error of their mean is within
-     * single_tolerance (relative, per channel), else it is computed. single_levels 0 =
+     * single_tolerance (relative, per channel) or, at 2 samples per pixel or more, within
+     * the noise that computing it would leave (the estimate's variance, from the spread of
+     * the pixels' camera samples; docs/scattering.md, *Noisy estimates*), else it is
+     * computed. single_levels 0 =
      * every pixel, the library's default; the scene parser's for an absent key is
      * NS_DEFAULT_SINGLE_LEVELS (as boundary's). single_tolerance keeps its 0, as
      * gather_tolerance does (the parser's default: NS_DEFAULT_SINGLE_TOLERANCE). */
