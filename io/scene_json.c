@@ -1423,7 +1423,7 @@ static void parse_render(parser *p, const json_t *v)
                                        "accumulation", "tables", "vrl_beams", "boundary",
                                        "cull_solid_angle", NULL};
     static const char *const accumulation_names[] = {"exact", "paper"};
-    static const char *const tables_names[] = {"exact", "interpolated"};
+    static const char *const tables_names[] = {"exact", "interpolated", "auto"};
     static const char *const beam_names[] = {"endless", "bounded"};
     static const char *const boundary_names[] = {"off", "walks"};
     ns_render_settings *r = &p->render;
@@ -1434,13 +1434,15 @@ static void parse_render(parser *p, const json_t *v)
      * every pixel, as renders built in C always did, and a scene file gets the adaptive
      * single scattering the bench measured (docs/bench.md, *Adaptive single scattering*);
      * gather_levels likewise (*The adaptive gather by default*), and gather_camera_samples
-     * (*One camera sample per gathered pixel*). */
+     * (*One camera sample per gathered pixel*); and tables, "auto" (docs/rendering.md,
+     * *Interpolated tables*), where the library's 0 is exact. */
     *r = (ns_render_settings){.seed = NS_DEFAULT_SEED,
                               .gather_levels = NS_DEFAULT_GATHER_LEVELS,
                               .gather_tolerance = NS_DEFAULT_GATHER_TOLERANCE,
                               .gather_camera_samples = NS_DEFAULT_GATHER_CAMERA_SAMPLES,
                               .single_levels = NS_DEFAULT_SINGLE_LEVELS,
-                              .single_tolerance = NS_DEFAULT_SINGLE_TOLERANCE};
+                              .single_tolerance = NS_DEFAULT_SINGLE_TOLERANCE,
+                              .tables = NS_TABLES_AUTO};
     size_t saved = push_key(p, "render");
     if (v && !expect_object(p, v, "render")) {
         pop(p, saved);
@@ -1495,7 +1497,7 @@ static void parse_render(parser *p, const json_t *v)
             r->accumulation = (ns_accumulation)accumulation;
         int tables;
         if (json_object_get(v, "tables") &&
-            field_enum(p, v, "tables", 0, tables_names, 2, "tables", &tables)) {
+            field_enum(p, v, "tables", 0, tables_names, 3, "tables", &tables)) {
             r->tables = (ns_tables_mode)tables;
             /* Only the networks' tables have nodes to blend (method table's Monte Carlo runs
              * per albedo): the key would be silently meaningless elsewhere. */

@@ -55,6 +55,11 @@ typedef struct cache_entry {
     uint64_t counted; /* ns_run.serial of the render that last counted it made or reused */
 } cache_entry;
 
+/* render.tables "auto" makes exact tables for this many albedos at a g before it makes that
+ * g's nodes (auto_mode), and remembers as many materials as it needs to count them. */
+#define AUTO_EXACT_BEFORE_NODES 4u
+#define AUTO_EXACT_KEPT 16u
+
 struct ns_table_cache {
     cache_entry *entries;
     uint32_t count, capacity;
@@ -74,6 +79,14 @@ struct ns_table_cache {
      * walked together with another's (accumulate_shared.h, the second three). */
     uint64_t orders_expected_serial;
     uint32_t orders_expected[4], orders_expected_count;
+    /* render.tables "auto": the last materials whose exact tables it chose (auto_mode), a
+     * ring, counted per (g, accumulation). */
+    struct auto_exact {
+        float g, albedo[3];
+        ns_accumulation accumulation;
+        int used;
+    } auto_exact[AUTO_EXACT_KEPT];
+    uint32_t auto_exact_next;
 };
 
 /* ---------------------------------------------------------------------------------------
@@ -790,7 +803,8 @@ static int check_key(const ns_table_key *key, ns_error *err)
     if (key->accumulation != NS_ACCUMULATION_EXACT && key->accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)key->accumulation);
-    if (key->tables != NS_TABLES_EXACT && key->tables != NS_TABLES_INTERPOLATED)
+    if (key->tables != NS_TABLES_EXACT && key->tables != NS_TABLES_INTERPOLATED &&
+        key->tables != NS_TABLES_AUTO)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.tables: %d unknown", (int)key->tables);
     if (key->tables == NS_TABLES_INTERPOLATED && key->source != NS_METHOD_NN)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
@@ -1673,6 +1687,80 @@ static cache_entry *insert_a(ns_context *ctx, cache_entry *e, ns_table_stats *st
     return slot;
 }
 
+/* Whether every node a blend of key's albedos needs is in the cache or in the table folder
+ * (a file of its name: read_table_file checks it when it is read, and makes it again if it
+ * fails). */
+static int nodes_available(ns_context *ctx, const ns_table_key *key)
+{
+    if (!ctx->nn->nets_ok)
+        return 0;
+    const ns_nn_header *h = &ctx->nn->nets[0].h;
+    for (int c = 0; c < 3; c++) {
+        if (key->albedo[c] == 0.0f)
+            continue;
+        double w[4];
+        uint32_t first = node_stencil(h, key->albedo[c], w);
+        for (uint32_t i = first; i < first + 4; i++) {
+            if (find_node(ctx->tables, key->g, key->accumulation, i))
+                continue;
+            char path[4096];
+            table_file_header want = node_header(ctx, key, i);
+            struct stat st;
+            if (!ctx->table_node_dir || !file_path(ctx, &want, path, sizeof path) ||
+                stat(path, &st) != 0)
+                return 0;
+        }
+    }
+    return 1;
+}
+
+/* render.tables "auto" for one key (docs/rendering.md, *Interpolated tables*): exact where
+ * its exact table is cached; interpolated where its blend is, or the nodes it needs exist, or
+ * exact tables were made at its g for AUTO_EXACT_BEFORE_NODES other albedos already; else
+ * exact, remembered. Making a g's nodes costs about four materials' exact tables, after which
+ * every albedo at that g costs tens of milliseconds: renting (exact) until the rent paid
+ * equals the price (the nodes) and then buying never costs more than twice the better of
+ * the two choices made knowing how many albedos will come (the ski-rental rule), and a
+ * material tried at a few albedos is never made to pay for nodes. Several keys of one render
+ * and material come to the same answer: the first one's exact choice is remembered with its
+ * own albedo, which is not another. */
+static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
+{
+    struct ns_table_cache *cache = ctx->tables;
+    ns_table_key exact = *key, blended = *key;
+    exact.tables = NS_TABLES_EXACT;
+    blended.tables = NS_TABLES_INTERPOLATED;
+    if (key->source != NS_METHOD_NN || find_a(cache, &exact))
+        return NS_TABLES_EXACT;
+    if (find_a(cache, &blended))
+        return NS_TABLES_INTERPOLATED;
+    /* The blurred first order alone is made from the unit table either way. */
+    if (!(key->orders & ~NS_TABLE_FIRST_BLURRED))
+        return NS_TABLES_EXACT;
+    if (nodes_available(ctx, key))
+        return NS_TABLES_INTERPOLATED;
+    /* The ring holds each material once (a render asks for several keys of each). */
+    uint32_t others = 0;
+    int known = 0;
+    for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
+        const struct auto_exact *e = &cache->auto_exact[i];
+        if (!e->used || e->g != key->g || e->accumulation != key->accumulation)
+            continue;
+        if (memcmp(e->albedo, key->albedo, sizeof e->albedo) == 0)
+            known = 1;
+        else
+            others++;
+    }
+    if (others >= AUTO_EXACT_BEFORE_NODES)
+        return NS_TABLES_INTERPOLATED;
+    if (known)
+        return NS_TABLES_EXACT;
+    struct auto_exact *slot = &cache->auto_exact[cache->auto_exact_next++ % AUTO_EXACT_KEPT];
+    *slot = (struct auto_exact){.g = key->g, .accumulation = key->accumulation, .used = 1};
+    memcpy(slot->albedo, key->albedo, sizeof slot->albedo);
+    return NS_TABLES_EXACT;
+}
+
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,
                   ns_table_stats *stats, ns_error *err)
 {
@@ -1684,6 +1772,11 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     int status = check_key(key, err);
     if (status)
         return status;
+    ns_table_key resolved = *key;
+    if (key->tables == NS_TABLES_AUTO) {
+        resolved.tables = auto_mode(ctx, key);
+        key = &resolved;
+    }
     struct ns_table_cache *cache = ctx->tables;
     stats->weights_bytes = weights_bytes(key);
     cache_entry *hit = find_a(cache, key);

@@ -142,7 +142,7 @@ static int check_render(const ns_render_settings *r, ns_error *err)
     if (r->components & ~(uint32_t)(NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE |
                                     NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE))
         return BAD("render.components: unknown component bits 0x%x", r->components);
-    if ((unsigned)r->tables > NS_TABLES_INTERPOLATED)
+    if ((unsigned)r->tables > NS_TABLES_AUTO)
         return BAD("render.tables: unknown value %d", (int)r->tables);
     if (r->tables == NS_TABLES_INTERPOLATED && r->method != NS_METHOD_NN)
         return BAD("render.tables: interpolated tables apply to method nn only");

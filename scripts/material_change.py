@@ -1,12 +1,13 @@
 #!/usr/bin/env python3
 """The material change (docs/bench.md, "The material change with interpolated tables"): one
-fresh server per render.tables mode, and seven synchronous renders of one scene whose medium
-changes albedo each time (the preset's mean free path, g and ior kept), as a user moving an
-albedo slider does. The albedos: the base one, then six with 1 - albedo scaled by 1.3, 0.8,
-1.15, 0.9, 1.05 and 0.95 in every channel. Prints each render's reconstruct and accumulate
-stages and its total from Server-Timing, then the medians over the renders after the first.
+fresh server per render.tables mode, and seven (--renders) synchronous renders of one scene
+whose medium changes albedo each time (the preset's mean free path, g and ior kept), as a
+user moving an albedo slider does. The albedos: the base one, then 1 - albedo scaled by 1.3,
+0.8, 1.15, 0.9, 1.05, 0.95, 1.2, 0.85, 1.1, 0.97 and 1.02 in every channel, as many as asked.
+Prints each render's reconstruct and accumulate stages and its total from Server-Timing,
+then the medians over the renders after the first.
 
-    python3 scripts/material_change.py --bin build/nscatter [--tables exact,interpolated]
+    python3 scripts/material_change.py --bin build/nscatter [--tables exact,interpolated,auto]
     python3 scripts/material_change.py --scene scenes/bench/milk.json --material milk \\
         --preset milk --albedo 0.999,0.999,0.999 --size 256 --assets ~/.cache/nscatter/bench/assets
 
@@ -20,7 +21,7 @@ import sys
 
 from bench_sweep import ROOT, request, start
 
-FACTORS = [1.0, 1.3, 0.8, 1.15, 0.9, 1.05, 0.95]
+FACTORS = [1.0, 1.3, 0.8, 1.15, 0.9, 1.05, 0.95, 1.2, 0.85, 1.1, 0.97, 1.02]
 
 
 def stages(header):
@@ -43,10 +44,16 @@ def main():
     ap.add_argument("--albedo", default="0.98,0.962,0.75", help="the preset's albedo: the first render's")
     ap.add_argument("--size", type=int, default=0, help="image width and height (0: the scene's)")
     ap.add_argument("--assets", default=None, help="the server's --assets folder")
-    ap.add_argument("--tables", default="exact,interpolated")
+    ap.add_argument("--tables", default="exact,interpolated",
+                    help="render.tables modes, each on a fresh server: exact, interpolated, auto")
+    ap.add_argument("--renders", type=int, default=7,
+                    help=f"renders per mode, each a new albedo (at most {len(FACTORS)})")
     args = ap.parse_args()
+    if not 2 <= args.renders <= len(FACTORS):
+        ap.error(f"--renders: 2 to {len(FACTORS)}")
     base = [float(x) for x in args.albedo.split(",")]
-    albedos = [[round(min(0.9999, max(0.0, 1 - f * (1 - a))), 6) for a in base] for f in FACTORS]
+    albedos = [[round(min(0.9999, max(0.0, 1 - f * (1 - a))), 6) for a in base]
+               for f in FACTORS[:args.renders]]
     result = {}
     for mode in args.tables.split(","):
         scene = json.load(open(args.scene))

@@ -25,7 +25,10 @@
  *       blurred table's base copied out on the device (gpu_copy_buffer) first: both come out
  *       as they do in place, a blend of both orders the sum of each alone made the usual way
  *       (1e-6), and the blurred table its base plus albedo x angular x the unit table, float
- *       for float.
+ *       for float;
+ *   (h) render.tables "auto": exact for the first four albedos at a g, then a blend (the
+ *       g's nodes made once), an exact table already made kept; with the nodes on disk, a
+ *       blend from the first material.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include <sys/stat.h>
 #include <unistd.h>
@@ -284,6 +287,56 @@ static void test_render(void)
     CHECK_STR_CONTAINS(err.message, "render.tables");
 }
 
+/* render.tables "auto" (ns_tables_get, in a context of its own with no table folder): the
+ * first four albedos at a g get their exact tables; the fifth a blend, its nodes made then;
+ * later albedos blend from them; a material whose exact table is cached keeps it. Which one
+ * a call made shows as a cache hit on the key of that mode, asked for right after (the same
+ * entry: nothing was inserted in between). The paper's accumulation, one
+ * albedo per material (four nodes): its walks are short. */
+static void test_auto(void)
+{
+    ns_context *ctx = NULL;
+    ns_error err = {0};
+    CHECK_INT(ns_context_create(&(ns_context_desc){0}, &ctx, &err), NS_OK);
+    if (!ctx)
+        return;
+    /* 0.95 and 0.96 blend the same four nodes (5-8). */
+    const float albedos[7] = {0.8f, 0.85f, 0.9f, 0.92f, 0.95f, 0.96f, 0.9f};
+    for (int i = 0; i < 7; i++) {
+        float a = albedos[i];
+        /* Exact, four times; interpolated twice; the third material's exact table again. */
+        ns_tables_mode want = i < 4 || i == 6 ? NS_TABLES_EXACT : NS_TABLES_INTERPOLATED;
+        ns_table_key key = key_of(0.45f, a, a, a, NS_TABLES_AUTO);
+        key.accumulation = NS_ACCUMULATION_PAPER;
+        const ns_scatter_tables *t = NULL, *as_mode = NULL;
+        ns_table_stats stats, mode_stats;
+        int status = ns_tables_get(ctx, &key, &t, &stats, &err);
+        CHECK_INT(status, NS_OK);
+        if (status)
+            break;
+        /* The fifth material makes its nodes: a reconstruction of their albedos. */
+        CHECK_INT(stats.reconstructed, i < 5);
+        CHECK_INT(stats.cache_hit, i == 6);
+        key.tables = want;
+        CHECK_INT(ns_tables_get(ctx, &key, &as_mode, &mode_stats, &err), NS_OK);
+        CHECK_INT(mode_stats.cache_hit, 1);
+        CHECK(as_mode == t);
+        if (i < 4) {
+            /* A render asks for several keys of a material (here multiple scattering alone):
+             * one material still, not another albedo towards the four. */
+            ns_table_key multiple = key;
+            multiple.orders = NS_COMPONENT_MULTIPLE;
+            multiple.tables = NS_TABLES_AUTO;
+            CHECK_INT(ns_tables_get(ctx, &multiple, &t, &stats, &err), NS_OK);
+            multiple.tables = NS_TABLES_EXACT;
+            CHECK_INT(ns_tables_get(ctx, &multiple, &as_mode, &mode_stats, &err), NS_OK);
+            CHECK_INT(mode_stats.cache_hit, 1);
+        }
+        printf("  auto, albedo %.2f: %s\n", (double)a, want == NS_TABLES_EXACT ? "exact" : "interpolated");
+    }
+    ns_context_destroy(ctx);
+}
+
 static void test_bad_keys(void)
 {
     const ns_scatter_tables *t = NULL;
@@ -428,6 +481,14 @@ static void test_nodes_on_disk(void)
     CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
     CHECK(inode_of(dir, blur[0]) == blur_inode);
     free(read);
+    /* render.tables "auto" in a new context blends where the nodes are on disk, from the
+     * first material at their g: the same table, no reconstruction. */
+    ns_table_key automatic = key;
+    automatic.tables = NS_TABLES_AUTO;
+    read = from_context_with(dir, 0, &automatic, &reconstructed);
+    CHECK_INT(reconstructed, 0);
+    CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
+    free(read);
 
     /* One byte of one file's data changed, another file cut short: both made again. */
     char path[1100];
@@ -500,6 +561,7 @@ int main(void)
     RUN(test_at_nodes_and_beyond);
     RUN(test_render);
     RUN(test_nodes_on_disk);
+    RUN(test_auto);
     RUN(test_bad_keys);
     ns_context_destroy(test_context());
     free(cell_volume);

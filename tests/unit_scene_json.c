@@ -424,10 +424,25 @@ static void test_defaults_and_grey_colors(void)
         CHECK_INT(s->render.single_levels, NS_DEFAULT_SINGLE_LEVELS);
         CHECK_NEAR(s->render.single_tolerance, NS_DEFAULT_SINGLE_TOLERANCE, 0);
         CHECK_INT(s->render.vrl_beams, NS_VRL_BEAMS_ENDLESS);
-        CHECK_INT(s->render.tables, NS_TABLES_EXACT);
+        CHECK_INT(s->render.tables, NS_TABLES_AUTO); /* no "tables": the parser's default */
         CHECK_INT(s->render.boundary, NS_BOUNDARY_WALKS); /* method nn, no "boundary" */
         CHECK_NEAR(s->lights[1].color[2], 1, 0); /* "radiance": 1 is grey */
         scene_doc_free(doc);
+    }
+}
+
+/* render.tables "auto" is a value of its own, for every method (other methods than nn take
+ * it as exact), where "interpolated" is nn's alone. */
+static void test_tables_auto(void)
+{
+    const char *renders[2] = {"{\"tables\":\"auto\"}", "{\"method\":\"table\",\"tables\":\"auto\"}"};
+    for (int i = 0; i < 2; i++) {
+        char *text = make_scene(NULL, NULL, NULL, NULL, renders[i]);
+        scene_doc *doc = parse_ok(text, NULL);
+        if (doc)
+            CHECK_INT(scene_doc_scene(doc)->render.tables, NS_TABLES_AUTO);
+        scene_doc_free(doc);
+        free(text);
     }
 }
 
@@ -1262,6 +1277,7 @@ int main(void)
     RUN(test_preset_overrides);
     RUN(test_defaults_and_grey_colors);
     RUN(test_integers_and_settings);
+    RUN(test_tables_auto);
     RUN(test_boundary_default);
     RUN(test_normalisation);
     RUN(test_mesh_data_uri_and_asset);

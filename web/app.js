@@ -89,7 +89,7 @@ const SCATTER_NUMBERS = [
 const TABLE_METHODS = ['nn', 'table'];
 const SCATTER_CHOICES = [
   { key: 'accumulation', id: 'accumulation', fallback: () => 'exact' },
-  { key: 'tables', id: 'tables', fallback: () => 'exact' },
+  { key: 'tables', id: 'tables', fallback: () => 'auto' },
   { key: 'vrl_beams', id: 'vrl-beams', fallback: () => 'endless' },
   { key: 'boundary', id: 'boundary', fallback: (method) => (TABLE_METHODS.includes(method) ? 'walks' : 'off') },
 ];

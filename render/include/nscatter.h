@@ -219,8 +219,13 @@ typedef enum { NS_ACCUMULATION_EXACT = 0, NS_ACCUMULATION_PAPER = 1 } ns_accumul
 /* How a material's tables are made (nn only; docs/rendering.md, *Interpolated tables*):
  * exact, the networks evaluated and accumulated at the material's own albedos; or
  * interpolated, blended from tables made once per g at fixed albedos (nodes), so that a new
- * albedo at a g seen before costs a blend instead of a reconstruction and an accumulation. */
-typedef enum { NS_TABLES_EXACT = 0, NS_TABLES_INTERPOLATED = 1 } ns_tables_mode;
+ * albedo at a g seen before costs a blend instead of a reconstruction and an accumulation;
+ * or auto (the scene parser's default): exact where the exact table is cached, interpolated
+ * where the nodes it needs exist (in the context or its table folder), and otherwise exact
+ * for the first four albedos at a g, after which the context makes that g's nodes (about
+ * four exact materials' work) and blends every later albedo. Other methods than nn take
+ * auto as exact. */
+typedef enum { NS_TABLES_EXACT = 0, NS_TABLES_INTERPOLATED = 1, NS_TABLES_AUTO = 2 } ns_tables_mode;
 /* The beams of the table methods' VRLs: endless, as the paper's tables assume, or bounded by
  * the medium (each VRL ends where its beam leaves; the beam's internal reflections are VRLs
  * of their own). docs/scattering.md. */
@@ -332,7 +337,7 @@ typedef struct ns_render_settings {
     uint32_t single_levels;
     float single_tolerance;
     ns_accumulation accumulation; /* 0: NS_ACCUMULATION_EXACT, the default */
-    ns_tables_mode tables;        /* nn only; 0: NS_TABLES_EXACT, the default */
+    ns_tables_mode tables;        /* nn only; 0: NS_TABLES_EXACT (the parser's: AUTO) */
     ns_vrl_beams vrl_beams;       /* nn and table only; 0: NS_VRL_BEAMS_ENDLESS, the default */
     ns_boundary boundary;         /* nn and table only; 0: NS_BOUNDARY_OFF (scene JSON without
                                      the key: walks for nn and table, set by its parser) */
