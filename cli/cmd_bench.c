@@ -1019,14 +1019,20 @@ static uint32_t scene_spp(const bench *b, const bench_scene *s)
 }
 
 /* Method m's scene: its components, spp, seed (0: the scene's), render.vrls (0: the
- * scene's) and --boundary for the methods that gather through tables. */
+ * scene's) and --boundary for the methods that gather through tables. nn's tables are the
+ * exact ones unless the scene file asks otherwise: with the parser's default, "auto", a
+ * scene would blend wherever the cache folder happens to hold its g's albedo nodes, and the
+ * bench would measure what the machine did before. */
 static json_t *method_scene(const bench *b, const bench_scene *s, int m, uint32_t spp, uint32_t seed,
                             uint32_t vrls)
 {
     const bench_method_info *info = &bench_methods[m];
     json_t *scene_json = scene_for(s, info->method, info->components, spp, seed, vrls);
+    json_t *render = json_object_get(scene_json, "render");
     if (b->args.boundary && ns_method_uses_tables(info->method))
-        json_object_set_new(json_object_get(scene_json, "render"), "boundary", json_string(b->args.boundary));
+        json_object_set_new(render, "boundary", json_string(b->args.boundary));
+    if (info->method == NS_METHOD_NN && !json_object_get(render, "tables"))
+        json_object_set_new(render, "tables", json_string("exact"));
     return scene_json;
 }
 

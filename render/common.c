@@ -123,6 +123,14 @@ const char *ns_boundary_name(ns_boundary boundary)
     return boundary == NS_BOUNDARY_OFF ? "off" : boundary == NS_BOUNDARY_WALKS ? "walks" : "unknown";
 }
 
+const char *ns_tables_name(ns_tables_mode tables)
+{
+    return tables == NS_TABLES_EXACT          ? "exact"
+           : tables == NS_TABLES_INTERPOLATED ? "interpolated"
+           : tables == NS_TABLES_AUTO         ? "auto"
+                                              : "unknown";
+}
+
 const char *ns_method_name(ns_method method)
 {
     return (unsigned)method < NS_METHOD_COUNT ? method_names[method] : "unknown";

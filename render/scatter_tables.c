@@ -1721,9 +1721,9 @@ static int nodes_available(ns_context *ctx, const ns_table_key *key)
  * every albedo at that g costs tens of milliseconds: renting (exact) until the rent paid
  * equals the price (the nodes) and then buying never costs more than twice the better of
  * the two choices made knowing how many albedos will come (the ski-rental rule), and a
- * material tried at a few albedos is never made to pay for nodes. Several keys of one render
- * and material come to the same answer: the first one's exact choice is remembered with its
- * own albedo, which is not another. */
+ * material tried at a few albedos is never made to pay for nodes. A material whose exact
+ * tables were chosen keeps that answer for every key it asks for later, whatever nodes have
+ * been made since. */
 static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
 {
     struct ns_table_cache *cache = ctx->tables;
@@ -1737,24 +1737,20 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
     /* The blurred first order alone is made from the unit table either way. */
     if (!(key->orders & ~NS_TABLE_FIRST_BLURRED))
         return NS_TABLES_EXACT;
-    if (nodes_available(ctx, key))
-        return NS_TABLES_INTERPOLATED;
-    /* The ring holds each material once (a render asks for several keys of each). */
+    /* A material whose exact tables were chosen stays exact for every key it asks for later
+     * (other orders, a correction first gathered in a later round), nodes or not. The ring
+     * holds each material once. */
     uint32_t others = 0;
-    int known = 0;
     for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
         const struct auto_exact *e = &cache->auto_exact[i];
         if (!e->used || e->g != key->g || e->accumulation != key->accumulation)
             continue;
         if (memcmp(e->albedo, key->albedo, sizeof e->albedo) == 0)
-            known = 1;
-        else
-            others++;
+            return NS_TABLES_EXACT;
+        others++;
     }
-    if (others >= AUTO_EXACT_BEFORE_NODES)
+    if (others >= AUTO_EXACT_BEFORE_NODES || nodes_available(ctx, key))
         return NS_TABLES_INTERPOLATED;
-    if (known)
-        return NS_TABLES_EXACT;
     struct auto_exact *slot = &cache->auto_exact[cache->auto_exact_next++ % AUTO_EXACT_KEPT];
     *slot = (struct auto_exact){.g = key->g, .accumulation = key->accumulation, .used = 1};
     memcpy(slot->albedo, key->albedo, sizeof slot->albedo);

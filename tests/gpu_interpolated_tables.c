@@ -334,6 +334,21 @@ static void test_auto(void)
         }
         printf("  auto, albedo %.2f: %s\n", (double)a, want == NS_TABLES_EXACT ? "exact" : "interpolated");
     }
+    /* The first material stays exact for a key it had not asked for (double scattering
+     * alone), even once the nodes its albedo needs exist (made here by asking for its blend
+     * of multiple scattering). */
+    ns_table_key later = key_of(0.45f, 0.8f, 0.8f, 0.8f, NS_TABLES_INTERPOLATED);
+    later.accumulation = NS_ACCUMULATION_PAPER;
+    later.orders = NS_COMPONENT_MULTIPLE;
+    const ns_scatter_tables *t = NULL;
+    ns_table_stats stats;
+    CHECK_INT(ns_tables_get(ctx, &later, &t, &stats, &err), NS_OK);
+    later.orders = NS_COMPONENT_DOUBLE;
+    later.tables = NS_TABLES_AUTO;
+    CHECK_INT(ns_tables_get(ctx, &later, &t, &stats, &err), NS_OK);
+    later.tables = NS_TABLES_EXACT;
+    CHECK_INT(ns_tables_get(ctx, &later, &t, &stats, &err), NS_OK);
+    CHECK_INT(stats.cache_hit, 1);
     ns_context_destroy(ctx);
 }
 

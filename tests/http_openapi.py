@@ -311,6 +311,23 @@ def test_version_and_enums_agree_with_sources(t, srv, d):
         field = re.search(r'id="%s"[^>]*data-default="([^"]*)"' % key.replace("_", "-"), page)
         if field:
             t.equal(float(field.group(1)), value, f"the web page's {key} default is NS_DEFAULT_{key.upper()}")
+    # render.tables: the parser's names and its default (an absent key), the document's enum
+    # and default, and the web page's options and fallback.
+    parser = read_source("io/scene_json.c")
+    names = re.search(r"tables_names\[\] = \{([^}]*)\}", parser)
+    tables = re.findall(r'"([a-z]+)"', names.group(1)) if names else []
+    absent = re.search(r"\.tables = NS_TABLES_([A-Z]+)\}", parser)
+    prop = schemas["RenderSettings"]["properties"].get("tables", {})
+    t.equal(prop.get("enum"), tables, "RenderSettings.tables.enum is the parser's tables_names")
+    t.equal(prop.get("default"), absent.group(1).lower() if absent else None,
+            "RenderSettings.tables.default is what the parser gives an absent key")
+    select = re.search(r'<select id="tables">(.*?)</select>', page, re.S)
+    options = re.findall(r'<option value="([a-z]+)"', select.group(1)) if select else []
+    t.equal(sorted(options), sorted(tables), "the web page offers every render.tables mode")
+    fallback = re.search(r"key: 'tables', id: 'tables', fallback: \(\) => '([a-z]+)'",
+                         read_source("web/app.js"))
+    t.equal(fallback.group(1) if fallback else None, prop.get("default"),
+            "the web page shows the tables default when the scene leaves the key out")
     status, _, raw = srv.request("GET", "/v1/materials")
     presets = [m["name"] for m in json.loads(raw)["materials"]]
     t.equal(sorted(schemas["PresetName"]["enum"]), sorted(presets), "PresetName is /v1/materials")

@@ -245,6 +245,8 @@ int ns_method_uses_tables(ns_method method);
 ns_boundary ns_default_boundary(ns_method method);
 /* "off", "walks" ("unknown" outside the enum). */
 const char *ns_boundary_name(ns_boundary boundary);
+/* "exact", "interpolated", "auto" ("unknown" outside the enum). */
+const char *ns_tables_name(ns_tables_mode tables);
 
 #define NS_MAX_VRLS 1000000u
 #define NS_MAX_GATHER_TILE 16u
