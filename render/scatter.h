@@ -330,6 +330,23 @@ typedef struct ns_scatter_inputs {
  * takes the camera samples nearest a pixel's centre by it (render.gather_camera_samples). */
 float ns_from_pixel_centre(const GpuParams *cam, uint32_t width, uint32_t height, uint32_t p, const float x[3]);
 
+/* Adaptive single scattering's noise (scatter_render.c), for the tests too. Per pixel, sums
+ * over its camera samples j of what sample j added (X_j, the sum of its segments'
+ * throughput * L / spp with the exit factor) and of its weight (W_j, the sum of their
+ * throughput / spp): X_j^2, X_j W_j and W_j^2, per channel. */
+typedef struct ns_sample_moments {
+    float xx[3], xw[3], ww[3];
+} ns_sample_moments;
+/* Adds each pixel's samples' moments into moments[pixel]: `segs` holds each pixel's
+ * segments together (any order within), added[i] and weight[i] are segment i's parts of X
+ * and W, and a sample's segments are summed before they are squared. Returns 0, or -1 out of
+ * memory. */
+int ns_sample_moments_add(const GpuSegment *segs, const float (*added)[3],
+                          const float (*weight)[3], uint32_t count, ns_sample_moments *moments);
+/* The variance of Lbar = sum_x / w in channel c from the pixel's moments m, over spp camera
+ * samples (0 where it cannot be told: spp < 2, w 0, not finite). */
+float ns_ratio_variance(float sum_x, float w, const ns_sample_moments *m, int c, uint32_t spp);
+
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
  * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
  * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the

@@ -87,8 +87,9 @@ typedef struct tile_plan {
      * (not clamped), which has a lattice of its own one level coarser (below); else NULL. */
     float (*correction)[3];
     /* The gather's: per pixel, the scattered light it already holds (single scattering, and
-     * the camera batches before this one), per unit of its gather weight, so in Lbar's units;
-     * NULL: none. The error allowed is a fraction of the pixel's whole value (line_agrees). */
+     * the camera batches before this one), per unit of its weight (what compose multiplies
+     * Lbar by), so in Lbar's units; NULL: none. The error allowed is a fraction of the
+     * pixel's whole value (line_agrees). */
     float (*other)[3];
     /* Single scattering's: per pixel, the variance of its Lbar (its Monte Carlo noise, from
      * the spread of its camera samples; interpolated: of the interpolation), for the rule
@@ -659,36 +660,31 @@ static void per_unit_throughput(tile_plan *t, const uint8_t *round, float (*valu
         }
 }
 
-/* Per pixel, sums over its camera samples j of what sample j added (X_j, the sum of its
- * segments' throughput * L / spp with the exit factor) and of its weight (W_j, the sum of
- * their throughput / spp): X_j^2, X_j W_j and W_j^2, per channel. The pixel's Lbar is the
- * ratio sum X / sum W, and these give its variance (pixel_variance). */
-typedef struct sample_moments {
-    float xx[3], xw[3], ww[3];
-} sample_moments;
+/* Lbar = sum X_j / w (w = sum W_j) is a ratio of spp independent camera samples' parts,
+ * whose variance is spp / (spp - 1) sum_j (X_j - Lbar W_j)^2 / w^2. What varies with the
+ * weights alone is not noise: a sample that misses the medium (X = W = 0) or sees it through
+ * other Fresnel factors adds nothing, so a silhouette's or an edge's pixel has the noise of
+ * its estimates only. Where that is not finite (a weight so small that w^2 underflows), or
+ * w is 0, or spp < 2, 0: the tolerance alone decides there. */
+float ns_ratio_variance(float sum_x, float w, const ns_sample_moments *m, int c, uint32_t spp)
+{
+    if (!(w > 0.0f) || spp < 2)
+        return 0.0f;
+    float lbar = sum_x / w;
+    float spread = m->xx[c] - 2.0f * lbar * m->xw[c] + lbar * lbar * m->ww[c];
+    float variance = fmaxf(spread, 0.0f) * ((float)spp / (float)(spp - 1)) / w / w;
+    return isfinite(variance) ? variance : 0.0f;
+}
 
 /* The variance of the marked pixels' Lbar, into t->variance, from their sums (before
- * per_unit_throughput) and their samples' moments: Lbar = sum X_j / w (w = sum W_j, the
- * pixel's gather weight) is a ratio of spp independent samples' parts, whose variance is
- * spp / (spp - 1) sum_j (X_j - Lbar W_j)^2 / w^2. What varies with the weights alone is not
- * noise: a sample that misses the medium (X = W = 0) or sees it through other Fresnel
- * factors adds nothing, so a silhouette's or an edge's pixel has the noise of its estimates
- * only. Where that is not finite (a weight so small that w^2 underflows), 0: the tolerance
- * alone decides there. */
+ * per_unit_throughput), their gather weights and their samples' moments. */
 static void pixel_variance(tile_plan *t, const uint8_t *round, const float (*sum)[3],
-                           const sample_moments *moments, uint32_t spp)
+                           const ns_sample_moments *moments, uint32_t spp)
 {
     for (uint32_t p = 0; p < t->width * t->height; p++)
-        for (int c = 0; c < 3 && round[p]; c++) {
-            float w = t->keys[p].gather_weight[c], variance = 0.0f;
-            if (w > 0.0f) {
-                const sample_moments *m = &moments[p];
-                float lbar = sum[p][c] / w;
-                float spread = m->xx[c] - 2.0f * lbar * m->xw[c] + lbar * lbar * m->ww[c];
-                variance = fmaxf(spread, 0.0f) * ((float)spp / (float)(spp - 1)) / w / w;
-            }
-            t->variance[p][c] = isfinite(variance) ? variance : 0.0f;
-        }
+        for (int c = 0; c < 3 && round[p]; c++)
+            t->variance[p][c] =
+                ns_ratio_variance(sum[p][c], t->keys[p].gather_weight[c], &moments[p], c, spp);
 }
 
 /* The rounds as render_double_multiple runs them, on tiles of one pixel whose keys and
@@ -882,11 +878,8 @@ static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixe
     return n;
 }
 
-/* Adds each pixel's camera samples' moments (sample_moments) into `moments`: `segs` holds
- * each pixel's segments together; added[i] and weight[i] are segment i's parts of X and W.
- * Returns 0, or -1 out of memory. */
-static int add_sample_moments(const GpuSegment *segs, const float (*added)[3],
-                              const float (*weight)[3], uint32_t count, sample_moments *moments)
+int ns_sample_moments_add(const GpuSegment *segs, const float (*added)[3],
+                          const float (*weight)[3], uint32_t count, ns_sample_moments *moments)
 {
     uint64_t *key = malloc(sizeof *key * (count ? count : 1));
     if (!key)
@@ -895,7 +888,7 @@ static int add_sample_moments(const GpuSegment *segs, const float (*added)[3],
         for (end = start; end < count && segs[end].pixel == segs[start].pixel; end++)
             key[end - start] = (uint64_t)segs[end].sample_index << 32 | end;
         qsort(key, end - start, sizeof *key, compare_u64);
-        sample_moments *m = &moments[segs[start].pixel];
+        ns_sample_moments *m = &moments[segs[start].pixel];
         float x[3] = {0, 0, 0}, w[3] = {0, 0, 0};
         for (uint32_t k = 0; k < end - start; k++) {
             uint32_t i = (uint32_t)key[k];
@@ -919,10 +912,10 @@ static int add_sample_moments(const GpuSegment *segs, const float (*added)[3],
 
 /* Single scattering of `count` segments: each one's throughput * L / spp (times its exit
  * factor, top of file) added into sum at its pixel; with `moments` (else NULL), the moments
- * of its camera samples' parts too (add_sample_moments; `segs` holds each pixel's segments
- * together). */
+ * of its camera samples' parts too (ns_sample_moments_add; `segs` holds each pixel's
+ * segments together). */
 static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const GpuSegment *segs,
-                           uint32_t count, float (*sum)[3], sample_moments *moments, ns_error *err)
+                           uint32_t count, float (*sum)[3], ns_sample_moments *moments, ns_error *err)
 {
     if (!count)
         return NS_OK;
@@ -960,8 +953,8 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
                 }
             }
         }
-        if (moments && add_sample_moments(segs, (const float(*)[3])added, (const float(*)[3])weight,
-                                          count, moments))
+        if (moments && ns_sample_moments_add(segs, (const float(*)[3])added, (const float(*)[3])weight,
+                                             count, moments))
             status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
     }
     free(added);
@@ -991,7 +984,7 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     uint32_t *order = malloc(sizeof *order * (pixels ? pixels : 1));
     /* The pixels' noise needs two camera samples or more to show. */
     uint32_t spp = scene->render.spp;
-    sample_moments *moments = spp > 1 ? calloc(pixels ? pixels : 1, sizeof *moments) : NULL;
+    ns_sample_moments *moments = spp > 1 ? calloc(pixels ? pixels : 1, sizeof *moments) : NULL;
     int status = NS_OK;
     if (!round || !list || !order || (spp > 1 && !moments) ||
         tile_plan_build(scene, &in->gs->params, kept, n, PLAN_SINGLE, &plan) ||

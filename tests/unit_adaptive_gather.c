@@ -21,7 +21,13 @@
  *    the cubic's 0.64 v) stands for the pixel: interpolated if and only if
  *    max(0, d^2 - 6 v) / 64 <= (tolerance x the mean)^2 + v - v_interpolated, v the outer
  *    samples' mean variance at most the inner ones' larger (the inner ones' smaller without
- *    outer ones): a large variance on one sample (an outlier's) excuses nothing. */
+ *    outer ones): a large variance on one sample (an outlier's) excuses nothing. *  - the pixels' variance (ns_sample_moments_add, ns_ratio_variance): a camera sample's
+ *    segments are summed before they are squared, whatever their order; the variance of
+ *    Lbar = sum X / sum W is spp / (spp - 1) sum_j (X_j - Lbar W_j)^2 / (sum W)^2, computed
+ *    here in double from the samples themselves; samples whose parts are proportional to
+ *    their weights (a silhouette: some miss, X = W = 0) have none; one sample, or no
+ *    weight, none.
+ */
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -401,6 +407,63 @@ static void test_noise_lets_an_interpolation_no_worse_than_computing_through(voi
     CHECK(counts[2] > counts[1] + W * H / 3);
 }
 
+/* A pixel's camera samples as segments: pixel 1's sample 0 is two segments (X 1 + 2, W 0.5 +
+ * 0.25), its sample 2 one (X 3, W 1), in the order 0, 2, 0 to show that order does not
+ * matter; sample 1 misses the medium (nothing); pixel 0 beside it is one segment. */
+static void test_pixel_variance_is_the_ratio_estimators(void)
+{
+    const uint32_t spp = 3;
+    GpuSegment segs[4];
+    memset(segs, 0, sizeof segs);
+    const uint32_t pixel[4] = {0, 1, 1, 1}, sample[4] = {0, 0, 2, 0};
+    const float added[4][3] = {{5, 5, 5}, {1, 2, 4}, {3, 3, 3}, {2, 2, 2}};
+    const float weight[4][3] = {{1, 1, 1}, {0.5f, 0.5f, 0.5f}, {1, 1, 1}, {0.25f, 0.25f, 0.25f}};
+    for (int i = 0; i < 4; i++) {
+        segs[i].pixel = pixel[i];
+        segs[i].sample_index = sample[i];
+    }
+    ns_sample_moments m[2];
+    memset(m, 0, sizeof m);
+    CHECK_INT(ns_sample_moments_add(segs, added, weight, 4, m), 0);
+    for (int c = 0; c < 3; c++) {
+        /* Pixel 1's samples: X = (1 + 2, 0, 3), W = (0.75, 0, 1) in channel 0, etc. */
+        double x[3] = {added[1][c] + added[3][c], 0, added[2][c]}, w[3] = {0.75, 0, 1};
+        double sum_x = x[0] + x[1] + x[2], sum_w = w[0] + w[1] + w[2], lbar = sum_x / sum_w;
+        double xx = 0, xw = 0, ww = 0, spread = 0;
+        for (int j = 0; j < 3; j++) {
+            xx += x[j] * x[j];
+            xw += x[j] * w[j];
+            ww += w[j] * w[j];
+            spread += (x[j] - lbar * w[j]) * (x[j] - lbar * w[j]);
+        }
+        CHECK_NEAR(m[1].xx[c], xx, 1e-5);
+        CHECK_NEAR(m[1].xw[c], xw, 1e-5);
+        CHECK_NEAR(m[1].ww[c], ww, 1e-6);
+        double want = spp / (spp - 1.0) * spread / (sum_w * sum_w);
+        CHECK(want > 0.1);
+        CHECK_NEAR(ns_ratio_variance((float)sum_x, (float)sum_w, &m[1], c, spp), want, 1e-5 * want);
+        /* Pixel 0: one sample of one segment. */
+        CHECK_NEAR(m[0].xx[c], 25, 0);
+        CHECK_NEAR(m[0].ww[c], 1, 0);
+    }
+    /* Parts proportional to the weights (Lbar 2 in every sample that sees the medium, one
+     * sample missing it): no noise, though the samples' sums differ. */
+    const float prop_added[3][3] = {{1, 1, 1}, {4, 4, 4}, {0.5f, 0.5f, 0.5f}};
+    const float prop_weight[3][3] = {{0.5f, 0.5f, 0.5f}, {2, 2, 2}, {0.25f, 0.25f, 0.25f}};
+    const uint32_t prop_sample[3] = {0, 1, 3};
+    GpuSegment prop[3];
+    memset(prop, 0, sizeof prop);
+    for (int i = 0; i < 3; i++)
+        prop[i].sample_index = prop_sample[i];
+    ns_sample_moments pm;
+    memset(&pm, 0, sizeof pm);
+    CHECK_INT(ns_sample_moments_add(prop, prop_added, prop_weight, 3, &pm), 0);
+    CHECK_NEAR(ns_ratio_variance(5.5f, 2.75f, &pm, 0, 4), 0, 1e-6);
+    /* One camera sample, or no weight: nothing to tell the noise from. */
+    CHECK_NEAR(ns_ratio_variance(5.5f, 2.75f, &m[1], 0, 1), 0, 0);
+    CHECK_NEAR(ns_ratio_variance(0.0f, 0.0f, &m[1], 0, 3), 0, 0);
+}
+
 /* ns_from_pixel_centre against the camera pass's own ray (camera.comp: d = forward +
  * right (2u - 1) tan_x + up (1 - 2v) tan_y for u = (x + jx) / width, v = (y + jy) / height):
  * a point on the ray of pixel (x, y) at jitter (jx, jy) is (jx - 0.5)^2 + (jy - 0.5)^2 pixels^2
@@ -447,6 +510,7 @@ int main(void)
     RUN(test_no_levels_or_no_tolerance_gathers_everything);
     RUN(test_curved_values_are_exact_for_a_parabola);
     RUN(test_noise_lets_an_interpolation_no_worse_than_computing_through);
+    RUN(test_pixel_variance_is_the_ratio_estimators);
     RUN(test_pixel_centre_distance_is_the_jitter);
     return harness_report();
 }
