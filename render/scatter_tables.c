@@ -59,6 +59,9 @@ typedef struct cache_entry {
  * g's nodes (auto_mode), and remembers as many materials as it needs to count them. */
 #define AUTO_EXACT_BEFORE_NODES 4u
 #define AUTO_EXACT_KEPT 16u
+/* ns_context_idle_work makes a g's nodes once auto made exact tables at this many of its
+ * albedos: one albedo is a material tried, a second one is the start of a sweep. */
+#define IDLE_NODES_AFTER 2u
 
 struct ns_table_cache {
     cache_entry *entries;
@@ -1687,9 +1690,19 @@ static cache_entry *insert_a(ns_context *ctx, cache_entry *e, ns_table_stats *st
     return slot;
 }
 
-/* Whether every node a blend of key's albedos needs is in the cache or in the table folder
- * (a file of its name: read_table_file checks it when it is read, and makes it again if it
- * fails). */
+/* Whether node i of key's g and accumulation is in the cache or in the table folder (a file
+ * of its name: read_table_file checks it when it is read, and makes it again if it fails). */
+static int node_exists(ns_context *ctx, const ns_table_key *key, uint32_t i)
+{
+    if (find_node(ctx->tables, key->g, key->accumulation, i))
+        return 1;
+    char path[4096];
+    table_file_header want = node_header(ctx, key, i);
+    struct stat st;
+    return ctx->table_node_dir && file_path(ctx, &want, path, sizeof path) && stat(path, &st) == 0;
+}
+
+/* Whether every node a blend of key's albedos needs exists. */
 static int nodes_available(ns_context *ctx, const ns_table_key *key)
 {
     if (!ctx->nn->nets_ok)
@@ -1700,16 +1713,9 @@ static int nodes_available(ns_context *ctx, const ns_table_key *key)
             continue;
         double w[4];
         uint32_t first = node_stencil(h, key->albedo[c], w);
-        for (uint32_t i = first; i < first + 4; i++) {
-            if (find_node(ctx->tables, key->g, key->accumulation, i))
-                continue;
-            char path[4096];
-            table_file_header want = node_header(ctx, key, i);
-            struct stat st;
-            if (!ctx->table_node_dir || !file_path(ctx, &want, path, sizeof path) ||
-                stat(path, &st) != 0)
+        for (uint32_t i = first; i < first + 4; i++)
+            if (!node_exists(ctx, key, i))
                 return 0;
-        }
     }
     return 1;
 }
@@ -1755,6 +1761,80 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
     *slot = (struct auto_exact){.g = key->g, .accumulation = key->accumulation, .used = 1};
     memcpy(slot->albedo, key->albedo, sizeof slot->albedo);
     return NS_TABLES_EXACT;
+}
+
+/* The nodes ns_context_idle_work makes next, into missing (at most NS_TABLE_ALBEDO_NODES),
+ * and the key they belong to: for the (g, accumulation) of the material auto chose exact
+ * tables for most recently, among those with IDLE_NODES_AFTER or more such materials and a
+ * node still to make, the nodes from one below the lowest that their albedos' blends read
+ * to one above the highest. */
+static uint32_t idle_missing_nodes(ns_context *ctx, ns_table_key *key, uint32_t *missing)
+{
+    struct ns_table_cache *cache = ctx->tables;
+    const ns_nn_header *h = &ctx->nn->nets[0].h;
+    /* Newest first (the counter's wrap keeps the ring's order: 2^32 is a multiple of its
+     * size). */
+    for (uint32_t back = 1; back <= AUTO_EXACT_KEPT; back++) {
+        const struct auto_exact *e = &cache->auto_exact[(cache->auto_exact_next - back) % AUTO_EXACT_KEPT];
+        if (!e->used)
+            continue;
+        uint32_t materials = 0, lo = ALBEDO_NODE_INTERVALS, hi = 0;
+        for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
+            const struct auto_exact *f = &cache->auto_exact[i];
+            if (!f->used || f->g != e->g || f->accumulation != e->accumulation)
+                continue;
+            materials++;
+            for (int c = 0; c < 3; c++) {
+                if (f->albedo[c] == 0.0f)
+                    continue;
+                double w[4];
+                uint32_t first = node_stencil(h, f->albedo[c], w);
+                lo = first < lo ? first : lo;
+                hi = first + 3 > hi ? first + 3 : hi;
+            }
+        }
+        if (materials < IDLE_NODES_AFTER || lo > hi)
+            continue;
+        lo = lo > 0 ? lo - 1 : 0;
+        hi = hi < ALBEDO_NODE_INTERVALS ? hi + 1 : ALBEDO_NODE_INTERVALS;
+        *key = (ns_table_key){.source = NS_METHOD_NN,
+                              .g = e->g,
+                              .accumulation = e->accumulation,
+                              .tables = NS_TABLES_INTERPOLATED};
+        uint32_t n = 0;
+        for (uint32_t i = lo; i <= hi; i++)
+            if (!node_exists(ctx, key, i))
+                missing[n++] = i;
+        if (n)
+            return n;
+    }
+    return 0;
+}
+
+int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_error *err)
+{
+    *made = 0;
+    if (!ctx->nn->nets_ok)
+        return NS_OK; /* auto chose no nodes, and needs none */
+    pthread_mutex_lock(&ctx->lock);
+    ns_table_key key;
+    uint32_t missing[NS_TABLE_ALBEDO_NODES];
+    uint32_t n = idle_missing_nodes(ctx, &key, missing);
+    int status = NS_OK;
+    if (n) {
+        n = n < 3 ? n : 3; /* one batch: the three channels of one walk */
+        ns_render_control control = {.cancel = cancel};
+        ns_run_begin(ctx, &control, 0);
+        ns_table_stats stats = {0};
+        status = ns_run_check(ctx, err);
+        if (!status)
+            status = build_nodes(ctx, &key, missing, n, &stats, err);
+        status = ns_run_end(ctx, status, err);
+        if (!status)
+            *made = n;
+    }
+    pthread_mutex_unlock(&ctx->lock);
+    return status;
 }
 
 int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tables **out,

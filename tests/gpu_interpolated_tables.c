@@ -352,6 +352,54 @@ static void test_auto(void)
     ns_context_destroy(ctx);
 }
 
+/* ns_context_idle_work: nothing to do for one material; after a second albedo at its g, the
+ * nodes both blends read (and one on each side), three per call, then nothing; a cancelled
+ * call keeps nothing; a third albedo between them then blends without a reconstruction, where
+ * auto alone would have made its exact tables (two materials, not four). */
+static void test_idle_work(void)
+{
+    ns_context *ctx = NULL;
+    ns_error err = {0};
+    CHECK_INT(ns_context_create(&(ns_context_desc){0}, &ctx, &err), NS_OK);
+    if (!ctx)
+        return;
+    uint32_t made = 99;
+    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+    CHECK_INT(made, 0); /* nothing rendered yet */
+    ns_table_stats stats;
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.9f, 0.9f, 0.9f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
+    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+    CHECK_INT(made, 0); /* one material: not a sweep */
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.92f, 0.92f, 0.92f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
+
+    uint64_t bytes = ns_context_table_cache_bytes(ctx);
+    const int cancel = 1;
+    CHECK_INT(ns_context_idle_work(ctx, &cancel, &made, &err), NS_ERR_CANCELLED);
+    CHECK_STR_CONTAINS(err.message, "cancelled");
+    CHECK_INT(made, 0);
+    CHECK(ns_context_table_cache_bytes(ctx) == bytes); /* a cancelled call keeps nothing */
+
+    /* The nodes both albedos' blends read, widened by one: at least the four of one blend
+     * and two more; three per call but the last. */
+    uint32_t total = 0, calls = 0;
+    for (; calls < NS_TABLE_ALBEDO_NODES; calls++) {
+        CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+        if (made == 0)
+            break;
+        CHECK(made <= 3); /* three nodes a call at most */
+        total += made;
+    }
+    printf("  idle work: %u nodes in %u calls\n", total, calls);
+    CHECK(total >= 6 && total < NS_TABLE_ALBEDO_NODES); /* the explored albedos' nodes, not all */
+    CHECK_INT(calls, (total + 2) / 3);
+    CHECK(ns_context_table_cache_bytes(ctx) > bytes); /* the nodes are kept */
+
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.91f, 0.91f, 0.91f, NS_TABLES_AUTO), NS_TABLES_INTERPOLATED,
+                         &stats), 1);
+    CHECK_INT(stats.reconstructed, 0);
+    ns_context_destroy(ctx);
+}
+
 static void test_bad_keys(void)
 {
     const ns_scatter_tables *t = NULL;
@@ -577,6 +625,7 @@ int main(void)
     RUN(test_render);
     RUN(test_nodes_on_disk);
     RUN(test_auto);
+    RUN(test_idle_work);
     RUN(test_bad_keys);
     ns_context_destroy(test_context());
     free(cell_volume);

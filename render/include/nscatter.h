@@ -446,6 +446,20 @@ uint32_t ns_context_live_buffers(const ns_context *ctx);
  * that alone. Safe to call while a render runs; 0 for NULL. */
 uint64_t ns_context_table_cache_bytes(const ns_context *ctx);
 
+/* Work a context can do while it has nothing to render (nscatter serve's worker asks when
+ * its queue has been empty for a moment): it makes the albedo nodes of a g whose albedos are
+ * being explored, so that the next albedo there blends its tables in tens of milliseconds
+ * instead of making exact ones (docs/rendering.md, *Nodes made between renders*). A g
+ * qualifies once render.tables "auto" has made exact tables at two or more of its albedos
+ * (per accumulation mode); its nodes are those the blends of those albedos read, and one
+ * more on each side, made three at a time (one call: about one material's exact tables),
+ * kept in the table cache and the table folder. The g whose materials were asked for last
+ * comes first. *made: the nodes made by this call, 0 when nothing is left to make (the
+ * caller can stop asking until the next render). cancel: as in ns_render_control (a render
+ * that arrives sets it); the call stops at its next device submission and returns
+ * NS_ERR_CANCELLED, keeping nothing half made. Takes the context's lock, as a render does. */
+int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_error *err);
+
 /* ---------------------------------------------------------------------------------------
  * Rendering.
  * ------------------------------------------------------------------------------------- */
