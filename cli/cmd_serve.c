@@ -26,6 +26,9 @@ static void serve_usage(FILE *out)
             "  --job-bytes BYTES keep at most this much of their results (default 1073741824);\n"
             "                    the oldest finished job goes first\n"
             "  --access-log on|off  one JSON line per request on stderr (default on)\n"
+            "  --idle-work on|off   between renders, make the albedo nodes of a material whose\n"
+            "                    albedo is being swept, so its next albedos blend their\n"
+            "                    tables at once (default on; docs/http.md)\n"
             "  --max-pixels N, --max-spp N, --max-vrls N, --max-triangles N\n"
             "                    this service's limits of a render, below the hard ones\n"
             "  --instance NAME   prefix of job ids (NAME-<32 hex>), so a load balancer can\n"
@@ -120,6 +123,12 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, NS_MAX_DEADLINE_MS, &n))
                 return 2;
             a->max_deadline_ms = (uint32_t)n;
+        } else if (!strcmp(arg, "--idle-work")) {
+            if (strcmp(value, "on") && strcmp(value, "off")) {
+                fprintf(stderr, "nscatter serve: --idle-work on|off, got '%s'\n", value);
+                return 2;
+            }
+            a->no_idle_work = !strcmp(value, "off");
         } else if (!strcmp(arg, "--access-log")) {
             if (strcmp(value, "on") && strcmp(value, "off")) {
                 fprintf(stderr, "nscatter serve: --access-log on|off, got '%s'\n", value);

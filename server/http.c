@@ -2058,7 +2058,8 @@ int http_start(const http_serve_desc *desc, http_service **out, unsigned *port_o
                                                        .max_bytes = srv->job_bytes,
                                                        .asset_dir = args.asset_dir,
                                                        .max_deadline_ms = args.max_deadline_ms,
-                                                       .instance = args.instance},
+                                                       .instance = args.instance,
+                                                       .no_idle_work = args.no_idle_work},
                                      &srv->jobs, &srv->ctx_err)) {
         fprintf(stderr, "nscatter serve: %s\n", srv->ctx_err.message);
         ns_context_destroy(srv->ctx);

@@ -2,6 +2,7 @@
 #include "jobs.h"
 
 #include <math.h>
+#include <errno.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -95,6 +96,14 @@ struct job_store {
     int closing;        /* job_store_shutdown ran: nothing new is admitted */
     int streams_closed; /* event streams end */
     double average_ms; /* moving average of a job's duration, for Retry-After */
+    /* Work between jobs (ns_context_idle_work), once the queue has been empty for
+     * JOB_IDLE_AFTER_MS: */
+    int idle_work;      /* on (serve --idle-work) */
+    int idle_due;       /* a job ended since idle work last found nothing to do */
+    int idle_cancel;    /* set (atomically) when a job arrives: the idle call stops */
+    int idle_running;   /* a call is running now */
+    uint64_t idle_nodes, idle_stopped;
+    double idle_seconds;
 };
 
 static const char *const state_names[JOB_STATE_COUNT] = {"queued", "running", "done", "failed",
@@ -598,13 +607,49 @@ static void finish_locked(job_store *store, job *j, job_state state)
     pthread_cond_broadcast(&store->changed);
 }
 
+/* One call of idle work, the lock held on entry and on return (released during the call). A
+ * job admitted meanwhile sets idle_cancel, so the call stops at its next device submission
+ * and the job waits at most that long. */
+static void idle_step_locked(job_store *store)
+{
+    __atomic_store_n(&store->idle_cancel, 0, __ATOMIC_RELEASE);
+    store->idle_running = 1;
+    pthread_mutex_unlock(&store->lock);
+    double t0 = ns_now_ms();
+    uint32_t made = 0;
+    ns_error err = {0};
+    int rc = ns_context_idle_work(store->ctx, &store->idle_cancel, &made, &err);
+    double ms = ns_now_ms() - t0;
+    pthread_mutex_lock(&store->lock);
+    store->idle_running = 0;
+    store->idle_seconds += ms / 1000.0;
+    store->idle_nodes += made;
+    if (rc == NS_ERR_CANCELLED) {
+        store->idle_stopped++;
+    } else if (rc) {
+        /* Not the next job's business: it makes its own tables if it needs them. */
+        fprintf(stderr, "nscatter serve: work between renders stopped: %s\n", err.message);
+        store->idle_due = 0;
+    } else if (!made) {
+        store->idle_due = 0;
+    }
+}
+
 static void *worker_main(void *arg)
 {
     job_store *store = arg;
     pthread_mutex_lock(&store->lock);
     for (;;) {
-        while (!store->head && !store->stopping)
-            pthread_cond_wait(&store->work, &store->lock);
+        while (!store->head && !store->stopping) {
+            if (!store->idle_due || store->closing) {
+                pthread_cond_wait(&store->work, &store->lock);
+                continue;
+            }
+            struct timespec until = deadline_in(JOB_IDLE_AFTER_MS);
+            if (pthread_cond_timedwait(&store->work, &store->lock, &until) == ETIMEDOUT &&
+                !store->head && !store->stopping && !store->closing)
+                idle_step_locked(store);
+        }
         job *j = store->head;
         if (!j)
             break;
@@ -629,6 +674,7 @@ static void *worker_main(void *arg)
         pthread_mutex_lock(&store->lock);
         store->average_ms = store->average_ms > 0 ? 0.7 * store->average_ms + 0.3 * took : took;
         finish_locked(store, j, j->result.state);
+        store->idle_due = store->idle_work;
         store->admitted--;
         purge_locked(store);
         unref_locked(j); /* the queue's reference */
@@ -694,6 +740,7 @@ static int admit(job_store *store, job *j, uint32_t *retry_after_s)
         store->head = j;
     store->tail = j;
     store->admitted++;
+    __atomic_store_n(&store->idle_cancel, 1, __ATOMIC_RELEASE);
     add_event(store, j, "state",
               json_pack("{s:s, s:I}", "state", "queued", "queue_position",
                         (json_int_t)queue_position(store, j)),
@@ -1100,6 +1147,7 @@ int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err)
     store->max_bytes = desc->max_bytes ? desc->max_bytes : JOB_DEFAULT_STORE_BYTES;
     store->asset_dir = desc->asset_dir;
     store->max_deadline_ms = desc->max_deadline_ms;
+    store->idle_work = !desc->no_idle_work;
     snprintf(store->instance, sizeof store->instance, "%s", desc->instance ? desc->instance : "");
     pthread_mutex_init(&store->lock, NULL);
     pthread_cond_init(&store->work, NULL);
@@ -1123,6 +1171,7 @@ void job_store_shutdown(job_store *store)
         return;
     pthread_mutex_lock(&store->lock);
     store->closing = 1;
+    __atomic_store_n(&store->idle_cancel, 1, __ATOMIC_RELEASE); /* a drain waits for no idle work */
     /* At most `capacity` jobs are unfinished, and `nscatter serve --queue` is at most 1024. */
     job *cancel[1024];
     uint32_t n = 0;
@@ -1151,6 +1200,10 @@ void job_store_count(job_store *store, job_store_counts *out)
     for (uint32_t i = 0; i < store->table_count; i++)
         out->by_state[store->table[i]->state]++;
     out->bytes = store->bytes;
+    out->idle_running = store->idle_running;
+    out->idle_nodes = store->idle_nodes;
+    out->idle_stopped = store->idle_stopped;
+    out->idle_seconds = store->idle_seconds;
     pthread_mutex_unlock(&store->lock);
 }
 

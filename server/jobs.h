@@ -55,7 +55,13 @@ typedef struct job_store_desc {
     uint32_t max_deadline_ms;
     /* 1..JOB_INSTANCE_MAX of [a-z0-9], the prefix of every id; NULL: ids without one. */
     const char *instance;
+    /* 1: no work between jobs. Otherwise, once the queue has been empty for
+     * JOB_IDLE_AFTER_MS after a job, the worker calls ns_context_idle_work until it finds
+     * nothing to do, and a job that arrives stops the call at its next device submission. */
+    int no_idle_work;
 } job_store_desc;
+
+#define JOB_IDLE_AFTER_MS 1000.0
 
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);
 /* When the service begins to stop: admits nothing new, cancels every asynchronous job
@@ -128,6 +134,10 @@ typedef struct job_store_counts {
     uint32_t admitted;
     uint32_t by_state[JOB_STATE_COUNT];
     uint64_t bytes;
+    /* Work between jobs: running now (0/1), nodes made, calls a job stopped, seconds spent. */
+    int idle_running;
+    uint64_t idle_nodes, idle_stopped;
+    double idle_seconds;
 } job_store_counts;
 void job_store_count(job_store *store, job_store_counts *out);
 

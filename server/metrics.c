@@ -428,6 +428,17 @@ static void service_families(text_buf *b, const metrics_scrape_desc *d)
            "Bytes of results kept at most (--job-bytes).", (double)d->job_store_capacity_bytes);
     single(b, "nscatter_event_streams", "gauge", "Server-Sent Event streams open now.",
            d->event_streams);
+    single(b, "nscatter_idle_work_running", "gauge",
+           "1 while the worker makes tables between renders (serve --idle-work), else 0.",
+           counts.idle_running);
+    single(b, "nscatter_idle_nodes_made_total", "counter",
+           "Albedo nodes of render.tables made between renders, for a material being swept.",
+           (double)counts.idle_nodes);
+    single(b, "nscatter_idle_work_stopped_total", "counter",
+           "Calls of work between renders that an arriving render stopped.",
+           (double)counts.idle_stopped);
+    single(b, "nscatter_idle_work_seconds_total", "counter",
+           "Seconds the worker spent on work between renders.", counts.idle_seconds);
 }
 
 static void device_families(text_buf *b, const metrics_scrape_desc *d)

@@ -7,6 +7,8 @@ settings get a 422 naming the field."""
 import json
 import os
 import sys
+import tempfile
+import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from nstest_http import Checks, Server, png_decode_rgb8, problem, server_timing, small_scene  # noqa: E402
@@ -65,6 +67,71 @@ def test_sweep_returns_to_cached_material(t, srv):
                 f"a new material is reconstructed and accumulated: {renders[0]}")
         t.check("reconstruct" not in renders[2] and "accumulate" not in renders[2],
                 f"coming back to it costs nothing: {renders[2]}")
+
+
+def metric(srv, name):
+    status, _, body = srv.request("GET", "/metrics")
+    if status != 200:
+        return None
+    for line in body.decode().splitlines():
+        if line.startswith(name + " "):
+            return float(line.split()[1])
+    return None
+
+
+def wait_for_idle_work_to_end(srv, deadline_s=300):
+    """The nodes made between renders once the worker has none left to make: two scrapes
+    2.5 s apart (more than the 1 s of quiet before each call) both between calls, with the
+    same count."""
+    deadline = time.monotonic() + deadline_s
+    last = None
+    while time.monotonic() < deadline:
+        now = (metric(srv, "nscatter_idle_work_running"), metric(srv, "nscatter_idle_nodes_made_total"))
+        if now[0] == 0 and now == last:
+            return now[1]
+        last = now
+        time.sleep(2.5)
+    return None
+
+
+def test_idle_work_makes_the_swept_albedos_nodes(t):
+    """A user sweeping one material's albedo: after the second albedo the server, left idle,
+    makes the nodes those albedos blend from, so a third albedo between them renders without
+    a reconstruction (auto alone would make exact tables until the fifth); a render that
+    arrives while it works stops it and is answered as usual."""
+    def sweep_render(srv, a):
+        scene = scatter_scene((a, a, a), components=("multiple",), tables="auto")
+        status, headers, body = srv.render(scene)
+        t.equal(status, 200, f"albedo {a} ({body[:200]!r})")
+        return server_timing(headers.get("server-timing", ""))
+
+    with tempfile.TemporaryDirectory(prefix="nscatter-idle-") as cache, \
+            Server(idle_work=True, env={"NSCATTER_CACHE_DIR": cache}) as srv:
+        for a in (0.9, 0.92):
+            timing = sweep_render(srv, a)
+            t.check("reconstruct" in timing, f"albedo {a}: exact tables made ({sorted(timing)})")
+        made = wait_for_idle_work_to_end(srv)
+        t.check(made is not None and made >= 6, f"nodes made between renders: {made}")
+        timing = sweep_render(srv, 0.91)
+        t.check("reconstruct" not in timing, f"the third albedo blends the nodes: {sorted(timing)}")
+        # A new range: auto makes exact tables again, and the idle work then has more nodes
+        # to make (three per call). A render sent while a call runs stops it.
+        sweep_render(srv, 0.6)
+        stopped_before = metric(srv, "nscatter_idle_work_stopped_total")
+        stopped = stopped_before
+        for _ in range(3):
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and metric(srv, "nscatter_idle_work_running") != 1:
+                time.sleep(0.05)
+            sweep_render(srv, 0.9)  # cached: it only waits for the call to stop
+            stopped = metric(srv, "nscatter_idle_work_stopped_total")
+            if stopped is not None and stopped > stopped_before:
+                break
+        t.check(stopped is not None and stopped_before is not None and stopped > stopped_before,
+                f"an arriving render stops the idle work ({stopped_before} -> {stopped})")
+        t.check(wait_for_idle_work_to_end(srv) is not None, "the idle work resumes and ends")
+        code = srv.stop()
+        t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")
 
 
 def expect_422(t, srv, scene, pointer, what):
@@ -215,6 +282,7 @@ def main():
         t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")
         if t.failed:
             print(srv.log_text()[-4000:], file=sys.stderr)
+    t.run(test_idle_work_makes_the_swept_albedos_nodes)
     return t.report()
 
 

@@ -88,19 +88,27 @@ def sanitizer_env():
 
 
 class Server:
-    """`nscatter serve --port 0` on 127.0.0.1; the real port is read from its first line."""
+    """`nscatter serve --port 0` on 127.0.0.1; the real port is read from its first line.
 
-    def __init__(self, *extra_args):
+    Without idle work unless asked (idle_work=True): between a test's requests the worker
+    would otherwise make albedo nodes, which takes the CPU from timed jobs and writes node
+    files to the shared test cache folder, where they change what render.tables "auto"
+    chooses in later tests. http_scatter tests the idle work itself. env: added to the
+    server's environment."""
+
+    def __init__(self, *extra_args, idle_work=False, env=None):
         binary = os.environ.get("NSCATTER_BIN")
         if not binary:
             raise RuntimeError("NSCATTER_BIN is not set (run through ctest)")
         self.log = tempfile.NamedTemporaryFile(prefix="nscatter-serve-", suffix=".log",
                                                delete=False)
         self.binary = os.path.realpath(binary)
-        env = sanitizer_env()
+        server_env = sanitizer_env()
+        server_env.update(env or {})
+        idle = [] if idle_work else ["--idle-work", "off"]
         self.proc = subprocess.Popen(
-            [binary, "serve", "--host", "127.0.0.1", "--port", "0", *extra_args],
-            stdout=subprocess.PIPE, stderr=self.log, stdin=subprocess.DEVNULL, env=env)
+            [binary, "serve", "--host", "127.0.0.1", "--port", "0", *idle, *extra_args],
+            stdout=subprocess.PIPE, stderr=self.log, stdin=subprocess.DEVNULL, env=server_env)
         self.port = self._read_port()
 
     def _read_port(self):

@@ -33,6 +33,7 @@ typedef struct http_serve_desc {
     uint32_t request_timeout_s; /* a request's headers and body must arrive within it: 30 */
     uint32_t idle_timeout_s;    /* a connection silent this long is closed: 60 */
     uint32_t max_connections;   /* open at once (one thread each): 512 */
+    int no_idle_work;           /* 1: no work between renders (job_store_desc) */
     /* 1: make no render context (no Vulkan at all): the service answers as it does when its
      * device could not be made (/readyz, renders and sweeps 503 no_device; validation, info
      * and the rest as usual). For the HTTP fuzz target (tests/fuzz_http.c), which needs the
