@@ -5,7 +5,10 @@ whose medium changes albedo each time (the preset's mean free path, g and ior ke
 user moving an albedo slider does. The albedos: the base one, then 1 - albedo scaled by 1.3,
 0.8, 1.15, 0.9, 1.05, 0.95, 1.2, 0.85, 1.1, 0.97 and 1.02 in every channel, as many as asked.
 Prints each render's reconstruct and accumulate stages and its total from Server-Timing,
-then the medians over the renders after the first.
+its wall time as the client saw it (a render that stopped the server's work between renders
+waited for it), then the medians over the renders after the first. --pause S waits S
+seconds between renders, as a user looking at each image does, which is when the server
+works between renders (--idle-work, nscatter serve's default on).
 
     python3 scripts/material_change.py --bin build/nscatter [--tables exact,interpolated,auto]
     python3 scripts/material_change.py --scene scenes/bench/milk.json --material milk \\
@@ -18,6 +21,7 @@ import json
 import os
 import statistics
 import sys
+import time
 
 from bench_sweep import ROOT, request, start
 
@@ -48,6 +52,9 @@ def main():
                     help="render.tables modes, each on a fresh server: exact, interpolated, auto")
     ap.add_argument("--renders", type=int, default=7,
                     help=f"renders per mode, each a new albedo (at most {len(FACTORS)})")
+    ap.add_argument("--pause", type=float, default=0.0, help="seconds between renders")
+    ap.add_argument("--idle-work", choices=("on", "off"), default="on",
+                    help="the server's --idle-work")
     args = ap.parse_args()
     if not 2 <= args.renders <= len(FACTORS):
         ap.error(f"--renders: 2 to {len(FACTORS)}")
@@ -60,12 +67,16 @@ def main():
         scene.setdefault("render", {})["tables"] = mode
         if args.size:
             scene["camera"]["width"] = scene["camera"]["height"] = args.size
-        proc, host, port = start(args.bin, ("--assets", args.assets) if args.assets else ())
+        serve_args = ["--idle-work", args.idle_work] + (["--assets", args.assets] if args.assets else [])
+        proc, host, port = start(args.bin, serve_args)
         rows = []
         try:
-            for albedo in albedos:
+            for i, albedo in enumerate(albedos):
+                if i:
+                    time.sleep(args.pause)
                 scene["materials"][args.material] = {"type": "medium", "preset": args.preset,
                                                      "albedo": albedo}
+                t0 = time.monotonic()
                 status, h, data = request(host, port, "POST", "/v1/renders", json.dumps(scene),
                                           {"Content-Type": "application/json"})
                 if status != 200:
@@ -73,16 +84,19 @@ def main():
                 st = stages(h.get("server-timing", ""))
                 tables = st.get("reconstruct", 0.0) + st.get("accumulate", 0.0)
                 total = sum(v for k, v in st.items() if k not in ("parse", "queue"))
-                rows.append((tables, total))
+                wall = 1000 * (time.monotonic() - t0)
+                rows.append((tables, total, wall))
                 print(f"{mode:12s} albedo {albedo}: reconstruct {st.get('reconstruct', 0):6.0f} ms, "
-                      f"accumulate {st.get('accumulate', 0):6.0f} ms, render {total:6.0f} ms", flush=True)
+                      f"accumulate {st.get('accumulate', 0):6.0f} ms, render {total:6.0f} ms, "
+                      f"queue {st.get('queue', 0):5.0f} ms, wall {wall:6.0f} ms", flush=True)
         finally:
             proc.terminate()
             proc.wait(timeout=60)
         later = rows[1:]
         result[mode] = {"first_tables_ms": rows[0][0],
                         "tables_ms_median": statistics.median(r[0] for r in later),
-                        "render_ms_median": statistics.median(r[1] for r in later)}
+                        "render_ms_median": statistics.median(r[1] for r in later),
+                        "wall_ms_median": statistics.median(r[2] for r in later)}
         print(f"{mode}: first material's tables {rows[0][0]:.0f} ms; later materials: tables "
               f"median {result[mode]['tables_ms_median']:.0f} ms, render median "
               f"{result[mode]['render_ms_median']:.0f} ms")
