@@ -123,18 +123,12 @@ static int parse_serve_args(int argc, char **argv, http_serve_desc *a, int *done
             if (cli_parse_uint("nscatter serve", arg, value, 1, NS_MAX_DEADLINE_MS, &n))
                 return 2;
             a->max_deadline_ms = (uint32_t)n;
-        } else if (!strcmp(arg, "--idle-work")) {
+        } else if (!strcmp(arg, "--idle-work") || !strcmp(arg, "--access-log")) {
             if (strcmp(value, "on") && strcmp(value, "off")) {
-                fprintf(stderr, "nscatter serve: --idle-work on|off, got '%s'\n", value);
+                fprintf(stderr, "nscatter serve: %s on|off, got '%s'\n", arg, value);
                 return 2;
             }
-            a->no_idle_work = !strcmp(value, "off");
-        } else if (!strcmp(arg, "--access-log")) {
-            if (strcmp(value, "on") && strcmp(value, "off")) {
-                fprintf(stderr, "nscatter serve: --access-log on|off, got '%s'\n", value);
-                return 2;
-            }
-            a->no_access_log = !strcmp(value, "off");
+            *(!strcmp(arg, "--idle-work") ? &a->no_idle_work : &a->no_access_log) = !strcmp(value, "off");
         } else if (!strcmp(arg, "--request-timeout") || !strcmp(arg, "--idle-timeout")) {
             if (cli_parse_uint("nscatter serve", arg, value, 1, 3600, &n))
                 return 2;

@@ -62,6 +62,8 @@ typedef struct cache_entry {
 /* ns_context_idle_work makes a g's nodes once auto made exact tables at this many of its
  * albedos: one albedo is a material tried, a second one is the start of a sweep. */
 #define IDLE_NODES_AFTER 2u
+/* Nodes are made this many at a time: the channels of one walk (build_nodes). */
+#define NODES_PER_BATCH 3u
 
 struct ns_table_cache {
     cache_entry *entries;
@@ -1322,7 +1324,7 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
 {
     const ns_nn_header *h = &ctx->nn->nets[0].h;
     size_t cells = NS_TABLE_CELLS;
-    cache_entry e[3];
+    cache_entry e[NODES_PER_BATCH];
     uint32_t made = 0;
     int status = NS_OK;
     for (; made < n && !status; made++) {
@@ -1363,13 +1365,17 @@ static int build_nodes(ns_context *ctx, const ns_table_key *key, const uint32_t 
         ns_scatter_tables_free(ctx, &a);
     }
     free(j);
+    /* Made whole, they are kept; but a run asked to stop since the last walk does not wait
+     * for the files (hashing and writing 21 MB each): the next process makes them again. */
+    const int *stop = ctx->dev.cancel;
+    int save = ctx->table_node_dir && !(stop && __atomic_load_n(stop, __ATOMIC_ACQUIRE));
     for (uint32_t c = 0; c < made; c++) {
         if (status) {
             free(e[c].j[0]);
             free(e[c].j[1]);
             continue;
         }
-        if (ctx->table_node_dir)
+        if (save)
             save_node(ctx, key, &e[c]);
         status = insert_j_entry(ctx, &e[c], stats, err);
     }
@@ -1443,13 +1449,14 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
         stats->accumulate_ms += ns_stage_end(ctx, &stage);
         stats->accumulated = 1;
     }
-    uint32_t batches = (n_missing + 2) / 3;
+    uint32_t batches = (n_missing + NODES_PER_BATCH - 1) / NODES_PER_BATCH;
     for (uint32_t b = 0; b < batches && !status; b++) {
-        uint32_t n = n_missing - 3 * b < 3 ? n_missing - 3 * b : 3;
+        uint32_t done = NODES_PER_BATCH * b;
+        uint32_t n = n_missing - done < NODES_PER_BATCH ? n_missing - done : NODES_PER_BATCH;
         ns_span span = ns_progress_push(ctx, (double)b / batches, (double)(b + 1) / batches);
         status = ns_run_check(ctx, err);
         if (!status)
-            status = build_nodes(ctx, key, missing + 3 * b, n, stats, err);
+            status = build_nodes(ctx, key, missing + done, n, stats, err);
         ns_progress_pop(ctx, span);
     }
     if (status)
@@ -1730,6 +1737,37 @@ static int nodes_available(ns_context *ctx, const ns_table_key *key)
  * material tried at a few albedos is never made to pay for nodes. A material whose exact
  * tables were chosen keeps that answer for every key it asks for later, whatever nodes have
  * been made since. */
+/* The materials at (g, accumulation) whose exact tables auto chose (the ring): how many, and
+ * whether `albedo` (NULL: none) is one of them. With nodes non-NULL also the nodes their
+ * blends read, nodes[0]..nodes[1] (nodes[0] > nodes[1]: none). */
+static uint32_t auto_exact_materials(ns_context *ctx, float g, ns_accumulation accumulation,
+                                     const float *albedo, int *listed, uint32_t nodes[2])
+{
+    const struct ns_table_cache *cache = ctx->tables;
+    uint32_t count = 0;
+    *listed = 0;
+    if (nodes) {
+        nodes[0] = ALBEDO_NODE_INTERVALS;
+        nodes[1] = 0;
+    }
+    for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
+        const struct auto_exact *e = &cache->auto_exact[i];
+        if (!e->used || e->g != g || e->accumulation != accumulation)
+            continue;
+        count++;
+        *listed |= albedo && memcmp(e->albedo, albedo, sizeof e->albedo) == 0;
+        for (int c = 0; nodes && c < 3; c++) {
+            if (e->albedo[c] == 0.0f)
+                continue;
+            double w[4];
+            uint32_t first = node_stencil(&ctx->nn->nets[0].h, e->albedo[c], w);
+            nodes[0] = first < nodes[0] ? first : nodes[0];
+            nodes[1] = first + 3 > nodes[1] ? first + 3 : nodes[1];
+        }
+    }
+    return count;
+}
+
 static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
 {
     struct ns_table_cache *cache = ctx->tables;
@@ -1746,15 +1784,10 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
     /* A material whose exact tables were chosen stays exact for every key it asks for later
      * (other orders, a correction first gathered in a later round), nodes or not. The ring
      * holds each material once. */
-    uint32_t others = 0;
-    for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
-        const struct auto_exact *e = &cache->auto_exact[i];
-        if (!e->used || e->g != key->g || e->accumulation != key->accumulation)
-            continue;
-        if (memcmp(e->albedo, key->albedo, sizeof e->albedo) == 0)
-            return NS_TABLES_EXACT;
-        others++;
-    }
+    int listed;
+    uint32_t others = auto_exact_materials(ctx, key->g, key->accumulation, key->albedo, &listed, NULL);
+    if (listed)
+        return NS_TABLES_EXACT;
     if (others >= AUTO_EXACT_BEFORE_NODES || nodes_available(ctx, key))
         return NS_TABLES_INTERPOLATED;
     struct auto_exact *slot = &cache->auto_exact[cache->auto_exact_next++ % AUTO_EXACT_KEPT];
@@ -1771,28 +1804,16 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
 static uint32_t idle_missing_nodes(ns_context *ctx, ns_table_key *key, uint32_t *missing)
 {
     struct ns_table_cache *cache = ctx->tables;
-    const ns_nn_header *h = &ctx->nn->nets[0].h;
     /* Newest first (the counter's wrap keeps the ring's order: 2^32 is a multiple of its
      * size). */
     for (uint32_t back = 1; back <= AUTO_EXACT_KEPT; back++) {
         const struct auto_exact *e = &cache->auto_exact[(cache->auto_exact_next - back) % AUTO_EXACT_KEPT];
         if (!e->used)
             continue;
-        uint32_t materials = 0, lo = ALBEDO_NODE_INTERVALS, hi = 0;
-        for (uint32_t i = 0; i < AUTO_EXACT_KEPT; i++) {
-            const struct auto_exact *f = &cache->auto_exact[i];
-            if (!f->used || f->g != e->g || f->accumulation != e->accumulation)
-                continue;
-            materials++;
-            for (int c = 0; c < 3; c++) {
-                if (f->albedo[c] == 0.0f)
-                    continue;
-                double w[4];
-                uint32_t first = node_stencil(h, f->albedo[c], w);
-                lo = first < lo ? first : lo;
-                hi = first + 3 > hi ? first + 3 : hi;
-            }
-        }
+        int listed;
+        uint32_t nodes[2];
+        uint32_t materials = auto_exact_materials(ctx, e->g, e->accumulation, NULL, &listed, nodes);
+        uint32_t lo = nodes[0], hi = nodes[1];
         if (materials < IDLE_NODES_AFTER || lo > hi)
             continue;
         lo = lo > 0 ? lo - 1 : 0;
@@ -1821,8 +1842,12 @@ int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_
     uint32_t missing[NS_TABLE_ALBEDO_NODES];
     uint32_t n = idle_missing_nodes(ctx, &key, missing);
     int status = NS_OK;
+    n = n < NODES_PER_BATCH ? n : NODES_PER_BATCH;
+    /* Work nobody asked for never displaces tables someone did: without room for the batch
+     * in the cache, nothing (the caller stops asking until its next render). */
+    if (n && ctx->tables->bytes + n * j_entry_bytes > ctx->table_cache_bytes)
+        n = 0;
     if (n) {
-        n = n < 3 ? n : 3; /* one batch: the three channels of one walk */
         ns_render_control control = {.cancel = cancel};
         ns_run_begin(ctx, &control, 0);
         ns_table_stats stats = {0};

@@ -102,6 +102,7 @@ struct job_store {
     int idle_due;       /* a job ended since idle work last found nothing to do */
     int idle_cancel;    /* set (atomically) when a job arrives: the idle call stops */
     int idle_running;   /* a call is running now */
+    double idle_quiet_ms; /* the quiet before a call: doubled after a stopped one */
     uint64_t idle_nodes, idle_stopped;
     double idle_seconds;
 };
@@ -232,15 +233,21 @@ static void announce_positions_locked(job_store *store)
                   0);
 }
 
-/* An absolute CLOCK_REALTIME time ms from now, for pthread_cond_timedwait. */
-static struct timespec deadline_in(double ms)
+/* An absolute time ms from now on `clock`, for pthread_cond_timedwait. */
+static struct timespec time_in(clockid_t clock, double ms)
 {
     struct timespec t;
-    clock_gettime(CLOCK_REALTIME, &t);
+    clock_gettime(clock, &t);
     double ns = (double)t.tv_nsec + ms * 1e6;
     t.tv_sec += (time_t)(ns / 1e9);
     t.tv_nsec = (long)fmod(ns, 1e9);
     return t;
+}
+
+/* For waits on `changed` (the default clock). */
+static struct timespec deadline_in(double ms)
+{
+    return time_in(CLOCK_REALTIME, ms);
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -624,6 +631,12 @@ static void idle_step_locked(job_store *store)
     store->idle_running = 0;
     store->idle_seconds += ms / 1000.0;
     store->idle_nodes += made;
+    /* A client that sends its renders a little less often than a call lasts would stop
+     * every call, wait for each, and never get the nodes: after each stopped call the quiet
+     * asked for doubles, up to JOB_IDLE_AFTER_MAX_MS; a call that ends resets it. */
+    store->idle_quiet_ms = rc == NS_ERR_CANCELLED
+                               ? fmin(2.0 * store->idle_quiet_ms, JOB_IDLE_AFTER_MAX_MS)
+                               : JOB_IDLE_AFTER_MS;
     if (rc == NS_ERR_CANCELLED) {
         store->idle_stopped++;
     } else if (rc) {
@@ -645,7 +658,7 @@ static void *worker_main(void *arg)
                 pthread_cond_wait(&store->work, &store->lock);
                 continue;
             }
-            struct timespec until = deadline_in(JOB_IDLE_AFTER_MS);
+            struct timespec until = time_in(CLOCK_MONOTONIC, store->idle_quiet_ms);
             if (pthread_cond_timedwait(&store->work, &store->lock, &until) == ETIMEDOUT &&
                 !store->head && !store->stopping && !store->closing)
                 idle_step_locked(store);
@@ -1148,9 +1161,15 @@ int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err)
     store->asset_dir = desc->asset_dir;
     store->max_deadline_ms = desc->max_deadline_ms;
     store->idle_work = !desc->no_idle_work;
+    store->idle_quiet_ms = JOB_IDLE_AFTER_MS;
     snprintf(store->instance, sizeof store->instance, "%s", desc->instance ? desc->instance : "");
     pthread_mutex_init(&store->lock, NULL);
-    pthread_cond_init(&store->work, NULL);
+    /* The worker's quiet before idle work is timed on the monotonic clock. */
+    pthread_condattr_t monotonic;
+    pthread_condattr_init(&monotonic);
+    pthread_condattr_setclock(&monotonic, CLOCK_MONOTONIC);
+    pthread_cond_init(&store->work, &monotonic);
+    pthread_condattr_destroy(&monotonic);
     /* Waits on `changed` use CLOCK_REALTIME deadlines (the default clock). */
     pthread_cond_init(&store->changed, NULL);
     if (pthread_create(&store->worker, NULL, worker_main, store) != 0) {
@@ -1200,6 +1219,7 @@ void job_store_count(job_store *store, job_store_counts *out)
     for (uint32_t i = 0; i < store->table_count; i++)
         out->by_state[store->table[i]->state]++;
     out->bytes = store->bytes;
+    out->idle_pending = store->idle_due && !store->closing;
     out->idle_running = store->idle_running;
     out->idle_nodes = store->idle_nodes;
     out->idle_stopped = store->idle_stopped;

@@ -57,11 +57,13 @@ typedef struct job_store_desc {
     const char *instance;
     /* 1: no work between jobs. Otherwise, once the queue has been empty for
      * JOB_IDLE_AFTER_MS after a job, the worker calls ns_context_idle_work until it finds
-     * nothing to do, and a job that arrives stops the call at its next device submission. */
+     * nothing to do, and a job that arrives stops the call at its next device submission;
+     * after a stopped call the quiet asked for doubles, up to JOB_IDLE_AFTER_MAX_MS. */
     int no_idle_work;
 } job_store_desc;
 
 #define JOB_IDLE_AFTER_MS 1000.0
+#define JOB_IDLE_AFTER_MAX_MS 16000.0
 
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);
 /* When the service begins to stop: admits nothing new, cancels every asynchronous job
@@ -134,8 +136,10 @@ typedef struct job_store_counts {
     uint32_t admitted;
     uint32_t by_state[JOB_STATE_COUNT];
     uint64_t bytes;
-    /* Work between jobs: running now (0/1), nodes made, calls a job stopped, seconds spent. */
-    int idle_running;
+    /* Work between jobs: still to look for (0/1: the worker will call at its next quiet
+     * moment, or is calling), running now (0/1), nodes made, calls a job stopped, seconds
+     * spent. */
+    int idle_pending, idle_running;
     uint64_t idle_nodes, idle_stopped;
     double idle_seconds;
 } job_store_counts;

@@ -428,6 +428,10 @@ static void service_families(text_buf *b, const metrics_scrape_desc *d)
            "Bytes of results kept at most (--job-bytes).", (double)d->job_store_capacity_bytes);
     single(b, "nscatter_event_streams", "gauge", "Server-Sent Event streams open now.",
            d->event_streams);
+    single(b, "nscatter_idle_work_pending", "gauge",
+           "1 while work between renders may still come (after a render, until a call finds "
+           "none), else 0.",
+           counts.idle_pending);
     single(b, "nscatter_idle_work_running", "gauge",
            "1 while the worker makes tables between renders (serve --idle-work), else 0.",
            counts.idle_running);

@@ -56,10 +56,13 @@ async function step(name, body) {
 
 // ------------------------------------------------------------------------------------------
 // The server: started on port 0, the real port read from its first stdout line; a queue of
-// one render so that the test can fill it and see a real 503.
+// one render so that the test can fill it and see a real 503. Without work between renders
+// (as tests/nstest_http.py's servers): albedo nodes it made would go to the shared test
+// cache folder, where the GPU tests running beside it read them.
 // ------------------------------------------------------------------------------------------
 function startServer() {
-  const child = spawn(binary, ['serve', '--host', '127.0.0.1', '--port', '0', '--queue', '1'], {
+  const child = spawn(binary, ['serve', '--host', '127.0.0.1', '--port', '0', '--queue', '1',
+    '--idle-work', 'off'], {
     stdio: ['ignore', 'pipe', 'pipe'],
   });
   let stderr = '';

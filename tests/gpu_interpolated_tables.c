@@ -28,8 +28,10 @@
  *       for float;
  *   (h) render.tables "auto": exact for the first four albedos at a g, then a blend (the
  *       g's nodes made once), an exact table already made kept; with the nodes on disk, a
- *       blend from the first material.
+ *       blend from the first material; between renders (ns_context_idle_work), the nodes of
+ *       a g whose albedos auto is exploring.
  * Validation layers on (NSCATTER_VALIDATION=1). */
+#include <pthread.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -352,54 +354,6 @@ static void test_auto(void)
     ns_context_destroy(ctx);
 }
 
-/* ns_context_idle_work: nothing to do for one material; after a second albedo at its g, the
- * nodes both blends read (and one on each side), three per call, then nothing; a cancelled
- * call keeps nothing; a third albedo between them then blends without a reconstruction, where
- * auto alone would have made its exact tables (two materials, not four). */
-static void test_idle_work(void)
-{
-    ns_context *ctx = NULL;
-    ns_error err = {0};
-    CHECK_INT(ns_context_create(&(ns_context_desc){0}, &ctx, &err), NS_OK);
-    if (!ctx)
-        return;
-    uint32_t made = 99;
-    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
-    CHECK_INT(made, 0); /* nothing rendered yet */
-    ns_table_stats stats;
-    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.9f, 0.9f, 0.9f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
-    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
-    CHECK_INT(made, 0); /* one material: not a sweep */
-    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.92f, 0.92f, 0.92f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
-
-    uint64_t bytes = ns_context_table_cache_bytes(ctx);
-    const int cancel = 1;
-    CHECK_INT(ns_context_idle_work(ctx, &cancel, &made, &err), NS_ERR_CANCELLED);
-    CHECK_STR_CONTAINS(err.message, "cancelled");
-    CHECK_INT(made, 0);
-    CHECK(ns_context_table_cache_bytes(ctx) == bytes); /* a cancelled call keeps nothing */
-
-    /* The nodes both albedos' blends read, widened by one: at least the four of one blend
-     * and two more; three per call but the last. */
-    uint32_t total = 0, calls = 0;
-    for (; calls < NS_TABLE_ALBEDO_NODES; calls++) {
-        CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
-        if (made == 0)
-            break;
-        CHECK(made <= 3); /* three nodes a call at most */
-        total += made;
-    }
-    printf("  idle work: %u nodes in %u calls\n", total, calls);
-    CHECK(total >= 6 && total < NS_TABLE_ALBEDO_NODES); /* the explored albedos' nodes, not all */
-    CHECK_INT(calls, (total + 2) / 3);
-    CHECK(ns_context_table_cache_bytes(ctx) > bytes); /* the nodes are kept */
-
-    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.91f, 0.91f, 0.91f, NS_TABLES_AUTO), NS_TABLES_INTERPOLATED,
-                         &stats), 1);
-    CHECK_INT(stats.reconstructed, 0);
-    ns_context_destroy(ctx);
-}
-
 static void test_bad_keys(void)
 {
     const ns_scatter_tables *t = NULL;
@@ -599,6 +553,84 @@ static void test_nodes_on_disk(void)
     free(read);
     free(made);
     char command[600];
+    snprintf(command, sizeof command, "rm -rf %s", dir);
+    CHECK_INT(system(command), 0);
+}
+
+/* Sets *flag once the context has device buffers of a call in flight (its build has begun),
+ * or after 20 s: a render that arrives while the idle work walks. */
+typedef struct {
+    ns_context *ctx;
+    int flag;
+} stop_when_busy;
+
+static void *stop_when_busy_main(void *arg)
+{
+    stop_when_busy *s = arg;
+    for (int ms = 0; ms < 20000 && ns_context_live_buffers(s->ctx) == 0; ms++)
+        usleep(1000);
+    __atomic_store_n(&s->flag, 1, __ATOMIC_RELEASE);
+    return NULL;
+}
+
+/* ns_context_idle_work, in a context of its own with a table folder: nothing to do before
+ * any material and after one; after a second albedo at its g, a call stopped while it walks
+ * returns NS_ERR_CANCELLED and keeps nothing, in the cache or the folder; then calls of at
+ * most three nodes until one makes none: the nodes both blends read and one more on each
+ * side; a third albedo between them is then a blend without a reconstruction, where auto
+ * alone would have made its exact tables (two materials, not four). */
+static void test_idle_work(void)
+{
+    char dir[] = "/tmp/nscatter_idle_XXXXXX";
+    CHECK(mkdtemp(dir) != NULL);
+    ns_context *ctx = NULL;
+    ns_error err = {0};
+    CHECK_INT(ns_context_create(&(ns_context_desc){.table_node_dir = dir}, &ctx, &err), NS_OK);
+    if (!ctx)
+        return;
+    uint32_t made = 99;
+    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+    CHECK_INT(made, 0); /* nothing rendered yet */
+    ns_table_stats stats;
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.9f, 0.9f, 0.9f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
+    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+    CHECK_INT(made, 0); /* one material: not a sweep */
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.92f, 0.92f, 0.92f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
+
+    uint64_t bytes = ns_context_table_cache_bytes(ctx);
+    stop_when_busy stop = {.ctx = ctx};
+    pthread_t thread;
+    CHECK_INT(pthread_create(&thread, NULL, stop_when_busy_main, &stop), 0);
+    CHECK_INT(ns_context_idle_work(ctx, &stop.flag, &made, &err), NS_ERR_CANCELLED);
+    pthread_join(thread, NULL);
+    CHECK_STR_CONTAINS(err.message, "cancelled");
+    CHECK_INT(made, 0);
+    CHECK(ns_context_table_cache_bytes(ctx) == bytes);
+    char names[NS_TABLE_ALBEDO_NODES + 1][512];
+    CHECK_INT(list_files(dir, "node_", names, NS_TABLE_ALBEDO_NODES + 1), 0);
+    CHECK_INT(ns_context_live_buffers(ctx), 0);
+
+    /* The nodes sit at u = -ln(1 - albedo) = 0.4934 i (albedo_max 0.999, 14 intervals):
+     * 0.9 blends nodes 3-6, 0.92 nodes 4-7, so nodes 2-8 are made, in three calls. */
+    uint32_t total = 0, calls = 0;
+    for (; calls < NS_TABLE_ALBEDO_NODES; calls++) {
+        CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+        if (made == 0)
+            break;
+        CHECK(made <= 3);
+        total += made;
+    }
+    printf("  idle work: %u nodes in %u calls\n", total, calls);
+    CHECK_INT(total, 7);
+    CHECK_INT(calls, 3);
+    CHECK(ns_context_table_cache_bytes(ctx) > bytes); /* kept in the cache */
+    CHECK_INT(list_files(dir, "node_", names, NS_TABLE_ALBEDO_NODES + 1), 7); /* and the folder */
+
+    CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.91f, 0.91f, 0.91f, NS_TABLES_AUTO), NS_TABLES_INTERPOLATED,
+                         &stats), 1);
+    CHECK_INT(stats.reconstructed, 0);
+    ns_context_destroy(ctx);
+    char command[100];
     snprintf(command, sizeof command, "rm -rf %s", dir);
     CHECK_INT(system(command), 0);
 }

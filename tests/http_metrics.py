@@ -61,6 +61,7 @@ FAMILIES = {
     "nscatter_table_cache_hits": "counter",
     "nscatter_table_cache_misses": "counter",
     "nscatter_table_cache_bytes": "gauge",
+    "nscatter_idle_work_pending": "gauge",
     "nscatter_idle_work_running": "gauge",
     "nscatter_idle_nodes_made": "counter",
     "nscatter_idle_work_stopped": "counter",

@@ -80,17 +80,12 @@ def metric(srv, name):
 
 
 def wait_for_idle_work_to_end(srv, deadline_s=300):
-    """The nodes made between renders once the worker has none left to make: two scrapes
-    2.5 s apart (more than the 1 s of quiet before each call) both between calls, with the
-    same count."""
+    """The nodes made between renders once the worker has no more to look for."""
     deadline = time.monotonic() + deadline_s
-    last = None
     while time.monotonic() < deadline:
-        now = (metric(srv, "nscatter_idle_work_running"), metric(srv, "nscatter_idle_nodes_made_total"))
-        if now[0] == 0 and now == last:
-            return now[1]
-        last = now
-        time.sleep(2.5)
+        if metric(srv, "nscatter_idle_work_pending") == 0:
+            return metric(srv, "nscatter_idle_nodes_made_total")
+        time.sleep(0.5)
     return None
 
 
@@ -98,11 +93,12 @@ def test_idle_work_makes_the_swept_albedos_nodes(t):
     """A user sweeping one material's albedo: after the second albedo the server, left idle,
     makes the nodes those albedos blend from, so a third albedo between them renders without
     a reconstruction (auto alone would make exact tables until the fifth); a render that
-    arrives while it works stops it and is answered as usual."""
-    def sweep_render(srv, a):
+    arrives while it works stops it and is answered as usual, and the work resumes."""
+    def sweep_render(srv, a, g=0.8):
         scene = scatter_scene((a, a, a), components=("multiple",), tables="auto")
+        scene["materials"]["wax"]["g"] = g
         status, headers, body = srv.render(scene)
-        t.equal(status, 200, f"albedo {a} ({body[:200]!r})")
+        t.equal(status, 200, f"g {g} albedo {a} ({body[:200]!r})")
         return server_timing(headers.get("server-timing", ""))
 
     with tempfile.TemporaryDirectory(prefix="nscatter-idle-") as cache, \
@@ -114,22 +110,32 @@ def test_idle_work_makes_the_swept_albedos_nodes(t):
         t.check(made is not None and made >= 6, f"nodes made between renders: {made}")
         timing = sweep_render(srv, 0.91)
         t.check("reconstruct" not in timing, f"the third albedo blends the nodes: {sorted(timing)}")
-        # A new range: auto makes exact tables again, and the idle work then has more nodes
-        # to make (three per call). A render sent while a call runs stops it.
-        sweep_render(srv, 0.6)
+
+        # Another g, two albedos far apart: eleven nodes to make, three per call. A render
+        # sent while a call runs (a cached material: it waits only for the call to stop).
+        for a in (0.3, 0.97):
+            sweep_render(srv, a, g=0.5)
         stopped_before = metric(srv, "nscatter_idle_work_stopped_total")
         stopped = stopped_before
-        for _ in range(3):
+        for _ in range(4):
             deadline = time.monotonic() + 60
-            while time.monotonic() < deadline and metric(srv, "nscatter_idle_work_running") != 1:
-                time.sleep(0.05)
-            sweep_render(srv, 0.9)  # cached: it only waits for the call to stop
+            running = 0
+            while time.monotonic() < deadline and metric(srv, "nscatter_idle_work_pending") == 1:
+                running = metric(srv, "nscatter_idle_work_running")
+                if running == 1:
+                    break
+                time.sleep(0.02)
+            if running != 1:
+                break  # no call left to stop
+            sweep_render(srv, 0.3, g=0.5)
             stopped = metric(srv, "nscatter_idle_work_stopped_total")
             if stopped is not None and stopped > stopped_before:
                 break
         t.check(stopped is not None and stopped_before is not None and stopped > stopped_before,
                 f"an arriving render stops the idle work ({stopped_before} -> {stopped})")
-        t.check(wait_for_idle_work_to_end(srv) is not None, "the idle work resumes and ends")
+        after = wait_for_idle_work_to_end(srv)
+        t.check(after is not None and made is not None and after >= made + 6,
+                f"the work resumes and makes the second g's nodes: {made} -> {after}")
         code = srv.stop()
         t.check(srv.exited_cleanly(code), f"clean exit on SIGTERM (status {code})")
 

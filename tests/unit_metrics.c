@@ -293,6 +293,7 @@ static void test_fixed_families(void)
         {"nscatter_table_cache_misses_total", "counter"},
         {"nscatter_bvh_reused_total", "counter"},
         {"nscatter_table_cache_bytes", "gauge"},
+        {"nscatter_idle_work_pending", "gauge"},
         {"nscatter_idle_work_running", "gauge"},
         {"nscatter_idle_nodes_made_total", "counter"},
         {"nscatter_idle_work_stopped_total", "counter"},

@@ -453,11 +453,13 @@ uint64_t ns_context_table_cache_bytes(const ns_context *ctx);
  * qualifies once render.tables "auto" has made exact tables at two or more of its albedos
  * (per accumulation mode); its nodes are those the blends of those albedos read, and one
  * more on each side, made three at a time (one call: about one material's exact tables),
- * kept in the table cache and the table folder. The g whose materials were asked for last
- * comes first. *made: the nodes made by this call, 0 when nothing is left to make (the
- * caller can stop asking until the next render). cancel: as in ns_render_control (a render
- * that arrives sets it); the call stops at its next device submission and returns
- * NS_ERR_CANCELLED, keeping nothing half made. Takes the context's lock, as a render does. */
+ * kept in the table cache and the table folder. First the g of the material that auto last
+ * made exact tables for. Only where the cache has room for them without evicting anything.
+ * *made: the nodes made by this call, 0 when nothing is left to make (the caller can stop
+ * asking until the next render). cancel: as in ns_render_control (a render that arrives
+ * sets it); the call stops at its next device submission and returns NS_ERR_CANCELLED,
+ * keeping nothing half made (set after its last submission, the nodes are kept but not
+ * written to the table folder). Takes the context's lock, as a render does. */
 int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_error *err);
 
 /* ---------------------------------------------------------------------------------------
