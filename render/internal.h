@@ -35,6 +35,9 @@ typedef struct ns_run {
     const char *last;                 /* the stage that ended last */
     char where[64];                   /* where a cancellation was noticed: "during pt_pass" */
     uint32_t deadline_ms;             /* render.deadline_ms, for its message */
+    /* Work that nobody waits for (ns_context_idle_work): long submissions are split, so that
+     * a cancellation stops it sooner, at the cost of a little time. */
+    int preemptible;
 } ns_run;
 
 typedef struct ns_stage {

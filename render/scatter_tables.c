@@ -242,15 +242,21 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], int 
         push[i] = (GpuAccumulatePush){
             .first_cell = first, .cell_count = n < CELLS_PER_DISPATCH ? n : CELLS_PER_DISPATCH};
     }
-    return gpu_dispatch_many(
-        &ctx->dev,
-        &(gpu_dispatch_desc){.pipeline = pipeline,
-                             .buffers = bound,
-                             .buffer_count = B_COUNT,
-                             .groups = {CELLS_PER_DISPATCH / NS_ACCUMULATE_GROUP, 1, 1},
-                             .push = push,
-                             .dispatch_count = dispatches},
-        err);
+    /* One submission, or one per dispatch where a stop must come soon (the whole walk is
+     * about a second on lavapipe, one dispatch a sixth of it). */
+    uint32_t per_submission = ctx->run.preemptible ? 1 : dispatches;
+    for (uint32_t i = 0; i < dispatches && !status; i += per_submission)
+        status = gpu_dispatch_many(
+            &ctx->dev,
+            &(gpu_dispatch_desc){.pipeline = pipeline,
+                                 .buffers = bound,
+                                 .buffer_count = B_COUNT,
+                                 .groups = {CELLS_PER_DISPATCH / NS_ACCUMULATE_GROUP, 1, 1},
+                                 .push = push + i,
+                                 .dispatch_count = dispatches - i < per_submission ? dispatches - i
+                                                                                   : per_submission},
+            err);
+    return status;
 }
 
 static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
@@ -1850,6 +1856,7 @@ int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_
     if (n) {
         ns_render_control control = {.cancel = cancel};
         ns_run_begin(ctx, &control, 0);
+        ctx->run.preemptible = 1;
         ns_table_stats stats = {0};
         status = ns_run_check(ctx, err);
         if (!status)
