@@ -1733,16 +1733,6 @@ static int nodes_available(ns_context *ctx, const ns_table_key *key)
     return 1;
 }
 
-/* render.tables "auto" for one key (docs/rendering.md, *Interpolated tables*): exact where
- * its exact table is cached; interpolated where its blend is, or the nodes it needs exist, or
- * exact tables were made at its g for AUTO_EXACT_BEFORE_NODES other albedos already; else
- * exact, remembered. Making a g's nodes costs about four materials' exact tables, after which
- * every albedo at that g costs tens of milliseconds: renting (exact) until the rent paid
- * equals the price (the nodes) and then buying never costs more than twice the better of
- * the two choices made knowing how many albedos will come (the ski-rental rule), and a
- * material tried at a few albedos is never made to pay for nodes. A material whose exact
- * tables were chosen keeps that answer for every key it asks for later, whatever nodes have
- * been made since. */
 /* The materials at (g, accumulation) whose exact tables auto chose (the ring): how many, and
  * whether `albedo` (NULL: none) is one of them. With nodes non-NULL also the nodes their
  * blends read, nodes[0]..nodes[1] (nodes[0] > nodes[1]: none). */
@@ -1774,6 +1764,16 @@ static uint32_t auto_exact_materials(ns_context *ctx, float g, ns_accumulation a
     return count;
 }
 
+/* render.tables "auto" for one key (docs/rendering.md, *Interpolated tables*): exact where
+ * its exact table is cached; interpolated where its blend is, or the nodes it needs exist, or
+ * exact tables were made at its g for AUTO_EXACT_BEFORE_NODES other albedos already; else
+ * exact, remembered. Making a g's nodes costs about four materials' exact tables, after which
+ * every albedo at that g costs tens of milliseconds: renting (exact) until the rent paid
+ * equals the price (the nodes) and then buying never costs more than twice the better of
+ * the two choices made knowing how many albedos will come (the ski-rental rule), and a
+ * material tried at a few albedos is never made to pay for nodes. A material whose exact
+ * tables were chosen keeps that answer for every key it asks for later, whatever nodes have
+ * been made since. */
 static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
 {
     struct ns_table_cache *cache = ctx->tables;

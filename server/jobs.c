@@ -1,8 +1,8 @@
 /* jobs.c — the job store, its queue and its render worker (jobs.h). */
 #include "jobs.h"
 
-#include <math.h>
 #include <errno.h>
+#include <math.h>
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
