@@ -311,19 +311,31 @@ def test_version_and_enums_agree_with_sources(t, srv, d):
         field = re.search(r'id="%s"[^>]*data-default="([^"]*)"' % key.replace("_", "-"), page)
         if field:
             t.equal(float(field.group(1)), value, f"the web page's {key} default is NS_DEFAULT_{key.upper()}")
-    # render.tables: the parser's names and its default (an absent key), the document's enum
-    # and default, and the web page's options and fallback.
+    # The settings named by strings: the parser's names (its arrays in io/scene_json.c), the
+    # document's enums, and the web page's options (a select per setting; none for a mesh's
+    # normals) say the same.
     parser = read_source("io/scene_json.c")
-    names = re.search(r"tables_names\[\] = \{([^}]*)\}", parser)
-    tables = re.findall(r'"([a-z]+)"', names.group(1)) if names else []
+    named = {}
+    for array, schema, key, select_id in (("tables_names", "RenderSettings", "tables", "tables"),
+                                          ("accumulation_names", "RenderSettings", "accumulation",
+                                           "accumulation"),
+                                          ("beam_names", "RenderSettings", "vrl_beams", "vrl-beams"),
+                                          ("boundary_names", "RenderSettings", "boundary", "boundary"),
+                                          ("shading_names", "Mesh", "normals", None)):
+        names = re.search(r"%s\[\] = \{([^}]*)\}" % array, parser)
+        named[key] = re.findall(r'"([a-z]+)"', names.group(1)) if names else []
+        t.check(named[key], f"the parser's {array} read from io/scene_json.c")
+        prop = schemas[schema]["properties"].get(key, {})
+        t.equal(prop.get("enum"), named[key], f"{schema}.{key}.enum is the parser's {array}")
+        if select_id:
+            select = re.search(r'<select id="%s">(.*?)</select>' % select_id, page, re.S)
+            options = re.findall(r'<option value="([a-z]+)"', select.group(1)) if select else []
+            t.equal(sorted(options), sorted(named[key]), f"the web page offers every {key} value")
+    # render.tables' default (an absent key): the parser's, the document's, the page's fallback.
     absent = re.search(r"\.tables = NS_TABLES_([A-Z]+)\}", parser)
     prop = schemas["RenderSettings"]["properties"].get("tables", {})
-    t.equal(prop.get("enum"), tables, "RenderSettings.tables.enum is the parser's tables_names")
     t.equal(prop.get("default"), absent.group(1).lower() if absent else None,
             "RenderSettings.tables.default is what the parser gives an absent key")
-    select = re.search(r'<select id="tables">(.*?)</select>', page, re.S)
-    options = re.findall(r'<option value="([a-z]+)"', select.group(1)) if select else []
-    t.equal(sorted(options), sorted(tables), "the web page offers every render.tables mode")
     fallback = re.search(r"key: 'tables', id: 'tables', fallback: \(\) => '([a-z]+)'",
                          read_source("web/app.js"))
     t.equal(fallback.group(1) if fallback else None, prop.get("default"),
