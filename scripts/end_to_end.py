@@ -5,8 +5,13 @@ synchronous): the first render makes the material's tables (a new material), the
 third find them cached. Prints the server's own time per render (Server-Timing, without
 parse and queue) and the stages that take it, then one JSON line.
 
+With --new-albedo every render after the first changes the medium's albedo (1 - albedo
+scaled as scripts/material_change.py does), a new material each time, as a user sweeping it
+does; --pause S waits S seconds between renders, when the server makes the albedo nodes of
+a material being swept (nscatter serve --idle-work, on by default).
+
     python3 scripts/end_to_end.py --bin build/nscatter --assets ~/.cache/nscatter/bench/assets \\
-        [--size 256] [--scenes milk,cloud]
+        [--size 256] [--scenes milk,cloud] [--new-albedo --renders 5 --pause 10]
 
 The meshes' scenes need the bench's assets (`nscatter bench` writes them to CACHE/assets).
 Python standard library only.
@@ -15,9 +20,10 @@ import argparse
 import json
 import os
 import sys
+import time
 
 from bench_sweep import ROOT, request, start
-from material_change import stages
+from material_change import FACTORS, stages
 
 SCENES = ["bumpy_sphere", "bunny", "candle", "milk", "oil", "cloud"]
 SHOWN = ["reconstruct", "accumulate", "ray_pass", "vrl", "boundary", "gather", "single"]
@@ -30,13 +36,16 @@ def main():
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--renders", type=int, default=3)
+    ap.add_argument("--new-albedo", action="store_true",
+                    help="a new albedo of the medium at every render after the first")
+    ap.add_argument("--pause", type=float, default=0.0, help="seconds between renders")
     args = ap.parse_args()
     scenes = args.scenes.split(",")
     unknown = [n for n in scenes if n not in SCENES]
     if unknown:
         ap.error(f"--scenes: {', '.join(unknown)} not a bench scene ({', '.join(SCENES)})")
-    if args.size < 1 or args.renders < 1:
-        ap.error("--size and --renders: at least 1")
+    if args.size < 1 or not 1 <= args.renders <= len(FACTORS):
+        ap.error(f"--size at least 1, --renders 1 to {len(FACTORS)}")
     result = {}
     for name in scenes:
         scene = json.load(open(os.path.join(ROOT, "scenes", "bench", f"{name}.json")))
@@ -44,7 +53,17 @@ def main():
         proc, host, port = start(args.bin, ("--assets", args.assets) if args.assets else ())
         rows = []
         try:
-            for _ in range(args.renders):
+            medium = next(m for m in scene["materials"].values() if m.get("type") == "medium")
+            base = medium.get("albedo")
+            for i in range(args.renders):
+                if i:
+                    time.sleep(args.pause)
+                if args.new_albedo and i:
+                    if base is None:  # the preset's: the parser says which (GET /v1/materials)
+                        _, _, raw = request(host, port, "GET", "/v1/materials")
+                        base = next(p["albedo"] for p in json.loads(raw)["materials"]
+                                    if p["name"] == medium["preset"])
+                    medium["albedo"] = [round(min(0.9999, max(0.0, 1 - FACTORS[i] * (1 - a))), 6) for a in base]
                 status, h, data = request(host, port, "POST", "/v1/renders", json.dumps(scene),
                                           {"Content-Type": "application/json"})
                 if status != 200:
