@@ -295,6 +295,10 @@ def test_instance_ids(t):
         proc = __import__("subprocess").run([os.environ["NSCATTER_BIN"], "serve", "--instance", bad],
                                             capture_output=True, text=True, timeout=30)
         t.check(proc.returncode == 2 and "--instance" in proc.stderr, f"--instance {bad} refused")
+    for option in ("--idle-work", "--access-log"):
+        proc = __import__("subprocess").run([os.environ["NSCATTER_BIN"], "serve", option, "maybe"],
+                                            capture_output=True, text=True, timeout=30)
+        t.check(proc.returncode == 2 and f"{option} on|off" in proc.stderr, f"{option} maybe refused")
 
 
 def test_service_limits(t):
