@@ -53,8 +53,8 @@ layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams ns_params[1
 // 16-byte texel per cell holds the three channels and the extra one (0 without it), so a
 // step reads one texel where it read one float per channel; the second three's texels
 // follow (accumulate_shared.h).
-layout(binding = 1) uniform usamplerBuffer j_texels;
-vec4 j_at(uint i) { return uintBitsToFloat(texelFetch(j_texels, int(i))); }
+layout(binding = 1, rgba32ui) uniform readonly restrict uimageBuffer j_texels;
+vec4 j_at(uint i) { return uintBitsToFloat(imageLoad(j_texels, int(i))); }
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
 layout(std430, binding = 4) writeonly buffer ExtraBlock { float a_extra[]; };

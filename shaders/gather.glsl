@@ -37,7 +37,7 @@ layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
 // The table A as a texel buffer of floats (render/pipelines.c): its reads are at per-lane
 // addresses, which lavapipe serves one lane at a time from a storage buffer and through its
 // texture path from a texel buffer, 1.7-1.9x faster over the whole gather.
-layout(binding = 5) uniform usamplerBuffer table_texels;
+layout(binding = 5, r32ui) uniform readonly restrict uimageBuffer table_texels;
 layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
 layout(push_constant) uniform PushBlock { GpuGatherPush ns_push[1]; };
@@ -110,9 +110,9 @@ const uint STEP_Z = NS_TABLE_NRHO * TABLE_DIRS, STEP_RHO = TABLE_DIRS, STEP_THET
 vec3 table_corner(uvec3 base, uvec3 offset)
 {
     uvec3 i = base + offset;
-    return vec3(uintBitsToFloat(texelFetch(table_texels, int(i.x)).x),
-                uintBitsToFloat(texelFetch(table_texels, int(i.y)).x),
-                uintBitsToFloat(texelFetch(table_texels, int(i.z)).x));
+    return vec3(uintBitsToFloat(imageLoad(table_texels, int(i.x)).x),
+                uintBitsToFloat(imageLoad(table_texels, int(i.y)).x),
+                uintBitsToFloat(imageLoad(table_texels, int(i.z)).x));
 }
 
 // A at point p for light arriving along w, per channel, in mfp units; row (the lower theta

@@ -8,15 +8,16 @@ layout(std140, binding = 0) uniform ParamsBlock { GpuParams ns_params[1]; };
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 // The BVH's nodes and primitives are read as texel buffers of 16-byte texels, not as storage
 // buffers: lavapipe reads a storage buffer at addresses that differ per lane one lane and one
-// component at a time, and a texel fetch with its texture path: 17% less traversal time
-// (docs/bench.md, *Texel buffers*). The render's pipelines bind them so
-// (render/pipelines.c, NS_TRACE_TEXEL_BINDINGS).
-layout(binding = 1) uniform usamplerBuffer node_texels;
-layout(binding = 2) uniform usamplerBuffer prim_texels;
+// component at a time, and a texel with its texture path: 17% less traversal time
+// (docs/bench.md, *Texel buffers*). Storage texel buffers (imageLoad), not uniform ones
+// (texelFetch): lavapipe's image load is 6% cheaper still (*Storage texel buffers*). The
+// render's pipelines bind them so (render/pipelines.c, NS_TRACE_TEXEL_BINDINGS).
+layout(binding = 1, rgba32ui) uniform readonly restrict uimageBuffer node_texels;
+layout(binding = 2, rgba32ui) uniform readonly restrict uimageBuffer prim_texels;
 
 GpuNode node_at(uint i)
 {
-    uvec4 a = texelFetch(node_texels, int(2u * i)), b = texelFetch(node_texels, int(2u * i + 1u));
+    uvec4 a = imageLoad(node_texels, int(2u * i)), b = imageLoad(node_texels, int(2u * i + 1u));
     GpuNode n;
     n.bmin = uintBitsToFloat(a.xyz);
     n.first = a.w;
@@ -28,10 +29,10 @@ GpuNode node_at(uint i)
 GpuPrim prim_at(uint i)
 {
     GpuPrim p;
-    p.a = uintBitsToFloat(texelFetch(prim_texels, int(4u * i)));
-    p.b = uintBitsToFloat(texelFetch(prim_texels, int(4u * i + 1u)));
-    p.c = uintBitsToFloat(texelFetch(prim_texels, int(4u * i + 2u)));
-    p.info = texelFetch(prim_texels, int(4u * i + 3u));
+    p.a = uintBitsToFloat(imageLoad(prim_texels, int(4u * i)));
+    p.b = uintBitsToFloat(imageLoad(prim_texels, int(4u * i + 1u)));
+    p.c = uintBitsToFloat(imageLoad(prim_texels, int(4u * i + 2u)));
+    p.info = imageLoad(prim_texels, int(4u * i + 3u));
     return p;
 }
 

@@ -165,9 +165,11 @@ typedef struct gpu_pipeline_desc {
     const char *shader; /* name in the shader registry (file name without .comp) */
     uint32_t binding_count;
     uint32_t push_constant_size; /* bytes, 0 = none */
-    /* Bit i: binding i is a uniform texel buffer over the whole buffer (a usamplerBuffer in
-     * the shader), not a storage buffer: of 16-byte texels (VK_FORMAT_R32G32B32A32_UINT), or
-     * of 4-byte ones (VK_FORMAT_R32_UINT) where the bit is also set in texel_r32_bindings. */
+    /* Bit i: binding i is a storage texel buffer over the whole buffer (a readonly
+     * uimageBuffer in the shader, read with imageLoad: on lavapipe cheaper than a uniform
+     * texel buffer's texelFetch, docs/bench.md), not a storage buffer: of 16-byte texels
+     * (VK_FORMAT_R32G32B32A32_UINT, rgba32ui), or of 4-byte ones (VK_FORMAT_R32_UINT, r32ui)
+     * where the bit is also set in texel_r32_bindings. */
     uint32_t texel_bindings;
     uint32_t texel_r32_bindings;
 } gpu_pipeline_desc;
@@ -184,7 +186,7 @@ typedef struct gpu_pipeline {
 
 int gpu_pipeline_create(gpu_device *dev, gpu_pipeline *pipe, const gpu_pipeline_desc *desc,
                         ns_error *err);
-/* The descriptor type of binding i: 0 a uniform buffer, a texel binding a uniform texel
+/* The descriptor type of binding i: 0 a uniform buffer, a texel binding a storage texel
  * buffer, every other a storage buffer. */
 VkDescriptorType gpu_binding_type(const gpu_pipeline *pipe, uint32_t i);
 void gpu_pipeline_destroy(gpu_device *dev, gpu_pipeline *pipe);

@@ -50,11 +50,11 @@ int gpu_buffer_create(gpu_device *dev, gpu_buffer *buf, const gpu_buffer_desc *d
     VkBufferCreateInfo info = {
         .sType = VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO,
         .size = size,
-        /* A storage buffer may also be bound as a uniform texel buffer (gpu_pipeline_desc's
+        /* A storage buffer may also be bound as a storage texel buffer (gpu_pipeline_desc's
          * texel_bindings), and copied from or into (gpu_copy_buffer). */
         .usage = desc->kind == GPU_BUFFER_UNIFORM
                      ? VK_BUFFER_USAGE_UNIFORM_BUFFER_BIT
-                     : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_UNIFORM_TEXEL_BUFFER_BIT |
+                     : VK_BUFFER_USAGE_STORAGE_BUFFER_BIT | VK_BUFFER_USAGE_STORAGE_TEXEL_BUFFER_BIT |
                            VK_BUFFER_USAGE_TRANSFER_SRC_BIT | VK_BUFFER_USAGE_TRANSFER_DST_BIT,
         .sharingMode = VK_SHARING_MODE_EXCLUSIVE,
     };

@@ -71,7 +71,7 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
     VkDescriptorPoolSize sizes[3] = {
         {VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER, 1},
         {VK_DESCRIPTOR_TYPE_STORAGE_BUFFER, GPU_MAX_BINDINGS},
-        {VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, GPU_MAX_BINDINGS},
+        {VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER, GPU_MAX_BINDINGS},
     };
     VkDescriptorPoolCreateInfo pool = {
         .sType = VK_STRUCTURE_TYPE_DESCRIPTOR_POOL_CREATE_INFO,
@@ -106,7 +106,7 @@ static int write_descriptors(gpu_device *dev, const gpu_pipeline *pipe, dispatch
             .descriptorType = type,
             .pBufferInfo = &infos[i],
         };
-        if (type != VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER)
+        if (type != VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER)
             continue;
         /* Whole texels only: the view's range is a multiple of the texel (a buffer smaller
          * than one texel gets one, which its shader never reads). */

@@ -9,7 +9,7 @@ VkDescriptorType gpu_binding_type(const gpu_pipeline *pipe, uint32_t i)
 {
     if (i == 0)
         return VK_DESCRIPTOR_TYPE_UNIFORM_BUFFER;
-    return (pipe->texel_bindings >> i) & 1u ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER
+    return (pipe->texel_bindings >> i) & 1u ? VK_DESCRIPTOR_TYPE_STORAGE_TEXEL_BUFFER
                                             : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
 
