@@ -34,9 +34,10 @@ layout(std430, binding = 2) readonly buffer NodeBlock { GpuVrlNode nodes[]; };
 // vrl_gather.comp: glslang takes `vrl.length` for the length() method.
 layout(std430, binding = 3) readonly buffer RepresentativeBlock { vec4 representative_words[]; };
 layout(std430, binding = 4) readonly buffer VrlBlock { vec4 vrl_words[]; };
-// The table A as a texel buffer of floats (render/pipelines.c): its reads are at per-lane
-// addresses, which lavapipe serves one lane at a time from a storage buffer and through its
-// texture path from a texel buffer, 1.7-1.9x faster over the whole gather.
+// The table A as a texel buffer of floats (render/pipelines.c; a storage texel buffer, like
+// every texel binding, docs/bench.md *Storage texel buffers*): its reads are at per-lane
+// addresses, which lavapipe serves one lane at a time from a storage buffer and as a texel
+// load from a texel buffer, 1.7-1.9x faster over the whole gather.
 layout(binding = 5, r32ui) uniform readonly restrict uimageBuffer table_texels;
 layout(std430, binding = 6) buffer OutBlock { vec4 radiance[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
