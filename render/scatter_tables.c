@@ -1805,8 +1805,8 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
 /* The nodes ns_context_idle_work makes next, into missing (at most NS_TABLE_ALBEDO_NODES),
  * and the key they belong to: for the (g, accumulation) of the material auto chose exact
  * tables for most recently, among those with IDLE_NODES_AFTER or more such materials and a
- * node still to make, the nodes from one below the lowest that their albedos' blends read
- * to one above the highest. */
+ * node still to make, the nodes from the lowest that their albedos' blends read to the
+ * highest, then one below and one above. */
 static uint32_t idle_missing_nodes(ns_context *ctx, ns_table_key *key, uint32_t *missing)
 {
     struct ns_table_cache *cache = ctx->tables;
@@ -1822,16 +1822,20 @@ static uint32_t idle_missing_nodes(ns_context *ctx, ns_table_key *key, uint32_t 
         uint32_t lo = nodes[0], hi = nodes[1];
         if (materials < IDLE_NODES_AFTER || lo > hi)
             continue;
-        lo = lo > 0 ? lo - 1 : 0;
-        hi = hi < ALBEDO_NODE_INTERVALS ? hi + 1 : ALBEDO_NODE_INTERVALS;
         *key = (ns_table_key){.source = NS_METHOD_NN,
                               .g = e->g,
                               .accumulation = e->accumulation,
                               .tables = NS_TABLES_INTERPOLATED};
+        /* The nodes the blends read first (an albedo between those explored is the likeliest
+         * next), then the one on each side. */
         uint32_t n = 0;
         for (uint32_t i = lo; i <= hi; i++)
             if (!node_exists(ctx, key, i))
                 missing[n++] = i;
+        if (lo > 0 && !node_exists(ctx, key, lo - 1))
+            missing[n++] = lo - 1;
+        if (hi < ALBEDO_NODE_INTERVALS && !node_exists(ctx, key, hi + 1))
+            missing[n++] = hi + 1;
         if (n)
             return n;
     }

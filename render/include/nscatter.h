@@ -451,7 +451,7 @@ uint64_t ns_context_table_cache_bytes(const ns_context *ctx);
  * being explored, so that the next albedo there blends its tables in tens of milliseconds
  * instead of making exact ones (docs/rendering.md, *Nodes made between renders*). A g
  * qualifies once render.tables "auto" has made exact tables at two or more of its albedos
- * (per accumulation mode); its nodes are those the blends of those albedos read, and one
+ * (per accumulation mode); its nodes are those the blends of those albedos read, then one
  * more on each side, made three at a time (one call: about one material's exact tables),
  * kept in the table cache and the table folder. First the g of the material that auto last
  * made exact tables for. Only where the cache has room for them without evicting anything.
