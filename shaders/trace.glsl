@@ -84,31 +84,25 @@ float hit_box(vec3 o, vec3 inv_d, vec3 bmin, vec3 bmax, float tmin, float tmax)
     return (t > tmin && t < tmax) ? t : -1.0;
 }
 
-// 1 / d for the slab tests, finite: a component of d below 1e-30 in size counts as 1e-30,
-// so that no slab distance is 0 * inf (NaN) and the box tests can take the plain minimum
-// and maximum below (a ray that parallel to a slab is inside it or outside it by 1e30 times
-// its distance to it, as with an infinite inverse).
-vec3 slab_inverse(vec3 d)
-{
-    return 1.0 / mix(d, vec3(1e-30), lessThan(abs(d), vec3(1e-30)));
-}
-
-// Minimum and maximum as selects: GLSL's min and max must return the other operand of a
-// NaN, which costs lavapipe a compare and a blend more per call; the box tests' operands are
-// never NaN (slab_inverse).
-vec3 min_of(vec3 a, vec3 b) { return mix(b, a, lessThan(a, b)); }
-vec3 max_of(vec3 a, vec3 b) { return mix(b, a, greaterThan(a, b)); }
-float min_of(float a, float b) { return a < b ? a : b; }
-float max_of(float a, float b) { return a > b ? a : b; }
-
 // Does the ray overlap the node's box anywhere in [tmin, tmax]? Returns the entry distance.
-// inv_d from slab_inverse.
+// inv_d = 1 / d. Each axis's entry plane is chosen by the sign of inv_d (as in PBRT), and the
+// distances are folded into [tmin, tmax] by selects that keep the bound when a distance is
+// NaN: a ray parallel to a slab (inv_d infinite) that starts on one of its planes gives
+// 0 * inf = NaN there, and is inside that slab. Selects also cost lavapipe less than GLSL's
+// min and max, which spend a compare and a blend more on returning the other operand of a
+// NaN. (Taking min and max of the two planes' distances instead drops such a ray when it
+// starts on a box's face: gpu_bvh, *axis-aligned rays on box planes*.)
 float enter_box(vec3 o, vec3 inv_d, vec3 bmin, vec3 bmax, float tmin, float tmax)
 {
-    vec3 t0 = (bmin - o) * inv_d, t1 = (bmax - o) * inv_d;
-    vec3 tn = min_of(t0, t1), tf = max_of(t0, t1);
-    float near = max_of(max_of(max_of(tn.x, tn.y), tn.z), tmin);
-    float far = min_of(min_of(min_of(tf.x, tf.y), tf.z), tmax);
+    bvec3 negative = lessThan(inv_d, vec3(0.0));
+    vec3 tn = (mix(bmin, bmax, negative) - o) * inv_d, tf = (mix(bmax, bmin, negative) - o) * inv_d;
+    float near = tmin, far = tmax;
+    near = tn.x > near ? tn.x : near;
+    near = tn.y > near ? tn.y : near;
+    near = tn.z > near ? tn.z : near;
+    far = tf.x < far ? tf.x : far;
+    far = tf.y < far ? tf.y : far;
+    far = tf.z < far ? tf.z : far;
     return near <= far ? near : NS_INF;
 }
 
@@ -286,7 +280,7 @@ bool is_pair_entry(uint e) { return (e & (NS_ENTRY_LEAF | NS_ENTRY_PAIR)) == NS_
 // invocations ran past lavapipe's limit in gpu_pt_consistency and gpu_single.
 bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 {
-    vec3 inv_d = slab_inverse(d);
+    vec3 inv_d = 1.0 / d;
     float best = tmax;
     uint best_prim = NS_NONE;
 
@@ -407,7 +401,7 @@ const uint NS_SHADOW_CLEAR = 0u, NS_SHADOW_BLOCKED = 1u, NS_SHADOW_CROSSES = 2u;
 
 uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
 {
-    vec3 inv_d = slab_inverse(d);
+    vec3 inv_d = 1.0 / d;
     uint stack[NS_BVH_STACK];
     uint sp = 0u;
     uint current = NS_NONE;

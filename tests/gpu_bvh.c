@@ -334,12 +334,67 @@ static void test_degenerate_trees(void)
     CHECK_INT(hit.front, 1);
 }
 
+/* Rays with direction components that are exactly zero, starting exactly on the planes of
+ * the BVH's boxes: a flat grid of unit squares (two triangles each) in z = 0, every box of
+ * the tree bounded by whole numbers, and rays straight down (0, 0, -1) from z = 5 at every
+ * quarter of the grid, whole numbers and the grid's own edges included (on an edge the
+ * triangle test counts the point in), their zero components +0 or -0 (1 / d = +inf or
+ * -inf). A plane through the origin gives 0 * inf = NaN: the box test must take the ray as
+ * inside that slab (trace.glsl, enter_box); the min-and-max slab test before it dropped rays
+ * on the lower faces, a finite stand-in for 1 / 0 those on the upper ones. Closed form:
+ * every ray meets a triangle of the square under it at t = 5. */
+static void test_axis_aligned_rays_on_box_planes(void)
+{
+    enum { N = 8, STEPS = 4 * N + 1 };
+    static GpuPrim grid[2 * N * N];
+    for (int y = 0; y < N; y++)
+        for (int x = 0; x < N; x++)
+            for (int half = 0; half < 2; half++) {
+                GpuPrim *p = &grid[2 * (y * N + x) + half];
+                memset(p, 0, sizeof *p);
+                p->info[0] = NS_PRIM_TRIANGLE;
+                float corner[4][2] = {{x, y}, {x + 1, y}, {x + 1, y + 1}, {x, y + 1}};
+                int v[2][3] = {{0, 1, 2}, {0, 2, 3}};
+                float *verts[3] = {p->a, p->b, p->c};
+                for (int k = 0; k < 3; k++) {
+                    verts[k][0] = corner[v[half][k]][0];
+                    verts[k][1] = corner[v[half][k]][1];
+                }
+            }
+    static GpuRay rays[STEPS * STEPS];
+    static GpuHit hits[STEPS * STEPS];
+    for (int j = 0; j < STEPS; j++)
+        for (int i = 0; i < STEPS; i++)
+            rays[j * STEPS + i] = (GpuRay){{0.25f * i, 0.25f * j, 5.0f, 1e30f},
+                                           {(i + j) % 2 ? -0.0f : 0.0f, j % 2 ? -0.0f : 0.0f, -1.0f, 0.0f}};
+    ns_error err = {0};
+    CHECK_INT(ns_trace_rays(test_context(), grid, 2 * N * N, NULL, 0, rays, STEPS * STEPS, hits, &err),
+              NS_OK);
+    int wrong = 0;
+    for (int r = 0; r < STEPS * STEPS; r++) {
+        const GpuHit *h = &hits[r];
+        int ok = h->prim < 2 * N * N && fabs(h->t - 5.0) <= 1e-5;
+        if (ok) { /* the square under the ray: its corners bound the point, edges included */
+            const GpuPrim *p = &grid[h->prim];
+            float x0 = fminf(p->a[0], fminf(p->b[0], p->c[0])), x1 = fmaxf(p->a[0], fmaxf(p->b[0], p->c[0]));
+            float y0 = fminf(p->a[1], fminf(p->b[1], p->c[1])), y1 = fmaxf(p->a[1], fmaxf(p->b[1], p->c[1]));
+            ok = rays[r].origin[0] >= x0 && rays[r].origin[0] <= x1 && rays[r].origin[1] >= y0 &&
+                 rays[r].origin[1] <= y1;
+        }
+        if (!ok && wrong++ < 5)
+            fprintf(stderr, "ray at (%g, %g): prim %u t %g\n", rays[r].origin[0], rays[r].origin[1],
+                    h->prim, h->t);
+    }
+    CHECK_INT(wrong, 0);
+}
+
 int main(void)
 {
     RUN(test_bvh_matches_brute_force);
     RUN(test_any_hit_matches_brute_force);
     RUN(test_leaves_past_depth_limit);
     RUN(test_degenerate_trees);
+    RUN(test_axis_aligned_rays_on_box_planes);
     ns_context_destroy(test_context());
     return harness_report();
 }
