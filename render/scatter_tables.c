@@ -1844,7 +1844,11 @@ static uint32_t idle_missing_nodes(ns_context *ctx, ns_table_key *key, uint32_t 
 
 int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_error *err)
 {
-    *made = 0;
+    if (made)
+        *made = 0;
+    if (!ctx || !made)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_context_idle_work: %s is NULL",
+                       ctx ? "made" : "the context");
     if (!ctx->nn->nets_ok)
         return NS_OK; /* auto chose no nodes, and needs none */
     pthread_mutex_lock(&ctx->lock);
@@ -1853,7 +1857,8 @@ int ns_context_idle_work(ns_context *ctx, const int *cancel, uint32_t *made, ns_
     uint32_t n = idle_missing_nodes(ctx, &key, missing);
     int status = NS_OK;
     n = n < NODES_PER_BATCH ? n : NODES_PER_BATCH;
-    /* Work nobody asked for never displaces tables someone did: without room for the batch
+    /* Work nobody asked for never displaces tables someone did from the cache (the folder
+     * bounds its files like any others): without room for the batch
      * in the cache, nothing (the caller stops asking until its next render). */
     if (n && ctx->tables->bytes + n * j_entry_bytes > ctx->table_cache_bytes)
         n = 0;

@@ -386,6 +386,17 @@ static void test_axis_aligned_rays_on_box_planes(void)
                     h->prim, h->t);
     }
     CHECK_INT(wrong, 0);
+    /* The any-hit query of the same rays (trace_shadow): each is blocked before t = 10. */
+    for (int r = 0; r < STEPS * STEPS; r++) {
+        rays[r].origin[3] = 10.0f;
+        rays[r].direction[3] = 1.0f;
+    }
+    CHECK_INT(ns_trace_rays(test_context(), grid, 2 * N * N, NULL, 0, rays, STEPS * STEPS, hits, &err),
+              NS_OK);
+    int clear = 0;
+    for (int r = 0; r < STEPS * STEPS; r++)
+        clear += hits[r].prim != 0;
+    CHECK_INT(clear, 0);
 }
 
 int main(void)

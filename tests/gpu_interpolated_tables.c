@@ -589,6 +589,10 @@ static void test_idle_work(void)
     if (!ctx)
         return;
     uint32_t made = 99;
+    CHECK_INT(ns_context_idle_work(NULL, NULL, &made, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "context");
+    CHECK_INT(ns_context_idle_work(ctx, NULL, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "made");
     CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
     CHECK_INT(made, 0); /* nothing rendered yet */
     ns_table_stats stats;
@@ -598,6 +602,13 @@ static void test_idle_work(void)
     CHECK_INT(auto_chose(ctx, key_of(0.3f, 0.92f, 0.92f, 0.92f, NS_TABLES_AUTO), NS_TABLES_EXACT, &stats), 1);
 
     uint64_t bytes = ns_context_table_cache_bytes(ctx);
+    /* Without room in the cache for a batch, nothing: idle work never evicts. */
+    uint64_t bound = ctx->table_cache_bytes;
+    ctx->table_cache_bytes = bytes + (1u << 20);
+    CHECK_INT(ns_context_idle_work(ctx, NULL, &made, &err), NS_OK);
+    CHECK_INT(made, 0);
+    CHECK(ns_context_table_cache_bytes(ctx) == bytes);
+    ctx->table_cache_bytes = bound;
     stop_when_busy stop = {.ctx = ctx};
     pthread_t thread;
     CHECK_INT(pthread_create(&thread, NULL, stop_when_busy_main, &stop), 0);
