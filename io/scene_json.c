@@ -1416,7 +1416,7 @@ static void check_components_available(parser *p, const json_t *components, uint
 
 static void parse_render(parser *p, const json_t *v)
 {
-    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "exposure",
+    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "light_samples", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
                                        "gather_tolerance", "gather_camera_samples", "single_samples",
                                        "single_levels", "single_tolerance", "deadline_ms",
@@ -1470,6 +1470,8 @@ static void parse_render(parser *p, const json_t *v)
                    "spp (samples per pixel)", &r->spp);
         field_uint(p, v, "seed", 0, 0, UINT32_MAX, "seed", &r->seed);
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
+        field_uint(p, v, "light_samples", 0, 1, NS_MAX_LIGHT_SAMPLES,
+                   "light_samples (shadow rays per light at a diffuse surface)", &r->light_samples);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
         p->vrls_given = json_object_get(v, "vrls") != NULL;
         field_uint(p, v, "vrls", 0, 1, limit(p->opts ? p->opts->max_vrls : 0, NS_MAX_VRLS),

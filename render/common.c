@@ -90,6 +90,8 @@ ns_render_settings ns_render_settings_resolve(ns_render_settings r)
         r.spp = NS_DEFAULT_SPP;
     if (!r.max_depth)
         r.max_depth = NS_DEFAULT_MAX_DEPTH;
+    if (!r.light_samples)
+        r.light_samples = NS_DEFAULT_LIGHT_SAMPLES;
     if (!r.vrls)
         r.vrls = NS_DEFAULT_VRLS;
     if (!r.gather_tile)

@@ -339,6 +339,7 @@ int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scen
     p->image[1] = s->camera.height;
     p->image[2] = s->render.spp;
     p->image[3] = s->render.seed;
+    p->surface[0] = ns_render_settings_resolve(s->render).light_samples;
     p->counts[0] = s->render.max_depth;
     p->counts[1] = gs->light_count;
     p->counts[2] = 0; /* segment capacity: set by the render job */

@@ -6,8 +6,8 @@
  * from the lights, the geometry and the media, never from the camera: vrl.comp and
  * vrl_trace.comp read the five scene buffers, the path count, the chain length and the seed,
  * and the boundary sources are then filtered and grouped by the components asked for. So
- * two renders whose scene buffers agree once the camera, the image size and the samples
- * per pixel are cleared from params (and the segment buffer's capacity, which follows from
+ * two renders whose scene buffers agree once the camera, the image size, the samples
+ * per pixel and the camera pass's light samples are cleared from params (and the segment buffer's capacity, which follows from
  * them), with the same VRL count, chain, seed, boundary model and (with the boundary
  * correction) components, make the same sources; the second takes a copy of the first's
  * instead of tracing them again (issue 15: "keep the sources across camera changes").
@@ -53,6 +53,7 @@ unsigned char *ns_source_signature(const ns_scene *scene, const ns_gpu_scene *gs
     memset(params.cam_forward, 0, sizeof params.cam_forward);
     params.image[0] = params.image[1] = params.image[2] = 0; /* width, height, spp; not the seed */
     params.counts[2] = 0;                                     /* the segment buffer's capacity */
+    params.surface[0] = 0; /* the camera pass's light samples */
     return ns_scene_signature(gs, &params, 0, &inputs, sizeof inputs, bytes);
 }
 

@@ -1,7 +1,8 @@
 #version 450
 // camera.comp — the camera ray-tracing pass: one invocation per pixel, `spp` jittered
-// pinhole samples. Diffuse surfaces take direct light from every light with shadow rays and
-// end the path; medium boundaries are smooth dielectrics (Fresnel reflection/refraction,
+// pinhole samples. Diffuse surfaces take direct light from every light and the environment
+// with render.light_samples shadow rays each, low-discrepancy across the pixel's samples
+// (common.glsl, DirectNumbers), and end the path; medium boundaries are smooth dielectrics (Fresnel reflection/refraction,
 // total internal reflection; ior 1 passes straight through); Beer-Lambert attenuates every
 // stretch inside a medium, and each such stretch is recorded in the segment buffer for the
 // scattering passes. The environment is seen directly and through reflection/refraction.
@@ -61,7 +62,7 @@ struct PathState {
 
 PathState branch_stack[NS_BRANCH_STACK];
 
-vec3 trace_path(PathState s, uint pixel, uint sample_index)
+vec3 trace_path(PathState s, uint pixel, uint sample_index, DirectNumbers numbers)
 {
     vec3 radiance = vec3(0.0);
     uint top = 0u;
@@ -96,7 +97,7 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index)
             vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
             if (mat.reflectance.w == 0.0) {
                 radiance +=
-                    s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, true);
+                    s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, numbers);
             } else if (s.depth < params.counts.x) {
                 terminated = false;
                 float eps = ray_epsilon(p);
@@ -155,6 +156,9 @@ void main()
         return;
     uint pixel = xy.y * width + xy.x;
     uint pixel_seed = pcg_hash(pcg_hash(params.image.w) + pixel);
+    DirectNumbers numbers;
+    numbers.samples = params.surface.x;
+    numbers.shift = uvec2(pcg_hash(pixel_seed ^ 0x5bd1e995u), pcg_hash(pixel_seed ^ 0x27d4eb2fu));
 
     vec3 sum = vec3(0.0);
     uint spp = params.image.z;
@@ -173,7 +177,8 @@ void main()
         s.medium = NS_NONE;
         s.depth = 0u;
         s.entered = false;
-        sum += trace_path(s, pixel, i);
+        numbers.first = i * params.surface.x;
+        sum += trace_path(s, pixel, i, numbers);
     }
     // lavapipe stops loops silently once an invocation has run 65535 iterations in all
     // (shared.h), and from then on every loop ends after its first iteration; its count

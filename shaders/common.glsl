@@ -46,6 +46,17 @@ float rnd()
     return unit_float(rng_state);
 }
 
+// Point k of Roberts' R2 sequence (the additive recurrence on the plastic number's powers, a
+// low-discrepancy sequence good for any count), shifted by `shift` (Cranley-Patterson): with
+// a random shift every point is uniform, so an estimate from them stays unbiased, while N
+// consecutive points cover the square evenly instead of clumping as independent draws do.
+// In 32-bit fixed point: exact and periodic.
+vec2 r2_point(uint k, uvec2 shift)
+{
+    uvec2 v = uvec2(k * 3242174889u, k * 2447445414u) + shift; // 2^32 / g, 2^32 / g^2
+    return vec2(v >> 8u) * (1.0 / 16777216.0);
+}
+
 // Stratified light paths. The n paths that leave one light towards one target take the
 // points of the 4-D Hammersley set (j / n, phi_2(j), phi_3(j), phi_5(j)), j = 0 .. n - 1,
 // for their emission instead of independent numbers, every coordinate shifted modulo 1 by
@@ -241,17 +252,6 @@ vec3 cosine_sample(vec3 n)
     return cosine_sample_at(n, u, rnd());
 }
 
-// The same distribution as cosine_sample, as camera.comp has always built it: the sine of
-// the polar angle is the r drawn, where around() recomputes it from the cosine (a value that
-// rounds differently). The surface images of every method but pt come from it.
-vec3 cosine_sample_direct(vec3 n)
-{
-    float r = sqrt(rnd()), phi = 2.0 * PI * rnd();
-    vec3 tx, ty;
-    basis(n, tx, ty);
-    return normalize(tx * (r * cos(phi)) + ty * (r * sin(phi)) + n * sqrt(max(0.0, 1.0 - r * r)));
-}
-
 // A direction d from o uniform in the cone that the sphere (xyz, radius w) subtends; returns
 // the cone's solid angle (1 / pdf). Sampling the cone rather than the sphere's surface
 // wastes no sample on its far side. The result means nothing for o inside the sphere, which
@@ -370,10 +370,11 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
 // A direction wi towards the sphere light from o, uniform in the cone it subtends, and the
 // distance t_light to its surface along wi; returns the cone's solid angle (1 / pdf). It
 // draws its two random numbers even when o is inside the light (and the result means
-// nothing), because single.comp has always drawn them there.
-float sphere_light_toward(GpuLight light, vec3 o, out vec3 wi, out float t_light)
+// nothing), because single.comp has always drawn them there. sphere_light_toward_at: the
+// same from the uniform numbers uv (the cone's cosine's, its azimuth's).
+float sphere_light_toward_at(GpuLight light, vec3 o, vec2 uv, out vec3 wi, out float t_light)
 {
-    float solid_angle = sample_cone(light.position, o, wi);
+    float solid_angle = sample_cone_at(light.position, o, uv.x, uv.y, wi);
     t_light = hit_sphere(o, wi, light.position, 0.0, NS_INF);
     if (t_light < 0.0) {
         // Grazing the silhouette the ray can miss the sphere in float: the centre's distance
@@ -384,10 +385,23 @@ float sphere_light_toward(GpuLight light, vec3 o, out vec3 wi, out float t_light
     return solid_angle;
 }
 
+float sphere_light_toward(GpuLight light, vec3 o, out vec3 wi, out float t_light)
+{
+    vec2 uv;
+    uv.x = rnd();
+    uv.y = rnd();
+    return sphere_light_toward_at(light, o, uv, wi, t_light);
+}
+
+// The uniform numbers a light's direction is drawn from, where the caller has its own
+// (camera.comp's low-discrepancy points); DRAW_NUMBERS: draw them from rng_state.
+const vec2 DRAW_NUMBERS = vec2(-1.0);
+
 // sphere_light_toward for a point that may lie inside the light: false there, without
 // drawing random numbers, because from inside the light has no cone to sample and
-// camera.comp and pt.comp take no light from it.
-bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float solid_angle)
+// camera.comp and pt.comp take no light from it. `given`: the numbers, or DRAW_NUMBERS.
+bool sample_sphere_light(GpuLight light, vec3 o, vec2 given, out vec3 wi, out float t_light,
+                         out float solid_angle)
 {
     vec3 v = light.position.xyz - o;
     float d2 = dot(v, v);
@@ -397,7 +411,8 @@ bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light,
     solid_angle = 0.0;
     if (d2 <= r2)
         return false;
-    solid_angle = sphere_light_toward(light, o, wi, t_light);
+    solid_angle = given.x < 0.0 ? sphere_light_toward(light, o, wi, t_light)
+                                : sphere_light_toward_at(light, o, given, wi, t_light);
     return true;
 }
 
@@ -411,8 +426,9 @@ bool sample_sphere_light(GpuLight light, vec3 o, out vec3 wi, out float t_light,
 //
 // toward_light: the direction and distance, and what the weights need: a point light's
 // squared distance d2, a sphere light's solid angle (uniform in the cone it subtends: pdf
-// 1 / solid angle). Directional, point and sphere lights; false for any other kind.
-bool toward_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out float d2,
+// 1 / solid angle). Directional, point and sphere lights; false for any other kind. `given`:
+// a sphere light's two numbers, or DRAW_NUMBERS.
+bool toward_light(GpuLight light, vec3 o, vec2 given, out vec3 wi, out float t_light, out float d2,
                   out float solid_angle)
 {
     uint kind = light.info.x;
@@ -432,15 +448,15 @@ bool toward_light(GpuLight light, vec3 o, out vec3 wi, out float t_light, out fl
         wi = v / t_light;
         return true;
     }
-    return kind == NS_GPU_LIGHT_SPHERE && sample_sphere_light(light, o, wi, t_light, solid_angle);
+    return kind == NS_GPU_LIGHT_SPHERE && sample_sphere_light(light, o, given, wi, t_light, solid_angle);
 }
 
 // lambert_light: into a Lambertian surface of unit reflectance with normal n at o.
-bool lambert_light(GpuLight light, vec3 o, vec3 n, out vec3 wi, out float t_light,
+bool lambert_light(GpuLight light, vec3 o, vec3 n, vec2 given, out vec3 wi, out float t_light,
                    out vec3 weight)
 {
     float d2, solid_angle;
-    bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);
+    bool reaches = toward_light(light, o, given, wi, t_light, d2, solid_angle);
     float c = dot(n, wi);
     uint kind = light.info.x;
     weight = kind == NS_GPU_LIGHT_POINT    ? light.color.rgb * (c / (PI * d2))
@@ -455,7 +471,7 @@ bool phase_light(GpuLight light, vec3 o, vec3 d, float g, out vec3 wi, out float
                  out vec3 weight)
 {
     float d2, solid_angle;
-    bool reaches = toward_light(light, o, wi, t_light, d2, solid_angle);
+    bool reaches = toward_light(light, o, DRAW_NUMBERS, wi, t_light, d2, solid_angle);
     float phase = hg_phase(dot(d, wi), g);
     uint kind = light.info.x;
     weight = kind == NS_GPU_LIGHT_POINT    ? light.color.rgb * (phase / d2)
@@ -478,39 +494,61 @@ float free_flight(vec3 st)
 #endif
 
 #if defined(NS_COMMON_TRACE) && defined(NS_COMMON_LIGHTS)
+// Where lambert_direct's numbers come from. pt.comp: one sample of each light from rng_state
+// (first = NS_NONE). camera.comp: `samples` of each, from points first .. first + samples - 1
+// of the R2 sequence, shifted by the pixel's `shift` plus one constant per light. A camera
+// sample's points follow the previous sample's in its pixel, so that a pixel's spp * samples
+// directions towards each light and the environment are spread evenly: the noise of soft
+// shadows and of the environment's occlusion, which is most of what the surface image's
+// noise is, falls faster than with independent draws.
+struct DirectNumbers {
+    uint samples;
+    uint first;
+    uvec2 shift;
+};
+
+const DirectNumbers DIRECT_FROM_STREAM = DirectNumbers(1u, NS_NONE, uvec2(0u));
+
 // Radiance leaving a Lambertian surface of reflectance rho at p (n faces the viewer) from
-// every light, one shadow ray each (`how` as transmittance's), the environment's along one
-// cosine-distributed direction, whose pdf cancels the cosine and 1/pi of the BRDF. The
-// environment is one more turn of the lights' loop, so that every shadow ray leaves from
-// one call site (lambert_light); out of budget, the lights stop and the environment still
-// counts, as it always did. camera_sampler: draw the environment's direction as camera.comp
-// always has (cosine_sample_direct), not as pt.comp does (cosine_sample).
-vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, bool camera_sampler)
+// every light, `numbers.samples` shadow rays each (`how` as transmittance's), the
+// environment's along as many cosine-distributed directions, whose pdf cancels the cosine and
+// 1/pi of the BRDF. The environment is one more turn of the lights' loop, so that every
+// shadow ray leaves from one call site (lambert_light); out of budget, the lights stop and
+// the environment still counts, as it always did.
+vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, DirectNumbers numbers)
 {
     vec3 o = p + n * ray_epsilon(p);
     vec3 sum = vec3(0.0);
     uint count = params.counts.y;
     bool environment = params.environment.r + params.environment.g + params.environment.b > 0.0;
-    for (uint i = 0u; i <= count; i++) {
-        if (i < count && out_of_budget())
-            i = count; // the lights stop here: on to the environment
+    uint turns = count + 1u;
+    for (uint k = 0u; k < numbers.samples * turns; k++) {
+        uint i = k % turns;
+        if (i < count && out_of_budget()) {
+            k += count - i; // the lights stop here: on to the environment
+            i = count;
+        }
+        vec2 given = DRAW_NUMBERS;
+        if (numbers.first != NS_NONE)
+            given = r2_point(numbers.first + k / turns,
+                             numbers.shift + uvec2(i * 0x9e3779b9u, i * 0x85ebca6bu));
         vec3 wi, weight;
         float t_light;
         bool lit;
         if (i < count) {
-            lit = lambert_light(lights[i], o, n, wi, t_light, weight);
+            lit = lambert_light(lights[i], o, n, given, wi, t_light, weight);
         } else {
             lit = environment;
             wi = n;
             if (environment)
-                wi = camera_sampler ? cosine_sample_direct(n) : cosine_sample(n);
+                wi = given.x < 0.0 ? cosine_sample(n) : cosine_sample_at(n, given.x, given.y);
             t_light = NS_INF;
             weight = params.environment.rgb;
         }
         if (lit)
             sum += weight * transmittance(o, wi, t_light, medium, how);
     }
-    return rho * sum;
+    return rho * sum / float(numbers.samples);
 }
 
 // The nearest sphere light along the ray before tmax, with which = NS_NONE when there is

@@ -103,6 +103,8 @@ struct GpuParams {
     ns_uvec4 counts;      /* max_depth, light_count, segment_capacity, node_count */
     ns_uvec4 prims;       /* bvh prim count, plane count, material count, ray count (tests) */
     ns_uvec4 limits;      /* x = loop iterations an invocation may run (0 = no limit) */
+    ns_uvec4 surface;     /* x = render.light_samples: camera.comp's shadow rays per light
+                             (and the environment) at each diffuse surface; yzw unused */
 };
 
 /* Push constants of the camera pass: which samples this dispatch takes. The pass may be
@@ -217,7 +219,7 @@ typedef struct GpuRay GpuRay;
 typedef struct GpuHit GpuHit;
 typedef struct GpuSamplePush GpuSamplePush;
 typedef struct GpuSinglePush GpuSinglePush;
-_Static_assert(sizeof(GpuParams) == 144, "GpuParams std430 size");
+_Static_assert(sizeof(GpuParams) == 160, "GpuParams std430 size");
 _Static_assert(sizeof(GpuSamplePush) == 16, "GpuSamplePush size");
 _Static_assert(sizeof(GpuSinglePush) == 16 && offsetof(GpuSinglePush, segment_count) == 12,
                "GpuSinglePush layout");

@@ -445,17 +445,6 @@ uint segment_strata(GpuSegment seg, uint samples)
 // One light sample per this many strata of the environment's (main, below).
 const uint LIGHT_STRIDE = 4u;
 
-// The environment's phase-sampling numbers of sample k: point k of Roberts' R2 sequence (the
-// additive recurrence on the plastic number's powers, a low-discrepancy sequence good for
-// any N), shifted by a random offset per segment (Cranley-Patterson), so every point is
-// uniform and the estimate unbiased, while a segment's N directions cover the sphere evenly
-// instead of clumping as independent draws do. In 32-bit fixed point: exact and periodic.
-vec2 phase_numbers(uint k, uvec2 shift)
-{
-    uvec2 v = uvec2(k * 3242174889u, k * 2447445414u) + shift; // 2^32 / g, 2^32 / g^2
-    return vec2(v >> 8u) * (1.0 / 16777216.0);
-}
-
 void main()
 {
     uint index = interleaved_invocation_x();
@@ -499,7 +488,7 @@ void main()
             float pdf;
             float t = distance_sample(density, (float(k) + rnd()) / float(strata), pdf);
             vec3 x = seg.entry + t * seg.direction;
-            vec2 phase_u = phase_numbers(k, phase_shift);
+            vec2 phase_u = r2_point(k, phase_shift); // common.glsl
             sum_environment += beer_lambert(mat.sigma_t.xyz, t) / pdf *
                                environment_in(x, wo, seg.material, mat, phase_u);
         }

@@ -174,6 +174,54 @@ static void test_environment_occlusion(void)
     }
 }
 
+/* render.light_samples on the occluded plane of test_environment_occlusion at x = 1.2, seen
+ * through a field of view so narrow that its 32 x 32 pixels all estimate the same value:
+ * with N directions a pixel, their mean is the closed form (the estimate is unbiased at any
+ * spp and light_samples), and because a pixel's spp x light_samples directions are
+ * low-discrepancy points, not independent draws, the pixels' spread is well below the
+ * binomial sqrt(v (1 - v) / N) that independent draws would give. Reached through
+ * light_samples 16 at 1 spp, and through 4 x 4. */
+static void test_light_samples(void)
+{
+    const double env[3] = {1, 2, 3}, x = 1.2;
+    const uint32_t side = 32;
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object objects[2] = {plane(0, 0), sphere(0, 1, 0, 1, 0)};
+    ns_light l = light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2]);
+    double d = sqrt(x * x + 1.0), visible = 1.0 - 1.0 / (d * d * d);
+    const uint32_t spp[] = {1, 4, 16}, samples[] = {16, 4, 1};
+    for (int run = 0; run < 3; run++) {
+        ns_scene s = base_scene(side, side, 0.02);
+        set3(s.camera.position, x + 10, 3, 0);
+        set3(s.camera.look_at, x, 0, 0);
+        s.render.spp = spp[run];
+        s.render.light_samples = samples[run];
+        scene_lists(&s, &m, 1, objects, 2, &l, 1);
+        ns_image img = {0};
+        if (!render_ok(&s, &img, NULL))
+            return;
+        double n = spp[run] * samples[run], binomial = sqrt(visible * (1.0 - visible) / n);
+        for (int k = 0; k < 3; k++) {
+            double sum = 0.0, sum2 = 0.0;
+            for (uint32_t y = 0; y < side; y++)
+                for (uint32_t xp = 0; xp < side; xp++) {
+                    double v = pixel_at(&img, xp, y)[k] / (rho[k] * env[k]);
+                    sum += v;
+                    sum2 += v * v;
+                }
+            double pixels = (double)side * side, mean = sum / pixels;
+            double spread = sqrt(fmax(0.0, sum2 / pixels - mean * mean));
+            if (k == 0) /* the channels differ only by their scale */
+                printf("light_samples: spp %u x %u: mean %.5f (closed form %.5f), spread %.4f = "
+                       "%.2f of independent draws'\n",
+                       spp[run], samples[run], mean, visible, spread, spread / binomial);
+            CHECK_NEAR(mean, visible, 4.5 * binomial / sqrt(pixels) + 1e-4);
+            CHECK(spread < 0.6 * binomial);
+        }
+        ns_image_free(&img);
+    }
+}
+
 /* The point light's shadow ray crosses an index-matched absorbing sphere on its way down:
  * the pixel below gets rho/pi I / h^2 exp(-sigma_t 2r); a glass (ior 1.5) sphere there
  * blocks it completely (this pass does not follow caustics). */
@@ -250,6 +298,7 @@ int main(void)
     RUN(test_point_light);
     RUN(test_sphere_light);
     RUN(test_environment_occlusion);
+    RUN(test_light_samples);
     RUN(test_shadow_through_index_matched_medium);
     RUN(test_seed_determinism);
     ns_context_destroy(test_context());

@@ -13,6 +13,7 @@ static void test_zero_means_default(void)
                                 NS_COMPONENT_MULTIPLE);
     CHECK_INT(r.spp, 1);
     CHECK_INT(r.max_depth, 8);
+    CHECK_INT(r.light_samples, 2);
     CHECK_NEAR(r.exposure, 0, 0);
     CHECK_INT(r.max_scatter, 0);
     CHECK_INT(r.vrls, 10000);
@@ -39,6 +40,7 @@ static void test_given_fields_are_kept(void)
         .spp = 5000, /* out of range: kept for ns_render to refuse, naming it */
         .seed = 9,
         .max_depth = 3,
+        .light_samples = 5,
         .exposure = -2,
         .vrls = 7,
         .gather_tile = 1,

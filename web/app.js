@@ -74,6 +74,7 @@ const DEFAULT_METHOD = 'nn';
  * whether it is an integer, and the input's id. An empty input means the key is absent
  * (the server's default, shown as the placeholder). */
 const SCATTER_NUMBERS = [
+  { key: 'light_samples', id: 'light-samples', integer: true },
   { key: 'vrls', id: 'vrls', integer: true },
   { key: 'gather_tile', id: 'gather-tile', integer: true },
   { key: 'gather_levels', id: 'gather-levels', integer: true },

@@ -252,6 +252,7 @@ const char *ns_tables_name(ns_tables_mode tables);
 #define NS_MAX_GATHER_TILE 16u
 #define NS_MAX_GATHER_LEVELS 4u
 #define NS_MAX_SINGLE_SAMPLES 4096u
+#define NS_MAX_LIGHT_SAMPLES 64u
 #define NS_MAX_DEADLINE_MS 86400000u /* render.deadline_ms: a day */
 
 /* The defaults of the render settings (docs/scene.md lists the same). */
@@ -259,6 +260,7 @@ const char *ns_tables_name(ns_tables_mode tables);
 #define NS_DEFAULT_SPP 1u
 #define NS_DEFAULT_SEED 1u
 #define NS_DEFAULT_MAX_DEPTH 8u
+#define NS_DEFAULT_LIGHT_SAMPLES 2u
 #define NS_DEFAULT_VRLS 10000u
 #define NS_DEFAULT_GATHER_TILE 2u
 /* The scene parser's default for render.gather_levels; the library's 0 gathers every tile. */
@@ -295,6 +297,12 @@ typedef struct ns_render_settings {
     uint32_t seed;
     /* Surface/boundary bounces of a camera path, 1..NS_MAX_DEPTH; 0: NS_DEFAULT_MAX_DEPTH. */
     uint32_t max_depth;
+    /* Shadow rays per light, and directions towards the environment, at each diffuse surface
+     * a camera path ends on (the surface component of every method but pt, whose paths take
+     * one per vertex), 1..NS_MAX_LIGHT_SAMPLES; 0: NS_DEFAULT_LIGHT_SAMPLES. A pixel's
+     * spp x light_samples directions towards each light are spread evenly (low-discrepancy
+     * points), so the soft shadows' and the environment's noise falls faster than 1 / spp. */
+    uint32_t light_samples;
     float exposure;       /* stops; applied by the encoders, not by the renderer; 0: none */
     uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
     /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
