@@ -617,6 +617,11 @@ static void finish_locked(job_store *store, job *j, job_state state)
 /* One call of idle work, the lock held on entry and on return (released during the call). A
  * job admitted meanwhile sets idle_cancel, so the call stops at its next device submission
  * and the job waits at most that long. */
+double job_idle_quiet_next_ms(double quiet_ms, int stopped)
+{
+    return stopped ? fmin(2.0 * quiet_ms, JOB_IDLE_AFTER_MAX_MS) : JOB_IDLE_AFTER_MS;
+}
+
 static void idle_step_locked(job_store *store)
 {
     __atomic_store_n(&store->idle_cancel, 0, __ATOMIC_RELEASE);
@@ -631,12 +636,7 @@ static void idle_step_locked(job_store *store)
     store->idle_running = 0;
     store->idle_seconds += ms / 1000.0;
     store->idle_nodes += made;
-    /* A client that sends its renders a little less often than a call lasts would stop
-     * every call, wait for each, and never get the nodes: after each stopped call the quiet
-     * asked for doubles, up to JOB_IDLE_AFTER_MAX_MS; a call that ends resets it. */
-    store->idle_quiet_ms = rc == NS_ERR_CANCELLED
-                               ? fmin(2.0 * store->idle_quiet_ms, JOB_IDLE_AFTER_MAX_MS)
-                               : JOB_IDLE_AFTER_MS;
+    store->idle_quiet_ms = job_idle_quiet_next_ms(store->idle_quiet_ms, rc == NS_ERR_CANCELLED);
     if (rc == NS_ERR_CANCELLED) {
         store->idle_stopped++;
     } else if (rc) {

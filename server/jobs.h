@@ -65,6 +65,13 @@ typedef struct job_store_desc {
 #define JOB_IDLE_AFTER_MS 1000.0
 #define JOB_IDLE_AFTER_MAX_MS 16000.0
 
+/* The quiet the worker waits for before its next call of idle work, after a call that was
+ * stopped by a job (stopped 1) or that ended (0) with `quiet_ms` asked for before it. A
+ * client that sends its renders a little less often than a call lasts would stop every
+ * call, wait for each, and never get the nodes: after each stopped call the quiet doubles,
+ * up to JOB_IDLE_AFTER_MAX_MS; a call that ends resets it to JOB_IDLE_AFTER_MS. */
+double job_idle_quiet_next_ms(double quiet_ms, int stopped);
+
 int job_store_create(const job_store_desc *desc, job_store **out, ns_error *err);
 /* When the service begins to stop: admits nothing new, cancels every asynchronous job
  * (queued ones at once, running ones at their next dispatch) and ends every event stream.
