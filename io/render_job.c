@@ -45,6 +45,7 @@ json_t *render_stats_counts_json(const ns_render_stats *stats)
         {"cells_represented", stats->cells_represented},
         {"weights_bytes", stats->weights_bytes},
         {"table_bytes", stats->table_bytes},
+        {"tables_blended", stats->tables_blended},
     };
     json_t *counts = json_object();
     for (size_t i = 0; i < sizeof rows / sizeof rows[0]; i++)

@@ -53,6 +53,9 @@ typedef struct ns_table_stats {
     /* Tables (A of the key, J of each distinct channel albedo) found in the cache and made
      * now; each table counts once per render (ns_run.serial), however often it is asked for. */
     uint32_t tables_reused, tables_made;
+    /* The key's A is a blend of albedo nodes (render.tables "interpolated", or "auto"'s
+     * choice): 1 the first time a render asks for it, else 0. */
+    uint32_t tables_blended;
 } ns_table_stats;
 
 /* Returns the tables for key, computing and caching them when absent. The pointer stays

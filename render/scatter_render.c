@@ -1318,6 +1318,7 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
         if (stats) {
             stats->tables_reused += ts.tables_reused;
             stats->tables_made += ts.tables_made;
+            stats->tables_blended += ts.tables_blended;
         }
         if (!status) {
             if (stats)

@@ -53,6 +53,7 @@ typedef struct cache_entry {
     uint64_t bytes;
     uint64_t last_use;
     uint64_t counted; /* ns_run.serial of the render that last counted it made or reused */
+    uint64_t counted_blended; /* A blended from nodes: the render that last counted it so */
 } cache_entry;
 
 /* render.tables "auto" makes exact tables for this many albedos at a g before it makes that
@@ -582,6 +583,18 @@ static void count_made(const ns_context *ctx, cache_entry *e, ns_table_stats *st
 {
     e->counted = ctx->run.serial;
     stats->tables_made++;
+}
+
+/* An A that is a blend of albedo nodes (render.tables "interpolated", or "auto" where it
+ * chose them), counted once per render as the others are (made: just inserted, so not
+ * counted yet whatever its field says): renders of one scene with "auto" can differ within
+ * the blend's error, and this says which did. */
+static void count_blended(const ns_context *ctx, cache_entry *e, int made, ns_table_stats *stats)
+{
+    if (e->key.tables != NS_TABLES_INTERPOLATED || (!made && e->counted_blended == ctx->run.serial))
+        return;
+    e->counted_blended = ctx->run.serial;
+    stats->tables_blended++;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -1901,6 +1914,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
         touch(cache, hit);
         stats->cache_hit = 1;
         count_reused(ctx, hit, stats);
+        count_blended(ctx, hit, 0, stats);
         *out = &hit->a;
         return NS_OK;
     }
@@ -1943,6 +1957,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     if (!slot)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
     slot = evict(ctx, cache, slot);
+    count_blended(ctx, slot, 1, stats);
     *out = &slot->a;
     return NS_OK;
 }

@@ -266,11 +266,13 @@ static void test_render(void)
     if (render_ok(&s, &blend, &stats)) {
         CHECK(!has_stage(&stats, "reconstruct"));
         CHECK(has_stage(&stats, "accumulate"));
+        CHECK_INT(stats.tables_blended, 1); /* one material, one set of orders */
     }
     s.render.tables = NS_TABLES_EXACT;
     stats = (ns_render_stats){0};
     if (render_ok(&s, &exact, &stats) && blend.rgb) {
         CHECK(has_stage(&stats, "reconstruct"));
+        CHECK_INT(stats.tables_blended, 0);
         double mb[3], me[3];
         image_mean(&blend, mb);
         image_mean(&exact, me);
@@ -330,6 +332,7 @@ static void test_auto(void)
         ns_table_key key = key_of(0.45f, a, a, a, NS_TABLES_AUTO);
         key.accumulation = NS_ACCUMULATION_PAPER;
         CHECK_INT(auto_chose(ctx, key, want, &stats), 1);
+        CHECK_INT(stats.tables_blended, want == NS_TABLES_INTERPOLATED);
         /* The fifth material makes its nodes: a reconstruction of their albedos. */
         CHECK_INT(stats.reconstructed, i < 5);
         CHECK_INT(stats.cache_hit, i == 6);

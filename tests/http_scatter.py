@@ -94,21 +94,27 @@ def test_idle_work_makes_the_swept_albedos_nodes(t):
     makes the nodes those albedos blend from, so a third albedo between them renders without
     a reconstruction (auto alone would make exact tables until the fifth); a render that
     arrives while it works stops it and is answered as usual, and the work resumes."""
-    def sweep_render(srv, a, g=0.8):
+    def sweep_render(srv, a, g=0.8, blended=None):
         scene = scatter_scene((a, a, a), components=("multiple",), tables="auto")
         scene["materials"]["wax"]["g"] = g
         status, headers, body = srv.render(scene)
         t.equal(status, 200, f"g {g} albedo {a} ({body[:200]!r})")
+        if blended is not None and status == 200:
+            # X-Nscatter-Stats says whether auto blended: multiple scattering, and the
+            # boundary correction's blurred first order, each a table of the one material.
+            stats = json.loads(headers.get("x-nscatter-stats", "{}"))
+            t.check((stats.get("tables_blended", 0) > 0) == blended,
+                    f"g {g} albedo {a}: tables_blended {stats.get('tables_blended')}, blended {blended}")
         return server_timing(headers.get("server-timing", ""))
 
     with tempfile.TemporaryDirectory(prefix="nscatter-idle-") as cache, \
             Server(idle_work=True, env={"NSCATTER_CACHE_DIR": cache}) as srv:
         for a in (0.9, 0.92):
-            timing = sweep_render(srv, a)
+            timing = sweep_render(srv, a, blended=False)
             t.check("reconstruct" in timing, f"albedo {a}: exact tables made ({sorted(timing)})")
         made = wait_for_idle_work_to_end(srv)
         t.check(made is not None and made >= 6, f"nodes made between renders: {made}")
-        timing = sweep_render(srv, 0.91)
+        timing = sweep_render(srv, 0.91, blended=True)
         t.check("reconstruct" not in timing, f"the third albedo blends the nodes: {sorted(timing)}")
 
         # Another g, two albedos far apart: eleven nodes to make, three per call. A render

@@ -108,6 +108,7 @@ const COUNT_ROWS = [
   { key: 'interactions', label: 'VRL–segment interactions' },
   { key: 'cells_culled', label: 'grid cells culled' },
   { key: 'cells_represented', label: 'grid cells by representative' },
+  { key: 'tables_blended', label: 'tables blended from albedo nodes' },
   { key: 'table_bytes', label: 'table memory', bytes: true },
   { key: 'weights_bytes', label: 'network weights', bytes: true },
 ];
