@@ -143,7 +143,8 @@ static void write_seeds(FILE *f, const bench_run *run)
             fprintf(f, "| %s | %s | %s | %u |", s->name, bench_methods[m].name,
                     bench_components_name(bench_methods[m].components), r->seeds);
             for (int c = 0; c < 3; c++)
-                fprintf(f, " %s ± %s |", num(r->seed_ratio_mean[c], 3).text, num(r->seed_ratio_sd[c], 4).text);
+                fprintf(f, " %s ± %s |", num(r->seed_ratio_mean[c], 3).text,
+                        num(r->seed_ratio_sd[c], 4).text);
             fprintf(f, " %s | %s | %s |\n", num(r->seed_psnr_median, 2).text, num(r->seed_psnr_min, 2).text,
                     num(r->seed_psnr_max, 2).text);
         }

@@ -72,12 +72,12 @@ json_t *render_settings_json(const ns_scene *scene, float exposure_stops)
      * library's (0); and tables, whose parser default (auto) is not the library's (exact).
      * light_samples with spp: together they set the surface's noise. */
     return json_pack("{s:s, s:o, s:I, s:I, s:I, s:I, s:f, s:I, s:I, s:s, s:I, s:I, s:s}", "method",
-                     ns_method_name(r->method), "components", components, "spp",
-                     (json_int_t)r->spp, "seed", (json_int_t)r->seed, "max_depth",
-                     (json_int_t)r->max_depth, "light_samples", (json_int_t)r->light_samples, "exposure", (double)exposure_stops, "width",
-                     (json_int_t)scene->camera.width, "height", (json_int_t)scene->camera.height,
-                     "boundary", ns_boundary_name(r->boundary), "single_levels",
-                     (json_int_t)r->single_levels, "gather_camera_samples",
+                     ns_method_name(r->method), "components", components, "spp", (json_int_t)r->spp,
+                     "seed", (json_int_t)r->seed, "max_depth", (json_int_t)r->max_depth,
+                     "light_samples", (json_int_t)r->light_samples, "exposure",
+                     (double)exposure_stops, "width", (json_int_t)scene->camera.width, "height",
+                     (json_int_t)scene->camera.height, "boundary", ns_boundary_name(r->boundary),
+                     "single_levels", (json_int_t)r->single_levels, "gather_camera_samples",
                      (json_int_t)r->gather_camera_samples, "tables", ns_tables_name(r->tables));
 }
 

@@ -1416,7 +1416,8 @@ static void check_components_available(parser *p, const json_t *components, uint
 
 static void parse_render(parser *p, const json_t *v)
 {
-    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth", "light_samples", "exposure",
+    static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth",
+                                       "light_samples", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
                                        "gather_tolerance", "gather_camera_samples", "single_samples",
                                        "single_levels", "single_tolerance", "deadline_ms",

@@ -133,8 +133,9 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
         status =
             ns_fail(err, NS_ERR_LIMIT,
                     "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
-                    "(65535 iterations per invocation); lower render.max_depth, render.light_samples, "
-                    "the light count or the geometry, or pick another device",
+                    "(65535 iterations per invocation); lower render.max_depth, "
+                    "render.light_samples, the light count or the geometry, or pick another "
+                    "device",
                     counters[NS_COUNTER_LOOP_LIMIT]);
     return status;
 }

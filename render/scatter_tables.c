@@ -591,7 +591,10 @@ static void count_made(const ns_context *ctx, cache_entry *e, ns_table_stats *st
  * the blend's error, and this says which did. */
 static void count_blended(const ns_context *ctx, cache_entry *e, int made, ns_table_stats *stats)
 {
-    if (e->key.tables != NS_TABLES_INTERPOLATED || (!made && e->counted_blended == ctx->run.serial))
+    /* A key of the blurred first order alone comes from the unit table: nothing blended. */
+    int blend = e->key.tables == NS_TABLES_INTERPOLATED &&
+                (e->key.orders & ~NS_TABLE_FIRST_BLURRED) != 0;
+    if (!blend || (!made && e->counted_blended == ctx->run.serial))
         return;
     e->counted_blended = ctx->run.serial;
     stats->tables_blended++;

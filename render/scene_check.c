@@ -134,7 +134,8 @@ static int check_render(const ns_render_settings *r, ns_error *err)
     if (r->max_depth > NS_MAX_DEPTH)
         return BAD("render.max_depth: %u over %d", r->max_depth, NS_MAX_DEPTH);
     if (r->light_samples < 1 || r->light_samples > NS_MAX_LIGHT_SAMPLES)
-        return BAD("render.light_samples: %u outside 1..%u", r->light_samples, NS_MAX_LIGHT_SAMPLES);
+        return BAD("render.light_samples: %u outside 1..%u", r->light_samples,
+                   NS_MAX_LIGHT_SAMPLES);
     if ((unsigned)r->method > NS_METHOD_PT)
         return BAD("render.method: unknown method %d", (int)r->method);
     if (r->deadline_ms > NS_MAX_DEADLINE_MS)

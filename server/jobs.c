@@ -614,14 +614,14 @@ static void finish_locked(job_store *store, job *j, job_state state)
     pthread_cond_broadcast(&store->changed);
 }
 
-/* One call of idle work, the lock held on entry and on return (released during the call). A
- * job admitted meanwhile sets idle_cancel, so the call stops at its next device submission
- * and the job waits at most that long. */
 double job_idle_quiet_next_ms(double quiet_ms, int stopped)
 {
     return stopped ? fmin(2.0 * quiet_ms, JOB_IDLE_AFTER_MAX_MS) : JOB_IDLE_AFTER_MS;
 }
 
+/* One call of idle work, the lock held on entry and on return (released during the call). A
+ * job admitted meanwhile sets idle_cancel, so the call stops at its next device submission
+ * and the job waits at most that long. */
 static void idle_step_locked(job_store *store)
 {
     __atomic_store_n(&store->idle_cancel, 0, __ATOMIC_RELEASE);

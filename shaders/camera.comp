@@ -1,9 +1,10 @@
 #version 450
 // camera.comp — the camera ray-tracing pass: one invocation per pixel, `spp` jittered
 // pinhole samples. Diffuse surfaces take direct light from every light and the environment
-// with render.light_samples shadow rays each, low-discrepancy across the pixel's samples
-// (common.glsl, DirectNumbers), and end the path; medium boundaries are smooth dielectrics (Fresnel reflection/refraction,
-// total internal reflection; ior 1 passes straight through); Beer-Lambert attenuates every
+// with render.light_samples shadow rays each (one for a point or directional light),
+// low-discrepancy across the pixel's samples (common.glsl, DirectNumbers), and end the path;
+// medium boundaries are smooth dielectrics (Fresnel reflection/refraction, total internal
+// reflection; ior 1 passes straight through); Beer-Lambert attenuates every
 // stretch inside a medium, and each such stretch is recorded in the segment buffer for the
 // scattering passes. The environment is seen directly and through reflection/refraction.
 //

@@ -267,16 +267,10 @@ float sample_cone_at(vec4 sphere, vec3 o, float u, float v, out vec3 d)
     return 2.0 * PI * (1.0 - cos_max);
 }
 
-float sample_cone(vec4 sphere, vec3 o, out vec3 d)
-{
-    float u = rnd();
-    return sample_cone_at(sphere, o, u, rnd(), d);
-}
-
 // Cosine of the half-angle of the cone from p that holds the sphere (c, r); -1 inside it,
 // where the "cone" is every direction. The emission of vrl.comp and of pt.comp's light
 // sub-paths samples that cone about normalize(c - p) with this cosine. It is not
-// sample_cone: that one divides c - p by the distance, which rounds differently from
+// sample_cone_at's: that one divides c - p by the distance, which rounds differently from
 // normalize, so sharing it would change the VRLs and the pt images.
 float cone_cos(vec3 p, vec3 c, float r)
 {
@@ -448,7 +442,8 @@ bool toward_light(GpuLight light, vec3 o, vec2 given, out vec3 wi, out float t_l
         wi = v / t_light;
         return true;
     }
-    return kind == NS_GPU_LIGHT_SPHERE && sample_sphere_light(light, o, given, wi, t_light, solid_angle);
+    return kind == NS_GPU_LIGHT_SPHERE &&
+           sample_sphere_light(light, o, given, wi, t_light, solid_angle);
 }
 
 // lambert_light: into a Lambertian surface of unit reflectance with normal n at o.
@@ -495,12 +490,14 @@ float free_flight(vec3 st)
 
 #if defined(NS_COMMON_TRACE) && defined(NS_COMMON_LIGHTS)
 // Where lambert_direct's numbers come from. pt.comp: one sample of each light from rng_state
-// (first = NS_NONE). camera.comp: `samples` of each, from points first .. first + samples - 1
-// of the R2 sequence, shifted by the pixel's `shift` plus one constant per light. A camera
-// sample's points follow the previous sample's in its pixel, so that a pixel's spp * samples
-// directions towards each light and the environment are spread evenly: the noise of soft
-// shadows and of the environment's occlusion, which is most of what the surface image's
-// noise is, falls faster than with independent draws.
+// (first = NS_NONE). camera.comp: `samples` of each sphere light and of the environment, from
+// points first .. first + samples - 1 of the R2 sequence, shifted by the pixel's `shift` plus
+// one constant per light. A camera sample's points follow the previous sample's in its pixel,
+// so that a pixel's spp * samples directions towards each light and the environment are
+// spread evenly: the noise of soft shadows and of the environment's occlusion, which is most
+// of what the surface image's noise is, falls faster than with independent draws. The
+// diffuse surfaces that one camera sample's Fresnel branches end on take the same points:
+// correlated, each still unbiased.
 struct DirectNumbers {
     uint samples;
     uint first;
@@ -528,6 +525,14 @@ vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, DirectNumbe
             k += count - i; // the lights stop here: on to the environment
             i = count;
         }
+        // A light other than a sphere has no numbers to draw (a point, a direction): its one
+        // shadow ray, in the first turn, counts for all of them.
+        float copies = 1.0;
+        if (i < count && lights[i].info.x != NS_GPU_LIGHT_SPHERE) {
+            if (k >= turns)
+                continue;
+            copies = float(numbers.samples);
+        }
         vec2 given = DRAW_NUMBERS;
         if (numbers.first != NS_NONE)
             given = r2_point(numbers.first + k / turns,
@@ -537,6 +542,7 @@ vec3 lambert_direct(vec3 p, vec3 n, vec3 rho, uint medium, uint how, DirectNumbe
         bool lit;
         if (i < count) {
             lit = lambert_light(lights[i], o, n, given, wi, t_light, weight);
+            weight *= copies;
         } else {
             lit = environment;
             wi = n;

@@ -539,7 +539,8 @@ bool path_step(inout PathState s)
         // from the lights themselves), so a path that scattered first ends here dark.
         if (s.events == 0u && order_counts(0u))
             s.radiance +=
-                s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, DIRECT_FROM_STREAM);
+                s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS,
+                                     DIRECT_FROM_STREAM);
         return false;
     }
     if (++s.boundary_run > NS_PT_MAX_BOUNDARY_RUN) {

@@ -95,6 +95,9 @@ static void test_bad_numbers(void)
     s = valid_scene();
     s.render.max_depth = NS_MAX_DEPTH + 1;
     expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.max_depth");
+    s = valid_scene();
+    s.render.light_samples = NS_MAX_LIGHT_SAMPLES + 1;
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.light_samples");
 }
 
 static void test_bad_counts_and_ranges(void)

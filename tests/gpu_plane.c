@@ -180,7 +180,7 @@ static void test_environment_occlusion(void)
  * spp and light_samples), and because a pixel's spp x light_samples directions are
  * low-discrepancy points, not independent draws, the pixels' spread is well below the
  * binomial sqrt(v (1 - v) / N) that independent draws would give. Reached through
- * light_samples 16 at 1 spp, and through 4 x 4. */
+ * light_samples 16 at 1 spp, through 4 x 4, and through 16 spp of one light sample each. */
 static void test_light_samples(void)
 {
     const double env[3] = {1, 2, 3}, x = 1.2;

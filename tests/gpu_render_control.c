@@ -619,6 +619,13 @@ static void test_camera_reused(void)
     if (plain(ctx, &c, &img, &stats))
         CHECK_INT(stats.camera_reused, 1);
     ns_image_free(&img);
+    /* More light samples at the surfaces: another surface image, traced. */
+    ns_scene more = c;
+    more.render.light_samples = 3;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &more, &img, &stats))
+        CHECK_INT(stats.camera_reused, 0);
+    ns_image_free(&img);
     /* A light that moves: traced. */
     ns_scene moved = c;
     ns_light moved_lights[2];
@@ -649,8 +656,8 @@ static void test_camera_reused(void)
 }
 
 /* The light's sources (VRLs and the boundary correction's walks) kept across camera changes:
- * reused for another camera, image size and sample count, with the image a fresh context
- * gives; made again when a light, a material, the seed, the VRL count or the components
+ * reused for another camera, image size, sample count and light samples, with the image a
+ * fresh context gives; made again when a light, a material, the seed, the VRL count or the components
  * change. */
 static ns_scene walks_scene(void)
 {
@@ -673,12 +680,14 @@ static void test_sources_reused(void)
         CHECK(first.boundary_sources > 0);
     }
     ns_image_free(&img);
-    /* Another camera, image size and sample count: the same sources. */
+    /* Another camera, image size, sample count and light samples (the camera pass's alone):
+     * the same sources. */
     ns_scene b = a;
     b.camera.position[0] = 1.5f;
     b.camera.fov_deg = 50.0f;
     b.camera.width = 14;
     b.render.spp = 2;
+    b.render.light_samples = 3;
     if (plain(ctx, &b, &img, &stats)) {
         CHECK_INT(stats.sources_reused, 1);
         CHECK(!has_stage(&stats, "vrl"));

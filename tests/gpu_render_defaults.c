@@ -26,6 +26,7 @@ static void test_zero_settings_render_the_defaults(void)
         .spp = 1,
         .seed = 7,
         .max_depth = 8,
+        .light_samples = 2,
         .vrls = 10000,
         .gather_tile = 2,
         .single_samples = 64,

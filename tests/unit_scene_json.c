@@ -258,6 +258,7 @@ static void test_example_scene_values(void)
     CHECK_INT(s->render.components, NS_COMPONENT_SURFACE);
     CHECK_INT(s->render.spp, 1);
     CHECK_INT(s->render.max_depth, 8);
+    CHECK_INT(s->render.light_samples, 2); /* absent: NS_DEFAULT_LIGHT_SAMPLES */
     scene_doc_free(doc);
 }
 
@@ -453,7 +454,7 @@ static void test_integers_and_settings(void)
         "{\"position\":[0,0,5],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":45.5,\"width\":256.0,\"height\":1e2}",
         NULL, NULL, NULL,
         "{\"method\":\"nn\",\"components\":[\"surface\"],\"spp\":16.0,\"seed\":4294967295,\"max_depth\":64,"
-        "\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"gather_camera_samples\":0,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
+        "\"light_samples\":5,\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"gather_camera_samples\":0,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
         "\"tables\":\"interpolated\"}");
     scene_doc *doc = parse_ok(text, NULL);
     if (doc) {
@@ -464,6 +465,7 @@ static void test_integers_and_settings(void)
         CHECK_INT(s->render.spp, 16);
         CHECK_INT(s->render.seed, 4294967295u);
         CHECK_INT(s->render.max_depth, 64);
+        CHECK_INT(s->render.light_samples, 5);
         CHECK_NEAR(s->render.exposure, -1.5, 0);
         CHECK_INT(s->render.gather_levels, 3);
         CHECK_NEAR(s->render.gather_tolerance, 0.01, 1e-9);
@@ -731,6 +733,9 @@ static const bad_case bad_cases[] = {
     {RENDER, "{\"components\":[\"surface\"],\"seed\":4294967296}", "/render/seed", "integer in [0, 4294967295]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"max_depth\":0}", "/render/max_depth", "[1, 64]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"max_depth\":65}", "/render/max_depth", "[1, 64]", 1},
+    {RENDER, "{\"components\":[\"surface\"],\"light_samples\":0}", "/render/light_samples", "[1, 64]", 1},
+    {RENDER, "{\"components\":[\"surface\"],\"light_samples\":65}", "/render/light_samples", "[1, 64]", 1},
+    {RENDER, "{\"components\":[\"surface\"],\"light_samples\":1.5}", "/render/light_samples", "got 1.5", 1},
     {RENDER, "{\"components\":[\"surface\"],\"exposure\":100}", "/render/exposure", "in [-64, 64]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"method\":\"magic\"}", "/render/method", "unknown render method", 1},
     {RENDER, "{\"components\":[]}", "/render/components", "must not be empty", 1},

@@ -1028,6 +1028,7 @@ function previewScene(scene) {
   cut('spp', 1, PREVIEW_DIVISOR * PREVIEW_DIVISOR);
   cut('vrls', 10000, PREVIEW_DIVISOR);
   cut('single_samples', 64, PREVIEW_DIVISOR);
+  cut('light_samples', 2, PREVIEW_DIVISOR);
   return copy;
 }
 

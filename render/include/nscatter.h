@@ -512,7 +512,7 @@ typedef struct ns_render_stats {
      * render, however many gather rounds or camera batches ask for it. */
     uint64_t tables_reused;       /* scattering tables (A or J of one key) found in the cache */
     uint64_t tables_made;         /* scattering tables reconstructed or accumulated */
-    /* Materials whose scattering tables (of one set of orders) were blended from albedo nodes
+    /* Scattering tables (A of one material and one set of orders) blended from albedo nodes
      * rather than made exact: render.tables "interpolated", or "auto" where it chose to
      * blend. Two renders of one scene with "auto" can differ within the blend's error
      * (0.35%); this says which blended. */
