@@ -657,8 +657,8 @@ static void test_camera_reused(void)
 
 /* The light's sources (VRLs and the boundary correction's walks) kept across camera changes:
  * reused for another camera, image size, sample count and light samples, with the image a
- * fresh context gives; made again when a light, a material, the seed, the VRL count or the components
- * change. */
+ * fresh context gives; made again when a light, a material, the seed, the VRL count or the
+ * components change. */
 static ns_scene walks_scene(void)
 {
     ns_scene s = nn_scene();
