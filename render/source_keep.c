@@ -10,7 +10,8 @@
  * pixel and the camera pass's light samples are cleared from params (and the segment
  * buffer's capacity, which follows from them), with the same VRL count, chain, seed,
  * boundary model and (with the boundary correction) components, make the same sources; the
- * second takes a copy of the first's instead of tracing them again (issue 15: "keep the sources across camera changes").
+ * second takes a copy of the first's instead of tracing them again (issue 15: "keep the
+ * sources across camera changes").
  *
  * The bytes are compared whole, nothing hashed, so nothing can collide; the sources are
  * the ones a new trace would give, bit for bit (gpu_render_control checks the image). */
