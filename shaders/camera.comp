@@ -97,8 +97,15 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index, DirectNumbers number
             GpuMaterial mat = materials[m];
             vec3 n = h.front ? h.normal : -h.normal; // faces the incoming ray
             if (mat.reflectance.w == 0.0) {
+                // As many light samples as the surface's weight in its pixel deserves (as
+                // single.comp's segment_strata): one seen in a Fresnel reflection of a few per
+                // cent does not need N to hide its noise. A prefix of the sample's points.
+                DirectNumbers here = numbers;
+                float weight = min(max(s.w.x, max(s.w.y, s.w.z)), 1.0);
+                here.samples =
+                    clamp(uint(ceil(float(numbers.samples) * weight)), 1u, numbers.samples);
                 radiance +=
-                    s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, numbers);
+                    s.w * lambert_direct(p, n, mat.reflectance.rgb, s.medium, SHADOW_RAYS, here);
             } else if (s.depth < params.counts.x) {
                 terminated = false;
                 float eps = ray_epsilon(p);
