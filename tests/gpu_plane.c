@@ -222,6 +222,55 @@ static void test_light_samples(void)
     }
 }
 
+/* Where the camera's samples fall in a pixel: a diffuse box face lit head-on (radiance
+ * rho (E / pi + L_env), exact: nothing occludes its hemisphere) whose vertical edge runs
+ * through the middle of the image, against the sky (L_env), so every pixel of the middle
+ * column is half face, half sky, and each sample sees one or the other. Its expected value
+ * is the average of the two; with the samples at low-discrepancy points of the pixel the
+ * column's pixels spread well below the binomial sqrt(1/4 / spp) of independent jitter. */
+static void test_pixel_samples_spread_evenly(void)
+{
+    const double E[3] = {2.0, 3.0, 4.0}, env[3] = {0.3, 0.6, 0.9};
+    const uint32_t side = 33, spp = 16;
+    ns_scene s = base_scene(side, side, 20);
+    set3(s.camera.position, 0, 0, 0);
+    set3(s.camera.look_at, 0, 0, -1);
+    s.render.spp = spp;
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object box;
+    memset(&box, 0, sizeof box);
+    box.shape = NS_SHAPE_BOX;
+    set3(box.min, -50, -50, -11);
+    set3(box.max, 0, 50, -10); /* its edge x = 0 is on the view axis: the middle column */
+    ns_light l[2] = {light(NS_LIGHT_DIRECTIONAL, E[0], E[1], E[2]),
+                     light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2])};
+    set3(l[0].direction, 0, 0, -1);
+    scene_lists(&s, &m, 1, &box, 1, l, 2);
+    ns_image img = {0};
+    if (!render_ok(&s, &img, NULL))
+        return;
+    double binomial = sqrt(0.25 / spp);
+    for (int k = 0; k < 3; k++) {
+        double face = rho[k] * (E[k] / M_PI + env[k]), sky = env[k];
+        CHECK_REL(pixel_at(&img, 5, 16)[k], face, 1e-5);
+        CHECK_REL(pixel_at(&img, 27, 16)[k], sky, 1e-5);
+        double sum = 0.0, sum2 = 0.0;
+        for (uint32_t y = 0; y < side; y++) {
+            double covered = (pixel_at(&img, side / 2, y)[k] - sky) / (face - sky);
+            sum += covered;
+            sum2 += covered * covered;
+        }
+        double mean = sum / side, spread = sqrt(fmax(0.0, sum2 / side - mean * mean));
+        if (k == 0)
+            printf("pixel samples: the edge's pixels cover %.4f (0.5), spread %.4f = %.2f of "
+                   "independent jitter's\n",
+                   mean, spread, spread / binomial);
+        CHECK_NEAR(mean, 0.5, 4.5 * binomial / sqrt((double)side));
+        CHECK(spread < 0.5 * binomial);
+    }
+    ns_image_free(&img);
+}
+
 /* The point light's shadow ray crosses an index-matched absorbing sphere on its way down:
  * the pixel below gets rho/pi I / h^2 exp(-sigma_t 2r); a glass (ior 1.5) sphere there
  * blocks it completely (this pass does not follow caustics). */
@@ -299,6 +348,7 @@ int main(void)
     RUN(test_sphere_light);
     RUN(test_environment_occlusion);
     RUN(test_light_samples);
+    RUN(test_pixel_samples_spread_evenly);
     RUN(test_shadow_through_index_matched_medium);
     RUN(test_seed_determinism);
     ns_context_destroy(test_context());

@@ -317,8 +317,11 @@ static void test_camera_samples(void)
            (unsigned long long)st[ONE].gather_segments, (unsigned long long)st[ALL].gather_segments,
            e_all, e_one, s[ONE_SAME_COST].render.vrls, e_same_cost);
     CHECK(st[ONE].gather_segments < 0.3 * (double)st[ALL].gather_segments);
-    CHECK(e_one < 1.6 * e_all); /* measured 0.0187 against 0.0133 */
-    CHECK(e_same_cost < 1.1 * e_all); /* 0.0113 */
+    /* Measured 0.0166 against 0.0104 (0.0187 against 0.0133 before the camera's samples
+     * spread evenly over the pixel: every sample's image gained more). Four independent
+     * gathers would be twice as far as their mean. */
+    CHECK(e_one < 1.8 * e_all);
+    CHECK(e_same_cost < 1.1 * e_all); /* 0.0089 */
     check_against_full(&s[ALL], &img[ALL], &img[ONE], 0.05);
     CHECK_INT(st[FOUR].gather_segments, st[ALL].gather_segments);
     CHECK(memcmp(img[FOUR].rgb, img[ALL].rgb, sizeof(float) * 3 * W * H) == 0);
