@@ -171,6 +171,7 @@ static const range R_IOR = {1, FLT_MAX, 0, 0};
 static const range R_FOV = {0, 180, 1, 1};
 static const range R_EXPOSURE = {-64, 64, 0, 0};
 static const range R_SOLID_ANGLE = {0, 12.57f, 0, 0};
+static const range R_ADAPTIVE_SPP = {0, NS_MAX_ADAPTIVE_SPP, 0, 0};
 
 static void describe_range(range r, char *buf, size_t cap)
 {
@@ -1417,7 +1418,7 @@ static void check_components_available(parser *p, const json_t *components, uint
 static void parse_render(parser *p, const json_t *v)
 {
     static const char *const keys[] = {"method", "components", "spp", "seed", "max_depth",
-                                       "light_samples", "exposure",
+                                       "light_samples", "adaptive_spp", "exposure",
                                        "max_scatter", "vrls", "gather_tile", "gather_levels",
                                        "gather_tolerance", "gather_camera_samples", "single_samples",
                                        "single_levels", "single_tolerance", "deadline_ms",
@@ -1449,7 +1450,7 @@ static void parse_render(parser *p, const json_t *v)
         pop(p, saved);
         return;
     }
-    int method_ok = 1, components_ok = 1, boundary_given = 0;
+    int method_ok = 1, components_ok = 1, boundary_given = 0, adaptive_given = 0;
     const json_t *components = NULL;
     if (v) {
         check_keys(p, v, keys);
@@ -1473,6 +1474,11 @@ static void parse_render(parser *p, const json_t *v)
         field_uint(p, v, "max_depth", 0, 1, NS_MAX_DEPTH, "max_depth (bounces of a camera path)", &r->max_depth);
         field_uint(p, v, "light_samples", 0, 1, NS_MAX_LIGHT_SAMPLES,
                    "light_samples (shadow rays per light at a diffuse surface)", &r->light_samples);
+        adaptive_given = json_object_get(v, "adaptive_spp") != NULL;
+        field_float(p, v, "adaptive_spp", 0, R_ADAPTIVE_SPP,
+                    "adaptive_spp (camera samples added per pixel, on average, where the "
+                    "pixels spread)",
+                    &r->adaptive_spp);
         field_float(p, v, "exposure", 0, R_EXPOSURE, "exposure (stops)", &r->exposure);
         p->vrls_given = json_object_get(v, "vrls") != NULL;
         field_uint(p, v, "vrls", 0, 1, limit(p->opts ? p->opts->max_vrls : 0, NS_MAX_VRLS),
@@ -1555,6 +1561,20 @@ static void parse_render(parser *p, const json_t *v)
      * sees that the key was not written (as for gather_tolerance). */
     if (!boundary_given && method_ok)
         r->boundary = ns_default_boundary(r->method);
+    /* Added camera samples by default where there is a spread to place them by (spp >= 2;
+     * docs/bench.md, *Adaptive camera samples*); the library's 0 adds none, as renders built
+     * in C always did, and pt, which ignores it, reports none. Asked for at one sample per
+     * pixel they could go nowhere: refused. */
+    uint32_t spp = r->spp ? r->spp : NS_DEFAULT_SPP;
+    if (!adaptive_given && spp >= 2 && method_ok && r->method != NS_METHOD_PT)
+        r->adaptive_spp = NS_DEFAULT_ADAPTIVE_SPP;
+    if (adaptive_given && r->adaptive_spp > 0.0f && spp < 2 && method_ok &&
+        r->method != NS_METHOD_PT) {
+        size_t inner = push_key(p, "adaptive_spp");
+        report(p, "adaptive_spp needs spp >= 2: the added samples go where a pixel's "
+                  "neighbours' first samples spread");
+        pop(p, inner);
+    }
     /* The settings leave the parser resolved, as ns_render will render them: what the scene
      * reports (image metadata, --timings) is then the effective spp, max_depth and
      * components, not a 0 standing for them. */

@@ -179,6 +179,26 @@ void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
                         gpu_buffer *pixels, gpu_buffer *segments, uint32_t segment_count);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
 
+/* render.adaptive_spp as the camera pass uses it: 0 where it adds nothing (pt; spp < 2, no
+ * spread to read; no surface component, whose light is all they add). */
+float ns_adaptive_spp(const ns_render_settings *resolved);
+/* render.adaptive_spp (render/adaptive.c). counts[p] (width x height of them) := the camera
+ * samples added to pixel p, from the camera pass's pixels (4 floats each: the mean of spp
+ * samples' radiance, and the mean of their squared lengths): in proportion to the spread of
+ * p's eight neighbours' samples (never p's own), at most cap to a pixel, budget in all.
+ * Returns how many were given (<= budget; 0 with spp < 2 or where no pixel spreads), or
+ * UINT64_MAX when out of memory (counts then all 0). */
+uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, uint32_t spp,
+                          uint64_t budget, uint32_t cap, uint32_t *counts);
+/* The added samples' entries for camera.comp, pixel by pixel: pixel p's counts[p] samples
+ * take the sample indices spp, spp + 1, ... */
+void ns_adaptive_entries(const uint32_t *counts, size_t pixels, uint32_t spp,
+                         GpuAddedSample *entries);
+/* Each pixel with added samples becomes the mean of its spp first samples and its added
+ * ones (the entries as camera.comp returned them, in ns_adaptive_entries' order). */
+void ns_adaptive_merge(float *pixels, size_t count, uint32_t spp, const uint32_t *counts,
+                       const GpuAddedSample *entries);
+
 /* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this
  * order: params (uniform), BVH nodes, primitives, materials, lights. */
 enum { NS_SCENE_BUFFER_COUNT = 5 };

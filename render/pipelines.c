@@ -19,7 +19,7 @@
  * blocks with (each header checks its struct's size with _Static_assert), so a block that
  * grows on one side cannot leave the pipeline layout behind. */
 static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
-    [NS_PIPELINE_CAMERA] = {"camera", 8, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
+    [NS_PIPELINE_CAMERA] = {"camera", 9, sizeof(GpuSamplePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
     /* J, read at every step of the walk (accumulate.glsl), is a texel buffer of 16-byte
      * texels: a cell's channels in one fetch (accumulate_shared.h). */

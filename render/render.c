@@ -2,8 +2,8 @@
  * pass, read back. The job owns every buffer it creates and frees them on every path.
  *
  * Progress (internal.h): bvh 0-1%, upload 1-2%, the camera pass and the scattering stages
- * 2-99% (shared out among the camera batches by their samples, and within a batch as
- * ns_batch_shares says), readback 99-100%. pt.c plans its own stages the same way. */
+ * 2-98% (shared out among the camera batches by their samples, and within a batch as
+ * ns_batch_shares says), the added camera samples 98-99%, readback 99-100%. pt.c plans its own stages the same way. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -31,6 +31,7 @@ enum {
 
 typedef struct render_job {
     gpu_buffer buffers[B_COUNT];
+    gpu_buffer added; /* render.adaptive_spp: the added samples (camera.comp's binding 8) */
     ns_gpu_scene scene;
 } render_job;
 
@@ -38,6 +39,7 @@ static void job_free(ns_context *ctx, render_job *job)
 {
     for (int i = 0; i < B_COUNT; i++)
         gpu_buffer_destroy(&ctx->dev, &job->buffers[i]);
+    gpu_buffer_destroy(&ctx->dev, &job->added);
     ns_gpu_scene_free(&job->scene);
 }
 
@@ -93,12 +95,35 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
  * that the per-invocation loop limit (shared.h) applies to one camera sample rather than to
  * all of them; elsewhere one dispatch takes them all. The pixels of a range that does not
  * start at sample 0 add to what is there. */
+/* camera.comp's buffers: the job's, then the added samples' (binding 8), which only the
+ * added samples' dispatches read; the others get the counters there, unread. */
+enum { CAMERA_BINDINGS = B_COUNT + 1 };
+
+static void camera_bindings(render_job *job, gpu_buffer *added, gpu_buffer *bound[CAMERA_BINDINGS])
+{
+    for (int i = 0; i < B_COUNT; i++)
+        bound[i] = &job->buffers[i];
+    bound[B_COUNT] = added ? added : &job->buffers[B_COUNTERS];
+}
+
+static int loop_limit_check(const render_job *job, ns_error *err)
+{
+    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
+    if (!counters[NS_COUNTER_LOOP_LIMIT])
+        return NS_OK;
+    return ns_fail(err, NS_ERR_LIMIT,
+                   "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
+                   "(65535 iterations per invocation); lower render.max_depth, "
+                   "render.light_samples, the light count or the geometry, or pick another "
+                   "device",
+                   counters[NS_COUNTER_LOOP_LIMIT]);
+}
+
 static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *scene, uint32_t first,
                            uint32_t count, ns_error *err)
 {
-    gpu_buffer *bound[B_COUNT];
-    for (int i = 0; i < B_COUNT; i++)
-        bound[i] = &job->buffers[i];
+    gpu_buffer *bound[CAMERA_BINDINGS];
+    camera_bindings(job, NULL, bound);
     const ns_camera *cam = &scene->camera;
     uint32_t per_dispatch = ctx->dev.loop_limited ? 1 : count;
     uint32_t dispatches = (count + per_dispatch - 1) / per_dispatch;
@@ -120,7 +145,7 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
         &(gpu_dispatch_desc){
             .pipeline = camera,
             .buffers = bound,
-            .buffer_count = B_COUNT,
+            .buffer_count = CAMERA_BINDINGS,
             .groups = {(cam->width + NS_CAMERA_GROUP_X - 1) / NS_CAMERA_GROUP_X,
                        (cam->height + NS_CAMERA_GROUP_Y - 1) / NS_CAMERA_GROUP_Y, 1},
             .push = push,
@@ -128,15 +153,88 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
         },
         err);
     free(push);
-    const uint32_t *counters = job->buffers[B_COUNTERS].mapped;
-    if (!status && counters[NS_COUNTER_LOOP_LIMIT])
-        status =
-            ns_fail(err, NS_ERR_LIMIT,
-                    "scene too complex for this device: %u pixel(s) ran past lavapipe's loop limit "
-                    "(65535 iterations per invocation); lower render.max_depth, "
-                    "render.light_samples, the light count or the geometry, or pick another "
-                    "device",
-                    counters[NS_COUNTER_LOOP_LIMIT]);
+    return status ? status : loop_limit_check(job, err);
+}
+
+/* render.adaptive_spp: after the camera pass, its surface image takes added samples where its
+ * pixels' neighbours spread most (render/adaptive.c says why a pixel's own samples do not
+ * count). One invocation per added sample, each recording no segments; the pixels become the
+ * means of all their samples. *added_total: how many were traced. */
+static int add_camera_samples(ns_context *ctx, render_job *job, const ns_scene *scene,
+                              uint64_t *added_total, ns_error *err)
+{
+    const ns_camera *cam = &scene->camera;
+    uint32_t spp = scene->render.spp;
+    size_t pixels = (size_t)cam->width * cam->height;
+    /* At most what one storage buffer holds, and one dispatch's groups in one dimension per
+     * chunk of entries. */
+    uint64_t most = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuAddedSample);
+    if (most > SEGMENT_BYTES_MAX / sizeof(GpuAddedSample))
+        most = SEGMENT_BYTES_MAX / sizeof(GpuAddedSample);
+    uint64_t budget = (uint64_t)((double)scene->render.adaptive_spp * pixels + 0.5);
+    if (budget > most)
+        budget = most;
+    uint32_t cap = NS_ADAPTIVE_PIXEL_FACTOR * spp;
+    if (cap > NS_MAX_SPP - spp)
+        cap = NS_MAX_SPP - spp;
+    *added_total = 0;
+    uint32_t *counts = malloc(pixels * sizeof *counts);
+    if (!counts)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %zu pixels", pixels);
+    uint64_t total = ns_adaptive_plan(job->buffers[B_PIXELS].mapped, cam->width, cam->height, spp,
+                                      budget, cap, counts);
+    int status = NS_OK;
+    if (total == UINT64_MAX)
+        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %zu pixels", pixels);
+    if (!status && total > 0)
+        status = gpu_buffer_create(&ctx->dev, &job->added,
+                                   &(gpu_buffer_desc){.size = total * sizeof(GpuAddedSample),
+                                                      .kind = GPU_BUFFER_STORAGE,
+                                                      .uninitialized = 1,
+                                                      .host_reads = 1,
+                                                      .label = "ns.render.added_samples"},
+                                   err);
+    gpu_pipeline *camera = NULL;
+    if (!status && total > 0)
+        status = ns_pipeline(ctx, NS_PIPELINE_CAMERA, &camera, NULL, err);
+    if (!status && total > 0) {
+        ns_adaptive_entries(counts, pixels, spp, job->added.mapped);
+        const uint32_t group = NS_CAMERA_GROUP_X * NS_CAMERA_GROUP_Y;
+        uint32_t max_groups = ctx->dev.properties.limits.maxComputeWorkGroupCount[0];
+        uint64_t groups_needed = (total + group - 1) / group;
+        uint32_t groups = groups_needed < max_groups ? (uint32_t)groups_needed : max_groups;
+        uint32_t chunk = groups * group;
+        uint32_t dispatches = (uint32_t)((total + chunk - 1) / chunk);
+        GpuSamplePush *push = calloc(dispatches, sizeof *push);
+        if (!push)
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %u dispatches",
+                             dispatches);
+        for (uint32_t i = 0; !status && i < dispatches; i++) {
+            push[i].first_sample = i * chunk;
+            push[i].added_count = (uint32_t)total;
+        }
+        gpu_buffer *bound[CAMERA_BINDINGS];
+        camera_bindings(job, &job->added, bound);
+        if (!status)
+            status = gpu_dispatch_many(&ctx->dev,
+                                       &(gpu_dispatch_desc){.pipeline = camera,
+                                                            .buffers = bound,
+                                                            .buffer_count = CAMERA_BINDINGS,
+                                                            .groups = {groups, 1, 1},
+                                                            .push = push,
+                                                            .dispatch_count = dispatches},
+                                       err);
+        free(push);
+        if (!status)
+            status = loop_limit_check(job, err);
+        if (!status)
+            ns_adaptive_merge(job->buffers[B_PIXELS].mapped, pixels, spp, counts,
+                              job->added.mapped);
+    }
+    gpu_buffer_destroy(&ctx->dev, &job->added);
+    free(counts);
+    if (!status)
+        *added_total = total;
     return status;
 }
 
@@ -322,14 +420,24 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
             stats->camera_reused = 1;
     }
     if (!status && scattering) {
-        ns_span outer = ns_progress_push(ctx, 0.02, 0.99);
+        ns_span outer = ns_progress_push(ctx, 0.02, 0.98);
         status = camera_and_scattering(ctx, &job, scene, kept, scattered, &single_pass,
                                        &segment_count, stats, err);
         ns_progress_pop(ctx, outer);
     } else if (!status) {
-        stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.99);
+        stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.98);
         status = dispatch_camera(ctx, &job, scene, 0, scene->render.spp, err);
         ns_stats_add_stage(stats, "ray_pass", ns_stage_end(ctx, &stage));
+    }
+    /* Added samples, after the scattering stages (which take only the first spp samples'
+     * segments); a kept camera pass has them already. */
+    if (!status && kept < 0 && !(debug && debug->segments) && ns_adaptive_spp(&scene->render) > 0.0f) {
+        uint64_t added = 0;
+        stage = ns_stage_begin(ctx, "adaptive", 0.98, 0.99);
+        status = add_camera_samples(ctx, &job, scene, &added, err);
+        ns_stats_add_stage(stats, "adaptive", ns_stage_end(ctx, &stage));
+        if (stats)
+            stats->adaptive_samples = added;
     }
     /* The work is done; a cancellation that comes now still cancels (no image). */
     if (!status)

@@ -136,6 +136,15 @@ static int check_render(const ns_render_settings *r, ns_error *err)
     if (r->light_samples < 1 || r->light_samples > NS_MAX_LIGHT_SAMPLES)
         return BAD("render.light_samples: %u outside 1..%u", r->light_samples,
                    NS_MAX_LIGHT_SAMPLES);
+    if (!(r->adaptive_spp >= 0.0f && r->adaptive_spp <= (float)NS_MAX_ADAPTIVE_SPP))
+        return BAD("render.adaptive_spp: %g outside 0..%u", (double)r->adaptive_spp,
+                   NS_MAX_ADAPTIVE_SPP);
+    /* Only pt has no use for it; elsewhere asking for samples that cannot be placed would be
+     * silently meaningless. */
+    if (r->adaptive_spp > 0.0f && r->spp < 2 && r->method != NS_METHOD_PT)
+        return BAD("render.adaptive_spp: needs render.spp >= 2 (the added samples go where "
+                   "the first ones spread), got spp %u",
+                   r->spp);
     if ((unsigned)r->method > NS_METHOD_PT)
         return BAD("render.method: unknown method %d", (int)r->method);
     if (r->deadline_ms > NS_MAX_DEADLINE_MS)

@@ -54,7 +54,7 @@ unsigned char *ns_source_signature(const ns_scene *scene, const ns_gpu_scene *gs
     memset(params.cam_forward, 0, sizeof params.cam_forward);
     params.image[0] = params.image[1] = params.image[2] = 0; /* width, height, spp; not the seed */
     params.counts[2] = 0;                                     /* the segment buffer's capacity */
-    params.surface[0] = 0; /* the camera pass's light samples */
+    params.surface[0] = params.surface[1] = 0; /* the camera pass's light and added samples */
     return ns_scene_signature(gs, &params, 0, &inputs, sizeof inputs, bytes);
 }
 

@@ -9,6 +9,10 @@
 // stretch inside a medium, and each such stretch is recorded in the segment buffer for the
 // scattering passes. The environment is seen directly and through reflection/refraction.
 //
+// The same pipeline takes the added samples of render.adaptive_spp (push.added_count > 0):
+// one invocation per sample, for the pixel and sample index render.c listed, recording no
+// segments (they add surface light only) and writing the sample's radiance back.
+//
 // Media are assumed not to nest or overlap: crossing a medium's boundary from the outside
 // enters it, crossing from the inside returns to vacuum (ior 1).
 #extension GL_GOOGLE_include_directive : require
@@ -23,6 +27,7 @@ layout(std430, binding = 4) readonly buffer LightBlock { GpuLight lights[]; };
 layout(std430, binding = 5) buffer ImageBlock { vec4 pixels[]; };
 layout(std430, binding = 6) writeonly buffer SegmentBlock { GpuSegment segments[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+layout(std430, binding = 8) buffer AddedBlock { GpuAddedSample added[]; };
 layout(push_constant) uniform PushBlock { GpuSamplePush ns_push[1]; };
 #define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
@@ -33,8 +38,13 @@ layout(push_constant) uniform PushBlock { GpuSamplePush ns_push[1]; };
 // How this pass traces its shadow rays (common.glsl, transmittance).
 const uint SHADOW_RAYS = SHADOW_ANY_HIT;
 
+// False for the added samples: the scattering stages take the first spp samples' segments.
+bool recording = true;
+
 void record_segment(vec3 a, vec3 b, vec3 d, vec3 w, uint material, uint pixel, uint s, uint depth)
 {
+    if (!recording)
+        return;
     uint index = atomicAdd(counters[NS_COUNTER_SEGMENTS], 1u);
     if (index >= params.counts.z) {
         atomicAdd(counters[NS_COUNTER_OVERFLOW], 1u);
@@ -157,55 +167,87 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index, DirectNumbers number
     return radiance;
 }
 
-void main()
+// Camera sample i of a pixel: where in the pixel, its random stream and its light numbers
+// are functions of the pixel and i alone, so the image does not depend on how the samples
+// were split into dispatches, and an added sample (i >= spp) is one the pixel had not taken.
+vec3 camera_sample(uvec2 xy, uint pixel, uint i)
 {
     uint width = params.image.x, height = params.image.y;
-    uvec2 xy = interleaved_invocation_xy();
-    if (xy.x >= width || xy.y >= height)
-        return;
-    uint pixel = xy.y * width + xy.x;
     uint pixel_seed = pcg_hash(pcg_hash(params.image.w) + pixel);
     DirectNumbers numbers;
     numbers.samples = params.surface.x;
     numbers.shift = uvec2(pcg_hash(pixel_seed ^ 0x5bd1e995u), pcg_hash(pixel_seed ^ 0x27d4eb2fu));
+    numbers.first = i * params.surface.x;
     uvec2 jitter_shift =
         uvec2(pcg_hash(pixel_seed ^ 0x68e31da4u), pcg_hash(pixel_seed ^ 0xb5297a4du));
+    rng_state = pcg_hash(pixel_seed + i);
+    // Where in the pixel: point i of the R2 sequence under the pixel's own shift, so that
+    // its spp samples cover it evenly (an edge or a highlight's footprint is then
+    // measured, not drawn: the surface image 0.5-5 dB nearer a converged one at 4 spp,
+    // docs/bench.md). Each point is uniform in the pixel: unbiased.
+    vec2 jitter = r2_point(i, jitter_shift);
+    float u = (float(xy.x) + jitter.x) / float(width);
+    float v = (float(xy.y) + jitter.y) / float(height);
+    vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
+             params.cam_up.xyz * ((1.0 - 2.0 * v) * params.cam_right.w);
+    PathState s;
+    s.o = params.cam_position.xyz;
+    s.d = normalize(d);
+    s.w = vec3(1.0);
+    s.medium = NS_NONE;
+    s.depth = 0u;
+    s.entered = false;
+    return trace_path(s, pixel, i, numbers);
+}
 
-    vec3 sum = vec3(0.0);
-    uint spp = params.image.z;
-    for (uint i = push.first_sample; i < push.first_sample + push.sample_count; i++) {
-        // Each sample has its own stream, so the image does not depend on how the samples
-        // were split into dispatches.
-        rng_state = pcg_hash(pixel_seed + i);
-        // Where in the pixel: point i of the R2 sequence under the pixel's own shift, so that
-        // its spp samples cover it evenly (an edge or a highlight's footprint is then
-        // measured, not drawn: the surface image 0.5-5 dB nearer a converged one at 4 spp,
-        // docs/bench.md). Each point is uniform in the pixel: unbiased.
-        vec2 jitter = r2_point(i, jitter_shift);
-        float u = (float(xy.x) + jitter.x) / float(width);
-        float v = (float(xy.y) + jitter.y) / float(height);
-        vec3 d = params.cam_forward.xyz + params.cam_right.xyz * ((2.0 * u - 1.0) * params.cam_position.w) +
-                 params.cam_up.xyz * ((1.0 - 2.0 * v) * params.cam_right.w);
-        PathState s;
-        s.o = params.cam_position.xyz;
-        s.d = normalize(d);
-        s.w = vec3(1.0);
-        s.medium = NS_NONE;
-        s.depth = 0u;
-        s.entered = false;
-        numbers.first = i * params.surface.x;
-        sum += trace_path(s, pixel, i, numbers);
-    }
-    // lavapipe stops loops silently once an invocation has run 65535 iterations in all
-    // (shared.h), and from then on every loop ends after its first iteration; its count
-    // includes iterations loop_count does not see (a leaf's primitives, the planes), so a loop
-    // of two iterations here tells whether that happened anywhere above. Its trip count comes
-    // from the push block so that the compiler cannot unroll it away.
+// lavapipe stops loops silently once an invocation has run 65535 iterations in all
+// (shared.h), and from then on every loop ends after its first iteration; its count
+// includes iterations loop_count does not see (a leaf's primitives, the planes), so a loop
+// of two iterations here tells whether that happened anywhere above. Its trip count comes
+// from the push block so that the compiler cannot unroll it away.
+void check_loop_limit()
+{
     uint canary = 0u;
     for (uint i = 0u; i < 2u + (push.pad0 >> 31); i++)
         canary++;
     if (canary != 2u || (params.limits.x != 0u && loop_count > params.limits.x))
         atomicAdd(counters[NS_COUNTER_LOOP_LIMIT], 1u);
+}
+
+void main()
+{
+    uint width = params.image.x, height = params.image.y;
+    if (push.added_count != 0u) {
+        // One added sample per invocation, the groups in one dimension.
+        uint entry = push.first_sample +
+                     interleaved_group(gl_WorkGroupID.x, gl_NumWorkGroups.x) *
+                         (NS_CAMERA_GROUP_X * NS_CAMERA_GROUP_Y) +
+                     gl_LocalInvocationIndex;
+        if (entry >= push.added_count)
+            return;
+        recording = false;
+        uint pixel = floatBitsToUint(added[entry].value.x);
+        uint i = floatBitsToUint(added[entry].value.y);
+        vec3 radiance = camera_sample(uvec2(pixel % width, pixel / width), pixel, i);
+        check_loop_limit();
+        added[entry].value = vec4(radiance, 0.0);
+        return;
+    }
+    uvec2 xy = interleaved_invocation_xy();
+    if (xy.x >= width || xy.y >= height)
+        return;
+    uint pixel = xy.y * width + xy.x;
+    // The pixel's sum and sum of squared lengths: render.c reads the samples' spread from
+    // them (render.adaptive_spp).
+    vec3 sum = vec3(0.0);
+    float squares = 0.0;
+    uint spp = params.image.z;
+    for (uint i = push.first_sample; i < push.first_sample + push.sample_count; i++) {
+        vec3 radiance = camera_sample(xy, pixel, i);
+        sum += radiance;
+        squares += dot(radiance, radiance);
+    }
+    check_loop_limit();
     vec4 previous = push.first_sample == 0u ? vec4(0.0) : pixels[pixel];
-    pixels[pixel] = previous + vec4(sum / float(spp), 0.0);
+    pixels[pixel] = previous + vec4(sum, squares) / float(spp);
 }

@@ -104,16 +104,30 @@ struct GpuParams {
     ns_uvec4 prims;       /* bvh prim count, plane count, material count, ray count (tests) */
     ns_uvec4 limits;      /* x = loop iterations an invocation may run (0 = no limit) */
     ns_uvec4 surface;     /* x = render.light_samples: camera.comp's shadow rays per light
-                             (and the environment) at each diffuse surface; yzw unused */
+                             (and the environment) at each diffuse surface; y = the bits of
+                             render.adaptive_spp (read by render.c, not by a shader: here so
+                             that a camera pass kept for a later render, which includes the
+                             added samples, is kept only for the same setting); zw unused */
 };
 
 /* Push constants of the camera pass: which samples this dispatch takes. The pass may be
- * split into several dispatches (see render.c: lavapipe's loop limit). */
+ * split into several dispatches (see render.c: lavapipe's loop limit). With added_count > 0
+ * the dispatch takes the added samples instead (render.adaptive_spp): one invocation per
+ * entry [first_sample, first_sample + added_count) of the added-sample buffer, which says
+ * which pixel and sample index (GpuAddedSample) and gets the sample's radiance back. */
 struct GpuSamplePush {
     ns_uint first_sample;
     ns_uint sample_count;
     ns_uint pad0;
-    ns_uint pad1;
+    ns_uint added_count;
+};
+
+/* One added camera sample (binding 8 of the camera pass): render.c writes which pixel and
+ * which sample index (spp and up: points of the pixel's low-discrepancy sequence and random
+ * streams that its first spp samples did not take) in the bits of x and y; camera.comp
+ * overwrites the entry with the sample's surface radiance (w = 0). */
+struct GpuAddedSample {
+    ns_vec4 value;
 };
 
 /* Push constants of single scattering (single.comp): samples [first_sample, first_sample +
@@ -218,6 +232,7 @@ typedef struct GpuSegment GpuSegment;
 typedef struct GpuRay GpuRay;
 typedef struct GpuHit GpuHit;
 typedef struct GpuSamplePush GpuSamplePush;
+typedef struct GpuAddedSample GpuAddedSample;
 typedef struct GpuSinglePush GpuSinglePush;
 _Static_assert(sizeof(GpuParams) == 160, "GpuParams std430 size");
 _Static_assert(sizeof(GpuSamplePush) == 16, "GpuSamplePush size");

@@ -271,6 +271,69 @@ static void test_pixel_samples_spread_evenly(void)
     ns_image_free(&img);
 }
 
+/* render.adaptive_spp on the box edge of test_pixel_samples_spread_evenly, at 3 spp (4 R2
+ * points split a half-covered pixel exactly two and two, which would leave nothing to
+ * improve; 3 give a third or two thirds): only the edge's column spreads, so the added samples go to it and the columns beside it (a pixel's
+ * count is read from its neighbours: the edge's pixels from those above and below them),
+ * every other pixel is the same as without them, bit for bit, the column's mean stays half
+ * covered (unbiased), and its spread falls well below that of its 4 samples alone. */
+static void test_adaptive_samples(void)
+{
+    const double E[3] = {2.0, 3.0, 4.0}, env[3] = {0.3, 0.6, 0.9};
+    const uint32_t side = 33, spp = 3;
+    ns_material m = diffuse(rho[0], rho[1], rho[2]);
+    ns_object box;
+    memset(&box, 0, sizeof box);
+    box.shape = NS_SHAPE_BOX;
+    set3(box.min, -50, -50, -11);
+    set3(box.max, 0, 50, -10);
+    ns_light l[2] = {light(NS_LIGHT_DIRECTIONAL, E[0], E[1], E[2]),
+                     light(NS_LIGHT_ENVIRONMENT, env[0], env[1], env[2])};
+    set3(l[0].direction, 0, 0, -1);
+    ns_image img[2] = {{0}, {0}};
+    ns_render_stats stats[2];
+    memset(stats, 0, sizeof stats);
+    const float adaptive[2] = {0.0f, 1.0f};
+    for (int run = 0; run < 2; run++) {
+        ns_scene s = base_scene(side, side, 20);
+        set3(s.camera.position, 0, 0, 0);
+        set3(s.camera.look_at, 0, 0, -1);
+        s.render.spp = spp;
+        s.render.adaptive_spp = adaptive[run];
+        scene_lists(&s, &m, 1, &box, 1, l, 2);
+        if (!render_ok(&s, &img[run], &stats[run]))
+            return;
+    }
+    /* The budget, one per pixel, is spent but for rounding (at most one sample for each of
+     * the three columns' pixels). */
+    CHECK_INT(stats[0].adaptive_samples, 0);
+    CHECK(stats[1].adaptive_samples <= side * side &&
+          stats[1].adaptive_samples + 3 * side >= side * side);
+    double spread[2];
+    for (int run = 0; run < 2; run++) {
+        double sum = 0.0, sum2 = 0.0;
+        for (uint32_t y = 0; y < side; y++) {
+            double face = rho[0] * (E[0] / M_PI + env[0]), sky = env[0];
+            double covered = (pixel_at(&img[run], side / 2, y)[0] - sky) / (face - sky);
+            sum += covered;
+            sum2 += covered * covered;
+        }
+        double mean = sum / side;
+        spread[run] = sqrt(fmax(0.0, sum2 / side - mean * mean));
+        CHECK_NEAR(mean, 0.5, 4.5 * sqrt(0.25 / spp) / sqrt((double)side));
+    }
+    printf("adaptive samples: %llu added; the edge's spread %.4f at %u spp, %.4f with them\n",
+           (unsigned long long)stats[1].adaptive_samples, spread[0], spp, spread[1]);
+    CHECK(spread[1] < 0.5 * spread[0]);
+    for (uint32_t y = 0; y < side; y++)
+        for (uint32_t x = 0; x < side; x++)
+            if (x + 1 < side / 2 || x > side / 2 + 1)
+                for (int k = 0; k < 3; k++)
+                    CHECK(pixel_at(&img[0], x, y)[k] == pixel_at(&img[1], x, y)[k]);
+    ns_image_free(&img[0]);
+    ns_image_free(&img[1]);
+}
+
 /* The point light's shadow ray crosses an index-matched absorbing sphere on its way down:
  * the pixel below gets rho/pi I / h^2 exp(-sigma_t 2r); a glass (ior 1.5) sphere there
  * blocks it completely (this pass does not follow caustics). */
@@ -349,6 +412,7 @@ int main(void)
     RUN(test_environment_occlusion);
     RUN(test_light_samples);
     RUN(test_pixel_samples_spread_evenly);
+    RUN(test_adaptive_samples);
     RUN(test_shadow_through_index_matched_medium);
     RUN(test_seed_determinism);
     ns_context_destroy(test_context());

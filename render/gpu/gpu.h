@@ -159,7 +159,7 @@ int gpu_buffers_create(gpu_device *dev, gpu_buffer *bufs, const gpu_buffer_desc 
  * Compute pipelines. Binding 0 is a uniform buffer, bindings 1..binding_count-1 are
  * storage buffers (the layout every shader in shaders/ follows).
  * ------------------------------------------------------------------------------------- */
-#define GPU_MAX_BINDINGS 8
+#define GPU_MAX_BINDINGS 9 /* camera.comp's: the scene, pixels, segments, counters, added samples */
 
 typedef struct gpu_pipeline_desc {
     const char *shader; /* name in the shader registry (file name without .comp) */

@@ -253,6 +253,9 @@ const char *ns_tables_name(ns_tables_mode tables);
 #define NS_MAX_GATHER_LEVELS 4u
 #define NS_MAX_SINGLE_SAMPLES 4096u
 #define NS_MAX_LIGHT_SAMPLES 64u
+#define NS_MAX_ADAPTIVE_SPP 64u
+/* A pixel takes at most this many times render.spp added camera samples (render.adaptive_spp). */
+#define NS_ADAPTIVE_PIXEL_FACTOR 32u
 #define NS_MAX_DEADLINE_MS 86400000u /* render.deadline_ms: a day */
 
 /* The defaults of the render settings (docs/scene.md lists the same). */
@@ -261,6 +264,8 @@ const char *ns_tables_name(ns_tables_mode tables);
 #define NS_DEFAULT_SEED 1u
 #define NS_DEFAULT_MAX_DEPTH 8u
 #define NS_DEFAULT_LIGHT_SAMPLES 2u
+/* The scene parser's default for render.adaptive_spp at spp >= 2; the library's 0 adds none. */
+#define NS_DEFAULT_ADAPTIVE_SPP 2.0f
 #define NS_DEFAULT_VRLS 10000u
 #define NS_DEFAULT_GATHER_TILE 2u
 /* The scene parser's default for render.gather_levels; the library's 0 gathers every tile. */
@@ -279,15 +284,16 @@ const char *ns_tables_name(ns_tables_mode tables);
  * (ns_render_settings_resolve), so a caller sets only what it wants changed and a zeroed
  * struct renders with every default. Where the default is itself 0 (method, exposure,
  * max_scatter, gather_levels, gather_camera_samples, single_levels, accumulation, tables,
- * vrl_beams, boundary, cull_solid_angle) nothing needs replacing in the library. Seven fields
- * are exceptions. seed, gather_tolerance and single_tolerance keep a 0 as given (0 is a value
- * of their own there), and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
+ * vrl_beams, boundary, cull_solid_angle, adaptive_spp) nothing needs replacing in the
+ * library. Eight fields are exceptions. seed, gather_tolerance and single_tolerance keep a
+ * 0 as given (0 is a value of their own there), and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
  * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
  * was written; boundary is 0 (off) here, and the parser's default is
  * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
  * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS; gather_levels likewise (every
  * tile here, NS_DEFAULT_GATHER_LEVELS in the parser); gather_camera_samples is 0 (every
- * sample) here, and the parser's default is NS_DEFAULT_GATHER_CAMERA_SAMPLES. */
+ * sample) here, and the parser's default is NS_DEFAULT_GATHER_CAMERA_SAMPLES; adaptive_spp
+ * is 0 (none) here, and the parser's default is NS_DEFAULT_ADAPTIVE_SPP where spp >= 2. */
 typedef struct ns_render_settings {
     ns_method method;    /* 0: NS_METHOD_NN, the default */
     uint32_t components; /* NS_COMPONENT_* bits; 0: NS_DEFAULT_COMPONENTS (all four) */
@@ -303,6 +309,15 @@ typedef struct ns_render_settings {
      * spp x light_samples directions towards each light are spread evenly (low-discrepancy
      * points), so the soft shadows' and the environment's noise falls faster than 1 / spp. */
     uint32_t light_samples;
+    /* Camera samples added per pixel on average, 0..NS_MAX_ADAPTIVE_SPP, after the spp of
+     * every pixel: they go to the pixels whose neighbours' samples spread most, in proportion
+     * to that spread (at most NS_ADAPTIVE_PIXEL_FACTOR x spp to one pixel), and add to the
+     * surface light only (they record no segments for the scattering stages). A pixel's
+     * count is read from its eight neighbours' samples, never from its own, so its mean
+     * stays unbiased (docs/rendering.md, *Adaptive camera samples*). Needs spp >= 2 (a
+     * spread); pt ignores it. 0 = none, the library's default; the scene parser's for an
+     * absent key is NS_DEFAULT_ADAPTIVE_SPP where spp >= 2. */
+    float adaptive_spp;
     float exposure;       /* stops; applied by the encoders, not by the renderer; 0: none */
     uint32_t max_scatter; /* pt only: paths with more scattering events add nothing; 0 = no limit */
     /* Scattering stages (nn, table, vrl, dipole; docs/rendering.md): */
@@ -517,6 +532,9 @@ typedef struct ns_render_stats {
      * blend. Two renders of one scene with "auto" can differ within the blend's error
      * (0.35%); this says which blended. */
     uint64_t tables_blended;
+    /* Camera samples added to the pixels whose neighbours spread most (render.adaptive_spp);
+     * 0 when the camera pass was kept from an earlier render (which added them). */
+    uint64_t adaptive_samples;
     /* 1: the BVH of the same geometry (the spheres', boxes' and triangles' numbers, bit for
      * bit; materials, lights, camera and planes may differ) was kept from the context's last
      * render that built one. The stage "bvh" is still listed, with the time of the

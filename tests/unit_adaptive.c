@@ -1,0 +1,183 @@
+/* unit_adaptive.c — where render.adaptive_spp's added camera samples go (render/adaptive.c):
+ * by the neighbours' spread only, in proportion to it (Neyman's allocation), within the budget
+ * and the per-pixel cap; and how they join the pixels' first samples. */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "harness.h"
+#include "internal.h"
+
+enum { W = 9, H = 7, PIXELS = W * H };
+
+/* A camera-pass image (mean, mean squared length) whose pixel p has one sample's variance
+ * var[p] about the mean value v in each channel: mean^2 summed + var. */
+static void fill(float *pixels, const double *var, double v)
+{
+    for (int p = 0; p < PIXELS; p++) {
+        for (int c = 0; c < 3; c++)
+            pixels[4 * p + c] = (float)v;
+        pixels[4 * p + 3] = (float)(3 * v * v + var[p]);
+    }
+}
+
+static uint64_t sum_counts(const uint32_t *counts)
+{
+    uint64_t total = 0;
+    for (int p = 0; p < PIXELS; p++)
+        total += counts[p];
+    return total;
+}
+
+/* A lone pixel whose samples spread gets none of the added samples: its count is read from
+ * its neighbours, never from its own samples (its mean would lean towards what they happened
+ * to be); its eight neighbours get them, equally, and nothing else does. */
+static void test_neighbours_not_self(void)
+{
+    double var[PIXELS] = {0};
+    const int cx = 4, cy = 3, centre = cy * W + cx;
+    var[centre] = 8.0;
+    float pixels[4 * PIXELS];
+    fill(pixels, var, 0.5);
+    uint32_t counts[PIXELS];
+    const uint32_t spp = 4;
+    uint64_t total = ns_adaptive_plan(pixels, W, H, spp, 40, 1000, counts);
+    CHECK_INT(total, sum_counts(counts));
+    CHECK_INT(counts[centre], 0);
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++) {
+            int neighbour = abs(x - cx) <= 1 && abs(y - cy) <= 1 && !(x == cx && y == cy);
+            if (neighbour)
+                CHECK_INT(counts[y * W + x], 5); /* 40 over eight equal pixels */
+            else if (!(x == cx && y == cy))
+                CHECK_INT(counts[y * W + x], 0);
+        }
+    CHECK_INT(total, 40);
+}
+
+/* Two halves whose samples spread with standard deviations 1 and 3: a pixel's samples in
+ * all (its spp and its added ones) are in proportion to its sigma, the allocation that
+ * minimises the summed variance of the means, within the rounding of one sample. */
+static void test_neyman_proportions(void)
+{
+    double var[PIXELS];
+    for (int p = 0; p < PIXELS; p++)
+        var[p] = p % W < W / 2 ? 1.0 : 9.0;
+    float pixels[4 * PIXELS];
+    fill(pixels, var, 2.0);
+    uint32_t counts[PIXELS];
+    const uint32_t spp = 2;
+    const uint64_t budget = 12 * PIXELS;
+    uint64_t total = ns_adaptive_plan(pixels, W, H, spp, budget, 1000, counts);
+    CHECK(total <= budget);
+    CHECK(total + PIXELS >= budget); /* at most one sample a pixel lost to rounding */
+    /* Away from the border between them (x = 3 and 4 see both halves). */
+    for (int y = 0; y < H; y++) {
+        double low = spp + counts[y * W + 1], high = spp + counts[y * W + 7];
+        CHECK_NEAR(high / low, 3.0, 3.0 * 2.0 / low);
+    }
+}
+
+/* No pixel takes more than the cap; what the cap leaves goes to the others, in proportion. */
+static void test_cap(void)
+{
+    double var[PIXELS];
+    for (int p = 0; p < PIXELS; p++)
+        var[p] = p / W < 2 ? 100.0 : 1.0;
+    float pixels[4 * PIXELS];
+    fill(pixels, var, 1.0);
+    uint32_t counts[PIXELS];
+    uint64_t total = ns_adaptive_plan(pixels, W, H, 4, 30 * PIXELS, 50, counts);
+    for (int p = 0; p < PIXELS; p++)
+        CHECK(counts[p] <= 50);
+    CHECK_INT(counts[0], 50);        /* the spread rows are capped */
+    CHECK(counts[6 * W + 4] > 0);    /* and the quiet ones take the rest */
+    CHECK(total <= 30 * PIXELS);
+}
+
+/* Nothing to place by: one sample per pixel has no spread, an image without spread has none,
+ * and a zero budget adds nothing. */
+static void test_nothing_to_add(void)
+{
+    double var[PIXELS];
+    for (int p = 0; p < PIXELS; p++)
+        var[p] = 1.0;
+    float pixels[4 * PIXELS];
+    fill(pixels, var, 1.0);
+    uint32_t counts[PIXELS];
+    CHECK_INT(ns_adaptive_plan(pixels, W, H, 1, 100, 10, counts), 0);
+    CHECK_INT(sum_counts(counts), 0);
+    CHECK_INT(ns_adaptive_plan(pixels, W, H, 4, 0, 10, counts), 0);
+    double none[PIXELS] = {0};
+    fill(pixels, none, 1.0);
+    CHECK_INT(ns_adaptive_plan(pixels, W, H, 4, 100, 10, counts), 0);
+    CHECK_INT(sum_counts(counts), 0);
+    /* Float rounding can leave a spread slightly below zero; it counts as none. */
+    pixels[4 * 10 + 3] -= 1e-3f;
+    CHECK_INT(ns_adaptive_plan(pixels, W, H, 4, 100, 10, counts), 0);
+}
+
+/* The entries name each pixel's added samples by the indices after its spp, and the merge
+ * makes each pixel the mean of all its samples; pixels without added samples stay as they
+ * were, bit for bit. */
+static void test_entries_and_merge(void)
+{
+    const uint32_t spp = 4;
+    uint32_t counts[PIXELS] = {0};
+    counts[3] = 2;
+    counts[10] = 1;
+    float pixels[4 * PIXELS];
+    for (int i = 0; i < 4 * PIXELS; i++)
+        pixels[i] = 0.25f * (float)(i % 7);
+    float before[4 * PIXELS];
+    memcpy(before, pixels, sizeof pixels);
+    GpuAddedSample entries[3];
+    ns_adaptive_entries(counts, PIXELS, spp, entries);
+    const uint32_t want[3][2] = {{3, 4}, {3, 5}, {10, 4}};
+    for (int e = 0; e < 3; e++) {
+        uint32_t words[2];
+        memcpy(words, entries[e].value, sizeof words);
+        CHECK_INT(words[0], want[e][0]);
+        CHECK_INT(words[1], want[e][1]);
+    }
+    /* What camera.comp would return: the samples' radiance. */
+    const float radiance[3][3] = {{1, 2, 3}, {3, 2, 1}, {8, 8, 8}};
+    for (int e = 0; e < 3; e++)
+        memcpy(entries[e].value, radiance[e], sizeof radiance[e]);
+    ns_adaptive_merge(pixels, PIXELS, spp, counts, entries);
+    for (int c = 0; c < 3; c++) {
+        CHECK_NEAR(pixels[4 * 3 + c], (4 * before[4 * 3 + c] + radiance[0][c] + radiance[1][c]) / 6,
+                   1e-6);
+        CHECK_NEAR(pixels[4 * 10 + c], (4 * before[4 * 10 + c] + radiance[2][c]) / 5, 1e-6);
+    }
+    for (int p = 0; p < PIXELS; p++)
+        if (p != 3 && p != 10)
+            CHECK(memcmp(pixels + 4 * p, before + 4 * p, 4 * sizeof(float)) == 0);
+}
+
+/* The setting as the camera pass uses it: none for pt, at one sample per pixel, or without
+ * the surface component (all the light they add). */
+static void test_where_it_applies(void)
+{
+    ns_render_settings r = {.method = NS_METHOD_NN, .spp = 4, .adaptive_spp = 2.0f,
+                            .components = NS_COMPONENT_ALL};
+    CHECK_NEAR(ns_adaptive_spp(&r), 2.0, 0);
+    ns_render_settings pt = r, one = r, scattering = r;
+    pt.method = NS_METHOD_PT;
+    one.spp = 1;
+    scattering.components = NS_COMPONENT_MULTIPLE;
+    CHECK_NEAR(ns_adaptive_spp(&pt), 0, 0);
+    CHECK_NEAR(ns_adaptive_spp(&one), 0, 0);
+    CHECK_NEAR(ns_adaptive_spp(&scattering), 0, 0);
+}
+
+int main(void)
+{
+    RUN(test_neighbours_not_self);
+    RUN(test_neyman_proportions);
+    RUN(test_cap);
+    RUN(test_nothing_to_add);
+    RUN(test_entries_and_merge);
+    RUN(test_where_it_applies);
+    return harness_report();
+}
