@@ -355,6 +355,8 @@ async function run() {
         && (await editorScene(page)).render.boundary === undefined,
         JSON.stringify({ vrlBoundary, nnBoundary, vrl: vrlScene.render.boundary }));
       await typeNumber(page, '#light-samples', '6');
+      // 0: the render below is at 1 spp, where only none may be added.
+      await typeNumber(page, '#adaptive-spp', '0');
       await typeNumber(page, '#vrls', '2000');
       await typeNumber(page, '#gather-tile', '8');
       await typeNumber(page, '#gather-levels', '3');
@@ -375,8 +377,8 @@ async function run() {
       await typeNumber(page, '#cull-solid-angle', '0.05');
       scene = await editorScene(page);
       const r = scene.render;
-      check('scattering controls write light_samples, vrls, gather_tile, gather_levels, gather_tolerance, gather_camera_samples, single_samples, single_levels, single_tolerance, accumulation, tables, vrl_beams, boundary, cull_solid_angle',
-        r.method === 'nn' && r.light_samples === 6 && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
+      check('scattering controls write light_samples, adaptive_spp, vrls, gather_tile, gather_levels, gather_tolerance, gather_camera_samples, single_samples, single_levels, single_tolerance, accumulation, tables, vrl_beams, boundary, cull_solid_angle',
+        r.method === 'nn' && r.light_samples === 6 && r.adaptive_spp === 0 && r.vrls === 2000 && r.gather_tile === 8 && r.gather_levels === 3
         && r.gather_tolerance === 0.01 && r.gather_camera_samples === 0 && r.single_samples === 20
         && r.single_levels === 0 && r.single_tolerance === 0.1
         && r.accumulation === 'paper' && interpolated === 'interpolated' && r.tables === 'exact'
@@ -503,7 +505,7 @@ async function run() {
 
     await step('invalid scattering settings list their JSON pointers', async () => {
       const scene = structuredClone(defaultScene);
-      Object.assign(scene.render, { light_samples: 65, vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, gather_camera_samples: -1, single_samples: 'many', single_levels: 9, single_tolerance: -1, accumulation: 'fast', tables: 'sideways', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
+      Object.assign(scene.render, { light_samples: 65, adaptive_spp: 65, vrls: 0, gather_tile: 17, gather_levels: 5, gather_tolerance: 2, gather_camera_samples: -1, single_samples: 'many', single_levels: 9, single_tolerance: -1, accumulation: 'fast', tables: 'sideways', vrl_beams: 'sideways', boundary: 'sideways', cull_solid_angle: -1 });
       await setEditor(page, JSON.stringify(scene, null, 2));
       // The controls follow typing after a short pause.
       const followed = await page.waitForFunction(() => document.getElementById('accumulation').value === 'fast', null, { timeout: 5000 })
@@ -514,7 +516,7 @@ async function run() {
       await renderAndWait(page);
       const text = await problemText(page);
       check('error panel names status 422', /\b422\b/.test(text), text);
-      for (const key of ['light_samples', 'vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'gather_camera_samples', 'single_samples', 'single_levels', 'single_tolerance', 'accumulation', 'tables', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
+      for (const key of ['light_samples', 'adaptive_spp', 'vrls', 'gather_tile', 'gather_levels', 'gather_tolerance', 'gather_camera_samples', 'single_samples', 'single_levels', 'single_tolerance', 'accumulation', 'tables', 'vrl_beams', 'boundary', 'cull_solid_angle']) {
         const pointer = `/render/${key}`;
         check(`pointer ${pointer} is listed`, (await page.locator('#problem-errors button.pointer', { hasText: pointer }).count()) === 1, text);
       }

@@ -98,6 +98,18 @@ static void test_bad_numbers(void)
     s = valid_scene();
     s.render.light_samples = NS_MAX_LIGHT_SAMPLES + 1;
     expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.light_samples");
+    s = valid_scene();
+    s.render.spp = 4;
+    s.render.adaptive_spp = NS_MAX_ADAPTIVE_SPP + 1;
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.adaptive_spp");
+    s.render.adaptive_spp = NAN;
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.adaptive_spp");
+    s.render.adaptive_spp = -0.5f;
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.adaptive_spp");
+    /* Added samples go where the first ones spread: one sample per pixel has no spread. */
+    s.render.adaptive_spp = 1.0f;
+    s.render.spp = 1;
+    expect_refused(&s, NS_ERR_INVALID_ARGUMENT, "render.adaptive_spp");
 }
 
 static void test_bad_counts_and_ranges(void)

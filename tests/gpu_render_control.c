@@ -626,6 +626,31 @@ static void test_camera_reused(void)
     if (plain(ctx, &more, &img, &stats))
         CHECK_INT(stats.camera_reused, 0);
     ns_image_free(&img);
+    /* Added camera samples (with the surface, whose light they add, at 2 spp): another
+     * surface image, traced; asked again, kept with them, none added the second time and the
+     * same image. */
+    ns_scene two = c;
+    two.render.spp = 2;
+    two.render.components = NS_COMPONENT_SURFACE | NS_COMPONENT_SINGLE;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &two, &img, &stats))
+        CHECK_INT(stats.adaptive_samples, 0);
+    ns_image_free(&img);
+    ns_scene added = two;
+    added.render.adaptive_spp = 1.0f;
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &added, &img, &stats)) {
+        CHECK_INT(stats.camera_reused, 0);
+        CHECK(stats.adaptive_samples > 0);
+    }
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &added, &built, &stats)) {
+        CHECK_INT(stats.camera_reused, 1);
+        CHECK_INT(stats.adaptive_samples, 0);
+        CHECK(same_image(&img, &built));
+    }
+    ns_image_free(&img);
+    ns_image_free(&built);
     /* A light that moves: traced. */
     ns_scene moved = c;
     ns_light moved_lights[2];
@@ -656,7 +681,8 @@ static void test_camera_reused(void)
 }
 
 /* The light's sources (VRLs and the boundary correction's walks) kept across camera changes:
- * reused for another camera, image size, sample count and light samples, with the image a
+ * reused for another camera, image size, sample count, light samples and added samples,
+ * with the image a
  * fresh context gives; made again when a light, a material, the seed, the VRL count or the
  * components change. */
 static ns_scene walks_scene(void)
@@ -680,14 +706,15 @@ static void test_sources_reused(void)
         CHECK(first.boundary_sources > 0);
     }
     ns_image_free(&img);
-    /* Another camera, image size, sample count and light samples (the camera pass's alone):
-     * the same sources. */
+    /* Another camera, image size, sample count, light samples and added samples (the camera
+     * pass's alone): the same sources. */
     ns_scene b = a;
     b.camera.position[0] = 1.5f;
     b.camera.fov_deg = 50.0f;
     b.camera.width = 14;
     b.render.spp = 2;
     b.render.light_samples = 3;
+    b.render.adaptive_spp = 1.0f;
     if (plain(ctx, &b, &img, &stats)) {
         CHECK_INT(stats.sources_reused, 1);
         CHECK(!has_stage(&stats, "vrl"));

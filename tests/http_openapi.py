@@ -695,6 +695,9 @@ REFUSED = [
     ("light_samples 0", set_in("/render/light_samples", 0)),
     ("light_samples 65", set_in("/render/light_samples", 65)),
     ("light_samples 1.5", set_in("/render/light_samples", 1.5)),
+    ("adaptive_spp -1", set_in("/render/adaptive_spp", -1)),
+    ("adaptive_spp 65", set_in("/render/adaptive_spp", 65)),
+    ("adaptive_spp a string", set_in("/render/adaptive_spp", "2")),
     ("exposure 100", set_in("/render/exposure", 100)),
     ("method magic", set_in("/render/method", "magic")),
     ("components a string", set_in("/render/components", "surface")),
@@ -734,6 +737,7 @@ BEYOND_SCHEMA = [
                                   set_in("/render", {"method": "nn", "components": ["single"]}))),
     ("scaled coefficients overflow", set_in(WAX, {"type": "medium", "albedo": 0.5, "mfp": 1e-38, "scale": 1e10})),
     ("vrls over the service's --max-vrls", set_in("/render/vrls", MAX_VRLS + 1)),
+    ("adaptive_spp at one sample per pixel", set_in("/render", {"spp": 1, "adaptive_spp": 2})),
 ]
 ACCEPTED = [
     ("grey colours", set_in("/materials/floor/reflectance", 0.5)),
@@ -741,6 +745,8 @@ ACCEPTED = [
     ("a preset with albedo alone", set_in(WAX, {"type": "medium", "preset": "candle", "albedo": [0.8, 0.9, 0.85]})),
     ("version 1", set_in("/version", 1)),
     ("max_scatter with pt", set_in("/render", {"method": "pt", "components": ["surface"], "max_scatter": 2})),
+    ("adaptive_spp 0.5 at 4 spp", set_in("/render", {"spp": 4, "adaptive_spp": 0.5})),
+    ("adaptive_spp 0 at one sample per pixel", set_in("/render", {"spp": 1, "adaptive_spp": 0})),
     ("dipole with both gathered orders", set_in("/render", {"method": "dipole", "components": ["surface", "double", "multiple"]})),
     ("a mesh by asset", set_in("/objects/0", dict(MESH, transform={"scale": 0.5, "rotate_deg": [0, 45, 0]}))),
     ("one environment among others", set_in("/lights/0", {"type": "point", "position": [0, 3, 0], "intensity": 5})),

@@ -259,6 +259,7 @@ static void test_example_scene_values(void)
     CHECK_INT(s->render.spp, 1);
     CHECK_INT(s->render.max_depth, 8);
     CHECK_INT(s->render.light_samples, 2); /* absent: NS_DEFAULT_LIGHT_SAMPLES */
+    CHECK_NEAR(s->render.adaptive_spp, 0, 0); /* absent at 1 spp: none to place by */
     scene_doc_free(doc);
 }
 
@@ -454,7 +455,7 @@ static void test_integers_and_settings(void)
         "{\"position\":[0,0,5],\"look_at\":[0,0,0],\"up\":[0,1,0],\"fov\":45.5,\"width\":256.0,\"height\":1e2}",
         NULL, NULL, NULL,
         "{\"method\":\"nn\",\"components\":[\"surface\"],\"spp\":16.0,\"seed\":4294967295,\"max_depth\":64,"
-        "\"light_samples\":5,\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"gather_camera_samples\":0,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
+        "\"light_samples\":5,\"adaptive_spp\":3.5,\"exposure\":-1.5,\"gather_levels\":3,\"gather_tolerance\":0.01,\"gather_camera_samples\":0,\"single_levels\":4,\"single_tolerance\":0,\"vrl_beams\":\"bounded\",\"boundary\":\"walks\","
         "\"tables\":\"interpolated\"}");
     scene_doc *doc = parse_ok(text, NULL);
     if (doc) {
@@ -466,6 +467,7 @@ static void test_integers_and_settings(void)
         CHECK_INT(s->render.seed, 4294967295u);
         CHECK_INT(s->render.max_depth, 64);
         CHECK_INT(s->render.light_samples, 5);
+        CHECK_NEAR(s->render.adaptive_spp, 3.5, 0);
         CHECK_NEAR(s->render.exposure, -1.5, 0);
         CHECK_INT(s->render.gather_levels, 3);
         CHECK_NEAR(s->render.gather_tolerance, 0.01, 1e-9);
@@ -529,6 +531,40 @@ static void test_boundary_default(void)
                 fprintf(stderr, "render %s: boundary %d, expected %d\n", cases[i].render,
                         (int)scene_doc_scene(doc)->render.boundary, (int)cases[i].expected);
             CHECK_INT(scene_doc_scene(doc)->render.boundary, cases[i].expected);
+        }
+        scene_doc_free(doc);
+        free(text);
+    }
+}
+
+/* render.adaptive_spp: the parser's default 2 at spp >= 2 but for pt, 0 at one sample per
+ * pixel and for pt; a value written is kept, 0 included (none). */
+static void test_adaptive_default(void)
+{
+    static const struct {
+        const char *render;
+        float expected;
+    } cases[] = {
+        {"{\"spp\":4}", NS_DEFAULT_ADAPTIVE_SPP},
+        {"{\"spp\":2,\"method\":\"vrl\"}", NS_DEFAULT_ADAPTIVE_SPP},
+        {"{}", 0.0f},
+        {"{\"spp\":1}", 0.0f},
+        {"{\"spp\":4,\"method\":\"pt\"}", 0.0f},
+        {"{\"spp\":4,\"adaptive_spp\":0}", 0.0f},
+        {"{\"spp\":4,\"adaptive_spp\":0.25}", 0.25f},
+        {"{\"spp\":4,\"adaptive_spp\":64}", 64.0f},
+        {"{\"spp\":1,\"adaptive_spp\":0}", 0.0f},
+        {"{\"spp\":1,\"method\":\"pt\",\"adaptive_spp\":3}", 3.0f}, /* pt ignores it */
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        char *text = make_scene(NULL, NULL, NULL, NULL, cases[i].render);
+        scene_doc *doc = parse_ok(text, NULL);
+        if (doc) {
+            if (scene_doc_scene(doc)->render.adaptive_spp != cases[i].expected)
+                fprintf(stderr, "render %s: adaptive_spp %g, expected %g\n", cases[i].render,
+                        (double)scene_doc_scene(doc)->render.adaptive_spp,
+                        (double)cases[i].expected);
+            CHECK_NEAR(scene_doc_scene(doc)->render.adaptive_spp, cases[i].expected, 0);
         }
         scene_doc_free(doc);
         free(text);
@@ -736,6 +772,11 @@ static const bad_case bad_cases[] = {
     {RENDER, "{\"components\":[\"surface\"],\"light_samples\":0}", "/render/light_samples", "[1, 64]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"light_samples\":65}", "/render/light_samples", "[1, 64]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"light_samples\":1.5}", "/render/light_samples", "got 1.5", 1},
+    {RENDER, "{\"spp\":4,\"adaptive_spp\":-1}", "/render/adaptive_spp", "in [0, 64]", 1},
+    {RENDER, "{\"spp\":4,\"adaptive_spp\":65}", "/render/adaptive_spp", "in [0, 64]", 1},
+    {RENDER, "{\"spp\":4,\"adaptive_spp\":\"2\"}", "/render/adaptive_spp", "number", 1},
+    {RENDER, "{\"adaptive_spp\":2}", "/render/adaptive_spp", "needs spp >= 2", 1},
+    {RENDER, "{\"spp\":1,\"method\":\"vrl\",\"adaptive_spp\":0.5}", "/render/adaptive_spp", "needs spp >= 2", 1},
     {RENDER, "{\"components\":[\"surface\"],\"exposure\":100}", "/render/exposure", "in [-64, 64]", 1},
     {RENDER, "{\"components\":[\"surface\"],\"method\":\"magic\"}", "/render/method", "unknown render method", 1},
     {RENDER, "{\"components\":[]}", "/render/components", "must not be empty", 1},
@@ -1284,6 +1325,7 @@ int main(void)
     RUN(test_integers_and_settings);
     RUN(test_tables_auto);
     RUN(test_boundary_default);
+    RUN(test_adaptive_default);
     RUN(test_normalisation);
     RUN(test_mesh_data_uri_and_asset);
     RUN(test_mesh_normals);

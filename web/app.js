@@ -75,6 +75,7 @@ const DEFAULT_METHOD = 'nn';
  * (the server's default, shown as the placeholder). */
 const SCATTER_NUMBERS = [
   { key: 'light_samples', id: 'light-samples', integer: true },
+  { key: 'adaptive_spp', id: 'adaptive-spp', integer: false },
   { key: 'vrls', id: 'vrls', integer: true },
   { key: 'gather_tile', id: 'gather-tile', integer: true },
   { key: 'gather_levels', id: 'gather-levels', integer: true },
@@ -109,6 +110,7 @@ const COUNT_ROWS = [
   { key: 'cells_culled', label: 'grid cells culled' },
   { key: 'cells_represented', label: 'grid cells by representative' },
   { key: 'tables_blended', label: 'tables blended from albedo nodes' },
+  { key: 'adaptive_samples', label: 'camera samples added where pixels spread' },
   { key: 'table_bytes', label: 'table memory', bytes: true },
   { key: 'weights_bytes', label: 'network weights', bytes: true },
 ];
@@ -1029,6 +1031,12 @@ function previewScene(scene) {
   cut('vrls', 10000, PREVIEW_DIVISOR);
   cut('single_samples', 64, PREVIEW_DIVISOR);
   cut('light_samples', 2, PREVIEW_DIVISOR);
+  // Added samples scale with the samples, as spp does (the server's default 2 included,
+  // which pt does not take); at one sample per pixel there is no spread to place them by
+  // (the server refuses them there), so the key goes.
+  const adaptive = render.adaptive_spp === undefined && render.method !== 'pt' ? 2 : render.adaptive_spp;
+  if (!(Number.isInteger(render.spp) && render.spp >= 2)) delete render.adaptive_spp;
+  else if (typeof adaptive === 'number') render.adaptive_spp = adaptive / (PREVIEW_DIVISOR * PREVIEW_DIVISOR);
   return copy;
 }
 
