@@ -469,6 +469,17 @@ static json_t *scene_for(const bench_scene *s, ns_method method, uint32_t compon
     return copy;
 }
 
+/* The scene as pt renders it for a reference or its noise: without the keys pt takes no
+ * part of (vrls; adaptive_spp, which it ignores), so that they do not make another reference. */
+static json_t *pt_scene_for(const bench_scene *s, uint32_t components, uint32_t spp, uint32_t seed)
+{
+    json_t *scene_json = scene_for(s, NS_METHOD_PT, components, spp, seed, 0);
+    json_t *render = json_object_get(scene_json, "render");
+    json_object_del(render, "vrls");
+    json_object_del(render, "adaptive_spp");
+    return scene_json;
+}
+
 /* ---------------------------------------------------------------------------------------
  * One render: JSON -> parse -> ns_render, timed. error gets the first problem.
  * ------------------------------------------------------------------------------------- */
@@ -631,8 +642,7 @@ static int render_compared(bench *b, json_t *scene_json, const ns_image *against
 static void measure_reference_noise(bench *b, bench_scene *s, bench_reference *r, uint32_t components)
 {
     if (!(r->variance > 0)) {
-        json_t *scene_json = scene_for(s, NS_METHOD_PT, components, BENCH_NOISE_SPP, BENCH_NOISE_SEED, 0);
-        json_object_del(json_object_get(scene_json, "render"), "vrls");
+        json_t *scene_json = pt_scene_for(s, components, BENCH_NOISE_SPP, BENCH_NOISE_SEED);
         char error[512];
         image_metrics m;
         if (render_compared(b, scene_json, &r->image, &m, error, sizeof error)) {
@@ -856,8 +866,7 @@ static int ensure_progressive_reference(bench *b, bench_scene *s, int set)
     bench_reference *r = &s->refs[set];
     uint32_t components = bench_ref_components[set];
     const char *set_name = bench_components_name(components);
-    json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
-    json_object_del(json_object_get(scene_json, "render"), "vrls");
+    json_t *scene_json = pt_scene_for(s, components, s->ref_spp, BENCH_REF_SEED);
     uint64_t key = reference_key(b, scene_json);
     progressive_state p = {0};
     snprintf(p.base, sizeof p.base, "%.3900s/%.63s-%s-%ux%u-%uspp-progressive-%016llx", b->cache_dir, s->name,
@@ -963,9 +972,7 @@ static int ensure_reference(bench *b, bench_scene *s, int set, int force)
         return ensure_progressive_reference(b, s, set);
     bench_reference *r = &s->refs[set];
     uint32_t components = bench_ref_components[set];
-    json_t *scene_json = scene_for(s, NS_METHOD_PT, components, s->ref_spp, BENCH_REF_SEED, 0);
-    /* pt takes no vrls and ignores max_depth; drop what the key should not depend on. */
-    json_object_del(json_object_get(scene_json, "render"), "vrls");
+    json_t *scene_json = pt_scene_for(s, components, s->ref_spp, BENCH_REF_SEED);
     uint64_t key = reference_key(b, scene_json);
     char name[sizeof s->name];
     memcpy(name, s->name, sizeof name);
@@ -1206,7 +1213,7 @@ static void run_pt_ladder(bench *b, bench_scene *s)
         bench_pt_point *p = &s->ladder[s->ladder_count++];
         memset(p, 0, sizeof *p);
         p->spp = b->ladder[i];
-        json_t *scene_json = scene_for(s, NS_METHOD_PT, BENCH_ALL, p->spp, BENCH_LADDER_SEED + i, 0);
+        json_t *scene_json = pt_scene_for(s, BENCH_ALL, p->spp, BENCH_LADDER_SEED + i);
         ns_image img;
         ns_render_stats stats;
         int rc = bench_render(b, scene_json, &img, &stats, &p->ms, res->error, sizeof res->error);

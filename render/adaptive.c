@@ -115,9 +115,9 @@ void ns_adaptive_entries(const uint32_t *counts, size_t pixels, uint32_t spp,
     size_t e = 0;
     for (size_t p = 0; p < pixels; p++)
         for (uint32_t k = 0; k < counts[p]; k++, e++) {
-            uint32_t words[2] = {(uint32_t)p, spp + k};
             memset(&entries[e], 0, sizeof entries[e]);
-            memcpy(entries[e].value, words, sizeof words);
+            entries[e].words[0] = (uint32_t)p;
+            entries[e].words[1] = spp + k;
         }
 }
 
@@ -129,9 +129,12 @@ void ns_adaptive_merge(float *pixels, size_t count, uint32_t spp, const uint32_t
         if (!counts[p])
             continue;
         double sum[3] = {0.0, 0.0, 0.0};
-        for (uint32_t k = 0; k < counts[p]; k++, e++)
+        for (uint32_t k = 0; k < counts[p]; k++, e++) {
+            float radiance[3];
+            memcpy(radiance, entries[e].words, sizeof radiance);
             for (int c = 0; c < 3; c++)
-                sum[c] += entries[e].value[c];
+                sum[c] += radiance[c];
+        }
         double all = (double)spp + counts[p];
         for (int c = 0; c < 3; c++)
             pixels[4 * p + c] = (float)(((double)pixels[4 * p + c] * spp + sum[c]) / all);

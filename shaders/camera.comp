@@ -226,11 +226,11 @@ void main()
         if (entry >= push.added_count)
             return;
         recording = false;
-        uint pixel = floatBitsToUint(added[entry].value.x);
-        uint i = floatBitsToUint(added[entry].value.y);
+        uint pixel = added[entry].words.x;
+        uint i = added[entry].words.y;
         vec3 radiance = camera_sample(uvec2(pixel % width, pixel / width), pixel, i);
         check_loop_limit();
-        added[entry].value = vec4(radiance, 0.0);
+        added[entry].words = uvec4(floatBitsToUint(radiance), 0u);
         return;
     }
     uvec2 xy = interleaved_invocation_xy();

@@ -124,10 +124,12 @@ struct GpuSamplePush {
 
 /* One added camera sample (binding 8 of the camera pass): render.c writes which pixel and
  * which sample index (spp and up: points of the pixel's low-discrepancy sequence and random
- * streams that its first spp samples did not take) in the bits of x and y; camera.comp
- * overwrites the entry with the sample's surface radiance (w = 0). */
+ * streams that its first spp samples did not take) in x and y; camera.comp overwrites the
+ * entry with the sample's surface radiance, the bits of its r, g, b in x, y, z (integers,
+ * not floats, both ways: a pixel index read as a float would be a denormal, which a device
+ * may flush to zero). */
 struct GpuAddedSample {
-    ns_vec4 value;
+    ns_uvec4 words;
 };
 
 /* Push constants of single scattering (single.comp): samples [first_sample, first_sample +

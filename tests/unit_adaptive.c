@@ -135,15 +135,13 @@ static void test_entries_and_merge(void)
     ns_adaptive_entries(counts, PIXELS, spp, entries);
     const uint32_t want[3][2] = {{3, 4}, {3, 5}, {10, 4}};
     for (int e = 0; e < 3; e++) {
-        uint32_t words[2];
-        memcpy(words, entries[e].value, sizeof words);
-        CHECK_INT(words[0], want[e][0]);
-        CHECK_INT(words[1], want[e][1]);
+        CHECK_INT(entries[e].words[0], want[e][0]);
+        CHECK_INT(entries[e].words[1], want[e][1]);
     }
-    /* What camera.comp would return: the samples' radiance. */
+    /* What camera.comp would return: the bits of the samples' radiance. */
     const float radiance[3][3] = {{1, 2, 3}, {3, 2, 1}, {8, 8, 8}};
     for (int e = 0; e < 3; e++)
-        memcpy(entries[e].value, radiance[e], sizeof radiance[e]);
+        memcpy(entries[e].words, radiance[e], sizeof radiance[e]);
     ns_adaptive_merge(pixels, PIXELS, spp, counts, entries);
     for (int c = 0; c < 3; c++) {
         CHECK_NEAR(pixels[4 * 3 + c], (4 * before[4 * 3 + c] + radiance[0][c] + radiance[1][c]) / 6,
