@@ -11,7 +11,7 @@ does; --pause S waits S seconds between renders, when the server makes the albed
 a material being swept (nscatter serve --idle-work, on by default).
 
     python3 scripts/end_to_end.py --bin build/nscatter --assets ~/.cache/nscatter/bench/assets \\
-        [--size 256] [--scenes milk,cloud] [--new-albedo --renders 5 --pause 10]
+        [--size 256] [--scenes milk,cloud] [--new-albedo --renders 5 --pause 10] [--render adaptive_spp=0]
 
 The meshes' scenes need the bench's assets (`nscatter bench` writes them to CACHE/assets).
 Python standard library only.
@@ -26,7 +26,7 @@ from bench_sweep import ROOT, request, start
 from material_change import FACTORS, stages
 
 SCENES = ["bumpy_sphere", "bunny", "candle", "milk", "oil", "cloud"]
-SHOWN = ["reconstruct", "accumulate", "ray_pass", "vrl", "boundary", "gather", "single"]
+SHOWN = ["reconstruct", "accumulate", "ray_pass", "adaptive", "vrl", "boundary", "gather", "single"]
 
 
 def main():
@@ -39,7 +39,16 @@ def main():
     ap.add_argument("--new-albedo", action="store_true",
                     help="a new albedo of the medium at every render after the first")
     ap.add_argument("--pause", type=float, default=0.0, help="seconds between renders")
+    ap.add_argument("--render", action="append", default=[], metavar="KEY=JSON",
+                    help="sets render.KEY in every scene, e.g. adaptive_spp=0 (repeatable)")
     args = ap.parse_args()
+    overrides = {}
+    for item in args.render:
+        key, _, value = item.partition("=")
+        try:
+            overrides[key] = json.loads(value)
+        except ValueError:
+            ap.error(f"--render {item}: not KEY=JSON")
     scenes = args.scenes.split(",")
     unknown = [n for n in scenes if n not in SCENES]
     if unknown:
@@ -50,6 +59,7 @@ def main():
     for name in scenes:
         scene = json.load(open(os.path.join(ROOT, "scenes", "bench", f"{name}.json")))
         scene["camera"]["width"] = scene["camera"]["height"] = args.size
+        scene.setdefault("render", {}).update(overrides)
         proc, host, port = start(args.bin, ("--assets", args.assets) if args.assets else ())
         rows = []
         try:
