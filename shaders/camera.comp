@@ -87,8 +87,9 @@ vec3 trace_path(PathState s, uint pixel, uint sample_index, DirectNumbers number
         // channel: a Fresnel reflection of a reflection, or deep in an absorbing medium) goes
         // on with probability w / NS_MIN_SEGMENT_THROUGHPUT at that throughput: the same
         // surface light in expectation, and most of such branches are not traced. Inside a
-        // refracting scattering mesh they had been most of the pass's rays (the bench's bunny:
-        // its added samples 3.2x shorter, its camera pass XX; docs/bench.md, *Weak branches*).
+        // refracting scattering mesh they had been most of the pass's rays (at 256² the bumpy
+        // sphere's and the bunny's camera passes 2.2-2.4x shorter; docs/bench.md, *Weak
+        // branches*).
         float strongest = max(s.w.x, max(s.w.y, s.w.z));
         if (strongest < NS_MIN_SEGMENT_THROUGHPUT) {
             s.weak = true;
