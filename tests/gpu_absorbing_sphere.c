@@ -22,10 +22,16 @@ static ns_scene sphere_scene(ns_material *m, ns_object *o, ns_light *l, uint32_t
     return s;
 }
 
+/* Fresnel reflectance at normal incidence. */
+static double normal_reflectance(double ior)
+{
+    double r = (ior - 1) / (ior + 1);
+    return r * r;
+}
+
 static double closed_form(double ior, double sigma_a, double r)
 {
-    double R = (ior - 1) / (ior + 1);
-    R *= R;
+    double R = normal_reflectance(ior);
     double T = exp(-2 * sigma_a * r);
     return R + (1 - R) * (1 - R) * T / (1 - R * T);
 }
@@ -75,11 +81,10 @@ static void test_weak_branches_keep_their_light(void)
     ns_image img = {0};
     if (!render_ok(&s, &img, NULL))
         return;
-    double R = (ior - 1) / (ior + 1);
-    R *= R;
+    double R = normal_reflectance(ior);
+    CHECK((1 - R) * exp(-2 * sigma_a[0]) < 1e-3); /* every channel is weak when it exits */
     for (int k = 0; k < 3; k++) {
         double T = exp(-2 * sigma_a[k]), weak = env[k] * (1 - R) * (1 - R) * T;
-        CHECK((1 - R) * exp(-2 * sigma_a[0]) < 1e-3); /* every channel is weak when it exits */
         double got = pixel_at(&img, 1, 1)[k], want = env[k] * closed_form(ior, sigma_a[k], 1.0);
         if (k == 0)
             printf("weak branches: the pixel %.7f, closed form %.7f, of which %.7f through the "
@@ -103,8 +108,7 @@ static void test_depth_truncates_series(void)
     ns_image img = {0};
     if (!render_ok(&s, &img, NULL))
         return;
-    double R = (ior - 1) / (ior + 1);
-    R *= R;
+    double R = normal_reflectance(ior);
     for (int k = 0; k < 3; k++) {
         double T = exp(-2 * sigma_a[k]);
         CHECK_REL(pixel_at(&img, 16, 16)[k], env[k] * (R + (1 - R) * (1 - R) * T), 1e-3);
