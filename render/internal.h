@@ -185,7 +185,8 @@ float ns_adaptive_spp(const ns_render_settings *resolved);
 /* render.adaptive_spp (render/adaptive.c). counts[p] (width x height of them) := the camera
  * samples added to pixel p, from the camera pass's pixels (4 floats each: the mean of spp
  * samples' radiance, and the mean of their squared lengths): in proportion to the spread of
- * p's eight neighbours' samples (never p's own), at most cap to a pixel, budget in all.
+ * p's neighbours' samples (the 24 within 2 pixels; never p's own), at most cap to a pixel,
+ * budget in all.
  * Returns how many were given (<= budget; 0 with spp < 2 or where no pixel spreads), or
  * UINT64_MAX when out of memory (counts then all 0). */
 uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, uint32_t spp,

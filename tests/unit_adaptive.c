@@ -8,7 +8,7 @@
 #include "harness.h"
 #include "internal.h"
 
-enum { W = 9, H = 7, PIXELS = W * H };
+enum { W = 13, H = 11, PIXELS = W * H };
 
 /* A camera-pass image (mean, mean squared length) whose pixel p has one sample's variance
  * var[p] about the mean value v in each channel: mean^2 summed + var. */
@@ -31,28 +31,28 @@ static uint64_t sum_counts(const uint32_t *counts)
 
 /* A lone pixel whose samples spread gets none of the added samples: its count is read from
  * its neighbours, never from its own samples (its mean would lean towards what they happened
- * to be); its eight neighbours get them, equally, and nothing else does. */
+ * to be); the 24 pixels within 2 of it get them, equally, and nothing else does. */
 static void test_neighbours_not_self(void)
 {
     double var[PIXELS] = {0};
-    const int cx = 4, cy = 3, centre = cy * W + cx;
+    const int cx = 6, cy = 5, centre = cy * W + cx;
     var[centre] = 8.0;
     float pixels[4 * PIXELS];
     fill(pixels, var, 0.5);
     uint32_t counts[PIXELS];
     const uint32_t spp = 4;
-    uint64_t total = ns_adaptive_plan(pixels, W, H, spp, 40, 1000, counts);
+    uint64_t total = ns_adaptive_plan(pixels, W, H, spp, 48, 1000, counts);
     CHECK_INT(total, sum_counts(counts));
     CHECK_INT(counts[centre], 0);
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++) {
-            int neighbour = abs(x - cx) <= 1 && abs(y - cy) <= 1 && !(x == cx && y == cy);
+            int neighbour = abs(x - cx) <= 2 && abs(y - cy) <= 2 && !(x == cx && y == cy);
             if (neighbour)
-                CHECK_INT(counts[y * W + x], 5); /* 40 over eight equal pixels */
+                CHECK_INT(counts[y * W + x], 2); /* 48 over 24 equal pixels */
             else if (!(x == cx && y == cy))
                 CHECK_INT(counts[y * W + x], 0);
         }
-    CHECK_INT(total, 40);
+    CHECK_INT(total, 48);
 }
 
 /* Two halves whose samples spread with standard deviations 1 and 3: a pixel's samples in
@@ -71,9 +71,9 @@ static void test_neyman_proportions(void)
     uint64_t total = ns_adaptive_plan(pixels, W, H, spp, budget, 1000, counts);
     CHECK(total <= budget);
     CHECK(total + PIXELS >= budget); /* at most one sample a pixel lost to rounding */
-    /* Away from the border between them (x = 3 and 4 see both halves). */
+    /* Away from the border between them (x = 4 to 7 see both halves). */
     for (int y = 0; y < H; y++) {
-        double low = spp + counts[y * W + 1], high = spp + counts[y * W + 7];
+        double low = spp + counts[y * W + 1], high = spp + counts[y * W + 10];
         CHECK_NEAR(high / low, 3.0, 3.0 * 2.0 / low);
     }
 }

@@ -313,8 +313,9 @@ typedef struct ns_render_settings {
      * every pixel: they go to the pixels whose neighbours' samples spread most, in proportion
      * to that spread (at most NS_ADAPTIVE_PIXEL_FACTOR x spp to one pixel), and add to the
      * surface light only (they record no segments for the scattering stages). A pixel's
-     * count is read from its eight neighbours' samples, never from its own, so its mean
-     * stays unbiased (docs/rendering.md, *Adaptive camera samples*). Needs spp >= 2 (a
+     * count is read from its neighbours' samples (the 24 within 2 pixels), never from its
+     * own, so its mean stays unbiased (docs/rendering.md, *Adaptive camera samples*).
+     * Needs spp >= 2 (a
      * spread); pt ignores it. 0 = none, the library's default; the scene parser's for an
      * absent key is NS_DEFAULT_ADAPTIVE_SPP where spp >= 2. */
     float adaptive_spp;
