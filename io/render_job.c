@@ -71,12 +71,13 @@ json_t *render_settings_json(const ns_scene *scene, float exposure_stops)
      * table's scattering by up to 3x, so an image says which one made it. single_levels
      * and gather_camera_samples likewise: the parser's defaults (2, 1) are not the
      * library's (0); and tables, whose parser default (auto) is not the library's (exact).
-     * light_samples and adaptive_spp with spp: together they set the surface's noise. */
+     * light_samples and adaptive_spp with spp: together they set the surface's noise
+     * (adaptive_spp as used: 0 where it added nothing, pt or no surface). */
     return json_pack("{s:s, s:o, s:I, s:I, s:I, s:I, s:f, s:f, s:I, s:I, s:s, s:I, s:I, s:s}",
                      "method", ns_method_name(r->method), "components", components, "spp",
                      (json_int_t)r->spp, "seed", (json_int_t)r->seed, "max_depth",
                      (json_int_t)r->max_depth, "light_samples", (json_int_t)r->light_samples,
-                     "adaptive_spp", (double)r->adaptive_spp, "exposure",
+                     "adaptive_spp", (double)ns_adaptive_spp_used(r), "exposure",
                      (double)exposure_stops, "width", (json_int_t)scene->camera.width, "height",
                      (json_int_t)scene->camera.height, "boundary", ns_boundary_name(r->boundary),
                      "single_levels", (json_int_t)r->single_levels, "gather_camera_samples",

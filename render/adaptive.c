@@ -32,12 +32,6 @@
  * 24; radius 3: 63.8). Elsewhere radius 1 and 2 are within 0.3 dB (docs/bench.md). */
 #define NEIGHBOUR_RADIUS 2
 
-float ns_adaptive_spp(const ns_render_settings *r)
-{
-    int used = r->method != NS_METHOD_PT && r->spp >= 2 && (r->components & NS_COMPONENT_SURFACE);
-    return used ? r->adaptive_spp : 0.0f;
-}
-
 /* Total added samples of the counts that `scale` gives: round(scale x sigma) samples in
  * all for each pixel, of which spp it has, at most cap added. */
 static uint64_t counts_at(const double *sigma, size_t pixels, double scale, uint32_t spp,
@@ -117,14 +111,14 @@ uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, 
     return total;
 }
 
-void ns_adaptive_entries(const uint32_t *counts, size_t pixels, uint32_t spp,
+void ns_adaptive_entries(const uint32_t *counts, size_t first, size_t pixels, uint32_t spp,
                          GpuAddedSample *entries)
 {
     size_t e = 0;
     for (size_t p = 0; p < pixels; p++)
         for (uint32_t k = 0; k < counts[p]; k++, e++) {
             memset(&entries[e], 0, sizeof entries[e]);
-            entries[e].words[0] = (uint32_t)p;
+            entries[e].words[0] = (uint32_t)(first + p);
             entries[e].words[1] = spp + k;
         }
 }

@@ -101,6 +101,17 @@ ns_render_settings ns_render_settings_resolve(ns_render_settings r)
     return r;
 }
 
+int ns_adaptive_spp_applies(ns_method method, uint32_t spp)
+{
+    return method != NS_METHOD_PT && spp >= 2;
+}
+
+float ns_adaptive_spp_used(const ns_render_settings *r)
+{
+    int used = ns_adaptive_spp_applies(r->method, r->spp) && (r->components & NS_COMPONENT_SURFACE);
+    return used ? r->adaptive_spp : 0.0f;
+}
+
 static const char *const method_names[NS_METHOD_COUNT] = {
 #define NS_X_NAME(code, value, name) [value] = name,
     NS_METHODS(NS_X_NAME)

@@ -179,9 +179,6 @@ void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
                         gpu_buffer *pixels, gpu_buffer *segments, uint32_t segment_count);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
 
-/* render.adaptive_spp as the camera pass uses it: 0 where it adds nothing (pt; spp < 2, no
- * spread to read; no surface component, whose light is all they add). */
-float ns_adaptive_spp(const ns_render_settings *resolved);
 /* render.adaptive_spp (render/adaptive.c). counts[p] (width x height of them) := the camera
  * samples added to pixel p, from the camera pass's pixels (4 floats each: the mean of spp
  * samples' radiance, and the mean of their squared lengths): in proportion to the spread of
@@ -191,9 +188,10 @@ float ns_adaptive_spp(const ns_render_settings *resolved);
  * UINT64_MAX when out of memory (counts then all 0). */
 uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, uint32_t spp,
                           uint64_t budget, uint32_t cap, uint32_t *counts);
-/* The added samples' entries for camera.comp, pixel by pixel: pixel p's counts[p] samples
- * take the sample indices spp, spp + 1, ... */
-void ns_adaptive_entries(const uint32_t *counts, size_t pixels, uint32_t spp,
+/* The added samples' entries for camera.comp, pixel by pixel, for the pixels first ..
+ * first + pixels - 1 (counts[0] is pixel first's): a pixel's counts samples take the sample
+ * indices spp, spp + 1, ... */
+void ns_adaptive_entries(const uint32_t *counts, size_t first, size_t pixels, uint32_t spp,
                          GpuAddedSample *entries);
 /* Each pixel with added samples becomes the mean of its spp first samples and its added
  * ones (the entries as camera.comp returned them, in ns_adaptive_entries' order). */
@@ -211,6 +209,7 @@ void ns_gpu_scene_buffer_descs(const ns_gpu_scene *gs, gpu_buffer_desc descs[NS_
  * capacity; when segments is not NULL the first min(written, segments_max) are copied. */
 typedef struct ns_render_debug {
     uint32_t segment_capacity;
+    uint32_t added_capacity; /* 0: as many added samples a pass as one buffer holds */
     GpuSegment *segments;
     uint32_t segments_max;
     uint64_t segments_written;  /* out: recorded (at most the capacity) */

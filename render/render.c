@@ -53,6 +53,15 @@ static void component_names(uint32_t bits, char *out, size_t size)
         }
 }
 
+/* How many elements of `size` bytes one of the render's storage buffers may hold: within
+ * SEGMENT_BYTES_MAX and the device's range. */
+static uint64_t storage_capacity(const ns_context *ctx, size_t size)
+{
+    uint64_t cap = SEGMENT_BYTES_MAX / size;
+    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / size;
+    return cap < device_cap ? cap : device_cap;
+}
+
 static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene,
                                  const ns_render_debug *debug)
 {
@@ -60,10 +69,7 @@ static uint32_t segment_capacity(const ns_context *ctx, const ns_scene *scene,
         return debug->segment_capacity;
     uint64_t want = (uint64_t)scene->camera.width * scene->camera.height * scene->render.spp *
                     SEGMENTS_PER_SAMPLE;
-    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
-    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
-    if (cap > device_cap)
-        cap = device_cap;
+    uint64_t cap = storage_capacity(ctx, sizeof(GpuSegment));
     return (uint32_t)(want < cap ? want : cap);
 }
 
@@ -156,24 +162,59 @@ static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *sce
     return status ? status : loop_limit_check(job, err);
 }
 
+/* Added samples traced for the pixels [first, first + count) of the plan, whose entries fit
+ * the buffer: camera.comp's added mode, in dispatches of at most the device's groups in one
+ * dimension; then those pixels become the means of all their samples. */
+static int trace_added(ns_context *ctx, render_job *job, gpu_pipeline *camera, uint32_t spp,
+                       const uint32_t *counts, size_t first, size_t count, uint64_t entries,
+                       ns_error *err)
+{
+    ns_adaptive_entries(counts + first, first, count, spp, job->added.mapped);
+    const uint32_t group = NS_CAMERA_GROUP_X * NS_CAMERA_GROUP_Y;
+    uint32_t max_groups = ctx->dev.properties.limits.maxComputeWorkGroupCount[0];
+    uint64_t groups_needed = (entries + group - 1) / group;
+    uint32_t groups = groups_needed < max_groups ? (uint32_t)groups_needed : max_groups;
+    uint32_t chunk = groups * group;
+    uint32_t dispatches = (uint32_t)((entries + chunk - 1) / chunk);
+    GpuSamplePush *push = calloc(dispatches, sizeof *push);
+    if (!push)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %u dispatches",
+                       dispatches);
+    for (uint32_t i = 0; i < dispatches; i++) {
+        push[i].first_sample = i * chunk;
+        push[i].added_count = (uint32_t)entries;
+    }
+    gpu_buffer *bound[CAMERA_BINDINGS];
+    camera_bindings(job, &job->added, bound);
+    int status = gpu_dispatch_many(&ctx->dev,
+                                   &(gpu_dispatch_desc){.pipeline = camera,
+                                                        .buffers = bound,
+                                                        .buffer_count = CAMERA_BINDINGS,
+                                                        .groups = {groups, 1, 1},
+                                                        .push = push,
+                                                        .dispatch_count = dispatches},
+                                   err);
+    free(push);
+    if (!status)
+        status = loop_limit_check(job, err);
+    if (!status)
+        ns_adaptive_merge((float *)job->buffers[B_PIXELS].mapped + 4 * first, count, spp,
+                          counts + first, job->added.mapped);
+    return status;
+}
+
 /* render.adaptive_spp: after the camera pass, its surface image takes added samples where its
  * pixels' neighbours spread most (render/adaptive.c says why a pixel's own samples do not
  * count). One invocation per added sample, each recording no segments; the pixels become the
- * means of all their samples. *added_total: how many were traced. */
+ * means of all their samples. Where they outnumber one buffer (a 7.8 M-sample budget, 2048²
+ * at the default), they go in passes of whole pixels. *added_total: how many were traced. */
 static int add_camera_samples(ns_context *ctx, render_job *job, const ns_scene *scene,
-                              uint64_t *added_total, ns_error *err)
+                              const ns_render_debug *debug, uint64_t *added_total, ns_error *err)
 {
     const ns_camera *cam = &scene->camera;
     uint32_t spp = scene->render.spp;
     size_t pixels = (size_t)cam->width * cam->height;
-    /* At most what one storage buffer holds, and one dispatch's groups in one dimension per
-     * chunk of entries. */
-    uint64_t most = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuAddedSample);
-    if (most > SEGMENT_BYTES_MAX / sizeof(GpuAddedSample))
-        most = SEGMENT_BYTES_MAX / sizeof(GpuAddedSample);
     uint64_t budget = (uint64_t)((double)scene->render.adaptive_spp * pixels + 0.5);
-    if (budget > most)
-        budget = most;
     uint32_t cap = NS_ADAPTIVE_PIXEL_FACTOR * spp;
     if (cap > NS_MAX_SPP - spp)
         cap = NS_MAX_SPP - spp;
@@ -186,9 +227,14 @@ static int add_camera_samples(ns_context *ctx, render_job *job, const ns_scene *
     int status = NS_OK;
     if (total == UINT64_MAX)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %zu pixels", pixels);
+    /* A pass holds at least one pixel's samples: cap (<= NS_MAX_SPP) is far below it. */
+    uint64_t room = storage_capacity(ctx, sizeof(GpuAddedSample));
+    if (debug && debug->added_capacity && debug->added_capacity < room)
+        room = debug->added_capacity > cap ? debug->added_capacity : cap;
     if (!status && total > 0)
         status = gpu_buffer_create(&ctx->dev, &job->added,
-                                   &(gpu_buffer_desc){.size = total * sizeof(GpuAddedSample),
+                                   &(gpu_buffer_desc){.size = (total < room ? total : room) *
+                                                              sizeof(GpuAddedSample),
                                                       .kind = GPU_BUFFER_STORAGE,
                                                       .uninitialized = 1,
                                                       .host_reads = 1,
@@ -197,39 +243,14 @@ static int add_camera_samples(ns_context *ctx, render_job *job, const ns_scene *
     gpu_pipeline *camera = NULL;
     if (!status && total > 0)
         status = ns_pipeline(ctx, NS_PIPELINE_CAMERA, &camera, NULL, err);
-    if (!status && total > 0) {
-        ns_adaptive_entries(counts, pixels, spp, job->added.mapped);
-        const uint32_t group = NS_CAMERA_GROUP_X * NS_CAMERA_GROUP_Y;
-        uint32_t max_groups = ctx->dev.properties.limits.maxComputeWorkGroupCount[0];
-        uint64_t groups_needed = (total + group - 1) / group;
-        uint32_t groups = groups_needed < max_groups ? (uint32_t)groups_needed : max_groups;
-        uint32_t chunk = groups * group;
-        uint32_t dispatches = (uint32_t)((total + chunk - 1) / chunk);
-        GpuSamplePush *push = calloc(dispatches, sizeof *push);
-        if (!push)
-            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "adaptive samples: %u dispatches",
-                             dispatches);
-        for (uint32_t i = 0; !status && i < dispatches; i++) {
-            push[i].first_sample = i * chunk;
-            push[i].added_count = (uint32_t)total;
-        }
-        gpu_buffer *bound[CAMERA_BINDINGS];
-        camera_bindings(job, &job->added, bound);
-        if (!status)
-            status = gpu_dispatch_many(&ctx->dev,
-                                       &(gpu_dispatch_desc){.pipeline = camera,
-                                                            .buffers = bound,
-                                                            .buffer_count = CAMERA_BINDINGS,
-                                                            .groups = {groups, 1, 1},
-                                                            .push = push,
-                                                            .dispatch_count = dispatches},
-                                       err);
-        free(push);
-        if (!status)
-            status = loop_limit_check(job, err);
-        if (!status)
-            ns_adaptive_merge(job->buffers[B_PIXELS].mapped, pixels, spp, counts,
-                              job->added.mapped);
+    for (size_t first = 0; !status && total > 0 && first < pixels;) {
+        size_t count = 0;
+        uint64_t entries = 0;
+        while (first + count < pixels && entries + counts[first + count] <= room)
+            entries += counts[first + count++];
+        if (entries)
+            status = trace_added(ctx, job, camera, spp, counts, first, count, entries, err);
+        first += count;
     }
     gpu_buffer_destroy(&ctx->dev, &job->added);
     free(counts);
@@ -296,10 +317,7 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
                                  uint32_t *segment_count, ns_render_stats *stats, ns_error *err)
 {
     uint32_t spp = scene->render.spp, pixels = scene->camera.width * scene->camera.height;
-    uint64_t cap = SEGMENT_BYTES_MAX / sizeof(GpuSegment);
-    uint64_t device_cap = ctx->dev.properties.limits.maxStorageBufferRange / sizeof(GpuSegment);
-    if (cap > device_cap)
-        cap = device_cap;
+    uint64_t cap = storage_capacity(ctx, sizeof(GpuSegment));
     size_t pixel_bytes = (size_t)pixels * 4 * sizeof(float);
     float *saved = malloc(pixel_bytes);
     if (!saved)
@@ -431,10 +449,10 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     }
     /* Added samples, after the scattering stages (which take only the first spp samples'
      * segments); a kept camera pass has them already. */
-    if (!status && kept < 0 && !(debug && debug->segments) && ns_adaptive_spp(&scene->render) > 0.0f) {
+    if (!status && kept < 0 && !(debug && debug->segments) && ns_adaptive_spp_used(&scene->render) > 0.0f) {
         uint64_t added = 0;
         stage = ns_stage_begin(ctx, "adaptive", 0.98, 0.99);
-        status = add_camera_samples(ctx, &job, scene, &added, err);
+        status = add_camera_samples(ctx, &job, scene, debug, &added, err);
         ns_stats_add_stage(stats, "adaptive", ns_stage_end(ctx, &stage));
         if (stats)
             stats->adaptive_samples = added;

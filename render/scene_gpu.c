@@ -341,7 +341,7 @@ int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scen
     p->image[3] = s->render.seed;
     ns_render_settings resolved = ns_render_settings_resolve(s->render);
     p->surface[0] = resolved.light_samples;
-    float adaptive = ns_adaptive_spp(&resolved);
+    float adaptive = ns_adaptive_spp_used(&resolved);
     memcpy(&p->surface[1], &adaptive, sizeof p->surface[1]);
     p->counts[0] = s->render.max_depth;
     p->counts[1] = gs->light_count;

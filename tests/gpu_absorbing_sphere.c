@@ -79,8 +79,13 @@ static void test_weak_branches_keep_their_light(void)
     ns_scene s = sphere_scene(&m, &o, &l, 3, 0.5);
     s.render.spp = 4096;
     ns_image img = {0};
-    if (!render_ok(&s, &img, NULL))
+    ns_render_stats stats = {0};
+    if (!render_ok(&s, &img, &stats))
         return;
+    /* The same segments as without the roulette: each sample records its entry stretch and
+     * nothing after (the reflected one at the back is below 1e-3, and a branch that survives
+     * the roulette must not record). */
+    CHECK_INT(stats.camera_segments, 9 * 4096);
     double R = normal_reflectance(ior);
     CHECK((1 - R) * exp(-2 * sigma_a[0]) < 1e-3); /* every channel is weak when it exits */
     for (int k = 0; k < 3; k++) {

@@ -1,4 +1,5 @@
 /* gpu_batches.c — when the camera segments of all samples do not fit the segment buffer,
+ * or the added samples (render.adaptive_spp) one buffer,
  * the render runs the samples in batches (render.c camera_and_scattering): the image must be
  * the one rendered in a single batch, for the surface and for every scattering component.
  * The buffer is made small on purpose (ns_render_debug.segment_capacity); with a gather tile
@@ -56,8 +57,43 @@ static void test_batches_equal_one_pass(void)
     ns_image_free(&batched);
 }
 
+/* render.adaptive_spp's added samples, when they outnumber one buffer, go in passes of whole
+ * pixels (render.c add_camera_samples): the image is the one a single pass gives, bit for
+ * bit (the same samples, merged in the same order). The buffer is made small on purpose
+ * (ns_render_debug.added_capacity: room for about a tenth of them). */
+static void test_added_samples_in_passes(void)
+{
+    ns_scene s;
+    ns_material mats[2];
+    ns_object objs[2];
+    ns_light lights[2];
+    build(&s, mats, objs, lights);
+    s.render.components = NS_COMPONENT_SURFACE;
+    s.render.adaptive_spp = 4.0f;
+    ns_image one = {0}, passes = {0};
+    ns_render_stats st1 = {0}, st2 = {0};
+    ns_error err = {0};
+    if (!render_ok(&s, &one, &st1))
+        return;
+    ns_render_debug debug = {.added_capacity = (uint32_t)(st1.adaptive_samples / 10)};
+    int status = ns_render_ex(test_context(), &s, &passes, &st2, &debug, &err);
+    if (status)
+        fprintf(stderr, "in passes: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    if (status)
+        return;
+    printf("%llu added samples, in passes of at most %u\n",
+           (unsigned long long)st1.adaptive_samples, debug.added_capacity);
+    CHECK(st1.adaptive_samples > 1000);
+    CHECK_INT(st2.adaptive_samples, st1.adaptive_samples);
+    CHECK(memcmp(one.rgb, passes.rgb, sizeof(float) * 3 * W * H) == 0);
+    ns_image_free(&one);
+    ns_image_free(&passes);
+}
+
 int main(void)
 {
     RUN(test_batches_equal_one_pass);
+    RUN(test_added_samples_in_passes);
     return harness_report();
 }

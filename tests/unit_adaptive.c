@@ -112,9 +112,26 @@ static void test_nothing_to_add(void)
     fill(pixels, none, 1.0);
     CHECK_INT(ns_adaptive_plan(pixels, W, H, 4, 100, 10, counts), 0);
     CHECK_INT(sum_counts(counts), 0);
-    /* Float rounding can leave a spread slightly below zero; it counts as none. */
-    pixels[4 * 10 + 3] -= 1e-3f;
-    CHECK_INT(ns_adaptive_plan(pixels, W, H, 4, 100, 10, counts), 0);
+}
+
+/* Float rounding can leave a pixel's spread slightly below zero: it counts as none, so the
+ * plan is the one where that pixel's spread is exactly zero (a negative one would lower its
+ * neighbours' sigma, or make it NaN). */
+static void test_negative_spread_is_none(void)
+{
+    double var[PIXELS];
+    for (int p = 0; p < PIXELS; p++)
+        var[p] = p % 3 ? 1.0 : 4.0;
+    var[5 * W + 6] = 0.0;
+    float pixels[4 * PIXELS];
+    fill(pixels, var, 1.0);
+    uint32_t exact[PIXELS], rounded[PIXELS];
+    uint64_t a = ns_adaptive_plan(pixels, W, H, 4, 5 * PIXELS, 100, exact);
+    pixels[4 * (5 * W + 6) + 3] -= 0.5f; /* mean square below mean squared */
+    uint64_t b = ns_adaptive_plan(pixels, W, H, 4, 5 * PIXELS, 100, rounded);
+    CHECK(a > 0);
+    CHECK_INT(a, b);
+    CHECK(memcmp(exact, rounded, sizeof exact) == 0);
 }
 
 /* The entries name each pixel's added samples by the indices after its spp, and the merge
@@ -132,12 +149,17 @@ static void test_entries_and_merge(void)
     float before[4 * PIXELS];
     memcpy(before, pixels, sizeof pixels);
     GpuAddedSample entries[3];
-    ns_adaptive_entries(counts, PIXELS, spp, entries);
+    ns_adaptive_entries(counts, 0, PIXELS, spp, entries);
     const uint32_t want[3][2] = {{3, 4}, {3, 5}, {10, 4}};
     for (int e = 0; e < 3; e++) {
         CHECK_INT(entries[e].words[0], want[e][0]);
         CHECK_INT(entries[e].words[1], want[e][1]);
     }
+    /* A range of pixels names them by their place in the image. */
+    GpuAddedSample part[3];
+    ns_adaptive_entries(counts + 3, 3, 8, spp, part);
+    for (int e = 0; e < 3; e++)
+        CHECK(memcmp(part[e].words, entries[e].words, sizeof part[e].words) == 0);
     /* What camera.comp would return: the bits of the samples' radiance. */
     const float radiance[3][3] = {{1, 2, 3}, {3, 2, 1}, {8, 8, 8}};
     for (int e = 0; e < 3; e++)
@@ -159,14 +181,14 @@ static void test_where_it_applies(void)
 {
     ns_render_settings r = {.method = NS_METHOD_NN, .spp = 4, .adaptive_spp = 2.0f,
                             .components = NS_COMPONENT_ALL};
-    CHECK_NEAR(ns_adaptive_spp(&r), 2.0, 0);
+    CHECK_NEAR(ns_adaptive_spp_used(&r), 2.0, 0);
     ns_render_settings pt = r, one = r, scattering = r;
     pt.method = NS_METHOD_PT;
     one.spp = 1;
     scattering.components = NS_COMPONENT_MULTIPLE;
-    CHECK_NEAR(ns_adaptive_spp(&pt), 0, 0);
-    CHECK_NEAR(ns_adaptive_spp(&one), 0, 0);
-    CHECK_NEAR(ns_adaptive_spp(&scattering), 0, 0);
+    CHECK_NEAR(ns_adaptive_spp_used(&pt), 0, 0);
+    CHECK_NEAR(ns_adaptive_spp_used(&one), 0, 0);
+    CHECK_NEAR(ns_adaptive_spp_used(&scattering), 0, 0);
 }
 
 int main(void)
@@ -175,6 +197,7 @@ int main(void)
     RUN(test_neyman_proportions);
     RUN(test_cap);
     RUN(test_nothing_to_add);
+    RUN(test_negative_spread_is_none);
     RUN(test_entries_and_merge);
     RUN(test_where_it_applies);
     return harness_report();

@@ -383,6 +383,14 @@ typedef struct ns_render_settings {
  * components. */
 ns_render_settings ns_render_settings_resolve(ns_render_settings settings);
 
+/* Whether render.adaptive_spp can add samples with this method at this spp: not for pt, which
+ * ignores it, and not at spp 1, where there is no spread to place them by. */
+int ns_adaptive_spp_applies(ns_method method, uint32_t spp);
+/* render.adaptive_spp as a render with these resolved settings uses it: 0 where it adds
+ * nothing (where it does not apply, or without the surface component, whose light is all
+ * that the added samples add). What an image's metadata reports. */
+float ns_adaptive_spp_used(const ns_render_settings *resolved);
+
 typedef struct ns_scene {
     ns_camera camera;
     const ns_material *materials;
