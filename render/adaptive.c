@@ -38,14 +38,39 @@ static uint64_t counts_at(const double *sigma, size_t pixels, double scale, uint
                           uint32_t cap, uint32_t *counts)
 {
     uint64_t total = 0;
+    const double most = (double)spp + cap;
     for (size_t p = 0; p < pixels; p++) {
-        double want = floor(scale * sigma[p] + 0.5) - spp;
-        uint32_t n = want <= 0.0 ? 0 : want >= cap ? cap : (uint32_t)want;
+        double want = scale * sigma[p] + 0.5; /* rounded below by the conversion */
+        uint32_t n = want >= most + 1.0 ? cap : want < spp + 1.0 ? 0 : (uint32_t)want - spp;
         if (counts)
             counts[p] = n;
         total += n;
     }
     return total;
+}
+
+/* sum[p] := the sum of values over the pixels within NEIGHBOUR_RADIUS of p in x (a row's
+ * window), then, applied to that, in y: a box sum in two passes of 5 reads each. */
+static void window_sums(const double *values, uint32_t width, uint32_t height, int along_x,
+                        double *sum)
+{
+    for (uint32_t y = 0; y < height; y++)
+        for (uint32_t x = 0; x < width; x++) {
+            long at = along_x ? x : y, size = along_x ? width : height;
+            long lo = at - NEIGHBOUR_RADIUS < 0 ? 0 : at - NEIGHBOUR_RADIUS;
+            long hi = at + NEIGHBOUR_RADIUS >= size ? size - 1 : at + NEIGHBOUR_RADIUS;
+            double total = 0.0;
+            for (long k = lo; k <= hi; k++)
+                total += along_x ? values[(size_t)y * width + k] : values[(size_t)k * width + x];
+            sum[(size_t)y * width + x] = total;
+        }
+}
+
+static long window_size(long at, long size)
+{
+    long lo = at - NEIGHBOUR_RADIUS < 0 ? 0 : at - NEIGHBOUR_RADIUS;
+    long hi = at + NEIGHBOUR_RADIUS >= size ? size - 1 : at + NEIGHBOUR_RADIUS;
+    return hi - lo + 1;
 }
 
 uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, uint32_t spp,
@@ -55,9 +80,11 @@ uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, 
     memset(counts, 0, n * sizeof *counts);
     if (spp < 2 || budget == 0 || cap == 0 || n == 0)
         return 0;
-    double *spread = malloc(n * sizeof *spread), *sigma = malloc(n * sizeof *sigma);
-    if (!spread || !sigma) {
+    double *spread = malloc(n * sizeof *spread), *rows = malloc(n * sizeof *rows),
+           *sigma = malloc(n * sizeof *sigma);
+    if (!spread || !rows || !sigma) {
         free(spread);
+        free(rows);
         free(sigma);
         return UINT64_MAX;
     }
@@ -69,44 +96,47 @@ uint64_t ns_adaptive_plan(const float *pixels, uint32_t width, uint32_t height, 
         double s = ((double)v[3] - mean2) * spp / (spp - 1);
         spread[p] = s > 0.0 && isfinite(s) ? s : 0.0;
     }
-    /* A pixel's own: the mean of its neighbours' (those inside the image). */
-    double smallest = INFINITY;
+    /* A pixel's own: the mean of its neighbours' (those inside the image, itself left out),
+     * as sigma. */
+    window_sums(spread, width, height, 1, rows);
+    window_sums(rows, width, height, 0, sigma);
+    double smallest = INFINITY, largest = 0.0;
     for (uint32_t y = 0; y < height; y++)
         for (uint32_t x = 0; x < width; x++) {
-            double sum = 0.0;
-            int count = 0;
-            for (int dy = -NEIGHBOUR_RADIUS; dy <= NEIGHBOUR_RADIUS; dy++)
-                for (int dx = -NEIGHBOUR_RADIUS; dx <= NEIGHBOUR_RADIUS; dx++) {
-                    long nx = (long)x + dx, ny = (long)y + dy;
-                    if ((dx || dy) && nx >= 0 && ny >= 0 && nx < width && ny < height) {
-                        sum += spread[(size_t)ny * width + nx];
-                        count++;
-                    }
-                }
-            double s = count ? sqrt(sum / count) : 0.0;
-            sigma[(size_t)y * width + x] = s;
+            size_t p = (size_t)y * width + x;
+            long count = window_size(x, width) * window_size(y, height) - 1;
+            double sum = sigma[p] - spread[p];
+            double s = count > 0 && sum > 0.0 ? sqrt(sum / count) : 0.0;
+            sigma[p] = s;
             if (s > 0.0 && s < smallest)
                 smallest = s;
+            if (s > largest)
+                largest = s;
         }
     uint64_t total = 0;
-    if (isfinite(smallest)) {
-        /* The largest scale whose counts fit the budget, by bisection: the total grows with
-         * the scale, from 0 below spp / max(sigma) to every pixel capped above
-         * (spp + cap + 1) / min(sigma). */
-        double lo = 0.0, hi = (spp + cap + 1.0) / smallest;
-        if (counts_at(sigma, n, hi, spp, cap, NULL) <= budget)
+    if (largest > 0.0) {
+        /* The largest scale whose counts fit the budget, by bisection in its logarithm, to
+         * within a thousandth of the budget: the total grows with the scale, from 0 below
+         * spp / max(sigma) to every pixel capped above (spp + cap + 1) / min(sigma). */
+        double lo = log(spp / largest), hi = log((spp + cap + 1.0) / smallest);
+        if (counts_at(sigma, n, exp(hi), spp, cap, NULL) <= budget)
             lo = hi;
         else
-            for (int i = 0; i < 64 && hi - lo > 1e-12 * hi; i++) {
+            for (int i = 0; i < 64 && hi - lo > 1e-9; i++) {
                 double mid = 0.5 * (lo + hi);
-                if (counts_at(sigma, n, mid, spp, cap, NULL) <= budget)
-                    lo = mid;
-                else
+                uint64_t at = counts_at(sigma, n, exp(mid), spp, cap, NULL);
+                if (at > budget) {
                     hi = mid;
+                    continue;
+                }
+                lo = mid;
+                if (budget - at <= budget / 1000)
+                    break;
             }
-        total = counts_at(sigma, n, lo, spp, cap, counts);
+        total = counts_at(sigma, n, exp(lo), spp, cap, counts);
     }
     free(spread);
+    free(rows);
     free(sigma);
     return total;
 }
