@@ -3,7 +3,8 @@
  *
  * Progress (internal.h): bvh 0-1%, upload 1-2%, the camera pass and the scattering stages
  * 2-98% (shared out among the camera batches by their samples, and within a batch as
- * ns_batch_shares says), the added camera samples 98-99%, readback 99-100%. pt.c plans its own stages the same way. */
+ * ns_batch_shares says), the added camera samples 98-99%, readback 99-100%. pt.c plans its
+ * own stages the same way. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -97,10 +98,6 @@ static int upload(ns_context *ctx, render_job *job, uint32_t pixels, ns_error *e
     return gpu_buffers_create(&ctx->dev, job->buffers, descs, B_COUNT, err);
 }
 
-/* Camera samples [first, first + count). On lavapipe every sample gets its own dispatch, so
- * that the per-invocation loop limit (shared.h) applies to one camera sample rather than to
- * all of them; elsewhere one dispatch takes them all. The pixels of a range that does not
- * start at sample 0 add to what is there. */
 /* camera.comp's buffers: the job's, then the added samples' (binding 8), which only the
  * added samples' dispatches read; the others get the counters there, unread. */
 enum { CAMERA_BINDINGS = B_COUNT + 1 };
@@ -125,6 +122,10 @@ static int loop_limit_check(const render_job *job, ns_error *err)
                    counters[NS_COUNTER_LOOP_LIMIT]);
 }
 
+/* Camera samples [first, first + count). On lavapipe every sample gets its own dispatch, so
+ * that the per-invocation loop limit (shared.h) applies to one camera sample rather than to
+ * all of them; elsewhere one dispatch takes them all. The pixels of a range that does not
+ * start at sample 0 add to what is there. */
 static int dispatch_camera(ns_context *ctx, render_job *job, const ns_scene *scene, uint32_t first,
                            uint32_t count, ns_error *err)
 {
@@ -449,7 +450,8 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     }
     /* Added samples, after the scattering stages (which take only the first spp samples'
      * segments); a kept camera pass has them already. */
-    if (!status && kept < 0 && !(debug && debug->segments) && ns_adaptive_spp_used(&scene->render) > 0.0f) {
+    if (!status && kept < 0 && !(debug && debug->segments) &&
+        ns_adaptive_spp_used(&scene->render) > 0.0f) {
         uint64_t added = 0;
         stage = ns_stage_begin(ctx, "adaptive", 0.98, 0.99);
         status = add_camera_samples(ctx, &job, scene, debug, &added, err);

@@ -286,9 +286,9 @@ const char *ns_tables_name(ns_tables_mode tables);
  * max_scatter, gather_levels, gather_camera_samples, single_levels, accumulation, tables,
  * vrl_beams, boundary, cull_solid_angle, adaptive_spp) nothing needs replacing in the
  * library. Eight fields are exceptions. seed, gather_tolerance and single_tolerance keep a
- * 0 as given (0 is a value of their own there), and their defaults (NS_DEFAULT_SEED, NS_DEFAULT_GATHER_TOLERANCE,
- * NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene parser, which knows whether the key
- * was written; boundary is 0 (off) here, and the parser's default is
+ * 0 as given (0 is a value of their own there), and their defaults (NS_DEFAULT_SEED,
+ * NS_DEFAULT_GATHER_TOLERANCE, NS_DEFAULT_SINGLE_TOLERANCE) are applied by the scene
+ * parser, which knows whether the key was written; boundary is 0 (off) here, and the parser's default is
  * ns_default_boundary(method): walks for nn and table; single_levels is 0 (every pixel)
  * here, and the parser's default is NS_DEFAULT_SINGLE_LEVELS; gather_levels likewise (every
  * tile here, NS_DEFAULT_GATHER_LEVELS in the parser); gather_camera_samples is 0 (every
