@@ -7,7 +7,7 @@
  * vrl_trace.comp read the five scene buffers, the path count, the chain length and the seed,
  * and the boundary sources are then filtered and grouped by the components asked for. So
  * two renders whose scene buffers agree once the camera, the image size, the samples per
- * pixel and the camera pass's light samples are cleared from params (and the segment
+ * pixel and the camera pass's light and added samples are cleared from params (and the segment
  * buffer's capacity, which follows from them), with the same VRL count, chain, seed,
  * boundary model and (with the boundary correction) components, make the same sources; the
  * second takes a copy of the first's instead of tracing them again (issue 15: "keep the

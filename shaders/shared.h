@@ -105,7 +105,8 @@ struct GpuParams {
     ns_uvec4 limits;      /* x = loop iterations an invocation may run (0 = no limit) */
     ns_uvec4 surface;     /* x = render.light_samples: camera.comp's shadow rays per light
                              (and the environment) at each diffuse surface; y = the bits of
-                             render.adaptive_spp (read by render.c, not by a shader: here so
+                             render.adaptive_spp as used (ns_adaptive_spp_used: 0 where it
+                             adds nothing; no shader reads it: it is here so
                              that a camera pass kept for a later render, which includes the
                              added samples, is kept only for the same setting); zw unused */
 };

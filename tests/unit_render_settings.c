@@ -14,6 +14,7 @@ static void test_zero_means_default(void)
     CHECK_INT(r.spp, 1);
     CHECK_INT(r.max_depth, 8);
     CHECK_INT(r.light_samples, 2);
+    CHECK_NEAR(r.adaptive_spp, 0, 0); /* none added: the parser's default is 2 at spp >= 2 */
     CHECK_NEAR(r.exposure, 0, 0);
     CHECK_INT(r.max_scatter, 0);
     CHECK_INT(r.vrls, 10000);
@@ -41,6 +42,7 @@ static void test_given_fields_are_kept(void)
         .seed = 9,
         .max_depth = 3,
         .light_samples = 5,
+        .adaptive_spp = 70.0f, /* out of range: kept for ns_render to refuse */
         .exposure = -2,
         .vrls = 7,
         .gather_tile = 1,
