@@ -85,6 +85,8 @@ typedef struct bench_result {
     uint32_t spp;       /* camera samples per pixel */
     double ms;          /* median wall time of the warm renders (all renders if --repeat 1) */
     double cold_ms;     /* the first render: includes table reconstruction and accumulation */
+    double camera_ms;   /* the camera pass (stages ray_pass and adaptive) that the first render
+                           traced and the warm renders kept: a new camera pays it on top of ms */
     ns_render_stats stats;      /* of the last render */
     ns_render_stats cold_stats; /* of the first render */
     image_metrics metrics;      /* against the reference with the same components */
@@ -115,6 +117,7 @@ typedef struct bench_pt_estimate {
     double nn_mse_true;     /* nn full's MSE with the reference's own noise taken out */
     double pt_ms_equal;     /* pt time to reach nn full's error against the truth */
     double speedup;         /* pt_ms_equal / nn full's time */
+    double speedup_frame;   /* pt_ms_equal / (nn full's time + its camera pass): a new view */
     int lower_bound;        /* nn full is within the reference's noise: speedup is at least */
 } bench_pt_estimate;
 

@@ -19,7 +19,7 @@ SIZE = 16
 # The cheapest scene (a sphere primitive, index matched) and methods that need no tables.
 TINY = ["--scenes", "cloud", "--methods", "nn_surface,pt", "--width", str(SIZE), "--height",
         str(SIZE), "--ref-spp", "4", "--pt-spp", "1,2", "--repeat", "1"]
-NUMERIC_COLUMNS = ["render.vrls", "VRLs", "spp", "time ms", "first ms", "PSNR dB", "RMSE", "rel. err",
+NUMERIC_COLUMNS = ["render.vrls", "VRLs", "spp", "time ms", "first ms", "camera ms", "PSNR dB", "RMSE", "rel. err",
                    "interactions", "table MB", "weights KB"]
 
 
@@ -160,10 +160,24 @@ def test_report_and_reference_cache(t, d):
     t.check(not os.path.exists(os.path.join(d, "out3", "report.md")), "--references writes no report")
 
     # A different size is a different scene: a new reference, the old ones stay.
-    code, _, err = run(*TINY[:4], "--width", "8", "--height", "8", *TINY[8:], "--cache", cache,
-                       "--out", os.path.join(d, "out4"))
+    code, _, err = run(*TINY[:2], "--methods", "nn_full,pt", "--width", "8", "--height", "8",
+                       *TINY[8:-2], "--repeat", "2", "--cache", cache, "--out", os.path.join(d, "out4"))
     t.equal(code, 0, f"8x8 run ({err.strip()[-300:]})")
-    t.check("references: 2 rendered" in err, "another size renders its own references")
+    t.check("references: 1 rendered" in err, f"another size renders its own reference: {err[-300:]}")
+    # Rendered twice, nn_full's second render keeps the first one's camera pass (a render with
+    # scattering keeps it): its time leaves the pass out, and the camera column gives it
+    # back. pt keeps none.
+    report = os.path.join(d, "out4", "report.md")
+    text = open(report, encoding="utf-8").read() if os.path.isfile(report) else ""
+    camera = {r["method"]: r["camera ms"] for r in markdown_table(text, "## Results")} if text else {}
+    t.check(float(camera.get("nn_full", "nan")) > 0, f"nn_full's kept camera pass: {camera}")
+    t.equal(camera.get("pt"), "0.0", "pt keeps no camera pass")
+    # The speed-up over pt for a new view counts that pass: below the one for a kept view.
+    targets = markdown_table(text, "## Targets") if text else []
+    speeds = [(r["speedup over pt"], r["speedup, new view"]) for r in targets if r["scene"] == "cloud"]
+    t.check(len(speeds) == 1 and all(v != "n/a" for v in speeds[0]) and
+            float(speeds[0][1].lstrip("≥ ")) < float(speeds[0][0].lstrip("≥ ")),
+            f"speed-ups kept view, new view: {speeds}")
 
 
 def test_seeds(t, d):
