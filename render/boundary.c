@@ -82,15 +82,19 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
     return cos_turn > 1.0f - 1e-5f ? NS_BOUNDARY_LINK_CONTINUED : NS_BOUNDARY_LINK_REFLECTED;
 }
 
-uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
-                             int entry_ghosts, GpuVrl *out)
+uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_t count,
+                             const GpuMaterial *materials, int entry_ghosts, GpuVrl *out)
 {
     uint32_t n = 0;
     for (uint32_t i = 0; i < count; i++) {
         const GpuVrl *v = &stretches[i];
         ns_boundary_link link = ns_boundary_link_of(i ? &stretches[i - 1] : NULL, v);
         int entry = events_of(v) == 0 && link == NS_BOUNDARY_LINK_START;
-        if (link == NS_BOUNDARY_LINK_REFLECTED || link == NS_BOUNDARY_LINK_REENTERED) {
+        /* Given the ends, unscattered light's reflected beams come in expectation at the end
+         * of the stretch before (below), not from the walk's own choice (a reflected stretch
+         * has the events of the one before it). */
+        int expected = ends && events_of(v) == 0;
+        if ((link == NS_BOUNDARY_LINK_REFLECTED && !expected) || link == NS_BOUNDARY_LINK_REENTERED) {
             GpuVrl r = *v;
             r.length = 0.0f;
             r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
@@ -99,7 +103,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
         /* A stretch that the next one continues along the same line has no boundary event
          * at its end: the next one's ghost stands for both. */
         int continued = i + 1 < count && ns_boundary_link_of(v, &stretches[i + 1]) == NS_BOUNDARY_LINK_CONTINUED;
-        if (!(v->length > 0.0f) || continued || (entry && !entry_ghosts))
+        if (!(v->length > 0.0f) || continued)
             continue;
         const float *st = materials[v->material].sigma_t;
         GpuVrl ghost = *v;
@@ -110,8 +114,27 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuM
             ghost.power[c] = -expf(-st[c] * v->length) * v->power[c];
             largest = fmaxf(largest, -ghost.power[c]);
         }
-        if (largest > 0.0f)
+        if (!(largest > 0.0f))
+            continue;
+        if (!entry || entry_ghosts)
             out[n++] = ghost;
+        /* Unscattered light: what the boundary reflects back at that end, F of the light
+         * reaching it, along the mirror direction: the expectation of the walk's own
+         * reflected beam (taken with probability F by the walks that get there, which for
+         * light that has not scattered yet is rare: a first free flight as long as the
+         * stretch), whatever the walk did. Scattered light keeps the walk's own beams: there
+         * every stretch would add a source, mostly weak, and the roulette below them brings
+         * back the noise they took away (docs/scattering.md, *Reflections in expectation*). */
+        const float *end = expected ? ends + 4 * (size_t)i : NULL;
+        if (end && end[3] > 0.0f) {
+            GpuVrl reflected = ghost;
+            for (int c = 0; c < 3; c++) {
+                reflected.direction[c] = end[c];
+                reflected.power[c] = -end[3] * ghost.power[c];
+            }
+            reflected.events = events_of(v);
+            out[n++] = reflected;
+        }
     }
     return n;
 }

@@ -39,11 +39,17 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
 /* The sources of stretches[0, count) (the `vrl` method's light paths, in path order): a
  * ghost (negative power) at the end of every stretch, except the entry stretch's unless
  * entry_ghosts (the renderer asks for them: they are its endless VRLs' beams past their
- * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam at the
- * start of every stretch that begins with an internal reflection or a re-entry, all
- * endless (length 0). out has room for 2 count. Returns how many were written. */
-uint32_t ns_boundary_sources(const GpuVrl *stretches, uint32_t count, const GpuMaterial *materials,
-                             int entry_ghosts, GpuVrl *out);
+ * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam for
+ * the light the boundary reflects back, all endless (length 0). That beam is the walk's own,
+ * at the start of every stretch that begins with an internal reflection, except for light
+ * that has not scattered yet when ends are given (ns_vrl_set.ends: per stretch, the mirror
+ * direction and the Fresnel reflectance at its end): then it is its expectation, at the end
+ * of every unscattered stretch, F times the ghost's light reaching it, along the mirror
+ * direction, whether or not the walk reflected there (the walk's own choice only decides
+ * how it goes on). And a positive beam at the start of every stretch that re-enters its
+ * medium. out has room for 3 count. Returns how many were written. */
+uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_t count,
+                             const GpuMaterial *materials, int entry_ghosts, GpuVrl *out);
 
 /* Russian roulette on weak sources: one whose power (mean of RGB, in absolute value) is
  * below `floor` is kept with probability |power| / floor and then carries power * floor /

@@ -336,5 +336,6 @@ int ns_vrl_generate(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *
 void ns_vrl_set_free(ns_vrl_set *set)
 {
     free(set->vrls);
+    free(set->ends);
     memset(set, 0, sizeof *set);
 }

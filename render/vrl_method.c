@@ -160,7 +160,7 @@ static int round_status(int status, const char *what, ns_error *err)
 /* =======================================================================================
  * Trace
  * ===================================================================================== */
-enum { T_EMITTERS, T_WALKS, T_VRLS, T_COUNTERS, T_OWN };
+enum { T_EMITTERS, T_WALKS, T_VRLS, T_COUNTERS, T_ENDS, T_OWN };
 
 static int loop_limit_error(const char *what, uint32_t yield, ns_error *err)
 {
@@ -176,7 +176,7 @@ static int trace_pass(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *ow
                       GpuVrlTracePush *push, const uint32_t *offsets, uint32_t *restarts,
                       ns_error *err)
 {
-    gpu_buffer *bound[8];
+    gpu_buffer *bound[4 + T_OWN];
     for (int i = 0; i < 3; i++)
         bound[i] = &scene_buffers[i];
     bound[3] = &scene_buffers[3]; /* materials */
@@ -241,7 +241,7 @@ static int offsets_from_counts(const GpuVrlWalk *walks, uint32_t paths, uint32_t
 }
 
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
-                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, int mark_lines,
+                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, uint32_t options,
                         ns_vrl_set *out, uint32_t *restarts, ns_error *err)
 {
     memset(out, 0, sizeof *out);
@@ -276,12 +276,13 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
         {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .host_reads = 1, .label = "ns.vrl_method.walks"},
         {.size = sizeof(GpuVrl), .label = "ns.vrl_method.vrls"},
         {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
+        {.size = 4 * sizeof(float), .label = "ns.vrl_method.ends"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, T_OWN, err);
     GpuVrlTracePush push = {.path_count = paths,
                             .emitter_count = emitters.count,
                             .seed = seed,
-                            .mark_lines = mark_lines ? 1u : 0u};
+                            .options = options};
     uint32_t *offsets = status ? NULL : malloc(sizeof *offsets * paths);
     if (!status && !offsets)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u paths", paths);
@@ -309,6 +310,15 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
                                                       .host_reads = 1,
                                                       .label = "ns.vrl_method.vrls"},
                                    err);
+        if (!status && (options & NS_VRL_TRACE_ENDS)) {
+            gpu_buffer_destroy(&ctx->dev, &own[T_ENDS]);
+            status = gpu_buffer_create(&ctx->dev, &own[T_ENDS],
+                                       &(gpu_buffer_desc){.size = (uint64_t)4 * sizeof(float) * total,
+                                                          .uninitialized = 1,
+                                                          .host_reads = 1,
+                                                          .label = "ns.vrl_method.ends"},
+                                       err);
+        }
         push.write = 1;
         push.vrl_capacity = total;
         outer = ns_progress_push(ctx, 0.5, 1.0);
@@ -333,15 +343,19 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
             out->count = total;
         }
     }
+    if (!status && total && (options & NS_VRL_TRACE_ENDS)) {
+        out->ends = malloc(4 * sizeof *out->ends * total);
+        if (!out->ends)
+            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u stretches' ends", total);
+        else
+            memcpy(out->ends, own[T_ENDS].mapped, 4 * sizeof *out->ends * total);
+    }
     for (int i = 0; i < T_OWN; i++)
         gpu_buffer_destroy(&ctx->dev, &own[i]);
     free(offsets);
     free(emitters.items);
-    if (status) {
-        free(out->vrls);
-        out->vrls = NULL;
-        out->count = 0;
-    }
+    if (status)
+        ns_vrl_set_free(out);
     return status;
 }
 

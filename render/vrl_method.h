@@ -8,12 +8,14 @@
 #include "vrl_method_shared.h"
 
 /* Traces `paths` light paths towards the scene's scattering media and returns every stretch
- * inside a medium as a VRL (out->vrls malloc'd, in path order; free(out->vrls)). mark_lines:
- * set NS_VRL_LINE_RETURNS in the events of each stretch whose line, past its end, meets its
- * medium again (render.boundary's walks; costs a trace per stretch). restarts (may be NULL):
+ * inside a medium as a VRL (out->vrls malloc'd, in path order; ns_vrl_set_free). options
+ * (vrl_method_shared.h): NS_VRL_TRACE_MARK_LINES sets NS_VRL_LINE_RETURNS in the events of
+ * each stretch whose line, past its end, meets its medium again (render.boundary's walks;
+ * costs a trace per stretch); NS_VRL_TRACE_ENDS returns each stretch's end reflection in
+ * out->ends (render.boundary's reflected sources in expectation). restarts (may be NULL):
  * passes started again after lavapipe cut an invocation (tests). */
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
-                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, int mark_lines,
+                        gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, uint32_t options,
                         ns_vrl_set *out, uint32_t *restarts, ns_error *err);
 
 typedef struct ns_vrl_gather_counts {

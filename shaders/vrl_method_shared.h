@@ -48,8 +48,15 @@ struct GpuVrlTracePush {
     ns_uint write;
     ns_uint report;
     ns_uint vrl_capacity;
-    ns_uint mark_lines; /* 1: set NS_VRL_LINE_RETURNS in the stored stretches' events */
+    ns_uint options;    /* NS_VRL_TRACE_MARK_LINES | NS_VRL_TRACE_ENDS */
 };
+
+/* GpuVrlTracePush.options. MARK_LINES: set NS_VRL_LINE_RETURNS in the stored stretches'
+ * events. ENDS: write each stored stretch's end (binding 8): where the walk leaves through
+ * its medium's own refracting boundary, the direction it would reflect in and the Fresnel
+ * reflectance F (1 on total internal reflection) that decides whether it does; else 0. */
+NS_CONST(uint, NS_VRL_TRACE_MARK_LINES, 1);
+NS_CONST(uint, NS_VRL_TRACE_ENDS, 2);
 
 /* Trace counters (binding 7). */
 NS_CONST(uint, NS_VRL_TRACE_ACTIVE, 0);     /* paths not finished after a reporting dispatch */

@@ -34,6 +34,8 @@ layout(std430, binding = 4) readonly buffer EmitterBlock { GpuVrlEmitter emitter
 layout(std430, binding = 5) buffer WalkBlock { GpuVrlWalk walks[]; };
 layout(std430, binding = 6) writeonly buffer VrlBlock { GpuVrl vrls[]; };
 layout(std430, binding = 7) buffer CounterBlock { uint counters[]; };
+// With NS_VRL_TRACE_ENDS, at each stored stretch's slot: its end's reflection (options above).
+layout(std430, binding = 8) writeonly buffer EndBlock { vec4 ends[]; };
 layout(push_constant) uniform PushBlock { GpuVrlTracePush ns_push[1]; };
 #define push ns_push[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 
@@ -222,16 +224,34 @@ bool line_meets_medium(vec3 p, vec3 d, uint medium)
 }
 
 // The stretch from o along d whose boundary ahead is at distance len.
-void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, float len)
+// The reflection at the end of a stretch that hit h: where walk_step would reflect there
+// (its medium's own refracting boundary, left from inside), the mirror direction and the
+// Fresnel reflectance walk_step draws against (1 on total internal reflection); else 0.
+vec4 end_reflection(GpuVrlWalk w, vec3 d, Hit h)
+{
+    float ior = materials[w.state.z].sigma_t.w;
+    if (h.front || prim_at(h.prim).info.y != w.state.z || ior == 1.0)
+        return vec4(0.0);
+    vec3 n = -h.normal;
+    float cos_t;
+    float f = fresnel(-dot(d, n), ior, cos_t);
+    return vec4(normalize(reflect(d, n)), f < 1.0 ? f : 1.0);
+}
+
+void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, Hit h)
 {
     if (push.write != 0u) {
         uint slot = w.count.y + w.count.x;
         if (slot < push.vrl_capacity) {
+            float len = h.t;
             uint events = w.state.y;
-            if (push.mark_lines != 0u && line_meets_medium(o + len * d, d, w.state.z))
+            if ((push.options & NS_VRL_TRACE_MARK_LINES) != 0u &&
+                line_meets_medium(o + len * d, d, w.state.z))
                 events |= NS_VRL_LINE_RETURNS;
             // A constructor: glslang reads `v.length` as the length() method.
             vrls[slot] = GpuVrl(o, len, d, w.state.z, w.flux.xyz, events);
+            if ((push.options & NS_VRL_TRACE_ENDS) != 0u)
+                ends[slot] = end_reflection(w, d, h);
         }
     }
     w.count.x++;
@@ -265,7 +285,7 @@ bool walk_step(inout GpuVrlWalk w)
     Hit h;
     if (!trace_scene(o, d, 0.0, NS_INF, h))
         return false; // an open boundary: nothing ahead to stop the stretch
-    store_vrl(w, o, d, h.t);
+    store_vrl(w, o, d, h);
 
     GpuMaterial mm = materials[w.state.z];
     vec3 st = mm.sigma_t.xyz;

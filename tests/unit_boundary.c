@@ -139,7 +139,7 @@ static void test_sources_of_a_walk(void)
     /* Without the entries' ghosts (the renderer asks for them, below): ghost of stretch 1
      * at (0, 1, 0) going up; the reflected beam (stretch 2's start); no ghost at stretch 2's
      * end (stretch 3 continues it); ghost at stretch 3's end (0, -0.25, 0). */
-    uint32_t n = ns_boundary_sources(walk, 5, &m, 0, out);
+    uint32_t n = ns_boundary_sources(walk, NULL, 5, &m, 0, out);
     CHECK_INT(n, 3);
     if (n != 3)
         return;
@@ -157,7 +157,7 @@ static void test_sources_of_a_walk(void)
      * ghost that carries on along it, -e^{-s L} times its flux, no events; exactly what a
      * bounded VRL of that stretch subtracts. First path: from (0, 1, 0) down 2 to
      * (0, -1, 0); second: from (5, 1, 5) down 2 to (5, -1, 5). */
-    CHECK_INT(ns_boundary_sources(walk, 5, &m, 1, out), 5);
+    CHECK_INT(ns_boundary_sources(walk, NULL, 5, &m, 1, out), 5);
     const int entry_ghost[2] = {0, 4};
     const float entry_end[2][3] = {{0, -1, 0}, {5, -1, 5}};
     for (int k = 0; k < 2; k++) {
@@ -185,6 +185,63 @@ static void test_sources_of_a_walk(void)
     }
     CHECK_INT(total, 5);
     ns_boundary_groups_free(&groups);
+}
+
+/* With the stretches' ends (the mirror direction and the Fresnel reflectance where each
+ * stretch ends, vrl_trace.comp): unscattered light's reflected beams come in expectation at
+ * every unscattered stretch's end, F times the ghost's light, whether or not the walk
+ * reflected there; the walk's own reflected beam of unscattered light is dropped (the
+ * expectation stands for it), that of scattered light kept. */
+static void test_sources_with_ends(void)
+{
+    GpuMaterial m;
+    memset(&m, 0, sizeof m);
+    m.sigma_t[0] = 1.0f, m.sigma_t[1] = 2.0f, m.sigma_t[2] = 0.5f, m.sigma_t[3] = 1.5f;
+    /* A slab from y = -1 to 1. Path 1 enters at the top going down 2 to the floor, is
+     * reflected there unscattered (a stretch of its own, k = 0, back up 2), scatters at
+     * y = 0.5 (k = 1), goes up to the top face and is reflected down 1. Path 2 enters at
+     * (5, 1, 5) going down and scatters before the floor (its end: the floor, where the
+     * walk never got). */
+    const GpuVrl walk[] = {
+        stretch(0, 1, 0, 0, -1, 0, 2, 1.0, 0),   /* entry, reflected at its end */
+        stretch(0, -1, 0, 0, 1, 0, 2, 0.7, 0),   /* unscattered, reflected */
+        stretch(0, 0.5, 0, 0, 1, 0, 0.5, 0.8, 1), /* after a scattering */
+        stretch(0, 1, 0, 0, -1, 0, 1.0, 0.3, 1), /* reflected at the top face */
+        stretch(5, 1, 5, 0, -1, 0, 2, 1.0, 0),   /* the next path's entry */
+    };
+    CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_REFLECTED);
+    CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REFLECTED);
+    /* Each end: mirror direction, F. Stretch 0 ends on the floor with F 0.25, stretch 1 on
+     * the top face with F 0.1, stretch 2 on the top face (F 0.6: not used, k = 1), stretch
+     * 3 on the floor (F 1, total reflection: not used), stretch 4 on its floor with F 0.5. */
+    const float ends[5][4] = {
+        {0, 1, 0, 0.25f}, {0, -1, 0, 0.1f}, {0, -1, 0, 0.6f}, {0, 1, 0, 1.0f}, {0, 1, 0, 0.5f},
+    };
+    GpuVrl out[15];
+    uint32_t n = ns_boundary_sources(walk, &ends[0][0], 5, &m, 1, out);
+    /* Stretch 0: ghost, expected reflection. Stretch 1: (its own reflected beam dropped)
+     * ghost, expected reflection. Stretch 2: ghost. Stretch 3: the walk's reflected beam
+     * (k = 1), ghost. Stretch 4: ghost, expected reflection. */
+    CHECK_INT(n, 9);
+    if (n != 9)
+        return;
+    const int reflected[3] = {1, 3, 8}, of_stretch[3] = {0, 1, 4};
+    const float y_end[3] = {-1, 1, -1};
+    for (int r = 0; r < 3; r++) {
+        const GpuVrl *s = &out[reflected[r]], *ghost = &out[reflected[r] - 1];
+        const GpuVrl *v = &walk[of_stretch[r]];
+        const float *e = ends[of_stretch[r]];
+        CHECK(fabsf(s->origin[1] - y_end[r]) < 1e-6f && s->origin[0] == v->origin[0]);
+        CHECK(s->direction[1] == e[1] && s->length == 0.0f && s->events == 0);
+        for (int c = 0; c < 3; c++) {
+            CHECK(ghost->power[c] < 0.0f);
+            CHECK(fabsf(s->power[c] - e[3] * v->power[c] * expf(-m.sigma_t[c] * v->length)) < 1e-6f);
+        }
+    }
+    /* The walk's own reflected beam of scattered light: stretch 3's start, its full flux. */
+    CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && out[5].events == 1);
+    /* Without the ends: the walk's own beams only (stretch 1's and stretch 3's starts). */
+    CHECK_INT(ns_boundary_sources(walk, NULL, 5, &m, 1, out), 7);
 }
 
 /* A walk that leaves its object after scattering and enters it (or another object of the
@@ -216,7 +273,7 @@ static void test_sources_of_a_reentry(void)
     CHECK_INT(ns_boundary_link_of(&walk[3], &walk[4]), NS_BOUNDARY_LINK_START);
     GpuVrl out[10];
     /* The ghost of 1; the re-entry at 2 and its ghost; the one at 3 and its ghost. */
-    uint32_t n = ns_boundary_sources(walk, 5, m, 0, out);
+    uint32_t n = ns_boundary_sources(walk, NULL, 5, m, 0, out);
     CHECK_INT(n, 5);
     if (n != 5)
         return;
@@ -313,6 +370,7 @@ int main(void)
     RUN(test_blurred_table_moments);
     RUN(test_orders);
     RUN(test_sources_of_a_walk);
+    RUN(test_sources_with_ends);
     RUN(test_sources_of_a_reentry);
     return harness_report();
 }
