@@ -193,6 +193,20 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
         return;
     }
 
+    /* The ends the trace recorded are the reflections the walks took: wherever a stretch
+     * goes on reflected, the one before it ends with F > 0 and the mirror direction the
+     * walk took (and at ior 1 nothing reflects). */
+    uint32_t reflections = 0, mismatched = 0;
+    for (uint32_t i = 0; i + 1 < walks.count; i++) {
+        if (ns_boundary_link_of(&walks.vrls[i], &walks.vrls[i + 1]) != NS_BOUNDARY_LINK_REFLECTED)
+            continue;
+        const float *e = walks.ends + 4 * (size_t)i, *next = walks.vrls[i + 1].direction;
+        reflections++;
+        mismatched += !(e[3] > 0.0f && e[0] * next[0] + e[1] * next[1] + e[2] * next[2] > 0.9999f);
+    }
+    CHECK(ior == 1.0 ? reflections == 0 : reflections > 100);
+    CHECK_INT(mismatched, 0);
+
     /* Both estimators: the walk's own reflected beams (ends NULL), and unscattered light's in
      * expectation (the ends); orders >= 1 (single scattering's correction: reflected light
      * that has not scattered), >= 2 and (the walk's, which the ends do not change there)
