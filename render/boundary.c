@@ -139,9 +139,11 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
     return n;
 }
 
-static float source_weight(const GpuVrl *s)
+/* boundary.h: the roulette's importance of a source. */
+static float source_importance(const GpuVrl *s)
 {
-    return fabsf(s->power[0] + s->power[1] + s->power[2]) / 3.0f;
+    float sum = s->power[0] + s->power[1] + s->power[2];
+    return fabsf(sum) / 3.0f * (sum < 0.0f ? NS_BOUNDARY_GHOST_IMPORTANCE : 1.0f);
 }
 
 static uint32_t hash32(uint32_t v)
@@ -159,13 +161,13 @@ uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t
     uint32_t kept = 0;
     for (uint32_t i = 0; i < n; i++) {
         GpuVrl s = sources[i];
-        float weight = source_weight(&s);
-        if (weight < floor) {
+        float importance = source_importance(&s);
+        if (importance < floor) {
             float u = (float)(hash32(hash32(seed) + i) >> 8) * (1.0f / 16777216.0f);
-            if (!(u * floor < weight))
+            if (!(u * floor < importance))
                 continue;
             for (int c = 0; c < 3; c++)
-                s.power[c] *= floor / weight;
+                s.power[c] *= floor / importance;
         }
         sources[kept++] = s;
     }
@@ -188,7 +190,7 @@ float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target)
      * target), in the logarithm. */
     double total = 0, smallest = INFINITY;
     for (uint32_t i = 0; i < n; i++) {
-        double w = source_weight(&sources[i]);
+        double w = source_importance(&sources[i]);
         total += w;
         if (w > 0 && w < smallest)
             smallest = w;
@@ -199,7 +201,7 @@ float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target)
     for (int it = 0; it < 40; it++) {
         double mid = 0.5 * (lo + hi), f = exp(mid), kept = 0;
         for (uint32_t i = 0; i < n; i++)
-            kept += fmin(1.0, source_weight(&sources[i]) / f);
+            kept += fmin(1.0, source_importance(&sources[i]) / f);
         if (kept > target)
             lo = mid;
         else

@@ -308,7 +308,8 @@ static void test_sources_of_a_reentry(void)
 static void test_roulette(void)
 {
     /* 100000 weak sources (a tenth of the floor, half of them ghosts) and two strong ones:
-     * the strong ones stay as they are, about a tenth of the weak ones stay, at the floor,
+     * the strong ones stay as they are, about a tenth of the weak positive ones stay and
+     * NS_BOUNDARY_GHOST_IMPORTANCE as many of the ghosts, each at the floor of importance,
      * and the sums of each sign are kept within their noise. */
     enum { WEAK = 100000 };
     GpuVrl *s = malloc(sizeof *s * (WEAK + 2));
@@ -317,7 +318,7 @@ static void test_roulette(void)
         return;
     double before[2] = {0, 0};
     for (uint32_t i = 0; i < WEAK + 2; i++) {
-        double p = i < WEAK ? 0.1 : 5.0;
+        double p = i < WEAK ? 0.1 : 50.0; /* strong: a ghost's importance too is above 1 */
         s[i] = stretch(0, 0, 0, 0, 0, 1, 0, (i & 1) ? -p : p, 1);
         s[i].power[1] *= 0.5f; /* colour: the mean over RGB decides */
         before[i & 1] += s[i].power[0];
@@ -329,18 +330,23 @@ static void test_roulette(void)
         int negative = s[i].power[0] < 0;
         after[negative] += s[i].power[0];
         float mean = fabsf(s[i].power[0] + s[i].power[1] + s[i].power[2]) / 3.0f;
-        strong += fabsf(s[i].power[0]) == 5.0f;
-        CHECK(mean >= 1.0f - 1e-5f);
+        float importance = mean * (negative ? NS_BOUNDARY_GHOST_IMPORTANCE : 1.0f);
+        strong += fabsf(s[i].power[0]) == 50.0f;
+        CHECK(importance >= 1.0f - 1e-5f);
         CHECK(s[i].power[1] == 0.5f * s[i].power[0]);
     }
     fprintf(stderr, "  kept %u of %u; sums %+.1f %+.1f -> %+.1f %+.1f\n", n, WEAK + 2, before[0], before[1],
             after[0], after[1]);
     CHECK_INT(strong, 2);
-    /* Each weak source keeps 0.1 / 0.0833 (its mean over RGB) of the time: binomial noise. */
-    double kept_weak = n - 2, expected = WEAK * (0.25 / 3.0);
+    /* A weak source's importance is 0.0833 (its mean over RGB), a ghost's 0.0833 g: each is
+     * kept that fraction of the time, at power 0.1 over it (binomial noise). */
+    const double g = NS_BOUNDARY_GHOST_IMPORTANCE, keep[2] = {0.25 / 3.0, 0.25 / 3.0 * g};
+    double kept_weak = n - 2, expected = WEAK / 2 * (keep[0] + keep[1]);
     CHECK(fabs(kept_weak - expected) < 5 * sqrt(expected));
     for (int k = 0; k < 2; k++)
-        CHECK(fabs(after[k] - before[k]) < 5 * sqrt(WEAK / 2 * 0.1 * 1.2));
+        CHECK(fabs(after[k] - before[k]) < 5 * sqrt(WEAK / 2 * 0.01 * (1 / keep[k] - 1)));
+    /* Without the ghosts' lower importance, as many ghosts as positive ones would stay. */
+    CHECK(g < 1.0);
     /* A floor of 0 keeps everything. */
     CHECK_INT(ns_boundary_roulette(s, n, 0.0f, 42), n);
 
