@@ -86,7 +86,8 @@ typedef struct bench_result {
     double ms;          /* median wall time of the warm renders (all renders if --repeat 1) */
     double cold_ms;     /* the first render: includes table reconstruction and accumulation */
     double camera_ms;   /* the camera pass (stages ray_pass and adaptive) that the first render
-                           traced and the warm renders kept: a new camera pays it on top of ms */
+                           traced and the warm renders kept: a new camera pays it on top of ms;
+                           0 when they kept none, NaN when the first render took a kept one */
     ns_render_stats stats;      /* of the last render */
     ns_render_stats cold_stats; /* of the first render */
     image_metrics metrics;      /* against the reference with the same components */

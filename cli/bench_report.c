@@ -253,8 +253,11 @@ static void write_targets(FILE *f, const bench_run *run)
         char speed[64], speed_frame[64];
         if (e->ok) {
             snprintf(speed, sizeof speed, "%s%.3g", e->lower_bound ? "≥ " : "", e->speedup);
-            snprintf(speed_frame, sizeof speed_frame, "%s%.3g", e->lower_bound ? "≥ " : "",
-                     e->speedup_frame);
+            if (isfinite(e->speedup_frame))
+                snprintf(speed_frame, sizeof speed_frame, "%s%.3g", e->lower_bound ? "≥ " : "",
+                         e->speedup_frame);
+            else
+                snprintf(speed_frame, sizeof speed_frame, "n/a");
         } else {
             snprintf(speed, sizeof speed, "n/a");
             snprintf(speed_frame, sizeof speed_frame, "n/a");

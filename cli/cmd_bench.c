@@ -1087,11 +1087,14 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     uint32_t warm_n = n > 1 ? n - 1 : n;
     qsort(warm, warm_n, sizeof *warm, compare_doubles);
     r->ms = median_of_sorted(warm, warm_n);
-    /* The warm renders keep the first one's camera pass (render/camera_keep.c), so their time
-     * is a frame of the same view; what a new view adds is that pass, as the first render
-     * timed it. */
-    double kept = camera_pass_ms(&r->cold_stats) - camera_pass_ms(&r->stats);
-    r->camera_ms = n > 1 && kept > 0 ? kept : 0.0;
+    /* Where the warm renders kept the first one's camera pass (render/camera_keep.c), their
+     * time is a frame of the same view, and a new view adds that pass as the first render
+     * timed it. A first render that itself took a pass kept by the method before (the same
+     * camera and geometry) never timed one: unknown. */
+    if (r->cold_stats.camera_reused)
+        r->camera_ms = NAN;
+    else
+        r->camera_ms = n > 1 && r->stats.camera_reused ? camera_pass_ms(&r->cold_stats) : 0.0;
     r->ok = 1;
 }
 
@@ -1274,7 +1277,7 @@ static void run_pt_ladder(bench *b, bench_scene *s)
     e->pt_ms_equal = e->pass_ms_per_spp * e->variance / mse;
     e->speedup = e->pt_ms_equal / nn->ms;
     e->speedup_frame = e->pt_ms_equal / (nn->ms + nn->camera_ms);
-    e->ok = isfinite(e->speedup) && isfinite(e->speedup_frame);
+    e->ok = isfinite(e->speedup); /* speedup_frame: NaN where the camera pass is unknown */
 }
 
 static void run_scene(bench *b, bench_scene *s)

@@ -21,7 +21,11 @@
  *     decides only which stretch comes next);
  *   - when the stretch itself starts where the previous one ended, with another direction
  *     (an internal reflection), the reflected beam: +flux at its origin along its
- *     direction, whose expectation is the F e^{-s L} of the stretch before.
+ *     direction, whose expectation is the F e^{-s L} of the stretch before; for light that
+ *     has not scattered yet, given the walk's end records (vrl_trace.comp, ends), that
+ *     expectation itself instead, at the end of every unscattered stretch (summed over the
+ *     hero channel the walk draws, the walk's beam and F e^{-s L} times the stretch's flux
+ *     have the same expectation per channel).
  * Sources are endless beams: each is the infinite medium's continuation, and the walk
  * itself accounts for where it ends.
  *
@@ -78,7 +82,9 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v)
     float cos_turn = previous->direction[0] * v->direction[0] +
                      previous->direction[1] * v->direction[1] +
                      previous->direction[2] * v->direction[2];
-    /* Grazing its own boundary, the walk goes on along the same line (vrl_trace.comp). */
+    /* Grazing its own boundary, the walk goes on along the same line (vrl_trace.comp). A
+     * reflection that turns by less than this is taken for that too: the stretch before then
+     * gets neither a ghost nor an expected reflection, where F is all but 1 anyway. */
     return cos_turn > 1.0f - 1e-5f ? NS_BOUNDARY_LINK_CONTINUED : NS_BOUNDARY_LINK_REFLECTED;
 }
 

@@ -1199,10 +1199,10 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
      * stretch's end, for unscattered light's reflected sources in expectation. */
     uint32_t options = NS_VRL_TRACE_ENDS | (lines_may_return(scene) ? NS_VRL_TRACE_MARK_LINES : 0u);
     int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, paths,
-                                     (getenv("NS_WALK_SEED") ? (uint32_t)atoi(getenv("NS_WALK_SEED")) : scene->render.seed) ^ 0x9e3779b9u, options, &walks, NULL, err);
+                                     scene->render.seed ^ 0x9e3779b9u, options, &walks, NULL, err);
     if (status)
         return status;
-    GpuVrl *sources = malloc(sizeof *sources * 3 * (walks.count ? walks.count : 1));
+    GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count ? walks.count : 1));
     if (!sources) {
         ns_vrl_set_free(&walks);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);

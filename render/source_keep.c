@@ -62,6 +62,7 @@ static int copy_set(ns_vrl_set *to, const ns_vrl_set *from)
 {
     *to = *from;
     to->vrls = NULL;
+    to->ends = NULL; /* the walks' ends are not kept: only the sources made from them */
     if (!from->count)
         return 1;
     to->vrls = malloc(sizeof *to->vrls * from->count);

@@ -172,11 +172,12 @@ def test_report_and_reference_cache(t, d):
     camera = {r["method"]: r["camera ms"] for r in markdown_table(text, "## Results")} if text else {}
     t.check(float(camera.get("nn_full", "nan")) > 0, f"nn_full's kept camera pass: {camera}")
     t.equal(camera.get("pt"), "0.0", "pt keeps no camera pass")
-    # The speed-up over pt for a new view counts that pass: below the one for a kept view.
+    # The speed-up over pt for a new view counts that pass: not above the one for a kept view
+    # (both printed to 3 digits).
     targets = markdown_table(text, "## Targets") if text else []
     speeds = [(r["speedup over pt"], r["speedup, new view"]) for r in targets if r["scene"] == "cloud"]
     t.check(len(speeds) == 1 and all(v != "n/a" for v in speeds[0]) and
-            float(speeds[0][1].lstrip("≥ ")) < float(speeds[0][0].lstrip("≥ ")),
+            float(speeds[0][1].lstrip("≥ ")) <= float(speeds[0][0].lstrip("≥ ")),
             f"speed-ups kept view, new view: {speeds}")
 
 

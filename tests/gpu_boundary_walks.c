@@ -184,7 +184,7 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
         fprintf(stderr, "trace: %s\n", err.message);
     CHECK_INT(status, NS_OK);
     CHECK(status || walks.ends != NULL);
-    GpuVrl *sources = malloc(sizeof *sources * 3 * (walks.count + 1));
+    GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count + 1));
     CHECK(sources != NULL);
     if (status || !sources || !walks.ends) {
         free(sources);
@@ -206,6 +206,13 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
     }
     CHECK(ior == 1.0 ? reflections == 0 : reflections > 100);
     CHECK_INT(mismatched, 0);
+    /* Every end's F is a probability; at ior 1 every one is 0 (nothing reflects). */
+    uint32_t bad_f = 0;
+    for (uint32_t i = 0; i < walks.count; i++) {
+        float f = walks.ends[4 * (size_t)i + 3];
+        bad_f += !(f >= 0.0f && f <= 1.0f) || (ior == 1.0 && f != 0.0f);
+    }
+    CHECK_INT(bad_f, 0);
 
     /* Both estimators: the walk's own reflected beams (ends NULL), and unscattered light's in
      * expectation (the ends); orders >= 1 (single scattering's correction: reflected light
@@ -390,8 +397,8 @@ static void line_flags_case(double ior)
     for (int mark = 0; mark < 2; mark++) {
         ns_vrl_set walks = {0};
         ns_error err = {0};
-        int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 11, mark,
-                                         &walks, NULL, &err);
+        int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 11,
+                                         mark ? NS_VRL_TRACE_MARK_LINES : 0u, &walks, NULL, &err);
         CHECK_INT(status, NS_OK);
         uint32_t marked = 0, expected = 0, wrong = 0;
         for (uint32_t i = 0; !status && i < walks.count; i++) {
