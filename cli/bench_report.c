@@ -74,24 +74,28 @@ static double psnr_of(const bench_result *r)
  * ------------------------------------------------------------------------------------- */
 static void write_results(FILE *f, const bench_run *run)
 {
-    fprintf(f, "## Results\n\n"
-               "One row per scene and method. PSNR, RMSE and relative error are against the pt "
-               "reference with the same components (`nscatter compare`'s definitions). Time: median "
-               "wall time of `ns_render` after the first render; first: the first render, which "
-               "reconstructs and accumulates the tables; camera: the camera pass (stages ray_pass "
-               "and adaptive) that the first render traced and the later ones kept, not in their "
-               "time (a new view pays it on top). PSNR, ref noise out: with the reference's "
-               "own noise (References) taken out of the MSE; n/a when the rest is within it. "
-               "mean / ref: the image's mean over the reference's, per channel.\n\n"
-               "| scene | method | components | status | render.vrls | VRLs | spp | time ms | first ms | "
-               "camera ms | PSNR dB | PSNR, ref noise out dB | RMSE | rel. err | mean / ref R G B | interactions | table MB | weights KB |\n"
-               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    fprintf(
+        f,
+        "## Results\n\n"
+        "One row per scene and method. PSNR, RMSE and relative error are against the pt "
+        "reference with the same components (`nscatter compare`'s definitions). Time: median "
+        "wall time of `ns_render` after the first render; first: the first render, which "
+        "reconstructs and accumulates the tables; camera: the camera pass (stages ray_pass "
+        "and adaptive) that the first render traced and the later ones kept, not in their "
+        "time (a new view pays it on top). PSNR, ref noise out: with the reference's "
+        "own noise (References) taken out of the MSE; n/a when the rest is within it. "
+        "mean / ref: the image's mean over the reference's, per channel.\n\n"
+        "| scene | method | components | status | render.vrls | VRLs | spp | time ms | first ms | "
+        "camera ms | PSNR dB | PSNR, ref noise out dB | RMSE | rel. err | mean / ref R G B | "
+        "interactions | table MB | weights KB |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         if (s->skipped) {
             fprintf(f, "| %s | all | - | skipped: ", s->name);
             put_escaped(f, s->skip_reason);
-            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+            fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | "
+                       "n/a | n/a |\n");
             continue;
         }
         for (int m = 0; m < BENCH_METHOD_COUNT; m++) {
@@ -103,19 +107,26 @@ static void write_results(FILE *f, const bench_run *run)
             if (!r->ok) {
                 fprintf(f, "not rendered: ");
                 put_escaped(f, r->error[0] ? r->error : "not run");
-                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a |\n");
+                fprintf(f, " | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | n/a | "
+                           "n/a | n/a | n/a |\n");
                 continue;
             }
             int compared = r->metrics.pixels > 0;
-            fprintf(f, "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %s | %s | %s %s %s | %llu | %s | %s |\n",
-                    compared ? "ok" : "ok, no reference", r->vrls, (unsigned long long)r->stats.vrl_count, r->spp,
-                    num(r->ms, 1).text, num(r->cold_ms, 1).text, num(r->camera_ms, 1).text, num(compared ? r->metrics.psnr[3] : NAN, 2).text,
+            fprintf(f,
+                    "%s | %u | %llu | %u | %s | %s | %s | %s | %s | %s | %s | %s %s %s | %llu | %s "
+                    "| %s |\n",
+                    compared ? "ok" : "ok, no reference", r->vrls,
+                    (unsigned long long)r->stats.vrl_count, r->spp, num(r->ms, 1).text,
+                    num(r->cold_ms, 1).text, num(r->camera_ms, 1).text,
+                    num(compared ? r->metrics.psnr[3] : NAN, 2).text,
                     num(compared ? r->psnr_denoised : NAN, 2).text,
-                    sci(compared ? r->metrics.rmse[3] : NAN).text, num(compared ? r->metrics.relerr[3] : NAN, 4).text,
+                    sci(compared ? r->metrics.rmse[3] : NAN).text,
+                    num(compared ? r->metrics.relerr[3] : NAN, 4).text,
                     num(compared ? r->metrics.mean_ratio[0] : NAN, 3).text,
                     num(compared ? r->metrics.mean_ratio[1] : NAN, 3).text,
                     num(compared ? r->metrics.mean_ratio[2] : NAN, 3).text,
-                    (unsigned long long)r->stats.interactions, num(r->stats.table_bytes / 1048576.0, 1).text,
+                    (unsigned long long)r->stats.interactions,
+                    num(r->stats.table_bytes / 1048576.0, 1).text,
                     num(r->stats.weights_bytes / 1024.0, 1).text);
         }
     }
@@ -229,17 +240,19 @@ static const char *verdict(double v, double threshold, int at_least)
 
 static void write_targets(FILE *f, const bench_run *run)
 {
-    fprintf(f, "## Targets (issue 6; reported, not asserted)\n\n"
-               "- nn full within 3 dB of table: Δ = PSNR(table) − PSNR(nn full) ≤ 3.\n"
-               "- vrl at equal time at least 5 dB below nn: Δ = PSNR(nn full) − PSNR(vrl) ≥ 5; "
-               "time ratio = vrl's time / nn full's.\n"
-               "- nn at least 1000× faster than pt for the same error against the truth: pt's time "
-               "to reach nn full's error, estimated from the short pt renders (below), over nn "
-               "full's time (a frame of a view whose camera pass is kept), and over that time and "
-               "the camera pass (a new view; the verdict's).\n\n"
-               "| scene | table − nn full dB | within 3 dB | nn full − vrl dB | vrl time ratio | ≥ 5 dB | "
-               "pt time for nn's error s | speedup over pt | speedup, new view | ≥ 1000× |\n"
-               "|---|---|---|---|---|---|---|---|---|---|\n");
+    fprintf(
+        f,
+        "## Targets (issue 6; reported, not asserted)\n\n"
+        "- nn full within 3 dB of table: Δ = PSNR(table) − PSNR(nn full) ≤ 3.\n"
+        "- vrl at equal time at least 5 dB below nn: Δ = PSNR(nn full) − PSNR(vrl) ≥ 5; "
+        "time ratio = vrl's time / nn full's.\n"
+        "- nn at least 1000× faster than pt for the same error against the truth: pt's time "
+        "to reach nn full's error, estimated from the short pt renders (below), over nn "
+        "full's time (a frame of a view whose camera pass is kept), and over that time and "
+        "the camera pass (a new view; the verdict's).\n\n"
+        "| scene | table − nn full dB | within 3 dB | nn full − vrl dB | vrl time ratio | ≥ 5 dB | "
+        "pt time for nn's error s | speedup over pt | speedup, new view | ≥ 1000× |\n"
+        "|---|---|---|---|---|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         if (s->skipped)
@@ -262,10 +275,10 @@ static void write_targets(FILE *f, const bench_run *run)
             snprintf(speed, sizeof speed, "n/a");
             snprintf(speed_frame, sizeof speed_frame, "n/a");
         }
-        fprintf(f, "| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", s->name, num(d1, 2).text,
-                verdict(d1, 3.0, 0), num(d2, 2).text, num(ratio, 2).text, verdict(d2, 5.0, 1),
-                num(e->ok ? e->pt_ms_equal / 1000.0 : NAN, 1).text, speed, speed_frame,
-                verdict(e->ok ? e->speedup_frame : NAN, 1000.0, 1));
+        fprintf(f, "| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n", s->name,
+                num(d1, 2).text, verdict(d1, 3.0, 0), num(d2, 2).text, num(ratio, 2).text,
+                verdict(d2, 5.0, 1), num(e->ok ? e->pt_ms_equal / 1000.0 : NAN, 1).text, speed,
+                speed_frame, verdict(e->ok ? e->speedup_frame : NAN, 1000.0, 1));
     }
     fputc('\n', f);
 }

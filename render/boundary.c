@@ -100,7 +100,8 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
          * of the stretch before (below), not from the walk's own choice (a reflected stretch
          * has the events of the one before it). */
         int expected = ends && events_of(v) == 0;
-        if ((link == NS_BOUNDARY_LINK_REFLECTED && !expected) || link == NS_BOUNDARY_LINK_REENTERED) {
+        if ((link == NS_BOUNDARY_LINK_REFLECTED && !expected) ||
+            link == NS_BOUNDARY_LINK_REENTERED) {
             GpuVrl r = *v;
             r.length = 0.0f;
             r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
@@ -130,7 +131,8 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
          * light that has not scattered yet is rare: a first free flight as long as the
          * stretch), whatever the walk did. Scattered light keeps the walk's own beams: there
          * every stretch would add a source, mostly weak, and the roulette below them brings
-         * back the noise they took away (docs/scattering.md, *Reflections in expectation*). */
+         * back the noise they took away (docs/scattering.md, *Unscattered light's reflections in
+         * expectation*). */
         const float *end = expected ? ends + 4 * (size_t)i : NULL;
         if (end && end[3] > 0.0f) {
             GpuVrl reflected = ghost;

@@ -1207,7 +1207,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
         ns_vrl_set_free(&walks);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "boundary: %u stretches", walks.count);
     }
-    uint32_t n = ns_boundary_sources(walks.vrls, walks.ends, walks.count, in->gs->materials, 1, sources);
+    uint32_t n =
+        ns_boundary_sources(walks.vrls, walks.ends, walks.count, in->gs->materials, 1, sources);
     ns_vrl_set_free(&walks);
     /* Only the sources whose orders the components ask for take part (or a budget). */
     uint32_t wanted = 0;

@@ -273,16 +273,16 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
          .data = emitters.items,
          .data_size = sizeof(GpuVrlEmitter) * emitters.count,
          .label = "ns.vrl_method.emitters"},
-        {.size = (uint64_t)sizeof(GpuVrlWalk) * paths, .host_reads = 1, .label = "ns.vrl_method.walks"},
+        {.size = (uint64_t)sizeof(GpuVrlWalk) * paths,
+         .host_reads = 1,
+         .label = "ns.vrl_method.walks"},
         {.size = sizeof(GpuVrl), .label = "ns.vrl_method.vrls"},
         {.size = NS_VRL_TRACE_COUNTER_COUNT * sizeof(uint32_t), .label = "ns.vrl_method.counters"},
         {.size = 4 * sizeof(float), .label = "ns.vrl_method.ends"},
     };
     status = gpu_buffers_create(&ctx->dev, own, descs, T_OWN, err);
-    GpuVrlTracePush push = {.path_count = paths,
-                            .emitter_count = emitters.count,
-                            .seed = seed,
-                            .options = options};
+    GpuVrlTracePush push = {
+        .path_count = paths, .emitter_count = emitters.count, .seed = seed, .options = options};
     uint32_t *offsets = status ? NULL : malloc(sizeof *offsets * paths);
     if (!status && !offsets)
         status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u paths", paths);
@@ -312,12 +312,13 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
                                    err);
         if (!status && (options & NS_VRL_TRACE_ENDS)) {
             gpu_buffer_destroy(&ctx->dev, &own[T_ENDS]);
-            status = gpu_buffer_create(&ctx->dev, &own[T_ENDS],
-                                       &(gpu_buffer_desc){.size = (uint64_t)4 * sizeof(float) * total,
-                                                          .uninitialized = 1,
-                                                          .host_reads = 1,
-                                                          .label = "ns.vrl_method.ends"},
-                                       err);
+            status =
+                gpu_buffer_create(&ctx->dev, &own[T_ENDS],
+                                  &(gpu_buffer_desc){.size = (uint64_t)4 * sizeof(float) * total,
+                                                     .uninitialized = 1,
+                                                     .host_reads = 1,
+                                                     .label = "ns.vrl_method.ends"},
+                                  err);
         }
         push.write = 1;
         push.vrl_capacity = total;
@@ -346,7 +347,8 @@ int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_sce
     if (!status && total && (options & NS_VRL_TRACE_ENDS)) {
         out->ends = malloc(4 * sizeof *out->ends * total);
         if (!out->ends)
-            status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u stretches' ends", total);
+            status =
+                ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "vrl method: %u stretches' ends", total);
         else
             memcpy(out->ends, own[T_ENDS].mapped, 4 * sizeof *out->ends * total);
     }

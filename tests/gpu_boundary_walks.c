@@ -178,8 +178,8 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
     const uint32_t paths = 20000;
     ns_vrl_set walks = {0};
     ns_error err = {0};
-    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7, NS_VRL_TRACE_ENDS,
-                                     &walks, NULL, &err);
+    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7,
+                                     NS_VRL_TRACE_ENDS, &walks, NULL, &err);
     if (status)
         fprintf(stderr, "trace: %s\n", err.message);
     CHECK_INT(status, NS_OK);
@@ -221,7 +221,8 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
     double spread_k0[2] = {0, 0};
     for (int expected = 0; expected < 2; expected++) {
         const float *ends = expected ? walks.ends : NULL;
-        uint32_t source_count = ns_boundary_sources(walks.vrls, ends, walks.count, d.gs.materials, 1, sources);
+        uint32_t source_count =
+            ns_boundary_sources(walks.vrls, ends, walks.count, d.gs.materials, 1, sources);
         CHECK(source_count > 0);
         int orders = expected ? 2 : 3;
         for (int pass = 0; pass < orders * channels; pass++) {
@@ -230,14 +231,16 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
             /* Per path: truth, corrected and the infinite medium's T(entry) alone; and the
              * weight of the unscattered light's reflected beams. The sources come in stretch
              * order, so path p's are those made from its stretches. */
-            double sum_d = 0, sum_d2 = 0, sum_i = 0, sum_i2 = 0, sum_truth = 0, sum_r = 0, sum_r2 = 0;
+            double sum_d = 0, sum_d2 = 0, sum_i = 0, sum_i2 = 0, sum_truth = 0, sum_r = 0,
+                   sum_r2 = 0;
             uint32_t path_count = 0, next_source = 0;
             uint32_t i = 0;
             while (i < walks.count) {
                 uint32_t end = i + 1;
-                while (end < walks.count && !(walks.vrls[end].events == 0 &&
-                                              ns_boundary_link_of(&walks.vrls[end - 1], &walks.vrls[end]) ==
-                                                  NS_BOUNDARY_LINK_START))
+                while (end < walks.count &&
+                       !(walks.vrls[end].events == 0 &&
+                         ns_boundary_link_of(&walks.vrls[end - 1], &walks.vrls[end]) ==
+                             NS_BOUNDARY_LINK_START))
                     end++;
                 double truth = 0;
                 for (uint32_t j = i + 1; j < end; j++) {
@@ -247,17 +250,18 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
                         truth += v->power[c];
                 }
                 const GpuVrl *entry = &walks.vrls[i];
-                double infinite = entry->power[c] * table_walk(entry->origin, entry->direction, 0, sigma_t[c],
-                                                               albedo[c], g, min_order);
+                double infinite = entry->power[c] * table_walk(entry->origin, entry->direction, 0,
+                                                               sigma_t[c], albedo[c], g, min_order);
                 double corrected = infinite, reflected_k0 = 0;
                 /* This path's sources: those whose origin stretch lies in [i, end); sources
                  * are written in stretch order, 0 to 3 per stretch, so recount them. */
-                uint32_t made = ns_boundary_sources(walks.vrls + i, ends ? ends + 4 * (size_t)i : NULL, end - i,
-                                                    d.gs.materials, 1, sources + next_source);
+                uint32_t made =
+                    ns_boundary_sources(walks.vrls + i, ends ? ends + 4 * (size_t)i : NULL, end - i,
+                                        d.gs.materials, 1, sources + next_source);
                 for (uint32_t k = next_source; k < next_source + made; k++) {
-                    corrected += sources[k].power[c] * table_walk(sources[k].origin, sources[k].direction,
-                                                                  sources[k].events, sigma_t[c], albedo[c],
-                                                                  g, min_order);
+                    corrected += sources[k].power[c] *
+                                 table_walk(sources[k].origin, sources[k].direction,
+                                            sources[k].events, sigma_t[c], albedo[c], g, min_order);
                     if (sources[k].events == 0 && sources[k].power[c] > 0)
                         reflected_k0 += sources[k].power[c];
                 }
@@ -278,14 +282,16 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
             double mean_i = sum_i / n, se_i = sqrt((sum_i2 / n - mean_i * mean_i) / (n - 1));
             double mean_r = sum_r / n, sd_r = sqrt(fmax(0.0, sum_r2 / n - mean_r * mean_r));
             double truth = sum_truth / n;
-            fprintf(stderr,
-                    "  %s, ior %.1f, channel %d (sigma_t %.2f, albedo %.2f), %s reflections, orders >= %u: "
-                    "truth %.5f, corrected - truth %+.5f (%.1f se, %+.2f%%), infinite - truth %+.5f "
-                    "(%.1f se); %u paths entered, %u sources; unscattered light's reflected beams per "
-                    "path %.5f +- %.5f\n",
-                    names[which], ior, c, sigma_t[c], albedo[c], expected ? "expected" : "the walk's",
-                    min_order, truth, mean_d, mean_d / se_d, 100 * mean_d / truth, mean_i, mean_i / se_i,
-                    path_count, source_count, mean_r, sd_r);
+            fprintf(
+                stderr,
+                "  %s, ior %.1f, channel %d (sigma_t %.2f, albedo %.2f), %s reflections, orders >= "
+                "%u: "
+                "truth %.5f, corrected - truth %+.5f (%.1f se, %+.2f%%), infinite - truth %+.5f "
+                "(%.1f se); %u paths entered, %u sources; unscattered light's reflected beams per "
+                "path %.5f +- %.5f\n",
+                names[which], ior, c, sigma_t[c], albedo[c], expected ? "expected" : "the walk's",
+                min_order, truth, mean_d, mean_d / se_d, 100 * mean_d / truth, mean_i,
+                mean_i / se_i, path_count, source_count, mean_r, sd_r);
             CHECK(truth > 0);
             CHECK(fabs(mean_d) < 4 * se_d);
             /* Single scattering's truth is the infinite medium's where nothing reflects. */
@@ -300,7 +306,8 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
      * less (measured: 0.68 of the walk's in the box and the cylinder, where paths differ in
      * which faces they meet, 0.05 in the sphere; nothing reflects at ior 1). */
     if (ior != 1.0) {
-        fprintf(stderr, "  unscattered reflections' spread per path: the walk's %.5f, expected %.5f\n",
+        fprintf(stderr,
+                "  unscattered reflections' spread per path: the walk's %.5f, expected %.5f\n",
                 spread_k0[0], spread_k0[1]);
         CHECK(spread_k0[1] < 0.8 * spread_k0[0]);
     } else {

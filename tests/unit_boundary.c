@@ -203,11 +203,11 @@ static void test_sources_with_ends(void)
      * (5, 1, 5) going down and scatters before the floor (its end: the floor, where the
      * walk never got). */
     const GpuVrl walk[] = {
-        stretch(0, 1, 0, 0, -1, 0, 2, 1.0, 0),   /* entry, reflected at its end */
-        stretch(0, -1, 0, 0, 1, 0, 2, 0.7, 0),   /* unscattered, reflected */
+        stretch(0, 1, 0, 0, -1, 0, 2, 1.0, 0),    /* entry, reflected at its end */
+        stretch(0, -1, 0, 0, 1, 0, 2, 0.7, 0),    /* unscattered, reflected */
         stretch(0, 0.5, 0, 0, 1, 0, 0.5, 0.8, 1), /* after a scattering */
-        stretch(0, 1, 0, 0, -1, 0, 1.0, 0.3, 1), /* reflected at the top face */
-        stretch(5, 1, 5, 0, -1, 0, 2, 1.0, 0),   /* the next path's entry */
+        stretch(0, 1, 0, 0, -1, 0, 1.0, 0.3, 1),  /* reflected at the top face */
+        stretch(5, 1, 5, 0, -1, 0, 2, 1.0, 0),    /* the next path's entry */
     };
     CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_REFLECTED);
     CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REFLECTED);
@@ -235,7 +235,8 @@ static void test_sources_with_ends(void)
         CHECK(s->direction[1] == e[1] && s->length == 0.0f && s->events == 0);
         for (int c = 0; c < 3; c++) {
             CHECK(ghost->power[c] < 0.0f);
-            CHECK(fabsf(s->power[c] - e[3] * v->power[c] * expf(-m.sigma_t[c] * v->length)) < 1e-6f);
+            CHECK(fabsf(s->power[c] - e[3] * v->power[c] * expf(-m.sigma_t[c] * v->length)) <
+                  1e-6f);
         }
     }
     /* The walk's own reflected beam of scattered light: stretch 3's start, its full flux. */
