@@ -1568,8 +1568,7 @@ static void parse_render(parser *p, const json_t *v)
     uint32_t spp = r->spp ? r->spp : NS_DEFAULT_SPP;
     if (!adaptive_given && method_ok && ns_adaptive_spp_applies(r->method, spp))
         r->adaptive_spp = NS_DEFAULT_ADAPTIVE_SPP;
-    if (adaptive_given && r->adaptive_spp > 0.0f && method_ok && r->method != NS_METHOD_PT &&
-        !ns_adaptive_spp_applies(r->method, spp)) {
+    if (adaptive_given && method_ok && ns_adaptive_spp_refused(r->method, spp, r->adaptive_spp)) {
         size_t inner = push_key(p, "adaptive_spp");
         report(p, "adaptive_spp needs spp >= 2: the added samples go where a pixel's "
                   "neighbours' first samples spread");

@@ -106,6 +106,11 @@ int ns_adaptive_spp_applies(ns_method method, uint32_t spp)
     return method != NS_METHOD_PT && spp >= 2;
 }
 
+int ns_adaptive_spp_refused(ns_method method, uint32_t spp, float adaptive_spp)
+{
+    return adaptive_spp > 0.0f && method != NS_METHOD_PT && !ns_adaptive_spp_applies(method, spp);
+}
+
 float ns_adaptive_spp_used(const ns_render_settings *r)
 {
     int used = ns_adaptive_spp_applies(r->method, r->spp) && (r->components & NS_COMPONENT_SURFACE);

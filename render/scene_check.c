@@ -141,8 +141,7 @@ static int check_render(const ns_render_settings *r, ns_error *err)
                    NS_MAX_ADAPTIVE_SPP);
     /* Only pt has no use for it; elsewhere asking for samples that cannot be placed would be
      * silently meaningless. */
-    if (r->adaptive_spp > 0.0f && r->method != NS_METHOD_PT &&
-        !ns_adaptive_spp_applies(r->method, r->spp))
+    if (ns_adaptive_spp_refused(r->method, r->spp, r->adaptive_spp))
         return BAD("render.adaptive_spp: needs render.spp >= 2 (the added samples go where "
                    "the first ones spread), got spp %u",
                    r->spp);

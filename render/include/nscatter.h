@@ -386,6 +386,10 @@ ns_render_settings ns_render_settings_resolve(ns_render_settings settings);
 /* Whether render.adaptive_spp can add samples with this method at this spp: not for pt, which
  * ignores it, and not at spp 1, where there is no spread to place them by. */
 int ns_adaptive_spp_applies(ns_method method, uint32_t spp);
+/* Whether asking for adaptive_spp > 0 is refused: samples that could go nowhere (spp 1),
+ * whatever the method but pt, which ignores the setting. The scene parser and the library's
+ * scene check both refuse it, each naming the field its own way. */
+int ns_adaptive_spp_refused(ns_method method, uint32_t spp, float adaptive_spp);
 /* render.adaptive_spp as a render with these resolved settings uses it: 0 where it adds
  * nothing (where it does not apply, or without the surface component, whose light is all
  * that the added samples add). What an image's metadata reports. */
