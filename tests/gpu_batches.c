@@ -21,6 +21,18 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
     lit_medium_sphere(s, mats, objs, lights);
 }
 
+/* The scene rendered with `debug` (small buffers); 0 (with the error printed) if it failed. */
+static int render_debugged(const ns_scene *s, ns_image *img, ns_render_stats *stats,
+                           ns_render_debug *debug, const char *what)
+{
+    ns_error err = {0};
+    int status = ns_render_ex(test_context(), s, img, stats, debug, &err);
+    if (status)
+        fprintf(stderr, "%s: %s\n", what, err.message);
+    CHECK_INT(status, NS_OK);
+    return status == NS_OK;
+}
+
 static void test_batches_equal_one_pass(void)
 {
     ns_scene s;
@@ -30,17 +42,14 @@ static void test_batches_equal_one_pass(void)
     build(&s, mats, objs, lights);
     ns_image one = {0}, batched = {0};
     ns_render_stats st1 = {0}, st2 = {0};
-    ns_error err = {0};
     if (!render_ok(&s, &one, &st1))
         return;
     /* Room for about a sample and a half: the eight samples need several batches. */
     ns_render_debug debug = {.segment_capacity = (uint32_t)(st1.camera_segments * 3 / 16)};
-    int status = ns_render_ex(test_context(), &s, &batched, &st2, &debug, &err);
-    if (status)
-        fprintf(stderr, "batched: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
-    if (status)
+    if (!render_debugged(&s, &batched, &st2, &debug, "batched")) {
+        ns_image_free(&one);
         return;
+    }
     CHECK(st1.camera_segments > 100);
     CHECK_INT(st2.camera_segments, st1.camera_segments);
     CHECK_INT(st2.gather_segments, st1.gather_segments);
@@ -72,16 +81,13 @@ static void test_added_samples_in_passes(void)
     s.render.adaptive_spp = 4.0f;
     ns_image one = {0}, passes = {0};
     ns_render_stats st1 = {0}, st2 = {0};
-    ns_error err = {0};
     if (!render_ok(&s, &one, &st1))
         return;
     ns_render_debug debug = {.added_capacity = (uint32_t)(st1.adaptive_samples / 10)};
-    int status = ns_render_ex(test_context(), &s, &passes, &st2, &debug, &err);
-    if (status)
-        fprintf(stderr, "in passes: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
-    if (status)
+    if (!render_debugged(&s, &passes, &st2, &debug, "in passes")) {
+        ns_image_free(&one);
         return;
+    }
     printf("%llu added samples, in passes of at most %u\n",
            (unsigned long long)st1.adaptive_samples, debug.added_capacity);
     CHECK(st1.adaptive_samples > 1000);
