@@ -47,3 +47,20 @@ double bench_paper_value(const bench_scene *s, const char *method, const char *f
     return json_is_number(v) ? json_number_value(v) : NAN;
 }
 
+
+double bench_result_mse(const bench_result *r)
+{
+    if (r->seeds >= 2)
+        return r->seed_mse_mean;
+    return r->metrics.rmse[3] * r->metrics.rmse[3];
+}
+
+double bench_result_psnr(const bench_result *r)
+{
+    if (!r->metrics.pixels)
+        return NAN;
+    if (r->seeds < 2)
+        return r->metrics.psnr[3];
+    /* The same reference, so the same peak as the row's own comparison. */
+    return 10.0 * log10(r->metrics.peak * r->metrics.peak / r->seed_mse_mean);
+}

@@ -98,6 +98,8 @@ typedef struct bench_result {
     uint32_t seeds;
     double seed_ratio_mean[3], seed_ratio_sd[3]; /* mean / ref per channel over the seeds */
     double seed_psnr_median, seed_psnr_min, seed_psnr_max;
+    double seed_mse_mean;       /* the MSE averaged over the seeds: the row's expected error, which
+                                   the targets read (one seed's is one draw of it) */
     ns_image image;             /* the last render */
 } bench_result;
 
@@ -152,6 +154,11 @@ typedef struct bench_run {
 
 /* Writes DIR/report.md and DIR/contact_sheet.png. 0 or 1 after printing why. */
 int bench_write_report(const bench_run *run, const char *dir);
+
+/* A row's error as the targets read it: with --seeds, the MSE averaged over the seeds (the
+ * expected error, of which one seed's is one draw) and its PSNR; else the row's own. */
+double bench_result_mse(const bench_result *r);
+double bench_result_psnr(const bench_result *r); /* NaN when not compared */
 
 /* Paper value at manifest path paper.<method>.<field>, NaN when absent (bench.c). */
 double bench_paper_value(const bench_scene *s, const char *method, const char *field);

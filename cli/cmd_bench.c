@@ -1136,7 +1136,7 @@ static void run_seeds(bench *b, bench_scene *s, int m)
     uint32_t n = b->args.seeds;
     if (n < 2 || !r->ok || !(r->metrics.pixels > 0) || set < 0 || !s->refs[set].ok)
         return;
-    double ratio[BENCH_MAX_SEEDS][3], psnr[BENCH_MAX_SEEDS];
+    double ratio[BENCH_MAX_SEEDS][3], psnr[BENCH_MAX_SEEDS], mse_sum = r->metrics.rmse[3] * r->metrics.rmse[3];
     for (int c = 0; c < 3; c++)
         ratio[0][c] = r->metrics.mean_ratio[c];
     psnr[0] = r->metrics.psnr[3];
@@ -1152,9 +1152,11 @@ static void run_seeds(bench *b, bench_scene *s, int m)
         }
         for (int c = 0; c < 3; c++)
             ratio[done][c] = metrics.mean_ratio[c];
+        mse_sum += metrics.rmse[3] * metrics.rmse[3];
         psnr[done++] = metrics.psnr[3];
     }
     r->seeds = done;
+    r->seed_mse_mean = mse_sum / done;
     for (int c = 0; c < 3; c++) {
         double sum = 0, sq = 0;
         for (uint32_t k = 0; k < done; k++)
@@ -1268,7 +1270,7 @@ static void run_pt_ladder(bench *b, bench_scene *s)
     e->pass_ms_per_spp = tsy / tss;
     if (!nn->ok || !(nn->metrics.pixels > 0))
         return;
-    double nn_mse = nn->metrics.rmse[3] * nn->metrics.rmse[3];
+    double nn_mse = bench_result_mse(nn);
     e->nn_mse_true = nn_mse - e->variance / ref->spp;
     /* Within the reference's own noise nn's true error cannot be told from zero: the bound
      * uses the measured error, which only flatters pt. */

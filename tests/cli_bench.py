@@ -160,8 +160,9 @@ def test_report_and_reference_cache(t, d):
     t.check(not os.path.exists(os.path.join(d, "out3", "report.md")), "--references writes no report")
 
     # A different size is a different scene: a new reference, the old ones stay.
-    code, _, err = run(*TINY[:2], "--methods", "nn_full,pt", "--width", "8", "--height", "8",
-                       *TINY[8:-2], "--repeat", "2", "--cache", cache, "--out", os.path.join(d, "out4"))
+    code, _, err = run(*TINY[:2], "--methods", "nn_full,vrl,pt", "--width", "8", "--height", "8",
+                       *TINY[8:-2], "--repeat", "2", "--seeds", "2", "--cache", cache, "--out",
+                       os.path.join(d, "out4"))
     t.equal(code, 0, f"8x8 run ({err.strip()[-300:]})")
     t.check("references: 1 rendered" in err, f"another size renders its own reference: {err[-300:]}")
     # Rendered twice, nn_full's second render keeps the first one's camera pass (a render with
@@ -179,6 +180,12 @@ def test_report_and_reference_cache(t, d):
     t.check(len(speeds) == 1 and all(v != "n/a" for v in speeds[0]) and
             float(speeds[0][1].lstrip("≥ ")) <= float(speeds[0][0].lstrip("≥ ")),
             f"speed-ups kept view, new view: {speeds}")
+    # With --seeds the targets read each row's error over its seeds, not its first seed's.
+    seeds = {r["method"]: r["PSNR of the mean MSE dB"] for r in markdown_table(text, "## Seeds")} if text else {}
+    gaps = [r["nn full − vrl dB"] for r in targets if r["scene"] == "cloud"]
+    t.check(len(gaps) == 1 and "nn_full" in seeds and "vrl" in seeds and
+            abs(float(gaps[0]) - (float(seeds["nn_full"]) - float(seeds["vrl"]))) <= 0.011,
+            f"nn full − vrl {gaps} from the seeds' PSNR of the mean MSE {seeds}")
 
 
 def test_seeds(t, d):
@@ -205,6 +212,11 @@ def test_seeds(t, d):
         t.check(abs(float(own[channel]) - mean) <= 2 * sd + 1e-3, f"{key}: row's own {own[channel]} in {mean} ± {sd}")
     lo, median, hi = float(row["min"]), float(row["PSNR dB median"]), float(row["max"])
     t.check(15 < lo <= median <= hi < 200, f"PSNR min {lo} <= median {median} <= max {hi}")
+    # Three seeds are the min, the median and the max: the PSNR of their mean squared error
+    # follows from them (each printed to 0.005 dB).
+    of_mean = -10 * math.log10(sum(10 ** (-p / 10) for p in (lo, median, hi)) / 3)
+    t.check(abs(float(row["PSNR of the mean MSE dB"]) - of_mean) <= 0.011,
+            f"PSNR of the mean MSE {row['PSNR of the mean MSE dB']}, from the three seeds {of_mean:.3f}")
 
     # A scene whose seed is the largest there is: the seed after it wraps to 1, never to 0
     # (which the bench reads as "the scene's own" and would render the same image again, a
