@@ -326,7 +326,11 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
 // the segment): p_HG and its pdf cancel, the estimate is L_in itself. (Sampling directions
 // towards the face the segment entered through instead, half the time, weighted by the
 // balance heuristic, made the bench's milk 4 dB noisier at 8 samples: with g = 0.7 the phase
-// function favours light from deeper along the segment, not from that face.)
+// function favours light from deeper along the segment, not from that face. Tried again on
+// 2026-12-01 with the face's normal traced per segment and directions whose density falls
+// as the transmittance to its plane: every pixel at 64 samples, the bumpy sphere 39.5 ->
+// 37.8 dB (red, the densest channel, 35.5 -> 33.6), the milk 37.7 -> 34.4 dB. Even 36 mean
+// free paths deep the light comes along the lobe, near the silhouettes.)
 vec3 environment_in(vec3 x, vec3 wo, uint medium, GpuMaterial mat, vec2 phase_u)
 {
     vec3 back = -hg_sample_at(wo, mat.sigma_s.w, phase_u.x, phase_u.y);
