@@ -15,7 +15,7 @@ static const char usage_text[] =
     "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
     "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
     "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
-    "                      [--oversample-albedo A:F] [--near-samples R:N]\n"
+    "                      [--oversample-albedo A:F] [--near-samples R:N] [--init DIR]\n"
     "                      [--g-map linear|log] [--no-calibrate]\n"
     "                      [--threads T] [--quiet]\n"
     "\n"
@@ -30,6 +30,9 @@ static const char usage_text[] =
     "about its floor would otherwise light the far field; 1 keeps the training's eps).\n"
     "--oversample-albedo A:F: tables with albedo >= A give F times the samples (the\n"
     "far-reaching high-albedo tables are the ones the network fits worst).\n"
+    "--init DIR: start from DIR/<order>.bin (weights this command wrote with the same\n"
+    "--target, --g-map, --eps and --zero-floor) instead of a random initialisation: a fine\n"
+    "tuning, typically with a lower --lr and a few tens of epochs.\n"
     "--near-samples R:N: N more samples per table (times F above where it applies), drawn\n"
     "in proportion to the energy of the cells within R mfp of the source: the near field\n"
     "a small object integrates, which holds under 1% of a high-albedo table's energy.\n"
@@ -107,7 +110,9 @@ static int parse_value(ns_train_options *o, const char *arg, const char *val)
                                val);
         o->near_radius = r;
         o->near_samples = (uint32_t)n;
-    } else if (!strcmp(arg, "--zero-floor"))
+    } else if (!strcmp(arg, "--init"))
+        o->init_dir = val;
+    else if (!strcmp(arg, "--zero-floor"))
         rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);
     else if (!strcmp(arg, "--time-budget"))
         rc = parse_number(arg, val, 1, 1e7, &o->time_budget);

@@ -563,6 +563,41 @@ void ns_train_samples_free(ns_train_samples *s)
     memset(s, 0, sizeof *s);
 }
 
+/* --init: the parameters of DIR/<order>.bin, and the targets re-expressed in that network's
+ * standardisation. A written file has the energy calibration c folded into its transform
+ * (mean + ln c, eps * c * zero_floor: train_order below), so the training's own mean is
+ * the file's less ln c, with c = eps_file / (eps * zero_floor); the file must have been
+ * trained with this run's target, input map, eps and zero floor, which a calibration
+ * outside [0.5, 2] (a few per cent in practice) says it was not. */
+static int init_from_weights(const ns_train_options *o, ns_order order, ns_nn_weights *w, dataset *d)
+{
+    char path[4200];
+    snprintf(path, sizeof path, "%s/%s.bin", o->init_dir, ns_order_name(order));
+    ns_nn_weights from;
+    ns_error err = {0};
+    if (ns_nn_weights_load(path, &from, &err))
+        return usage_error("--init: %s", err.message);
+    if (from.h.order != (uint32_t)order || from.h.target != w->h.target ||
+        from.h.input_map != w->h.input_map)
+        return usage_error("--init: %s is a %s network with target %u and input map %u; this run "
+                           "trains %s with target %u and input map %u",
+                           path, from.h.order == 0 ? "double" : "multiple", from.h.target,
+                           from.h.input_map, ns_order_name(order), w->h.target, w->h.input_map);
+    float mean = from.h.target_mean;
+    if (o->target == NS_NN_TARGET_LOGREL) {
+        double calibration = from.h.target_eps / (o->eps * o->zero_floor);
+        if (!(calibration >= 0.5 && calibration <= 2))
+            return usage_error("--init: %s decodes with eps %g, which is not this run's --eps %g "
+                               "times --zero-floor %g times an energy calibration within [0.5, 2]",
+                               path, from.h.target_eps, o->eps, o->zero_floor);
+        mean -= (float)log(calibration);
+    }
+    memcpy(w->p, from.p, sizeof w->p);
+    restandardise(d, &w->h, mean, from.h.target_scale);
+    fprintf(stderr, "nscatter train: %s: starting from %s\n", ns_order_name(order), path);
+    return 0;
+}
+
 static int train_order(const ns_train_options *o, ns_order order)
 {
     ns_nn_weights w;
@@ -598,7 +633,17 @@ static int train_order(const ns_train_options *o, ns_order order)
         ck.input_map = o->input_map;
         ck.target_mean = w.h.target_mean;
         ck.target_scale = w.h.target_scale;
-        ns_nn_init_params(w.p, o->seed + (uint64_t)order);
+        if (o->init_dir) {
+            rc = init_from_weights(o, order, &w, &d);
+            if (rc) {
+                dataset_free(&d);
+                return rc;
+            }
+            ck.target_mean = w.h.target_mean;
+            ck.target_scale = w.h.target_scale;
+        } else {
+            ns_nn_init_params(w.p, o->seed + (uint64_t)order);
+        }
     }
     train_result res = {.test_loss = NAN};
     rc = run_epochs(o, order, &w, &d, &ck, &res);

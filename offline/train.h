@@ -20,6 +20,7 @@ int ns_train_parse_table_name(const char *name, double *g, double *albedo, ns_or
  * defaults its usage text names. data is required; ckpt_dir NULL means data. */
 typedef struct ns_train_options {
     const char *data, *out_dir, *ckpt_dir;
+    const char *init_dir; /* NULL, or a folder of weights to start from (DIR/<order>.bin) */
     unsigned orders;
     ns_nn_target target;
     int epochs, resume, quiet, threads, calibrate;

@@ -167,6 +167,68 @@ static void test_train_and_resume(void)
     CHECK(!memcmp(mapped.p, fresh.p, sizeof fresh.p));
 }
 
+/* The decoded J of w at a few inputs, relative to `base` (the same inputs): the largest
+ * |ln(J_w / J_base)|. */
+static double largest_log_ratio(const ns_nn_weights *w, const ns_nn_weights *base)
+{
+    double worst = 0;
+    for (int i = 0; i < 64; i++) {
+        float x[NS_NN_INPUTS];
+        for (int k = 0; k < NS_NN_INPUTS; k++)
+            x[k] = (float)((i * (k + 3) % 17) / 16.0);
+        double a = ns_nn_output_to_j(&w->h, ns_nn_forward(w, x), 1.0);
+        double b = ns_nn_output_to_j(&base->h, ns_nn_forward(base, x), 1.0);
+        if (a > 1e-9 && b > 1e-9)
+            worst = fmax(worst, fabs(log(a / b)));
+    }
+    return worst;
+}
+
+/* --init: a fine tuning starts from the given weights. At the smallest learning rate it
+ * keeps their answers, also when its samples (here with near-field ones) standardise the
+ * targets with another mean and scale than the weights were trained with: the targets are
+ * re-expressed in the weights' standardisation (without that the decoded J moved here by
+ * e^0.12, with it by e^0.007). Runs on the tables test_train_and_resume wrote. */
+static void test_init_from_weights(void)
+{
+    char out[300], tuned[300], bin[340], tuned_bin[340];
+    snprintf(out, sizeof out, "%s/w_init", dir);
+    snprintf(tuned, sizeof tuned, "%s/w_tuned", dir);
+    snprintf(bin, sizeof bin, "%s/double.bin", out);
+    snprintf(tuned_bin, sizeof tuned_bin, "%s/double.bin", tuned);
+    const char *args[] = {"train",     "--data",  dir,        "--order", "double",
+                          "--out-dir", out,       "--epochs", "3",       "--samples-per-table",
+                          "400",       "--batch", "64",       "--quiet", NULL};
+    CHECK_INT(run(cmd_train, args), 0);
+    const char *tune[] = {"train",     "--data",  dir,          "--order", "double",
+                          "--out-dir", tuned,     "--epochs",   "1",       "--samples-per-table",
+                          "400",       "--batch", "64",         "--lr",    "1e-7",
+                          "--near-samples", "8:4000", "--init", out,       "--quiet", NULL};
+    CHECK_INT(run(cmd_train, tune), 0);
+    ns_nn_weights base, after;
+    ns_error err = {0};
+    CHECK_INT(ns_nn_weights_load(bin, &base, &err), 0);
+    CHECK_INT(ns_nn_weights_load(tuned_bin, &after, &err), 0);
+    double worst = largest_log_ratio(&after, &base);
+    fprintf(stderr, "  fine tuning at lr 1e-7: decoded J within a factor e^%.2g; means %g -> %g\n",
+            worst, base.h.target_mean, after.h.target_mean);
+    CHECK(worst < 0.02);
+    char tuned_json[340];
+    snprintf(tuned_json, sizeof tuned_json, "%s/double.json", tuned);
+    CHECK_STR_CONTAINS(read_text(tuned_json), "--init"); /* the command, as run */
+
+    /* Weights of another order, or decoded with another eps than this run's, are refused. */
+    const char *wrong_order[] = {"train",  "--data", dir, "--order", "multiple", "--out-dir", tuned,
+                                 "--init", out,      "--quiet", NULL};
+    CHECK_INT(run(cmd_train, wrong_order), 2);
+    const char *wrong_eps[] = {"train",  "--data", dir, "--order", "double", "--out-dir", tuned,
+                               "--init", out,      "--eps", "1e-9", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, wrong_eps), 2);
+    const char *missing[] = {"train",  "--data", dir, "--order", "double", "--out-dir", tuned,
+                             "--init", "/nonexistent-nscatter-dir", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, missing), 2);
+}
+
 /* The near-field samples themselves (through the loader `nscatter train` uses, on the tables
  * test_train_and_resume wrote: a = 0.5 and 0.9 trained, 0.8 held out). write_table's cells
  * are 5 long in z from -20 and 3.33 wide in rho; their centres within 8 of the source are
@@ -290,6 +352,7 @@ int main(void)
     mkdir(dir, 0755);
     RUN(test_train_and_resume);
     RUN(test_near_samples_are_near);
+    RUN(test_init_from_weights);
     RUN(test_argument_errors);
     char cmd[600];
     snprintf(cmd, sizeof cmd, "rm -rf '%s'", dir);
