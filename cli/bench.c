@@ -61,6 +61,11 @@ double bench_result_psnr(const bench_result *r)
         return NAN;
     if (r->seeds < 2)
         return r->metrics.psnr[3];
-    /* The same reference, so the same peak as the row's own comparison. */
+    /* The same reference, so the same peak as the row's own comparison (image_compare's
+     * NaN for a peak of 0, infinity for no error). */
+    if (!(r->metrics.peak > 0))
+        return NAN;
+    if (r->seed_mse_mean == 0)
+        return INFINITY;
     return 10.0 * log10(r->metrics.peak * r->metrics.peak / r->seed_mse_mean);
 }

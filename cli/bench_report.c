@@ -259,8 +259,9 @@ static void write_targets(FILE *f, const bench_run *run)
         "to reach nn full's error, estimated from the short pt renders (below), over nn "
         "full's time (a frame of a view whose camera pass is kept), and over that time and "
         "the camera pass (a new view; the verdict's).\n"
-        "- With --seeds, nn's and vrl's errors here are their mean squared errors over the "
-        "seeds (the Seeds section's last column), not one seed's draw.\n\n"
+        "- With --seeds, every row's error here (nn full's, table's, vrl's) is its mean "
+        "squared error over the seeds (the Seeds section's last column), not one seed's draw; "
+        "so is nn full's MSE in the pt estimate below.\n\n"
         "| scene | table − nn full dB | within 3 dB | nn full − vrl dB | vrl time ratio | ≥ 5 dB | "
         "pt time for nn's error s | speedup over pt | speedup, new view | ≥ 1000× |\n"
         "|---|---|---|---|---|---|---|---|---|---|\n");
@@ -341,7 +342,7 @@ static void write_pt(FILE *f, const bench_run *run)
         }
     }
     fprintf(f, "\n| scene | variance per sample | pt_pass ms per spp | nn full MSE (reference noise "
-               "removed) | pt ms for that error |\n|---|---|---|---|---|\n");
+               "removed; over its seeds with --seeds) | pt ms for that error |\n|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         const bench_pt_estimate *e = &s->pt;

@@ -1150,6 +1150,11 @@ static void run_seeds(bench *b, bench_scene *s, int m)
             fprintf(stderr, "bench: %s %s seed %u: %s\n", s->name, bench_methods[m].name, seed, error);
             continue;
         }
+        if (!isfinite(metrics.rmse[3])) { /* nothing finite compared: no error to average */
+            fprintf(stderr, "bench: %s %s seed %u: no finite pixel to compare\n", s->name,
+                    bench_methods[m].name, seed);
+            continue;
+        }
         for (int c = 0; c < 3; c++)
             ratio[done][c] = metrics.mean_ratio[c];
         mse_sum += metrics.rmse[3] * metrics.rmse[3];

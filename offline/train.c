@@ -14,6 +14,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <jansson.h>
+
 #include "nn_train.h"
 #include "nn_weights.h"
 
@@ -280,7 +282,8 @@ static void standardise(dataset *d, ns_nn_header *h)
             sets[s]->t[i] = (sets[s]->t[i] - h->target_mean) / h->target_scale;
 }
 
-/* Re-expresses standardised targets with another mean and scale (a resumed checkpoint's). */
+/* Re-expresses standardised targets with another mean and scale (a resumed checkpoint's or
+ * --init's network's). */
 static void restandardise(dataset *d, ns_nn_header *h, float mean, float scale)
 {
     sample_set *sets[2] = {&d->train, &d->test};
@@ -563,42 +566,91 @@ void ns_train_samples_free(ns_train_samples *s)
     memset(s, 0, sizeof *s);
 }
 
-/* --init: the parameters of DIR/<order>.bin, and the targets re-expressed in that network's
- * standardisation. A written file has the energy calibration c folded into its transform
- * (mean + ln c, eps * c * zero_floor: train_order below), so the training's own mean is
- * the file's less ln c, with c = eps_file / (eps * zero_floor); the file must have been
- * trained with this run's target, input map, eps and zero floor, which a calibration
- * outside [0.5, 2] (a few per cent in practice) says it was not. */
-static int init_from_weights(const ns_train_options *o, ns_order order, ns_nn_weights *w, dataset *d)
+/* --init: one order's starting network and the mean of the standardisation it was trained
+ * in. A written file has its energy calibration c folded into its transform (mean + ln c,
+ * eps * c * zero_floor: train_order below), so the training's own mean is the file's less
+ * ln c; c, the zero floor and the training eps are read from the JSON written beside it
+ * (exact, where inferring c from the eps would take a changed --zero-floor for a
+ * calibration). */
+typedef struct init_weights {
+    ns_nn_weights w;
+    float train_mean;
+} init_weights;
+
+static const char *target_name(uint32_t target)
 {
-    char path[4200];
+    return target == NS_NN_TARGET_PAPER ? "paper" : target == NS_NN_TARGET_LOGREL ? "logrel" : "?";
+}
+
+static const char *g_map_name(uint32_t map)
+{
+    return map == NS_NN_INPUT_MAP_ASINH_LOGG ? "log" : map == NS_NN_INPUT_MAP_ASINH ? "linear" : "?";
+}
+
+static int load_init(const ns_train_options *o, ns_order order, init_weights *out)
+{
+    char path[4200], json_path[4200];
     snprintf(path, sizeof path, "%s/%s.bin", o->init_dir, ns_order_name(order));
-    ns_nn_weights from;
+    snprintf(json_path, sizeof json_path, "%s/%s.json", o->init_dir, ns_order_name(order));
     ns_error err = {0};
-    if (ns_nn_weights_load(path, &from, &err))
+    if (ns_nn_weights_load(path, &out->w, &err))
         return usage_error("--init: %s", err.message);
-    if (from.h.order != (uint32_t)order || from.h.target != w->h.target ||
-        from.h.input_map != w->h.input_map)
-        return usage_error("--init: %s is a %s network with target %u and input map %u; this run "
-                           "trains %s with target %u and input map %u",
-                           path, from.h.order == 0 ? "double" : "multiple", from.h.target,
-                           from.h.input_map, ns_order_name(order), w->h.target, w->h.input_map);
-    float mean = from.h.target_mean;
-    if (o->target == NS_NN_TARGET_LOGREL) {
-        double calibration = from.h.target_eps / (o->eps * o->zero_floor);
-        if (!(calibration >= 0.5 && calibration <= 2))
-            return usage_error("--init: %s decodes with eps %g, which is not this run's --eps %g "
-                               "times --zero-floor %g times an energy calibration within [0.5, 2]",
-                               path, from.h.target_eps, o->eps, o->zero_floor);
-        mean -= (float)log(calibration);
-    }
-    memcpy(w->p, from.p, sizeof w->p);
-    restandardise(d, &w->h, mean, from.h.target_scale);
-    fprintf(stderr, "nscatter train: %s: starting from %s\n", ns_order_name(order), path);
+    const ns_nn_header *h = &out->w.h;
+    if (h->order != (uint32_t)order || h->target != (uint32_t)o->target || h->input_map != o->input_map)
+        return usage_error("--init: %s is a %s network with target %s and g map %s; this run "
+                           "trains %s with target %s and g map %s",
+                           path, h->order <= 1 ? ns_order_name((ns_order)h->order) : "?",
+                           target_name(h->target), g_map_name(h->input_map), ns_order_name(order),
+                           target_name(o->target), g_map_name(o->input_map));
+    out->train_mean = h->target_mean;
+    if (o->target != NS_NN_TARGET_LOGREL)
+        return 0; /* paper: eps 1, no calibration, no floor */
+    json_error_t jerr;
+    json_t *root = json_load_file(json_path, 0, &jerr);
+    json_t *t = json_object_get(root, "target_transform");
+    json_t *c = json_object_get(t, "energy_calibration"), *f = json_object_get(t, "zero_floor"),
+           *e = json_object_get(t, "training_eps");
+    int ok = json_is_number(c) && json_is_number(f) && json_is_number(e);
+    double calibration = ok ? json_number_value(c) : NAN, floor = ok ? json_number_value(f) : NAN,
+           eps = ok ? json_number_value(e) : NAN;
+    json_decref(root);
+    if (!ok || !(calibration > 0) || !(floor >= 1) || !(eps > 0))
+        return usage_error("--init: %s: no target_transform with energy_calibration, zero_floor "
+                           "and training_eps (the JSON `nscatter train` writes beside %s)",
+                           json_path, path);
+    if (fabs(eps / o->eps - 1) > 1e-6)
+        return usage_error("--init: %s was trained with --eps %g; this run's is %g (the targets "
+                           "would mean something else)",
+                           path, eps, o->eps);
+    if (fabs(h->target_eps / (eps * calibration * floor) - 1) > 1e-5)
+        return usage_error("--init: %s decodes with eps %g, not its JSON's training eps %g x "
+                           "calibration %g x zero floor %g",
+                           path, h->target_eps, eps, calibration, floor);
+    out->train_mean = h->target_mean - (float)log(calibration);
     return 0;
 }
 
-static int train_order(const ns_train_options *o, ns_order order)
+/* Starts w from `from`, whose inputs must be mapped as this run's tables map them, with the
+ * targets re-expressed in its standardisation. */
+static int start_from(const ns_train_options *o, ns_order order, const init_weights *from,
+                      ns_nn_weights *w, dataset *d)
+{
+    const ns_nn_header *a = &from->w.h, *b = &w->h;
+    if (a->extent != b->extent || a->sinh_scale != b->sinh_scale || a->albedo_max != b->albedo_max ||
+        a->g_min != b->g_min || a->g_max != b->g_max)
+        return usage_error("--init: %s/%s.bin maps its inputs otherwise (extent %g, sinh scale %g, "
+                           "albedo max %g, g %g to %g) than these tables (%g, %g, %g, %g to %g)",
+                           o->init_dir, ns_order_name(order), a->extent, a->sinh_scale,
+                           a->albedo_max, a->g_min, a->g_max, b->extent, b->sinh_scale,
+                           b->albedo_max, b->g_min, b->g_max);
+    memcpy(w->p, from->w.p, sizeof w->p);
+    restandardise(d, &w->h, from->train_mean, a->target_scale);
+    fprintf(stderr, "nscatter train: %s: starting from %s/%s.bin\n", ns_order_name(order),
+            o->init_dir, ns_order_name(order));
+    return 0;
+}
+
+static int train_order(const ns_train_options *o, ns_order order, const init_weights *init)
 {
     ns_nn_weights w;
     header_for(o, order, &w.h);
@@ -619,8 +671,8 @@ static int train_order(const ns_train_options *o, ns_order order)
     checkpoint_path(o, order, path, sizeof path);
     if (o->resume && checkpoint_load(path, &ck) == 0 && ck.order == (uint32_t)order &&
         ck.target == (uint32_t)o->target && (ck.input_map ? ck.input_map : 1) == o->input_map) {
-        fprintf(stderr, "nscatter train: resuming %s from epoch %u (%s)\n", ns_order_name(order),
-                ck.epoch, path);
+        fprintf(stderr, "nscatter train: resuming %s from epoch %u (%s)%s\n", ns_order_name(order),
+                ck.epoch, path, init ? "; --init is not read" : "");
         memcpy(w.p, ck.p, sizeof w.p);
         restandardise(&d, &w.h, ck.target_mean, ck.target_scale);
     } else {
@@ -631,19 +683,17 @@ static int train_order(const ns_train_options *o, ns_order order)
         ck.order = (uint32_t)order;
         ck.target = (uint32_t)o->target;
         ck.input_map = o->input_map;
-        ck.target_mean = w.h.target_mean;
-        ck.target_scale = w.h.target_scale;
-        if (o->init_dir) {
-            rc = init_from_weights(o, order, &w, &d);
+        if (init) {
+            rc = start_from(o, order, init, &w, &d);
             if (rc) {
                 dataset_free(&d);
                 return rc;
             }
-            ck.target_mean = w.h.target_mean;
-            ck.target_scale = w.h.target_scale;
         } else {
             ns_nn_init_params(w.p, o->seed + (uint64_t)order);
         }
+        ck.target_mean = w.h.target_mean;
+        ck.target_scale = w.h.target_scale;
     }
     train_result res = {.test_loss = NAN};
     rc = run_epochs(o, order, &w, &d, &ck, &res);
@@ -721,9 +771,14 @@ int ns_train(const ns_train_options *o)
                            strerror(errno));
     if (o->threads)
         openblas_set_num_threads(o->threads);
+    /* Every --init file is checked before the first order trains (an hour, maybe). */
+    static init_weights init[2];
+    for (int k = 0; k < 2 && o->init_dir; k++)
+        if ((o->orders & (1u << k)) && load_init(o, (ns_order)k, &init[k]))
+            return 2;
     int rc = 0;
     for (int k = 0; k < 2 && !rc; k++)
         if (o->orders & (1u << k))
-            rc = train_order(o, (ns_order)k);
+            rc = train_order(o, (ns_order)k, o->init_dir ? &init[k] : NULL);
     return rc;
 }

@@ -180,11 +180,12 @@ def test_report_and_reference_cache(t, d):
     t.check(len(speeds) == 1 and all(v != "n/a" for v in speeds[0]) and
             float(speeds[0][1].lstrip("≥ ")) <= float(speeds[0][0].lstrip("≥ ")),
             f"speed-ups kept view, new view: {speeds}")
-    # With --seeds the targets read each row's error over its seeds, not its first seed's.
+    # With --seeds the targets read each row's error over its seeds, not its first seed's
+    # (three numbers printed to 0.005 dB each).
     seeds = {r["method"]: r["PSNR of the mean MSE dB"] for r in markdown_table(text, "## Seeds")} if text else {}
     gaps = [r["nn full − vrl dB"] for r in targets if r["scene"] == "cloud"]
     t.check(len(gaps) == 1 and "nn_full" in seeds and "vrl" in seeds and
-            abs(float(gaps[0]) - (float(seeds["nn_full"]) - float(seeds["vrl"]))) <= 0.011,
+            abs(float(gaps[0]) - (float(seeds["nn_full"]) - float(seeds["vrl"]))) <= 0.016,
             f"nn full − vrl {gaps} from the seeds' PSNR of the mean MSE {seeds}")
 
 

@@ -217,10 +217,31 @@ static void test_init_from_weights(void)
     snprintf(tuned_json, sizeof tuned_json, "%s/double.json", tuned);
     CHECK_STR_CONTAINS(read_text(tuned_json), "--init"); /* the command, as run */
 
-    /* Weights of another order, or decoded with another eps than this run's, are refused. */
-    const char *wrong_order[] = {"train",  "--data", dir, "--order", "multiple", "--out-dir", tuned,
-                                 "--init", out,      "--quiet", NULL};
-    CHECK_INT(run(cmd_train, wrong_order), 2);
+    /* Without the calibration the written mean is the one the base network was trained in:
+     * its file's less the log of the calibration its JSON records, whatever the zero floor
+     * (which only scales the decode eps). */
+    const char *plain[] = {"train",     "--data",  dir,        "--order", "double",
+                           "--out-dir", tuned,     "--epochs", "1",       "--samples-per-table",
+                           "400",       "--batch", "64",       "--lr",    "1e-7",
+                           "--no-calibrate", "--zero-floor", "20", "--init", out, "--quiet", NULL};
+    CHECK_INT(run(cmd_train, plain), 0);
+    char base_json[340];
+    snprintf(base_json, sizeof base_json, "%s/double.json", out);
+    const char *text = read_text(base_json), *at = strstr(text, "\"energy_calibration\": ");
+    CHECK(at != NULL);
+    double c0 = at ? atof(at + strlen("\"energy_calibration\": ")) : NAN;
+    CHECK_INT(ns_nn_weights_load(tuned_bin, &after, &err), 0);
+    CHECK_NEAR(after.h.target_mean, base.h.target_mean - log(c0), 1e-5);
+    CHECK(after.h.target_scale == base.h.target_scale);
+    CHECK_NEAR(after.h.target_eps, 20 * 1e-13, 1e-19);
+
+    /* Weights of another target or g map, trained with another eps, or missing: refused. */
+    const char *wrong_map[] = {"train",  "--data", dir, "--order", "double", "--out-dir", tuned,
+                               "--init", out,      "--g-map", "log", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, wrong_map), 2);
+    const char *wrong_target[] = {"train",  "--data", dir, "--order", "double", "--out-dir", tuned,
+                                  "--init", out,      "--target", "paper", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, wrong_target), 2);
     const char *wrong_eps[] = {"train",  "--data", dir, "--order", "double", "--out-dir", tuned,
                                "--init", out,      "--eps", "1e-9", "--quiet", NULL};
     CHECK_INT(run(cmd_train, wrong_eps), 2);
