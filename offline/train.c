@@ -478,7 +478,8 @@ static double energy_calibration(ns_nn_trainer *tr, const float *p, const sample
  * ===================================================================================== */
 
 static int write_json(const ns_train_options *o, ns_order order, const ns_nn_weights *w,
-                      const dataset *d, const train_result *r, const char *path)
+                      const dataset *d, const train_result *r, const char *initialised_from,
+                      const char *path)
 {
     FILE *f = fopen(path, "w");
     if (!f)
@@ -527,9 +528,12 @@ static int write_json(const ns_train_options *o, ns_order order, const ns_nn_wei
             "  \"optimiser\": {\"name\": \"adam\", \"lr\": %g, \"batch\": %u, \"seed\": %llu},\n"
             "  \"epochs\": %d,\n  \"epochs_requested\": %d,\n  \"final_train_loss\": %.6g,\n"
             "  \"final_test_loss\": %.6g,\n  \"loss\": \"mean squared error of the standardised "
-            "target\",\n  \"training_seconds\": %.1f,\n  \"command\": \"%s\"\n}\n",
+            "target\",\n  \"training_seconds\": %.1f,\n",
             o->lr, o->batch, (unsigned long long)o->seed, r->epochs_done, o->epochs, r->train_loss,
-            r->test_loss, r->seconds, o->command);
+            r->test_loss, r->seconds);
+    if (initialised_from)
+        fprintf(f, "  \"initialised_from\": %s,\n", initialised_from);
+    fprintf(f, "  \"command\": \"%s\"\n}\n", o->command);
     return fclose(f) ? usage_error("%s: write failed", path) : 0;
 }
 
@@ -575,6 +579,7 @@ void ns_train_samples_free(ns_train_samples *s)
 typedef struct init_weights {
     ns_nn_weights w;
     float train_mean;
+    char *record; /* JSON object for the written JSON's "initialised_from" (json_dumps) */
 } init_weights;
 
 static const char *target_name(uint32_t target)
@@ -607,6 +612,12 @@ static int load_init(const ns_train_options *o, ns_order order, init_weights *ou
         return 0; /* paper: eps 1, no calibration, no floor */
     json_error_t jerr;
     json_t *root = json_load_file(json_path, 0, &jerr);
+    /* What the new weights were tuned from, for the JSON written with them. */
+    json_t *record = json_pack("{s:s, s:O*, s:O*}", "file", path, "epochs",
+                               json_object_get(root, "epochs"), "command",
+                               json_object_get(root, "command"));
+    out->record = record ? json_dumps(record, JSON_PRESERVE_ORDER) : NULL;
+    json_decref(record);
     json_t *t = json_object_get(root, "target_transform");
     json_t *c = json_object_get(t, "energy_calibration"), *f = json_object_get(t, "zero_floor"),
            *e = json_object_get(t, "training_eps");
@@ -730,7 +741,7 @@ static int train_order(const ns_train_options *o, ns_order order, const init_wei
         if (ns_nn_weights_save(&w, bin, &err))
             rc = usage_error("%s", err.message);
         else
-            rc = write_json(o, order, &w, &d, &res, json);
+            rc = write_json(o, order, &w, &d, &res, init ? init->record : NULL, json);
         if (!rc)
             printf("%s: %d epochs, train loss %.5f, test loss %.5f, %.0f s -> %s\n",
                    ns_order_name(order), res.epochs_done, res.train_loss, res.test_loss,
@@ -780,5 +791,9 @@ int ns_train(const ns_train_options *o)
     for (int k = 0; k < 2 && !rc; k++)
         if (o->orders & (1u << k))
             rc = train_order(o, (ns_order)k, o->init_dir ? &init[k] : NULL);
+    for (int k = 0; k < 2; k++) {
+        free(init[k].record);
+        init[k].record = NULL;
+    }
     return rc;
 }

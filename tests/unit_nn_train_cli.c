@@ -216,6 +216,9 @@ static void test_init_from_weights(void)
     char tuned_json[340];
     snprintf(tuned_json, sizeof tuned_json, "%s/double.json", tuned);
     CHECK_STR_CONTAINS(read_text(tuned_json), "--init"); /* the command, as run */
+    /* and what it started from: the base's epochs and command */
+    CHECK_STR_CONTAINS(read_text(tuned_json), "\"initialised_from\": {\"file\": ");
+    CHECK_STR_CONTAINS(read_text(tuned_json), "\"epochs\": 3, \"command\": \"nscatter train --data");
 
     /* Without the calibration the written mean is the one the base network was trained in:
      * its file's less the log of the calibration its JSON records, whatever the zero floor
