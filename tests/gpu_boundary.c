@@ -147,7 +147,10 @@ static void test_slab(double thickness, double walks_tolerance, double off_off, 
     compare(name, s, NS_COMPONENT_MULTIPLE, 1024, walks_tolerance, off_off, closer);
 }
 
-/* Measured at 16 x 16 (2026-11-30): walks / off 0.5 mfp +8.0 / +1.6 / -8.6% against +592 /
+/* Measured at 16 x 16 with the multiple network fine-tuned on its near field (2026-12-01,
+ * docs/network.md): walks 0.5 mfp +8.3 / +0.4 / +2.1%, 2 mfp +2.0 / -0.1 / +3.0%, 8 mfp
+ * +1.9 / +0.1 / +5.6% (off as below).
+ * Measured at 16 x 16 (2026-11-30): walks / off 0.5 mfp +8.0 / +1.6 / -8.6% against +592 /
  * +154 / +2340%; 2 mfp +4.5 / +1.1 / +7.7% against +91 / +14 / +458%; 8 mfp +3.3 / +0.9 /
  * +7.8% against +31 / +5.6 / +168%.
  * Measured at 32 x 32 (2026-11-29, light paths stratified, walks with spectral MIS over the path),
