@@ -47,7 +47,6 @@ double bench_paper_value(const bench_scene *s, const char *method, const char *f
     return json_is_number(v) ? json_number_value(v) : NAN;
 }
 
-
 double bench_result_mse(const bench_result *r)
 {
     if (r->seeds >= 2)

@@ -144,16 +144,17 @@ static void write_seeds(FILE *f, const bench_run *run)
 {
     if (run->seeds < 2)
         return;
-    fprintf(f, "## Seeds\n\n"
-               "Each row rendered on %u seeds (the scene's and those after it; light paths and "
-               "camera samples change), each compared with the same reference: mean / ref per "
-               "channel as the mean ± the standard deviation over the seeds, and the PSNR's "
-               "median and range, and the PSNR of their mean squared error (the expected "
-               "error, which the Targets read). One seed's mean / ref in Results is one draw "
-               "from this spread.\n\n"
-               "| scene | method | components | seeds | mean / ref R | G | B | PSNR dB median | min | max | "
-               "PSNR of the mean MSE dB |\n"
-               "|---|---|---|---|---|---|---|---|---|---|---|\n",
+    fprintf(f,
+            "## Seeds\n\n"
+            "Each row rendered on %u seeds (the scene's and those after it; light paths and "
+            "camera samples change), each compared with the same reference: mean / ref per "
+            "channel as the mean ± the standard deviation over the seeds, and the PSNR's "
+            "median and range, and the PSNR of their mean squared error (the expected "
+            "error, which the Targets read). One seed's mean / ref in Results is one draw "
+            "from this spread.\n\n"
+            "| scene | method | components | seeds | mean / ref R | G | B | PSNR dB median | "
+            "min | max | PSNR of the mean MSE dB |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|\n",
             run->seeds);
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
@@ -341,8 +342,10 @@ static void write_pt(FILE *f, const bench_run *run)
                         num(p->pass_ms, 1).text, sci(p->mse).text, num(p->psnr, 2).text);
         }
     }
-    fprintf(f, "\n| scene | variance per sample | pt_pass ms per spp | nn full MSE (reference noise "
-               "removed; over its seeds with --seeds) | pt ms for that error |\n|---|---|---|---|---|\n");
+    fprintf(
+        f,
+        "\n| scene | variance per sample | pt_pass ms per spp | nn full MSE (reference noise "
+        "removed; over its seeds with --seeds) | pt ms for that error |\n|---|---|---|---|---|\n");
     for (uint32_t i = 0; i < run->scene_count; i++) {
         const bench_scene *s = &run->scenes[i];
         const bench_pt_estimate *e = &s->pt;

@@ -1136,7 +1136,8 @@ static void run_seeds(bench *b, bench_scene *s, int m)
     uint32_t n = b->args.seeds;
     if (n < 2 || !r->ok || !(r->metrics.pixels > 0) || set < 0 || !s->refs[set].ok)
         return;
-    double ratio[BENCH_MAX_SEEDS][3], psnr[BENCH_MAX_SEEDS], mse_sum = r->metrics.rmse[3] * r->metrics.rmse[3];
+    double ratio[BENCH_MAX_SEEDS][3], psnr[BENCH_MAX_SEEDS],
+        mse_sum = r->metrics.rmse[3] * r->metrics.rmse[3];
     for (int c = 0; c < 3; c++)
         ratio[0][c] = r->metrics.mean_ratio[c];
     psnr[0] = r->metrics.psnr[3];

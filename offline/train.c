@@ -589,7 +589,9 @@ static const char *target_name(uint32_t target)
 
 static const char *g_map_name(uint32_t map)
 {
-    return map == NS_NN_INPUT_MAP_ASINH_LOGG ? "log" : map == NS_NN_INPUT_MAP_ASINH ? "linear" : "?";
+    return map == NS_NN_INPUT_MAP_ASINH_LOGG ? "log"
+           : map == NS_NN_INPUT_MAP_ASINH    ? "linear"
+                                             : "?";
 }
 
 static int load_init(const ns_train_options *o, ns_order order, init_weights *out)
@@ -601,7 +603,8 @@ static int load_init(const ns_train_options *o, ns_order order, init_weights *ou
     if (ns_nn_weights_load(path, &out->w, &err))
         return usage_error("--init: %s", err.message);
     const ns_nn_header *h = &out->w.h;
-    if (h->order != (uint32_t)order || h->target != (uint32_t)o->target || h->input_map != o->input_map)
+    if (h->order != (uint32_t)order || h->target != (uint32_t)o->target ||
+        h->input_map != o->input_map)
         return usage_error("--init: %s is a %s network with target %s and g map %s; this run "
                            "trains %s with target %s and g map %s",
                            path, h->order <= 1 ? ns_order_name((ns_order)h->order) : "?",
@@ -613,9 +616,9 @@ static int load_init(const ns_train_options *o, ns_order order, init_weights *ou
     json_error_t jerr;
     json_t *root = json_load_file(json_path, 0, &jerr);
     /* What the new weights were tuned from, for the JSON written with them. */
-    json_t *record = json_pack("{s:s, s:O*, s:O*}", "file", path, "epochs",
-                               json_object_get(root, "epochs"), "command",
-                               json_object_get(root, "command"));
+    json_t *record =
+        json_pack("{s:s, s:O*, s:O*}", "file", path, "epochs", json_object_get(root, "epochs"),
+                  "command", json_object_get(root, "command"));
     out->record = record ? json_dumps(record, JSON_PRESERVE_ORDER) : NULL;
     json_decref(record);
     json_t *t = json_object_get(root, "target_transform");
@@ -647,8 +650,8 @@ static int start_from(const ns_train_options *o, ns_order order, const init_weig
                       ns_nn_weights *w, dataset *d)
 {
     const ns_nn_header *a = &from->w.h, *b = &w->h;
-    if (a->extent != b->extent || a->sinh_scale != b->sinh_scale || a->albedo_max != b->albedo_max ||
-        a->g_min != b->g_min || a->g_max != b->g_max)
+    if (a->extent != b->extent || a->sinh_scale != b->sinh_scale ||
+        a->albedo_max != b->albedo_max || a->g_min != b->g_min || a->g_max != b->g_max)
         return usage_error("--init: %s/%s.bin maps its inputs otherwise (extent %g, sinh scale %g, "
                            "albedo max %g, g %g to %g) than these tables (%g, %g, %g, %g to %g)",
                            o->init_dir, ns_order_name(order), a->extent, a->sinh_scale,
