@@ -610,9 +610,6 @@ static int load_init(const ns_train_options *o, ns_order order, init_weights *ou
                            path, h->order <= 1 ? ns_order_name((ns_order)h->order) : "?",
                            target_name(h->target), g_map_name(h->input_map), ns_order_name(order),
                            target_name(o->target), g_map_name(o->input_map));
-    out->train_mean = h->target_mean;
-    if (o->target != NS_NN_TARGET_LOGREL)
-        return 0; /* paper: eps 1, no calibration, no floor */
     json_error_t jerr;
     json_t *root = json_load_file(json_path, 0, &jerr);
     /* What the new weights were tuned from, for the JSON written with them. */
@@ -621,6 +618,11 @@ static int load_init(const ns_train_options *o, ns_order order, init_weights *ou
                   "command", json_object_get(root, "command"));
     out->record = record ? json_dumps(record, JSON_PRESERVE_ORDER) : NULL;
     json_decref(record);
+    out->train_mean = h->target_mean;
+    if (o->target != NS_NN_TARGET_LOGREL) {
+        json_decref(root);
+        return 0; /* paper: eps 1, no calibration, no floor */
+    }
     json_t *t = json_object_get(root, "target_transform");
     json_t *c = json_object_get(t, "energy_calibration"), *f = json_object_get(t, "zero_floor"),
            *e = json_object_get(t, "training_eps");
@@ -785,12 +787,14 @@ int ns_train(const ns_train_options *o)
                            strerror(errno));
     if (o->threads)
         openblas_set_num_threads(o->threads);
-    /* Every --init file is checked before the first order trains (an hour, maybe). */
+    /* Every --init file is checked before the first order trains (an hour, maybe). Static:
+     * two networks are 24 KB, and no call keeps them past its return. */
     static init_weights init[2];
-    for (int k = 0; k < 2 && o->init_dir; k++)
-        if ((o->orders & (1u << k)) && load_init(o, (ns_order)k, &init[k]))
-            return 2;
+    memset(init, 0, sizeof init);
     int rc = 0;
+    for (int k = 0; k < 2 && o->init_dir && !rc; k++)
+        if (o->orders & (1u << k))
+            rc = load_init(o, (ns_order)k, &init[k]);
     for (int k = 0; k < 2 && !rc; k++)
         if (o->orders & (1u << k))
             rc = train_order(o, (ns_order)k, o->init_dir ? &init[k] : NULL);
