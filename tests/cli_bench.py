@@ -187,6 +187,26 @@ def test_report_and_reference_cache(t, d):
     t.check(len(gaps) == 1 and "nn_full" in seeds and "vrl" in seeds and
             abs(float(gaps[0]) - (float(seeds["nn_full"]) - float(seeds["vrl"]))) <= 0.016,
             f"nn full − vrl {gaps} from the seeds' PSNR of the mean MSE {seeds}")
+    # And so does pt's time for nn's error: the MSE its estimate starts from (printed with the
+    # reference's noise v / spp taken out) is the seeds' mean, peak^2 / 10^(PSNR/10), with
+    # the peak from the Results row's own PSNR and RMSE (printed to 4 digits: 1% allowed).
+    results = {r["method"]: r for r in markdown_table(text, "## Results")} if text else {}
+    refs = [r for r in markdown_table(text, "## References") if r["components"] == "full"] if text else []
+    lines = text.splitlines()
+    head = next((i for i, line in enumerate(lines) if line.startswith("| scene | variance per sample")), None)
+    estimate = dict(zip([c.strip() for c in lines[head].strip("|").split("|")],
+                        [c.strip() for c in lines[head + 2].strip("|").split("|")])) if head is not None else {}
+    nn = results.get("nn_full", {})
+    if nn and refs and estimate and "nn_full" in seeds:
+        peak = float(nn["RMSE"]) * 10 ** (float(nn["PSNR dB"]) / 20)
+        mean_mse = peak ** 2 / 10 ** (float(seeds["nn_full"]) / 10)
+        used = (float(estimate["nn full MSE (reference noise removed; over its seeds with --seeds)"]) +
+                float(estimate["variance per sample"]) / float(refs[0]["spp"]))
+        t.check(abs(used / mean_mse - 1) < 0.01,
+                f"pt's estimate starts from the seeds' mean MSE {mean_mse:.4e}: {used:.4e} "
+                f"(seed 1's own: {float(nn['RMSE']) ** 2:.4e})")
+    else:
+        t.check(False, f"the 8x8 report has its nn_full row, full reference, pt estimate and seeds")
 
 
 def test_seeds(t, d):
