@@ -16,9 +16,9 @@
  * Fresnel transmittance and divided by the number of light samples traced;
  * material = the medium's material index; events = scattering events before this stretch
  * (0 for a stretch that starts on the boundary). A light walk traced for render.boundary
- * (vrl_trace.comp, GpuVrlTracePush.options & NS_VRL_TRACE_MARK_LINES) also sets NS_VRL_LINE_RETURNS in events when
- * the stretch's straight line, continued past its end, passes through an object of its
- * medium again (render/boundary.c: that stretch's ghost must read its first order). */
+ * (vrl_trace.comp, GpuVrlTracePush.options & NS_VRL_TRACE_MARK_LINES) also sets
+ * NS_VRL_LINE_RETURNS in events when the stretch's straight line, continued past its end,
+ * passes through an object of its medium again (render/boundary.c: that stretch's ghost must read its first order). */
 struct GpuVrl {
     ns_vec3 origin;
     float length;
