@@ -354,19 +354,20 @@ int ns_sample_moments_add(const GpuSegment *segs, const float (*added)[3],
 float ns_ratio_variance(float sum_x, float w, const ns_sample_moments *m, int c, uint32_t spp);
 
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
- * height image whose tiles are single pixels, for the tests: pixel p sees `material[p]`
+ * height image of tile x tile tiles, for the tests: pixel p sees `material[p]`
  * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the
  * radiance of a pixel the rounds gather, from the caller's field (a struct the test
- * defines: the library only passes it on). Fills every pixel's radiance (gathered or
- * interpolated) and interpolated[p]. curved: the interpolated values of adaptive single
+ * defines: the library only passes it on). Fills every pixel's radiance (gathered,
+ * interpolated, or upsampled from its tiles' representatives as the render composes it) and
+ * interpolated[p]. curved: the interpolated values of adaptive single
  * scattering (a cubic or a parabola through the outer samples) instead of the gather's
  * means. other (NULL: none): per pixel, the light it shows besides the gathered part, in the
  * gather's units, which the tolerance counts too (the render's single scattering). variance
  * (NULL: none): per pixel, the variance of the value gather() gives it (adaptive single
  * scattering's rule for noisy values, noisy_line_agrees). Returns 0, or -1 out of memory. */
 typedef struct ns_tile_field ns_tile_field;
-int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t levels, float tolerance, int curved,
-                      const uint32_t *material, const float *distance,
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels, float tolerance,
+                      int curved, const uint32_t *material, const float *distance,
                       const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);

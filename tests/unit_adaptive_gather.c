@@ -1,7 +1,9 @@
 /* unit_adaptive_gather.c — the adaptive gather's rule (render.gather_levels,
  * render/scatter_render.c) against closed forms, on fields given as functions, through the
- * same rounds the render runs (ns_adaptive_tiles; tiles of one pixel):
+ * same rounds the render runs (ns_adaptive_tiles; tiles of one pixel but where said):
  *  - a linear field: every tile off the coarsest lattice is interpolated, and exactly;
+ *  - tiles of 2, 3 and 4 pixels: a linear field upsampled from the representatives comes
+ *    back exactly at every pixel between them;
  *  - a parabola in x, f = 1 + c x^2: the mean of the two neighbours h away misses by c h^2,
  *    which the second differences estimate exactly, so a tile is interpolated if and only
  *    if c h^2 <= tolerance x the mean, and then carries exactly that error;
@@ -146,7 +148,7 @@ static int run_as(field *fd, uint32_t levels, float tolerance, int curved)
         for (int k = 0; k < 3; k++)
             noise[p][k] = (float)(noise_v * (k + 1) * (k + 1) *
                                   (p % W % 8 == 0 && p / W % 8 == 0 ? noise_outlier : 1));
-    int status = ns_adaptive_tiles(W, H, levels, tolerance, curved, materials, distances,
+    int status = ns_adaptive_tiles(W, H, 1, levels, tolerance, curved, materials, distances,
                                    other_k > 0 ? (const float(*)[3])other_light : NULL,
                                    noise_v > 0 ? (const float(*)[3])noise : NULL, gather, fd,
                                    radiance, interpolated);
@@ -191,6 +193,38 @@ static void test_linear_field_is_interpolated_exactly(void)
      * 0.01-0.16, far above 1e-4). Every interpolated value is the field's, exactly. */
     CHECK_INT(count, W * H - 25 - 12);
     CHECK_INT(fd.gathered, 25 + 12);
+}
+
+/* Tiles of several pixels (render.gather_tile): each tile's representative is gathered and
+ * every other pixel is upsampled bilinearly from the representatives around it, each weighed
+ * where it is (pixel tile / 2 of its tile). On a linear field every pixel between
+ * representatives comes back exactly. Weighed at their tiles' centres instead, half a pixel
+ * away for even tiles, they put the field half a pixel off (0.005-0.01 here, 2e-6 allowed). */
+static void test_tiles_upsample_a_linear_field_exactly(void)
+{
+    one_surface();
+    for (uint32_t tile = 2; tile <= 4; tile++) {
+        field fd = {.f = linear};
+        int status = ns_adaptive_tiles(W, H, tile, 0, 0.0f, 0, materials, distances, NULL, NULL,
+                                       gather, &fd, radiance, interpolated);
+        CHECK_INT(status, 0);
+        if (status)
+            return;
+        int tiles = (W + (int)tile - 1) / (int)tile;
+        CHECK_INT(fd.gathered, tiles * tiles);
+        /* The representatives' span; the last tile's is moved into the image when its
+         * pixel tile / 2 lies outside (W = H = 33: tiles 2 and 4), and the span ends before. */
+        int lo = (int)tile / 2, hi = lo + (tiles - 1) * (int)tile;
+        if (hi > W - 1)
+            hi -= (int)tile;
+        int exact = 1, checked = 0;
+        for (int y = lo; y <= hi; y++)
+            for (int x = lo; x <= hi; x++, checked++)
+                for (int k = 0; k < 3; k++)
+                    exact &= fabs(radiance[y * W + x][k] - linear(&fd, x, y) * (k + 1)) <= 2e-6 * (k + 1);
+        CHECK(exact);
+        CHECK(checked >= 29 * 29);
+    }
 }
 
 static void test_parabola_interpolated_where_its_error_is_within_tolerance(void)
@@ -504,6 +538,7 @@ static void test_pixel_centre_distance_is_the_jitter(void)
 int main(void)
 {
     RUN(test_linear_field_is_interpolated_exactly);
+    RUN(test_tiles_upsample_a_linear_field_exactly);
     RUN(test_parabola_interpolated_where_its_error_is_within_tolerance);
     RUN(test_other_light_counts_in_the_tolerance);
     RUN(test_nothing_crosses_media_or_surfaces);
