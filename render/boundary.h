@@ -9,7 +9,11 @@
 /* Standard deviation (mfp) of the blurred first-order table's radial kernel: light that
  * leaves a source unscattered meets a camera segment (a line) with probability zero, so its
  * first scattering there is spread over a narrow tube, like the beam x beam blur of photon
- * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). */
+ * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). Computed exactly in the gather
+ * (gather.glsl, first_order), 0.2 instead of 0.1 took the bumpy sphere's full image up 0.46
+ * dB and the candle's 0.10 dB, but the milk's down 0.46 dB and the bunny's 0.28 dB: more of
+ * the tube lies outside their thin parts (docs/bench.md, *The blurred first order
+ * computed*). */
 #define NS_BOUNDARY_BLUR_MFP 0.1
 
 /* How many sources the gather takes (ns_boundary_floor): as many as VRLs, and at least

@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "boundary.h"
 #include "scatter.h"
 
 /* Jensen et al. 2001: diffuse Fresnel reflectance of a dielectric seen from inside (their
@@ -41,6 +42,11 @@ void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
         /* R_d has fallen by e^-30 at 30 / sigma_tr: beyond that a cell adds nothing. */
         float str_min = fminf(p->dipole_sigma_tr[0], fminf(p->dipole_sigma_tr[1], p->dipole_sigma_tr[2]));
         p->cull[0] = str_min > 0.0f ? 30.0f / str_min : INFINITY;
+    } else if (mode == NS_GATHER_MODE_FIRST) {
+        ns_gather_params_first(p, m);
+        /* Every point of a source's first order lies within a few tubes' widths of its line
+         * and, through e^{-z}, within 40 mfp of its origin (e^-40) in every channel. */
+        p->cull[0] = s_min > 0.0f ? (40.0f + 8.0f * (float)NS_BOUNDARY_BLUR_MFP) / s_min : INFINITY;
     } else if (tables) {
         p->table_map[0] = tables->scale;
         p->table_map[1] = tables->inv_step;
@@ -50,6 +56,17 @@ void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
          * every VRL's table (|z| and rho both below the extent): the cell adds nothing. */
         p->cull[0] = s_min > 0.0f ? tables->extent * 1.41422f / s_min : INFINITY;
     }
+}
+
+void ns_gather_params_first(GpuGatherParams *p, const GpuMaterial *m)
+{
+    for (int c = 0; c < 3; c++) {
+        float s = m->sigma_t[c];
+        p->first_order[c] = s > 0.0f ? m->sigma_s[c] / s : 0.0f;
+        p->first_blur[c] = s > 0.0f ? (float)NS_BOUNDARY_BLUR_MFP / s : 0.0f;
+    }
+    p->first_order[3] = m->sigma_s[3]; /* g */
+    p->first_blur[3] = 1.0f;           /* the form adds it */
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -204,24 +221,29 @@ enum { G_PARAMS, G_SEGMENTS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_OUT,
 /* The pipeline of each form of the gather (gather.glsl: one shader per mode x beams). */
 static const struct {
     uint32_t mode;
-    int bounded;
+    int bounded, first; /* first: adds the blurred first order (ns_gather_params_first) */
     ns_pipeline_id pipeline;
 } gather_forms[] = {
-    {NS_GATHER_MODE_EXACT, 0, NS_PIPELINE_GATHER},
-    {NS_GATHER_MODE_EXACT, 1, NS_PIPELINE_GATHER_BOUNDED},
-    {NS_GATHER_MODE_PAPER, 0, NS_PIPELINE_GATHER_PAPER},
-    {NS_GATHER_MODE_PAPER, 1, NS_PIPELINE_GATHER_PAPER_BOUNDED},
-    {NS_GATHER_MODE_DIPOLE, 0, NS_PIPELINE_GATHER_DIPOLE},
+    {NS_GATHER_MODE_EXACT, 0, 0, NS_PIPELINE_GATHER},
+    {NS_GATHER_MODE_EXACT, 1, 0, NS_PIPELINE_GATHER_BOUNDED},
+    {NS_GATHER_MODE_PAPER, 0, 0, NS_PIPELINE_GATHER_PAPER},
+    {NS_GATHER_MODE_PAPER, 1, 0, NS_PIPELINE_GATHER_PAPER_BOUNDED},
+    {NS_GATHER_MODE_DIPOLE, 0, 0, NS_PIPELINE_GATHER_DIPOLE},
+    {NS_GATHER_MODE_FIRST, 0, 1, NS_PIPELINE_GATHER_FIRST},
+    {NS_GATHER_MODE_EXACT, 0, 1, NS_PIPELINE_GATHER_EXACT_FIRST},
 };
 
-int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
+int ns_gather_pipeline(ns_context *ctx, const GpuGatherParams *params, gpu_pipeline **pipeline,
                        double *made_ms, ns_error *err)
 {
     *made_ms = 0;
-    bounded = bounded && mode != NS_GATHER_MODE_DIPOLE;
+    uint32_t mode = params->counts[3];
+    int bounded = params->table_map[3] > 0.0f && mode != NS_GATHER_MODE_DIPOLE;
+    int first = params->first_blur[3] > 0.0f;
     size_t i = 0;
     while (i < sizeof gather_forms / sizeof gather_forms[0] &&
-           (gather_forms[i].mode != mode || gather_forms[i].bounded != bounded))
+           (gather_forms[i].mode != mode || gather_forms[i].bounded != bounded ||
+            gather_forms[i].first != first))
         i++;
     if (i == sizeof gather_forms / sizeof gather_forms[0])
         return ns_fail(err, NS_ERR_INTERNAL, "gather: no shader for mode %u", mode);
@@ -255,7 +277,7 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     uint32_t ranges = ns_gather_ranges(&tree, budget, push);
     for (uint32_t i = 0; i < ranges; i++) {
         push[i].first_segment = desc->first_segment;
-        push[i].accumulate = i > 0;
+        push[i].accumulate = desc->add || i > 0;
     }
     GpuGatherParams params = desc->params;
     params.counts[0] = desc->segment_count;
@@ -279,8 +301,7 @@ int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts 
     int targets[] = {G_PARAMS, G_CELLS, G_REPRESENTATIVES, G_VRLS, G_TABLE, G_COUNTERS};
     gpu_pipeline *pipeline = NULL;
     double made_ms;
-    int status = ns_gather_pipeline(ctx, params.counts[3], params.table_map[3] > 0.0f, &pipeline,
-                                    &made_ms, err);
+    int status = ns_gather_pipeline(ctx, &params, &pipeline, &made_ms, err);
     for (size_t i = 0; i < sizeof targets / sizeof targets[0] && !status; i++) {
         if (targets[i] == G_TABLE && desc->table)
             continue;

@@ -21,6 +21,8 @@ typedef enum ns_pipeline_id {
     NS_PIPELINE_GATHER_PAPER,
     NS_PIPELINE_GATHER_PAPER_BOUNDED,
     NS_PIPELINE_GATHER_DIPOLE,
+    NS_PIPELINE_GATHER_FIRST,
+    NS_PIPELINE_GATHER_EXACT_FIRST,
     NS_PIPELINE_PT,         /* shaders/pt.comp (method pt) */
     NS_PIPELINE_TRACE_TEST, /* shaders/trace_test.comp (tests: render/trace_rays.c) */
     /* shaders/accumulate_second.comp: two tables of one material on one walk

@@ -22,7 +22,11 @@
  * three channels, cached in the context (least recently used, bounded bytes).
  * ------------------------------------------------------------------------------------- */
 /* A table order beyond the components: the blurred first order of the boundary correction
- * (boundary.h), for light that has left a source unscattered. */
+ * (boundary.h), for light that has left a source unscattered. Renders compute it in the
+ * gather since 2026-12-01 (gather.glsl, first_order: the table's reads missed it by factors
+ * of 0.3-2 at g 0.9) and ask the tables for the other orders only; the table form
+ * (scatter_tables.c, compose_blurred, the accumulation's extra channel) is left for its
+ * tests, to be removed. */
 #define NS_TABLE_FIRST_BLURRED (1u << 16)
 
 typedef struct ns_table_key {
@@ -247,6 +251,10 @@ GpuVrl ns_vrl_representative(const GpuVrl *vrls, uint32_t count);
  * (bounded_beams: each VRL's beam ends at its length, render.vrl_beams). */
 void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
                       const ns_scatter_tables *tables, float cull_solid_angle, int bounded_beams);
+/* Makes the form add the boundary sources' blurred first order, computed (gather.glsl,
+ * first_order): NS_GATHER_MODE_FIRST has it alone, the exact mode with endless beams besides
+ * its table (gather_exact_first.comp). */
+void ns_gather_params_first(GpuGatherParams *p, const GpuMaterial *m);
 
 typedef struct ns_gather_desc {
     GpuGatherParams params;       /* counts.x/y/z are filled by ns_gather_run */
@@ -255,6 +263,7 @@ typedef struct ns_gather_desc {
     const ns_vrl_grid *grid;
     const gpu_buffer *table;      /* A per channel; NULL in dipole mode */
     gpu_buffer *out;              /* vec4 per segment of the whole buffer (same indices) */
+    int add;                      /* 1: add to what out holds (a second form on the same grid) */
 } ns_gather_desc;
 
 typedef struct ns_gather_counts {
@@ -265,12 +274,12 @@ typedef struct ns_gather_counts {
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err);
 
-/* Each form of the gather (mode x bounded beams) has its own shader (gather.glsl says why).
+/* Each form of the gather (mode x bounded beams x first order) has its own shader (gather.glsl says why).
  * The default (exact, endless) is made with the context; the others are made and compiled by
  * the first gather that needs them and kept. Points *pipeline at the form's pipeline;
  * *made_ms = the time spent making it now (0 if it was there). ns_gather_run calls it;
  * renders call it first to report that time as the stage "gather_pipeline". */
-int ns_gather_pipeline(ns_context *ctx, uint32_t mode, int bounded, gpu_pipeline **pipeline,
+int ns_gather_pipeline(ns_context *ctx, const GpuGatherParams *params, gpu_pipeline **pipeline,
                        double *made_ms, ns_error *err);
 
 /* The nodes the gather walks: the grid's tree (depth first, GpuVrlNode.skip past each

@@ -1302,17 +1302,15 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
         }
     }
     free(signature);
-    /* A group that reads the blurred first order: the first table this render accumulates
-     * can make its unit table on the same walk (scatter_tables.c); and the VRLs' orders and
-     * the groups' are announced, so that a material's tables of two of them share a walk. */
+    /* The VRLs' orders and the groups' tables' (their blurred first order is computed in the
+     * gather, not read from a table) are announced, so that a material's tables of two of
+     * them share a walk. */
     if (!status && scene->render.method != NS_METHOD_DIPOLE) {
         ns_tables_expect_orders(ctx, scene->render.components);
         for (uint32_t g = 0; g < v->boundary.count; g++)
-            ns_tables_expect_orders(ctx, v->boundary.group[g].orders);
+            if (v->boundary.group[g].orders & ~NS_TABLE_FIRST_BLURRED)
+                ns_tables_expect_orders(ctx, v->boundary.group[g].orders & ~NS_TABLE_FIRST_BLURRED);
     }
-    for (uint32_t g = 0; !status && g < v->boundary.count; g++)
-        if (v->boundary.group[g].orders & NS_TABLE_FIRST_BLURRED)
-            ns_tables_expect_blurred(ctx, scene->render.accumulation);
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
@@ -1323,10 +1321,52 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     return status;
 }
 
+/* One form of the gather (gather.glsl) of a grid over medium m's segments of the round: into
+ * out, or added to it. */
+static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m, const ns_vrl_grid *grid,
+                       uint32_t mode, const ns_scatter_tables *tables, int bounded, int first_order,
+                       const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out, int add,
+                       ns_render_stats *stats, scatter_times *times, ns_error *err)
+{
+    uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
+    ns_gather_desc desc = {.segments = seg_buf,
+                           .first_segment = first,
+                           .segment_count = count,
+                           .grid = grid,
+                           .table = tables ? &tables->a : NULL,
+                           .out = out,
+                           .add = add};
+    ns_gather_params(&desc.params, &in->gs->materials[m], mode, tables, in->scene->render.cull_solid_angle,
+                     bounded);
+    if (first_order)
+        ns_gather_params_first(&desc.params, &in->gs->materials[m]);
+    /* A form other than those made at start-up compiles its shader on first use: its own
+     * stage "gather_pipeline" (ns_gather_pipeline reports it). */
+    gpu_pipeline *unused;
+    double made_ms;
+    int status = ns_gather_pipeline(ctx, &desc.params, &unused, &made_ms, err);
+    if (made_ms > 0 && stats)
+        ns_stats_add_stage(stats, "gather_pipeline", made_ms);
+    ns_gather_counts counts;
+    ns_stage stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
+    if (!status)
+        status = ns_gather_run(ctx, &desc, &counts, err);
+    if (!status) /* one submission per grid, form and round */
+        ns_progress_tick(ctx, 1.0);
+    stage_end(ctx, times, T_GATHER, &stage);
+    if (!status && stats) {
+        stats->interactions += counts.interactions;
+        stats->cells_culled += counts.cells_culled;
+        stats->cells_represented += counts.cells_represented;
+    }
+    return status;
+}
+
 /* One grid of medium m (its VRLs, or one group of boundary sources) gathered over the medium's
- * segments of the round into out (overwritten there), through the tables of `orders`.
- * Progress: the current span, 5% to the grid's build
- * (done by the caller), 25% to the tables, the rest to the gather. */
+ * segments of the round into out (overwritten there), through the tables of `orders`; the
+ * blurred first order of a group of boundary sources is computed instead (gather_first.comp),
+ * and added. Progress: the current span, 5% to the grid's build (done by the caller), 25% to
+ * the tables, the rest to the gather. */
 static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source, uint32_t m,
                        const ns_vrl_grid *grid, uint32_t orders, int bounded,
                        const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,
@@ -1335,12 +1375,15 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
     const ns_scene *scene = in->scene;
     const GpuMaterial *mat = &in->gs->materials[m];
     uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
+    int dipole = scene->render.method == NS_METHOD_DIPOLE;
+    int first_order = !dipole && (orders & NS_TABLE_FIRST_BLURRED) != 0;
+    uint32_t table_orders = orders & ~NS_TABLE_FIRST_BLURRED;
     const ns_scatter_tables *tables = NULL;
     uint32_t mode = NS_GATHER_MODE_DIPOLE;
     int status = NS_OK;
-    if (scene->render.method != NS_METHOD_DIPOLE) {
+    if (!dipole && table_orders) {
         ns_table_key key;
-        ns_table_key_for(mat, scene, orders, &key);
+        ns_table_key_for(mat, scene, table_orders, &key);
         ns_table_stats ts = {0};
         /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks the
          * tables. */
@@ -1359,39 +1402,25 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
         if (!status) {
             if (stats)
                 stats->weights_bytes = ts.weights_bytes;
-            source->table_bytes[order_set(orders) * in->gs->material_count + m] = tables->bytes;
+            source->table_bytes[order_set(table_orders) * in->gs->material_count + m] = tables->bytes;
         }
         mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                   : NS_GATHER_MODE_EXACT;
     }
     ns_span gathering = ns_progress_push(ctx, GRID_SHARE + TABLES_SHARE, 1.0);
     if (!status && grid->vrl_count) {
-        ns_gather_desc desc = {.segments = seg_buf,
-                               .first_segment = first,
-                               .segment_count = count,
-                               .grid = grid,
-                               .table = tables ? &tables->a : NULL,
-                               .out = out};
-        ns_gather_params(&desc.params, mat, mode, tables, scene->render.cull_solid_angle, bounded);
-        /* A form other than the default compiles its shader on first use: its own stage
-         * "gather_pipeline" (ns_gather_pipeline reports it). */
-        gpu_pipeline *unused;
-        double made_ms;
-        status = ns_gather_pipeline(ctx, mode, desc.params.table_map[3] > 0.0f, &unused, &made_ms, err);
-        if (made_ms > 0 && stats)
-            ns_stats_add_stage(stats, "gather_pipeline", made_ms);
-        ns_gather_counts counts;
-        ns_stage stage = stage_begin(ctx, T_GATHER, 0.0, 1.0);
-        if (!status)
-            status = ns_gather_run(ctx, &desc, &counts, err);
-        if (!status) /* one submission per grid and round */
-            ns_progress_tick(ctx, 1.0);
-        stage_end(ctx, times, T_GATHER, &stage);
-        if (!status && stats) {
-            stats->interactions += counts.interactions;
-            stats->cells_culled += counts.cells_culled;
-            stats->cells_represented += counts.cells_represented;
+        /* The default form computes the first order in its own walk over the sources; the
+         * others (the paper's accumulation, bounded beams) leave it to a second walk. */
+        int together = first_order && mode == NS_GATHER_MODE_EXACT && !bounded;
+        int wrote = 0;
+        if (dipole || table_orders) {
+            status = gather_form(ctx, in, m, grid, mode, tables, bounded, together, list, seg_buf, out, 0,
+                                 stats, times, err);
+            wrote = 1;
         }
+        if (!status && first_order && !(together && wrote))
+            status = gather_form(ctx, in, m, grid, NS_GATHER_MODE_FIRST, NULL, 0, 1, list, seg_buf, out,
+                                 wrote, stats, times, err);
     } else if (!status) {
         memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
     }

@@ -19,6 +19,9 @@
 // definition is linear in the source), unless it is below table_map.w in every channel.
 // The result is the radiance arriving at the segment's entry from inside the medium, before
 // the segment's throughput (render.c composes it). render/gather.c has the same sum in C.
+#ifndef NS_GATHER_FIRST_ORDER
+#define NS_GATHER_FIRST_ORDER 0
+#endif
 #extension GL_KHR_shader_subgroup_vote : require
 #extension GL_KHR_shader_subgroup_ballot : require
 #include "shared.h"
@@ -187,8 +190,104 @@ vec3 beam_value(Vrl v, GpuSegment seg, vec3 w, uint row, float theta_t, vec3 seg
     return value;
 }
 
-vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
-                  bool exit_matters)
+#if NS_GATHER_FIRST_ORDER
+// e^{x^2} erfc(x) for x >= 0: Abramowitz & Stegun 7.1.26 below 2 (|erfc error| < 1.5e-7),
+// Laplace's continued fraction above (relative error below 1e-5).
+float erfcx_positive(float x)
+{
+    if (x < 2.0) {
+        float t = 1.0 / (1.0 + 0.3275911 * x);
+        return t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))));
+    }
+    // Written out: a loop here would count against lavapipe's loop budget, which the gather's
+    // dispatches fill at NS_GATHER_ITERATIONS_PER_VRL per source (scatter_shared.h).
+    float f = x + 5.0 / x;
+    f = x + 4.5 / f;
+    f = x + 4.0 / f;
+    f = x + 3.5 / f;
+    f = x + 3.0 / f;
+    f = x + 2.5 / f;
+    f = x + 2.0 / f;
+    f = x + 1.5 / f;
+    f = x + 1.0 / f;
+    f = x + 0.5 / f;
+    return 1.0 / (sqrt(PI) * f);
+}
+
+// One channel of a source's first order seen along a segment: the integral over t in [0, L]
+// (with z(t) = z0 + c t > 0) of e^{-s t} e^{-s z(t)} K(rho(t)), K the tube's normalised
+// Gaussian of standard deviation b, on the segment x0 + t d of a source at o along u, where
+// rho^2(t) = C + 2 B t + A t^2 (A = sin^2 theta). The exponent is quadratic in t: its
+// Gaussian integrates in closed form (erf, scaled by its largest value within the range so
+// that nothing overflows), and where the Gaussian hardly bends over the range (lines nearly
+// parallel) the exponent is taken as the secant between the range's ends.
+// gpu_gather checks it against a quadrature of the definition.
+float first_order_channel(float z0, float c, float A, float B, float C, float lo, float hi, float s, float b)
+{
+    float two_b2 = 2.0 * b * b;
+    float k = sqrt(A / two_b2), span = hi - lo;
+    float e_lo = -s * (lo + z0 + c * lo) - max(C + (2.0 * B + A * lo) * lo, 0.0) / two_b2;
+    float e_hi = -s * (hi + z0 + c * hi) - max(C + (2.0 * B + A * hi) * hi, 0.0) / two_b2;
+    if (k * span < 1e-2) {
+        float top = max(e_lo, e_hi), drop = min(e_lo, e_hi) - top;
+        float g = drop > -1e-4 ? span : span * (1.0 - exp(drop)) / -drop;
+        return exp(top) * g / (PI * two_b2);
+    }
+    float centre = -(B + 0.5 * two_b2 * s * (1.0 + c)) / A; // the Gaussian's centre in t
+    float u_lo = (lo - centre) * k, u_hi = (hi - centre) * k;
+    float bracket, t_top;
+    if (u_lo >= 0.0) {
+        t_top = lo;
+        bracket = erfcx_positive(u_lo) - exp(u_lo * u_lo - u_hi * u_hi) * erfcx_positive(u_hi);
+    } else if (u_hi <= 0.0) {
+        t_top = hi;
+        bracket = erfcx_positive(-u_hi) - exp(u_hi * u_hi - u_lo * u_lo) * erfcx_positive(-u_lo);
+    } else {
+        t_top = centre;
+        bracket = 2.0 - exp(-u_hi * u_hi) * erfcx_positive(u_hi) - exp(-u_lo * u_lo) * erfcx_positive(-u_lo);
+    }
+    float e_top = -s * (t_top + z0 + c * t_top) - max(C + (2.0 * B + A * t_top) * t_top, 0.0) / two_b2;
+    return exp(e_top) * 0.5 * sqrt(PI) / k * max(bracket, 0.0) / (PI * two_b2);
+}
+
+// The blurred first order J_1^blur = a e^{-z} [z > 0] K(rho) p_HG(cos theta) of a source
+// (boundary.h) along a segment, as the table form's P s^2 A would give it read exactly: the
+// light it scatters once towards the camera from a Gaussian tube around its line. Read from
+// a table, its angular factor (p_HG over 10-degree bins) and its spatial one (1 / sin theta
+// across the tube) are both convex in theta between the bins' centres and poorly sampled
+// across a tube narrower than the first rho bins: at g 0.9 the reads missed their
+// definition by factors of 0.3 to 2 (gpu_gather), and light reflected inside a thin object
+// before it scattered read 2% high in single scattering, its multiple scattering 54% high
+// (docs/bench.md, *The blurred first order computed*).
+vec3 first_order(Vrl v, GpuSegment seg)
+{
+    vec3 d = seg.direction, u = v.direction, off = seg.entry - v.origin;
+    float z0 = dot(off, u), c = dot(d, u);
+    float A = max(1.0 - c * c, 0.0), B = dot(off, d) - z0 * c, C = max(dot(off, off) - z0 * z0, 0.0);
+    float lo = 0.0, hi = distance(seg.entry, seg.exit);
+    if (c > 0.0)
+        lo = max(lo, -z0 / c);
+    else if (c < 0.0)
+        hi = min(hi, -z0 / c);
+    else if (z0 <= 0.0)
+        return vec3(0.0);
+    // Nothing within ~9 tubes' widths of the line in any channel: nothing to add.
+    float b_max = max(params.first_blur.x, max(params.first_blur.y, params.first_blur.z));
+    float closest = A > 1e-8 ? C - B * B / A : C;
+    if (!(hi > lo) || closest > 80.0 * b_max * b_max)
+        return vec3(0.0);
+    float g = params.first_order.w, cos_theta = -c; // emitted towards the camera
+    float phase = (1.0 - g * g) / (4.0 * PI * pow(max(1.0 + g * g - 2.0 * g * cos_theta, 1e-12), 1.5));
+    vec3 s = params.sigma_t.xyz, b = params.first_blur.xyz;
+    vec3 value = vec3(first_order_channel(z0, c, A, B, C, lo, hi, s.x, b.x),
+                      first_order_channel(z0, c, A, B, C, lo, hi, s.y, b.y),
+                      first_order_channel(z0, c, A, B, C, lo, hi, s.z, b.z));
+    return v.power * params.first_order.xyz * s * phase * value;
+}
+#endif
+
+vec3 table_contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
+                        bool exit_matters)
 {
     if (NS_GATHER_FORM == NS_GATHER_MODE_DIPOLE)
         return v.power * dipole_rd(distance(seg.entry, v.origin)) / PI;
@@ -208,6 +307,22 @@ vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 
     }
 #endif
     return v.power * s * s * value;
+}
+
+// A source's part: through the table, plus its blurred first order where the form computes
+// it (gather_exact_first.comp: in the same walk over the sources), or that alone
+// (gather_first.comp).
+vec3 contribution(Vrl v, GpuSegment seg, vec3 w, vec3 segment_attenuation, vec3 paper_weight,
+                  bool exit_matters)
+{
+#if NS_GATHER_FIRST_ORDER
+    vec3 first = first_order(v, seg);
+    if (NS_GATHER_FORM == NS_GATHER_MODE_FIRST)
+        return first;
+    return first + table_contribution(v, seg, w, segment_attenuation, paper_weight, exit_matters);
+#else
+    return table_contribution(v, seg, w, segment_attenuation, paper_weight, exit_matters);
+#endif
 }
 
 // Lower bound of the distance between the segment's bounding box and a cell's box.

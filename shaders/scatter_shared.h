@@ -80,6 +80,9 @@ struct GpuGatherParams {
     ns_vec4 dipole_zr;       /* xyz = z_r per channel (scene units); w = unused */
     ns_vec4 dipole_zv;       /* xyz = z_v per channel; w = unused */
     ns_vec4 dipole_alpha;    /* xyz = reduced albedo alpha' per channel; w = unused */
+    ns_vec4 first_order;     /* first-order mode: xyz = albedo per channel; w = g */
+    ns_vec4 first_blur;      /* first-order mode: xyz = the tube's standard deviation per channel
+                                (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t); w = unused */
 };
 
 /* Bounded beams (render.vrl_beams): the beam past a VRL's exit is subtracted in the gather
@@ -98,6 +101,9 @@ const float NS_BEAM_CUTOFF = 1e-3;
 NS_CONST(uint, NS_GATHER_MODE_EXACT, 0);
 NS_CONST(uint, NS_GATHER_MODE_PAPER, 1);
 NS_CONST(uint, NS_GATHER_MODE_DIPOLE, 2);
+/* The blurred first order of boundary sources (render/boundary.h), computed per source and
+ * segment instead of read from a table (gather.glsl, first_order). */
+NS_CONST(uint, NS_GATHER_MODE_FIRST, 3);
 
 /* The paper's accumulated length (mfp) for NS_GATHER_MODE_PAPER. */
 NS_CONST(uint, NS_PAPER_ACCUMULATION_MFP, 5);
@@ -137,7 +143,7 @@ _Static_assert(sizeof(GpuVrl) == 48 && offsetof(GpuVrl, power) == 32, "GpuVrl la
 _Static_assert(offsetof(GpuVrl, material) == 28 && offsetof(GpuVrl, events) == 44, "GpuVrl");
 _Static_assert(sizeof(GpuVrlCell) == 32 && offsetof(GpuVrlCell, count) == 28, "GpuVrlCell");
 _Static_assert(sizeof(GpuVrlNode) == 48 && offsetof(GpuVrlNode, skip) == 32, "GpuVrlNode");
-_Static_assert(sizeof(GpuGatherParams) == 128, "GpuGatherParams std140 size");
+_Static_assert(sizeof(GpuGatherParams) == 160, "GpuGatherParams std140 size");
 _Static_assert(sizeof(GpuGatherPush) == 16, "GpuGatherPush size");
 #endif
 
