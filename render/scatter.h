@@ -363,7 +363,7 @@ int ns_sample_moments_add(const GpuSegment *segs, const float (*added)[3],
 float ns_ratio_variance(float sum_x, float w, const ns_sample_moments *m, int c, uint32_t spp);
 
 /* The adaptive gather's decisions (render.gather_levels; scatter_render.c) on a width x
- * height image of tile x tile tiles, for the tests: pixel p sees `material[p]`
+ * height image of tile x tile tiles (tile >= 1), for the tests: pixel p sees `material[p]`
  * (NS_NONE: nothing) at camera distance `distance[p]`; gather(p, radiance, field) gives the
  * radiance of a pixel the rounds gather, from the caller's field (a struct the test
  * defines: the library only passes it on). Fills every pixel's radiance (gathered,

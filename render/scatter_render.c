@@ -168,19 +168,39 @@ static int is_representative(const tile_plan *t, uint32_t x, uint32_t y)
     return t->representative[(y / t->tile) * t->tiles_x + x / t->tile] == y * t->width + x;
 }
 
+/* Where choose_representative looks first along an axis of `size` pixels: pixel tile / 2 of
+ * tile i, moved into the image in a last tile too short to hold it. */
+static int representative_at(int i, uint32_t tile, uint32_t size)
+{
+    int at = i * (int)tile + (int)(tile / 2);
+    return at < (int)size ? at : (int)size - 1;
+}
+
+/* Along one axis: the tile i0 whose representative is at or before pixel x (-1 before the
+ * first), and the weight of the next one, from their places. */
+static float axis_weight(uint32_t x, uint32_t tile, uint32_t size, int *i0)
+{
+    int i = (int)floorf(((float)x - (float)(tile / 2)) / (float)tile);
+    int last = (int)((size + tile - 1) / tile) - 1;
+    if (i + 1 == last && representative_at(last, tile, size) <= (int)x)
+        i = last; /* the last tile's representative was moved onto or before x */
+    *i0 = i;
+    int a = representative_at(i, tile, size), b = representative_at(i + 1, tile, size);
+    return b > a ? ((float)x - (float)a) / (float)(b - a) : 0.0f;
+}
+
 /* Bilinear neighbours of pixel (x, y) among the tiles' representatives: up to 4 (pixel,
- * weight) pairs that see the same surface. Returns how many. A representative is weighed as
- * where choose_representative looks first, pixel tile / 2 of its tile along each axis, not
- * at the tile's centre: for an even tile the two are half a pixel apart, and taking one for
- * the other shifted three quarters of a 2 x 2-tiled image by half a pixel towards the top
- * left, which took 6-11% off the mean of a sphere whose light falls off within a pixel
- * (docs/scattering.md, *The tiles there*; unit_adaptive_gather's tiled linear field). */
+ * weight) pairs that see the same surface. Returns how many. A representative is weighed
+ * where choose_representative looks first, pixel tile / 2 of its tile along each axis (in a
+ * last tile too short for it, its last pixel), not at the tile's centre: for an even tile the
+ * two are half a pixel apart, and taking one for the other shifted three quarters of a 2 x
+ * 2-tiled image by half a pixel towards the top left, which took 6-11% off the mean of a
+ * sphere whose light falls off within a pixel (docs/scattering.md, *The tiles there*;
+ * unit_adaptive_gather's tiled linear field). */
 static int upsample_sources(const tile_plan *t, uint32_t x, uint32_t y, uint32_t pixel[4], float weight[4])
 {
-    float fx = ((float)x - (float)(t->tile / 2)) / (float)t->tile;
-    float fy = ((float)y - (float)(t->tile / 2)) / (float)t->tile;
-    int tx0 = (int)floorf(fx), ty0 = (int)floorf(fy);
-    float ax = fx - (float)tx0, ay = fy - (float)ty0;
+    int tx0, ty0;
+    float ax = axis_weight(x, t->tile, t->width, &tx0), ay = axis_weight(y, t->tile, t->height, &ty0);
     const pixel_key *self = &t->keys[y * t->width + x];
     float total = 0.0f;
     int n = 0;
@@ -196,8 +216,8 @@ static int upsample_sources(const tile_plan *t, uint32_t x, uint32_t y, uint32_t
             weight[n] = (i ? ax : 1.0f - ax) * (j ? ay : 1.0f - ay);
             total += weight[n++];
         }
-    /* A pixel at the very place of a representative that cannot stand for it weighs only
-     * that one: its compatible neighbours then count alike. */
+    /* A pixel in line with representatives that cannot stand for it (its own row or column
+     * of them) gives the others weight 0: its compatible neighbours then count alike. */
     for (int i = 0; i < n && total <= 0.0f; i++)
         weight[i] = 1.0f;
     return n;
@@ -718,15 +738,18 @@ static void pixel_variance(tile_plan *t, const uint8_t *round, const float (*sum
                 ns_ratio_variance(sum[p][c], t->keys[p].gather_weight[c], &moments[p], c, spp);
 }
 
-/* The rounds as render_double_multiple runs them, on tiles of one pixel whose keys and
- * radiance the caller gives: coarsest lattice first, plan_round marks the pixels to gather,
- * and they are gathered (their Lbar filled) before the next, finer round reads them. */
+/* The rounds as render_double_multiple runs them, on tiles whose keys and radiance the
+ * caller gives: coarsest lattice first, plan_round marks the pixels to gather, and they are
+ * gathered (their Lbar filled) before the next, finer round reads them; then the pixels
+ * between the representatives are upsampled as compose() does. */
 int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels, float tolerance,
                       int curved, const uint32_t *material, const float *distance,
                       const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
 {
+    if (!tile)
+        return -1;
     uint32_t pixels = width * height;
     tile_plan t = {.width = width, .height = height, .tile = tile, .tiles_x = (width + tile - 1) / tile,
                    .tiles_y = (height + tile - 1) / tile, .levels = levels, .tolerance = tolerance,
@@ -1354,7 +1377,7 @@ static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
     if (!status) /* one submission per grid, form and round */
         ns_progress_tick(ctx, 1.0);
     stage_end(ctx, times, T_GATHER, &stage);
-    if (!status && stats) {
+    if (!status && stats && !add) { /* a second walk meets the same pairs */
         stats->interactions += counts.interactions;
         stats->cells_culled += counts.cells_culled;
         stats->cells_represented += counts.cells_represented;
@@ -1364,9 +1387,11 @@ static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
 
 /* One grid of medium m (its VRLs, or one group of boundary sources) gathered over the medium's
  * segments of the round into out (overwritten there), through the tables of `orders`; the
- * blurred first order of a group of boundary sources is computed instead (gather_first.comp),
- * and added. Progress: the current span, 5% to the grid's build (done by the caller), 25% to
- * the tables, the rest to the gather. */
+ * blurred first order of a group of boundary sources is computed instead (gather.glsl,
+ * first_order), in the same walk with the default form (gather_exact_first.comp), else
+ * alone (gather_first.comp; with the paper's accumulation the exact first order beside the
+ * 5-mfp form of the others). Progress: the current span, 5% to the grid's build (done by the
+ * caller), 25% to the tables, the rest to the gather. */
 static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source *source, uint32_t m,
                        const ns_vrl_grid *grid, uint32_t orders, int bounded,
                        const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out,

@@ -1,7 +1,9 @@
 // gather.glsl — the gather shader's body, compiled once per form: NS_GATHER_FORM (the
 // NS_GATHER_MODE_* it evaluates) and NS_BOUNDED_BEAMS (0 endless, 1 bounded) are defined by
 // gather.comp (exact, endless: the default), gather_bounded.comp, gather_paper.comp,
-// gather_paper_bounded.comp and gather_dipole.comp. One shader per form rather than branches
+// gather_paper_bounded.comp and gather_dipole.comp, and with NS_GATHER_FIRST_ORDER (the
+// boundary sources' blurred first order computed, first_order) gather_exact_first.comp (the
+// default form plus it) and gather_first.comp (it alone). One shader per form rather than branches
 // on the uniform block: on lavapipe code that is present but never taken costs the loop
 // dearly (register pressure in the vectorised walk): with the paper and dipole forms in it
 // the exact gather ran 1.5-1.7x slower, with the bounded form too 1.5x slower again
@@ -224,6 +226,8 @@ float erfcx_positive(float x)
 // gpu_gather checks it against a quadrature of the definition.
 float first_order_channel(float z0, float c, float A, float B, float C, float lo, float hi, float s, float b)
 {
+    if (!(s > 0.0 && b > 0.0))
+        return 0.0; // a channel without extinction scatters nothing (its tube would be 0 wide)
     float two_b2 = 2.0 * b * b;
     float k = sqrt(A / two_b2), span = hi - lo;
     float e_lo = -s * (lo + z0 + c * lo) - max(C + (2.0 * B + A * lo) * lo, 0.0) / two_b2;

@@ -4,7 +4,8 @@
  * the beam past each VRL's length subtracted, the gather_bounded shader) and the dipole; and a case large enough that
  * lavapipe's loop limit splits the cells (and one oversized cell) across dispatches, which
  * must not change the result. The boundary sources' blurred first order (gather_first.comp)
- * equals a quadrature of its definition, and evaluates every pair within the loop budget. Validation layers on (NSCATTER_VALIDATION=1). */
+ * equals a quadrature of its definition, evaluates every pair within the loop budget, and is
+ * the same computed in the default form's walk as in a walk of its own added to it. Validation layers on (NSCATTER_VALIDATION=1). */
 #include "gpu_util.h"
 #include "boundary.h"
 #include "oracles/gather_cpu.h"
@@ -546,6 +547,97 @@ static void test_first_order_within_the_loop_budget(void)
     ns_vrl_grid_free(&grid);
 }
 
+/* The default form with the first order in its walk (gather_exact_first.comp) equals the
+ * default form's walk with the first order's own walk added to it (ns_gather_desc.add, the
+ * path of the paper's accumulation), within float rounding. */
+static void test_first_order_in_the_default_walk(void)
+{
+    enum { SOURCES = 8, SEGMENTS = 128 };
+    ns_context *ctx = test_context();
+    ns_error err = {0};
+    GpuMaterial m = test_material();
+    ns_vrl_grid grid;
+    random_grid(&grid, SOURCES, 2);
+    for (uint32_t i = 0; i < SOURCES; i++)
+        grid.vrls[i].length = 0.0f;
+    GpuSegment *segs = segments_near(&grid, SOURCES, SEGMENTS);
+    smooth_table = 1;
+    float *table = random_table();
+    smooth_table = 0;
+    /* Scaled so that the first order is a good part of the sum. */
+    for (size_t i = 0; i < 3 * (size_t)NS_TABLE_CELLS; i++)
+        table[i] *= 1e-4f;
+    ns_scatter_tables tables = table_geometry();
+    gpu_buffer seg_buf = {0}, two = {0}, one = {0};
+    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS, .data = segs,
+                                                      .data_size = sizeof *segs * SEGMENTS,
+                                                      .label = "test.segments"},
+                                   &err);
+    if (!status)
+        status = gpu_buffer_create(&ctx->dev, &tables.a,
+                                   &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                                                      .data = table,
+                                                      .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                                                      .label = "test.table"},
+                                   &err);
+    for (int i = 0; i < 2 && !status; i++)
+        status = gpu_buffer_create(&ctx->dev, i ? &one : &two,
+                                   &(gpu_buffer_desc){.size = 16ull * SEGMENTS, .label = "test.out"}, &err);
+    ns_gather_counts counts;
+    ns_gather_desc desc = {.segments = &seg_buf, .segment_count = SEGMENTS, .grid = &grid, .table = &tables.a,
+                           .out = &two};
+    /* Two walks: the table's, then the first order added. */
+    ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, &tables, 0.0f, 0);
+    if (!status)
+        status = ns_gather_run(ctx, &desc, &counts, &err);
+    ns_gather_desc first = desc;
+    first.table = NULL;
+    first.add = 1;
+    ns_gather_params(&first.params, &m, NS_GATHER_MODE_FIRST, NULL, 0.0f, 0);
+    if (!status)
+        status = ns_gather_run(ctx, &first, &counts, &err);
+    /* One walk. */
+    ns_gather_desc both = desc;
+    both.out = &one;
+    ns_gather_params_first(&both.params, &m);
+    if (!status)
+        status = ns_gather_run(ctx, &both, &counts, &err);
+    if (status)
+        fprintf(stderr, "gather: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    CHECK(gpu_validation_count(&ctx->dev) == 0);
+    if (!status) {
+        const float(*a)[4] = two.mapped, (*b)[4] = one.mapped;
+        double mean = 0, worst = 0, first_part = 0;
+        for (uint32_t i = 0; i < SEGMENTS; i++)
+            for (int c = 0; c < 3; c++)
+                mean += a[i][c] / (3.0 * SEGMENTS);
+        for (uint32_t i = 0; i < SEGMENTS; i++)
+            for (int c = 0; c < 3; c++)
+                worst = fmax(worst, fabs(a[i][c] - b[i][c]) / fmax(fabs(a[i][c]), 1e-3 * mean));
+        /* Both parts must weigh in, or the comparison says nothing about one of them. */
+        ns_gather_desc alone = first;
+        alone.add = 0;
+        alone.out = &one;
+        CHECK_INT(ns_gather_run(ctx, &alone, &counts, &err), NS_OK);
+        for (uint32_t i = 0; i < SEGMENTS; i++)
+            for (int c = 0; c < 3; c++)
+                first_part += b[i][c] / (3.0 * SEGMENTS);
+        printf("first order in the default walk: worst relative difference %.2e; the first order "
+               "%.3g of the mean\n", worst, first_part / mean);
+        CHECK(worst < 1e-5);
+        CHECK(first_part > 0.05 * mean && first_part < 0.99 * mean); /* the table's part too */
+    }
+    gpu_buffer_destroy(&ctx->dev, &seg_buf);
+    gpu_buffer_destroy(&ctx->dev, &tables.a);
+    gpu_buffer_destroy(&ctx->dev, &two);
+    gpu_buffer_destroy(&ctx->dev, &one);
+    free(table);
+    free(segs);
+    ns_vrl_grid_free(&grid);
+}
+
 int main(void)
 {
     RUN(test_hierarchy_culling);
@@ -557,5 +649,6 @@ int main(void)
     RUN(test_split_across_dispatches);
     RUN(test_first_order);
     RUN(test_first_order_within_the_loop_budget);
+    RUN(test_first_order_in_the_default_walk);
     return harness_report();
 }
