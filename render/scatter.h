@@ -274,8 +274,8 @@ typedef struct ns_gather_counts {
 int ns_gather_run(ns_context *ctx, const ns_gather_desc *desc, ns_gather_counts *counts,
                   ns_error *err);
 
-/* Each form of the gather (mode x bounded beams x first order) has its own shader (gather.glsl says why).
- * The default (exact, endless) is made with the context; the others are made and compiled by
+/* Each form of the gather (mode x bounded beams x first order) has its own shader (gather.glsl says
+ * why). The default (exact, endless) is made with the context; the others are made and compiled by
  * the first gather that needs them and kept. Points *pipeline at the form's pipeline;
  * *made_ms = the time spent making it now (0 if it was there). ns_gather_run calls it;
  * renders call it first to report that time as the stage "gather_pipeline". */
@@ -375,8 +375,8 @@ float ns_ratio_variance(float sum_x, float w, const ns_sample_moments *m, int c,
  * (NULL: none): per pixel, the variance of the value gather() gives it (adaptive single
  * scattering's rule for noisy values, noisy_line_agrees). Returns 0, or -1 out of memory. */
 typedef struct ns_tile_field ns_tile_field;
-int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels, float tolerance,
-                      int curved, const uint32_t *material, const float *distance,
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels,
+                      float tolerance, int curved, const uint32_t *material, const float *distance,
                       const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated);

@@ -200,7 +200,8 @@ static float axis_weight(uint32_t x, uint32_t tile, uint32_t size, int *i0)
 static int upsample_sources(const tile_plan *t, uint32_t x, uint32_t y, uint32_t pixel[4], float weight[4])
 {
     int tx0, ty0;
-    float ax = axis_weight(x, t->tile, t->width, &tx0), ay = axis_weight(y, t->tile, t->height, &ty0);
+    float ax = axis_weight(x, t->tile, t->width, &tx0),
+          ay = axis_weight(y, t->tile, t->height, &ty0);
     const pixel_key *self = &t->keys[y * t->width + x];
     float total = 0.0f;
     int n = 0;
@@ -742,8 +743,8 @@ static void pixel_variance(tile_plan *t, const uint8_t *round, const float (*sum
  * caller gives: coarsest lattice first, plan_round marks the pixels to gather, and they are
  * gathered (their Lbar filled) before the next, finer round reads them; then the pixels
  * between the representatives are upsampled as compose() does. */
-int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels, float tolerance,
-                      int curved, const uint32_t *material, const float *distance,
+int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t levels,
+                      float tolerance, int curved, const uint32_t *material, const float *distance,
                       const float (*other)[3], const float (*variance)[3],
                       void (*gather)(uint32_t pixel, float radiance[3], ns_tile_field *field),
                       ns_tile_field *field, float (*radiance)[3], uint8_t *interpolated)
@@ -751,8 +752,13 @@ int ns_adaptive_tiles(uint32_t width, uint32_t height, uint32_t tile, uint32_t l
     if (!tile)
         return -1;
     uint32_t pixels = width * height;
-    tile_plan t = {.width = width, .height = height, .tile = tile, .tiles_x = (width + tile - 1) / tile,
-                   .tiles_y = (height + tile - 1) / tile, .levels = levels, .tolerance = tolerance,
+    tile_plan t = {.width = width,
+                   .height = height,
+                   .tile = tile,
+                   .tiles_x = (width + tile - 1) / tile,
+                   .tiles_y = (height + tile - 1) / tile,
+                   .levels = levels,
+                   .tolerance = tolerance,
                    .curved = curved};
     t.keys = calloc(pixels, sizeof *t.keys);
     t.representative = malloc(sizeof *t.representative * (pixels ? pixels : 1)); /* >= the tiles */
@@ -1346,10 +1352,11 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
 
 /* One form of the gather (gather.glsl) of a grid over medium m's segments of the round: into
  * out, or added to it. */
-static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m, const ns_vrl_grid *grid,
-                       uint32_t mode, const ns_scatter_tables *tables, int bounded, int first_order,
-                       const gather_list *list, gpu_buffer *seg_buf, gpu_buffer *out, int add,
-                       ns_render_stats *stats, scatter_times *times, ns_error *err)
+static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
+                       const ns_vrl_grid *grid, uint32_t mode, const ns_scatter_tables *tables,
+                       int bounded, int first_order, const gather_list *list, gpu_buffer *seg_buf,
+                       gpu_buffer *out, int add, ns_render_stats *stats, scatter_times *times,
+                       ns_error *err)
 {
     uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
     ns_gather_desc desc = {.segments = seg_buf,
@@ -1359,8 +1366,8 @@ static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
                            .table = tables ? &tables->a : NULL,
                            .out = out,
                            .add = add};
-    ns_gather_params(&desc.params, &in->gs->materials[m], mode, tables, in->scene->render.cull_solid_angle,
-                     bounded);
+    ns_gather_params(&desc.params, &in->gs->materials[m], mode, tables,
+                     in->scene->render.cull_solid_angle, bounded);
     if (first_order)
         ns_gather_params_first(&desc.params, &in->gs->materials[m]);
     /* A form other than those made at start-up compiles its shader on first use: its own
@@ -1427,7 +1434,8 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
         if (!status) {
             if (stats)
                 stats->weights_bytes = ts.weights_bytes;
-            source->table_bytes[order_set(table_orders) * in->gs->material_count + m] = tables->bytes;
+            source->table_bytes[order_set(table_orders) * in->gs->material_count + m] =
+                tables->bytes;
         }
         mode = scene->render.accumulation == NS_ACCUMULATION_PAPER ? NS_GATHER_MODE_PAPER
                                                                   : NS_GATHER_MODE_EXACT;
@@ -1439,13 +1447,13 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
         int together = first_order && mode == NS_GATHER_MODE_EXACT && !bounded;
         int wrote = 0;
         if (dipole || table_orders) {
-            status = gather_form(ctx, in, m, grid, mode, tables, bounded, together, list, seg_buf, out, 0,
-                                 stats, times, err);
+            status = gather_form(ctx, in, m, grid, mode, tables, bounded, together, list, seg_buf,
+                                 out, 0, stats, times, err);
             wrote = 1;
         }
         if (!status && first_order && !(together && wrote))
-            status = gather_form(ctx, in, m, grid, NS_GATHER_MODE_FIRST, NULL, 0, 1, list, seg_buf, out,
-                                 wrote, stats, times, err);
+            status = gather_form(ctx, in, m, grid, NS_GATHER_MODE_FIRST, NULL, 0, 1, list, seg_buf,
+                                 out, wrote, stats, times, err);
     } else if (!status) {
         memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
     }

@@ -1,11 +1,12 @@
 /* gpu_gather.c — the gather shader equals the CPU implementation of the same sum
- * (tests/oracles/gather_cpu.c ns_gather_cpu): random VRLs, random camera segments and a random table,
- * in the exact segment form and the paper's W form (each with endless and with bounded beams:
- * the beam past each VRL's length subtracted, the gather_bounded shader) and the dipole; and a case large enough that
- * lavapipe's loop limit splits the cells (and one oversized cell) across dispatches, which
- * must not change the result. The boundary sources' blurred first order (gather_first.comp)
- * equals a quadrature of its definition, evaluates every pair within the loop budget, and is
- * the same computed in the default form's walk as in a walk of its own added to it. Validation layers on (NSCATTER_VALIDATION=1). */
+ * (tests/oracles/gather_cpu.c ns_gather_cpu): random VRLs, random camera segments and a random
+ * table, in the exact segment form and the paper's W form (each with endless and with bounded
+ * beams: the beam past each VRL's length subtracted, the gather_bounded shader) and the dipole; and
+ * a case large enough that lavapipe's loop limit splits the cells (and one oversized cell) across
+ * dispatches, which must not change the result. The boundary sources' blurred first order
+ * (gather_first.comp) equals a quadrature of its definition, evaluates every pair within the loop
+ * budget, and is the same computed in the default form's walk as in a walk of its own added to it.
+ * Validation layers on (NSCATTER_VALIDATION=1). */
 #include "gpu_util.h"
 #include "boundary.h"
 #include "oracles/gather_cpu.h"
@@ -395,9 +396,11 @@ static void test_hierarchy_culling(void)
  * gather.glsl first_order), by quadrature in double: power x albedo x sigma_t x p_HG(cos
  * theta) x the integral over the segment of e^{-s t} e^{-s z} [z > 0] K(rho), K the
  * normalised Gaussian of standard deviation NS_BOUNDARY_BLUR_MFP / s across the line. */
-static double first_order_by_quadrature(const GpuMaterial *m, int c, const GpuVrl *v, const GpuSegment *seg)
+static double first_order_by_quadrature(const GpuMaterial *m, int c, const GpuVrl *v,
+                                        const GpuSegment *seg)
 {
-    double s = m->sigma_t[c], a = m->sigma_s[c] / s, g = m->sigma_s[3], b = NS_BOUNDARY_BLUR_MFP / s;
+    double s = m->sigma_t[c], a = m->sigma_s[c] / s, g = m->sigma_s[3],
+           b = NS_BOUNDARY_BLUR_MFP / s;
     double len = 0, cos_theta = 0;
     for (int k = 0; k < 3; k++) {
         len += (seg->exit[k] - seg->entry[k]) * (seg->exit[k] - seg->entry[k]);
@@ -430,13 +433,14 @@ static int run_first_order(const GpuMaterial *m, const ns_vrl_grid *grid, const 
     ns_error err = {0};
     gpu_buffer seg_buf = {0};
     int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * count, .data = segs,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * count,
+                                                      .data = segs,
                                                       .data_size = sizeof *segs * count,
                                                       .label = "test.segments"},
                                    &err);
     if (!status)
-        status = gpu_buffer_create(&ctx->dev, out,
-                                   &(gpu_buffer_desc){.size = 16ull * count, .label = "test.out"}, &err);
+        status = gpu_buffer_create(
+            &ctx->dev, out, &(gpu_buffer_desc){.size = 16ull * count, .label = "test.out"}, &err);
     ns_gather_desc desc = {.segments = &seg_buf, .segment_count = count, .grid = grid, .out = out};
     ns_gather_params(&desc.params, m, NS_GATHER_MODE_FIRST, NULL, 0.0f, 0);
     if (!status)
@@ -469,7 +473,8 @@ static GpuSegment *segments_near(const ns_vrl_grid *grid, uint32_t sources, uint
         random_unit(side);
         float len = 0.03f + 1.5f * uniform01(), back = len * uniform01();
         for (int k = 0; k < 3; k++) {
-            segs[i].entry[k] = v->origin[k] + along * v->direction[k] + miss * side[k] - back * d[k];
+            segs[i].entry[k] =
+                v->origin[k] + along * v->direction[k] + miss * side[k] - back * d[k];
             segs[i].exit[k] = segs[i].entry[k] + len * d[k];
             segs[i].direction[k] = d[k];
         }
@@ -511,7 +516,8 @@ static void test_first_order(void)
                 worst = fmax(worst, fabs(gpu[i][c] - want[i][c]) / fmax(want[i][c], floor));
             }
         printf("first order: %u of %u values above 1e-6 of the largest; worst relative difference "
-               "%.2e\n", lit, 3 * SEGMENTS, worst);
+               "%.2e\n",
+               lit, 3 * SEGMENTS, worst);
         CHECK(lit > SEGMENTS);
         CHECK(worst < 5e-3);
         free(want);
@@ -537,8 +543,8 @@ static void test_first_order_within_the_loop_budget(void)
     gpu_buffer out = {0};
     ns_gather_counts counts;
     CHECK_INT(run_first_order(&m, &grid, segs, SEGMENTS, &out, &counts), NS_OK);
-    printf("first order, %u sources: %u dispatches, %llu interactions\n", SOURCES, counts.dispatches,
-           (unsigned long long)counts.interactions);
+    printf("first order, %u sources: %u dispatches, %llu interactions\n", SOURCES,
+           counts.dispatches, (unsigned long long)counts.interactions);
     CHECK(counts.interactions == (uint64_t)SOURCES * SEGMENTS);
     if (test_context()->dev.loop_limited)
         CHECK(counts.dispatches > 1);
@@ -570,22 +576,28 @@ static void test_first_order_in_the_default_walk(void)
     ns_scatter_tables tables = table_geometry();
     gpu_buffer seg_buf = {0}, two = {0}, one = {0};
     int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS, .data = segs,
+                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS,
+                                                      .data = segs,
                                                       .data_size = sizeof *segs * SEGMENTS,
                                                       .label = "test.segments"},
                                    &err);
     if (!status)
-        status = gpu_buffer_create(&ctx->dev, &tables.a,
-                                   &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                                                      .data = table,
-                                                      .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                                                      .label = "test.table"},
-                                   &err);
+        status = gpu_buffer_create(
+            &ctx->dev, &tables.a,
+            &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                               .data = table,
+                               .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
+                               .label = "test.table"},
+            &err);
     for (int i = 0; i < 2 && !status; i++)
-        status = gpu_buffer_create(&ctx->dev, i ? &one : &two,
-                                   &(gpu_buffer_desc){.size = 16ull * SEGMENTS, .label = "test.out"}, &err);
+        status = gpu_buffer_create(
+            &ctx->dev, i ? &one : &two,
+            &(gpu_buffer_desc){.size = 16ull * SEGMENTS, .label = "test.out"}, &err);
     ns_gather_counts counts;
-    ns_gather_desc desc = {.segments = &seg_buf, .segment_count = SEGMENTS, .grid = &grid, .table = &tables.a,
+    ns_gather_desc desc = {.segments = &seg_buf,
+                           .segment_count = SEGMENTS,
+                           .grid = &grid,
+                           .table = &tables.a,
                            .out = &two};
     /* Two walks: the table's, then the first order added. */
     ns_gather_params(&desc.params, &m, NS_GATHER_MODE_EXACT, &tables, 0.0f, 0);
@@ -625,7 +637,8 @@ static void test_first_order_in_the_default_walk(void)
             for (int c = 0; c < 3; c++)
                 first_part += b[i][c] / (3.0 * SEGMENTS);
         printf("first order in the default walk: worst relative difference %.2e; the first order "
-               "%.3g of the mean\n", worst, first_part / mean);
+               "%.3g of the mean\n",
+               worst, first_part / mean);
         CHECK(worst < 1e-5);
         CHECK(first_part > 0.05 * mean && first_part < 0.99 * mean); /* the table's part too */
     }
