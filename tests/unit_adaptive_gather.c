@@ -23,12 +23,13 @@
  *    the cubic's 0.64 v) stands for the pixel: interpolated if and only if
  *    max(0, d^2 - 6 v) / 64 <= (tolerance x the mean)^2 + v - v_interpolated, v the outer
  *    samples' mean variance at most the inner ones' larger (the inner ones' smaller without
- *    outer ones): a large variance on one sample (an outlier's) excuses nothing. *  - the pixels'
- * variance (ns_sample_moments_add, ns_ratio_variance): a camera sample's segments are summed before
- * they are squared, whatever their order; the variance of Lbar = sum X / sum W is spp / (spp - 1)
- * sum_j (X_j - Lbar W_j)^2 / (sum W)^2, computed here in double from the samples themselves;
- * samples whose parts are proportional to their weights (a silhouette: some miss, X = W = 0) have
- * none; one sample, or no weight, none.
+ *    outer ones): a large variance on one sample (an outlier's) excuses nothing;
+ *  - the pixels' variance (ns_sample_moments_add, ns_ratio_variance): a camera sample's
+ *    segments are summed before they are squared, whatever their order; the variance of
+ *    Lbar = sum X / sum W is spp / (spp - 1) sum_j (X_j - Lbar W_j)^2 / (sum W)^2, computed
+ *    here in double from the samples themselves; samples whose parts are proportional to
+ *    their weights (a silhouette: some miss, X = W = 0) have none; one sample, or no
+ *    weight, none.
  */
 #include <math.h>
 #include <stdlib.h>
