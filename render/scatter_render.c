@@ -145,15 +145,23 @@ static int compatible(const pixel_key *a, const pixel_key *b)
            fabsf(a->distance - b->distance) <= SAME_SURFACE_DISTANCE * fmaxf(a->distance, b->distance);
 }
 
-/* Tile (tx, ty)'s representative: its centre pixel, or the first of its pixels with a
- * participating segment when the centre has none. */
+/* Where a tile's representative is looked for first along an axis of `size` pixels: pixel
+ * tile / 2 of tile i, moved into the image in a last tile too short to hold it. */
+static int representative_at(int i, uint32_t tile, uint32_t size)
+{
+    int at = i * (int)tile + (int)(tile / 2);
+    return at < (int)size ? at : (int)size - 1;
+}
+
+/* Tile (tx, ty)'s representative: its pixel at representative_at along each axis, or the
+ * first of its pixels with a participating segment when that one has none. */
 static uint32_t choose_representative(const tile_plan *t, uint32_t tx, uint32_t ty)
 {
     uint32_t x0 = tx * t->tile, y0 = ty * t->tile;
     uint32_t x1 = x0 + t->tile < t->width ? x0 + t->tile : t->width;
     uint32_t y1 = y0 + t->tile < t->height ? y0 + t->tile : t->height;
-    uint32_t cx = x0 + t->tile / 2 < x1 ? x0 + t->tile / 2 : x1 - 1;
-    uint32_t cy = y0 + t->tile / 2 < y1 ? y0 + t->tile / 2 : y1 - 1;
+    uint32_t cx = (uint32_t)representative_at((int)tx, t->tile, t->width);
+    uint32_t cy = (uint32_t)representative_at((int)ty, t->tile, t->height);
     if (t->keys[cy * t->width + cx].material != NS_NONE)
         return cy * t->width + cx;
     for (uint32_t y = y0; y < y1; y++)
@@ -166,14 +174,6 @@ static uint32_t choose_representative(const tile_plan *t, uint32_t tx, uint32_t 
 static int is_representative(const tile_plan *t, uint32_t x, uint32_t y)
 {
     return t->representative[(y / t->tile) * t->tiles_x + x / t->tile] == y * t->width + x;
-}
-
-/* Where choose_representative looks first along an axis of `size` pixels: pixel tile / 2 of
- * tile i, moved into the image in a last tile too short to hold it. */
-static int representative_at(int i, uint32_t tile, uint32_t size)
-{
-    int at = i * (int)tile + (int)(tile / 2);
-    return at < (int)size ? at : (int)size - 1;
 }
 
 /* Along one axis: the tile i0 whose representative is at or before pixel x (-1 before the
