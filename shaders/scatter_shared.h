@@ -80,9 +80,11 @@ struct GpuGatherParams {
     ns_vec4 dipole_zr;       /* xyz = z_r per channel (scene units); w = unused */
     ns_vec4 dipole_zv;       /* xyz = z_v per channel; w = unused */
     ns_vec4 dipole_alpha;    /* xyz = reduced albedo alpha' per channel; w = unused */
-    ns_vec4 first_order;     /* first-order mode: xyz = albedo per channel; w = g */
-    ns_vec4 first_blur;      /* first-order mode: xyz = the tube's standard deviation per channel
-                                (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t); w = unused */
+    ns_vec4 first_order;     /* with the first order: xyz = albedo per channel; w = g */
+    ns_vec4 first_blur;      /* xyz = the first order's tube's standard deviation per channel
+                                (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t); w = 1 when the form
+                                computes the first order (ns_gather_params_first), which picks
+                                its shader (ns_gather_pipeline) */
 };
 
 /* Bounded beams (render.vrl_beams): the beam past a VRL's exit is subtracted in the gather

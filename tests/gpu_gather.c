@@ -169,6 +169,19 @@ static void hierarchy_grid(ns_vrl_grid *g, uint32_t vrl_count, uint32_t leaf_fil
  * (render.cull_solid_angle). cpu_out (optional) receives the CPU sums. */
 /* 1: the gather_bounded shader and the CPU's bounded sum (the beam past each VRL's length,
  * 1 here, subtracted); 0: endless beams, the default shader. */
+/* A device buffer of `bytes`, holding `data` when it is not NULL. */
+static int upload(gpu_buffer *b, const void *data, uint64_t bytes, const char *label, ns_error *err)
+{
+    return gpu_buffer_create(&test_context()->dev, b,
+                             &(gpu_buffer_desc){.size = bytes,
+                                                .data = data,
+                                                .data_size = data ? bytes : 0,
+                                                .label = label},
+                             err);
+}
+
+static const uint64_t TABLE_BYTES = sizeof(float) * 3 * (uint64_t)NS_TABLE_CELLS;
+
 static int bounded_beams;
 
 static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, uint32_t segment_count,
@@ -188,23 +201,11 @@ static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, ui
     ns_scatter_tables tables = table_geometry();
 
     gpu_buffer seg_buf = {0}, out_buf = {0};
-    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segments * segment_count,
-                                                      .data = segments,
-                                                      .data_size = sizeof *segments * segment_count,
-                                                      .label = "test.segments"},
-                                   &err);
+    int status = upload(&seg_buf, segments, sizeof *segments * segment_count, "test.segments", &err);
     if (!status)
-        status = gpu_buffer_create(&ctx->dev, &out_buf,
-                                   &(gpu_buffer_desc){.size = 16ull * segment_count, .label = "test.out"},
-                                   &err);
+        status = upload(&out_buf, NULL, 16ull * segment_count, "test.out", &err);
     if (table && !status)
-        status = gpu_buffer_create(&ctx->dev, &tables.a,
-                                   &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                                                      .data = table,
-                                                      .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                                                      .label = "test.table"},
-                                   &err);
+        status = upload(&tables.a, table, TABLE_BYTES, "test.table", &err);
     ns_gather_desc desc = {.segments = &seg_buf,
                            .first_segment = 0,
                            .segment_count = segment_count,
@@ -432,15 +433,9 @@ static int run_first_order(const GpuMaterial *m, const ns_vrl_grid *grid, const 
     ns_context *ctx = test_context();
     ns_error err = {0};
     gpu_buffer seg_buf = {0};
-    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * count,
-                                                      .data = segs,
-                                                      .data_size = sizeof *segs * count,
-                                                      .label = "test.segments"},
-                                   &err);
+    int status = upload(&seg_buf, segs, sizeof *segs * count, "test.segments", &err);
     if (!status)
-        status = gpu_buffer_create(
-            &ctx->dev, out, &(gpu_buffer_desc){.size = 16ull * count, .label = "test.out"}, &err);
+        status = upload(out, NULL, 16ull * count, "test.out", &err);
     ns_gather_desc desc = {.segments = &seg_buf, .segment_count = count, .grid = grid, .out = out};
     ns_gather_params(&desc.params, m, NS_GATHER_MODE_FIRST, NULL, 0.0f, 0);
     if (!status)
@@ -522,6 +517,20 @@ static void test_first_order(void)
         CHECK(worst < 5e-3);
         free(want);
     }
+    /* A channel without extinction (allowed: sigma_s = sigma_a = 0) scatters nothing: exactly
+     * 0 there, the other channels as they were (its tube of width 0 once made NaN). */
+    GpuMaterial clear = m;
+    clear.sigma_t[2] = clear.sigma_s[2] = 0.0f;
+    gpu_buffer clear_out = {0};
+    CHECK_INT(run_first_order(&clear, &grid, segs, SEGMENTS, &clear_out, &counts), NS_OK);
+    if (!status && clear_out.mapped) {
+        const float(*a)[4] = out.mapped, (*b)[4] = clear_out.mapped;
+        uint32_t wrong = 0;
+        for (uint32_t i = 0; i < SEGMENTS; i++)
+            wrong += !(b[i][2] == 0.0f && b[i][0] == a[i][0] && b[i][1] == a[i][1]);
+        CHECK_INT(wrong, 0);
+    }
+    gpu_buffer_destroy(&test_context()->dev, &clear_out);
     gpu_buffer_destroy(&test_context()->dev, &out);
     free(segs);
     ns_vrl_grid_free(&grid);
@@ -575,24 +584,11 @@ static void test_first_order_in_the_default_walk(void)
         table[i] *= 1e-4f;
     ns_scatter_tables tables = table_geometry();
     gpu_buffer seg_buf = {0}, two = {0}, one = {0};
-    int status = gpu_buffer_create(&ctx->dev, &seg_buf,
-                                   &(gpu_buffer_desc){.size = sizeof *segs * SEGMENTS,
-                                                      .data = segs,
-                                                      .data_size = sizeof *segs * SEGMENTS,
-                                                      .label = "test.segments"},
-                                   &err);
+    int status = upload(&seg_buf, segs, sizeof *segs * SEGMENTS, "test.segments", &err);
     if (!status)
-        status = gpu_buffer_create(
-            &ctx->dev, &tables.a,
-            &(gpu_buffer_desc){.size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                               .data = table,
-                               .data_size = sizeof *table * 3 * (size_t)NS_TABLE_CELLS,
-                               .label = "test.table"},
-            &err);
+        status = upload(&tables.a, table, TABLE_BYTES, "test.table", &err);
     for (int i = 0; i < 2 && !status; i++)
-        status = gpu_buffer_create(
-            &ctx->dev, i ? &one : &two,
-            &(gpu_buffer_desc){.size = 16ull * SEGMENTS, .label = "test.out"}, &err);
+        status = upload(i ? &one : &two, NULL, 16ull * SEGMENTS, "test.out", &err);
     ns_gather_counts counts;
     ns_gather_desc desc = {.segments = &seg_buf,
                            .segment_count = SEGMENTS,
