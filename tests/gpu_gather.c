@@ -172,12 +172,11 @@ static void hierarchy_grid(ns_vrl_grid *g, uint32_t vrl_count, uint32_t leaf_fil
 /* A device buffer of `bytes`, holding `data` when it is not NULL. */
 static int upload(gpu_buffer *b, const void *data, uint64_t bytes, const char *label, ns_error *err)
 {
-    return gpu_buffer_create(&test_context()->dev, b,
-                             &(gpu_buffer_desc){.size = bytes,
-                                                .data = data,
-                                                .data_size = data ? bytes : 0,
-                                                .label = label},
-                             err);
+    return gpu_buffer_create(
+        &test_context()->dev, b,
+        &(gpu_buffer_desc){
+            .size = bytes, .data = data, .data_size = data ? bytes : 0, .label = label},
+        err);
 }
 
 static const uint64_t TABLE_BYTES = sizeof(float) * 3 * (uint64_t)NS_TABLE_CELLS;
@@ -201,7 +200,8 @@ static double compare_walk(uint32_t mode, uint32_t vrl_count, uint32_t cells, ui
     ns_scatter_tables tables = table_geometry();
 
     gpu_buffer seg_buf = {0}, out_buf = {0};
-    int status = upload(&seg_buf, segments, sizeof *segments * segment_count, "test.segments", &err);
+    int status =
+        upload(&seg_buf, segments, sizeof *segments * segment_count, "test.segments", &err);
     if (!status)
         status = upload(&out_buf, NULL, 16ull * segment_count, "test.out", &err);
     if (table && !status)
