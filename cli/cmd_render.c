@@ -239,8 +239,8 @@ static int render_scene(const render_args *a, const scene_doc *doc, ns_render_st
     ns_context *ctx = NULL;
     double t0 = ns_now_ms();
     ns_context_desc desc = {.device = a->device};
-    /* Monte Carlo tables for method "table", the albedo nodes of render.tables "interpolated"
-     * and the boundary walks' unit blurred table: cached on disk. */
+    /* Monte Carlo tables for method "table" and the albedo nodes of render.tables
+     * "interpolated": cached on disk. */
     ns_table_caches_attach(&desc);
     int rc = ns_context_create(&desc, &ctx, &err);
     if (rc) {

@@ -54,8 +54,7 @@ int ns_mc_provider_tables(void *user, double g, double albedo, float *j_double, 
  * desc alone (method "table" then answers NS_ERR_NOT_AVAILABLE). */
 void ns_mc_provider_attach(ns_context_desc *desc);
 /* ns_mc_provider_attach, and the same cache folder for the render library's own table files
- * (ns_context_desc.table_node_dir: the interpolated tables' albedo nodes, the boundary
- * walks' unit blurred table). */
+ * (ns_context_desc.table_node_dir: the interpolated tables' albedo nodes). */
 void ns_table_caches_attach(ns_context_desc *desc);
 
 /* What the provider did so far (tests, logs). */

@@ -32,8 +32,8 @@
  * Which table a source reads follows from its events k and the components asked for: its
  * light's next events are orders k + 1 (the first scattering on the camera segment of
  * light that flew straight from the source: a line meets a line with probability zero, so
- * this order comes from the blurred first-order table below), k + 2 (J_2) and >= k + 3
- * (J_multiple).
+ * this order is blurred over a tube around the source's line and computed in the gather,
+ * gather.glsl's first_order), k + 2 (J_2) and >= k + 3 (J_multiple).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -236,7 +236,7 @@ uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components)
 {
     /* A ghost's light flies on outside the object, from where the walk left it: in a convex
      * object no camera segment meets its next event (order events + 1), so the ghost takes
-     * nothing away there. The blurred first-order table would: its Gaussian tube around the
+     * nothing away there. The blurred first order would: its Gaussian tube around the
      * line lies partly inside near the exit, and removed light that is really there (an
      * index-matched sphere 2 mfp across: double scattering 0.907 of pt with it, 0.959
      * without, which is exactly the bounded beams'; the bench's milk 0.948 -> 0.998 with
@@ -302,61 +302,4 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
             }
     }
     return NS_OK;
-}
-
-/* ---------------------------------------------------------------------------------------
- * The blurred first-order table: J_1^blur(rho, z, theta, phi) = a e^{-z} [z > 0] K(rho)
- * p_HG(cos theta), K a normalised Gaussian of standard deviation NS_BOUNDARY_BLUR_MFP, as
- * the bin averages the table holds (the accumulation reads J as constant over a bin).
- * ------------------------------------------------------------------------------------- */
-static double hg_integral(double g, double mu_low, double mu_high)
-{
-    /* Integral of p_HG over the solid angle of mu in [mu_low, mu_high] (2 pi d mu). */
-    if (fabs(g) < 1e-6)
-        return 0.5 * (mu_high - mu_low);
-    double a = 1.0 + g * g;
-    return (1.0 - g * g) / (2.0 * g) * (1.0 / sqrt(a - 2.0 * g * mu_high) - 1.0 / sqrt(a - 2.0 * g * mu_low));
-}
-
-void ns_blurred_angular(float g, double angular[NS_TABLE_NTHETA])
-{
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
-    for (uint32_t i = 0; i < NS_TABLE_NTHETA; i++) {
-        double mu_high = cos(grid.theta[i]), mu_low = cos(grid.theta[i + 1]);
-        /* Bin average over solid angle: the integral over 2 pi (mu_high - mu_low). */
-        angular[i] = hg_integral(g, mu_low, mu_high) / (2.0 * M_PI * (mu_high - mu_low));
-    }
-}
-
-void ns_blurred_spatial(float *j)
-{
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
-    double two_var = 2.0 * NS_BOUNDARY_BLUR_MFP * NS_BOUNDARY_BLUR_MFP;
-    double along_z[NS_TABLE_NZ], across[NS_TABLE_NRHO];
-    for (uint32_t i = 0; i < NS_TABLE_NZ; i++) {
-        double z0 = fmax(grid.z[i], 0.0), z1 = fmax(grid.z[i + 1], 0.0);
-        along_z[i] = (exp(-z0) - exp(-z1)) / (grid.z[i + 1] - grid.z[i]);
-    }
-    for (uint32_t i = 0; i < NS_TABLE_NRHO; i++) {
-        double r0 = grid.rho[i], r1 = grid.rho[i + 1];
-        across[i] = (exp(-r0 * r0 / two_var) - exp(-r1 * r1 / two_var)) / (M_PI * (r1 * r1 - r0 * r0));
-    }
-    size_t at = 0;
-    for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
-        for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++) {
-            float v = (float)(along_z[iz] * across[ir]);
-            for (uint32_t k = 0; k < NS_TABLE_NTHETA * NS_TABLE_NPHI; k++)
-                j[at++] = v;
-        }
-}
-
-void ns_blurred_first_order(float albedo, float g, float *j)
-{
-    double angular[NS_TABLE_NTHETA];
-    ns_blurred_angular(g, angular);
-    ns_blurred_spatial(j);
-    for (size_t i = 0; i < NS_TABLE_CELLS; i++)
-        j[i] = (float)(albedo * angular[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * j[i]);
 }

@@ -1,12 +1,12 @@
 /* boundary.h — (private to render/ and the tests) the boundary-crossing correction
  * (render.boundary, boundary.c): sources from the light's walks inside the object, grouped
- * by the table they read, and the blurred first-order table. */
+ * by the tables they read. */
 #ifndef NS_RENDER_BOUNDARY_H
 #define NS_RENDER_BOUNDARY_H
 
 #include "scatter.h"
 
-/* Standard deviation (mfp) of the blurred first-order table's radial kernel: light that
+/* Standard deviation (mfp) of the blurred first order's radial kernel: light that
  * leaves a source unscattered meets a camera segment (a line) with probability zero, so its
  * first scattering there is spread over a narrow tube, like the beam x beam blur of photon
  * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). Computed exactly in the gather
@@ -78,9 +78,9 @@ uint32_t ns_boundary_roulette(GpuVrl *sources, uint32_t n, float floor, uint32_t
  * (the sum over them of min(1, importance / floor)); 0 when n <= target (keep them all). */
 float ns_boundary_floor(const GpuVrl *sources, uint32_t n, uint32_t target);
 
-/* The table orders (NS_TABLE_FIRST_BLURRED, NS_COMPONENT_DOUBLE for J_2,
- * NS_COMPONENT_MULTIPLE for J_multiple) a source after `events` scattering events reads for
- * the asked components (single, double, multiple); 0: none. */
+/* The orders (NS_TABLE_FIRST_BLURRED, computed in the gather; NS_COMPONENT_DOUBLE for J_2,
+ * NS_COMPONENT_MULTIPLE for J_multiple, read from the tables) a source after `events`
+ * scattering events gives for the asked components (single, double, multiple); 0: none. */
 uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
 /* The orders source s reads: ns_boundary_orders of its events, less the blurred first order
  * for a ghost (negative power), whose next event lies outside its object, unless its events
@@ -104,17 +104,5 @@ typedef struct ns_boundary_groups {
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
                       ns_boundary_groups *out, ns_error *err);
 void ns_boundary_groups_free(ns_boundary_groups *g);
-
-
-/* J_1^blur of one channel (albedo a, phase g) as NS_TABLE_CELLS bin averages, [z][rho][theta]
- * [phi]: energy a, mean depth 1, mean cosine g (tests/unit_boundary.c checks them). It is
- * a * angular_g(theta) * spatial(z, rho): ns_blurred_angular gives the first factor's bin
- * averages, ns_blurred_spatial the second's (e^{-z} [z > 0] K(rho), the same at every
- * theta and phi), so that its A is a * angular_g(theta) times the A of the spatial part
- * alone (theta is constant along the accumulation's line): one accumulation serves every
- * material (scatter_tables.c). */
-void ns_blurred_first_order(float albedo, float g, float *j);
-void ns_blurred_angular(float g, double angular[NS_TABLE_NTHETA]);
-void ns_blurred_spatial(float *j);
 
 #endif

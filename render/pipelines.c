@@ -23,7 +23,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                             NS_TRACE_TEXEL_BINDINGS, 0},
     /* J, read at every step of the walk (accumulate.glsl), is a texel buffer of 16-byte
      * texels: a cell's channels in one fetch (accumulate_shared.h). */
-    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 6, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
+    [NS_PIPELINE_ACCUMULATE] = {"accumulate", 5, sizeof(GpuAccumulatePush), NS_PIPELINE_AT_START,
                                 1u << 1, 0},
     [NS_PIPELINE_VRL] = {"vrl", 8, sizeof(GpuVrlPush), NS_PIPELINE_AT_START,
                          NS_TRACE_TEXEL_BINDINGS, 0},
@@ -75,7 +75,7 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                                 0},
     /* Only renders that read two order sets of one material (multiple scattering alone,
      * with walks) take it: not charged to every start-up. */
-    [NS_PIPELINE_ACCUMULATE_SECOND] = {"accumulate_second", 6, sizeof(GpuAccumulatePush),
+    [NS_PIPELINE_ACCUMULATE_SECOND] = {"accumulate_second", 5, sizeof(GpuAccumulatePush),
                                        NS_PIPELINE_FIRST_USE, 1u << 1, 0},
     [NS_PIPELINE_NN_RECONSTRUCT] = {"nn_reconstruct", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},
     [NS_PIPELINE_NN_INTERPOLATE] = {"nn_interpolate", 3, 0, NS_PIPELINE_WITH_NETWORKS, 0, 0},

@@ -21,20 +21,19 @@
  * Tables (scatter_tables.c): the accumulated camera-side tables A of one material, for the
  * three channels, cached in the context (least recently used, bounded bytes).
  * ------------------------------------------------------------------------------------- */
-/* A table order beyond the components: the blurred first order of the boundary correction
- * (boundary.h), for light that has left a source unscattered. Renders compute it in the
- * gather since 2026-12-01 (gather.glsl, first_order: the table's reads missed it by factors
- * of 0.3-2 at g 0.9) and ask the tables for the other orders only; the table form
- * (scatter_tables.c, compose_blurred, the accumulation's extra channel) is left for its
- * tests, to be removed. */
+/* An order beyond the components: the blurred first order of the boundary correction
+ * (boundary.h), for light that has left a source unscattered. A source group's orders carry
+ * it (ns_boundary_orders); it has no table: the gather computes it (gather.glsl,
+ * first_order; until 2026-12-01 it was read from a table composed per material, whose
+ * angular and radial reads missed it by factors of 0.3-2 at g 0.9), and ns_tables_get
+ * refuses it. */
 #define NS_TABLE_FIRST_BLURRED (1u << 16)
 
 typedef struct ns_table_key {
     ns_method source;     /* NS_METHOD_NN (network) or NS_METHOD_TABLE (Monte Carlo) */
     float g;              /* shared by the channels */
     float albedo[3];      /* per channel */
-    uint32_t orders;      /* NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE and/or
-                             NS_TABLE_FIRST_BLURRED (summed) */
+    uint32_t orders;      /* NS_COMPONENT_DOUBLE and/or NS_COMPONENT_MULTIPLE (summed) */
     ns_accumulation accumulation; /* exact: A to infinity; paper: A over 5 mfp */
     ns_tables_mode tables;        /* exact, or blended from albedo nodes (nn only) */
 } ns_table_key;
@@ -110,34 +109,26 @@ int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulati
 int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                 uint32_t zero_from_rho, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err);
-/* The same with parts walked beside the three (shaders/accumulate_shared.h), each NULL where
- * absent: the second three (second_j float [3][NS_TABLE_CELLS], their A created in
- * *second_out) and the extra channel (extra_j float [NS_TABLE_CELLS], its A into extra_a:
- * host, as many floats). Every part comes out as its own accumulation would make it, bit
- * for bit; steps counts the bins of the one walk, which lasts as long as its longest part. */
+/* The same with the second three walked beside the three (shaders/accumulate_shared.h):
+ * second_j float [3][NS_TABLE_CELLS], their A created in *second_out (both NULL: none). Each
+ * set comes out as its own accumulation would make it, bit for bit; steps counts the bins of
+ * the one walk, which lasts as long as its longer set. */
 int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
-                               const float *extra_j, ns_accumulation accumulation,
-                               ns_scatter_tables *out, ns_scatter_tables *second_out,
-                               float *extra_a, uint64_t *steps, ns_error *err);
+                               ns_accumulation accumulation, ns_scatter_tables *out,
+                               ns_scatter_tables *second_out, uint64_t *steps, ns_error *err);
 void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
 /* A copy of t's A (float [3][NS_TABLE_CELLS]) in out, read through a host-cached buffer
  * where t's own mapping is not host-cached (a discrete GPU's device memory: reading it
  * directly took seconds). */
 int ns_scatter_tables_read(ns_context *ctx, const ns_scatter_tables *t, float *out, ns_error *err);
-/* Says that the render about to run reads the blurred first order (render.boundary) in this
- * accumulation mode: the next table accumulated in that mode makes the context's unit blurred
- * table beside its own, on the same walk, instead of a walk of its own later. */
-void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation);
 /* Says that the render about to run reads tables of these orders (double and/or multiple;
- * the blurred first order's bit is ignored) for its materials: an exact table it makes of
+ * other bits are ignored) for its materials: an exact table it makes of
  * one announced set is walked together with that of another not cached yet, which then
  * waits in the cache (accumulate_shared.h, the second three). A render of multiple
  * scattering alone with boundary walks reads multiple for its VRLs and double + multiple for
  * the sources after an event (their orders shift by it: ns_boundary_orders): one walk
  * instead of two. */
 void ns_tables_expect_orders(ns_context *ctx, uint32_t orders);
-/* The context's unit blurred table in that mode (tests): NULL until made. */
-const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation);
 
 /* What the cache holds now (tests): bytes (device + host) and entries (J and A). */
 void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *entries);

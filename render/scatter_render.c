@@ -1206,13 +1206,12 @@ static void vrl_source_free(vrl_source *v, uint32_t material_count)
     memset(v, 0, sizeof *v);
 }
 
-/* A table's orders (NS_COMPONENT_DOUBLE, NS_COMPONENT_MULTIPLE, NS_TABLE_FIRST_BLURRED) as an
- * index, so that a table read by several grids counts its bytes once. */
-#define ORDER_SETS 8u
+/* A table's orders (NS_COMPONENT_DOUBLE and/or NS_COMPONENT_MULTIPLE) as an index, so that a
+ * table read by several grids counts its bytes once. */
+#define ORDER_SETS 4u
 static uint32_t order_set(uint32_t orders)
 {
-    return (orders & NS_COMPONENT_DOUBLE ? 1u : 0u) | (orders & NS_COMPONENT_MULTIPLE ? 2u : 0u) |
-           (orders & NS_TABLE_FIRST_BLURRED ? 4u : 0u);
+    return (orders & NS_COMPONENT_DOUBLE ? 1u : 0u) | (orders & NS_COMPONENT_MULTIPLE ? 2u : 0u);
 }
 
 /* The VRLs end at their exit, in the gather's bounded form (the beam past the exit

@@ -71,15 +71,6 @@ struct ns_table_cache {
     uint32_t count, capacity;
     uint64_t bytes; /* changed atomically: ns_context_table_cache_bytes reads it anywhere */
     uint64_t clock;
-    /* Per accumulation mode: A of the blurred first order's spatial part (boundary.h), one
-     * channel, host memory, made (or read from the table folder) on first use and kept for
-     * the context's life (10.6 MB each, outside `bytes`: every material's blurred table is
-     * made from it). */
-    float *blur_unit[2];
-    /* Per mode: 1 + ns_run.serial of the render that reads it (ns_tables_expect_blurred), 0
-     * for none; that render's next accumulation in that mode makes blur_unit beside its table. A
-     * render that failed before it accumulated leaves no hint for the next one. */
-    uint64_t blur_expected[2];
     /* The base order sets (double and/or multiple) that the render of serial + 1 ==
      * orders_expected_serial reads (ns_tables_expect_orders): an exact table of one is
      * walked together with another's (accumulate_shared.h, the second three). */
@@ -144,9 +135,7 @@ static void channel_max(const float *j, int channels, float *j_max)
 }
 
 /* The first rho bin from which J is 0 in every channel, z, theta and phi (NS_TABLE_NRHO when
- * the last bin holds light). The blurred first order's Gaussian, 0.1 mfp wide, underflows to
- * 0 beyond about 1.5 mfp: its A is 0 along every line that stays farther out, about half the
- * cells (scatter.h, accumulate.comp). */
+ * the last bin holds light): A is 0 along every line that stays farther out (accumulate.glsl). */
 static uint32_t zero_from_rho(const float *j, int channels)
 {
     const size_t angles = (size_t)NS_TABLE_NTHETA * NS_TABLE_NPHI; /* cells of one (z, rho) */
@@ -177,33 +166,29 @@ static int check_j(const float *j, int channels, ns_error *err)
     return NS_OK;
 }
 
-/* What one walk makes beside the three channels' A (accumulate_shared.h): the extra channel
- * (extra_j float [cells], its A into extra_a, host) and the second three (second_j float
- * [3][cells], their A created in *second_out); NULL where absent. */
+/* What one walk makes beside the three channels' A (accumulate_shared.h): the second three
+ * (second_j float [3][cells], their A created in *second_out); NULL where absent. */
 typedef struct accumulate_parts {
-    const float *extra_j;
-    float *extra_a;
     const float *second_j;
     ns_scatter_tables *second_out;
 } accumulate_parts;
 
-/* j_max: the three channels, the extra one ([3], accumulate_shared.h) and the second three
- * ([4..6]); each part's J is 0 from its own rho bin (*_zero_from). */
-static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[7],
+/* j_max: the three channels ([0..2]) and the second three ([3..5]); each set's J is 0 from
+ * its own rho bin (*zero_from). */
+static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[6],
                                              const accumulate_parts *parts,
                                              ns_accumulation accumulation, uint32_t zero_from,
-                                             uint32_t extra_zero_from, uint32_t second_zero_from)
+                                             uint32_t second_zero_from)
 {
     GpuAccumulateParams p;
     memset(&p, 0, sizeof p);
     p.grid[0] = (float)grid->scale;
     p.grid[1] = (float)grid->step;
     p.grid[2] = (float)grid->extent;
-    int extra = parts && parts->extra_j, second = parts && parts->second_j;
-    memcpy(p.j_max, j_max, (extra ? 4 : 3) * sizeof(float));
-    p.counts[3] = extra ? 1 + extra_zero_from : 0;
+    int second = parts && parts->second_j;
+    memcpy(p.j_max, j_max, 3 * sizeof(float));
     if (second)
-        memcpy(p.second_j_max, j_max + 4, 3 * sizeof(float));
+        memcpy(p.second_j_max, j_max + 3, 3 * sizeof(float));
     p.second[0] = second ? 1 + second_zero_from : 0;
     p.cut[0] = CUT_RELATIVE;
     p.cut[1] = CUT_FLOOR;
@@ -214,7 +199,7 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
     return p;
 }
 
-enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_EXTRA, B_SECOND, B_COUNT };
+enum { B_PARAMS, B_J, B_A, B_COUNTERS, B_SECOND, B_COUNT };
 
 /* The grid fields every A table carries (the default grid) and its device bytes. */
 static void set_default_grid(ns_scatter_tables *t, uint64_t bytes)
@@ -286,31 +271,26 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
 }
 
 int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
-                               const float *extra_j, ns_accumulation accumulation,
-                               ns_scatter_tables *out, ns_scatter_tables *second_out,
-                               float *extra_a, uint64_t *steps, ns_error *err)
+                               ns_accumulation accumulation, ns_scatter_tables *out,
+                               ns_scatter_tables *second_out, uint64_t *steps, ns_error *err)
 {
-    if (!extra_j != !extra_a)
-        return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                       "accumulate: the extra channel needs its J and its A");
     if (!second_j != !second_out)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                        "accumulate: the second three need their J and their A");
-    accumulate_parts parts = {.extra_j = extra_j, .extra_a = extra_a, .second_j = second_j,
-                              .second_out = second_out};
+    accumulate_parts parts = {.second_j = second_j, .second_out = second_out};
     return accumulate(ctx, j, &parts, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0, out,
                       steps, err);
 }
 
-/* J's texels (accumulate_shared.h): cell i of the three planes of j (float [3][cells]) and
- * of extra (float [cells], NULL: 0) as texel i. */
-static void interleave_j(float (*texel)[4], const float *j, const float *extra)
+/* J's texels (accumulate_shared.h): cell i of the three planes of j (float [3][cells]) as
+ * texel i. */
+static void interleave_j(float (*texel)[4], const float *j)
 {
     for (size_t i = 0; i < NS_TABLE_CELLS; i++) {
         texel[i][0] = j[i];
         texel[i][1] = j[NS_TABLE_CELLS + i];
         texel[i][2] = j[2 * (size_t)NS_TABLE_CELLS + i];
-        texel[i][3] = extra ? extra[i] : 0.0f;
+        texel[i][3] = 0.0f;
     }
 }
 
@@ -319,7 +299,6 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
                       ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
                       ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    const float *extra_j = parts ? parts->extra_j : NULL;
     const float *second_j = parts ? parts->second_j : NULL;
     memset(out, 0, sizeof *out);
     if (second_j)
@@ -331,31 +310,24 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)accumulation);
     int status = check_j(j, 3, err);
-    if (!status && extra_j)
-        status = check_j(extra_j, 1, err);
     if (!status && second_j)
         status = check_j(second_j, 3, err);
     if (status)
         return status;
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    float j_max[7] = {0};
+    float j_max[6] = {0};
     channel_max(j, 3, j_max);
-    if (extra_j)
-        channel_max(extra_j, 1, j_max + 3);
     if (second_j)
-        channel_max(second_j, 3, j_max + 4);
-    GpuAccumulateParams params =
-        accumulate_params(&grid, j_max, parts, accumulation, zero_from,
-                          extra_j ? zero_from_rho(extra_j, 1) : 0,
-                          second_j ? zero_from_rho(second_j, 3) : 0);
+        channel_max(second_j, 3, j_max + 3);
+    GpuAccumulateParams params = accumulate_params(&grid, j_max, parts, accumulation, zero_from,
+                                                   second_j ? zero_from_rho(second_j, 3) : 0);
     int all_zero = 1;
-    for (int c = 0; c < 7; c++)
+    for (int c = 0; c < 6; c++)
         all_zero = all_zero && j_max[c] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
-    uint64_t channel_bytes = (uint64_t)NS_TABLE_CELLS * sizeof(float);
-    /* J in one buffer of 16-byte texels: per cell the three and the extra channel, then per
-     * cell the second three (accumulate_shared.h). */
+    /* J in one buffer of 16-byte texels: per cell the three channels, then per cell the
+     * second three (accumulate_shared.h). */
     uint64_t texels_bytes = 4ull * NS_TABLE_CELLS * sizeof(float);
     uint64_t j_bytes = texels_bytes * (second_j ? 2 : 1);
 
@@ -376,11 +348,6 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
                  .label = "ns.tables.a"},
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
-        /* Without the extra channel the shader never writes it: a word stands in. */
-        [B_EXTRA] = {.size = extra_j ? channel_bytes : sizeof(float),
-                     .uninitialized = extra_j && !all_zero, /* the walk writes every cell */
-                     .host_reads = 1,
-                     .label = "ns.accumulate.extra"},
         /* A table of its own, as the three's: a word stands in without the second three. */
         [B_SECOND] = {.size = second_j ? table_bytes : sizeof(float),
                       .uninitialized = second_j && !all_zero,
@@ -390,13 +357,13 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
     status = gpu_buffers_create(&ctx->dev, own, descs, B_COUNT, err);
     if (!status) {
         float(*texel)[4] = own[B_J].mapped;
-        interleave_j(texel, j, extra_j);
+        interleave_j(texel, j);
         if (second_j)
-            interleave_j(texel + NS_TABLE_CELLS, second_j, NULL);
+            interleave_j(texel + NS_TABLE_CELLS, second_j);
     }
     if (!status && !all_zero) {
-        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS],   &own[B_J],     &own[B_A],
-                                      &own[B_COUNTERS], &own[B_EXTRA], &own[B_SECOND]};
+        gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],
+                                      &own[B_SECOND]};
         status = dispatch_accumulate(ctx, bound, second_j != NULL, err);
     }
     if (!status) {
@@ -410,8 +377,6 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
             *steps = (uint64_t)c[NS_ACCUMULATE_COUNTER_STEPS_HIGH] << 32 |
                      c[NS_ACCUMULATE_COUNTER_STEPS];
     }
-    if (!status && extra_j)
-        memcpy(parts->extra_a, own[B_EXTRA].mapped, channel_bytes);
     if (!status) {
         out->a = own[B_A];
         own[B_A] = (gpu_buffer){0};
@@ -591,10 +556,7 @@ static void count_made(const ns_context *ctx, cache_entry *e, ns_table_stats *st
  * the blend's error, and this says which did. */
 static void count_blended(const ns_context *ctx, cache_entry *e, int made, ns_table_stats *stats)
 {
-    /* A key of the blurred first order alone comes from the unit table: nothing blended. */
-    int blend = e->key.tables == NS_TABLES_INTERPOLATED &&
-                (e->key.orders & ~NS_TABLE_FIRST_BLURRED) != 0;
-    if (!blend || (!made && e->counted_blended == ctx->run.serial))
+    if (e->key.tables != NS_TABLES_INTERPOLATED || (!made && e->counted_blended == ctx->run.serial))
         return;
     e->counted_blended = ctx->run.serial;
     stats->tables_blended++;
@@ -822,10 +784,11 @@ static int check_key(const ns_table_key *key, ns_error *err)
                            "material albedo[%d]: %g outside [0, 1) (multiple scattering of a "
                            "medium that absorbs nothing has no finite table)",
                            c, (double)key->albedo[c]);
-    uint32_t orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE | NS_TABLE_FIRST_BLURRED;
+    uint32_t orders = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
     if (!key->orders || (key->orders & ~orders))
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
-                       "tables: orders 0x%x (double, multiple and/or the blurred first order only)",
+                       "tables: orders 0x%x (double and/or multiple only: the blurred first order "
+                       "is computed in the gather)",
                        key->orders);
     if (key->accumulation != NS_ACCUMULATION_EXACT && key->accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
@@ -861,52 +824,6 @@ void ns_tables_expect_orders(ns_context *ctx, uint32_t orders)
     uint32_t cap = sizeof cache->orders_expected / sizeof cache->orders_expected[0];
     if (!listed && cache->orders_expected_count < cap)
         cache->orders_expected[cache->orders_expected_count++] = orders;
-}
-
-void ns_tables_expect_blurred(ns_context *ctx, ns_accumulation accumulation)
-{
-    ctx->tables->blur_expected[accumulation == NS_ACCUMULATION_PAPER] = ctx->run.serial + 1;
-}
-
-const float *ns_tables_blurred_unit(const ns_context *ctx, ns_accumulation accumulation)
-{
-    return ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
-}
-
-/* The unit blurred table on disk, with the albedo nodes (the table files below). */
-static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation);
-static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit,
-                           float *blur_j);
-
-/* Makes the context's unit blurred table in this mode: the extra channel of the walk of j
- * (a material's J, float [3][cells], whose A goes to *a; with second_j, the second three's
- * to *second_a), or of a J of zeros where j is NULL (*a is then zeros, which the caller
- * frees). Bit for bit the same either way (accumulate_shared.h). */
-static int make_blur_unit(ns_context *ctx, ns_accumulation accumulation, const float *j,
-                          const float *second_j, ns_scatter_tables *a, ns_scatter_tables *second_a,
-                          ns_error *err)
-{
-    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
-    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
-    float *zeros = j ? NULL : calloc(3 * (size_t)NS_TABLE_CELLS, sizeof(float));
-    int status = NS_OK;
-    if (!blur_j || !unit || (!j && !zeros)) {
-        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the blurred table");
-    } else {
-        ns_blurred_spatial(blur_j);
-        status = ns_tables_accumulate_parts(ctx, j ? j : zeros, second_j, blur_j, accumulation, a,
-                                            second_a, unit, NULL, err);
-    }
-    free(zeros);
-    if (status) {
-        free(blur_j);
-        free(unit);
-        return status;
-    }
-    ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
-    save_blur_unit(ctx, accumulation, unit, blur_j);
-    free(blur_j);
-    return NS_OK;
 }
 
 /* ---------------------------------------------------------------------------------------
@@ -1002,7 +919,7 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
 }
 
 /* Tables on disk (ns_context_desc.table_node_dir): each albedo node, one file per (networks,
- * g, accumulation, node), and the unit blurred table of each accumulation mode. A file is
+ * g, accumulation, node). A file is
  * this header, then its tables (float [tables][cells], native byte order). It is never
  * trusted: every header field is checked against what the table must be, and the payload
  * against the hash recorded when it was written; a file that fails is made again and
@@ -1014,12 +931,11 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
  * (their CRCs; nodes only), the SPIR-V of the three shaders that compute them
  * (nn_reconstruct, nn_interpolate, accumulate), the accumulation's parameters in both modes
  * (its cut, its floor, the paper's length, the step cap), the networks' sampling of the grid
- * and the node albedos' placement, the blurred first order's J itself (the blur unit), and
- * TABLE_FILE_CODE_VERSION for what none of those show (the renormalisation, the blend):
+ * and the node albedos' placement, and TABLE_FILE_CODE_VERSION for what none of those show (the renormalisation, the blend):
  * bump it when that changes. The folder is kept within ns_context_desc.table_dir_bytes, the
  * least recently used files first (prune_table_files). */
 #define TABLE_FILE_CODE_VERSION 1u
-enum { TABLE_FILE_NODE = 1, TABLE_FILE_BLUR_UNIT = 2 };
+enum { TABLE_FILE_NODE = 1 };
 typedef struct table_file_header {
     char magic[8];            /* TABLE_FILE_MAGIC */
     uint64_t code_hash;       /* table_code_hash() */
@@ -1027,9 +943,8 @@ typedef struct table_file_header {
     uint32_t tables;          /* float [cells] arrays in the payload */
     uint32_t grid[4];         /* NZ, NRHO, NTHETA, NPHI */
     uint32_t node, accumulation;
-    uint32_t weights_crc[2];  /* the networks' payload CRC-32s (nodes; 0 for the blur unit) */
+    uint32_t weights_crc[2];  /* the networks' payload CRC-32s */
     double g, albedo, scale, extent;
-    uint64_t input_hash;      /* the blur unit: payload_hash() of its J; nodes: 0 */
     uint64_t payload_hash;    /* payload_hash() of the tables */
 } table_file_header;
 static const char TABLE_FILE_MAGIC[8] = "NSTABLE";
@@ -1061,9 +976,7 @@ static uint64_t payload_hash(float *const *tables, uint32_t n)
 
 static uint64_t table_code_hash(void)
 {
-    /* accumulate_second makes the blur unit too when it rides along a paired walk. */
-    static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate",
-                                          "accumulate_second"};
+    static const char *const shaders[] = {"nn_reconstruct", "nn_interpolate", "accumulate"};
     uint32_t version = TABLE_FILE_CODE_VERSION;
     uint64_t h = fnv_bytes(0xcbf29ce484222325ull, &version, sizeof version);
     for (size_t i = 0; i < sizeof shaders / sizeof shaders[0]; i++) {
@@ -1073,10 +986,10 @@ static uint64_t table_code_hash(void)
     }
     ns_table_grid grid;
     ns_table_grid_default(&grid);
-    const float no_j[7] = {0};
+    const float no_j[6] = {0};
     for (int mode = 0; mode < 2; mode++) {
         GpuAccumulateParams p =
-            accumulate_params(&grid, no_j, NULL, (ns_accumulation)mode, NS_TABLE_NRHO, 0, 0);
+            accumulate_params(&grid, no_j, NULL, (ns_accumulation)mode, NS_TABLE_NRHO, 0);
         h = fnv_bytes(h, &p, sizeof p);
     }
     ns_nn_sampling sampling = ns_nn_sampling_default();
@@ -1123,18 +1036,14 @@ static table_file_header node_header(const ns_context *ctx, const ns_table_key *
 static int file_path(const ns_context *ctx, const table_file_header *h, char *path, size_t cap)
 {
     const char *mode = h->accumulation ? "paper" : "exact";
-    int n;
-    if (h->kind == TABLE_FILE_NODE)
-        n = snprintf(path, cap, "%s/node_%016llx_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
+    int n = snprintf(path, cap, "%s/node_%016llx_w%08x%08x_g%.9g_%s_%02u.bin", ctx->table_node_dir,
                      (unsigned long long)h->code_hash, h->weights_crc[0], h->weights_crc[1], h->g,
                      mode, h->node);
-    else
-        n = snprintf(path, cap, "%s/blur_unit_%016llx_%s.bin", ctx->table_node_dir,
-                     (unsigned long long)h->code_hash, mode);
     return n > 0 && (size_t)n < cap;
 }
 
-/* Whether a name in the folder is one of the table files (prune_table_files may remove it). */
+/* Whether a name in the folder is one of the table files (prune_table_files may remove it):
+ * blur_unit_* are the blurred first order's tables that earlier builds kept there. */
 static int is_table_file(const char *name)
 {
     size_t len = strlen(name);
@@ -1221,8 +1130,7 @@ static const char *read_file_problem(const char *path, const table_file_header *
              h.extent != want->extent)
         problem = "its grid is not the default grid";
     else if (h.kind != want->kind || h.tables != want->tables || h.node != want->node ||
-             h.accumulation != want->accumulation || h.g != want->g || h.albedo != want->albedo ||
-             h.input_hash != want->input_hash)
+             h.accumulation != want->accumulation || h.g != want->g || h.albedo != want->albedo)
         problem = "it holds another table";
     else if (memcmp(h.weights_crc, want->weights_crc, sizeof h.weights_crc) != 0)
         problem = "other networks made it";
@@ -1300,43 +1208,6 @@ static int load_node(ns_context *ctx, const ns_table_key *key, uint32_t node, ns
 static void save_node(ns_context *ctx, const ns_table_key *key, const cache_entry *e)
 {
     write_table_file(ctx, node_header(ctx, key, e->node), e->j);
-}
-
-/* The blur unit's header: its J (ns_blurred_spatial) is part of what made it. */
-static table_file_header blur_unit_header(ns_accumulation accumulation, float *blur_j)
-{
-    table_file_header h = file_header(TABLE_FILE_BLUR_UNIT, 1, accumulation);
-    h.input_hash = payload_hash(&blur_j, 1);
-    return h;
-}
-
-static int load_blur_unit(ns_context *ctx, ns_accumulation accumulation)
-{
-    if (!ctx->table_node_dir)
-        return 0;
-    float *blur_j = malloc(NS_TABLE_CELLS * sizeof(float));
-    float *unit = malloc(NS_TABLE_CELLS * sizeof(float));
-    int read = 0;
-    if (blur_j && unit) {
-        ns_blurred_spatial(blur_j);
-        table_file_header want = blur_unit_header(accumulation, blur_j);
-        read = read_table_file(ctx, &want, &unit);
-    }
-    free(blur_j);
-    if (!read) {
-        free(unit);
-        return 0;
-    }
-    ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER] = unit;
-    return 1;
-}
-
-/* The unit just made from blur_j, into the folder. */
-static void save_blur_unit(ns_context *ctx, ns_accumulation accumulation, float *unit,
-                           float *blur_j)
-{
-    if (ctx->table_node_dir)
-        write_table_file(ctx, blur_unit_header(accumulation, blur_j), &unit);
 }
 
 /* Makes the n (<= 3) nodes of key's g and accumulation listed in node[], one per channel of
@@ -1538,22 +1409,6 @@ static int interpolate_table(ns_context *ctx, const ns_table_key *key, ns_scatte
     return NS_OK;
 }
 
-/* A of a material's J (float [3][cells]) in key's mode into *a, and on the same walk the A
- * of second_j (the companion's J, or NULL) into *second_a and the unit blurred table when the
- * render running expects it and the context has none yet. */
-static int accumulate_table(ns_context *ctx, const ns_table_key *key, const float *j,
-                            const float *second_j, ns_scatter_tables *a,
-                            ns_scatter_tables *second_a, ns_error *err)
-{
-    int mode = key->accumulation == NS_ACCUMULATION_PAPER;
-    struct ns_table_cache *cache = ctx->tables;
-    if (cache->blur_expected[mode] == ctx->run.serial + 1 && !cache->blur_unit[mode] &&
-        !load_blur_unit(ctx, key->accumulation))
-        return make_blur_unit(ctx, key->accumulation, j, second_j, a, second_a, err);
-    return ns_tables_accumulate_parts(ctx, j, second_j, NULL, key->accumulation, a, second_a, NULL,
-                                      NULL, err);
-}
-
 /* The key that the render running will also ask for (ns_tables_expect_orders): key with
  * another of the announced order sets, not cached yet; 0 when there is none. Exact tables
  * only: an interpolated one is a blend, with no walk to share. The sets are the render's,
@@ -1571,29 +1426,6 @@ static int companion_key(ns_context *ctx, const ns_table_key *key, ns_table_key 
             return 1;
     }
     return 0;
-}
-
-/* The A of the blurred first order's spatial part, made once per mode: on a walk of its own
- * unless a material's accumulation made it on its way (accumulate_table). */
-static int blur_unit(ns_context *ctx, ns_accumulation accumulation, const float **out, double *ms,
-                     ns_error *err)
-{
-    float **slot = &ctx->tables->blur_unit[accumulation == NS_ACCUMULATION_PAPER];
-    if (!*slot) {
-        ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-        int status = NS_OK;
-        if (!load_blur_unit(ctx, accumulation)) {
-            ns_scatter_tables zeros;
-            status = make_blur_unit(ctx, accumulation, NULL, NULL, &zeros, NULL, err);
-            if (!status)
-                ns_scatter_tables_free(ctx, &zeros);
-        }
-        *ms += ns_stage_end(ctx, &stage);
-        if (status)
-            return status;
-    }
-    *out = *slot;
-    return NS_OK;
 }
 
 /* A host-cached view of a table's first `bytes`: its own mapping where that is host-cached
@@ -1634,75 +1466,6 @@ int ns_scatter_tables_read(ns_context *ctx, const ns_scatter_tables *t, float *o
         memcpy(out, host, bytes);
     gpu_buffer_destroy(&ctx->dev, &staging);
     return status;
-}
-
-/* A of a key with the blurred first order: A of the same key without it (from the cache or
- * made) plus, per channel, albedo * angular_g(theta) * the unit A (boundary.h says why). */
-static int compose_blurred(ns_context *ctx, const ns_table_key *key, ns_scatter_tables *out,
-                           ns_table_stats *stats, ns_error *err)
-{
-    size_t cells = NS_TABLE_CELLS;
-    uint64_t table_bytes = 3ull * cells * sizeof(float);
-    ns_table_key base = *key;
-    base.orders &= ~NS_TABLE_FIRST_BLURRED;
-    const ns_scatter_tables *base_tables = NULL;
-    int status = NS_OK;
-    if (base.orders) {
-        ns_table_stats inner;
-        status = ns_tables_get(ctx, &base, &base_tables, &inner, err);
-        stats->reconstruct_ms += inner.reconstruct_ms;
-        stats->accumulate_ms += inner.accumulate_ms;
-        stats->reconstructed |= inner.reconstructed;
-        stats->accumulated |= inner.accumulated;
-        stats->tables_made += inner.tables_made;
-        stats->tables_reused += inner.tables_reused;
-    }
-    const float *unit = NULL;
-    if (!status)
-        status = blur_unit(ctx, key->accumulation, &unit, &stats->accumulate_ms, err);
-    /* The base table is read, and the sum built, in host-cached memory: on a discrete GPU
-     * the tables' own mappings are uncached (reading one took seconds), so the base is first
-     * copied out on the device (host_readable). */
-    gpu_buffer a = {0}, staging = {0};
-    const float *base_host = NULL;
-    /* Read before anything is inserted: the base's entry may be evicted after. */
-    if (!status && base_tables)
-        status = host_readable(ctx, &base_tables->a, table_bytes, &staging, &base_host, err);
-    if (!status)
-        status = gpu_buffer_create(&ctx->dev, &a,
-                                   &(gpu_buffer_desc){.size = table_bytes, .uninitialized = 1,
-                                                      .label = "ns.tables.a"},
-                                   err);
-    float *scratch = NULL, *dst = status ? NULL : table_work_begin(&a, &scratch);
-    if (!status && !dst)
-        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for a sum");
-    if (!status) {
-        if (base_host)
-            memcpy(dst, base_host, table_bytes);
-        else
-            memset(dst, 0, table_bytes);
-    }
-    if (status) {
-        gpu_buffer_destroy(&ctx->dev, &staging);
-        gpu_buffer_destroy(&ctx->dev, &a);
-        return status;
-    }
-    double angular[NS_TABLE_NTHETA];
-    ns_blurred_angular(key->g, angular);
-    for (int c = 0; c < 3; c++) {
-        float per_theta[NS_TABLE_NTHETA];
-        for (uint32_t t = 0; t < NS_TABLE_NTHETA; t++)
-            per_theta[t] = (float)(key->albedo[c] * angular[t]);
-        float *channel = dst + c * cells;
-        for (size_t i = 0; i < cells; i++)
-            channel[i] += per_theta[(i / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[i];
-    }
-    table_work_end(&a, scratch);
-    gpu_buffer_destroy(&ctx->dev, &staging);
-    *out = (ns_scatter_tables){.a = a};
-    set_default_grid(out, table_bytes);
-    stats->accumulated = 1;
-    return NS_OK;
 }
 
 /* A made now (e->a) into the cache, kept out of the live-buffer count and counted as made;
@@ -1800,9 +1563,6 @@ static ns_tables_mode auto_mode(ns_context *ctx, const ns_table_key *key)
         return NS_TABLES_EXACT;
     if (find_a(cache, &blended))
         return NS_TABLES_INTERPOLATED;
-    /* The blurred first order alone is made from the unit table either way. */
-    if (!(key->orders & ~NS_TABLE_FIRST_BLURRED))
-        return NS_TABLES_EXACT;
     /* A material whose exact tables were chosen stays exact for every key it asks for later
      * (other orders, a correction first gathered in a later round), nodes or not. The ring
      * holds each material once. */
@@ -1924,9 +1684,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     cache_entry e = {.kind = ENTRY_A, .key = *key};
     cache_entry second = {.kind = ENTRY_A};
     float *j = NULL, *second_j = NULL;
-    if (key->orders & NS_TABLE_FIRST_BLURRED) {
-        status = compose_blurred(ctx, key, &e.a, stats, err);
-    } else if (key->tables == NS_TABLES_INTERPOLATED) {
+    if (key->tables == NS_TABLES_INTERPOLATED) {
         status = interpolate_table(ctx, key, &e.a, stats, err);
     } else {
         int paired = companion_key(ctx, key, &second.key);
@@ -1937,7 +1695,9 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
             status = sum_orders(ctx, &second.key, &second_j, err);
         if (!status) {
             ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
-            status = accumulate_table(ctx, key, j, second_j, &e.a, paired ? &second.a : NULL, err);
+            /* The companion's A on the same walk (accumulate_shared.h, the second three). */
+            status = ns_tables_accumulate_parts(ctx, j, second_j, key->accumulation, &e.a,
+                                                paired ? &second.a : NULL, NULL, err);
             stats->accumulate_ms = ns_stage_end(ctx, &stage);
             stats->accumulated = 1;
         }
@@ -1999,8 +1759,6 @@ void ns_tables_destroy(ns_context *ctx)
     if (ctx->tables) {
         while (ctx->tables->count)
             remove_entry(ctx, ctx->tables, ctx->tables->count - 1);
-        free(ctx->tables->blur_unit[0]);
-        free(ctx->tables->blur_unit[1]);
         free(ctx->tables->entries);
         free(ctx->tables);
         ctx->tables = NULL;

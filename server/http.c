@@ -1928,8 +1928,8 @@ static void make_context(http_server *srv, const char *device)
 {
     double t0 = ns_now_ms();
     ns_context_desc desc = {.device = device};
-    /* Monte Carlo tables for method "table", the albedo nodes of render.tables "interpolated"
-     * and the boundary walks' unit blurred table: cached on disk. */
+    /* Monte Carlo tables for method "table" and the albedo nodes of render.tables
+     * "interpolated": cached on disk. */
     ns_table_caches_attach(&desc);
     int rc = ns_context_create(&desc, &srv->ctx, &srv->ctx_err);
     if (rc) {

@@ -31,9 +31,9 @@
 // and a fixed short cut would lose it. The walk also stops where it leaves the table (J is 0
 // outside). Paper mode (cut.z = 5): the integral over the first 5 mfp only, no other cut.
 //
-// Binding 0 params, 1 J (16-byte texels: [cells] of the three channels and the extra one,
-// then [cells] of the second three where they are walked: accumulate_shared.h), 2 A out
-// (float[3][cells]), 3 counters, 4 the extra channel's A, 5 the second three's A.
+// Binding 0 params, 1 J (16-byte texels: [cells] of the three channels, then [cells] of the
+// second three where they are walked: accumulate_shared.h), 2 A out (float[3][cells]),
+// 3 counters, 4 the second three's A.
 //
 // Two shaders include this file: accumulate.comp (NS_ACCUMULATE_SECOND 0) and
 // accumulate_second.comp (1, the second three walked beside the rest). The default walk
@@ -50,15 +50,13 @@ layout(std140, binding = 0) uniform ParamBlock { GpuAccumulateParams ns_params[1
 #define params ns_params[NS_OPAQUE_ZERO] /* shared.h: NS_OPAQUE_ZERO */
 // J as a texel buffer: lavapipe fetches texels through its texture path, where a storage
 // buffer's per-lane reads are a loop over the lanes (docs/bench.md, *Texel buffers*). One
-// 16-byte texel per cell holds the three channels and the extra one (0 without it), so a
-// step reads one texel where it read one float per channel; the second three's texels
-// follow (accumulate_shared.h).
+// 16-byte texel per cell holds the three channels (and 0), so a step reads one texel where
+// it read one float per channel; the second three's texels follow (accumulate_shared.h).
 layout(binding = 1, rgba32ui) uniform readonly restrict uimageBuffer j_texels;
 vec4 j_at(uint i) { return uintBitsToFloat(imageLoad(j_texels, int(i))); }
 layout(std430, binding = 2) writeonly buffer ABlock { float a[]; };
 layout(std430, binding = 3) buffer CounterBlock { uint counters[]; };
-layout(std430, binding = 4) writeonly buffer ExtraBlock { float a_extra[]; };
-layout(std430, binding = 5) writeonly buffer SecondBlock { float a_second[]; };
+layout(std430, binding = 4) writeonly buffer SecondBlock { float a_second[]; };
 layout(push_constant) uniform PushBlock { GpuAccumulatePush ns_push[1]; };
 #define push ns_push[NS_OPAQUE_ZERO]
 
@@ -110,14 +108,13 @@ void count_steps(uint steps)
 }
 
 // A along the line from the centre of cell (iz, ir, it) in phi bin ip, its own phi phi
-// (inside the bin), of the three channels (xyz) and the extra one (w, 0 without it), and of
-// the second three (second_sum, 0 without them); steps: the bins it crossed; capped: it
-// stopped at the step cap.
+// (inside the bin), of the three channels, and of the second three (second_sum, 0 without
+// them); steps: the bins it crossed; capped: it stopped at the step cap.
 #if NS_ACCUMULATE_SECOND
-vec4 walk_line(int iz, int ir, int it, int ip, float phi, out vec3 second_sum, out uint steps,
+vec3 walk_line(int iz, int ir, int it, int ip, float phi, out vec3 second_sum, out uint steps,
                out bool capped)
 #else
-vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
+vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bool capped)
 #endif
 {
     float rho_lo = rho_edge(ir), rho_hi = rho_edge(ir + 1);
@@ -135,7 +132,6 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     float u_end = fixed_length ? params.cut.z : FAR;
     vec3 j_max = params.j_max.xyz;
     vec3 floor_abs = params.cut.y * j_max;
-    float extra_floor = params.cut.y * params.j_max.w; // the extra channel's, as its own walk's
 
     // The z-plane ahead is the bin's lower one while z decreases along the walk, else its
     // upper one.
@@ -149,16 +145,10 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
 
     // A line that never comes inside the radius from which J is 0 (counts.y, a rho bin edge)
     // meets only zeros: A is 0 without a walk, exactly what the walk would find, since it
-    // crosses a cylinder inward only where lo * lo > s2 (next_rho), with the same edges. The
-    // blurred first order's table is 0 beyond about 1.5 mfp: about 40% of its lines need no walk.
+    // crosses a cylinder inward only where lo * lo > s2 (next_rho), with the same edges.
     int zero_from = int(params.counts.y);
     float zero_edge = rho_edge(zero_from);
     bool meets_j = ir < zero_from || zero_edge * zero_edge > s2;
-    // The extra channel's own test, with its own radius.
-    bool has_extra = params.counts.w > 0u;
-    int extra_zero_from = max(int(params.counts.w) - 1, 0);
-    float extra_edge = rho_edge(extra_zero_from);
-    bool meets_extra = has_extra && (ir < extra_zero_from || extra_edge * extra_edge > s2);
 #if NS_ACCUMULATE_SECOND
     // The second three's own test, with their own radius.
     bool has_second = params.second.x > 0u;
@@ -168,18 +158,18 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         has_second && (ir < second_zero_from || second_edge * second_edge > s2);
     vec3 second_j_max = params.second_j_max.xyz;
     vec3 second_floor = params.cut.y * second_j_max;
-    bool meets_any = meets_j || meets_extra || meets_second;
+    bool meets_any = meets_j || meets_second;
     bool adding_second = meets_second;
     second_sum = vec3(0.0);
 #else
-    bool meets_any = meets_j || meets_extra;
+    bool meets_any = meets_j;
 #endif
     uint step_cap = meets_any ? params.counts.z : 0u;
     // Each part adds until its own cut is met (accumulate_shared.h).
-    bool adding_j = meets_j, adding_extra = meets_extra;
+    bool adding_j = meets_j;
 
     float u = 0.0, decay = 1.0; // decay = e^{-u}
-    vec4 sum = vec4(0.0);
+    vec3 sum = vec3(0.0);
     steps = 0u;
     capped = meets_any;
     while (steps < step_cap) {
@@ -198,12 +188,10 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         float decay_next = exp(-u_next);
         uint index = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *
                          NS_TABLE_NPHI + uint(ip);
-        vec4 jv = j_at(index);
+        vec3 jv = j_at(index).xyz;
         float weight = decay - decay_next;
         if (adding_j)
-            sum.xyz += jv.xyz * weight;
-        if (adding_extra)
-            sum.w += jv.w * weight;
+            sum += jv * weight;
 #if NS_ACCUMULATE_SECOND
         if (adding_second)
             second_sum += j_at(NS_TABLE_CELLS + index).xyz * weight;
@@ -217,20 +205,14 @@ vec4 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         }
         if (!fixed_length) {
             adding_j = adding_j &&
-                !all(lessThanEqual(decay * j_max, params.cut.x * (sum.xyz + floor_abs)));
-            // The extra channel also stops where nothing is left on the line: outside its
-            // radius and moving outwards (every rho ahead is at least this bin's inner edge),
-            // it reads only zeros, so what it holds is already its whole integral.
-            adding_extra = adding_extra &&
-                !(decay * params.j_max.w <= params.cut.x * (sum.w + extra_floor)) &&
-                !(ir >= extra_zero_from && rho_dir > 0);
+                !all(lessThanEqual(decay * j_max, params.cut.x * (sum + floor_abs)));
 #if NS_ACCUMULATE_SECOND
             adding_second = adding_second &&
                 !all(lessThanEqual(decay * second_j_max,
                                    params.cut.x * (second_sum + second_floor)));
-            if (!adding_j && !adding_extra && !adding_second) {
+            if (!adding_j && !adding_second) {
 #else
-            if (!adding_j && !adding_extra) {
+            if (!adding_j) {
 #endif
                 capped = false;
                 break;
@@ -284,7 +266,7 @@ void main()
     // The mean over the phi bin (accumulate_shared.h). phi is the slowest index of `order`,
     // so a whole group walks the same number of lines.
     uint lines = ns_accumulate_phi_lines(uint(ip));
-    vec4 sum = vec4(0.0);
+    vec3 sum = vec3(0.0);
     uint steps = 0u;
     bool capped = false;
 #if NS_ACCUMULATE_SECOND
@@ -307,8 +289,6 @@ void main()
     sum /= float(lines);
     for (uint c = 0u; c < 3u; c++)
         a[c * NS_TABLE_CELLS + cell] = sum[c];
-    if (params.counts.w > 0u)
-        a_extra[cell] = sum.w;
 #if NS_ACCUMULATE_SECOND
     second_sum /= float(lines);
     if (params.second.x > 0u)

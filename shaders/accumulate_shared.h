@@ -38,41 +38,30 @@
 /* Uniform block (binding 0). Kept under 256 bytes so the generic warm-up buffer covers it. */
 struct GpuAccumulateParams {
     ns_vec4 grid;    /* x = sinh scale (mfp), y = sinh step, z = extent (mfp), w = unused */
-    ns_vec4 j_max;   /* xyz: the largest J of each channel's table (bounds the remainder) */
+    ns_vec4 j_max;   /* xyz: the largest J of each channel's table (bounds the remainder), w 0 */
     ns_vec4 cut;     /* x = relative error allowed for the remainder, y = floor relative to
                         j_max (see accumulate.comp), z = fixed length (mfp, paper mode) or 0 */
     ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = the rho bin from
                         which J is 0 in every channel and cell (NS_TABLE_NRHO: none; a line
                         that never comes inside it meets only zeros, accumulate.comp),
-                        z = step cap per cell, w = 0, or 1 + the same rho bin of an extra
-                        channel walked beside the three (below) */
+                        z = step cap per cell, w = 0 */
     ns_vec4 second_j_max; /* xyz: the largest J of each channel of the second three (below) */
     ns_uvec4 second;      /* x = 0 (none), or 1 + the rho bin from which their J is 0; yzw 0 */
 };
-
-/* The extra channel. The blurred first order's spatial part (boundary.h) is a table of its
- * own that every material's blurred table is composed from, walked once per context: it
- * rides along the first material's walk instead of walking 53 M steps alone (the lines are
- * the same; only the J read and the sum are its own). Its J is the fourth float of each
- * cell's texel of J (below; 0 without it), j_max.w is its peak, and its A goes to binding 4
- * (a dummy when there is none). Each part stops where its own walk
- * would: the three channels stop adding when their cut is met, the extra one when its is,
- * and the walk ends when every part has, so each comes out bit for bit as its own walk
- * would make it (gpu_accumulate checks it). */
 
 /* The second three (shaders/accumulate_second.comp). A render may ask for two tables of
  * one material: of multiple scattering alone with boundary walks, its VRLs read multiple
  * scattering and the walks' sources after an event double + multiple (scatter.h,
  * ns_tables_expect_orders). Their lines are the same; only J differs. So one walk can make
- * both: J then holds a second texel per cell (below), the second A goes to binding 5 (a
- * dummy when there is none), and the second three stop adding where their own walk would,
- * so each table comes out bit for bit as its own walk would make it (gpu_accumulate checks
- * it).
+ * both: J then holds a second texel per cell (below), the second A goes to binding 4 (a
+ * dummy when there is none), and each set stops adding where its own walk would: the walk
+ * ends when both have, so each table comes out bit for bit as its own walk would make it
+ * (gpu_accumulate checks it).
  *
  * J's layout (binding 1, a texel buffer of 16-byte texels): texel i holds cell i of the three
- * channels and of the extra channel (0 without it), as four floats; with the second three,
- * texel NS_TABLE_CELLS + i holds their cell i (and 0). One texel fetch per step of the walk
- * reads every part it adds, where one float per channel took three or four: lavapipe pays
+ * channels (and 0), as four floats; with the second three, texel NS_TABLE_CELLS + i holds
+ * their cell i (and 0). One texel fetch per step of the walk reads the three channels,
+ * where one float per channel took three: lavapipe pays
  * for each fetch lane by lane (docs/rendering.md, *The accumulation*). The C side
  * interleaves the planes it is given (float [3][cells] per part, the .npy order). */
 

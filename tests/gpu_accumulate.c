@@ -13,7 +13,6 @@
  *       equals the binned J's integral along the camera line.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include "accumulate_shared.h"
-#include "boundary.h"
 #include "gpu_util.h"
 #include "scatter.h"
 
@@ -324,17 +323,39 @@ static void compare_skipped(const float *j, const char *what, uint64_t *steps_al
               NS_ERR_INVALID_ARGUMENT);
 }
 
-/* The blurred first order's table is 0 beyond ~1.5 mfp of the axis: the lines that stay
- * outside are not walked (about 40% of the lines), and A is what walking them gives. A table with light in its last
- * rho bin skips nothing. */
+/* One channel of J (float [cells]) near the axis only: light leaving the source along its
+ * axis and scattering once within a Gaussian tube 0.1 mfp wide, e^{-z} [z > 0] K(rho), as
+ * bin averages. 0 beyond about 1.5 mfp of the axis, where its Gaussian underflows. */
+static void tube_j(float *j)
+{
+    const double two_var = 2.0 * 0.1 * 0.1;
+    double along_z[NS_TABLE_NZ], across[NS_TABLE_NRHO];
+    for (uint32_t i = 0; i < NS_TABLE_NZ; i++) {
+        double z0 = fmax(grid.z[i], 0.0), z1 = fmax(grid.z[i + 1], 0.0);
+        along_z[i] = (exp(-z0) - exp(-z1)) / (grid.z[i + 1] - grid.z[i]);
+    }
+    for (uint32_t i = 0; i < NS_TABLE_NRHO; i++) {
+        double r0 = grid.rho[i], r1 = grid.rho[i + 1];
+        across[i] = (exp(-r0 * r0 / two_var) - exp(-r1 * r1 / two_var)) / (M_PI * (r1 * r1 - r0 * r0));
+    }
+    size_t at = 0;
+    for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
+        for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++)
+            for (uint32_t k = 0; k < NS_TABLE_NTHETA * NS_TABLE_NPHI; k++)
+                j[at++] = (float)(along_z[iz] * across[ir]);
+}
+
+/* A table that is 0 beyond ~1.5 mfp of the axis (tube_j): the lines that stay outside are
+ * not walked (about 40% of the lines), and A is what walking them gives. A table with light
+ * in its last rho bin skips nothing. */
 static void test_radial_support_skips_walks(void)
 {
     float *j = calloc(3 * cells, sizeof *j);
-    ns_blurred_spatial(j); /* channel 0 */
+    tube_j(j); /* channel 0 */
     for (size_t i = 0; i < cells; i++)
         j[2 * cells + i] = 0.5f * j[i]; /* channel 2 too; channel 1 stays 0 */
     uint64_t all = 0, skipped = 0;
-    compare_skipped(j, "blurred first order", &all, &skipped);
+    compare_skipped(j, "a tube near the axis", &all, &skipped);
     CHECK(skipped > 0 && skipped < all * 7 / 10);
     free(j);
 
@@ -821,6 +842,11 @@ static void test_bad_keys(void)
     key = nn_key;
     key.orders = NS_COMPONENT_SINGLE;
     CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    /* The blurred first order is computed in the gather: it has no table. */
+    key = nn_key;
+    key.orders |= NS_TABLE_FIRST_BLURRED;
+    CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "orders");
     key = nn_key;
     key.source = NS_METHOD_TABLE; /* test_context has no Monte Carlo provider */
     CHECK_INT(ns_tables_get(ctx, &key, &t, NULL, &err), NS_ERR_NOT_AVAILABLE);
@@ -890,114 +916,68 @@ static void bench(int n)
            median(synth, n), median(cpu, n), median(rate, n));
 }
 
-/* A of j (3 channels), of second (3 channels) and of extra (1 channel, as channel 0 of a
- * table of its own), each walked alone, against all walked together
- * (ns_tables_accumulate_parts): the same floats, bit for bit. second or extra may be NULL
- * (not both). extra_alone (may be NULL): a copy of extra's A walked alone (one channel). */
-static void compare_parts(const float *j, const float *second, const float *extra,
-                          ns_accumulation mode, const char *what, float **extra_alone)
+/* A of j and of second (3 channels each), each walked alone, against both walked together
+ * (ns_tables_accumulate_parts): the same floats, bit for bit. */
+static void compare_parts(const float *j, const float *second, ns_accumulation mode, const char *what)
 {
     ns_context *ctx = test_context();
     ns_error err = {0};
-    float *alone_j = extra ? calloc(3 * cells, sizeof(float)) : NULL;
-    if (alone_j)
-        memcpy(alone_j, extra, cells * sizeof(float));
-    float *extra_a = extra ? malloc(cells * sizeof(float)) : NULL;
-    ns_scatter_tables table, together, extra_table = {0}, second_alone = {0}, second_together = {0};
-    uint64_t steps_table = 0, steps_extra = 0, steps_second = 0, steps_together = 0;
+    ns_scatter_tables table, together, second_alone = {0}, second_together = {0};
+    uint64_t steps_table = 0, steps_second = 0, steps_together = 0;
     CHECK_INT(ns_tables_accumulate(ctx, j, mode, &table, &steps_table, &err), NS_OK);
-    if (extra)
-        CHECK_INT(ns_tables_accumulate(ctx, alone_j, mode, &extra_table, &steps_extra, &err),
-                  NS_OK);
-    if (second)
-        CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err),
-                  NS_OK);
-    int status = ns_tables_accumulate_parts(ctx, j, second, extra, mode, &together,
-                                            second ? &second_together : NULL, extra_a,
+    CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err), NS_OK);
+    int status = ns_tables_accumulate_parts(ctx, j, second, mode, &together, &second_together,
                                             &steps_together, &err);
     CHECK_INT(status, NS_OK);
     if (!status) {
         CHECK(memcmp(table.a.mapped, together.a.mapped, 3 * cells * sizeof(float)) == 0);
-        if (extra)
-            CHECK(memcmp(extra_table.a.mapped, extra_a, cells * sizeof(float)) == 0);
-        if (second)
-            CHECK(memcmp(second_alone.a.mapped, second_together.a.mapped,
-                         3 * cells * sizeof(float)) == 0);
-        if (extra && extra_alone && (*extra_alone = malloc(cells * sizeof(float))))
-            memcpy(*extra_alone, extra_table.a.mapped, cells * sizeof(float));
-        /* One walk covers all: at most the longest of them per line. */
-        CHECK(steps_together < steps_table + steps_extra + steps_second);
-        printf("%s (%s): %llu + %llu + %llu steps alone, %llu together; every part bit for bit\n",
-               what, mode == NS_ACCUMULATION_PAPER ? "paper" : "exact",
-               (unsigned long long)steps_table, (unsigned long long)steps_second,
-               (unsigned long long)steps_extra, (unsigned long long)steps_together);
+        CHECK(memcmp(second_alone.a.mapped, second_together.a.mapped, 3 * cells * sizeof(float)) ==
+              0);
+        /* One walk covers both: at most the longer of them per line. */
+        CHECK(steps_together < steps_table + steps_second);
+        printf("%s (%s): %llu + %llu steps alone, %llu together; both bit for bit\n", what,
+               mode == NS_ACCUMULATION_PAPER ? "paper" : "exact", (unsigned long long)steps_table,
+               (unsigned long long)steps_second, (unsigned long long)steps_together);
         ns_scatter_tables_free(ctx, &together);
         ns_scatter_tables_free(ctx, &second_together);
     }
     ns_scatter_tables_free(ctx, &table);
-    ns_scatter_tables_free(ctx, &extra_table);
     ns_scatter_tables_free(ctx, &second_alone);
-    free(alone_j);
-    free(extra_a);
 }
 
-/* The blurred first order's unit table and the second three ride along a material's walk
- * (accumulate_shared.h): each alone beside the three (the paths of a render of double +
- * multiple, and of a paired walk once the unit table exists) and all together, with light
- * everywhere and the other parts near the axis only, and the other way round (lines that
- * meet a part's light and not the table's); a J that is not finite or a missing output is
- * refused; through the cache, a render that expects the blurred order and two order sets
- * gets the unit table and the other set's table from the first accumulation, as walks of
- * their own make them. */
-static void test_extra_channel_rides_along(void)
+/* The second three ride along a material's walk (accumulate_shared.h), with light
+ * everywhere in the three and near the axis only in the second three (their own radius),
+ * and the other way round (lines that meet the second three's light and not the three's), in
+ * both modes; a J that is not finite or a missing output is refused; through the cache, a
+ * render that announces two order sets gets the other set's table from the first
+ * accumulation, as a walk of its own makes it. */
+static void test_second_three_ride_along(void)
 {
-    float *j = exponential_j(), *blur = malloc(cells * sizeof(float));
-    ns_blurred_spatial(blur);
-    /* The unit table walked alone, in both modes: what the cache must make below. */
-    float *unit_alone[2] = {NULL, NULL};
-    /* The second three: light near the axis only in one channel (their own radius), beside
-     * light everywhere, and the other way round. */
-    float *blur3 = calloc(3 * cells, sizeof(float)), *exp1 = malloc(cells * sizeof(float));
-    for (size_t i = 0; i < cells; i++) {
-        blur3[2 * cells + i] = blur[i];
-        exp1[i] = j[i];
-    }
-    compare_parts(j, NULL, blur, NS_ACCUMULATION_EXACT, "exponential J, blurred extra",
-                  &unit_alone[0]);
-    compare_parts(blur3, j, NULL, NS_ACCUMULATION_EXACT, "blurred J, exponential second", NULL);
-    compare_parts(j, blur3, blur, NS_ACCUMULATION_PAPER, "exponential J, blurred second and extra",
-                  &unit_alone[1]);
-    compare_parts(blur3, NULL, exp1, NS_ACCUMULATION_PAPER, "blurred J, exponential extra", NULL);
+    float *j = exponential_j(), *tube3 = calloc(3 * cells, sizeof(float));
+    tube_j(tube3 + 2 * cells); /* one channel near the axis, two dark */
+    compare_parts(j, tube3, NS_ACCUMULATION_EXACT, "exponential J, a tube second");
+    compare_parts(tube3, j, NS_ACCUMULATION_EXACT, "a tube J, exponential second");
+    compare_parts(j, tube3, NS_ACCUMULATION_PAPER, "exponential J, a tube second");
 
     ns_context *ctx = test_context();
     ns_error err = {0};
     ns_scatter_tables t, t2;
-    float *out = malloc(cells * sizeof(float));
-    exp1[cells / 2] = NAN;
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, NULL, exp1, NS_ACCUMULATION_EXACT, &t, NULL, out,
-                                         NULL, &err),
-              NS_ERR_INVALID_ARGUMENT);
-    CHECK(strstr(err.message, "J table") != NULL);
     float *bad3 = malloc(3 * cells * sizeof(float));
     memcpy(bad3, j, 3 * cells * sizeof(float));
     bad3[2 * cells + 7] = INFINITY;
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, bad3, NULL, NS_ACCUMULATION_EXACT, &t, &t2, NULL,
-                                         NULL, &err),
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, bad3, NS_ACCUMULATION_EXACT, &t, &t2, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(err.message, "J table") != NULL);
     free(bad3);
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, NULL, blur, NS_ACCUMULATION_EXACT, &t, NULL, NULL,
-                                         NULL, &err),
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, tube3, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, blur3, NULL, NS_ACCUMULATION_EXACT, &t, NULL, NULL,
-                                         NULL, &err),
-              NS_ERR_INVALID_ARGUMENT);
+    CHECK(strstr(err.message, "second three") != NULL);
     CHECK_INT(ns_tables_accumulate(ctx, NULL, NS_ACCUMULATION_EXACT, &t, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(err.message, "missing") != NULL);
 
-    /* Through the cache: a fresh context; without the hint an accumulation makes no unit
-     * table, after it the next one does. */
+    /* Through the cache: a fresh context whose first accumulation (double alone) reconstructs
+     * both orders' J. */
     ns_context *fresh = NULL;
     CHECK_INT(ns_context_create(&(ns_context_desc){0}, &fresh, &err), NS_OK);
     if (fresh) {
@@ -1005,20 +985,15 @@ static void test_extra_channel_rides_along(void)
         double_only.orders = NS_COMPONENT_DOUBLE;
         const ns_scatter_tables *first = NULL;
         CHECK_INT(ns_tables_get(fresh, &double_only, &first, NULL, &err), NS_OK);
-        CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT) == NULL);
-        ns_tables_expect_blurred(fresh, NS_ACCUMULATION_EXACT);
-        /* The render also reads multiple scattering alone (a walk's sources shifted by one
-         * event; the blurred bit is ignored): its table rides along as the second three. */
+        /* The render reads double + multiple and multiple scattering alone (a walk's sources
+         * shifted by one event; the blurred first order's bit, which has no table, is
+         * ignored): the second's table rides along as the second three. */
         ns_tables_expect_orders(fresh, nn_key.orders);
         ns_tables_expect_orders(fresh, NS_COMPONENT_MULTIPLE | NS_TABLE_FIRST_BLURRED);
         const ns_scatter_tables *got = NULL;
         ns_table_stats stats;
         CHECK_INT(ns_tables_get(fresh, &nn_key, &got, &stats, &err), NS_OK);
         CHECK_INT(stats.tables_made, 2); /* its A and the companion's; the J were there */
-        const float *unit = ns_tables_blurred_unit(fresh, NS_ACCUMULATION_EXACT);
-        CHECK(unit != NULL);
-        CHECK(ns_tables_blurred_unit(fresh, NS_ACCUMULATION_PAPER) == NULL);
-        CHECK(unit && unit_alone[0] && memcmp(unit_alone[0], unit, cells * sizeof(float)) == 0);
         ns_table_key multiple_only = nn_key;
         multiple_only.orders = NS_COMPONENT_MULTIPLE;
         CHECK_INT(ns_tables_get(fresh, &multiple_only, &got, &stats, &err), NS_OK);
@@ -1044,24 +1019,9 @@ static void test_extra_channel_rides_along(void)
             ns_scatter_tables_free(fresh, &own_walk);
         }
         free(j_multiple);
-        /* Without the hint a key that reads the blurred order makes the unit table on a walk
-         * of its own (paper mode here, whose walks are short): the same floats. */
-        ns_table_key blurred = nn_key;
-        blurred.orders |= NS_TABLE_FIRST_BLURRED;
-        blurred.accumulation = NS_ACCUMULATION_PAPER;
-        CHECK_INT(ns_tables_get(fresh, &blurred, &got, &stats, &err), NS_OK);
-        const float *paper_unit = ns_tables_blurred_unit(fresh, NS_ACCUMULATION_PAPER);
-        CHECK(paper_unit != NULL);
-        CHECK(paper_unit && unit_alone[1] &&
-              memcmp(unit_alone[1], paper_unit, cells * sizeof(float)) == 0);
         ns_context_destroy(fresh);
     }
-    free(unit_alone[0]);
-    free(unit_alone[1]);
-    free(out);
-    free(blur3);
-    free(exp1);
-    free(blur);
+    free(tube3);
     free(j);
 }
 
@@ -1077,7 +1037,7 @@ int main(void)
     }
     RUN(test_closed_form_exponential);
     RUN(test_radial_support_skips_walks);
-    RUN(test_extra_channel_rides_along);
+    RUN(test_second_three_ride_along);
     RUN(test_network_tables_brute_force);
     RUN(test_cache_hit_and_eviction);
     RUN(test_zero_albedo_costs_nothing);

@@ -13,19 +13,16 @@
  *   (d) a render with render.tables "interpolated" whose nodes are cached reconstructs
  *       nothing, and its image means are the exact path's within 0.5%;
  *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode;
- *   (f) nodes and the unit blurred table on disk (ns_context_desc.table_node_dir): a second
- *       context reads them instead of making them, bit for bit the same table; a corrupted file, a cut one and one that
- *       another version of the code made are each made again (and a changed blurred table),
- *       within the accumulation's cut
- *       of the first (and rewritten: a fourth context reads them, the blurred table's file
- *       keeps its inode); a bound on the folder keeps it within the bound, the least recently
- *       used first; a folder that cannot be written still gives the table;
+ *   (f) nodes on disk (ns_context_desc.table_node_dir): a second context reads them
+ *       instead of making them, bit for bit the same table, and does not rewrite their files
+ *       (each keeps its inode); a corrupted file, a cut one and one that another version of
+ *       the code made are each made again, within the accumulation's cut of the first (and
+ *       rewritten: a fourth context reads them, the corrupted file's new inode kept); a bound
+ *       on the folder keeps it within the bound, the least recently used first; a folder that
+ *       cannot be written still gives the table;
  *   (g) where a table's mapping is not host-cached (a discrete GPU's device memory; lavapipe
- *       pretends, gpu_device.pretend_uncached), the blend is built in host memory and the
- *       blurred table's base copied out on the device (gpu_copy_buffer) first: both come out
- *       as they do in place, a blend of both orders the sum of each alone made the usual way
- *       (1e-6), and the blurred table its base plus albedo x angular x the unit table, float
- *       for float;
+ *       pretends, gpu_device.pretend_uncached), the blend is built in host memory: a blend of
+ *       both orders comes out the sum of each alone made the usual way (1e-6);
  *   (h) render.tables "auto": exact for the first four albedos at a g, then a blend (the
  *       g's nodes made once), an exact table already made kept; with the nodes on disk, a
  *       blend from the first material; between renders (ns_context_idle_work), the nodes of
@@ -35,7 +32,6 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-#include "boundary.h"
 #include "gpu_util.h"
 #include "scatter.h"
 
@@ -198,8 +194,6 @@ static void test_uncached_mappings(void)
     ns_context *ctx = test_context();
     /* Albedos no other test asks for, between nodes 3-9 at g 0.7 (made above). */
     ns_table_key both = key_of(0.7f, 0.88f, 0.925f, 0.965f, NS_TABLES_INTERPOLATED);
-    ns_table_key blurred = both;
-    blurred.orders |= NS_TABLE_FIRST_BLURRED;
     ns_table_stats stats;
     const ns_scatter_tables *t = NULL;
     ns_error err = {0};
@@ -208,36 +202,23 @@ static void test_uncached_mappings(void)
     CHECK(t && !t->a.host_cached); /* the pretence holds: the blend took the host-memory path */
     CHECK(!stats.reconstructed && stats.tables_made == 1);
     float *blend = tables_copy(&both, &stats);
-    float *with_blur = tables_copy(&blurred, &stats); /* its base (the blend) copied out first */
     ctx->dev.pretend_uncached = 0;
     ns_table_key one[2] = {both, both};
     one[0].orders = NS_COMPONENT_DOUBLE;
     one[1].orders = NS_COMPONENT_MULTIPLE;
     float *parts[2] = {tables_copy(&one[0], &stats), tables_copy(&one[1], &stats)};
-    const float *unit = ns_tables_blurred_unit(ctx, NS_ACCUMULATION_EXACT);
-    CHECK(unit != NULL);
-    if (blend && with_blur && parts[0] && parts[1] && unit) {
-        double angular[NS_TABLE_NTHETA];
-        ns_blurred_angular(both.g, angular);
-        size_t off_by_blur = 0;
+    if (blend && parts[0] && parts[1]) {
         for (int c = 0; c < 3; c++) {
             double diff = 0, sum = 0;
-            float per_theta[NS_TABLE_NTHETA];
-            for (uint32_t k = 0; k < NS_TABLE_NTHETA; k++)
-                per_theta[k] = (float)(both.albedo[c] * angular[k]);
             for (size_t i = c * cells; i < (c + 1) * cells; i++) {
                 size_t cell = i % cells;
                 diff += cell_volume[cell] * fabs((double)parts[0][i] + parts[1][i] - blend[i]);
                 sum += cell_volume[cell] * blend[i];
-                float want = blend[i] + per_theta[(cell / NS_TABLE_NPHI) % NS_TABLE_NTHETA] * unit[cell];
-                off_by_blur += with_blur[i] != want;
             }
             CHECK(sum > 0 && diff < 1e-6 * sum);
         }
-        CHECK_INT(off_by_blur, 0);
     }
     free(blend);
-    free(with_blur);
     free(parts[0]);
     free(parts[1]);
 }
@@ -458,14 +439,12 @@ static uint64_t table_file_bytes(const char *dir)
 {
     char names[64][512];
     uint64_t total = 0;
-    for (int prefix = 0; prefix < 2; prefix++) {
-        int n = list_files(dir, prefix ? "blur_unit_" : "node_", names, 64);
-        for (int i = 0; i < n; i++) {
-            char path[1100];
-            snprintf(path, sizeof path, "%.500s/%.500s", dir, names[i]);
-            struct stat st;
-            total += stat(path, &st) == 0 ? (uint64_t)st.st_size : 0;
-        }
+    int n = list_files(dir, "node_", names, 64);
+    for (int i = 0; i < n; i++) {
+        char path[1100];
+        snprintf(path, sizeof path, "%.500s/%.500s", dir, names[i]);
+        struct stat st;
+        total += stat(path, &st) == 0 ? (uint64_t)st.st_size : 0;
     }
     return total;
 }
@@ -474,32 +453,28 @@ static void test_nodes_on_disk(void)
 {
     char dir[] = "/tmp/nscatter_nodes_XXXXXX";
     CHECK(mkdtemp(dir) != NULL);
-    /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches; with the blurred
-     * first order, whose unit table is kept beside them. The paper's accumulation, whose
+    /* One albedo in every channel: four nodes (3-6 at g 0.6), two batches. The paper's
+     * accumulation, whose
      * walks are short: what is stored and read is the same for both (the mode is part of
      * each file's name), and the exact one's nodes are held to the exact tables above; with
      * it this test took 41 s of the suite's time, 31 s now (alone, 2026-11-30). */
     ns_table_key key = key_of(0.6f, 0.9f, 0.9f, 0.9f, NS_TABLES_INTERPOLATED);
-    key.orders |= NS_TABLE_FIRST_BLURRED;
     key.accumulation = NS_ACCUMULATION_PAPER;
     int reconstructed = -1;
     float *made = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 1);
-    char names[8][512], blur[1][512];
+    char names[8][512];
     CHECK_INT(list_files(dir, "node_", names, 8), 4);
-    CHECK_INT(list_files(dir, "blur_unit_", blur, 1), 1);
-    CHECK(strstr(blur[0], "paper") != NULL);
-    char blur_path[1100];
-    snprintf(blur_path, sizeof blur_path, "%s/%s", dir, blur[0]);
-    ino_t blur_inode = inode_of(dir, blur[0]);
-    CHECK(blur_inode != 0);
+    CHECK(strstr(names[0], "paper") != NULL);
+    ino_t inode = inode_of(dir, names[0]);
+    CHECK(inode != 0);
 
-    /* Read, not made again: no reconstruction, and the blurred table's file is not rewritten
-     * (it would be, with a new inode, had it been made). */
+    /* Read, not made again: no reconstruction, and the files are not rewritten (they would
+     * be, with a new inode, had they been made). */
     float *read = from_context_with(dir, 0, &key, &reconstructed);
     CHECK_INT(reconstructed, 0);
     CHECK(made && read && memcmp(made, read, 3 * cells * sizeof(float)) == 0);
-    CHECK(inode_of(dir, blur[0]) == blur_inode);
+    CHECK(inode_of(dir, names[0]) == inode);
     free(read);
     /* render.tables "auto" in a new context blends where the nodes are on disk, from the
      * first material at their g: the same table, no reconstruction. */
@@ -516,8 +491,6 @@ static void test_nodes_on_disk(void)
     flip_bits(path, 5000000, 0x10);
     snprintf(path, sizeof path, "%s/%s", dir, names[1]);
     CHECK_INT(truncate(path, 1000000), 0);
-    /* The blur unit's data changed: made again (bit for bit: it has no batch). */
-    flip_bits(blur_path, 3000000, 0x20);
     /* A third made by another version of the code (its code hash, after the magic). */
     snprintf(path, sizeof path, "%s/%s", dir, names[3]);
     flip_bits(path, 8, 0x01);
@@ -525,11 +498,11 @@ static void test_nodes_on_disk(void)
     CHECK_INT(reconstructed, 1);
     CHECK(made && read && same_within_cut(made, read));
     free(read);
-    ino_t rewritten = inode_of(dir, blur[0]);
-    CHECK(rewritten != 0 && rewritten != blur_inode);
+    ino_t rewritten = inode_of(dir, names[0]);
+    CHECK(rewritten != 0 && rewritten != inode);
     read = from_context_with(dir, 0, &key, &reconstructed); /* all rewritten */
     CHECK_INT(reconstructed, 0);
-    CHECK(inode_of(dir, blur[0]) == rewritten);
+    CHECK(inode_of(dir, names[0]) == rewritten);
     free(read);
 
     /* A bound on the folder below what is there: the least recently used files go when the
@@ -542,7 +515,7 @@ static void test_nodes_on_disk(void)
     free(read);
 
     /* A folder that cannot be made (under a regular file): the table all the same (the
-     * exact path's, which writes the blurred table: one walk instead of two batches). */
+     * exact path's: one walk instead of two batches). */
     char blocked[1100];
     snprintf(blocked, sizeof blocked, "%s/%s/sub", dir, names[2]);
     ns_table_key exact = key;

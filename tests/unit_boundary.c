@@ -1,7 +1,6 @@
 /* unit_boundary.c — the host side of the boundary-crossing correction (render/boundary.c):
- *   - the blurred first-order table against its closed forms (energy a, mean depth 1 mfp,
- *     mean cosine g, radial spread 2 sigma^2), from its bin averages;
- *   - which table orders a source reads, for every components set and event count;
+ *   - which orders a source gives (the blurred first order, computed in the gather, and the
+ *     tables'), for every components set and event count;
  *   - the sources of a hand-made walk (entry, scattering, internal reflection, a grazing
  *     continuation): where, which sign, what power;
  *   - grouping by (orders, sign). */
@@ -11,55 +10,6 @@
 
 #include "boundary.h"
 #include "harness.h"
-
-static void test_blurred_table_moments(void)
-{
-    ns_table_grid grid;
-    ns_table_grid_default(&grid);
-    const double cases[][2] = {{0.9, 0.0}, {0.5, 0.8}, {0.99, -0.3}};
-    float *j = malloc(sizeof(float) * NS_TABLE_CELLS);
-    CHECK(j != NULL);
-    if (!j)
-        return;
-    for (size_t c = 0; c < sizeof cases / sizeof cases[0]; c++) {
-        double a = cases[c][0], g = cases[c][1];
-        ns_blurred_first_order((float)a, (float)g, j);
-        double energy = 0, z = 0, cos_theta = 0, rho2 = 0, below = 0;
-        size_t at = 0;
-        for (uint32_t iz = 0; iz < NS_TABLE_NZ; iz++)
-            for (uint32_t ir = 0; ir < NS_TABLE_NRHO; ir++) {
-                double z0 = grid.z[iz], z1 = grid.z[iz + 1], r0 = grid.rho[ir], r1 = grid.rho[ir + 1];
-                double volume = (z1 - z0) * M_PI * (r1 * r1 - r0 * r0);
-                for (uint32_t it = 0; it < NS_TABLE_NTHETA; it++) {
-                    double mu0 = cos(grid.theta[it]), mu1 = cos(grid.theta[it + 1]);
-                    for (uint32_t ip = 0; ip < NS_TABLE_NPHI; ip++, at++) {
-                        /* phi in [0, pi] stands for its mirror image too. */
-                        double omega = (mu0 - mu1) * 2.0 * (grid.phi[ip + 1] - grid.phi[ip]);
-                        double e = j[at] * volume * omega;
-                        energy += e;
-                        if (z1 <= 0)
-                            below += e;
-                        z += e * 0.5 * (z0 + z1);
-                        rho2 += e * 0.5 * (r0 * r0 + r1 * r1);
-                        cos_theta += e * 0.5 * (mu0 + mu1);
-                    }
-                }
-            }
-        z /= energy, cos_theta /= energy, rho2 /= energy;
-        double spread = 2 * NS_BOUNDARY_BLUR_MFP * NS_BOUNDARY_BLUR_MFP;
-        fprintf(stderr, "  a %.2f g %+.1f: energy %.6f, <z> %.4f, <cos> %.4f, <rho^2> %.4f (%.4f)\n", a, g,
-                energy, z, cos_theta, rho2, spread);
-        CHECK(fabs(energy / a - 1) < 1e-4);
-        CHECK(below == 0);
-        CHECK(fabs(z - 1) < 0.01);
-        /* Bin midpoints of 10-degree bins: the mean cosine within 0.01. */
-        CHECK(fabs(cos_theta - g) < 0.01);
-        /* The first rho bins are 0.056 mfp wide, about half the kernel's sigma: the ring
-         * midpoints put <rho^2> 6.5% high at sigma 0.1 (1.7% at 0.25). */
-        CHECK(fabs(rho2 / spread - 1) < 0.1);
-    }
-    free(j);
-}
 
 static void test_orders(void)
 {
@@ -374,7 +324,6 @@ static void test_roulette(void)
 int main(void)
 {
     RUN(test_roulette);
-    RUN(test_blurred_table_moments);
     RUN(test_orders);
     RUN(test_sources_of_a_walk);
     RUN(test_sources_with_ends);

@@ -433,7 +433,7 @@ typedef struct ns_context_desc {
     uint64_t table_cache_bytes;       /* bound on cached tables; 0: 1 GiB */
     /* Folder where tables that outlive a material are kept between processes, checked on
      * every read (e.g. ns_cache_dir's): the albedo nodes of interpolated tables
-     * (render.tables) and the unit blurred table of boundary walks. NULL or "": memory only.
+     * (render.tables). NULL or "": memory only.
      * Their files there are kept within table_dir_bytes (0: 2 GiB), the least recently used
      * removed first. */
     const char *table_node_dir;
