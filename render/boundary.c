@@ -27,7 +27,8 @@
  *     hero channel the walk draws, the walk's beam and F e^{-s L} times the stretch's flux
  *     have the same expectation per channel).
  * Sources are endless beams: each is the infinite medium's continuation, and the walk
- * itself accounts for where it ends.
+ * itself accounts for where it ends. (A reflected or re-entered beam keeps its stretch's
+ * length, which only narrows its first order's tube.)
  *
  * Which table a source reads follows from its events k and the components asked for: its
  * light's next events are orders k + 1 (the first scattering on the camera segment of
@@ -102,8 +103,9 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
         int expected = ends && events_of(v) == 0;
         if ((link == NS_BOUNDARY_LINK_REFLECTED && !expected) ||
             link == NS_BOUNDARY_LINK_REENTERED) {
+            /* Endless for the tables; its length, the chord to the boundary ahead, sets the
+             * width of its first order's tube (scatter_shared.h, NS_FIRST_BLUR_PER_CHORD). */
             GpuVrl r = *v;
-            r.length = 0.0f;
             r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
             out[n++] = r;
         }

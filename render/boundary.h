@@ -6,14 +6,16 @@
 
 #include "scatter.h"
 
-/* Standard deviation (mfp) of the blurred first order's radial kernel: light that
- * leaves a source unscattered meets a camera segment (a line) with probability zero, so its
- * first scattering there is spread over a narrow tube, like the beam x beam blur of photon
- * beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). Computed exactly in the gather
+/* Standard deviation (mfp) of the blurred first order's radial kernel, at its widest: light
+ * that leaves a source unscattered meets a camera segment (a line) with probability zero, so
+ * its first scattering there is spread over a narrow tube, like the beam x beam blur of
+ * photon beams (shared/boundary/README.md: r ~ 0.25-0.5 mfp). Computed exactly in the gather
  * (gather.glsl, first_order), 0.2 instead of 0.1 took the bumpy sphere's full image up 0.46
  * dB and the candle's 0.10 dB, but the milk's down 0.46 dB and the bunny's 0.28 dB: more of
  * the tube lies outside their thin parts (docs/bench.md, *The blurred first order
- * computed*). */
+ * computed*). Around a short chord the tube is narrower (scatter_shared.h,
+ * NS_FIRST_BLUR_PER_CHORD): 0.1 everywhere read a 0.6-mfp refracting sphere's multiple
+ * scattering 38-51% high, 0.01 everywhere cost the bumpy sphere's full image 3 dB. */
 #define NS_BOUNDARY_BLUR_MFP 0.1
 
 /* How many sources the gather takes (ns_boundary_floor): as many as VRLs, and at least
@@ -44,7 +46,9 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
  * ghost (negative power) at the end of every stretch, except the entry stretch's unless
  * entry_ghosts (the renderer asks for them: they are its endless VRLs' beams past their
  * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam for
- * the light the boundary reflects back, all endless (length 0). That beam is the walk's own,
+ * the light the boundary reflects back, all endless for the tables (ghosts and expected
+ * reflections have length 0; the walk's own reflected and re-entered beams keep their
+ * stretch's length, the chord that narrows their first order's tube). That beam is the walk's own,
  * at the start of every stretch that begins with an internal reflection, except for light
  * that has not scattered yet when ends are given (ns_vrl_set.ends: per stretch, the mirror
  * direction and the Fresnel reflectance at its end): then it is its expectation, at the end

@@ -219,19 +219,25 @@ float erfcx_positive(float x)
 // One channel of a source's first order seen along a segment: the integral over t in [0, L]
 // (with z(t) = z0 + c t > 0) of e^{-s t} e^{-s z(t)} K(rho(t)), K the tube's normalised
 // Gaussian of standard deviation b, on the segment x0 + t d of a source at o along u, where
-// rho^2(t) = C + 2 B t + A t^2 (A = sin^2 theta). The exponent is quadratic in t: its
-// Gaussian integrates in closed form (erf, scaled by its largest value within the range so
-// that nothing overflows), and where the Gaussian hardly bends over the range (lines nearly
-// parallel) the exponent is taken as the secant between the range's ends.
+// rho^2(t) = |r0 + t r1|^2 = C + 2 B t + A t^2 (r0, r1: the offset's and the direction's
+// parts across u; A = sin^2 theta). The exponent is quadratic in t: its Gaussian integrates
+// in closed form (erf, scaled by its largest value within the range so that nothing
+// overflows), and where the Gaussian hardly bends over the range (lines nearly parallel) the
+// exponent is taken as the secant between the range's ends. rho^2 is taken from the vector
+// at each point where it is read: C + 2 B t + A t^2 near the closest approach is a
+// difference of terms the size of the offset's square, whose float rounding a tube a
+// hundredth of that wide reads as a 1% error (gpu_gather's narrow tubes).
 // gpu_gather checks it against a quadrature of the definition.
-float first_order_channel(float z0, float c, float A, float B, float C, float lo, float hi, float s, float b)
+float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1, float lo, float hi,
+                          float s, float b)
 {
     if (!(s > 0.0 && b > 0.0))
         return 0.0; // a channel without extinction scatters nothing (its tube would be 0 wide)
     float two_b2 = 2.0 * b * b;
     float k = sqrt(A / two_b2), span = hi - lo;
-    float e_lo = -s * (lo + z0 + c * lo) - max(C + (2.0 * B + A * lo) * lo, 0.0) / two_b2;
-    float e_hi = -s * (hi + z0 + c * hi) - max(C + (2.0 * B + A * hi) * hi, 0.0) / two_b2;
+    vec3 q_lo = r0 + lo * r1, q_hi = r0 + hi * r1;
+    float e_lo = -s * (lo + z0 + c * lo) - dot(q_lo, q_lo) / two_b2;
+    float e_hi = -s * (hi + z0 + c * hi) - dot(q_hi, q_hi) / two_b2;
     if (k * span < 1e-2) {
         float top = max(e_lo, e_hi), drop = min(e_lo, e_hi) - top;
         float g = drop > -1e-4 ? span : span * (1.0 - exp(drop)) / -drop;
@@ -250,7 +256,8 @@ float first_order_channel(float z0, float c, float A, float B, float C, float lo
         t_top = centre;
         bracket = 2.0 - exp(-u_hi * u_hi) * erfcx_positive(u_hi) - exp(-u_lo * u_lo) * erfcx_positive(-u_lo);
     }
-    float e_top = -s * (t_top + z0 + c * t_top) - max(C + (2.0 * B + A * t_top) * t_top, 0.0) / two_b2;
+    vec3 q_top = r0 + t_top * r1;
+    float e_top = -s * (t_top + z0 + c * t_top) - dot(q_top, q_top) / two_b2;
     return exp(e_top) * 0.5 * sqrt(PI) / k * max(bracket, 0.0) / (PI * two_b2);
 }
 
@@ -262,12 +269,17 @@ float first_order_channel(float z0, float c, float A, float B, float C, float lo
 // across a tube narrower than the first rho bins: at g 0.9 the reads missed their
 // definition by factors of 0.3 to 2 (gpu_gather), and light reflected inside a thin object
 // before it scattered read 2% high in single scattering, its multiple scattering 54% high
-// (docs/bench.md, *The blurred first order computed*).
+// (docs/bench.md, *The blurred first order computed*). The source's line is endless here too
+// (its chord, v.len where known, sets the tube's width only): past the chord's end it leaves
+// a convex object, and the ghost that would take that part away keeps no first order
+// (boundary.c); cutting the line at the chord's end moved a thin sphere's multiple
+// scattering by 3 points where the tube's width moved it by 30.
 vec3 first_order(Vrl v, GpuSegment seg)
 {
     vec3 d = seg.direction, u = v.direction, off = seg.entry - v.origin;
     float z0 = dot(off, u), c = dot(d, u);
-    float A = max(1.0 - c * c, 0.0), B = dot(off, d) - z0 * c, C = max(dot(off, off) - z0 * z0, 0.0);
+    vec3 r0 = off - z0 * u, r1 = d - c * u; // across the source's line
+    float A = max(1.0 - c * c, 0.0), B = dot(r0, r1), C = dot(r0, r0);
     float lo = 0.0, hi = distance(seg.entry, seg.exit);
     if (c > 0.0)
         lo = max(lo, -z0 / c);
@@ -275,17 +287,21 @@ vec3 first_order(Vrl v, GpuSegment seg)
         hi = min(hi, -z0 / c);
     else if (z0 <= 0.0)
         return vec3(0.0);
+    // The tube: narrower around a short chord (scatter_shared.h, NS_FIRST_BLUR_PER_CHORD).
+    vec3 b = params.first_blur.xyz;
+    if (v.len > 0.0)
+        b = clamp(vec3(NS_FIRST_BLUR_PER_CHORD * v.len), NS_FIRST_BLUR_FLOOR * b, b);
     // Nothing within ~9 tubes' widths of the line in any channel: nothing to add.
-    float b_max = max(params.first_blur.x, max(params.first_blur.y, params.first_blur.z));
+    float b_max = max(b.x, max(b.y, b.z));
     float closest = A > 1e-8 ? C - B * B / A : C;
     if (!(hi > lo) || closest > 80.0 * b_max * b_max)
         return vec3(0.0);
     float g = params.first_order.w, cos_theta = -c; // emitted towards the camera
     float phase = (1.0 - g * g) / (4.0 * PI * pow(max(1.0 + g * g - 2.0 * g * cos_theta, 1e-12), 1.5));
-    vec3 s = params.sigma_t.xyz, b = params.first_blur.xyz;
-    vec3 value = vec3(first_order_channel(z0, c, A, B, C, lo, hi, s.x, b.x),
-                      first_order_channel(z0, c, A, B, C, lo, hi, s.y, b.y),
-                      first_order_channel(z0, c, A, B, C, lo, hi, s.z, b.z));
+    vec3 s = params.sigma_t.xyz;
+    vec3 value = vec3(first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.x, b.x),
+                      first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.y, b.y),
+                      first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.z, b.z));
     return v.power * params.first_order.xyz * s * phase * value;
 }
 #endif

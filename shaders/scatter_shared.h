@@ -82,7 +82,8 @@ struct GpuGatherParams {
     ns_vec4 dipole_alpha;    /* xyz = reduced albedo alpha' per channel; w = unused */
     ns_vec4 first_order;     /* with the first order: xyz = albedo per channel; w = g */
     ns_vec4 first_blur;      /* xyz = the first order's tube's standard deviation per channel
-                                (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t); w = 1 when the form
+                                (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t), the widest (a
+                                source's chord narrows it: NS_FIRST_BLUR_PER_CHORD); w = 1 when the form
                                 computes the first order (ns_gather_params_first), which picks
                                 its shader (ns_gather_pipeline) */
 };
@@ -106,6 +107,18 @@ NS_CONST(uint, NS_GATHER_MODE_DIPOLE, 2);
 /* The blurred first order of boundary sources (render/boundary.h), computed per source and
  * segment instead of read from a table (gather.glsl, first_order). */
 NS_CONST(uint, NS_GATHER_MODE_FIRST, 3);
+
+/* The first order's tube around a source whose chord is known (a reflected or re-entered
+ * beam: GpuVrl.length, the stretch to the boundary ahead) is at most this fraction of the
+ * chord wide, and at least NS_FIRST_BLUR_FLOOR of first_blur (0.01 mfp): the blur's bias
+ * grows with its width against the object's (a tube a third of a thin sphere's radius read
+ * its multiple scattering 38-51% high; 0.01 mfp everywhere fixed that, but cost the bumpy
+ * sphere's full image 3 dB), its noise as it narrows, where a camera segment runs close
+ * and nearly parallel to a source (the floor bounds a grazing chord's spike; the oil's
+ * multiple-only image still spikes on 2 seeds of 8). docs/bench.md, *The oil placed: the
+ * first order's tube*. */
+#define NS_FIRST_BLUR_PER_CHORD 0.03
+#define NS_FIRST_BLUR_FLOOR 0.1
 
 /* The paper's accumulated length (mfp) for NS_GATHER_MODE_PAPER. */
 NS_CONST(uint, NS_PAPER_ACCUMULATION_MFP, 5);
