@@ -27,8 +27,8 @@
  *     hero channel the walk draws, the walk's beam and F e^{-s L} times the stretch's flux
  *     have the same expectation per channel).
  * Sources are endless beams: each is the infinite medium's continuation, and the walk
- * itself accounts for where it ends. (A reflected or re-entered beam keeps its stretch's
- * length, which only narrows its first order's tube.)
+ * itself accounts for where it ends. (A reflected or re-entered beam, and the ghost at its
+ * stretch's end, keep the stretch's length, which only narrows their first order's tube.)
  *
  * Which table a source reads follows from its events k and the components asked for: its
  * light's next events are orders k + 1 (the first scattering on the camera segment of
@@ -104,7 +104,8 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
         if ((link == NS_BOUNDARY_LINK_REFLECTED && !expected) ||
             link == NS_BOUNDARY_LINK_REENTERED) {
             /* Endless for the tables; its length, the chord to the boundary ahead, sets the
-             * width of its first order's tube (scatter_shared.h, NS_FIRST_BLUR_PER_CHORD). */
+             * width of its first order's tube (scatter_shared.h, NS_FIRST_BLUR_PER_CHORD), as
+             * the ghost's at that chord's end does for the ghost (below). */
             GpuVrl r = *v;
             r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
             out[n++] = r;
@@ -115,9 +116,11 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
         if (!(v->length > 0.0f) || continued)
             continue;
         const float *st = materials[v->material].sigma_t;
+        /* Its length stays the stretch's: where the ghost keeps its first order (a line that
+         * returns into its medium), its tube must be the one of the beam it cancels past the
+         * chord's end (gather.glsl, first_order). */
         GpuVrl ghost = *v;
         end_of(v, ghost.origin);
-        ghost.length = 0.0f;
         float largest = 0.0f;
         for (int c = 0; c < 3; c++) {
             ghost.power[c] = -expf(-st[c] * v->length) * v->power[c];
@@ -138,6 +141,8 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
         const float *end = expected ? ends + 4 * (size_t)i : NULL;
         if (end && end[3] > 0.0f) {
             GpuVrl reflected = ghost;
+            /* Its chord (along the mirror direction) is unknown here: the widest tube. */
+            reflected.length = 0.0f;
             for (int c = 0; c < 3; c++) {
                 reflected.direction[c] = end[c];
                 reflected.power[c] = -end[3] * ghost.power[c];

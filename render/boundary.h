@@ -46,9 +46,9 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
  * ghost (negative power) at the end of every stretch, except the entry stretch's unless
  * entry_ghosts (the renderer asks for them: they are its endless VRLs' beams past their
  * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam for
- * the light the boundary reflects back, all endless for the tables (ghosts and expected
- * reflections have length 0; the walk's own reflected and re-entered beams keep their
- * stretch's length, the chord that narrows their first order's tube). That beam is the walk's own,
+ * the light the boundary reflects back, all endless for the tables (their length is the
+ * stretch's, the chord that narrows their first order's tube, or 0 for an expected
+ * reflection, whose chord is not known: the widest tube). That beam is the walk's own,
  * at the start of every stretch that begins with an internal reflection, except for light
  * that has not scattered yet when ends are given (ns_vrl_set.ends: per stretch, the mirror
  * direction and the Fresnel reflectance at its end): then it is its expectation, at the end

@@ -271,15 +271,18 @@ float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1,
 // before it scattered read 2% high in single scattering, its multiple scattering 54% high
 // (docs/bench.md, *The blurred first order computed*). The source's line is endless here too
 // (its chord, v.len where known, sets the tube's width only): past the chord's end it leaves
-// a convex object, and the ghost that would take that part away keeps no first order
-// (boundary.c); cutting the line at the chord's end moved a thin sphere's multiple
-// scattering by 3 points where the tube's width moved it by 30.
+// a convex object, and the ghost that would take that part away keeps no first order there
+// (boundary.c; where the line returns into its medium the ghost keeps it, with the same
+// chord and so the same tube); cutting the line at the chord's end moved a thin sphere's
+// multiple scattering by 3 points where the tube's width moved it by 30. An expected
+// reflection of unscattered light (length 0) keeps the widest tube.
 vec3 first_order(Vrl v, GpuSegment seg)
 {
     vec3 d = seg.direction, u = v.direction, off = seg.entry - v.origin;
     float z0 = dot(off, u), c = dot(d, u);
     vec3 r0 = off - z0 * u, r1 = d - c * u; // across the source's line
-    float A = max(1.0 - c * c, 0.0), B = dot(r0, r1), C = dot(r0, r0);
+    // A from the vector too: 1 - c^2 loses a tenth of itself to rounding at A ~ 1e-6.
+    float A = dot(r1, r1), B = dot(r0, r1), C = dot(r0, r0);
     float lo = 0.0, hi = distance(seg.entry, seg.exit);
     if (c > 0.0)
         lo = max(lo, -z0 / c);

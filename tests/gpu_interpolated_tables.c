@@ -15,7 +15,7 @@
  *   (e) keys and scenes refused: interpolated with method table or pt, an unknown mode;
  *   (f) nodes on disk (ns_context_desc.table_node_dir): a second context reads them
  *       instead of making them, bit for bit the same table, and does not rewrite their files
- *       (each keeps its inode); a corrupted file, a cut one and one that another version of
+ *       (the first keeps its inode); a corrupted file, a cut one and one that another version of
  *       the code made are each made again, within the accumulation's cut of the first (and
  *       rewritten: a fourth context reads them, the corrupted file's new inode kept); a bound
  *       on the folder keeps it within the bound, the least recently used first; a folder that
