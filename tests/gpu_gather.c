@@ -502,6 +502,20 @@ static GpuSegment *segments_near(const ns_vrl_grid *grid, uint32_t sources, uint
     return segs;
 }
 
+/* Random boundary sources (random_grid of that seed), their lengths (chords) chords[i % 4], or
+ * all endless (0) where chords is NULL. */
+static void source_grid(ns_vrl_grid *grid, uint32_t sources, uint32_t seed, const float *chords)
+{
+    random_grid(grid, sources, seed);
+    for (uint32_t i = 0; i < sources; i++)
+        grid->vrls[i].length = chords ? chords[i % 4] : 0.0f;
+}
+
+/* Chords of every class for test_material's extinctions 3, 5, 8: endless, as an expected
+ * reflection is; long (the widest tube: 0.03 x 2 > 0.1 / 3); short (narrower in two
+ * channels); very short (the floor in two). */
+static const float every_chord[4] = {0.0f, 2.0f, 0.5f, 0.05f};
+
 /* The first-order form against the quadrature of its definition, within 5e-3 of each value
  * (or of 1e-6 of the largest: the Gaussian's far tails), at g 0.9 (a narrow lobe, as the
  * oil's). Read from the composed table instead, the same sums came to a third of these.
@@ -514,12 +528,7 @@ static void test_first_order(void)
     GpuMaterial m = test_material();
     m.sigma_s[3] = 0.9f;
     ns_vrl_grid grid;
-    random_grid(&grid, SOURCES, 2);
-    /* Endless, as an expected reflection is; a long chord (the widest tube: 0.03 x 2 > 0.1 / 3); a
-     * short one (narrower in two channels); a very short one (the floor in two). */
-    const float chords[4] = {0.0f, 2.0f, 0.5f, 0.05f};
-    for (uint32_t i = 0; i < SOURCES; i++)
-        grid.vrls[i].length = chords[i % 4];
+    source_grid(&grid, SOURCES, 2, every_chord);
     /* Segments near the very short chord's tubes (0.0015-0.0033 wide) pass closer. */
     const float miss[4] = {0.03f, 0.03f, 0.03f, 0.005f};
     GpuSegment *segs = segments_near(&grid, SOURCES, SEGMENTS, miss);
@@ -587,9 +596,7 @@ static void test_first_order_within_the_loop_budget(void)
     enum { SOURCES = 30000, SEGMENTS = 64 };
     GpuMaterial m = test_material();
     ns_vrl_grid grid;
-    random_grid(&grid, SOURCES, 3);
-    for (uint32_t i = 0; i < SOURCES; i++)
-        grid.vrls[i].length = 0.0f;
+    source_grid(&grid, SOURCES, 3, NULL);
     GpuSegment *segs = segments_near(&grid, SOURCES, SEGMENTS, NULL);
     gpu_buffer out = {0};
     ns_gather_counts counts;
@@ -606,7 +613,8 @@ static void test_first_order_within_the_loop_budget(void)
 
 /* The default form with the first order in its walk (gather_exact_first.comp) equals the
  * default form's walk with the first order's own walk added to it (ns_gather_desc.add, the
- * path of the paper's accumulation), within float rounding. */
+ * path of the paper's accumulation), within float rounding, for sources of every chord: both
+ * narrow the tube alike, and the table's part reads the sources as endless either way. */
 static void test_first_order_in_the_default_walk(void)
 {
     enum { SOURCES = 8, SEGMENTS = 128 };
@@ -614,9 +622,7 @@ static void test_first_order_in_the_default_walk(void)
     ns_error err = {0};
     GpuMaterial m = test_material();
     ns_vrl_grid grid;
-    random_grid(&grid, SOURCES, 2);
-    for (uint32_t i = 0; i < SOURCES; i++)
-        grid.vrls[i].length = 0.0f;
+    source_grid(&grid, SOURCES, 2, every_chord);
     GpuSegment *segs = segments_near(&grid, SOURCES, SEGMENTS, NULL);
     smooth_table = 1;
     float *table = random_table();
