@@ -460,7 +460,7 @@ static double table_value(const float *a, const double p[3], const double w[3], 
 
 /* The A table's value at point p read between cell centres as the gather reads it
  * (shaders/gather.glsl table_at, written here independently in double): linear in the
- * continuous asinh index of z and rho and in cos theta between the centres, on Kuhn's
+ * continuous asinh index of z and rho and in theta between the centres, on Kuhn's
  * tetrahedra, held beyond the first and last centres, phi at the nearest bin. */
 static double table_value_between(const float *a, const double p[3], const double w[3])
 {
@@ -477,8 +477,7 @@ static double table_value_between(const float *a, const double p[3], const doubl
     double cos_theta = fmax(-1.0, fmin(1.0, w[2])), step = M_PI / NS_TABLE_NTHETA;
     double ft = acos(cos_theta) / step - 0.5;
     int it = ft <= 0 ? 0 : ft >= NS_TABLE_NTHETA - 2 ? NS_TABLE_NTHETA - 2 : (int)ft;
-    double c0 = cos((it + 0.5) * step), c1 = cos((it + 1.5) * step);
-    double tt = fmin(fmax((cos_theta - c0) / (c1 - c0), 0.0), 1.0);
+    double tt = fmin(fmax((acos(cos_theta) - (it + 0.5) * step) / step, 0.0), 1.0);
     double wh = hypot(w[0], w[1]);
     double cos_phi = rho > 0 && wh > 0 ? (w[0] * p[0] + w[1] * p[1]) / (wh * rho) : 1.0;
     int ip = angle_bin(acos(fmax(-1.0, fmin(1.0, cos_phi))));

@@ -13,8 +13,8 @@ static float dot3(const float *a, const float *b) { return a[0] * b[0] + a[1] * 
 static float clampf(float v, float lo, float hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* gather.glsl's theta_row: the lower of the two theta rows around w seen from axis d and the
- * weight of the upper one, linear in cos theta between the bins' centres, held beyond the
- * first and last. */
+ * weight of the upper one, linear in theta between the bins' centres (theta - theta_i from
+ * its sine and a series for asin), held beyond the first and last. */
 static uint32_t theta_row(const float *w, const float *d, float *t)
 {
     const float bins_per_radian = (float)NS_TABLE_NTHETA / 3.14159265358979f;
@@ -23,9 +23,11 @@ static uint32_t theta_row(const float *w, const float *d, float *t)
     uint32_t i = (uint32_t)fmaxf(f, 0.0f);
     if (i > NS_TABLE_NTHETA - 2)
         i = NS_TABLE_NTHETA - 2;
-    float c0 = cosf(((float)i + 0.5f) / bins_per_radian);
-    float c1 = cosf(((float)i + 1.5f) / bins_per_radian);
-    *t = clampf((cos_theta - c0) / (c1 - c0), 0.0f, 1.0f);
+    float theta_i = ((float)i + 0.5f) / bins_per_radian;
+    float sin_theta = sqrtf(fmaxf(1.0f - cos_theta * cos_theta, 0.0f));
+    float x = sin_theta * cosf(theta_i) - cos_theta * sinf(theta_i), x2 = x * x;
+    float past_i = x * (1.0f + x2 * (1.0f / 6.0f + x2 * (3.0f / 40.0f + x2 * (5.0f / 112.0f))));
+    *t = clampf(past_i * bins_per_radian, 0.0f, 1.0f);
     return i * NS_TABLE_NPHI;
 }
 
