@@ -72,12 +72,16 @@ static void camera_params(const ns_camera *c, GpuParams *p)
 }
 
 /* The flag bits every primitive of material m carries: shadow rays cross the boundary of an
- * index-matched medium (with its Beer-Lambert factor) and stop at anything else, so the
- * shaders' any-hit query (trace.glsl's trace_shadow) must know which is which. */
+ * index-matched medium (with its Beer-Lambert factor), single scattering's cross a
+ * refracting one too (common.glsl, SHADOW_THROUGH_REFRACTING), and they stop at diffuse
+ * surfaces, so the shaders' any-hit query (trace.glsl's trace_shadow) must know which is
+ * which. */
 static uint32_t material_flags(const ns_scene *s, uint32_t m)
 {
     const ns_material *mat = &s->materials[m];
-    return mat->type == NS_MATERIAL_MEDIUM && mat->ior == 1.0f ? NS_PRIM_SHADOW_PASSES : 0u;
+    if (mat->type != NS_MATERIAL_MEDIUM)
+        return 0u;
+    return mat->ior == 1.0f ? NS_PRIM_SHADOW_PASSES : NS_PRIM_REFRACTS;
 }
 
 static GpuPrim object_prim(const ns_scene *s, const ns_object *o, uint32_t index)

@@ -322,7 +322,15 @@ vec3 sigma_t_of(uint material)
 //   it. pt.comp does not: its yield budget on lavapipe (NS_PT_YIELD_LAVAPIPE) was measured
 //   on the walk's ratio of real to counted loop iterations, and with the query its light
 //   sub-paths ran past lavapipe's limit (gpu_single's comparison with pt caught it).
-const uint SHADOW_COUNTED = 1u, SHADOW_ANY_HIT = 2u;
+// SHADOW_THROUGH_REFRACTING: refracting boundaries let the ray through as well, straight on,
+//   each crossing with the Fresnel transmittance 1 - F of the angle it meets the face at from
+//   outside, and the medium between two crossings with Beer-Lambert over the refracted
+//   path's length (the straight one times cos_i / cos_t at the entry): exact through a slab
+//   with parallel faces, whose refractions shift the light but do not turn it. single.comp
+//   sets it: without it a part of a non-convex object between a point and the light (the
+//   bunny's ears and head) cast a black shadow inside the object, where pt's light passes
+//   through them (docs/rendering.md, *Single scattering*).
+const uint SHADOW_COUNTED = 1u, SHADOW_ANY_HIT = 2u, SHADOW_THROUGH_REFRACTING = 4u;
 
 vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
 {
@@ -330,15 +338,17 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
     // query answers those, and only a ray that meets an index-matched boundary walks its
     // crossings in order below. A ray from inside an index-matched medium would almost always
     // meet its boundary first, so it walks at once.
+    bool through_refracting = (how & SHADOW_THROUGH_REFRACTING) != 0u;
     if ((how & SHADOW_ANY_HIT) != 0u && medium == NS_NONE) {
-        uint met = trace_shadow(o, d, 0.0, tmax);
+        uint crosses = NS_PRIM_SHADOW_PASSES | (through_refracting ? NS_PRIM_REFRACTS : 0u);
+        uint met = trace_shadow(o, d, 0.0, tmax, crosses);
         if (met == NS_SHADOW_BLOCKED)
             return vec3(0.0);
         if (met == NS_SHADOW_CLEAR)
             return vec3(1.0);
     }
     vec3 tau = vec3(0.0);
-    float t_enter = 0.0, tmin = 0.0;
+    float t_enter = 0.0, tmin = 0.0, crossed = 1.0, stretch = 1.0;
     for (int crossing = 0; crossing < 16; crossing++) {
         if ((how & SHADOW_COUNTED) != 0u && out_of_budget())
             break;
@@ -347,17 +357,24 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
             break;
         uint m = prim_at(h.prim).info.y;
         GpuMaterial mat = materials[m];
-        if (mat.reflectance.w == 0.0 || mat.sigma_t.w != 1.0)
+        float ior = mat.sigma_t.w;
+        if (mat.reflectance.w == 0.0 || (ior != 1.0 && !through_refracting))
             return vec3(0.0);
         if (!h.front && medium != NS_NONE)
-            tau += sigma_t_of(medium) * (h.t - t_enter);
+            tau += sigma_t_of(medium) * (stretch * (h.t - t_enter));
+        if (ior != 1.0) {
+            float cos_t;
+            float cos_o = min(abs(dot(d, h.normal)), 1.0);
+            crossed *= 1.0 - fresnel(cos_o, 1.0 / ior, cos_t);
+            stretch = h.front && cos_t > 0.0 ? cos_o / cos_t : 1.0;
+        }
         medium = h.front ? m : NS_NONE;
         t_enter = h.t;
         tmin = h.t + ray_epsilon(o + h.t * d);
     }
-    vec3 tr = exp(-tau);
+    vec3 tr = crossed * exp(-tau);
     if (medium != NS_NONE)
-        tr *= beer_lambert(sigma_t_of(medium), tmax - t_enter);
+        tr *= beer_lambert(sigma_t_of(medium), stretch * (tmax - t_enter));
     return tr;
 }
 

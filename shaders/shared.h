@@ -66,6 +66,7 @@ NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
 NS_CONST(uint, NS_PRIM_PLANE, 3);
 NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w bits */
 NS_CONST(uint, NS_PRIM_SHADOW_PASSES, 2); /* an index-matched medium's boundary: shadow rays cross it */
+NS_CONST(uint, NS_PRIM_REFRACTS, 4);      /* a refracting medium's boundary: only some shadow rays cross it */
 
 /* Light kinds in GpuLight.info.x (same values as ns_light_type). */
 NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);

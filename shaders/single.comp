@@ -46,7 +46,7 @@ layout(push_constant) uniform PushBlock { GpuSinglePush ns_push[1]; };
 #include "common.glsl"
 
 // How this pass traces its shadow rays (common.glsl, transmittance).
-const uint SHADOW_RAYS = SHADOW_COUNTED | SHADOW_ANY_HIT;
+const uint SHADOW_RAYS = SHADOW_COUNTED | SHADOW_ANY_HIT | SHADOW_THROUGH_REFRACTING;
 
 // ---------------------------------------------------------------------------------------
 // Light seen from a point p (outside the medium, or inside an index-matched one): the

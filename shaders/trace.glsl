@@ -391,15 +391,17 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 
 // What a shadow ray meets in (tmax > t > tmin), for the any-hit query of shadow rays: the BVH
 // primitives and the planes in any order, stopping at the first primitive met; the nearest
-// hit is never needed. NS_SHADOW_BLOCKED: that primitive blocks (a diffuse surface or a
-// refracting boundary). NS_SHADOW_CROSSES: it is the boundary of an index-matched medium
-// (NS_PRIM_SHADOW_PASSES), which a shadow ray crosses with its Beer-Lambert factor, so the
-// caller must walk the crossings in order (transmittance); stopping there keeps such rays
-// no dearer than that walk alone. NS_SHADOW_CLEAR: nothing. tmax never shrinks, so a node's
-// box is tested once, before it is pushed.
+// hit is never needed. NS_SHADOW_BLOCKED: that primitive blocks (a diffuse surface, or a
+// boundary the ray does not cross). NS_SHADOW_CROSSES: it carries one of the flags in
+// `crosses` (NS_PRIM_SHADOW_PASSES: an index-matched medium's boundary, which every shadow
+// ray crosses with its Beer-Lambert factor; NS_PRIM_REFRACTS: a refracting one, which only
+// single scattering's cross), so the caller must walk the crossings in order
+// (transmittance); stopping there keeps such rays no dearer than that walk alone.
+// NS_SHADOW_CLEAR: nothing. tmax never shrinks, so a node's box is tested once, before it is
+// pushed.
 const uint NS_SHADOW_CLEAR = 0u, NS_SHADOW_BLOCKED = 1u, NS_SHADOW_CROSSES = 2u;
 
-uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
+uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax, uint crosses)
 {
     vec3 inv_d = 1.0 / d;
     uint stack[NS_BVH_STACK];
@@ -421,8 +423,7 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
         if (count > 0u) {
             for (uint i = first; i < first + count; i++)
                 if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-                    return (prim_at(i).info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
-                                                                            : NS_SHADOW_BLOCKED;
+                    return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES : NS_SHADOW_BLOCKED;
             continue;
         }
         // The nearer child next: what is met near the origin ends the query sooner.
@@ -438,7 +439,6 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax)
     uint first_plane = params.prims.x;
     for (uint i = first_plane; i < first_plane + params.prims.y; i++)
         if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-            return (prim_at(i).info.w & NS_PRIM_SHADOW_PASSES) != 0u ? NS_SHADOW_CROSSES
-                                                                    : NS_SHADOW_BLOCKED;
+            return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES : NS_SHADOW_BLOCKED;
     return NS_SHADOW_CLEAR;
 }

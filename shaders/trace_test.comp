@@ -22,7 +22,7 @@ void main()
         return;
     GpuRay ray = rays[i];
     if (ray.direction.w == 1.0) {
-        uint met = trace_shadow(ray.origin.xyz, ray.direction.xyz, 0.0, ray.origin.w);
+        uint met = trace_shadow(ray.origin.xyz, ray.direction.xyz, 0.0, ray.origin.w, NS_PRIM_SHADOW_PASSES);
         hits[i].t = met == NS_SHADOW_CLEAR ? -1.0 : 0.0;
         hits[i].prim = met == NS_SHADOW_BLOCKED ? 0u : NS_NONE;
         hits[i].front = 0u;

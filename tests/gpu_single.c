@@ -65,7 +65,10 @@ static const double SIGMA_S[3] = {0.3, 0.8, 1.5}, SIGMA_A[3] = {0.2, 0.1, 0.6};
 static const double G = 0.3;
 static const double TOP = 1.0;
 
-enum { MAT_MEDIUM, MAT_DIFFUSE, MAT_COUNT };
+/* MAT_GLASS: a refracting medium that does not scatter much, the occluder of
+ * test_refracting_occluder. */
+enum { MAT_MEDIUM, MAT_DIFFUSE, MAT_GLASS, MAT_COUNT };
+static const double GLASS_SIGMA_S[3] = {0.1, 0.2, 0.3}, GLASS_SIGMA_A[3] = {0.5, 0.2, 0.05};
 
 typedef struct slab {
     ns_material materials[MAT_COUNT];
@@ -80,6 +83,7 @@ static void make_slab(slab *s, double ior, ns_light light)
     s->materials[MAT_MEDIUM] = medium(SIGMA_S, SIGMA_A, ior);
     s->materials[MAT_MEDIUM].g = (float)G;
     s->materials[MAT_DIFFUSE] = diffuse(0.5, 0.5, 0.5);
+    s->materials[MAT_GLASS] = medium(GLASS_SIGMA_S, GLASS_SIGMA_A, 1.5);
     ns_object box;
     memset(&box, 0, sizeof box);
     box.shape = NS_SHAPE_BOX;
@@ -477,6 +481,51 @@ static void test_shadow_index_matched(void)
 static void test_shadow_refracted(void)
 {
     check_shadow(1.5);
+}
+
+/* A refracting occluder: a plate of MAT_GLASS (ior 1.5, 0.5 thick, faces parallel to the
+ * slab's) over x < 0, the directional light at 0 and 60 degrees. Single scattering's shadow
+ * rays cross refracting boundaries straight on (common.glsl, SHADOW_THROUGH_REFRACTING),
+ * which through parallel faces is exact: a segment under the plate gets the slab's closed
+ * form times (1 - F)^2 e^{-sigma_t 0.5 / cos_t}, F and cos_t of the light's angle at the
+ * plate; one beside it the closed form alone. Before, the plate cast a black shadow. */
+static void check_refracting_occluder(double ior, double angle_deg)
+{
+    double a = angle_deg * M_PI / 180, dir[3] = {sin(a), -cos(a), 0};
+    slab s;
+    make_slab(&s, ior, directional(dir, E_RGB));
+    ns_object plate;
+    memset(&plate, 0, sizeof plate);
+    plate.shape = NS_SHAPE_BOX;
+    plate.material = MAT_GLASS;
+    set3(plate.min, -50, 2, -50);
+    set3(plate.max, 0, 2.5, 50);
+    s.objects[1] = plate;
+    s.scene.object_count = 2;
+    GpuSegment segs[2] = {
+        segment(-5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
+        segment(5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
+    };
+    float out[2][4];
+    if (run_single(&s.scene, segs, 2, CLOSED_FORM_SAMPLES, out, NULL))
+        return;
+    double cos_t;
+    double f = fresnel_d(cos(a), 1, 1.5, &cos_t);
+    for (int c = 0; c < 3; c++) {
+        double plate_t = (1 - f) * (1 - f) * exp(-(GLASS_SIGMA_S[c] + GLASS_SIGMA_A[c]) * 0.5 / cos_t);
+        double open = slab_directional(&segs[0], seg_length(&segs[0]), dir, ior, E_RGB[c], c);
+        CHECK_REL(out[0][c], open * plate_t, 1e-3);
+        CHECK_REL(out[1][c],
+                  slab_directional(&segs[1], seg_length(&segs[1]), dir, ior, E_RGB[c], c), 1e-3);
+    }
+}
+
+static void test_refracting_occluder(void)
+{
+    check_refracting_occluder(1.0, 0);
+    check_refracting_occluder(1.5, 0);
+    check_refracting_occluder(1.0, 60);
+    check_refracting_occluder(1.5, 60);
 }
 
 /* A short segment through the centre of a sphere (R = 1) under a constant environment: every
@@ -1113,6 +1162,7 @@ int main(void)
     RUN(test_sphere_light);
     RUN(test_shadow_index_matched);
     RUN(test_shadow_refracted);
+    RUN(test_refracting_occluder);
     RUN(test_environment_index_matched);
     RUN(test_environment_refracted);
     RUN(test_many_samples);
