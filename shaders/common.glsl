@@ -307,10 +307,12 @@ vec3 sigma_t_of(uint material)
     return material == NS_NONE ? vec3(0.0) : materials[material].sigma_t.xyz;
 }
 
-// Transmittance of a shadow ray from o (in `medium`, NS_NONE outside) along d up to tmax.
-// Diffuse surfaces and refracting boundaries block it, because light bent on the way is no
-// straight shadow ray (pt.comp reaches it by other strategies); index-matched boundaries
-// let it through with the Beer-Lambert factor of the media crossed.
+// Transmittance of a shadow ray from o (in `medium`, NS_NONE outside, or an index-matched
+// medium: never a refracting one) along d up to tmax. Diffuse surfaces block it; refracting
+// boundaries block it too unless the pass sets SHADOW_THROUGH_REFRACTING (below), because
+// light bent on the way is no straight shadow ray (pt.comp reaches it by other strategies);
+// index-matched boundaries let it through with the Beer-Lambert factor of the media
+// crossed.
 //
 // `how` (bits), fixed per pass, each pass naming its choice once (SHADOW_RAYS):
 // SHADOW_COUNTED: each crossing counts one loop iteration (out_of_budget) and stops the ray
@@ -326,7 +328,9 @@ vec3 sigma_t_of(uint material)
 //   each crossing with the Fresnel transmittance 1 - F of the angle it meets the face at from
 //   outside, and the medium between two crossings with Beer-Lambert over the refracted
 //   path's length (the straight one times cos_i / cos_t at the entry): exact through a slab
-//   with parallel faces, whose refractions shift the light but do not turn it. single.comp
+//   with parallel faces for light from infinity (directional, environment), whose
+//   refractions shift it but do not turn it; for a point or sphere light the plate also
+//   moves the light's apparent place, which the straight ray does not see. single.comp
 //   sets it: without it a part of a non-convex object between a point and the light (the
 //   bunny's ears and head) cast a black shadow inside the object, where pt's light passes
 //   through them (docs/rendering.md, *Single scattering*).
@@ -335,8 +339,8 @@ const uint SHADOW_COUNTED = 1u, SHADOW_ANY_HIT = 2u, SHADOW_THROUGH_REFRACTING =
 vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
 {
     // Most shadow rays from outside the media meet a blocker or nothing at all: the any-hit
-    // query answers those, and only a ray that meets an index-matched boundary walks its
-    // crossings in order below. A ray from inside an index-matched medium would almost always
+    // query answers those, and only a ray that meets a boundary it crosses (index matched,
+    // or refracting with SHADOW_THROUGH_REFRACTING) walks its crossings in order below. A ray from inside an index-matched medium would almost always
     // meet its boundary first, so it walks at once.
     bool through_refracting = (how & SHADOW_THROUGH_REFRACTING) != 0u;
     if ((how & SHADOW_ANY_HIT) != 0u && medium == NS_NONE) {
@@ -362,11 +366,14 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
             return vec3(0.0);
         if (!h.front && medium != NS_NONE)
             tau += sigma_t_of(medium) * (stretch * (h.t - t_enter));
+        // The refracted length's factor holds from a refracting entry to the next crossing.
+        stretch = 1.0;
         if (ior != 1.0) {
             float cos_t;
             float cos_o = min(abs(dot(d, h.normal)), 1.0);
             crossed *= 1.0 - fresnel(cos_o, 1.0 / ior, cos_t);
-            stretch = h.front && cos_t > 0.0 ? cos_o / cos_t : 1.0;
+            if (h.front && cos_t > 0.0)
+                stretch = cos_o / cos_t;
         }
         medium = h.front ? m : NS_NONE;
         t_enter = h.t;

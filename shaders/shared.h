@@ -163,7 +163,7 @@ struct GpuNode {
 /* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
  * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
  * info = kind, material index, object index, flag bits (NS_PRIM_SHADOW_PASSES: the boundary
- * of an index-matched medium; NS_PRIM_SMOOTH: a triangle whose a.w,
+ * of an index-matched medium; NS_PRIM_REFRACTS: of a refracting one; NS_PRIM_SMOOTH: a triangle whose a.w,
  * b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16 bits; scene_gpu.c). */
 struct GpuPrim {
     ns_vec4 a;

@@ -328,6 +328,7 @@ static int run_one_vrl(const float *table, const GpuSegment *segs, uint32_t coun
         status = ns_gather_run(ctx, &desc, &counts, &err);
     if (status)
         fprintf(stderr, "gather: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
     CHECK(gpu_validation_count(&ctx->dev) == 0);
     gpu_buffer_destroy(&ctx->dev, &seg_buf);
     gpu_buffer_destroy(&ctx->dev, &tables.a);

@@ -48,7 +48,7 @@ static uint32_t phi_bin(const float *w, const float *d, const float *e_rho)
 #define STEP_RHO TABLE_DIRS
 #define STEP_THETA NS_TABLE_NPHI
 
-/* gather.glsl's table_at: A between the cells' centres in asinh(z), asinh(rho) and cos theta,
+/* gather.glsl's table_at: A between the cells' centres in asinh(z), asinh(rho) and theta,
  * linear on the tetrahedron of Kuhn's triangulation that holds the point (the axes stepped in
  * decreasing order of their fractions, ties to z, then rho), phi at the nearest bin, 0
  * beyond the extent. */
