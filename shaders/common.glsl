@@ -340,8 +340,9 @@ vec3 transmittance(vec3 o, vec3 d, float tmax, uint medium, uint how)
 {
     // Most shadow rays from outside the media meet a blocker or nothing at all: the any-hit
     // query answers those, and only a ray that meets a boundary it crosses (index matched,
-    // or refracting with SHADOW_THROUGH_REFRACTING) walks its crossings in order below. A ray from inside an index-matched medium would almost always
-    // meet its boundary first, so it walks at once.
+    // or refracting with SHADOW_THROUGH_REFRACTING) walks its crossings in order below. A
+    // ray from inside an index-matched medium would almost always meet its boundary first,
+    // so it walks at once.
     bool through_refracting = (how & SHADOW_THROUGH_REFRACTING) != 0u;
     if ((how & SHADOW_ANY_HIT) != 0u && medium == NS_NONE) {
         uint crosses = NS_PRIM_SHADOW_PASSES | (through_refracting ? NS_PRIM_REFRACTS : 0u);

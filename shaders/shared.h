@@ -66,7 +66,7 @@ NS_CONST(uint, NS_PRIM_TRIANGLE, 2);
 NS_CONST(uint, NS_PRIM_PLANE, 3);
 NS_CONST(uint, NS_PRIM_SMOOTH, 1); /* GpuPrim.info.w bits */
 NS_CONST(uint, NS_PRIM_SHADOW_PASSES, 2); /* an index-matched medium's boundary: shadow rays cross it */
-NS_CONST(uint, NS_PRIM_REFRACTS, 4);      /* a refracting medium's boundary: only some shadow rays cross it */
+NS_CONST(uint, NS_PRIM_REFRACTS, 4); /* a refracting medium's boundary: single scattering crosses it */
 
 /* Light kinds in GpuLight.info.x (same values as ns_light_type). */
 NS_CONST(uint, NS_GPU_LIGHT_DIRECTIONAL, 0);
@@ -163,8 +163,9 @@ struct GpuNode {
 /* One primitive. sphere: a = centre, radius in a.w; box: a = min, b = max; triangle: a, b, c
  * the vertices (counter-clockwise seen from outside); plane: a = point, b = unit normal.
  * info = kind, material index, object index, flag bits (NS_PRIM_SHADOW_PASSES: the boundary
- * of an index-matched medium; NS_PRIM_REFRACTS: of a refracting one; NS_PRIM_SMOOTH: a triangle whose a.w,
- * b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16 bits; scene_gpu.c). */
+ * of an index-matched medium; NS_PRIM_REFRACTS: of a refracting one; NS_PRIM_SMOOTH: a
+ * triangle whose a.w, b.w, c.w hold its vertices' shading normals, octahedral in 2 x 16
+ * bits; scene_gpu.c). */
 struct GpuPrim {
     ns_vec4 a;
     ns_vec4 b;

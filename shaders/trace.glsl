@@ -423,7 +423,8 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax, uint crosses)
         if (count > 0u) {
             for (uint i = first; i < first + count; i++)
                 if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-                    return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES : NS_SHADOW_BLOCKED;
+                    return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES
+                                                               : NS_SHADOW_BLOCKED;
             continue;
         }
         // The nearer child next: what is met near the origin ends the query sooner.
