@@ -444,19 +444,25 @@ static void test_sphere_light(void)
  * x = 5 is fully lit. The shadow's edge falls inside one of the lights' 400 strata of the
  * distance CDF (single.comp), whose one jittered point is lit or not: that stratum's share,
  * about 1/400 of the whole segment's light (1/200 of the half), is the tolerance of the half. */
+/* The slab of make_slab under a plate of `material` over x < 0, y in [2, 2.5]. */
+static void make_slab_half_covered(slab *s, double ior, ns_light light, uint32_t material)
+{
+    make_slab(s, ior, light);
+    ns_object plate;
+    memset(&plate, 0, sizeof plate);
+    plate.shape = NS_SHAPE_BOX;
+    plate.material = material;
+    set3(plate.min, -50, 2, -50);
+    set3(plate.max, 0, 2.5, 50);
+    s->objects[1] = plate;
+    s->scene.object_count = 2;
+}
+
 static void check_shadow(double ior)
 {
     double dir[3] = {0, -1, 0};
     slab s;
-    make_slab(&s, ior, directional(dir, E_RGB));
-    ns_object occluder;
-    memset(&occluder, 0, sizeof occluder);
-    occluder.shape = NS_SHAPE_BOX;
-    occluder.material = MAT_DIFFUSE;
-    set3(occluder.min, -50, 2, -50);
-    set3(occluder.max, 0, 2.5, 50);
-    s.objects[1] = occluder;
-    s.scene.object_count = 2;
+    make_slab_half_covered(&s, ior, directional(dir, E_RGB), MAT_DIFFUSE);
     GpuSegment segs[3] = {
         segment(0.3, TOP, 0, -0.6, -TOP, 0, sqrt(0.36 + TOP * TOP)),
         segment(-5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
@@ -493,15 +499,7 @@ static void check_refracting_occluder(double ior, double angle_deg)
 {
     double a = angle_deg * M_PI / 180, dir[3] = {sin(a), -cos(a), 0};
     slab s;
-    make_slab(&s, ior, directional(dir, E_RGB));
-    ns_object plate;
-    memset(&plate, 0, sizeof plate);
-    plate.shape = NS_SHAPE_BOX;
-    plate.material = MAT_GLASS;
-    set3(plate.min, -50, 2, -50);
-    set3(plate.max, 0, 2.5, 50);
-    s.objects[1] = plate;
-    s.scene.object_count = 2;
+    make_slab_half_covered(&s, ior, directional(dir, E_RGB), MAT_GLASS);
     GpuSegment segs[2] = {
         segment(-5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
         segment(5, TOP, 0, 0.2, -1, 0, sqrt(1.04)),
