@@ -53,10 +53,17 @@ static float dist3(const float *a, const float *b)
     return sqrtf(d0 * d0 + d1 * d1 + d2 * d2);
 }
 
-/* A stretch's or source's scattering events, without the NS_VRL_LINE_RETURNS flag. */
+/* A stretch's or source's scattering events, without its flags (scatter_shared.h). */
 static uint32_t events_of(const GpuVrl *v)
 {
-    return v->events & ~NS_VRL_LINE_RETURNS;
+    return v->events & ~(NS_VRL_LINE_RETURNS | NS_VRL_FROM_ENVIRONMENT);
+}
+
+/* Which of a stretch's flags its reflected beam keeps: where its light came from (the
+ * line-returns flag is about the line past the stretch's end: the ghost's). */
+static uint32_t reflected_events(const GpuVrl *v)
+{
+    return events_of(v) | (v->events & NS_VRL_FROM_ENVIRONMENT);
 }
 
 static void end_of(const GpuVrl *v, float end[3])
@@ -107,7 +114,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
              * width of its first order's tube (scatter_shared.h, NS_FIRST_BLUR_PER_CHORD), as
              * the ghost's at that chord's end does for the ghost (below). */
             GpuVrl r = *v;
-            r.events = events_of(v); /* the flag is about the line past the end: the ghost's */
+            r.events = reflected_events(v);
             out[n++] = r;
         }
         /* A stretch that the next one continues along the same line has no boundary event
@@ -147,7 +154,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
                 reflected.direction[c] = end[c];
                 reflected.power[c] = -end[3] * ghost.power[c];
             }
-            reflected.events = events_of(v);
+            reflected.events = reflected_events(v);
             out[n++] = reflected;
         }
     }
@@ -255,8 +262,13 @@ uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components)
      * order. A ghost is gathered onto its own medium's segments only, so other media do not
      * count. docs/scattering.md, *The blur at a ghost*. */
     uint32_t orders = ns_boundary_orders(events_of(s), components);
-    int keep = (s->events & NS_VRL_LINE_RETURNS) != 0;
-    return is_ghost(s) && !keep ? orders & ~NS_TABLE_FIRST_BLURRED : orders;
+    int unscattered = events_of(s) == 0;
+    int keep = (s->events & NS_VRL_LINE_RETURNS) != 0 && !unscattered;
+    if (is_ghost(s) && !keep)
+        return orders & ~NS_TABLE_FIRST_BLURRED;
+    if (!is_ghost(s) && unscattered && (s->events & NS_VRL_FROM_ENVIRONMENT))
+        return orders & ~NS_TABLE_FIRST_BLURRED;
+    return orders;
 }
 
 void ns_boundary_groups_free(ns_boundary_groups *g)

@@ -28,8 +28,12 @@ struct GpuVrl {
     ns_uint events;
 };
 
-/* events' flag bit (above): the line past the stretch's end meets its medium again. */
+/* events' flag bits (above): the line past the stretch's end meets its medium again; the
+ * stretch's light came from the environment and has not scattered yet (a walk traced with
+ * NS_VRL_TRACE_MARK_ENVIRONMENT: single.comp follows that light through internal reflections
+ * itself, so render/boundary.c leaves out its reflected beams' first order). */
 NS_CONST(uint, NS_VRL_LINE_RETURNS, 0x80000000u);
+NS_CONST(uint, NS_VRL_FROM_ENVIRONMENT, 0x40000000u);
 
 /* One cell of a VRL grid level: its VRLs are vrls[first, first + count) of the cell-sorted
  * buffer, their origins lie in [bmin, bmax] (the bounding box of the VRLs' origins, not of

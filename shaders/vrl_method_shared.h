@@ -30,7 +30,7 @@ struct GpuVrlWalk {
                        events since the last scattering event, w = the hero channel (0-2)
                        whose extinction samples the free flights */
     ns_vec4 mis;    /* xyz = each channel's pdf of the path so far over their mean (spectral
-                       MIS, vrl_trace.comp); w unused */
+                       MIS, vrl_trace.comp); w = 1 for a path from the environment */
 };
 
 NS_CONST(uint, NS_VRL_WALK_FRESH, 0);
@@ -48,7 +48,7 @@ struct GpuVrlTracePush {
     ns_uint write;
     ns_uint report;
     ns_uint vrl_capacity;
-    ns_uint options;    /* NS_VRL_TRACE_MARK_LINES | NS_VRL_TRACE_ENDS */
+    ns_uint options;    /* NS_VRL_TRACE_MARK_LINES | NS_VRL_TRACE_ENDS | NS_VRL_TRACE_MARK_ENVIRONMENT */
 };
 
 /* GpuVrlTracePush.options. MARK_LINES: set NS_VRL_LINE_RETURNS in the stored stretches'
@@ -57,6 +57,9 @@ struct GpuVrlTracePush {
  * reflectance F (1 on total internal reflection) that decides whether it does; else 0. */
 NS_CONST(uint, NS_VRL_TRACE_MARK_LINES, 1);
 NS_CONST(uint, NS_VRL_TRACE_ENDS, 2);
+/* MARK_ENVIRONMENT: set NS_VRL_FROM_ENVIRONMENT in the events of the stored stretches of a
+ * path from the environment that has not scattered yet. */
+NS_CONST(uint, NS_VRL_TRACE_MARK_ENVIRONMENT, 4);
 
 /* Trace counters (binding 7). */
 NS_CONST(uint, NS_VRL_TRACE_ACTIVE, 0);     /* paths not finished after a reporting dispatch */

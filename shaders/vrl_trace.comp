@@ -107,12 +107,12 @@ float cone_towards(vec4 target, vec3 o, float u, float v, out vec3 d)
 // Emits the ray of `path`; flux = 0 when it carries nothing (a sphere light's back side,
 // a directional or environment light blocked upstream). Its numbers are the emitter's
 // stratified point for the path (common.glsl, stratified4).
-void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_object)
+void emit(uint path, out vec3 o, out vec3 d, out vec3 flux, out uint target_object, out uint kind)
 {
     GpuVrlEmitter e = emitters[find_emitter(path)];
     vec4 u = stratum_point(path, e.ids.x, e.ids.w, push.seed);
     target_object = e.ids.z;
-    uint kind = e.ids.y;
+    kind = e.ids.y;
     vec3 color = e.color.rgb;
     if (kind == NS_GPU_LIGHT_DIRECTIONAL || kind == NS_GPU_LIGHT_ENVIRONMENT) {
         // Flux through the target's disk: E pi r^2 for a directional light; for a uniform
@@ -245,6 +245,8 @@ void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, Hit h)
         if (slot < push.vrl_capacity) {
             float len = h.t;
             uint events = w.state.y;
+            if ((push.options & NS_VRL_TRACE_MARK_ENVIRONMENT) != 0u && events == 0u && w.mis.w != 0.0)
+                events |= NS_VRL_FROM_ENVIRONMENT;
             if ((push.options & NS_VRL_TRACE_MARK_LINES) != 0u &&
                 line_meets_medium(o + len * d, d, w.state.z))
                 events |= NS_VRL_LINE_RETURNS;
@@ -363,8 +365,9 @@ void main()
         w.count.w = min(uint(rnd() * 3.0), 2u); // the hero channel
         w.mis = vec4(1.0, 1.0, 1.0, 0.0);
         vec3 o, d, flux;
-        uint target_object;
-        emit(path, o, d, flux, target_object);
+        uint target_object, kind;
+        emit(path, o, d, flux, target_object, kind);
+        w.mis.w = kind == NS_GPU_LIGHT_ENVIRONMENT ? 1.0 : 0.0;
         w.state.w = enter_object(w, o, d, flux, target_object, 0u, 0.0) ? NS_VRL_WALK_INSIDE
                                                                        : NS_VRL_WALK_DONE;
     } else {

@@ -436,6 +436,53 @@ static void line_flags_case(double ior)
     device_scene_free(&d);
 }
 
+/* NS_VRL_FROM_ENVIRONMENT (with NS_VRL_TRACE_MARK_ENVIRONMENT): set on exactly the stretches
+ * without scattering events of the paths from the environment (single.comp follows that
+ * light through internal reflections itself, boundary.c). A refracting sphere under the
+ * environment alone, then under a directional light alone: every unscattered stretch is
+ * marked in the first, none in the second, none after a scattering event in either, and
+ * nothing without the option. */
+static void test_environment_flags(void)
+{
+    double sigma_s[3] = {0.9, 0.9, 0.9}, sigma_a[3] = {0.1, 0.1, 0.1};
+    ns_material m = medium(sigma_s, sigma_a, 1.5);
+    ns_object ball = sphere(0, 0, 0, 1, 0);
+    ns_light lights[2] = {light(NS_LIGHT_ENVIRONMENT, 1, 1, 1), light(NS_LIGHT_DIRECTIONAL, 1, 1, 1)};
+    set3(lights[1].direction, 0, -1, 0);
+    for (int which = 0; which < 2; which++) {
+        ns_scene s = base_scene(8, 8, 30);
+        scene_lists(&s, &m, 1, &ball, 1, &lights[which], 1);
+        set3(s.camera.position, 0, 0, 20);
+        device_scene d;
+        if (device_scene_make(&s, &d))
+            return;
+        for (int mark = 0; mark < 2; mark++) {
+            ns_vrl_set walks = {0};
+            ns_error err = {0};
+            int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 5,
+                                             mark ? NS_VRL_TRACE_MARK_ENVIRONMENT : 0u, &walks, NULL,
+                                             &err);
+            CHECK_INT(status, NS_OK);
+            uint32_t unscattered = 0, marked = 0, marked_wrongly = 0;
+            for (uint32_t i = 0; !status && i < walks.count; i++) {
+                uint32_t events = walks.vrls[i].events;
+                int flag = (events & NS_VRL_FROM_ENVIRONMENT) != 0;
+                events &= ~NS_VRL_FROM_ENVIRONMENT;
+                unscattered += events == 0;
+                marked += flag;
+                marked_wrongly += flag && events != 0;
+            }
+            fprintf(stderr, "  %s, mark %d: %u stretches, %u unscattered, %u marked\n",
+                    which ? "directional" : "environment", mark, walks.count, unscattered, marked);
+            CHECK(walks.count > 1000 && unscattered > 100 && unscattered < walks.count);
+            CHECK_INT(marked_wrongly, 0);
+            CHECK_INT(marked, mark && which == 0 ? unscattered : 0);
+            ns_vrl_set_free(&walks);
+        }
+        device_scene_free(&d);
+    }
+}
+
 static void test_line_flags(void)
 {
     line_flags_case(1.0);
@@ -449,6 +496,7 @@ int main(void)
     RUN(test_cylinder);
     RUN(test_channels);
     RUN(test_line_flags);
+    RUN(test_environment_flags);
     ns_context_destroy(test_context());
     return harness_report();
 }

@@ -49,6 +49,21 @@ static void test_orders(void)
     CHECK_INT(ns_boundary_source_orders(&beam, D), B);
     ghost.events = 1 | NS_VRL_LINE_RETURNS;
     CHECK_INT(ns_boundary_source_orders(&ghost, D), B);
+    /* Unscattered light (k = 0): its first order is single scattering, which single.comp
+     * computes from the lights themselves (its shadow rays cross the object's parts straight
+     * on), so no ghost of it takes any away, even where its line returns. */
+    ghost.events = NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_source_orders(&ghost, NS_COMPONENT_SINGLE | D | M), D | M);
+    /* A reflected beam of the environment's unscattered light leaves its first order to
+     * single.comp too (it follows the environment through internal reflections); the flag
+     * is not an event, and other light's beams keep it. */
+    beam.events = NS_VRL_FROM_ENVIRONMENT;
+    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE | D | M), D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE), 0);
+    beam.events = 0;
+    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE | D | M), B | D | M);
+    ghost.events = NS_VRL_FROM_ENVIRONMENT;
+    CHECK_INT(ns_boundary_source_orders(&ghost, D | M), D | M);
 }
 
 static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
@@ -196,6 +211,25 @@ static void test_sources_with_ends(void)
     CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && out[5].events == 1);
     /* Without the ends: the walk's own beams only (stretch 1's and stretch 3's starts). */
     CHECK_INT(ns_boundary_sources(walk, NULL, 5, &m, 1, out), 7);
+    /* The environment's mark rides on the unscattered stretches' reflected beams, with or
+     * without the ends, and never counts as an event (the grouping strips it). */
+    GpuVrl marked[5];
+    memcpy(marked, walk, sizeof marked);
+    marked[0].events = marked[1].events = NS_VRL_FROM_ENVIRONMENT;
+    CHECK_INT(ns_boundary_sources(marked, &ends[0][0], 5, &m, 1, out), 9);
+    CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT && out[3].events == NS_VRL_FROM_ENVIRONMENT);
+    CHECK(out[5].events == 1 && out[8].events == 0);
+    CHECK_INT(ns_boundary_sources(marked, NULL, 5, &m, 1, out), 7);
+    CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT);
+    ns_boundary_groups groups;
+    ns_error err = {0};
+    CHECK_INT(ns_boundary_group(out, 7, NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
+                                &groups, &err),
+              NS_OK);
+    for (uint32_t g = 0; g < groups.count; g++)
+        for (uint32_t i = 0; i < groups.group[g].set.count; i++)
+            CHECK(groups.group[g].set.vrls[i].events < 2);
+    ns_boundary_groups_free(&groups);
 }
 
 /* A walk that leaves its object after scattering and enters it (or another object of the
