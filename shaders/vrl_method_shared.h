@@ -48,7 +48,7 @@ struct GpuVrlTracePush {
     ns_uint write;
     ns_uint report;
     ns_uint vrl_capacity;
-    ns_uint options;    /* NS_VRL_TRACE_MARK_LINES | NS_VRL_TRACE_ENDS | NS_VRL_TRACE_MARK_ENVIRONMENT */
+    ns_uint options;    /* NS_VRL_TRACE_* (below) */
 };
 
 /* GpuVrlTracePush.options. MARK_LINES: set NS_VRL_LINE_RETURNS in the stored stretches'

@@ -447,7 +447,8 @@ static void test_environment_flags(void)
     double sigma_s[3] = {0.9, 0.9, 0.9}, sigma_a[3] = {0.1, 0.1, 0.1};
     ns_material m = medium(sigma_s, sigma_a, 1.5);
     ns_object ball = sphere(0, 0, 0, 1, 0);
-    ns_light lights[2] = {light(NS_LIGHT_ENVIRONMENT, 1, 1, 1), light(NS_LIGHT_DIRECTIONAL, 1, 1, 1)};
+    ns_light lights[2] = {light(NS_LIGHT_ENVIRONMENT, 1, 1, 1),
+                          light(NS_LIGHT_DIRECTIONAL, 1, 1, 1)};
     set3(lights[1].direction, 0, -1, 0);
     for (int which = 0; which < 2; which++) {
         ns_scene s = base_scene(8, 8, 30);
@@ -459,9 +460,9 @@ static void test_environment_flags(void)
         for (int mark = 0; mark < 2; mark++) {
             ns_vrl_set walks = {0};
             ns_error err = {0};
-            int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 5,
-                                             mark ? NS_VRL_TRACE_MARK_ENVIRONMENT : 0u, &walks, NULL,
-                                             &err);
+            int status =
+                ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 5,
+                                    mark ? NS_VRL_TRACE_MARK_ENVIRONMENT : 0u, &walks, NULL, &err);
             CHECK_INT(status, NS_OK);
             uint32_t unscattered = 0, marked = 0, marked_wrongly = 0;
             for (uint32_t i = 0; !status && i < walks.count; i++) {

@@ -556,7 +556,8 @@ static void check_environment(double ior, uint32_t samples, double tolerance)
     for (int c = 0; c < 3; c++) {
         double st = ss[c] + sa[c];
         double reflections = 1.0 / (1.0 - f0 * exp(-2.0 * st));
-        double want = ss[c] * inside * reflections * (c + 1) * exp(-st * 1.0) * -expm1(-st * 0.02) / st;
+        double want =
+            ss[c] * inside * reflections * (c + 1) * exp(-st * 1.0) * -expm1(-st * 0.02) / st;
         CHECK_REL(out[0][c], want, tolerance);
     }
 }
@@ -761,8 +762,9 @@ static void test_loop_limit_error(void)
 
 /* The single component of the path tracer against this stage composed the way render.c
  * does: every camera segment of the camera pass contributes throughput * out / spp to its
- * pixel, over ior^2 (render/scatter_render.c: radiance leaving the medium). The mean over the pixels of (ours - pt) must lie within 4 standard errors of 0, per
- * channel, with a standard error small enough to mean something. */
+ * pixel, over ior^2 (render/scatter_render.c: radiance leaving the medium). The mean over the
+ * pixels of (ours - pt) must lie within 4 standard errors of 0, per channel, with a standard error
+ * small enough to mean something. */
 static void check_against_path_tracer(ns_scene *s)
 {
     const uint32_t pixels = s->camera.width * s->camera.height;

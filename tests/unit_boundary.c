@@ -223,7 +223,8 @@ static void test_sources_with_ends(void)
     CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT);
     ns_boundary_groups groups;
     ns_error err = {0};
-    CHECK_INT(ns_boundary_group(out, 7, NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
+    CHECK_INT(ns_boundary_group(out, 7,
+                                NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
                                 &groups, &err),
               NS_OK);
     for (uint32_t g = 0; g < groups.count; g++)
