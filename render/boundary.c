@@ -34,7 +34,9 @@
  * light's next events are orders k + 1 (the first scattering on the camera segment of
  * light that flew straight from the source: a line meets a line with probability zero, so
  * this order is blurred over a tube around the source's line and computed in the gather,
- * gather.glsl's first_order), k + 2 (J_2) and >= k + 3 (J_multiple).
+ * gather.glsl's first_order), k + 2 (J_2) and >= k + 3 (J_multiple). Except the first
+ * order where single.comp has it: the first stretch's ghost's, and the environment's
+ * unscattered light's (ns_boundary_source_orders).
  */
 #include <math.h>
 #include <stdlib.h>
@@ -135,6 +137,11 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
         }
         if (!(largest > 0.0f))
             continue;
+        /* The first stretch's line is the VRL's, whose first order (single scattering) the
+         * gather never reads (single.comp computes it from the lights): its ghost has none
+         * to take away, where its line returns or not. */
+        if (entry)
+            ghost.events &= ~NS_VRL_LINE_RETURNS;
         if (!entry || entry_ghosts)
             out[n++] = ghost;
         /* Unscattered light: what the boundary reflects back at that end, F of the light
@@ -262,13 +269,12 @@ uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components)
      * order. A ghost is gathered onto its own medium's segments only, so other media do not
      * count. docs/scattering.md, *The blur at a ghost*. */
     uint32_t orders = ns_boundary_orders(events_of(s), components);
-    int unscattered = events_of(s) == 0;
-    int keep = (s->events & NS_VRL_LINE_RETURNS) != 0 && !unscattered;
-    if (is_ghost(s) && !keep)
-        return orders & ~NS_TABLE_FIRST_BLURRED;
-    if (!is_ghost(s) && unscattered && (s->events & NS_VRL_FROM_ENVIRONMENT))
-        return orders & ~NS_TABLE_FIRST_BLURRED;
-    return orders;
+    /* The environment's unscattered light: single.comp follows it through internal
+     * reflections itself, so its reflected beams give no first order, nor do their ghosts
+     * take one away. */
+    int environment = events_of(s) == 0 && (s->events & NS_VRL_FROM_ENVIRONMENT) != 0;
+    int keep = (s->events & NS_VRL_LINE_RETURNS) != 0;
+    return environment || (is_ghost(s) && !keep) ? orders & ~NS_TABLE_FIRST_BLURRED : orders;
 }
 
 void ns_boundary_groups_free(ns_boundary_groups *g)

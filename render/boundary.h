@@ -89,12 +89,16 @@ uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
 /* The orders source s reads: ns_boundary_orders of its events, less the blurred first order
  * for a ghost (negative power), whose next event lies outside its object, unless its events
  * carry NS_VRL_LINE_RETURNS (the ghost's line passes through an object of its medium again:
- * boundary.c). */
+ * boundary.c), and less it for the environment's unscattered light (NS_VRL_FROM_ENVIRONMENT
+ * with no events: single.comp follows it through internal reflections). */
 uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components);
 
-/* Sources grouped by (orders, sign): one gather each. Three sets of orders at most (events
- * 0, 1 and more), two signs. */
-#define NS_BOUNDARY_GROUPS 6u
+/* Sources grouped by (orders, sign): one gather each. Each of events 0, 1 and more gives its
+ * orders with and without the first order (a ghost without it, the environment's
+ * unscattered beams without it), two signs: at most 8 of the 12 occur together (events 1
+ * and more give the same orders with single, double and multiple asked; the first order of
+ * events 0 only with single). */
+#define NS_BOUNDARY_GROUPS 8u
 typedef struct ns_source_group {
     ns_vrl_set set;
     uint32_t orders;

@@ -1258,7 +1258,8 @@ static int boundary_sources_make(ns_context *ctx, const ns_scatter_inputs *in, v
     /* Marked lines: whether each ghost's line meets its medium again decides whether the
      * ghost reads its first order (ns_boundary_source_orders); it costs a trace per stretch
      * (the bunny's boundary stage at 64²: 1.28 -> 1.73 s). The ends: the reflection at each
-     * stretch's end, for unscattered light's reflected sources in expectation. */
+     * stretch's end, for unscattered light's reflected sources in expectation. The
+     * environment's mark: which of those single.comp has (ns_boundary_source_orders). */
     uint32_t options = NS_VRL_TRACE_ENDS | NS_VRL_TRACE_MARK_ENVIRONMENT |
                        (lines_may_return(scene) ? NS_VRL_TRACE_MARK_LINES : 0u);
     int status = ns_vrl_method_trace(ctx, scene, in->gs, in->scene_buffers, paths,

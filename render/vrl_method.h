@@ -12,7 +12,9 @@
  * (vrl_method_shared.h): NS_VRL_TRACE_MARK_LINES sets NS_VRL_LINE_RETURNS in the events of
  * each stretch whose line, past its end, meets its medium again (render.boundary's walks;
  * costs a trace per stretch); NS_VRL_TRACE_ENDS returns each stretch's end reflection in
- * out->ends (render.boundary's reflected sources in expectation). restarts (may be NULL):
+ * out->ends (render.boundary's reflected sources in expectation); NS_VRL_TRACE_MARK_ENVIRONMENT
+ * sets NS_VRL_FROM_ENVIRONMENT in the events of a path's stretches from the environment
+ * before it scatters. restarts (may be NULL):
  * passes started again after lavapipe cut an invocation (tests). */
 int ns_vrl_method_trace(ns_context *ctx, const ns_scene *scene, const ns_gpu_scene *gs,
                         gpu_buffer *scene_buffers, uint32_t paths, uint32_t seed, uint32_t options,

@@ -20,7 +20,8 @@
 //     exactly through that plane instead (point_refracted: the refraction point and the
 //     pencil's divergence inside), which is exact on flat faces.
 //   Environment: one in-medium direction per sample, drawn from the phase function; through
-//     a refracting boundary the radiance inside is n^2 (1 - F) L_env, nothing on TIR.
+//     a refracting boundary the ray back along it is followed through the boundary's
+//     internal reflections until it leaves, bringing n^2 L_env (environment_along).
 //
 // Bindings: the five scene buffers (render/internal.h), then segments, output, counters.
 #extension GL_GOOGLE_include_directive : require
@@ -315,6 +316,9 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
     vec3 from = x, toward = back, before = vec3(1.0);
     uint through = medium;
     if (ior != 1.0) {
+        // The chain's coins from a stream of their own: the lights' loop draws its distances
+        // from the stratum's stream after the environment's first number.
+        rng_state = pcg_hash(rng_state ^ 0x2545f491u);
         vec3 p = x, dir = back;
         bool left = false;
         for (uint reflection = 0u; reflection <= ENVIRONMENT_REFLECTIONS; reflection++) {
@@ -517,7 +521,8 @@ void main()
         // branch's code for the whole SIMD group whether or not any lane takes it, but a
         // loop no lane enters costs nothing, so the lights cost 1/LIGHT_STRIDE of the
         // environment here. Stratum k's random stream is the same in both: the environment
-        // takes its first number, the lights the ones after it.
+        // takes its first number (its reflections' coins a stream of their own), the lights
+        // the ones after it.
         for (uint k = push.first_sample; environment && k < end; k++) {
             if (out_of_budget())
                 break;

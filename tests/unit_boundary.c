@@ -49,21 +49,54 @@ static void test_orders(void)
     CHECK_INT(ns_boundary_source_orders(&beam, D), B);
     ghost.events = 1 | NS_VRL_LINE_RETURNS;
     CHECK_INT(ns_boundary_source_orders(&ghost, D), B);
-    /* Unscattered light (k = 0): its first order is single scattering, which single.comp
-     * computes from the lights themselves (its shadow rays cross the object's parts straight
-     * on), so no ghost of it takes any away, even where its line returns. */
+    /* Unscattered light (k = 0) whose line returns: a reflected stretch's ghost takes away
+     * the first order (single scattering) its reflected beam gives past the chord's end. */
+    const uint32_t S = NS_COMPONENT_SINGLE;
     ghost.events = NS_VRL_LINE_RETURNS;
-    CHECK_INT(ns_boundary_source_orders(&ghost, NS_COMPONENT_SINGLE | D | M), D | M);
-    /* A reflected beam of the environment's unscattered light leaves its first order to
-     * single.comp too (it follows the environment through internal reflections); the flag
-     * is not an event, and other light's beams keep it. */
-    beam.events = NS_VRL_FROM_ENVIRONMENT;
-    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE | D | M), D | M);
-    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE), 0);
+    CHECK_INT(ns_boundary_source_orders(&ghost, S | D | M), B | D | M);
     beam.events = 0;
-    CHECK_INT(ns_boundary_source_orders(&beam, NS_COMPONENT_SINGLE | D | M), B | D | M);
-    ghost.events = NS_VRL_FROM_ENVIRONMENT;
-    CHECK_INT(ns_boundary_source_orders(&ghost, D | M), D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, S | D | M), B | D | M);
+    /* The environment's unscattered light leaves its first order to single.comp (which
+     * follows it through internal reflections): its reflected beams give none, their ghosts
+     * take none away; its orders k + 2 and on stay. The flag is not an event. */
+    beam.events = NS_VRL_FROM_ENVIRONMENT;
+    CHECK_INT(ns_boundary_source_orders(&beam, S | D | M), D | M);
+    CHECK_INT(ns_boundary_source_orders(&beam, S), 0);
+    ghost.events = NS_VRL_FROM_ENVIRONMENT | NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_source_orders(&ghost, S | D | M), D | M);
+    /* Scattered light is never marked, but the mark would not matter there. */
+    beam.events = 1 | NS_VRL_FROM_ENVIRONMENT;
+    CHECK_INT(ns_boundary_source_orders(&beam, D | M), B | D | M);
+}
+
+/* Every kind of source at once (both signs; events 0, 1 and 2; the environment's mark; lines
+ * that return) falls into at most NS_BOUNDARY_GROUPS groups for any components: single and
+ * multiple asked make eight. */
+static void test_groups_of_every_kind(void)
+{
+    const uint32_t kinds[9][2] = {
+        {0, 0}, {0, NS_VRL_FROM_ENVIRONMENT}, {1, 0}, {1, NS_VRL_LINE_RETURNS}, {0, 1},
+        {1, 1}, {0, 2}, {1, 2 | NS_VRL_LINE_RETURNS}, {1, 2},
+    };
+    GpuVrl sources[9];
+    memset(sources, 0, sizeof sources);
+    for (int i = 0; i < 9; i++) {
+        for (int c = 0; c < 3; c++)
+            sources[i].power[c] = kinds[i][0] ? -0.5f : 0.5f;
+        sources[i].events = kinds[i][1];
+        sources[i].direction[2] = 1.0f;
+    }
+    const uint32_t S = NS_COMPONENT_SINGLE, D = NS_COMPONENT_DOUBLE, M = NS_COMPONENT_MULTIPLE;
+    const uint32_t asked[7] = {S, D, M, S | D, S | M, D | M, S | D | M};
+    uint32_t most = 0;
+    for (int a = 0; a < 7; a++) {
+        ns_boundary_groups groups;
+        ns_error err = {0};
+        CHECK_INT(ns_boundary_group(sources, 9, asked[a], &groups, &err), NS_OK);
+        most = groups.count > most ? groups.count : most;
+        ns_boundary_groups_free(&groups);
+    }
+    CHECK_INT(most, 8);
 }
 
 static GpuVrl stretch(double ox, double oy, double oz, double dx, double dy, double dz, double len,
@@ -221,6 +254,15 @@ static void test_sources_with_ends(void)
     CHECK(out[5].events == 1 && out[8].events == 0);
     CHECK_INT(ns_boundary_sources(marked, NULL, 5, &m, 1, out), 7);
     CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT);
+    /* The first stretch's ghost drops the line-returns mark (its line is the VRL's, whose
+     * first order is single.comp's); a reflected stretch's ghost keeps it. */
+    memcpy(marked, walk, sizeof marked);
+    marked[0].events = marked[1].events = NS_VRL_LINE_RETURNS;
+    CHECK_INT(ns_boundary_sources(marked, &ends[0][0], 5, &m, 1, out), 9);
+    CHECK(out[0].events == 0 && out[0].power[0] < 0.0f);
+    CHECK(out[2].events == NS_VRL_LINE_RETURNS && out[2].power[0] < 0.0f);
+    memcpy(marked, walk, sizeof marked);
+    marked[0].events = marked[1].events = NS_VRL_FROM_ENVIRONMENT;
     ns_boundary_groups groups;
     ns_error err = {0};
     CHECK_INT(ns_boundary_group(out, 7,
@@ -364,6 +406,7 @@ int main(void)
 {
     RUN(test_roulette);
     RUN(test_orders);
+    RUN(test_groups_of_every_kind);
     RUN(test_sources_of_a_walk);
     RUN(test_sources_with_ends);
     RUN(test_sources_of_a_reentry);
