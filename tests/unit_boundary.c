@@ -75,8 +75,8 @@ static void test_orders(void)
 static void test_groups_of_every_kind(void)
 {
     const uint32_t kinds[9][2] = {
-        {0, 0}, {0, NS_VRL_FROM_ENVIRONMENT}, {1, 0}, {1, NS_VRL_LINE_RETURNS}, {0, 1},
-        {1, 1}, {0, 2}, {1, 2 | NS_VRL_LINE_RETURNS}, {1, 2},
+        {0, 0}, {0, NS_VRL_FROM_ENVIRONMENT}, {1, 0}, {1, NS_VRL_LINE_RETURNS}, {0, 1}, {1, 1},
+        {0, 2}, {1, 2 | NS_VRL_LINE_RETURNS}, {1, 2},
     };
     GpuVrl sources[9];
     memset(sources, 0, sizeof sources);
