@@ -336,6 +336,10 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
             before *= beer_lambert(mat.sigma_t.xyz, h.t);
             float cos_t;
             float f = fresnel(cos_i, ior, cos_t);
+            // A chord of a sphere meets it at the same angle at both ends: totally reflected
+            // once inside an analytic sphere, the ray is for ever, so no light comes along it.
+            if (f >= 1.0 && prim_at(h.prim).info.x == NS_PRIM_SPHERE)
+                return vec3(0.0);
             if (f < 1.0 && rnd() >= f) {
                 from = b + n * ray_epsilon(b);
                 toward = normalize(ior * dir - (ior * cos_i - cos_t) * n);
