@@ -326,7 +326,8 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
             Hit h;
             if (!trace_scene(p, dir, 0.0, NS_INF, h))
                 return params.environment.rgb * before * beer_lambert(mat.sigma_t.xyz, NS_INF);
-            if (prim_at(h.prim).info.y != medium || h.front)
+            uvec4 info = prim_at(h.prim).info;
+            if (info.y != medium || h.front)
                 return vec3(0.0);
             vec3 b = p + h.t * dir;
             vec3 n = h.normal;
@@ -338,7 +339,7 @@ vec3 environment_along(vec3 x, vec3 back, uint medium, GpuMaterial mat)
             float f = fresnel(cos_i, ior, cos_t);
             // A chord of a sphere meets it at the same angle at both ends: totally reflected
             // once inside an analytic sphere, the ray is for ever, so no light comes along it.
-            if (f >= 1.0 && prim_at(h.prim).info.x == NS_PRIM_SPHERE)
+            if (f >= 1.0 && info.x == NS_PRIM_SPHERE)
                 return vec3(0.0);
             if (f < 1.0 && rnd() >= f) {
                 from = b + n * ray_epsilon(b);

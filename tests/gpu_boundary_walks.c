@@ -137,6 +137,20 @@ static double table_walk(const float origin[3], const float direction[3], uint32
  * ------------------------------------------------------------------------------------- */
 /* sigma_t, albedo: per channel (scene units); channels: how many to check (1 when all are
  * alike). */
+/* The renderer's light walks in the device scene d (ns_vrl_method_trace with `options`), its
+ * status checked (and its error printed). */
+static int trace_walks(const ns_scene *s, device_scene *d, uint32_t paths, uint32_t seed,
+                       uint32_t options, ns_vrl_set *walks)
+{
+    ns_error err = {0};
+    int status = ns_vrl_method_trace(test_context(), s, &d->gs, d->buffers, paths, seed, options,
+                                     walks, NULL, &err);
+    if (status)
+        fprintf(stderr, "trace: %s\n", err.message);
+    CHECK_INT(status, NS_OK);
+    return status;
+}
+
 static void run_channels(int which, double ior, const double sigma_t[3], const double albedo[3],
                          int channels)
 {
@@ -177,12 +191,7 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
         return;
     const uint32_t paths = 20000;
     ns_vrl_set walks = {0};
-    ns_error err = {0};
-    int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, paths, 7,
-                                     NS_VRL_TRACE_ENDS, &walks, NULL, &err);
-    if (status)
-        fprintf(stderr, "trace: %s\n", err.message);
-    CHECK_INT(status, NS_OK);
+    int status = trace_walks(&s, &d, paths, 7, NS_VRL_TRACE_ENDS, &walks);
     CHECK(status || walks.ends != NULL);
     GpuVrl *sources = malloc(sizeof *sources * 2 * (walks.count + 1));
     CHECK(sources != NULL);
@@ -403,10 +412,7 @@ static void line_flags_case(double ior)
         return;
     for (int mark = 0; mark < 2; mark++) {
         ns_vrl_set walks = {0};
-        ns_error err = {0};
-        int status = ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 11,
-                                         mark ? NS_VRL_TRACE_MARK_LINES : 0u, &walks, NULL, &err);
-        CHECK_INT(status, NS_OK);
+        int status = trace_walks(&s, &d, 4000, 11, mark ? NS_VRL_TRACE_MARK_LINES : 0u, &walks);
         uint32_t marked = 0, expected = 0, wrong = 0;
         for (uint32_t i = 0; !status && i < walks.count; i++) {
             const GpuVrl *v = &walks.vrls[i];
@@ -459,11 +465,8 @@ static void test_environment_flags(void)
             return;
         for (int mark = 0; mark < 2; mark++) {
             ns_vrl_set walks = {0};
-            ns_error err = {0};
             int status =
-                ns_vrl_method_trace(test_context(), &s, &d.gs, d.buffers, 4000, 5,
-                                    mark ? NS_VRL_TRACE_MARK_ENVIRONMENT : 0u, &walks, NULL, &err);
-            CHECK_INT(status, NS_OK);
+                trace_walks(&s, &d, 4000, 5, mark ? NS_VRL_TRACE_MARK_ENVIRONMENT : 0u, &walks);
             uint32_t unscattered = 0, marked = 0, marked_wrongly = 0;
             for (uint32_t i = 0; !status && i < walks.count; i++) {
                 uint32_t events = walks.vrls[i].events;

@@ -84,13 +84,7 @@ static void make_slab(slab *s, double ior, ns_light light)
     s->materials[MAT_MEDIUM].g = (float)G;
     s->materials[MAT_DIFFUSE] = diffuse(0.5, 0.5, 0.5);
     s->materials[MAT_GLASS] = medium(GLASS_SIGMA_S, GLASS_SIGMA_A, 1.5);
-    ns_object box;
-    memset(&box, 0, sizeof box);
-    box.shape = NS_SHAPE_BOX;
-    box.material = MAT_MEDIUM;
-    set3(box.min, -50, 0, -50);
-    set3(box.max, 50, TOP, 50);
-    s->objects[0] = box;
+    s->objects[0] = cuboid(-50, 0, -50, 50, TOP, 50, MAT_MEDIUM);
     s->lights[0] = light;
     s->scene = base_scene(16, 16, 60);
     s->scene.materials = s->materials;
@@ -448,13 +442,7 @@ static void test_sphere_light(void)
 static void make_slab_half_covered(slab *s, double ior, ns_light light, uint32_t material)
 {
     make_slab(s, ior, light);
-    ns_object plate;
-    memset(&plate, 0, sizeof plate);
-    plate.shape = NS_SHAPE_BOX;
-    plate.material = material;
-    set3(plate.min, -50, 2, -50);
-    set3(plate.max, 0, 2.5, 50);
-    s->objects[1] = plate;
+    s->objects[1] = cuboid(-50, 2, -50, 0, 2.5, 50, material);
     s->scene.object_count = 2;
 }
 
@@ -854,17 +842,12 @@ static void check_environment_reflections(int use_cube)
     const double ss[3] = {0.3, 0.5, 0.8}, sa[3] = {0.05, 0.1, 0.1};
     ns_material m = medium(ss, sa, 1.5);
     m.g = 0.3f;
-    ns_object cube;
-    memset(&cube, 0, sizeof cube);
-    cube.shape = NS_SHAPE_BOX;
-    set3(cube.min, -1, -1, -1);
-    set3(cube.max, 1, 1, 1);
+    ns_object object = use_cube ? cuboid(-1, -1, -1, 1, 1, 1, 0) : sphere(0, 0, 0, 1, 0);
     ns_light env = light(NS_LIGHT_ENVIRONMENT, 0.3, 0.2, 0.1);
     ns_scene s = base_scene(16, 16, 50);
     set3(s.camera.position, 2.5, 2.0, 3.5);
     set3(s.camera.look_at, 0, 0, 0);
-    ns_object ball = sphere(0, 0, 0, 1, 0);
-    scene_lists(&s, &m, 1, use_cube ? &cube : &ball, 1, &env, 1);
+    scene_lists(&s, &m, 1, &object, 1, &env, 1);
     check_against_path_tracer(&s);
 }
 

@@ -113,6 +113,19 @@ static inline ns_object sphere(double x, double y, double z, double r, uint32_t 
     return o;
 }
 
+/* An axis-aligned box from (x0, y0, z0) to (x1, y1, z1). */
+static inline ns_object cuboid(double x0, double y0, double z0, double x1, double y1, double z1,
+                               uint32_t material)
+{
+    ns_object o;
+    memset(&o, 0, sizeof o);
+    o.shape = NS_SHAPE_BOX;
+    set3(o.min, x0, y0, z0);
+    set3(o.max, x1, y1, z1);
+    o.material = material;
+    return o;
+}
+
 static inline ns_object plane(double py, uint32_t material)
 {
     ns_object o;
