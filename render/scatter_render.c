@@ -982,13 +982,27 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
 {
     if (!count)
         return NS_OK;
+    /* The GPU gets them most strata first (ns_single_order), the results go back to the
+     * order of `segs`. */
+    uint32_t samples = in->scene->render.single_samples;
+    uint32_t *order = malloc(sizeof *order * count), *place = malloc(sizeof *place * count);
+    GpuSegment *sorted = malloc(sizeof *sorted * count);
+    if (!order || !place || !sorted || ns_single_order(segs, count, samples, order)) {
+        free(order);
+        free(place);
+        free(sorted);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", count);
+    }
+    for (uint32_t j = 0; j < count; j++)
+        sorted[j] = segs[order[j]];
     gpu_buffer segments = {0}, out = {0};
     int status = gpu_buffer_create(&ctx->dev, &segments,
                                    &(gpu_buffer_desc){.size = sizeof *segs * count,
-                                                      .data = segs,
+                                                      .data = sorted,
                                                       .data_size = sizeof *segs * count,
                                                       .label = "ns.single.segments"},
                                    err);
+    free(sorted);
     if (!status)
         status = gpu_buffer_create(&ctx->dev, &out,
                                    &(gpu_buffer_desc){.size = 16ull * count,
@@ -996,8 +1010,7 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
                                                       .label = "ns.single.radiance"},
                                    err);
     if (!status)
-        status = ns_single_scatter(ctx, in->scene_buffers, &segments, count,
-                                   in->scene->render.single_samples, &out, err);
+        status = ns_single_scatter(ctx, in->scene_buffers, &segments, count, samples, &out, err);
     float (*added)[3] = NULL, (*weight)[3] = NULL;
     if (!status && moments &&
         (!(added = malloc(sizeof *added * count)) || !(weight = malloc(sizeof *weight * count))))
@@ -1005,10 +1018,13 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
     if (!status) {
         const float(*radiance)[4] = out.mapped;
         float inv_spp = 1.0f / (float)in->scene->render.spp;
+        /* Back in the order of `segs`, so that the sums add as they always did. */
+        for (uint32_t j = 0; j < count; j++)
+            place[order[j]] = j;
         for (uint32_t i = 0; i < count; i++) {
             float f = inv_spp * exit_factor(&in->gs->materials[segs[i].material]);
             for (int c = 0; c < 3; c++) {
-                float x = segs[i].throughput[c] * radiance[i][c] * f;
+                float x = segs[i].throughput[c] * radiance[place[i]][c] * f;
                 sum[segs[i].pixel][c] += x;
                 if (moments) {
                     added[i][c] = x;
@@ -1022,6 +1038,8 @@ static int single_segments(ns_context *ctx, const ns_scatter_inputs *in, const G
     }
     free(added);
     free(weight);
+    free(place);
+    free(order);
     gpu_buffer_destroy(&ctx->dev, &segments);
     gpu_buffer_destroy(&ctx->dev, &out);
     return status;

@@ -6,6 +6,7 @@
  * from that (SINGLE_COST_FACTOR). The shader detects an invocation whose loops were cut
  * short anyway; then every sample is run again in smaller chunks, and when one sample alone
  * is too much the call fails with NS_ERR_LIMIT: a wrong result is never returned. */
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -157,6 +158,34 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
     ns_progress_pop(ctx, outer);
     free(push);
     return status;
+}
+
+/* A segment's strata as single.comp's segment_strata counts them: `samples` scaled by its
+ * largest throughput, at least 1. Only the order below uses it: should the two drift apart,
+ * the SIMD groups are less full, the result the same. */
+static uint32_t segment_strata(const GpuSegment *seg, uint32_t samples)
+{
+    float w = seg->throughput[0];
+    w = seg->throughput[1] > w ? seg->throughput[1] : w;
+    w = seg->throughput[2] > w ? seg->throughput[2] : w;
+    float scaled = ceilf((float)samples * (w < 1.0f ? w : 1.0f));
+    return !(scaled >= 1.0f) ? 1u : scaled > (float)samples ? samples : (uint32_t)scaled;
+}
+
+int ns_single_order(const GpuSegment *segs, uint32_t count, uint32_t samples, uint32_t *order)
+{
+    /* A counting sort on samples - strata: most strata first, stable. */
+    uint32_t *start = calloc((size_t)samples + 1, sizeof *start);
+    if (!start)
+        return -1;
+    for (uint32_t i = 0; i < count; i++)
+        start[samples - segment_strata(&segs[i], samples) + 1]++;
+    for (uint32_t k = 0; k < samples; k++)
+        start[k + 1] += start[k];
+    for (uint32_t i = 0; i < count; i++)
+        order[start[samples - segment_strata(&segs[i], samples)]++] = i;
+    free(start);
+    return 0;
 }
 
 int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *segments,

@@ -11,7 +11,8 @@
  *     shadow edge; fully shadowed: 0);
  *   - a constant environment seen from the centre of a sphere (every direction meets the
  *     boundary at normal incidence): sigma_s n^2 (1 - F0) L_env e^{-sigma_t R} ...;
- *   - bad arguments give clear errors.
+ *   - bad arguments give clear errors;
+ *   - the renderer's order for the GPU: most strata first, ties in their order.
  * NSCATTER_BENCH=1 also times 128x128 and 512x512 segment sets (100 samples, one light). */
 #include "gpu_util.h"
 #include "scatter.h"
@@ -687,6 +688,35 @@ static void add_side_planes(ns_object *objects, uint32_t count)
     }
 }
 
+/* The renderer hands segments to the GPU most strata first (ns_single_order), so that a SIMD
+ * group's lanes finish together: strata as single.comp counts them (samples times the largest
+ * throughput, rounded up, 1 at least, samples at most), most first, ties in their order. */
+static void test_order_most_strata_first(void)
+{
+    /* Largest throughput and the strata it gives at 64 samples. */
+    static const struct {
+        float largest;
+        uint32_t strata;
+    } cases[] = {{0.96f, 62}, {0.01f, 1}, {1.0f, 64}, {0.0f, 1}, {0.5f, 32}, {0.96f, 62},
+                 {3.0f, 64},  {0.5f, 32}, {1e-30f, 1}, {0.2f, 13}};
+    enum { N = sizeof cases / sizeof cases[0] };
+    GpuSegment segs[N];
+    memset(segs, 0, sizeof segs);
+    for (uint32_t i = 0; i < N; i++) {
+        /* The largest in a different channel each time. */
+        segs[i].throughput[i % 3] = cases[i].largest;
+        segs[i].throughput[(i + 1) % 3] = 0.5f * cases[i].largest;
+    }
+    uint32_t order[N];
+    CHECK_INT(ns_single_order(segs, N, 64, order), 0);
+    static const uint32_t want[N] = {2, 6, 0, 5, 4, 7, 9, 1, 3, 8};
+    for (uint32_t j = 0; j < N; j++) {
+        CHECK_INT(order[j], want[j]);
+        if (j)
+            CHECK(cases[order[j - 1]].strata >= cases[order[j]].strata);
+    }
+}
+
 static void test_loop_limit_retry(void)
 {
     double dir[3] = {0, -1, 0};
@@ -1204,6 +1234,7 @@ int main(void)
     RUN(test_samples_follow_throughput);
     RUN(test_long_and_rising_segments);
     RUN(test_order_independent);
+    RUN(test_order_most_strata_first);
     RUN(test_loop_limit_retry);
     RUN(test_loop_limit_error);
     RUN(test_against_path_tracer);
