@@ -174,7 +174,9 @@ static uint32_t segment_strata(const GpuSegment *seg, uint32_t samples)
 
 int ns_single_order(const GpuSegment *segs, uint32_t count, uint32_t samples, uint32_t *order)
 {
-    /* A counting sort on samples - strata: most strata first, stable. */
+    /* A counting sort on samples - strata: most strata first, stable. (0 samples, which
+     * ns_single_scatter refuses, keeps the order.) */
+    samples = samples ? samples : 1;
     uint32_t *start = calloc((size_t)samples + 1, sizeof *start);
     if (!start)
         return -1;

@@ -715,6 +715,12 @@ static void test_order_most_strata_first(void)
         if (j)
             CHECK(cases[order[j - 1]].strata >= cases[order[j]].strata);
     }
+    /* One sample (or 0, which ns_single_scatter refuses): every segment takes one stratum. */
+    for (uint32_t samples = 0; samples < 2; samples++) {
+        CHECK_INT(ns_single_order(segs, N, samples, order), 0);
+        for (uint32_t j = 0; j < N; j++)
+            CHECK_INT(order[j], j);
+    }
 }
 
 static void test_loop_limit_retry(void)
