@@ -77,6 +77,7 @@
  * ------------------------------------------------------------------------------------- */
 typedef struct args {
     const char *scene, *bunny, *device;
+    const char *embree_isa; /* Embree's config "isa=": the widest instructions it may use */
     uint32_t width, height, repeat, threads;
     double light[3];
     int no_packets;
@@ -103,7 +104,12 @@ static void usage(FILE *f)
             "  --floor F       nscatter's floor: plane (default: an infinite plane outside the\n"
             "                  BVH, as the renderer traces a plane) or quad (Embree's square, its\n"
             "                  two triangles built into nscatter's BVH with the bunny)\n"
-            "  --device D      Vulkan device (index or name part; default lavapipe)\n");
+            "  --device D      Vulkan device (index or name part; default lavapipe)\n"
+            "  --embree-isa I  the widest instructions Embree may use (its config's isa=:\n"
+            "                  sse2, sse4.2, avx, avx2, avx512; default: what the CPU has). With\n"
+            "                  avx2, and lavapipe told GALLIUM_OVERRIDE_CPU_CAPS=avx (which\n"
+            "                  leaves it AVX2 without AVX-512), both sides run as on a CPU\n"
+            "                  without AVX-512\n");
 }
 
 static int parse_u32(const char *name, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
@@ -154,6 +160,17 @@ static int parse_args(int argc, char **argv, args *a)
             a->bunny = v;
         } else if (!strcmp(o, "--device")) {
             a->device = v;
+        } else if (!strcmp(o, "--embree-isa")) {
+            static const char *const isas[] = {"sse2", "sse4.2", "avx", "avx2", "avx512"};
+            size_t k = 0;
+            while (k < sizeof isas / sizeof isas[0] && strcmp(v, isas[k]))
+                k++;
+            if (k == sizeof isas / sizeof isas[0]) {
+                fprintf(stderr, "bench_rays: --embree-isa: '%s' is none of sse2, sse4.2, avx, "
+                                "avx2, avx512\n", v);
+                return 2;
+            }
+            a->embree_isa = isas[k];
         } else if (!strcmp(o, "--floor")) {
             if (!strcmp(v, "plane") || !strcmp(v, "quad")) {
                 a->floor_quad = !strcmp(v, "quad");
@@ -726,7 +743,8 @@ int main(int argc, char **argv)
 
     /* ---- Embree: the bunny and the floor square ---- */
     char config[64];
-    snprintf(config, sizeof config, "threads=%u", a.threads);
+    snprintf(config, sizeof config, "threads=%u%s%s", a.threads, a.embree_isa ? ",isa=" : "",
+             a.embree_isa ? a.embree_isa : "");
     RTCDevice edev = rtcNewDevice(config);
     if (!edev) {
         fprintf(stderr, "bench_rays: rtcNewDevice failed (%d)\n", (int)rtcGetDeviceError(NULL));
@@ -928,8 +946,10 @@ int main(int argc, char **argv)
            shadow, light[0], light[1], light[2]);
     printf("device: %s (%s; %s), %u thread(s) for Embree; CPU %s\n", info.device_name,
            info.driver_name, info.driver_info, a.threads, cpu);
-    printf("Embree %s, scene build %.1f ms (not timed below); load average %.2f -> %.2f\n",
-           eversion, embree_build_ms, load_start[0], load_end[0]);
+    printf("Embree %s (isa: %s), scene build %.1f ms (not timed below); load average %.2f -> "
+           "%.2f\n",
+           eversion, a.embree_isa ? a.embree_isa : "the CPU's", embree_build_ms, load_start[0],
+           load_end[0]);
     printf("timed runs: %u per side and set, after one warm-up; nscatter = %s; nscatter's shadow "
            "rays: %s\n\n",
            a.repeat,
@@ -964,11 +984,12 @@ int main(int argc, char **argv)
     printf("{\"bench\":\"rays\",\"width\":%u,\"height\":%u,\"triangles\":%u,\"rays\":%u,"
            "\"primary\":%u,\"shadow\":%u,\"repeat\":%u,\"threads\":%u,\"device\":\"%s\","
            "\"driver\":\"%s\",\"cpu\":\"%s\",\"embree\":\"%s\",\"nscatter_timing\":\"%s\","
-           "\"floor\":\"%s\",\"shadow_query\":\"%s\",\"load_start\":%.2f,\"load_end\":%.2f,",
+           "\"floor\":\"%s\",\"shadow_query\":\"%s\",\"embree_isa\":\"%s\",\"load_start\":%.2f,"
+           "\"load_end\":%.2f,",
            a.width, a.height, tris, total, primary, shadow, a.repeat, a.threads, info.device_name,
            info.driver_info, cpu, eversion, timestamps ? "timestamps" : "host",
-           a.floor_quad ? "quad" : "plane", a.nearest_shadow ? "nearest" : "any", load_start[0],
-           load_end[0]);
+           a.floor_quad ? "quad" : "plane", a.nearest_shadow ? "nearest" : "any",
+           a.embree_isa ? a.embree_isa : "native", load_start[0], load_end[0]);
     json_side("nscatter", &ns_dev, total, primary, shadow, 0);
     json_side("nscatter_host", &ns_wall, total, primary, shadow, 0);
     json_side("embree_scalar", &em_scalar, total, primary, shadow, 0);
