@@ -8,6 +8,7 @@
 #include <jansson.h>
 
 #include "commands.h"
+#include "huge_pages.h"
 #include "nscatter.h"
 
 static void info_usage(FILE *out)
@@ -50,14 +51,16 @@ static void memory_type_name(uint32_t bits, char *out, size_t size)
 
 static int print_json(const ns_device_info *info, const char *api)
 {
-    json_t *obj =
-        json_pack("{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:I, s:I, s:b, s:b, s:s}", "device",
-                  info->device_name, "driver", info->driver_name, "driver_info", info->driver_info,
-                  "api_version", api, "is_cpu", info->is_cpu, "vendor_id",
-                  (json_int_t)info->vendor_id, "device_id", (json_int_t)info->device_id,
-                  "subgroup_size", (json_int_t)info->subgroup_size, "device_local_bytes",
-                  (json_int_t)info->device_local_bytes, "ray_query", info->ray_query,
-                  "ray_tracing_pipeline", info->ray_tracing_pipeline, "version", NS_VERSION);
+    char thp[32];
+    json_t *obj = json_pack(
+        "{s:s, s:s, s:s, s:s, s:b, s:I, s:I, s:I, s:I, s:b, s:b, s:s, s:b, s:s}", "device",
+        info->device_name, "driver", info->driver_name, "driver_info", info->driver_info,
+        "api_version", api, "is_cpu", info->is_cpu, "vendor_id", (json_int_t)info->vendor_id,
+        "device_id", (json_int_t)info->device_id, "subgroup_size", (json_int_t)info->subgroup_size,
+        "device_local_bytes", (json_int_t)info->device_local_bytes, "ray_query", info->ray_query,
+        "ray_tracing_pipeline", info->ray_tracing_pipeline, "version", NS_VERSION,
+        "malloc_huge_pages", huge_pages_on(), "kernel_huge_pages",
+        huge_pages_kernel_mode(thp, sizeof thp));
     json_t *types = obj ? json_array() : NULL;
     for (uint32_t i = 0; types && i < info->memory_type_count; i++) {
         char name[96];
@@ -130,5 +133,10 @@ int cmd_info(int argc, char **argv)
      * traces through its compute BVH everywhere (docs/rendering.md, *Ray tracing*). */
     printf("ray query:    %s\n", info.ray_query ? "yes (not used)" : "no");
     printf("ray tracing pipelines: %s\n", info.ray_tracing_pipeline ? "yes (not used)" : "no");
+    /* cli/huge_pages.c: what a render's fresh buffers cost at their first touch. */
+    char thp[32];
+    printf("huge pages:   malloc %s (kernel mode: %s)\n",
+           huge_pages_on() ? "asks for them (glibc.malloc.hugetlb=1)" : "does not ask for them",
+           huge_pages_kernel_mode(thp, sizeof thp));
     return 0;
 }

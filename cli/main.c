@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "commands.h"
+#include "huge_pages.h"
 #include "nscatter.h"
 
 typedef struct {
@@ -33,6 +34,7 @@ static void usage(FILE *out)
 
 int main(int argc, char **argv)
 {
+    huge_pages_start(argv); /* returns in the process that has them, or cannot */
     if (argc < 2) {
         usage(stderr);
         return 2;

@@ -1,0 +1,18 @@
+/* huge_pages.h — transparent huge pages for what malloc maps (cli/huge_pages.c). */
+#ifndef NS_CLI_HUGE_PAGES_H
+#define NS_CLI_HUGE_PAGES_H
+
+#include <stddef.h>
+
+/* Starts this process again with glibc's tunable glibc.malloc.hugetlb=1 in its environment
+ * unless GLIBC_TUNABLES is set already (the user's own setting stays theirs) or
+ * NSCATTER_HUGE_PAGES=0; returns only when it did not (or could not). */
+void huge_pages_start(char **argv);
+
+/* Whether this process's malloc asks for transparent huge pages. */
+int huge_pages_on(void);
+
+/* The kernel's transparent huge page mode (always, madvise or never), or "unknown". */
+const char *huge_pages_kernel_mode(char *buf, size_t size);
+
+#endif

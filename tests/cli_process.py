@@ -1,0 +1,105 @@
+"""The nscatter process itself (cli/huge_pages.c): it starts itself again, once, with glibc's
+tunable glibc.malloc.hugetlb=1, so that malloc asks for transparent huge pages for the large
+buffers a render touches once (docs/rendering.md, *Huge pages*).
+
+- By default `nscatter info --json` says malloc asks for them (malloc_huge_pages) and names
+  the kernel's mode; a running `nscatter serve` has the tunable in its environment and is
+  still the process its parent started (execv keeps the pid: a supervisor's pid is the
+  server's).
+- A user's own GLIBC_TUNABLES is kept as it is (and then malloc is not told), and
+  NSCATTER_HUGE_PAGES=0 turns the restart off.
+- The images do not depend on it: the same render with and without has the same pixels."""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from nstest_http import Checks, Server, environment_scene, sanitizer_env  # noqa: E402
+
+BIN = os.environ.get("NSCATTER_BIN", "")
+TIMEOUT_S = 300
+TUNABLE = "glibc.malloc.hugetlb=1"
+
+
+def clean_env(**extra):
+    """The test's environment without GLIBC_TUNABLES or NSCATTER_HUGE_PAGES, plus extra."""
+    env = sanitizer_env()
+    env.pop("GLIBC_TUNABLES", None)
+    env.pop("NSCATTER_HUGE_PAGES", None)
+    env.update(extra)
+    return env
+
+
+def info(t, env):
+    p = subprocess.run([BIN, "info", "--json"], capture_output=True, timeout=TIMEOUT_S, env=env)
+    t.equal(p.returncode, 0, f"info exit status ({p.stderr.decode(errors='replace')[:300]})")
+    return json.loads(p.stdout) if p.returncode == 0 else {}
+
+
+def test_info_says_so(t, d):
+    got = info(t, clean_env())
+    t.equal(got.get("malloc_huge_pages"), True, "by default malloc asks for huge pages")
+    t.check(got.get("kernel_huge_pages") in ("always", "madvise", "never", "unknown"),
+            f"the kernel's mode is named: {got.get('kernel_huge_pages')!r}")
+    got = info(t, clean_env(GLIBC_TUNABLES="glibc.malloc.check=0"))
+    t.equal(got.get("malloc_huge_pages"), False, "a user's own GLIBC_TUNABLES is left alone")
+    got = info(t, clean_env(NSCATTER_HUGE_PAGES="0"))
+    t.equal(got.get("malloc_huge_pages"), False, "NSCATTER_HUGE_PAGES=0 turns it off")
+    got = info(t, clean_env(GLIBC_TUNABLES="glibc.malloc.check=0:" + TUNABLE))
+    t.equal(got.get("malloc_huge_pages"), True, "the tunable among others is seen")
+
+
+def environ_of(pid):
+    with open(f"/proc/{pid}/environ", "rb") as f:
+        return dict(item.split(b"=", 1) for item in f.read().split(b"\0") if b"=" in item)
+
+
+def test_server_runs_restarted(t, d):
+    saved = {k: os.environ.pop(k) for k in ("GLIBC_TUNABLES", "NSCATTER_HUGE_PAGES")
+             if k in os.environ}
+    try:
+        with Server() as srv:
+            env = environ_of(srv.proc.pid)
+            t.equal(env.get(b"GLIBC_TUNABLES"), TUNABLE.encode(),
+                    "the server's process (the pid its parent started) has the tunable")
+            t.equal(srv.request("GET", "/readyz")[0], 200, "and serves")
+        with Server(env={"GLIBC_TUNABLES": "glibc.malloc.check=0"}) as srv:
+            t.equal(environ_of(srv.proc.pid).get(b"GLIBC_TUNABLES"), b"glibc.malloc.check=0",
+                    "a user's GLIBC_TUNABLES reaches the server unchanged")
+    finally:
+        os.environ.update(saved)
+
+
+def test_same_image(t, d):
+    scene = os.path.join(d, "env.json")
+    with open(scene, "w") as f:
+        json.dump(environment_scene([0.25, 0.05, 0.5]), f)
+    images = []
+    for env in (clean_env(), clean_env(NSCATTER_HUGE_PAGES="0")):
+        images.append(os.path.join(d, f"out{len(images)}.exr"))
+        p = subprocess.run([BIN, "render", scene, "-o", images[-1]], capture_output=True,
+                           timeout=TIMEOUT_S, env=env)
+        t.equal(p.returncode, 0, f"render exit status ({p.stderr.decode(errors='replace')[:300]})")
+    # The files' headers carry the render's timings: the pixels are what must agree.
+    p = subprocess.run([BIN, "compare", *images], capture_output=True, timeout=TIMEOUT_S,
+                       env=clean_env())
+    t.equal(p.returncode, 0, "compare exit status")
+    t.equal(json.loads(p.stdout or b"{}").get("identical"), True,
+            "the same pixels with and without")
+
+
+def main():
+    if not BIN:
+        print("NSCATTER_BIN is not set (run through ctest)", file=sys.stderr)
+        return 1
+    t = Checks()
+    with tempfile.TemporaryDirectory() as d:
+        for test in (test_info_says_so, test_server_runs_restarted, test_same_image):
+            t.run(test, d)
+    return t.report()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
