@@ -77,7 +77,7 @@
  * ------------------------------------------------------------------------------------- */
 typedef struct args {
     const char *scene, *bunny, *device;
-    const char *embree_isa; /* Embree's config "isa=": the widest instructions it may use */
+    const char *embree_isa; /* Embree's config "max_isa=": the widest instructions it may use */
     uint32_t width, height, repeat, threads;
     double light[3];
     int no_packets;
@@ -105,7 +105,7 @@ static void usage(FILE *f)
             "                  BVH, as the renderer traces a plane) or quad (Embree's square, its\n"
             "                  two triangles built into nscatter's BVH with the bunny)\n"
             "  --device D      Vulkan device (index or name part; default lavapipe)\n"
-            "  --embree-isa I  the widest instructions Embree may use (its config's isa=:\n"
+            "  --embree-isa I  the widest instructions Embree may use (its config's max_isa=:\n"
             "                  sse2, sse4.2, avx, avx2, avx512; default: what the CPU has). With\n"
             "                  avx2, and lavapipe told GALLIUM_OVERRIDE_CPU_CAPS=avx (which\n"
             "                  leaves it AVX2 without AVX-512), both sides run as on a CPU\n"
@@ -743,7 +743,7 @@ int main(int argc, char **argv)
 
     /* ---- Embree: the bunny and the floor square ---- */
     char config[64];
-    snprintf(config, sizeof config, "threads=%u%s%s", a.threads, a.embree_isa ? ",isa=" : "",
+    snprintf(config, sizeof config, "threads=%u%s%s", a.threads, a.embree_isa ? ",max_isa=" : "",
              a.embree_isa ? a.embree_isa : "");
     RTCDevice edev = rtcNewDevice(config);
     if (!edev) {

@@ -135,8 +135,7 @@ int cmd_info(int argc, char **argv)
     printf("ray tracing pipelines: %s\n", info.ray_tracing_pipeline ? "yes (not used)" : "no");
     /* cli/huge_pages.c: what a render's fresh buffers cost at their first touch. */
     char thp[32];
-    printf("huge pages:   malloc %s (kernel mode: %s)\n",
-           huge_pages_on() ? "asks for them (glibc.malloc.hugetlb=1)" : "does not ask for them",
-           huge_pages_kernel_mode(thp, sizeof thp));
+    printf("huge pages:   GLIBC_TUNABLES %s glibc.malloc.hugetlb=1 (kernel mode: %s)\n",
+           huge_pages_on() ? "has" : "has not", huge_pages_kernel_mode(thp, sizeof thp));
     return 0;
 }

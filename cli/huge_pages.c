@@ -8,7 +8,8 @@
  * glibc's tunable glibc.malloc.hugetlb=1 has malloc advise MADV_HUGEPAGE on what it maps,
  * so that where the kernel's mode is "madvise" (Debian's and most distributions' default)
  * those regions fault once per 2 MiB. Measured (docs/bench.md, *Huge pages*): the bench's
- * scenes at 256², cold, reconstruct −35%, accumulate −16%, whole renders −7 to −21%.
+ * scenes at 256², cold, reconstruct −19 to −45%, accumulate −8 to −16%, whole renders up to
+ * −21%, the images the same.
  *
  * glibc reads its tunables only when a process starts, and lavapipe allocates through malloc
  * inside the driver, where no madvise of ours reaches: so main() starts the binary again
@@ -19,20 +20,30 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/auxv.h>
 #include <unistd.h>
 
 #define HUGE_PAGES_TUNABLE "glibc.malloc.hugetlb=1"
+/* Set in the restarted process: it never restarts again, whatever glibc did to
+ * GLIBC_TUNABLES (a secure-mode process may find it scrubbed). */
+#define HUGE_PAGES_RESTARTED "NSCATTER_HUGE_PAGES_RESTARTED"
 
 void huge_pages_start(char **argv)
 {
     const char *off = getenv("NSCATTER_HUGE_PAGES");
-    if (getenv("GLIBC_TUNABLES") || (off && !strcmp(off, "0")))
+    if (getenv("GLIBC_TUNABLES") || getenv(HUGE_PAGES_RESTARTED) || (off && !strcmp(off, "0")))
         return;
-    if (setenv("GLIBC_TUNABLES", HUGE_PAGES_TUNABLE, 1))
+    /* Not in secure mode (set-user-ID, file capabilities: glibc ignores the tunables there),
+     * nor when the binary was started through the dynamic loader named as the program
+     * (AT_BASE 0), where /proc/self/exe is the loader, not nscatter. */
+    if (getauxval(AT_SECURE) || !getauxval(AT_BASE))
+        return;
+    if (setenv(HUGE_PAGES_RESTARTED, "1", 1) || setenv("GLIBC_TUNABLES", HUGE_PAGES_TUNABLE, 1))
         return;
     execv("/proc/self/exe", argv);
     /* No /proc (or no exec): go on with the pages as they are. */
     unsetenv("GLIBC_TUNABLES");
+    unsetenv(HUGE_PAGES_RESTARTED);
 }
 
 int huge_pages_on(void)

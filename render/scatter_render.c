@@ -1079,7 +1079,8 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
         if (status)
             break;
         /* In Z order, as the gather's lists: a round's pixels are spread over the image, and
-         * pixel order would put far-apart segments side by side in a SIMD group. */
+         * pixel order would put far-apart segments side by side in a SIMD group
+         * (single_segments then orders them by strata, keeping this order within each). */
         uint32_t count = 0, marked = plan_round(&plan, (uint32_t)level, round, interpolated)
                                          ? marked_in_z_order(&plan, round, GATHER_BOTH, order)
                                          : 0;

@@ -283,16 +283,6 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
     vec3 inv_d = 1.0 / d;
     float best = tmax;
     uint best_prim = NS_NONE;
-    // The planes first: a plane met (a floor) shortens the ray, and the BVH's boxes beyond it
-    // are never entered.
-    uint first_plane = params.prims.x;
-    for (uint i = first_plane; i < first_plane + params.prims.y; i++) {
-        float t = hit_prim(i, o, d, inv_d, tmin, best);
-        if (t > 0.0) {
-            best = t;
-            best_prim = i;
-        }
-    }
 
     uint stack[NS_BVH_STACK];
     float stack_enter[NS_BVH_STACK];
@@ -378,6 +368,15 @@ bool trace_scene(vec3 o, vec3 d, float tmin, float tmax, out Hit hit)
 #endif
 #undef NS_POP_LIVE_ENTRY
 
+    uint first_plane = params.prims.x;
+    for (uint i = first_plane; i < first_plane + params.prims.y; i++) {
+        float t = hit_prim(i, o, d, inv_d, tmin, best);
+        if (t > 0.0) {
+            best = t;
+            best_prim = i;
+        }
+    }
+
     hit.t = best;
     hit.prim = best_prim;
     hit.normal = vec3(0.0, 0.0, 1.0);
@@ -405,11 +404,6 @@ const uint NS_SHADOW_CLEAR = 0u, NS_SHADOW_BLOCKED = 1u, NS_SHADOW_CROSSES = 2u;
 uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax, uint crosses)
 {
     vec3 inv_d = 1.0 / d;
-    // The planes first: a floor met ends the query before the BVH is entered.
-    uint first_plane = params.prims.x;
-    for (uint i = first_plane; i < first_plane + params.prims.y; i++)
-        if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
-            return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES : NS_SHADOW_BLOCKED;
     uint stack[NS_BVH_STACK];
     uint sp = 0u;
     uint current = NS_NONE;
@@ -443,5 +437,9 @@ uint trace_shadow(vec3 o, vec3 d, float tmin, float tmax, uint crosses)
                 stack[sp++] = r;
         }
     }
+    uint first_plane = params.prims.x;
+    for (uint i = first_plane; i < first_plane + params.prims.y; i++)
+        if (hit_prim(i, o, d, inv_d, tmin, tmax) > 0.0)
+            return (prim_at(i).info.w & crosses) != 0u ? NS_SHADOW_CROSSES : NS_SHADOW_BLOCKED;
     return NS_SHADOW_CLEAR;
 }

@@ -6,8 +6,9 @@ buffers a render touches once (docs/rendering.md, *Huge pages*).
   the kernel's mode; a running `nscatter serve` has the tunable in its environment and is
   still the process its parent started (execv keeps the pid: a supervisor's pid is the
   server's).
-- A user's own GLIBC_TUNABLES is kept as it is (and then malloc is not told), and
-  NSCATTER_HUGE_PAGES=0 turns the restart off.
+- A user's own GLIBC_TUNABLES is kept as it is (and then malloc is not told),
+  NSCATTER_HUGE_PAGES=0 turns the restart off, the restarted process never restarts again,
+  and a run through the dynamic loader named as the program goes on without.
 - The images do not depend on it: the same render with and without has the same pixels."""
 import json
 import os
@@ -16,7 +17,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from nstest_http import Checks, Server, environment_scene, sanitizer_env  # noqa: E402
+from nstest_http import Checks, Server, sanitizer_env, small_scene  # noqa: E402
 
 BIN = os.environ.get("NSCATTER_BIN", "")
 TIMEOUT_S = 300
@@ -49,6 +50,17 @@ def test_info_says_so(t, d):
     t.equal(got.get("malloc_huge_pages"), False, "NSCATTER_HUGE_PAGES=0 turns it off")
     got = info(t, clean_env(GLIBC_TUNABLES="glibc.malloc.check=0:" + TUNABLE))
     t.equal(got.get("malloc_huge_pages"), True, "the tunable among others is seen")
+    # The restarted process never restarts again, even where glibc dropped the tunable.
+    got = info(t, clean_env(NSCATTER_HUGE_PAGES_RESTARTED="1"))
+    t.equal(got.get("malloc_huge_pages"), False, "no second restart")
+    # Through the dynamic loader named as the program /proc/self/exe is the loader: no restart.
+    loader = "/lib64/ld-linux-x86-64.so.2"
+    if os.path.exists(loader):
+        p = subprocess.run([loader, BIN, "info", "--json"], capture_output=True,
+                           timeout=TIMEOUT_S, env=clean_env())
+        t.equal(p.returncode, 0, "info through the loader")
+        t.equal(json.loads(p.stdout or b"{}").get("malloc_huge_pages"), False,
+                "through the loader it goes on as it is")
 
 
 def environ_of(pid):
@@ -73,9 +85,14 @@ def test_server_runs_restarted(t, d):
 
 
 def test_same_image(t, d):
-    scene = os.path.join(d, "env.json")
+    # A wax sphere with every component: the networks' tables, the walks, the gather and
+    # single scattering all allocate what the huge pages are for.
+    scene = os.path.join(d, "wax.json")
+    wax = small_scene(width=24, height=16, spp=2)
+    wax["render"]["components"] = ["surface", "single", "double", "multiple"]
+    wax["render"]["vrls"] = 2000
     with open(scene, "w") as f:
-        json.dump(environment_scene([0.25, 0.05, 0.5]), f)
+        json.dump(wax, f)
     images = []
     for env in (clean_env(), clean_env(NSCATTER_HUGE_PAGES="0")):
         images.append(os.path.join(d, f"out{len(images)}.exr"))
