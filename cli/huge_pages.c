@@ -28,22 +28,25 @@
  * GLIBC_TUNABLES (a secure-mode process may find it scrubbed). */
 #define HUGE_PAGES_RESTARTED "NSCATTER_HUGE_PAGES_RESTARTED"
 
-void huge_pages_start(char **argv)
+int huge_pages_start(char **argv)
 {
-    const char *off = getenv("NSCATTER_HUGE_PAGES");
-    if (getenv("GLIBC_TUNABLES") || getenv(HUGE_PAGES_RESTARTED) || (off && !strcmp(off, "0")))
-        return;
+    const char *want = getenv("NSCATTER_HUGE_PAGES");
+    if (want && strcmp(want, "0") && strcmp(want, "1"))
+        return -1;
+    if (getenv("GLIBC_TUNABLES") || getenv(HUGE_PAGES_RESTARTED) || (want && !strcmp(want, "0")))
+        return 0;
     /* Not in secure mode (set-user-ID, file capabilities: glibc ignores the tunables there),
      * nor when the binary was started through the dynamic loader named as the program
      * (AT_BASE 0), where /proc/self/exe is the loader, not nscatter. */
     if (getauxval(AT_SECURE) || !getauxval(AT_BASE))
-        return;
+        return 0;
     if (setenv(HUGE_PAGES_RESTARTED, "1", 1) || setenv("GLIBC_TUNABLES", HUGE_PAGES_TUNABLE, 1))
-        return;
+        return 0;
     execv("/proc/self/exe", argv);
     /* No /proc (or no exec): go on with the pages as they are. */
     unsetenv("GLIBC_TUNABLES");
     unsetenv(HUGE_PAGES_RESTARTED);
+    return 0;
 }
 
 int huge_pages_on(void)

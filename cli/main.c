@@ -1,5 +1,6 @@
 /* nscatter — one binary, many subcommands. */
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "commands.h"
@@ -34,7 +35,12 @@ static void usage(FILE *out)
 
 int main(int argc, char **argv)
 {
-    huge_pages_start(argv); /* returns in the process that has them, or cannot */
+    /* Returns in the process that has them, or cannot have them. */
+    if (huge_pages_start(argv)) {
+        fprintf(stderr, "nscatter: NSCATTER_HUGE_PAGES: '%s' is neither 0 (off) nor 1 (on, the "
+                        "default)\n", getenv("NSCATTER_HUGE_PAGES"));
+        return 2;
+    }
     if (argc < 2) {
         usage(stderr);
         return 2;

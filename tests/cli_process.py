@@ -7,7 +7,8 @@ buffers a render touches once (docs/rendering.md, *Huge pages*).
   still the process its parent started (execv keeps the pid: a supervisor's pid is the
   server's).
 - A user's own GLIBC_TUNABLES is kept as it is (and then malloc is not told),
-  NSCATTER_HUGE_PAGES=0 turns the restart off, the restarted process never restarts again,
+  NSCATTER_HUGE_PAGES=0 turns the restart off (1 is the default, anything else is refused
+  with exit status 2, naming the variable), the restarted process never restarts again,
   and a run through the dynamic loader named as the program goes on without.
 The images do not depend on it: docs/bench.md (*Huge pages*) compared the bench's renders with
 and without, bit for bit. Not here: the CLI tests run in the sanitizer build, whose allocator
@@ -50,6 +51,14 @@ def test_info_says_so(t, d):
     t.equal(got.get("malloc_huge_pages"), False, "a user's own GLIBC_TUNABLES is left alone")
     got = info(t, clean_env(NSCATTER_HUGE_PAGES="0"))
     t.equal(got.get("malloc_huge_pages"), False, "NSCATTER_HUGE_PAGES=0 turns it off")
+    got = info(t, clean_env(NSCATTER_HUGE_PAGES="1"))
+    t.equal(got.get("malloc_huge_pages"), True, "NSCATTER_HUGE_PAGES=1 is the default")
+    # Any other value is refused, naming the variable, before anything else is done.
+    p = subprocess.run([BIN, "info", "--json"], capture_output=True, timeout=TIMEOUT_S,
+                       env=clean_env(NSCATTER_HUGE_PAGES="off"))
+    t.equal(p.returncode, 2, "NSCATTER_HUGE_PAGES=off: exit status 2")
+    t.check(b"NSCATTER_HUGE_PAGES: 'off'" in p.stderr and not p.stdout,
+            f"the error names the variable and its value: {p.stderr[:200]!r}")
     got = info(t, clean_env(GLIBC_TUNABLES="glibc.malloc.check=0:" + TUNABLE))
     t.equal(got.get("malloc_huge_pages"), True, "the tunable among others is seen")
     # The restarted process never restarts again, even where glibc dropped the tunable.
