@@ -37,8 +37,10 @@ int main(int argc, char **argv)
 {
     /* Returns in the process that has them, or cannot have them. */
     if (huge_pages_start(argv)) {
-        fprintf(stderr, "nscatter: NSCATTER_HUGE_PAGES: '%s' is neither 0 (off) nor 1 (on, the "
-                        "default)\n", getenv("NSCATTER_HUGE_PAGES"));
+        fprintf(stderr,
+                "nscatter: NSCATTER_HUGE_PAGES: '%s' is neither 0 (off) nor 1 (on, the "
+                "default)\n",
+                getenv("NSCATTER_HUGE_PAGES"));
         return 2;
     }
     if (argc < 2) {
