@@ -1089,12 +1089,16 @@ static void run_method_at(bench *b, bench_scene *s, int m, uint32_t vrls, uint32
     r->ms = median_of_sorted(warm, warm_n);
     /* Where the warm renders kept the first one's camera pass (render/camera_keep.c), their
      * time is a frame of the same view, and a new view adds that pass as the first render
-     * timed it. A first render that itself took a pass kept by the method before (the same
-     * camera and geometry) never timed one: unknown. */
+     * timed it, and its single scattering where that was kept with it. A first render that
+     * itself took a pass kept by the method before (the same camera and geometry) never
+     * timed one: unknown. */
     if (r->cold_stats.camera_reused)
         r->camera_ms = NAN;
+    else if (n > 1 && r->stats.camera_reused)
+        r->camera_ms = camera_pass_ms(&r->cold_stats) +
+                       (r->stats.single_reused ? stage_ms(&r->cold_stats, "single") : 0.0);
     else
-        r->camera_ms = n > 1 && r->stats.camera_reused ? camera_pass_ms(&r->cold_stats) : 0.0;
+        r->camera_ms = 0.0;
     r->ok = 1;
 }
 

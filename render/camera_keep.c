@@ -13,11 +13,22 @@
  * one mean free path keeps its extinction bit for bit because the scene parser splits it so
  * (io/scene_json.c: sigma_s + sigma_a is exactly the float extinction), and the image is the
  * one a new camera pass would give, bit for bit. The signature is ns_scene_signature's
- * (scene_gpu.c), as for the sources render/source_keep.c keeps. */
+ * (scene_gpu.c), as for the sources render/source_keep.c keeps.
+ *
+ * Single scattering's image goes with the pass (ns_single_keep). single.comp reads sigma_s
+ * only as the factor of its sum, so the stage computes its image per unit sigma_s, with each
+ * channel's sigma_s divided by a reference (ns_single_unit_materials: one medium's becomes
+ * exactly 1), and multiplies by the reference last (render_single). What it keeps is that
+ * image before the product, with the materials per unit and the settings it was made from;
+ * a render that takes the same camera pass and whose materials per unit and settings are
+ * the same bit for bit takes it instead of computing it: the same inputs, the same image, so
+ * the render's image is bit for bit the one the stage would give. One medium whose albedo
+ * changes at a fixed mean free path (a sweep, a slider) is such a render. */
 #include <stdlib.h>
 #include <string.h>
 
 #include "internal.h"
+#include "scatter.h"
 
 /* Kept only when the two buffers together are at most this big: they stay allocated (host
  * memory, being read back: gpu_buffer_desc.host_reads) while the service idles. 256² at 4
@@ -39,7 +50,8 @@ static void move_buffer(gpu_buffer *to, gpu_buffer *from)
 }
 
 int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t bytes,
-                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count)
+                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count,
+                        ns_single_keep *single)
 {
     ns_camera_keep *keep = &ctx->camera;
     if (!keep->signature || keep->signature_bytes != bytes ||
@@ -51,6 +63,8 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
     move_buffer(segments, &keep->segments);
     __atomic_add_fetch(&ctx->dev.live_buffers, 2, __ATOMIC_SEQ_CST);
     *segment_count = keep->segment_count;
+    *single = keep->single;
+    memset(&keep->single, 0, sizeof keep->single);
     /* The buffers are the render's now; they come back with ns_camera_keep_put when it
      * succeeds, and are destroyed with the job when it does not. */
     ns_camera_keep_free(&ctx->dev, keep);
@@ -58,14 +72,17 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
 }
 
 void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
-                        gpu_buffer *segments, uint32_t segment_count)
+                        gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single)
 {
     ns_camera_keep *keep = &ctx->camera;
     ns_camera_keep_free(&ctx->dev, keep);
     if (pixels->size + segments->size > CAMERA_KEEP_BYTES_MAX) {
         free(signature);
+        ns_single_keep_free(single);
         return;
     }
+    keep->single = *single;
+    memset(single, 0, sizeof *single);
     keep->signature = signature;
     keep->signature_bytes = bytes;
     move_buffer(&keep->pixels, pixels);
@@ -83,5 +100,58 @@ void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep)
     gpu_buffer_destroy(dev, &keep->pixels);
     gpu_buffer_destroy(dev, &keep->segments);
     free(keep->signature);
+    ns_single_keep_free(&keep->single);
+    memset(keep, 0, sizeof *keep);
+}
+
+void ns_single_keep_settings(const ns_render_settings *render, uint32_t settings[4])
+{
+    settings[0] = (uint32_t)render->method;
+    settings[1] = render->single_samples;
+    settings[2] = render->single_levels;
+    memcpy(&settings[3], &render->single_tolerance, sizeof settings[3]);
+}
+
+/* gs's materials per unit sigma_s (ns_single_unit_materials), or NULL out of memory. */
+static GpuMaterial *unit_materials(const ns_gpu_scene *gs)
+{
+    GpuMaterial *unit = malloc(sizeof *unit * (gs->material_count ? gs->material_count : 1));
+    if (unit)
+        ns_single_unit_materials(gs->materials, gs->material_count, unit);
+    return unit;
+}
+
+int ns_single_keep_matches(const ns_single_keep *keep, const ns_scene *scene,
+                           const ns_gpu_scene *gs)
+{
+    uint32_t settings[4];
+    ns_single_keep_settings(&scene->render, settings);
+    if (!keep->image || keep->material_count != gs->material_count ||
+        memcmp(settings, keep->settings, sizeof settings) != 0)
+        return 0;
+    GpuMaterial *unit = unit_materials(gs);
+    int same = unit && memcmp(unit, keep->materials, sizeof *unit * gs->material_count) == 0;
+    free(unit);
+    return same;
+}
+
+int ns_single_keep_set(ns_single_keep *keep, float *image, const ns_scene *scene,
+                       const ns_gpu_scene *gs)
+{
+    ns_single_keep_free(keep);
+    if (!image || !(keep->materials = unit_materials(gs))) {
+        free(image);
+        return -1;
+    }
+    keep->material_count = gs->material_count;
+    keep->image = image;
+    ns_single_keep_settings(&scene->render, keep->settings);
+    return 0;
+}
+
+void ns_single_keep_free(ns_single_keep *keep)
+{
+    free(keep->image);
+    free(keep->materials);
     memset(keep, 0, sizeof *keep);
 }

@@ -89,11 +89,22 @@ typedef struct ns_bvh_keep {
 /* The surface image and segments of the last render's camera pass (render/camera_keep.c),
  * kept with the bytes they were made from: the scene buffers with every material's sigma_s
  * cleared, which camera.comp never reads. */
+/* Single scattering's image per unit sigma_s made from a kept camera pass
+ * (render/camera_keep.c): a render of the same pass whose materials per unit sigma_s are the
+ * same (another albedo at the same extinction) takes it instead of computing it again. */
+typedef struct ns_single_keep {
+    float *image;           /* 3 floats per pixel, before the reference's product; NULL: none */
+    GpuMaterial *materials; /* the materials per unit sigma_s it was made with */
+    uint32_t material_count;
+    uint32_t settings[4]; /* the render settings it was made with (ns_single_keep_settings) */
+} ns_single_keep;
+
 typedef struct ns_camera_keep {
     unsigned char *signature; /* NULL: nothing kept */
     size_t signature_bytes;
     gpu_buffer pixels, segments;
     uint32_t segment_count;
+    ns_single_keep single; /* made from this pass, or none */
 } ns_camera_keep;
 
 /* A BVH above this many bytes (nodes, primitives and order together) is not kept. */
@@ -169,15 +180,29 @@ unsigned char *ns_scene_signature(const ns_gpu_scene *gs, const GpuParams *param
 /* The bytes the camera pass depends on (NULL when out of memory: then nothing is reused). */
 unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes);
 /* When the kept pass has this signature: replaces *pixels and *segments (destroyed) by the
- * kept buffers, which the caller then owns, sets *segment_count and returns 1; else 0. */
+ * kept buffers, which the caller then owns, moves the single scattering made from them into
+ * *single (else leaves it empty), sets *segment_count and returns 1; else 0. */
 int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t bytes,
-                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count);
-/* Keeps the buffers (zeroed in the caller) and the signature (owned from now on) in place of
- * what was kept, when they fit the bound; otherwise keeps nothing and frees the signature,
- * leaving the buffers with the caller. */
-void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
-                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t segment_count);
+                        gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count,
+                        ns_single_keep *single);
+/* Keeps the buffers (zeroed in the caller), the signature and *single (both owned from now
+ * on; single may be empty) in place of what was kept, when they fit the bound; otherwise
+ * keeps nothing, frees the signature and *single, leaving the buffers with the caller. */
+void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
+                        gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
+/* The render settings single scattering reads beyond the camera pass's. */
+void ns_single_keep_settings(const ns_render_settings *render, uint32_t settings[4]);
+/* 1 when the kept image is the one this render's stage would make from the same camera pass:
+ * the same settings and gs's materials per unit sigma_s the same, bit for bit; else 0 (also
+ * out of memory). */
+int ns_single_keep_matches(const ns_single_keep *keep, const ns_scene *scene,
+                           const ns_gpu_scene *gs);
+/* Makes keep hold image (owned from now on) with gs's materials per unit sigma_s; 0, or -1
+ * out of memory (then image is freed and keep left empty). */
+int ns_single_keep_set(ns_single_keep *keep, float *image, const ns_scene *scene,
+                       const ns_gpu_scene *gs);
+void ns_single_keep_free(ns_single_keep *keep);
 
 /* render.adaptive_spp (render/adaptive.c). counts[p] (width x height of them) := the camera
  * samples added to pixel p, from the camera pass's pixels (4 floats each: the mean of spp
@@ -200,7 +225,7 @@ void ns_adaptive_merge(float *pixels, size_t count, uint32_t spp, const uint32_t
 
 /* Every scene pass (camera.comp, pt.comp) binds the same five scene buffers first, in this
  * order: params (uniform), BVH nodes, primitives, materials, lights. */
-enum { NS_SCENE_BUFFER_COUNT = 5 };
+enum { NS_SCENE_BUFFER_COUNT = 5, NS_SCENE_BUFFER_MATERIALS = 3 };
 /* Fills descs[0..NS_SCENE_BUFFER_COUNT) for gs; the descriptors point into gs, which must
  * outlive the buffer creation. */
 void ns_gpu_scene_buffer_descs(const ns_gpu_scene *gs, gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT]);

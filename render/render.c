@@ -314,8 +314,9 @@ static int resize_segments(ns_context *ctx, render_job *job, uint64_t capacity, 
  * through one camera pass with nothing retried, the only pass a later render may reuse;
  * *segment_count is then its segments'. */
 static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scene *scene,
-                                 int64_t kept, float *scattered, int *single_pass,
-                                 uint32_t *segment_count, ns_render_stats *stats, ns_error *err)
+                                 int64_t kept, float *scattered, float *single_image,
+                                 int single_given, int *single_pass, uint32_t *segment_count,
+                                 ns_render_stats *stats, ns_error *err)
 {
     uint32_t spp = scene->render.spp, pixels = scene->camera.width * scene->camera.height;
     uint64_t cap = storage_capacity(ctx, sizeof(GpuSegment));
@@ -379,7 +380,9 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
                                 .scene_buffers = job->buffers,
                                 .segments = &job->buffers[B_SEGMENTS],
                                 .segment_count = (uint32_t)attempted,
-                                .pixels = scattered};
+                                .pixels = scattered,
+                                .single_image = single_image,
+                                .single_given = single_given};
         status = ns_scatter_render(ctx, &in, stats, err);
         ns_progress_pop(ctx, outer);
         first += count;
@@ -430,18 +433,36 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     int64_t kept = -1;
     int single_pass = 0;
     uint32_t segment_count = 0;
+    ns_single_keep single = {0};
     if (!status && scattering && !debug &&
         (signature = ns_camera_signature(&job.scene, &signature_bytes)) &&
         ns_camera_keep_take(ctx, signature, signature_bytes, &job.buffers[B_PIXELS],
-                            &job.buffers[B_SEGMENTS], &segment_count)) {
+                            &job.buffers[B_SEGMENTS], &segment_count, &single)) {
         kept = segment_count;
         if (stats)
             stats->camera_reused = 1;
     }
+    /* Single scattering's image per unit sigma_s: the one kept with the pass when it is the
+     * one this render's stage would make, else made by the stage, to be kept with the pass
+     * (render/camera_keep.c). Out of memory it is neither. */
+    float *single_image = NULL;
+    int single_given = 0;
+    if (!status && signature && (scene->render.components & NS_COMPONENT_SINGLE)) {
+        if (kept >= 0 && ns_single_keep_matches(&single, scene, &job.scene)) {
+            single_image = single.image;
+            single.image = NULL;
+            single_given = 1;
+        } else {
+            single_image = malloc(sizeof(float) * 3 * scene->camera.width * scene->camera.height);
+        }
+        if (stats)
+            stats->single_reused = (uint32_t)single_given;
+    }
+    ns_single_keep_free(&single);
     if (!status && scattering) {
         ns_span outer = ns_progress_push(ctx, 0.02, 0.98);
-        status = camera_and_scattering(ctx, &job, scene, kept, scattered, &single_pass,
-                                       &segment_count, stats, err);
+        status = camera_and_scattering(ctx, &job, scene, kept, scattered, single_image,
+                                       single_given, &single_pass, &segment_count, stats, err);
         ns_progress_pop(ctx, outer);
     } else if (!status) {
         stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.98);
@@ -467,11 +488,16 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
         status = read_back(&job, &scene->camera, out, stats, debug, err);
     ns_stats_add_stage(stats, "readback", ns_stage_end(ctx, &stage));
     if (!status && signature && single_pass) {
+        /* Out of memory the pass is kept without its single scattering. */
+        if (single_image)
+            ns_single_keep_set(&single, single_image, scene, &job.scene);
+        single_image = NULL;
         ns_camera_keep_put(ctx, signature, signature_bytes, &job.buffers[B_PIXELS],
-                           &job.buffers[B_SEGMENTS], segment_count);
+                           &job.buffers[B_SEGMENTS], segment_count, &single);
         signature = NULL;
     }
     free(signature);
+    free(single_image);
     /* The camera pass always shades surfaces; a render without them starts from black. */
     if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
         memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);

@@ -305,6 +305,13 @@ uint32_t ns_gather_ranges(const ns_gather_nodes *tree, uint32_t budget, GpuGathe
 int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *segments,
                       uint32_t segment_count, uint32_t samples, gpu_buffer *out, ns_error *err);
 
+/* Single scattering per unit sigma_s (render_single): reference[c] := the first of the
+ * materials' sigma_s in channel c that is not 0, or 0 where all are; unit[i] := materials[i]
+ * with sigma_s divided by it (g kept), or 1 in a medium where the reference is 0: a scene's
+ * one medium has sigma_s 1 exactly, whatever its albedo. */
+void ns_single_reference(const GpuMaterial *materials, uint32_t count, float reference[3]);
+void ns_single_unit_materials(const GpuMaterial *materials, uint32_t count, GpuMaterial *unit);
+
 /* The order in which to hand `count` segments to ns_single_scatter: by their strata, most
  * first (stable, so segments of one count keep their order). lavapipe runs the lanes of a SIMD
  * group in lockstep, and a group pays for its longest segment's strata: in pixel order the
@@ -335,6 +342,12 @@ typedef struct ns_scatter_inputs {
     gpu_buffer *segments;      /* the camera pass's GpuSegment buffer */
     uint32_t segment_count;    /* recorded in it */
     float *pixels;             /* linear RGB, 3 floats per pixel */
+    /* Single scattering's image (3 floats per pixel), or NULL. With single_given the stage
+     * adds it into pixels instead of computing it (render.c: one kept with the camera pass,
+     * scaled to this render's albedo); else the stage copies what it made into it, which
+     * is the image only where pixels held nothing before (one camera batch). */
+    float *single_image;
+    int single_given;
 } ns_scatter_inputs;
 
 /* Squared distance, in pixels, from the centre of pixel p of a width x height image to where

@@ -1107,29 +1107,80 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     return status;
 }
 
-static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a, double b,
-                         ns_render_stats *stats, scatter_times *times, ns_error *err)
+/* Single scattering's image per unit sigma_s (ns_single_unit_materials) into unit (zeroed
+ * here): the stage with the materials buffer replaced by the materials per unit. */
+static int single_unit_image(ns_context *ctx, const ns_scatter_inputs *in, float *unit,
+                             uint64_t *interpolated, ns_error *err)
 {
-    ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
+    size_t values = (size_t)in->scene->camera.width * in->scene->camera.height * 3;
+    memset(unit, 0, sizeof *unit * values);
+    ns_gpu_scene unit_scene = *in->gs;
+    GpuMaterial *materials =
+        malloc(sizeof *materials * (in->gs->material_count ? in->gs->material_count : 1));
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
+    if (!materials || !kept) {
+        free(materials);
+        free(kept);
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
+    }
+    ns_single_unit_materials(in->gs->materials, in->gs->material_count, materials);
+    unit_scene.materials = materials;
+    gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
+    ns_gpu_scene_buffer_descs(&unit_scene, descs);
+    gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
+    memcpy(buffers, in->scene_buffers, sizeof buffers);
+    gpu_buffer *material_buffer = &buffers[NS_SCENE_BUFFER_MATERIALS];
+    memset(material_buffer, 0, sizeof *material_buffer);
+    int status =
+        gpu_buffer_create(&ctx->dev, material_buffer, &descs[NS_SCENE_BUFFER_MATERIALS], err);
+    ns_scatter_inputs unit_in = *in;
+    unit_in.scene_buffers = buffers;
+    unit_in.pixels = unit;
     /* Adaptive rounds decide from sums over a pixel's segments, so those must add in the same
      * order from run to run on every device: pixel order (each pixel's segments in the order
      * its camera path wrote them). */
     int pixel_order = ctx->dev.loop_limited || in->scene->render.single_levels;
-    uint32_t n = kept ? visible_segments(all, in->segment_count, pixel_order, kept) : UINT32_MAX;
-    int status = NS_OK;
-    uint64_t interpolated = 0;
-    if (n == UINT32_MAX)
-        status = ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
-    else if (in->scene->render.single_levels)
-        status = single_adaptive(ctx, in, kept, n, &interpolated, err);
-    else
-        status = single_segments(ctx, in, kept, n, (float(*)[3])in->pixels, NULL, err);
-    if (stats)
-        stats->single_interpolated += interpolated;
+    uint32_t n = status ? 0 : visible_segments(all, in->segment_count, pixel_order, kept);
+    if (!status && in->scene->render.single_levels)
+        status = single_adaptive(ctx, &unit_in, kept, n, interpolated, err);
+    else if (!status)
+        status = single_segments(ctx, &unit_in, kept, n, (float(*)[3])unit, NULL, err);
+    gpu_buffer_destroy(&ctx->dev, material_buffer);
     free(kept);
-    stage_end(ctx, times, T_SINGLE, &stage);
+    free(materials);
+    return status;
+}
+
+/* Single scattering: its image per unit sigma_s, computed (and left in in->single_image for
+ * render.c to keep) or the one kept (in->single_given), times each channel's reference
+ * sigma_s, added into the pixels. The product comes last, so a kept image gives the pixels
+ * a computed one would, bit for bit (render/camera_keep.c). */
+static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a, double b,
+                         ns_render_stats *stats, scatter_times *times, ns_error *err)
+{
+    size_t values = (size_t)in->scene->camera.width * in->scene->camera.height * 3;
+    float *unit =
+        in->single_image ? in->single_image : malloc(sizeof *unit * (values ? values : 1));
+    if (!unit)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
+    int status = NS_OK;
+    if (!in->single_given) { /* else no stage: nothing is computed */
+        ns_stage stage = stage_begin(ctx, T_SINGLE, a, b);
+        uint64_t interpolated = 0;
+        status = single_unit_image(ctx, in, unit, &interpolated, err);
+        if (stats)
+            stats->single_interpolated += interpolated;
+        stage_end(ctx, times, T_SINGLE, &stage);
+    }
+    if (!status) {
+        float reference[3];
+        ns_single_reference(in->gs->materials, in->gs->material_count, reference);
+        for (size_t i = 0; i < values; i++)
+            in->pixels[i] += unit[i] * reference[i % 3];
+    }
+    if (unit != in->single_image)
+        free(unit);
     return status;
 }
 

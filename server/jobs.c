@@ -273,6 +273,8 @@ static json_t *reused_json(const ns_render_stats *s, job_state state)
         json_array_append_new(list, json_string("camera"));
     if (s->sources_reused)
         json_array_append_new(list, json_string("sources"));
+    if (s->single_reused)
+        json_array_append_new(list, json_string("single"));
     if (s->tables_reused > 0 && s->tables_made == 0)
         json_array_append_new(list, json_string("tables"));
     return list;

@@ -63,7 +63,7 @@ typedef struct registry {
     histogram request_seconds[METRICS_MAX_ROUTES];
     uint64_t renders[NS_METHOD_COUNT][JOB_STATE_COUNT];
     histogram stage_seconds[METRICS_MAX_STAGES][NS_METHOD_COUNT];
-    uint64_t tables_reused, tables_made, bvh_reused, camera_reused, sources_reused;
+    uint64_t tables_reused, tables_made, bvh_reused, camera_reused, sources_reused, single_reused;
 } registry;
 
 static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
@@ -137,6 +137,7 @@ void metrics_render_done(ns_method method, job_state state, const ns_render_stat
         reg.bvh_reused += stats->bvh_reused ? 1 : 0;
         reg.camera_reused += stats->camera_reused ? 1 : 0;
         reg.sources_reused += stats->sources_reused ? 1 : 0;
+        reg.single_reused += stats->single_reused ? 1 : 0;
     }
     /* A failed or cancelled render's stages stop part way: they would pull the
      * distribution of each stage's time down, so only a finished render's are observed. */
@@ -398,6 +399,10 @@ static void render_families(text_buf *b, const registry *r)
     single(b, "nscatter_sources_reused_total", "counter",
            "Renders that kept the light's sources (VRLs, boundary sources) of the previous render, which made the same ones.",
            (double)r->sources_reused);
+    single(b, "nscatter_single_reused_total", "counter",
+           "Renders that kept the single scattering of the previous render, made from the same "
+           "camera pass, for another albedo.",
+           (double)r->single_reused);
 }
 
 static void service_families(text_buf *b, const metrics_scrape_desc *d)

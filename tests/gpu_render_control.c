@@ -21,10 +21,14 @@
  *     the kept buffers not counted as live; sources_reused 1 for another camera, image size
  *     and spp with the boundary correction (the image equal, bit for bit, to a fresh
  *     context's), 0 after a light, a material, the seed, the VRL count or the components
- *     changed and for pt;
+ *     changed and for pt; single_reused 1 for another albedo and back, with and without
+ *     adaptive single scattering (the image equal, bit for bit, to a fresh context's), 0
+ *     for another g or other samples, and the rule on made-up materials: two media in one
+ *     ratio, apart, a channel that starts to scatter, another g, other settings;
  *   - a zeroed control renders what ns_render renders.
  * Small images (16 x 12): a few seconds on lavapipe. */
 #include "gpu_util.h"
+#include "scatter.h"
 
 /* ---------------------------------------------------------------------------------------
  * The recorder: every report, and a cancellation when a chosen report comes.
@@ -408,6 +412,9 @@ static void test_nn_cancel_at_first_tick(const char *stage)
 {
     ns_context *ctx = test_context();
     ns_scene s = nn_scene();
+    /* The context's earlier renders of this scene left its camera pass and single scattering
+     * kept, which would stand for the stage: dropped, so that the stage runs. */
+    ns_camera_keep_free(&ctx->dev, &ctx->camera);
     uint32_t buffers = ctx->dev.live_buffers;
     recorder *r = recorder_new(ctx, NS_PROGRESS_TICK, stage);
     ns_image img = {0};
@@ -680,6 +687,173 @@ static void test_camera_reused(void)
     CHECK_INT(ctx->dev.live_buffers, buffers);
 }
 
+/* Single scattering kept with the camera pass for another albedo (render/camera_keep.c). */
+static double channel_mean(const ns_image *img, int c)
+{
+    double sum = 0.0;
+    for (size_t p = 0; p < (size_t)img->width * img->height; p++)
+        sum += img->rgb[3 * p + c];
+    return sum / ((double)img->width * img->height);
+}
+
+static void test_single_reused(void)
+{
+    ns_context *ctx = test_context();
+    /* Extinction (4, 3, 2) in each; the second albedo scales the channels apart. */
+    const float sa[3] = {3.5f, 2.5f, 1.5f}, aa[3] = {0.5f, 0.5f, 0.5f};
+    const float sb[3] = {2.75f, 2.25f, 1.25f}, ab[3] = {1.25f, 0.75f, 0.75f};
+    /* camera_scene's materials are one static array: each scene here gets its own copy. */
+    ns_material a_mats[2], b_mats[2], c_mats[2], z_mats[2];
+    /* No blue scattered: the blue extinction all absorption. */
+    const float sz[3] = {3.5f, 2.5f, 0.0f}, az[3] = {0.5f, 0.5f, 2.0f};
+    ns_scene z = camera_scene(sz, az, 0.3f, 1.4f);
+    memcpy(z_mats, z.materials, sizeof z_mats);
+    z.materials = z_mats;
+    ns_scene a = camera_scene(sa, aa, 0.3f, 1.4f);
+    memcpy(a_mats, a.materials, sizeof a_mats);
+    ns_scene b = camera_scene(sb, ab, 0.3f, 1.4f);
+    memcpy(b_mats, b.materials, sizeof b_mats);
+    ns_scene c = camera_scene(sb, ab, 0.5f, 1.4f);
+    memcpy(c_mats, c.materials, sizeof c_mats);
+    a.materials = a_mats;
+    b.materials = b_mats;
+    c.materials = c_mats;
+    for (uint32_t levels = 0; levels <= 2; levels += 2) {
+        /* levels 2: adaptive single scattering, whose rounds choose the pixels to compute from
+         * the values, with two camera samples for their noise. */
+        ns_image img = {0}, again = {0}, built = {0}, first = {0};
+        ns_render_stats stats = {0}, fresh_stats = {0};
+        ns_scene *all[4] = {&a, &b, &c, &z};
+        for (int i = 0; i < 4; i++) {
+            all[i]->render.components = NS_COMPONENT_SINGLE;
+            all[i]->render.single_levels = levels;
+            all[i]->render.single_tolerance = levels ? 0.05f : 0.0f;
+            all[i]->render.spp = levels ? 2 : 1;
+        }
+        if (plain(ctx, &a, &first, &stats)) {
+            CHECK_INT(stats.single_reused, 0);
+            CHECK(has_stage(&stats, "single"));
+        }
+        /* Another albedo, the same g: kept, no stage, and the image a fresh context's stage
+         * makes, bit for bit; not the first albedo's. */
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &b, &img, &stats)) {
+            CHECK_INT(stats.camera_reused, 1);
+            CHECK_INT(stats.single_reused, 1);
+            CHECK_INT(stats.single_interpolated, 0);
+            CHECK(!has_stage(&stats, "single"));
+        }
+        if (plain(fresh, &b, &built, &fresh_stats)) {
+            CHECK_INT(fresh_stats.single_reused, 0);
+            CHECK(same_image(&img, &built));
+            CHECK(!same_image(&first, &built));
+            CHECK(!levels || fresh_stats.single_interpolated > 0);
+        }
+        /* And back: the first albedo's image again. */
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &a, &again, &stats)) {
+            CHECK_INT(stats.single_reused, 1);
+            CHECK(same_image(&first, &again));
+        }
+        ns_image_free(&img);
+        ns_image_free(&built);
+        /* No blue scattered, then some again: kept both ways, blue black. */
+        memset(&stats, 0, sizeof stats);
+        memset(&fresh_stats, 0, sizeof fresh_stats);
+        if (plain(ctx, &z, &img, &stats) && plain(fresh, &z, &built, &fresh_stats)) {
+            CHECK_INT(stats.single_reused, 1);
+            CHECK(same_image(&img, &built));
+            CHECK(channel_mean(&img, 0) > 0.0);
+            CHECK(channel_mean(&img, 2) == 0.0);
+        }
+        ns_image_free(&img);
+        ns_image_free(&again);
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &a, &again, &stats)) {
+            CHECK_INT(stats.single_reused, 1);
+            CHECK(same_image(&first, &again));
+        }
+        /* Another g: the camera pass kept, single scattering made. */
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &c, &img, &stats)) {
+            CHECK_INT(stats.camera_reused, 1);
+            CHECK_INT(stats.single_reused, 0);
+            CHECK(has_stage(&stats, "single"));
+        }
+        ns_image_free(&img);
+        /* Other single-scattering samples: made. */
+        ns_scene d = c;
+        d.render.single_samples = 3;
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, &d, &img, &stats)) {
+            CHECK_INT(stats.camera_reused, 1);
+            CHECK_INT(stats.single_reused, 0);
+        }
+        ns_image_free(&img);
+        ns_image_free(&again);
+        ns_image_free(&built);
+        ns_image_free(&first);
+    }
+}
+
+/* Which materials per unit sigma_s match, on made-up ones: a floor and two media. */
+static void test_single_keep_rule(void)
+{
+    ns_scene scene = {0};
+    scene.camera.width = 2;
+    scene.camera.height = 1;
+    GpuMaterial was[3] = {0}, now[3] = {0}, unit[3];
+    const float sigma_s[2][3] = {{2.0f, 0.0f, 0.0f}, {0.5f, 4.0f, 0.0f}};
+    for (int i = 0; i < 2; i++) {
+        memcpy(was[i + 1].sigma_s, sigma_s[i], sizeof sigma_s[i]);
+        was[i + 1].sigma_s[3] = 0.4f + 0.2f * (float)i; /* g */
+    }
+    was[1].reflectance[3] = was[2].reflectance[3] = 1.0f; /* media (scene_gpu.c) */
+    float reference[3];
+    ns_single_reference(was, 3, reference);
+    CHECK(reference[0] == 2.0f && reference[1] == 4.0f && reference[2] == 0.0f);
+    ns_single_unit_materials(was, 3, unit);
+    CHECK(unit[1].sigma_s[0] == 1.0f && unit[2].sigma_s[0] == 0.25f && unit[2].sigma_s[1] == 1.0f);
+    CHECK(unit[1].sigma_s[1] == 0.0f && unit[0].sigma_s[0] == 0.0f);
+    /* Blue, which nothing scatters: 1 in the media, 0 in the floor. */
+    CHECK(unit[0].sigma_s[2] == 0.0f && unit[1].sigma_s[2] == 1.0f && unit[2].sigma_s[2] == 1.0f);
+    CHECK(unit[2].sigma_s[3] == was[2].sigma_s[3]);
+    ns_gpu_scene gs = {.materials = now, .material_count = 3},
+                 kept_gs = {.materials = was, .material_count = 3};
+    ns_single_keep keep = {0};
+    CHECK_INT(ns_single_keep_set(&keep, calloc(6, sizeof(float)), &scene, &kept_gs), 0);
+    /* Both media to half the red: the same per unit. */
+    memcpy(now, was, sizeof was);
+    now[1].sigma_s[0] = 1.0f;
+    now[2].sigma_s[0] = 0.25f;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 1);
+    /* Only one medium's red halved. */
+    now[2].sigma_s[0] = 0.5f;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 0);
+    /* Blue, 0 in both, now scattering in one: the other's part was not kept apart. */
+    memcpy(now, was, sizeof was);
+    now[2].sigma_s[2] = 1.0f;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 0);
+    /* Green, now 0 in both: each 1 per unit where the kept were 0 and 1. */
+    memcpy(now, was, sizeof was);
+    now[2].sigma_s[1] = 0.0f;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 0);
+    /* Another g in one medium. */
+    memcpy(now, was, sizeof was);
+    now[2].sigma_s[3] = 0.61f;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 0);
+    /* Other settings, another material count. */
+    memcpy(now, was, sizeof was);
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 1);
+    ns_scene other = scene;
+    other.render.single_tolerance = 0.1f;
+    CHECK_INT(ns_single_keep_matches(&keep, &other, &gs), 0);
+    gs.material_count = 2;
+    CHECK_INT(ns_single_keep_matches(&keep, &scene, &gs), 0);
+    ns_single_keep_free(&keep);
+    CHECK(keep.image == NULL);
+}
+
 /* The light's sources (VRLs and the boundary correction's walks) kept across camera changes:
  * reused for another camera, image size, sample count, light samples and added samples,
  * with the image a
@@ -795,6 +969,8 @@ int main(void)
     RUN(test_tables_counted);
     RUN(test_bvh_reused);
     RUN(test_camera_reused);
+    RUN(test_single_reused);
+    RUN(test_single_keep_rule);
     RUN(test_sources_reused);
     RUN(test_zeroed_control_is_ns_render);
     ns_image_free(&fresh_pt);

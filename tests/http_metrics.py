@@ -69,6 +69,7 @@ FAMILIES = {
     "nscatter_bvh_reused": "counter",
     "nscatter_camera_reused": "counter",
     "nscatter_sources_reused": "counter",
+    "nscatter_single_reused": "counter",
     "nscatter_device_info": "gauge",
     "nscatter_device_live_buffers": "gauge",
     "process_resident_memory_bytes": "gauge",
