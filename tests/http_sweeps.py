@@ -96,7 +96,7 @@ def check_sweep_json(t, sweep, overrides, what):
         t.equal(v.get("image"), sweep_path(sid, f"/images/{i}"), f"{what}: variant {i} image link")
         t.check(isinstance(v.get("timings_ms"), dict), f"{what}: variant {i} timings_ms")
         t.check(isinstance(v.get("reused"), list) and
-                set(v["reused"]) <= {"bvh", "camera", "tables", "sources"},
+                set(v["reused"]) <= {"bvh", "camera", "tables", "sources", "single"},
                 f"{what}: variant {i} reused {v.get('reused')!r}")
     order = sweep.get("order")
     t.check(isinstance(order, list) and sorted(order) == list(range(len(overrides))),
@@ -280,10 +280,12 @@ def expect_invalid(t, srv, body, pointer, detail_prefix, what):
 def test_albedo_g_grid_keeps_the_camera_pass(t, srv):
     """Albedo (at the scene's mean free path) and g are what the camera pass does not read:
     every variant after the first keeps it, and its image is still the synchronous one; a
-    variant that changes the ior traces again."""
+    variant that changes the ior traces again. Single scattering is kept too where only the
+    albedo changed (the same g), its image still the synchronous one."""
     base = sweep_scene()
+    base["render"]["components"] = ["surface", "single", "multiple"]
     albedos = [[0.9, 0.9, 0.9], [0.97, 0.95, 0.71]]
-    overrides = [{ALBEDO: a, G: g} for a in albedos for g in (0.3, 0.6)] + [{IOR: 1.3}]
+    overrides = [{ALBEDO: a, G: g} for g in (0.3, 0.6) for a in albedos] + [{IOR: 1.3}]
     job = submit(t, srv, {"scene": base, "variants": overrides}, "albedo x g sweep")
     if not job:
         return
@@ -301,6 +303,10 @@ def test_albedo_g_grid_keeps_the_camera_pass(t, srv):
                 f"variant {i} after {order[k - 1]} keeps the camera pass: {reused[i]}")
         timings = next(v for v in sweep["variants"] if v["index"] == i).get("timings_ms") or {}
         t.equal("ray_pass" in timings, not want, f"variant {i} lists ray_pass: {timings}")
+        same_g = overrides[i].get(G) is not None and overrides[i].get(G) == overrides[order[k - 1]].get(G)
+        t.equal("single" in reused[i], want and same_g,
+                f"variant {i} after {order[k - 1]} keeps single scattering: {reused[i]}")
+        t.equal("single" in timings, not (want and same_g), f"variant {i} lists single: {timings}")
     check_images_match_sync(t, srv, sweep, base, "albedo x g sweep")
 
 
