@@ -15,20 +15,23 @@
  * one a new camera pass would give, bit for bit. The signature is ns_scene_signature's
  * (scene_gpu.c), as for the sources render/source_keep.c keeps.
  *
- * Single scattering's image goes with the pass (ns_single_keep). single.comp reads sigma_s
- * only as the factor of its sum, so the stage computes its image per unit sigma_s, with each
- * channel's sigma_s divided by a reference (ns_single_unit_materials: one medium's becomes
- * exactly 1), and multiplies by the reference last (render_single). What it keeps is that
- * image before the product, with the materials per unit and the settings it was made from;
- * a render that takes the same camera pass and whose materials per unit and settings are
- * the same bit for bit takes it instead of computing it: the same inputs, the same image, so
- * the render's image is bit for bit the one the stage would give. One medium whose albedo
- * changes at a fixed mean free path (a sweep, a slider) is such a render. */
+ * Single scattering's image goes with the pass (ns_single_keep); this is the one full
+ * account of when (docs/rendering.md repeats it for users). single.comp reads sigma_s only as
+ * the factor of its sum (sigma_s times the in-scattered light, which depends on the segments,
+ * sigma_t, g and the ior), so the stage computes its image per unit sigma_s, each channel's
+ * sigma_s divided by a reference, the largest of the scene's (ns_single_unit_materials: one
+ * medium's becomes exactly 1 wherever it scatters), and multiplies by the reference last
+ * (render_single). What is kept is that image before the product, with the materials per unit
+ * and the settings it was made from (ns_single_keep_settings). A render that takes the same
+ * camera pass and whose materials per unit and settings are the same bit for bit takes it
+ * instead of computing it: the same inputs, the same image, so the render's image is bit for
+ * bit the one the stage would give. A scene with one medium whose albedo changes at a fixed
+ * mean free path (a sweep, a slider) qualifies as long as no channel's albedo becomes or stops
+ * being 0; of several media, those whose quotients come out the same. */
 #include <stdlib.h>
 #include <string.h>
 
 #include "internal.h"
-#include "scatter.h"
 
 /* Kept only when the two buffers together are at most this big: they stay allocated (host
  * memory, being read back: gpu_buffer_desc.host_reads) while the service idles. 256² at 4
@@ -106,44 +109,34 @@ void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep)
 
 void ns_single_keep_settings(const ns_render_settings *render, uint32_t settings[4])
 {
+    /* The method is not read by the stage; it keeps one method's render from taking
+     * another's, which nscatter bench times apart. */
     settings[0] = (uint32_t)render->method;
     settings[1] = render->single_samples;
     settings[2] = render->single_levels;
     memcpy(&settings[3], &render->single_tolerance, sizeof settings[3]);
 }
 
-/* gs's materials per unit sigma_s (ns_single_unit_materials), or NULL out of memory. */
-static GpuMaterial *unit_materials(const ns_gpu_scene *gs)
-{
-    GpuMaterial *unit = malloc(sizeof *unit * (gs->material_count ? gs->material_count : 1));
-    if (unit)
-        ns_single_unit_materials(gs->materials, gs->material_count, unit);
-    return unit;
-}
-
 int ns_single_keep_matches(const ns_single_keep *keep, const ns_scene *scene,
-                           const ns_gpu_scene *gs)
+                           const GpuMaterial *unit, uint32_t count)
 {
     uint32_t settings[4];
     ns_single_keep_settings(&scene->render, settings);
-    if (!keep->image || keep->material_count != gs->material_count ||
-        memcmp(settings, keep->settings, sizeof settings) != 0)
-        return 0;
-    GpuMaterial *unit = unit_materials(gs);
-    int same = unit && memcmp(unit, keep->materials, sizeof *unit * gs->material_count) == 0;
-    free(unit);
-    return same;
+    return keep->image && keep->material_count == count &&
+           memcmp(settings, keep->settings, sizeof settings) == 0 &&
+           memcmp(unit, keep->materials, sizeof *unit * count) == 0;
 }
 
 int ns_single_keep_set(ns_single_keep *keep, float *image, const ns_scene *scene,
-                       const ns_gpu_scene *gs)
+                       const GpuMaterial *unit, uint32_t count)
 {
     ns_single_keep_free(keep);
-    if (!image || !(keep->materials = unit_materials(gs))) {
+    if (!image || !(keep->materials = malloc(sizeof *unit * (count ? count : 1)))) {
         free(image);
         return -1;
     }
-    keep->material_count = gs->material_count;
+    memcpy(keep->materials, unit, sizeof *unit * count);
+    keep->material_count = count;
     keep->image = image;
     ns_single_keep_settings(&scene->render, keep->settings);
     return 0;

@@ -86,12 +86,8 @@ typedef struct ns_bvh_keep {
     uint32_t count;
 } ns_bvh_keep;
 
-/* The surface image and segments of the last render's camera pass (render/camera_keep.c),
- * kept with the bytes they were made from: the scene buffers with every material's sigma_s
- * cleared, which camera.comp never reads. */
-/* Single scattering's image per unit sigma_s made from a kept camera pass
- * (render/camera_keep.c): a render of the same pass whose materials per unit sigma_s are the
- * same (another albedo at the same extinction) takes it instead of computing it again. */
+/* Single scattering's image per unit sigma_s made from a kept camera pass, for a render that
+ * would make the same (render/camera_keep.c says when). */
 typedef struct ns_single_keep {
     float *image;           /* 3 floats per pixel, before the reference's product; NULL: none */
     GpuMaterial *materials; /* the materials per unit sigma_s it was made with */
@@ -99,6 +95,9 @@ typedef struct ns_single_keep {
     uint32_t settings[4]; /* the render settings it was made with (ns_single_keep_settings) */
 } ns_single_keep;
 
+/* The surface image and segments of the last render's camera pass (render/camera_keep.c),
+ * kept with the bytes they were made from: the scene buffers with every material's sigma_s
+ * cleared, which camera.comp never reads. */
 typedef struct ns_camera_keep {
     unsigned char *signature; /* NULL: nothing kept */
     size_t signature_bytes;
@@ -191,17 +190,18 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
 void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
                         gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
-/* The render settings single scattering reads beyond the camera pass's. */
+/* The render settings a kept single-scattering image must match: those the stage reads beyond
+ * the camera pass's, and the method. */
 void ns_single_keep_settings(const ns_render_settings *render, uint32_t settings[4]);
 /* 1 when the kept image is the one this render's stage would make from the same camera pass:
- * the same settings and gs's materials per unit sigma_s the same, bit for bit; else 0 (also
- * out of memory). */
+ * the same settings and the same `count` materials per unit sigma_s (ns_single_unit_materials),
+ * bit for bit; else 0. */
 int ns_single_keep_matches(const ns_single_keep *keep, const ns_scene *scene,
-                           const ns_gpu_scene *gs);
-/* Makes keep hold image (owned from now on) with gs's materials per unit sigma_s; 0, or -1
+                           const GpuMaterial *unit, uint32_t count);
+/* Makes keep hold image (owned from now on) with a copy of the materials per unit; 0, or -1
  * out of memory (then image is freed and keep left empty). */
 int ns_single_keep_set(ns_single_keep *keep, float *image, const ns_scene *scene,
-                       const ns_gpu_scene *gs);
+                       const GpuMaterial *unit, uint32_t count);
 void ns_single_keep_free(ns_single_keep *keep);
 
 /* render.adaptive_spp (render/adaptive.c). counts[p] (width x height of them) := the camera

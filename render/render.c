@@ -310,13 +310,14 @@ static int resize_segments(ns_context *ctx, render_job *job, uint64_t capacity, 
  * are restored) and it is run again smaller, or with the buffer grown to what one sample
  * needs, up to the device's limit. Each batch's scattering adds into `scattered`.
  * kept: the segment count of a camera pass taken from the context (ns_camera_keep_take) and
- * already in the job's buffers, or -1. *single_pass = 1 when the whole sample range went
+ * already in the job's buffers, or -1. single: the single-scattering fields of the stages'
+ * inputs (ns_scatter_inputs). *single_pass = 1 when the whole sample range went
  * through one camera pass with nothing retried, the only pass a later render may reuse;
  * *segment_count is then its segments'. */
 static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scene *scene,
-                                 int64_t kept, float *scattered, float *single_image,
-                                 int single_given, int *single_pass, uint32_t *segment_count,
-                                 ns_render_stats *stats, ns_error *err)
+                                 int64_t kept, float *scattered, const ns_scatter_inputs *single,
+                                 int *single_pass, uint32_t *segment_count, ns_render_stats *stats,
+                                 ns_error *err)
 {
     uint32_t spp = scene->render.spp, pixels = scene->camera.width * scene->camera.height;
     uint64_t cap = storage_capacity(ctx, sizeof(GpuSegment));
@@ -381,8 +382,12 @@ static int camera_and_scattering(ns_context *ctx, render_job *job, const ns_scen
                                 .segments = &job->buffers[B_SEGMENTS],
                                 .segment_count = (uint32_t)attempted,
                                 .pixels = scattered,
-                                .single_image = single_image,
-                                .single_given = single_given};
+                                .single_materials = single->single_materials,
+                                .single_reference = {single->single_reference[0],
+                                                     single->single_reference[1],
+                                                     single->single_reference[2]},
+                                .single_image = single->single_image,
+                                .single_given = single->single_given};
         status = ns_scatter_render(ctx, &in, stats, err);
         ns_progress_pop(ctx, outer);
         first += count;
@@ -442,27 +447,36 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
         if (stats)
             stats->camera_reused = 1;
     }
-    /* Single scattering's image per unit sigma_s: the one kept with the pass when it is the
-     * one this render's stage would make, else made by the stage, to be kept with the pass
-     * (render/camera_keep.c). Out of memory it is neither. */
-    float *single_image = NULL;
-    int single_given = 0;
-    if (!status && signature && (scene->render.components & NS_COMPONENT_SINGLE)) {
-        if (kept >= 0 && ns_single_keep_matches(&single, scene, &job.scene)) {
-            single_image = single.image;
+    /* Single scattering per unit sigma_s (render/camera_keep.c): its materials, and its image,
+     * the one kept with the pass when it is the one this render's stage would make, else made
+     * by the stage into a buffer kept with the pass (none for a debug caller). */
+    ns_scatter_inputs single_part = {0};
+    GpuMaterial *unit = NULL;
+    if (!status && scattering && (scene->render.components & NS_COMPONENT_SINGLE)) {
+        uint32_t count = job.scene.material_count;
+        if (!(unit = malloc(sizeof *unit * (count ? count : 1))))
+            status =
+                ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single scattering: %u materials", count);
+        else
+            ns_single_unit_materials(job.scene.materials, count, unit,
+                                     single_part.single_reference);
+        single_part.single_materials = unit;
+        if (!status && kept >= 0 && ns_single_keep_matches(&single, scene, unit, count)) {
+            single_part.single_image = single.image;
             single.image = NULL;
-            single_given = 1;
-        } else {
-            single_image = malloc(sizeof(float) * 3 * scene->camera.width * scene->camera.height);
+            single_part.single_given = 1;
+        } else if (!status && signature) {
+            single_part.single_image =
+                calloc((size_t)scene->camera.width * scene->camera.height * 3, sizeof(float));
         }
         if (stats)
-            stats->single_reused = (uint32_t)single_given;
+            stats->single_reused = (uint32_t)single_part.single_given;
     }
     ns_single_keep_free(&single);
     if (!status && scattering) {
         ns_span outer = ns_progress_push(ctx, 0.02, 0.98);
-        status = camera_and_scattering(ctx, &job, scene, kept, scattered, single_image,
-                                       single_given, &single_pass, &segment_count, stats, err);
+        status = camera_and_scattering(ctx, &job, scene, kept, scattered, &single_part,
+                                       &single_pass, &segment_count, stats, err);
         ns_progress_pop(ctx, outer);
     } else if (!status) {
         stage = ns_stage_begin(ctx, "ray_pass", 0.02, 0.98);
@@ -489,15 +503,17 @@ static int render_locked(ns_context *ctx, const ns_scene *scene, ns_image *out,
     ns_stats_add_stage(stats, "readback", ns_stage_end(ctx, &stage));
     if (!status && signature && single_pass) {
         /* Out of memory the pass is kept without its single scattering. */
-        if (single_image)
-            ns_single_keep_set(&single, single_image, scene, &job.scene);
-        single_image = NULL;
+        if (single_part.single_image)
+            ns_single_keep_set(&single, single_part.single_image, scene, unit,
+                               job.scene.material_count);
+        single_part.single_image = NULL;
         ns_camera_keep_put(ctx, signature, signature_bytes, &job.buffers[B_PIXELS],
                            &job.buffers[B_SEGMENTS], segment_count, &single);
         signature = NULL;
     }
     free(signature);
-    free(single_image);
+    free(single_part.single_image);
+    free(unit);
     /* The camera pass always shades surfaces; a render without them starts from black. */
     if (!status && !(scene->render.components & NS_COMPONENT_SURFACE))
         memset(out->rgb, 0, sizeof(float) * 3 * out->width * out->height);

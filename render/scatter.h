@@ -305,12 +305,12 @@ uint32_t ns_gather_ranges(const ns_gather_nodes *tree, uint32_t budget, GpuGathe
 int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *segments,
                       uint32_t segment_count, uint32_t samples, gpu_buffer *out, ns_error *err);
 
-/* Single scattering per unit sigma_s (render_single): reference[c] := the first of the
- * materials' sigma_s in channel c that is not 0, or 0 where all are; unit[i] := materials[i]
- * with sigma_s divided by it (g kept), or 1 in a medium where the reference is 0: a scene's
- * one medium has sigma_s 1 exactly, whatever its albedo. */
-void ns_single_reference(const GpuMaterial *materials, uint32_t count, float reference[3]);
-void ns_single_unit_materials(const GpuMaterial *materials, uint32_t count, GpuMaterial *unit);
+/* Single scattering per unit sigma_s (render/camera_keep.c says why): reference[c] := the
+ * largest of the materials' sigma_s in channel c (0 where all are 0); unit[i] := materials[i]
+ * with sigma_s divided by it, or 0 where it is 0, g kept. Every quotient lies in [0, 1] (no
+ * overflow), and a scene's one medium has exactly 1 wherever it scatters. */
+void ns_single_unit_materials(const GpuMaterial *materials, uint32_t count, GpuMaterial *unit,
+                              float reference[3]);
 
 /* The order in which to hand `count` segments to ns_single_scatter: by their strata, most
  * first (stable, so segments of one count keep their order). lavapipe runs the lanes of a SIMD
@@ -342,10 +342,13 @@ typedef struct ns_scatter_inputs {
     gpu_buffer *segments;      /* the camera pass's GpuSegment buffer */
     uint32_t segment_count;    /* recorded in it */
     float *pixels;             /* linear RGB, 3 floats per pixel */
-    /* Single scattering's image (3 floats per pixel), or NULL. With single_given the stage
-     * adds it into pixels instead of computing it (render.c: one kept with the camera pass,
-     * scaled to this render's albedo); else the stage copies what it made into it, which
-     * is the image only where pixels held nothing before (one camera batch). */
+    /* Single scattering (render_single): the materials per unit sigma_s and each channel's
+     * reference (ns_single_unit_materials; NULL only without the component), and its image
+     * per unit (3 floats per pixel) or NULL. With single_given the stage takes that image
+     * (render.c: kept with the camera pass, made from the same inputs) instead of computing
+     * it, else it computes the batch's into it; the pixels get it times the reference. */
+    const GpuMaterial *single_materials;
+    float single_reference[3];
     float *single_image;
     int single_given;
 } ns_scatter_inputs;

@@ -915,7 +915,7 @@ static uint32_t marked_in_z_order(const tile_plan *t, const uint8_t *round, uint
  * are made from this order, and there its dispatches are sized from their loop counts
  * (render/single.c; trace.glsl counts a group's, subgroupMax), so without the sort its float
  * sums could differ from one run of a render to the next; adaptive single scattering's
- * decisions (render_single) need it on every device. Elsewhere the sort (75 ms for a million
+ * decisions (single_unit_image) need it on every device. Elsewhere the sort (75 ms for a million
  * segments) is skipped. Returns the count, or UINT32_MAX when out of memory. */
 static uint32_t visible_segments(const GpuSegment *all, uint32_t count, int pixel_order,
                                  GpuSegment *kept)
@@ -1107,25 +1107,28 @@ static int single_adaptive(ns_context *ctx, const ns_scatter_inputs *in, const G
     return status;
 }
 
-/* Single scattering's image per unit sigma_s (ns_single_unit_materials) into unit (zeroed
- * here): the stage with the materials buffer replaced by the materials per unit. */
+/* Single scattering's image per unit sigma_s into unit (zeroed here): the stage with the
+ * materials buffer replaced by in->single_materials. */
 static int single_unit_image(ns_context *ctx, const ns_scatter_inputs *in, float *unit,
                              uint64_t *interpolated, ns_error *err)
 {
     size_t values = (size_t)in->scene->camera.width * in->scene->camera.height * 3;
     memset(unit, 0, sizeof *unit * values);
-    ns_gpu_scene unit_scene = *in->gs;
-    GpuMaterial *materials =
-        malloc(sizeof *materials * (in->gs->material_count ? in->gs->material_count : 1));
+    if (!in->single_materials)
+        return ns_fail(err, NS_ERR_INTERNAL, "single: no materials per unit sigma_s");
     const GpuSegment *all = in->segments->mapped;
     GpuSegment *kept = malloc(sizeof *kept * (in->segment_count ? in->segment_count : 1));
-    if (!materials || !kept) {
-        free(materials);
+    /* Adaptive rounds decide from sums over a pixel's segments, so those must add in the same
+     * order from run to run on every device: pixel order (each pixel's segments in the order
+     * its camera path wrote them). */
+    int pixel_order = ctx->dev.loop_limited || in->scene->render.single_levels;
+    uint32_t n = kept ? visible_segments(all, in->segment_count, pixel_order, kept) : UINT32_MAX;
+    if (n == UINT32_MAX) {
         free(kept);
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "single: %u segments", in->segment_count);
     }
-    ns_single_unit_materials(in->gs->materials, in->gs->material_count, materials);
-    unit_scene.materials = materials;
+    ns_gpu_scene unit_scene = *in->gs;
+    unit_scene.materials = (GpuMaterial *)in->single_materials;
     gpu_buffer_desc descs[NS_SCENE_BUFFER_COUNT];
     ns_gpu_scene_buffer_descs(&unit_scene, descs);
     gpu_buffer buffers[NS_SCENE_BUFFER_COUNT];
@@ -1137,25 +1140,19 @@ static int single_unit_image(ns_context *ctx, const ns_scatter_inputs *in, float
     ns_scatter_inputs unit_in = *in;
     unit_in.scene_buffers = buffers;
     unit_in.pixels = unit;
-    /* Adaptive rounds decide from sums over a pixel's segments, so those must add in the same
-     * order from run to run on every device: pixel order (each pixel's segments in the order
-     * its camera path wrote them). */
-    int pixel_order = ctx->dev.loop_limited || in->scene->render.single_levels;
-    uint32_t n = status ? 0 : visible_segments(all, in->segment_count, pixel_order, kept);
     if (!status && in->scene->render.single_levels)
         status = single_adaptive(ctx, &unit_in, kept, n, interpolated, err);
     else if (!status)
         status = single_segments(ctx, &unit_in, kept, n, (float(*)[3])unit, NULL, err);
     gpu_buffer_destroy(&ctx->dev, material_buffer);
     free(kept);
-    free(materials);
     return status;
 }
 
-/* Single scattering: its image per unit sigma_s, computed (and left in in->single_image for
- * render.c to keep) or the one kept (in->single_given), times each channel's reference
- * sigma_s, added into the pixels. The product comes last, so a kept image gives the pixels
- * a computed one would, bit for bit (render/camera_keep.c). */
+/* Single scattering: its image per unit sigma_s, computed into in->single_image (for render.c
+ * to keep) or the one kept (in->single_given), times each channel's reference, added into the
+ * pixels. The product comes last, so a kept image gives the pixels a computed one would, bit
+ * for bit (render/camera_keep.c). */
 static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a, double b,
                          ns_render_stats *stats, scatter_times *times, ns_error *err)
 {
@@ -1173,12 +1170,9 @@ static int render_single(ns_context *ctx, const ns_scatter_inputs *in, double a,
             stats->single_interpolated += interpolated;
         stage_end(ctx, times, T_SINGLE, &stage);
     }
-    if (!status) {
-        float reference[3];
-        ns_single_reference(in->gs->materials, in->gs->material_count, reference);
+    if (!status)
         for (size_t i = 0; i < values; i++)
-            in->pixels[i] += unit[i] * reference[i % 3];
-    }
+            in->pixels[i] += unit[i] * in->single_reference[i % 3];
     if (unit != in->single_image)
         free(unit);
     return status;

@@ -225,29 +225,18 @@ int ns_single_scatter(ns_context *ctx, gpu_buffer *scene_buffers, gpu_buffer *se
     return status;
 }
 
-void ns_single_reference(const GpuMaterial *materials, uint32_t count, float reference[3])
+void ns_single_unit_materials(const GpuMaterial *materials, uint32_t count, GpuMaterial *unit,
+                              float reference[3])
 {
     for (int c = 0; c < 3; c++) {
         reference[c] = 0.0f;
         for (uint32_t i = 0; i < count; i++)
-            if (materials[i].sigma_s[c] != 0.0f) {
-                reference[c] = materials[i].sigma_s[c];
-                break;
-            }
+            reference[c] = fmaxf(reference[c], materials[i].sigma_s[c]);
     }
-}
-
-void ns_single_unit_materials(const GpuMaterial *materials, uint32_t count, GpuMaterial *unit)
-{
-    float reference[3];
-    ns_single_reference(materials, count, reference);
     for (uint32_t i = 0; i < count; i++) {
         unit[i] = materials[i];
-        /* A channel no medium scatters in: 1 in every medium (reflectance.w 1, scene_gpu.c),
-         * times a reference of 0, as one medium that scatters in it has. */
         for (int c = 0; c < 3; c++)
-            unit[i].sigma_s[c] = reference[c] != 0.0f ? materials[i].sigma_s[c] / reference[c]
-                                 : materials[i].reflectance[3] == 1.0f ? 1.0f
-                                                                       : 0.0f;
+            unit[i].sigma_s[c] =
+                reference[c] > 0.0f ? materials[i].sigma_s[c] / reference[c] : 0.0f;
     }
 }

@@ -401,7 +401,7 @@ static void render_families(text_buf *b, const registry *r)
            (double)r->sources_reused);
     single(b, "nscatter_single_reused_total", "counter",
            "Renders that kept the single scattering of the previous render, made from the same "
-           "camera pass, for another albedo.",
+           "camera pass (another albedo, or the same scene).",
            (double)r->single_reused);
 }
 

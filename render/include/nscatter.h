@@ -566,11 +566,10 @@ typedef struct ns_render_stats {
      * The image is the same, bit for bit (render/source_keep.c). */
     uint32_t sources_reused;
     /* 1: single scattering's image was kept with that camera pass (camera_reused is 1 too)
-     * from the render that made it: the same single-scattering settings and g, and each
-     * channel's sigma_s of every medium in one ratio to the kept one's (another albedo at the
-     * same extinction, as a sweep makes). The stage computes per unit sigma_s and multiplies
-     * last, so the image is the same, bit for bit; no stage "single" is listed then, and
-     * single_interpolated stays 0 (render/camera_keep.c). */
+     * from the render that made it, whose inputs per unit sigma_s were the same: another
+     * albedo of one medium at the same extinction, as a sweep makes (render/camera_keep.c
+     * says exactly when). The image is the same, bit for bit; no stage "single" is listed
+     * then, and single_interpolated stays 0. */
     uint32_t single_reused;
 } ns_render_stats;
 
