@@ -33,10 +33,13 @@
 
 #include "internal.h"
 
-/* Kept only when the two buffers together are at most this big: they stay allocated (host
- * memory, being read back: gpu_buffer_desc.host_reads) while the service idles. 256² at 4
- * samples per pixel needs 33 MiB. */
+/* A pass is kept only when its two buffers together are at most this big: they stay
+ * allocated (host memory, being read back: gpu_buffer_desc.host_reads) while the service
+ * idles. 256² at 4 samples per pixel needs 33 MiB. The context keeps NS_CAMERA_KEEP_ENTRIES
+ * passes (the web page's quarter-size preview and its full image, which alternate) within
+ * CAMERA_KEEP_TOTAL_MAX together: the least recently kept goes first. */
 #define CAMERA_KEEP_BYTES_MAX (64ull << 20)
+#define CAMERA_KEEP_TOTAL_MAX (96ull << 20)
 
 /* The signature: the scene buffers with every material's sigma_s (and g) cleared. */
 unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes)
@@ -56,9 +59,14 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
                         gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count,
                         ns_single_keep *single)
 {
-    ns_camera_keep *keep = &ctx->camera;
-    if (!keep->signature || keep->signature_bytes != bytes ||
-        memcmp(keep->signature, signature, bytes) != 0)
+    ns_camera_keep *keep = NULL;
+    for (int i = 0; i < NS_CAMERA_KEEP_ENTRIES && !keep; i++) {
+        ns_camera_keep *k = &ctx->camera[i];
+        if (k->signature && k->signature_bytes == bytes &&
+            memcmp(k->signature, signature, bytes) == 0)
+            keep = k;
+    }
+    if (!keep)
         return 0;
     gpu_buffer_destroy(&ctx->dev, pixels);
     gpu_buffer_destroy(&ctx->dev, segments);
@@ -74,16 +82,43 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
     return 1;
 }
 
+static uint64_t kept_bytes(const ns_camera_keep *keep)
+{
+    return keep->signature ? keep->pixels.size + keep->segments.size : 0;
+}
+
 void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
                         gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single)
 {
-    ns_camera_keep *keep = &ctx->camera;
-    ns_camera_keep_free(&ctx->dev, keep);
-    if (pixels->size + segments->size > CAMERA_KEEP_BYTES_MAX) {
+    uint64_t size = pixels->size + segments->size;
+    if (size > CAMERA_KEEP_BYTES_MAX) {
         free(signature);
         ns_single_keep_free(single);
         return;
     }
+    /* Room: the least recently kept passes go until this one fits beside the rest, and the
+     * slot is an empty one or the least recently kept. */
+    for (;;) {
+        uint64_t total = size;
+        ns_camera_keep *oldest = NULL;
+        for (int i = 0; i < NS_CAMERA_KEEP_ENTRIES; i++) {
+            ns_camera_keep *k = &ctx->camera[i];
+            total += kept_bytes(k);
+            if (k->signature && (!oldest || k->kept_at < oldest->kept_at))
+                oldest = k;
+        }
+        if (total <= CAMERA_KEEP_TOTAL_MAX || !oldest)
+            break;
+        ns_camera_keep_free(&ctx->dev, oldest);
+    }
+    ns_camera_keep *keep = &ctx->camera[0];
+    for (int i = 1; i < NS_CAMERA_KEEP_ENTRIES; i++) {
+        ns_camera_keep *k = &ctx->camera[i];
+        if (keep->signature && (!k->signature || k->kept_at < keep->kept_at))
+            keep = k;
+    }
+    ns_camera_keep_free(&ctx->dev, keep);
+    keep->kept_at = ++ctx->camera_clock;
     keep->single = *single;
     memset(single, 0, sizeof *single);
     keep->signature = signature;
@@ -92,6 +127,12 @@ void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
     move_buffer(&keep->segments, segments);
     keep->segment_count = segment_count;
     __atomic_sub_fetch(&ctx->dev.live_buffers, 2, __ATOMIC_SEQ_CST);
+}
+
+void ns_camera_keep_clear(ns_context *ctx)
+{
+    for (int i = 0; i < NS_CAMERA_KEEP_ENTRIES; i++)
+        ns_camera_keep_free(&ctx->dev, &ctx->camera[i]);
 }
 
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep)

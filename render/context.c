@@ -68,7 +68,7 @@ void ns_context_destroy(ns_context *ctx)
         ns_tables_destroy(ctx);
     if (ctx->dev.device) {
         ns_pipelines_destroy(ctx);
-        ns_camera_keep_free(&ctx->dev, &ctx->camera);
+        ns_camera_keep_clear(ctx);
     }
     gpu_device_destroy(&ctx->dev);
     ns_bvh_keep_free(&ctx->bvh);

@@ -104,7 +104,12 @@ typedef struct ns_camera_keep {
     gpu_buffer pixels, segments;
     uint32_t segment_count;
     ns_single_keep single; /* made from this pass, or none */
+    uint64_t kept_at;      /* ns_context.camera_clock when kept: the oldest goes first */
 } ns_camera_keep;
+
+/* The camera passes a context keeps (render/camera_keep.c): two, so that the web page's
+ * quarter-size preview and the full image it renders next do not push each other out. */
+#define NS_CAMERA_KEEP_ENTRIES 2
 
 /* A BVH above this many bytes (nodes, primitives and order together) is not kept. */
 #define NS_BVH_KEEP_BYTES_MAX (256ull << 20)
@@ -132,7 +137,9 @@ struct ns_context {
     uint64_t table_dir_bytes; /* its bound (2 GiB when the desc gives 0) */
     ns_run run;          /* the render in progress: its control, its progress */
     ns_bvh_keep bvh;     /* the last BVH built, for the next render of the same geometry */
-    ns_camera_keep camera; /* the last camera pass, for the next render that makes the same */
+    /* The last camera passes, for the next render that makes one of them. */
+    ns_camera_keep camera[NS_CAMERA_KEEP_ENTRIES];
+    uint64_t camera_clock;
     struct ns_source_keep *sources; /* the last sources, for the next render that makes the
                                        same (render/source_keep.h); NULL: none */
 };
@@ -190,6 +197,8 @@ int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t 
 void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
                         gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);
+/* Frees every kept pass (ns_context_destroy; tests that need a render to trace). */
+void ns_camera_keep_clear(ns_context *ctx);
 /* The render settings a kept single-scattering image must match: those the stage reads beyond
  * the camera pass's, and the method. */
 void ns_single_keep_settings(const ns_render_settings *render, uint32_t settings[4]);

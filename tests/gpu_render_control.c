@@ -25,7 +25,8 @@
  *     adaptive single scattering (the image equal, bit for bit, to a fresh context's), 0
  *     for a channel that stops scattering, another g or other samples, and the rule on
  *     made-up materials: two media in one ratio, apart, a channel that starts to scatter,
- *     another g, other settings, quotients far apart;
+ *     another g, other settings, quotients far apart; two passes kept, a preview and its
+ *     full image alternating, the least recently kept pushed out by a third;
  *   - a zeroed control renders what ns_render renders.
  * Small images (16 x 12): a few seconds on lavapipe. */
 #include "gpu_util.h"
@@ -415,7 +416,7 @@ static void test_nn_cancel_at_first_tick(const char *stage)
     ns_scene s = nn_scene();
     /* The context's earlier renders of this scene left its camera pass and single scattering
      * kept, which would stand for the stage: dropped, so that the stage runs. */
-    ns_camera_keep_free(&ctx->dev, &ctx->camera);
+    ns_camera_keep_clear(ctx);
     uint32_t buffers = ctx->dev.live_buffers;
     recorder *r = recorder_new(ctx, NS_PROGRESS_TICK, stage);
     ns_image img = {0};
@@ -800,6 +801,52 @@ static void test_single_reused(void)
     CHECK_INT(ctx->dev.live_buffers, buffers); /* what is kept is not counted */
 }
 
+/* Two camera passes kept (render/camera_keep.c): a quarter-size preview and the full image
+ * alternate, as the web page renders them, and each takes its own; a third pass pushes out the
+ * least recently kept. */
+static void test_two_passes_kept(void)
+{
+    ns_context *ctx = test_context();
+    ns_camera_keep_clear(ctx); /* the tests before kept this scene's pass */
+    uint32_t buffers = ctx->dev.live_buffers;
+    const float s1[3] = {3.5f, 2.5f, 1.5f}, a1[3] = {0.5f, 0.5f, 0.5f};
+    const float s2[3] = {3.0f, 2.0f, 1.0f}, a2[3] = {1.0f, 1.0f, 1.0f};
+    ns_material full_mats[2], other_mats[2];
+    ns_scene full = camera_scene(s1, a1, 0.3f, 1.4f);
+    memcpy(full_mats, full.materials, sizeof full_mats);
+    full.materials = full_mats;
+    ns_scene other = camera_scene(s2, a2, 0.3f, 1.4f); /* another albedo, the same extinction */
+    memcpy(other_mats, other.materials, sizeof other_mats);
+    other.materials = other_mats;
+    full.render.components = other.render.components = NS_COMPONENT_SINGLE;
+    ns_scene preview = full, other_preview = other, third = full;
+    preview.camera.width = other_preview.camera.width = full.camera.width / 4;
+    preview.camera.height = other_preview.camera.height = full.camera.height / 4;
+    third.camera.fov_deg = 50.0f;
+    const struct {
+        const ns_scene *scene;
+        uint32_t camera, single;
+    } steps[] = {
+        {&full, 0, 0},  {&preview, 0, 0},       /* made, each kept */
+        {&other, 1, 1}, {&other_preview, 1, 1}, /* a new albedo: both kept */
+        {&full, 1, 1},  {&third, 0, 0},         /* the third pushes out the preview */
+        {&full, 1, 1},  {&preview, 0, 0},
+    };
+    for (size_t i = 0; i < sizeof steps / sizeof steps[0]; i++) {
+        ns_image img = {0};
+        ns_render_stats stats = {0};
+        if (plain(ctx, steps[i].scene, &img, &stats)) {
+            if (stats.camera_reused != steps[i].camera || stats.single_reused != steps[i].single)
+                fprintf(stderr, "step %zu: camera %u single %u\n", i, stats.camera_reused,
+                        stats.single_reused);
+            CHECK_INT(stats.camera_reused, steps[i].camera);
+            CHECK_INT(stats.single_reused, steps[i].single);
+        }
+        ns_image_free(&img);
+    }
+    CHECK_INT(ctx->dev.live_buffers, buffers);
+}
+
 /* Which materials per unit sigma_s match, on made-up ones: a floor and two media. */
 static int keep_matches(const ns_single_keep *keep, const ns_scene *scene, const GpuMaterial *now,
                         uint32_t count)
@@ -980,6 +1027,7 @@ int main(void)
     RUN(test_bvh_reused);
     RUN(test_camera_reused);
     RUN(test_single_reused);
+    RUN(test_two_passes_kept);
     RUN(test_single_keep_rule);
     RUN(test_sources_reused);
     RUN(test_zeroed_control_is_ns_render);
