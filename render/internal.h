@@ -140,8 +140,10 @@ struct ns_context {
     /* The last camera passes, for the next render that makes one of them. */
     ns_camera_keep camera[NS_CAMERA_KEEP_ENTRIES];
     uint64_t camera_clock;
-    struct ns_source_keep *sources; /* the last sources, for the next render that makes the
-                                       same (render/source_keep.h); NULL: none */
+    /* The last two renders' sources, for the next render that makes the same
+     * (render/source_keep.h); NULL: none. Two, as the camera passes. */
+    struct ns_source_keep *sources[NS_CAMERA_KEEP_ENTRIES];
+    uint64_t sources_clock;
 };
 
 /* Checks the scene's structural invariants (indices, counts, finite numbers, ranges);

@@ -21,7 +21,9 @@
 #include "source_keep.h"
 
 /* Kept only when the sources together are at most this big (host memory, while the service
- * idles): 4,000 VRLs and 20,000 walks' sources take about 2 MB. */
+ * idles): 4,000 VRLs and 20,000 walks' sources take about 2 MB. The context keeps two renders'
+ * (the web page's preview traces a quarter of the full image's light paths, and the two
+ * alternate), the least recently kept replaced. */
 #define SOURCE_KEEP_BYTES_MAX (64ull << 20)
 
 struct ns_source_keep {
@@ -29,6 +31,7 @@ struct ns_source_keep {
     size_t signature_bytes;
     ns_vrl_set set;
     ns_boundary_groups boundary;
+    uint64_t kept_at; /* ns_context.sources_clock when kept or last taken: the oldest goes first */
 };
 
 /* What generates the sources besides the scene buffers. */
@@ -101,22 +104,52 @@ static uint64_t sources_bytes(const ns_vrl_set *set, const ns_boundary_groups *b
 int ns_source_keep_take(ns_context *ctx, const unsigned char *signature, size_t bytes, ns_vrl_set *set,
                         ns_boundary_groups *boundary)
 {
-    const struct ns_source_keep *keep = ctx->sources;
-    if (!signature || !keep || keep->signature_bytes != bytes || memcmp(keep->signature, signature, bytes) != 0)
-        return 0;
-    return copy_sources(set, boundary, &keep->set, &keep->boundary);
+    for (int i = 0; signature && i < NS_CAMERA_KEEP_ENTRIES; i++) {
+        struct ns_source_keep *keep = ctx->sources[i];
+        if (keep && keep->signature_bytes == bytes &&
+            memcmp(keep->signature, signature, bytes) == 0) {
+            keep->kept_at = ++ctx->sources_clock; /* used: the other goes first */
+            return copy_sources(set, boundary, &keep->set, &keep->boundary);
+        }
+    }
+    return 0;
+}
+
+static void free_keep(struct ns_source_keep **slot)
+{
+    struct ns_source_keep *keep = *slot;
+    if (!keep)
+        return;
+    free(keep->signature);
+    ns_vrl_set_free(&keep->set);
+    ns_boundary_groups_free(&keep->boundary);
+    free(keep);
+    *slot = NULL;
 }
 
 void ns_source_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, const ns_vrl_set *set,
                         const ns_boundary_groups *boundary)
 {
-    ns_source_keep_free(ctx);
+    /* The slot: the one that holds these sources already, an empty one, or the oldest. */
+    struct ns_source_keep **slot = &ctx->sources[0];
+    for (int i = 0; signature && i < NS_CAMERA_KEEP_ENTRIES; i++) {
+        struct ns_source_keep **s = &ctx->sources[i];
+        if (*s && (*s)->signature_bytes == bytes &&
+            memcmp((*s)->signature, signature, bytes) == 0) {
+            slot = s;
+            break;
+        }
+        if (*slot && (!*s || (*s)->kept_at < (*slot)->kept_at))
+            slot = s;
+    }
+    free_keep(slot);
     struct ns_source_keep *keep = NULL;
     if (signature && sources_bytes(set, boundary) <= SOURCE_KEEP_BYTES_MAX &&
         (keep = calloc(1, sizeof *keep)) && copy_sources(&keep->set, &keep->boundary, set, boundary)) {
         keep->signature = signature;
         keep->signature_bytes = bytes;
-        ctx->sources = keep;
+        keep->kept_at = ++ctx->sources_clock;
+        *slot = keep;
         return;
     }
     free(keep);
@@ -125,12 +158,6 @@ void ns_source_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
 
 void ns_source_keep_free(ns_context *ctx)
 {
-    struct ns_source_keep *keep = ctx->sources;
-    if (!keep)
-        return;
-    free(keep->signature);
-    ns_vrl_set_free(&keep->set);
-    ns_boundary_groups_free(&keep->boundary);
-    free(keep);
-    ctx->sources = NULL;
+    for (int i = 0; i < NS_CAMERA_KEEP_ENTRIES; i++)
+        free_keep(&ctx->sources[i]);
 }

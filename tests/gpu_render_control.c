@@ -990,6 +990,20 @@ static void test_sources_reused(void)
         }
         ns_image_free(&img);
     }
+    /* A preview (a quarter of the light paths and of the image) and the full image in turn,
+     * as the web page renders them: each keeps its own. */
+    ns_scene preview = b;
+    preview.render.vrls = b.render.vrls / 4;
+    preview.camera.width = b.camera.width / 4;
+    preview.camera.height = b.camera.height / 4;
+    const ns_scene *turns[4] = {&b, &preview, &b, &preview};
+    const uint32_t reused[4] = {1, 0, 1, 1}; /* b was taken last, the components' pushed out */
+    for (int i = 0; i < 4; i++) {
+        memset(&stats, 0, sizeof stats);
+        if (plain(ctx, turns[i], &img, &stats))
+            CHECK_INT(stats.sources_reused, reused[i]);
+        ns_image_free(&img);
+    }
     /* pt makes no such sources. */
     ns_scene pt = b;
     pt.render.method = NS_METHOD_PT;
