@@ -1,5 +1,5 @@
-/* camera_keep.c — the camera pass of the last render, kept for the next render that would
- * make the same one (internal.h, ns_camera_keep).
+/* camera_keep.c — the camera passes of the last two renders, kept for the next render that
+ * would make one of them again (internal.h, ns_camera_keep).
  *
  * camera.comp reads the five scene buffers (params, BVH nodes, primitives, materials,
  * lights) and its sample range, and writes the surface image and the segments. Of a

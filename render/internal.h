@@ -95,7 +95,7 @@ typedef struct ns_single_keep {
     uint32_t settings[4]; /* the render settings it was made with (ns_single_keep_settings) */
 } ns_single_keep;
 
-/* The surface image and segments of the last render's camera pass (render/camera_keep.c),
+/* The surface image and segments of a recent render's camera pass (render/camera_keep.c),
  * kept with the bytes they were made from: the scene buffers with every material's sigma_s
  * cleared, which camera.comp never reads. */
 typedef struct ns_camera_keep {
@@ -187,15 +187,17 @@ unsigned char *ns_scene_signature(const ns_gpu_scene *gs, const GpuParams *param
                                   const void *prefix, size_t prefix_bytes, size_t *bytes);
 /* The bytes the camera pass depends on (NULL when out of memory: then nothing is reused). */
 unsigned char *ns_camera_signature(const ns_gpu_scene *gs, size_t *bytes);
-/* When the kept pass has this signature: replaces *pixels and *segments (destroyed) by the
- * kept buffers, which the caller then owns, moves the single scattering made from them into
- * *single (else leaves it empty), sets *segment_count and returns 1; else 0. */
+/* When a kept pass has this signature: replaces *pixels and *segments (destroyed) by its
+ * buffers, which the caller then owns (the pass leaves the keep), moves the single
+ * scattering made from them into *single (else leaves it empty), sets *segment_count and
+ * returns 1; else 0. */
 int ns_camera_keep_take(ns_context *ctx, const unsigned char *signature, size_t bytes,
                         gpu_buffer *pixels, gpu_buffer *segments, uint32_t *segment_count,
                         ns_single_keep *single);
 /* Keeps the buffers (zeroed in the caller), the signature and *single (both owned from now
- * on; single may be empty) in place of what was kept, when they fit the bound; otherwise
- * keeps nothing, frees the signature and *single, leaving the buffers with the caller. */
+ * on; single may be empty) beside the other kept pass or in place of the least recently kept,
+ * within the bounds (camera_keep.c); otherwise keeps nothing, frees the signature and
+ * *single, leaving the buffers with the caller. */
 void ns_camera_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, gpu_buffer *pixels,
                         gpu_buffer *segments, uint32_t segment_count, ns_single_keep *single);
 void ns_camera_keep_free(gpu_device *dev, ns_camera_keep *keep);

@@ -1,5 +1,5 @@
-/* source_keep.c — the light's sources of the last render, kept for the next render that would
- * make the same ones (source_keep.h).
+/* source_keep.c — the light's sources of the last two renders, kept for the next render that
+ * would make the same ones (source_keep.h).
  *
  * The table and dipole methods gather from VRLs, and with render.boundary also from the
  * boundary sources the light's walks leave (scatter_render.c, vrl_source_init). Both come
@@ -130,9 +130,13 @@ static void free_keep(struct ns_source_keep **slot)
 void ns_source_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes, const ns_vrl_set *set,
                         const ns_boundary_groups *boundary)
 {
+    if (!signature || sources_bytes(set, boundary) > SOURCE_KEEP_BYTES_MAX) {
+        free(signature); /* nothing kept, nothing pushed out */
+        return;
+    }
     /* The slot: the one that holds these sources already, an empty one, or the oldest. */
     struct ns_source_keep **slot = &ctx->sources[0];
-    for (int i = 0; signature && i < NS_CAMERA_KEEP_ENTRIES; i++) {
+    for (int i = 0; i < NS_CAMERA_KEEP_ENTRIES; i++) {
         struct ns_source_keep **s = &ctx->sources[i];
         if (*s && (*s)->signature_bytes == bytes &&
             memcmp((*s)->signature, signature, bytes) == 0) {
@@ -143,9 +147,8 @@ void ns_source_keep_put(ns_context *ctx, unsigned char *signature, size_t bytes,
             slot = s;
     }
     free_keep(slot);
-    struct ns_source_keep *keep = NULL;
-    if (signature && sources_bytes(set, boundary) <= SOURCE_KEEP_BYTES_MAX &&
-        (keep = calloc(1, sizeof *keep)) && copy_sources(&keep->set, &keep->boundary, set, boundary)) {
+    struct ns_source_keep *keep = calloc(1, sizeof *keep);
+    if (keep && copy_sources(&keep->set, &keep->boundary, set, boundary)) {
         keep->signature = signature;
         keep->signature_bytes = bytes;
         keep->kept_at = ++ctx->sources_clock;

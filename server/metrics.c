@@ -394,14 +394,16 @@ static void render_families(text_buf *b, const registry *r)
            "Renders that kept the BVH of the previous render of the same geometry.",
            (double)r->bvh_reused);
     single(b, "nscatter_camera_reused_total", "counter",
-           "Renders that kept the camera pass of the previous render, which made the same one.",
+           "Renders that kept the camera pass of one of the last two renders, which made the same "
+           "one.",
            (double)r->camera_reused);
     single(b, "nscatter_sources_reused_total", "counter",
-           "Renders that kept the light's sources (VRLs, boundary sources) of the previous render, which made the same ones.",
+           "Renders that kept the light's sources (VRLs, boundary sources) of one of the last two "
+           "renders, which made the same ones.",
            (double)r->sources_reused);
     single(b, "nscatter_single_reused_total", "counter",
-           "Renders that kept the single scattering of the previous render, made from the same "
-           "camera pass (another albedo, or the same scene).",
+           "Renders that kept the single scattering made from the same camera pass by one of the "
+           "last two renders (another albedo, or the same scene).",
            (double)r->single_reused);
 }
 

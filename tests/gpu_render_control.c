@@ -21,7 +21,8 @@
  *     the kept buffers not counted as live; sources_reused 1 for another camera, image size
  *     and spp with the boundary correction (the image equal, bit for bit, to a fresh
  *     context's), 0 after a light, a material, the seed, the VRL count or the components
- *     changed and for pt; single_reused 1 for another albedo and back, with and without
+ *     changed and for pt, a preview's and its full image's both kept (two renders');
+ *     single_reused 1 for another albedo and back, with and without
  *     adaptive single scattering (the image equal, bit for bit, to a fresh context's), 0
  *     for a channel that stops scattering, another g or other samples, and the rule on
  *     made-up materials: two media in one ratio, apart, a channel that starts to scatter,
@@ -591,7 +592,7 @@ static void test_camera_reused(void)
     ns_render_stats stats = {0}, fresh_stats = {0};
     uint32_t buffers = ctx->dev.live_buffers;
     if (plain(ctx, &a, &img, &stats)) {
-        CHECK_INT(stats.camera_reused, 0); /* this context's last pass was another */
+        CHECK_INT(stats.camera_reused, 0); /* no pass kept on this context is this one */
         CHECK(has_stage(&stats, "ray_pass"));
     }
     ns_image_free(&img);
@@ -931,7 +932,7 @@ static void test_sources_reused(void)
     ns_image img = {0}, built = {0};
     ns_render_stats first = {0}, stats = {0}, fresh_stats = {0};
     if (plain(ctx, &a, &img, &first)) {
-        CHECK_INT(first.sources_reused, 0); /* the context's last sources were others' */
+        CHECK_INT(first.sources_reused, 0); /* no sources kept on this context are these */
         CHECK(has_stage(&first, "vrl"));
         CHECK(has_stage(&first, "boundary"));
         CHECK(first.boundary_sources > 0);
@@ -978,7 +979,8 @@ static void test_sources_reused(void)
     changes[3].what = "the VRL count", changes[3].scene.render.vrls = b.render.vrls + 1;
     changes[4].what = "the components", changes[4].scene.render.components = NS_COMPONENT_MULTIPLE;
     for (int i = 0; i < 5; i++) {
-        /* Back to b's sources first, so that only this change differs. */
+        /* Back to b's sources first (taken, so kept the longest), so that only this change
+         * differs from the sources kept. */
         plain(ctx, &b, &img, NULL);
         ns_image_free(&img);
         memset(&stats, 0, sizeof stats);

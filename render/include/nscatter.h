@@ -553,16 +553,16 @@ typedef struct ns_render_stats {
      * render that built one. The stage "bvh" is still listed, with the time of the
      * comparison. The image is the same either way. */
     uint32_t bvh_reused;
-    /* 1: the camera pass (surface image and segments) was kept from the context's last
-     * render, which made the same one: same geometry, camera, lights, planes, samples and
+    /* 1: the camera pass (surface image and segments) was kept from one of the context's last
+     * two renders, which made the same one: same geometry, camera, lights, planes, samples and
      * seed, and media that differ at most in what the camera pass does not read (sigma_s
      * and g: albedo at a fixed extinction, and g). No stage "ray_pass" is listed then. The
      * image is the same, bit for bit (render/camera_keep.c). */
     uint32_t camera_reused;
     /* 1: the light's sources (the VRLs and, with render.boundary, the boundary sources of
-     * the table and dipole methods) were kept from the context's last render, which made the
-     * same ones: same geometry, media, lights, seed and VRL count (and components, with the
-     * boundary correction), whatever the camera. No stage "vrl" or "boundary" is listed then.
+     * the table and dipole methods) were kept from one of the context's last two renders, which
+     * made the same ones: same geometry, media, lights, seed and VRL count (and components, with
+     * the boundary correction), whatever the camera. No stage "vrl" or "boundary" is listed then.
      * The image is the same, bit for bit (render/source_keep.c). */
     uint32_t sources_reused;
     /* 1: single scattering's image was kept with that camera pass (camera_reused is 1 too)
