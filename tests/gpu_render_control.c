@@ -26,7 +26,9 @@
  *     adaptive single scattering (the image equal, bit for bit, to a fresh context's), 0
  *     for a channel that stops scattering, another g or other samples, and the rule on
  *     made-up materials: two media in one ratio, apart, a channel that starts to scatter,
- *     another g, other settings, quotients far apart; two passes kept, a preview and its
+ *     another g, other settings, quotients far apart; two media: single scattering adds
+ *     up per medium (linear in each sigma_s), both halved kept (bit for bit a fresh
+ *     context's, half the image), one halved alone not; two passes kept, a preview and its
  *     full image alternating, the least recently kept pushed out by a third;
  *   - a zeroed control renders what ns_render renders.
  * Small images (16 x 12): a few seconds on lavapipe. */
@@ -802,6 +804,88 @@ static void test_single_reused(void)
     CHECK_INT(ctx->dev.live_buffers, buffers); /* what is kept is not counted */
 }
 
+/* Two media of different sigma_s, where the stage's per-unit sigma_s of the second is not 1:
+ * single scattering is linear in each medium's sigma_s (the two spheres' parts add: full =
+ * A alone + B alone, within float rounding), and both scaled by one factor keep the image
+ * per unit (taken, the image a fresh context makes, half the first within rounding), one of
+ * them scaled alone does not. Extinctions (4, 3, 2) and 3 in every variant, exactly. */
+static ns_scene two_media_scene(ns_material m[3], ns_object o[3], ns_light l[2], const double sa[3],
+                                const double sb[3])
+{
+    ns_scene s = base_scene(24, 16, 40);
+    set3(s.camera.position, 0, 1, 6);
+    set3(s.camera.look_at, 0, 0, 0);
+    const double ta[3] = {4, 3, 2}, tb[3] = {3, 3, 3};
+    m[0] = diffuse(0.5, 0.5, 0.5);
+    m[1] = medium(sa, (double[3]){ta[0] - sa[0], ta[1] - sa[1], ta[2] - sa[2]}, 1.3);
+    m[2] = medium(sb, (double[3]){tb[0] - sb[0], tb[1] - sb[1], tb[2] - sb[2]}, 1.3);
+    m[1].g = m[2].g = 0.4f;
+    o[0] = plane(-1, 0);
+    o[1] = sphere(-1.1, 0, 0, 1, 1);
+    o[2] = sphere(1.1, 0, 0, 1, 2);
+    l[0] = light(NS_LIGHT_DIRECTIONAL, 2, 2, 2);
+    set3(l[0].direction, 0.3, -0.8, -0.52);
+    l[1] = light(NS_LIGHT_ENVIRONMENT, 0.2, 0.2, 0.25);
+    scene_lists(&s, m, 3, o, 3, l, 2);
+    s.render.components = NS_COMPONENT_SINGLE;
+    s.render.spp = 1;
+    return s;
+}
+
+static void test_single_two_media(void)
+{
+    ns_context *ctx = test_context();
+    const double sa[3] = {2, 1.5, 1}, sb[3] = {1.5, 1.5, 1.5}, none[3] = {0, 0, 0};
+    const double sa_half[3] = {1, 0.75, 0.5}, sb_half[3] = {0.75, 0.75, 0.75};
+    ns_material m_full[3], m_a[3], m_b[3], m_half[3], m_one[3];
+    ns_object spheres[3];
+    ns_light lit[2];
+    ns_scene full = two_media_scene(m_full, spheres, lit, sa, sb);
+    ns_scene only_a = two_media_scene(m_a, spheres, lit, sa, none);
+    ns_scene only_b = two_media_scene(m_b, spheres, lit, none, sb);
+    ns_scene half = two_media_scene(m_half, spheres, lit, sa_half, sb_half);
+    ns_scene one_halved = two_media_scene(m_one, spheres, lit, sa_half, sb);
+    ns_image f = {0}, a = {0}, b = {0}, h = {0}, fresh_h = {0}, o = {0};
+    ns_render_stats stats = {0}, fresh_stats = {0};
+    if (plain(ctx, &full, &f, NULL) && plain(ctx, &only_a, &a, NULL) &&
+        plain(ctx, &only_b, &b, NULL)) {
+        double ma[3], mb[3];
+        image_mean(&a, ma);
+        image_mean(&b, mb);
+        CHECK(ma[0] > 0 && ma[2] > 0 && mb[0] > 0 && mb[2] > 0); /* both spheres scatter */
+        float peak = 0;
+        for (size_t i = 0; i < (size_t)3 * f.width * f.height; i++)
+            peak = fmaxf(peak, f.rgb[i]);
+        int off = 0;
+        for (size_t i = 0; i < (size_t)3 * f.width * f.height; i++) {
+            double sum = (double)a.rgb[i] + b.rgb[i];
+            off += !(fabs(f.rgb[i] - sum) <= 1e-5 * sum + 1e-7 * peak);
+        }
+        CHECK_INT(off, 0);
+    }
+    /* Both halved: taken; what a fresh context computes, bit for bit; half of full. */
+    ns_image_free(&f);
+    plain(ctx, &full, &f, NULL);
+    if (plain(ctx, &half, &h, &stats) && plain(fresh, &half, &fresh_h, &fresh_stats)) {
+        CHECK_INT(stats.single_reused, 1);
+        CHECK_INT(fresh_stats.single_reused, 0);
+        CHECK(same_image(&h, &fresh_h));
+        int off = 0;
+        for (size_t i = 0; i < (size_t)3 * h.width * h.height; i++)
+            off += !(fabsf(h.rgb[i] - 0.5f * f.rgb[i]) <= 1e-6f * f.rgb[i]);
+        CHECK_INT(off, 0);
+    }
+    /* One medium halved alone: its part was never kept apart. */
+    memset(&stats, 0, sizeof stats);
+    if (plain(ctx, &one_halved, &o, &stats)) {
+        CHECK_INT(stats.camera_reused, 1);
+        CHECK_INT(stats.single_reused, 0);
+    }
+    ns_image *all[] = {&f, &a, &b, &h, &fresh_h, &o};
+    for (size_t i = 0; i < sizeof all / sizeof all[0]; i++)
+        ns_image_free(all[i]);
+}
+
 /* Two camera passes kept (render/camera_keep.c): a quarter-size preview and the full image
  * alternate, as the web page renders them, and each takes its own; a third pass pushes out the
  * least recently kept. */
@@ -1043,6 +1127,7 @@ int main(void)
     RUN(test_bvh_reused);
     RUN(test_camera_reused);
     RUN(test_single_reused);
+    RUN(test_single_two_media);
     RUN(test_two_passes_kept);
     RUN(test_single_keep_rule);
     RUN(test_sources_reused);
