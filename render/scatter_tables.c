@@ -294,6 +294,50 @@ static void interleave_j(float (*texel)[4], const float *j)
     }
 }
 
+/* The remainder bounds of j (float [3][cells]) as texels (accumulate_shared.h): per theta
+ * bin the max over phi of each (z, rho) cell, then the max from each rho bin outward, then
+ * from each z bin along the way lines of that theta walk. */
+static void remainder_bounds(float (*texel)[4], const float *j)
+{
+    const size_t per_theta = (size_t)NS_TABLE_NZ * NS_TABLE_NRHO;
+    for (int c = 0; c < 3; c++) {
+        /* J in its own order (z, rho, theta, phi), read once: the max over phi. */
+        const float *t = j + (size_t)c * NS_TABLE_CELLS;
+        for (size_t zr = 0; zr < per_theta; zr++)
+            for (int it = 0; it < NS_TABLE_NTHETA; it++) {
+                const float *cell = t + (zr * NS_TABLE_NTHETA + it) * NS_TABLE_NPHI;
+                float m = 0.0f;
+                for (int ip = 0; ip < NS_TABLE_NPHI; ip++)
+                    m = cell[ip] > m ? cell[ip] : m;
+                texel[it * per_theta + zr][c] = m;
+            }
+    }
+    for (int it = 0; it < NS_TABLE_NTHETA; it++) {
+        float(*row)[4] = texel + it * per_theta;
+        for (int iz = 0; iz < NS_TABLE_NZ; iz++) /* from each rho bin outward */
+            for (int ir = NS_TABLE_NRHO - 2; ir >= 0; ir--)
+                for (int c = 0; c < 3; c++) {
+                    float *b = &row[iz * NS_TABLE_NRHO + ir][c];
+                    float outer = row[iz * NS_TABLE_NRHO + ir + 1][c];
+                    *b = outer > *b ? outer : *b;
+                }
+        /* Along z the way lines of this theta walk: down while cos theta > 0 (the lower half
+         * of the theta bins). */
+        int down = it < NS_TABLE_NTHETA / 2;
+        for (int k = 1; k < NS_TABLE_NZ; k++) {
+            int iz = down ? k : NS_TABLE_NZ - 1 - k, before = down ? iz - 1 : iz + 1;
+            for (int ir = 0; ir < NS_TABLE_NRHO; ir++)
+                for (int c = 0; c < 3; c++) {
+                    float *b = &row[iz * NS_TABLE_NRHO + ir][c];
+                    float prior = row[before * NS_TABLE_NRHO + ir][c];
+                    *b = prior > *b ? prior : *b;
+                }
+        }
+    }
+    for (size_t i = 0; i < NS_ACCUMULATE_BOUND_TEXELS; i++)
+        texel[i][3] = 0.0f;
+}
+
 /* j: float [3][cells]; parts (may be NULL): what the same walk makes beside it. */
 static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
                       ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
@@ -327,9 +371,12 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
         all_zero = all_zero && j_max[c] == 0.0f;
     uint64_t table_bytes = 3ull * NS_TABLE_CELLS * sizeof(float);
     /* J in one buffer of 16-byte texels: per cell the three channels, then per cell the
-     * second three (accumulate_shared.h). */
-    uint64_t texels_bytes = 4ull * NS_TABLE_CELLS * sizeof(float);
-    uint64_t j_bytes = texels_bytes * (second_j ? 2 : 1);
+     * second three, then the remainder bounds of each (accumulate_shared.h). */
+    uint32_t parts_walked = second_j ? 2 : 1;
+    params.counts[3] = parts_walked * NS_TABLE_CELLS;
+    params.second[1] = second_j ? params.counts[3] + NS_ACCUMULATE_BOUND_TEXELS : 0;
+    uint64_t j_bytes =
+        4ull * sizeof(float) * parts_walked * (NS_TABLE_CELLS + NS_ACCUMULATE_BOUND_TEXELS);
 
     gpu_buffer own[B_COUNT];
     memset(own, 0, sizeof own);
@@ -358,8 +405,11 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
     if (!status) {
         float(*texel)[4] = own[B_J].mapped;
         interleave_j(texel, j);
-        if (second_j)
+        remainder_bounds(texel + params.counts[3], j);
+        if (second_j) {
             interleave_j(texel + NS_TABLE_CELLS, second_j);
+            remainder_bounds(texel + params.second[1], second_j);
+        }
     }
     if (!status && !all_zero) {
         gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],

@@ -20,19 +20,23 @@
 //   phi-plane    T(u) = S cot(edge)                    (a half-plane through the axis)
 // and the walk takes whichever comes first: at most 128 + 2 * 64 + 17 + 1 steps.
 //
-// Where to stop (exact mode). J <= J_max everywhere, so what is left after u is at most
-// e^{-u} J_max (the integral of e^{-u'} from u to infinity is e^{-u}). The walk stops when that
-// bound falls below cut.x (1e-4) times the larger of what it has gathered and a floor of
-// cut.y (1e-10) J_max: the result is then within 1e-4 relative of the whole integral, or
-// within 1e-14 J_max absolute for cells so far from the light that A is below 1e-10 of the
-// table's peak, values no render can show next to the light that made them. The bound uses
-// the table's own peak, not a fixed length: at low albedo J falls like e^{-r} away from the
-// source, so the light reaching a far cell comes from near the source, up to ~32 mfp back,
-// and a fixed short cut would lose it. The walk also stops where it leaves the table (J is 0
-// outside). Paper mode (cut.z = 5): the integral over the first 5 mfp only, no other cut.
+// Where to stop (exact mode). What is left after u is at most e^{-u} J_rest (the integral of
+// e^{-u'} from u to infinity is e^{-u}), J_rest the largest J on the rest of the line: the
+// remainder bound of its (theta, z, rho) bin (accumulate_shared.h), never above the table's
+// peak J_max. The walk stops when that bound falls below cut.x (1e-4) times the larger of
+// what it has gathered and a floor of cut.y (1e-10) J_max: the result is then within 1e-4
+// relative of the whole integral, or within 1e-14 J_max absolute for cells so far from the
+// light that A is below 1e-10 of the table's peak, values no render can show next to the
+// light that made them. The bound comes from the table, not a fixed length: at low albedo J
+// falls like e^{-r} away from the source, so the light reaching a far cell comes from near
+// the source, up to ~32 mfp back, and a fixed short cut would lose it; and a line heading
+// away from the source stops within a few bins, where the table's peak kept it going for
+// many mfp. The walk also stops where it leaves the table (J is 0 outside). Paper mode
+// (cut.z = 5): the integral over the first 5 mfp only, no other cut.
 //
 // Binding 0 params, 1 J (16-byte texels: [cells] of the three channels, then [cells] of the
-// second three where they are walked: accumulate_shared.h), 2 A out (float[3][cells]),
+// second three where they are walked, then the remainder bounds of each: accumulate_shared.h),
+// 2 A out (float[3][cells]),
 // 3 counters, 4 the second three's A.
 //
 // Two shaders include this file: accumulate.comp (NS_ACCUMULATE_SECOND 0) and
@@ -128,10 +132,15 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     float inv_cos = 1.0 / cos_theta, inv_sin = 1.0 / sin_theta; // |cos_theta| >= cos(85 deg)
     float t0 = rho0 * cos(phi), s = rho0 * sin(phi), s2 = s * s;
 
+    // The rest of the line never comes closer to the axis than s (the remainder bounds,
+    // accumulate_shared.h): its rho bin, one lower against rounding.
+    int ir_closest =
+        clamp(int(floor(asinh(abs(s) / params.grid.x) / params.grid.y)) - 1, 0, NRHO - 1);
+    int bound_row = it * NZ; // + iz, then * NRHO + the rho bin
+
     bool fixed_length = params.cut.z > 0.0;
     float u_end = fixed_length ? params.cut.z : FAR;
-    vec3 j_max = params.j_max.xyz;
-    vec3 floor_abs = params.cut.y * j_max;
+    vec3 floor_abs = params.cut.y * params.j_max.xyz;
 
     // The z-plane ahead is the bin's lower one while z decreases along the walk, else its
     // upper one.
@@ -156,8 +165,7 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
     float second_edge = rho_edge(second_zero_from);
     bool meets_second =
         has_second && (ir < second_zero_from || second_edge * second_edge > s2);
-    vec3 second_j_max = params.second_j_max.xyz;
-    vec3 second_floor = params.cut.y * second_j_max;
+    vec3 second_floor = params.cut.y * params.second_j_max.xyz;
     bool meets_any = meets_j || meets_second;
     bool adding_second = meets_second;
     second_sum = vec3(0.0);
@@ -204,11 +212,16 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
             break;
         }
         if (!fixed_length) {
+            // The rest of the line lies in z bins from iz on (its way) and rho bins from
+            // ir_closest while it still heads inward, from ir once it heads outward.
+            int ir_rest = t0 - u * sin_theta > 0.0 ? min(ir_closest, ir) : ir;
+            uint bound_at = uint((bound_row + iz) * NRHO + ir_rest);
             adding_j = adding_j &&
-                !all(lessThanEqual(decay * j_max, params.cut.x * (sum + floor_abs)));
+                !all(lessThanEqual(decay * j_at(params.counts.w + bound_at).xyz,
+                                   params.cut.x * (sum + floor_abs)));
 #if NS_ACCUMULATE_SECOND
             adding_second = adding_second &&
-                !all(lessThanEqual(decay * second_j_max,
+                !all(lessThanEqual(decay * j_at(params.second.y + bound_at).xyz,
                                    params.cut.x * (second_sum + second_floor)));
             if (!adding_j && !adding_second) {
 #else
