@@ -243,26 +243,29 @@ static uint32_t setup_axes(struct GpuNnParams *gp, const ns_nn_grid *grid, const
     return nodes;
 }
 
+/* Workgroup z is the order less GpuNnParams.orders.x: `orders` of them from that one. */
 static int dispatch_table(gpu_device *dev, ns_nn_gpu *nn, const gpu_pipeline *pipe, gpu_buffer *out,
-                          gpu_buffer *in, uint32_t items, uint32_t channels, ns_error *err)
+                          gpu_buffer *in, uint32_t items, uint32_t channels, uint32_t orders,
+                          ns_error *err)
 {
     uint32_t per_group = NS_NN_GROUP * NS_NN_POINTS;
     gpu_buffer *bound[3] = {&nn->params, out, in ? in : &nn->dummy};
     return gpu_dispatch(dev, pipe, bound, 3,
-                        (uint32_t[3]){(items + per_group - 1) / per_group, channels, 2}, err);
+                        (uint32_t[3]){(items + per_group - 1) / per_group, channels, orders}, err);
 }
 
 /* Evaluates the networks at the nodes and fills every cell of out: directly when every cell
  * is a node, else through t at the nodes and the interpolation pass. */
 static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint32_t cells,
-                    uint32_t nodes, uint32_t channels, gpu_buffer *out, ns_error *err)
+                    uint32_t nodes, uint32_t channels, uint32_t orders, gpu_buffer *out,
+                    ns_error *err)
 {
     gp->info[1] = NS_NN_MODE_TABLE;
     gp->info[3] = nodes;
     if (nodes == cells) {
         gp->info[0] = cells;
         gp->info[2] = 0;
-        return dispatch_table(dev, nn, &nn->pipeline, out, NULL, cells, channels, err);
+        return dispatch_table(dev, nn, &nn->pipeline, out, NULL, cells, channels, orders, err);
     }
     uint32_t rows = cells / gp->counts[3], row_groups = (rows + NS_NN_GROUP - 1) / NS_NN_GROUP;
     if (row_groups > 65535) /* Vulkan's guaranteed workgroup count per dimension */
@@ -280,14 +283,14 @@ static int evaluate(gpu_device *dev, ns_nn_gpu *nn, struct GpuNnParams *gp, uint
     if (!status) {
         gp->info[0] = nodes;
         gp->info[2] = 1; /* t, not J */
-        status = dispatch_table(dev, nn, &nn->pipeline, &t, NULL, nodes, channels, err);
+        status = dispatch_table(dev, nn, &nn->pipeline, &t, NULL, nodes, channels, orders, err);
     }
     if (!status) {
         /* nn_interpolate.comp: one invocation per row of cells along phi. */
         gp->info[0] = cells;
         gpu_buffer *bound[3] = {&nn->params, out, &t};
         status = gpu_dispatch(dev, &nn->interpolate, bound, 3,
-                              (uint32_t[3]){row_groups, channels, 2}, err);
+                              (uint32_t[3]){row_groups, channels, orders}, err);
     }
     gpu_buffer_destroy(dev, &t);
     return status;
@@ -335,11 +338,11 @@ static int check_material(const ns_nn_reconstruct_desc *desc, uint32_t channels,
     return network_covers(desc->g, albedo, &field, err);
 }
 
-/* Energy of each table and, if asked, the rescaling to the exact E_k. */
+/* Energy of each table of orders [first, end) and, if asked, the rescaling to the exact E_k. */
 static void finish_tables(const ns_nn_reconstruct_desc *desc, uint32_t cells, uint32_t channels,
-                          ns_nn_reconstruct_stats *s)
+                          int first, int end, ns_nn_reconstruct_stats *s)
 {
-    for (int o = 0; o < 2; o++)
+    for (int o = first; o < end; o++)
         for (uint32_t c = 0; c < channels; c++) {
             float *j = desc->out + ((size_t)o * 3 + c) * cells;
             s->energy_raw[o][c] = ns_nn_grid_energy(&desc->grid, j);
@@ -365,8 +368,15 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
         status = check_material(desc, channels, err);
     if (!status)
         status = check_sampling(&sampling, err);
+    if (!status && desc->orders != 0 && desc->orders != NS_NN_ORDER_DOUBLE &&
+        desc->orders != NS_NN_ORDER_MULTIPLE)
+        status = ns_fail(err, NS_ERR_INVALID_ARGUMENT,
+                         "orders: %u (0 for both, NS_NN_ORDER_DOUBLE or NS_NN_ORDER_MULTIPLE)",
+                         desc->orders);
     if (status)
         return status;
+    int first = desc->orders == NS_NN_ORDER_MULTIPLE,
+        end = desc->orders == NS_NN_ORDER_DOUBLE ? 1 : 2;
     const ns_nn_grid *grid = &desc->grid;
     uint32_t cells = grid->n[0] * grid->n[1] * grid->n[2] * grid->n[3];
     struct GpuNnParams *gp = nn->params.mapped;
@@ -374,6 +384,7 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     pack_common(gp, desc->nets);
     const ns_nn_header *h = &desc->nets[0]->h;
     uint32_t nodes = setup_axes(gp, grid, h, &sampling);
+    gp->orders[0] = (uint32_t)first;
     for (int c = 0; c < 3; c++) {
         gp->channel[c][0] = ns_nn_map_g(h, desc->g);
         gp->channel[c][1] = ns_nn_map_albedo(h, desc->albedo[c]);
@@ -390,19 +401,19 @@ int ns_nn_reconstruct(gpu_device *dev, ns_nn_gpu *nn, const ns_nn_reconstruct_de
     if (status)
         return status;
     double t1 = seconds_now();
-    status = evaluate(dev, nn, gp, cells, nodes, channels, &out, err);
+    status = evaluate(dev, nn, gp, cells, nodes, channels, (uint32_t)(end - first), &out, err);
     double t2 = seconds_now();
-    if (!status)
-        for (int o = 0; o < 2; o++) /* only the channels computed: the rest is undefined */
+    if (!status) /* only the channels and orders computed: the rest is undefined */
+        for (int o = first; o < end; o++)
             memcpy(desc->out + (size_t)o * 3 * cells, (float *)out.mapped + (size_t)o * 3 * cells,
                    (size_t)cells * channels * sizeof(float));
     gpu_buffer_destroy(dev, &out);
     if (status)
         return status;
     ns_nn_reconstruct_stats s = {.gpu_seconds = t2 - t1,
-                                 .evaluations = (uint64_t)nodes * 2 * channels,
-                                 .cells = (uint64_t)cells * 2 * channels};
-    finish_tables(desc, cells, channels, &s);
+                                 .evaluations = (uint64_t)nodes * (end - first) * channels,
+                                 .cells = (uint64_t)cells * (end - first) * channels};
+    finish_tables(desc, cells, channels, first, end, &s);
     s.total_seconds = seconds_now() - t0;
     if (stats)
         *stats = s;

@@ -35,6 +35,9 @@ struct ns_nn_state {
     ns_nn_weights nets[2];
     int nets_ok;
     ns_error nets_error; /* why NS_METHOD_NN is not available */
+    /* Double scattering per unit a^2 at unit_double_g (network_tables); NULL until made. */
+    float *unit_double;
+    float unit_double_g;
 };
 
 typedef enum { ENTRY_J, ENTRY_A, ENTRY_NODE } entry_kind;
@@ -669,10 +672,11 @@ static int insert_j_entry(ns_context *ctx, cache_entry *e, ns_table_stats *stats
     return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for the cache");
 }
 
-/* J of both orders from the networks for n (1 to 3) channels of albedo[c] and g, into out
- * (float [2][3][cells]; only the n channels are defined). */
-static int network_tables(ns_context *ctx, float g, const double *albedo, uint32_t n, float *out,
-                          ns_error *err)
+/* The networks' reconstruction on the default grid, renormalised to the exact energies (the
+ * default of `nscatter table`), of the orders asked for (0: both) for n channels of albedo[c]
+ * and g, into out (float [2][3][cells]; only those channels and orders are written). */
+static int reconstruct(ns_context *ctx, float g, const double *albedo, uint32_t n, uint32_t orders,
+                       float *out, ns_error *err)
 {
     struct ns_nn_state *nn = ctx->nn;
     ns_table_grid grid;
@@ -682,13 +686,70 @@ static int network_tables(ns_context *ctx, float g, const double *albedo, uint32
         .grid = {.n = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI},
                  .edges = {grid.z, grid.rho, grid.theta, grid.phi}},
         .g = g,
-        .renormalise = 1, /* the default of `nscatter table`: each table carries E_k exactly */
+        .renormalise = 1,
         .channels = n,
         .out = out,
+        .orders = orders,
     };
     for (uint32_t c = 0; c < 3; c++)
         desc.albedo[c] = albedo[c < n ? c : 0];
     return ns_nn_reconstruct(&ctx->dev, &nn->gpu, &desc, NULL, err);
+}
+
+/* Double scattering is the light of exactly two events, lengths in mfp: it depends on the
+ * albedo only through a^2, J_2(a) = a^2 U_g. The double network takes the albedo as an
+ * input all the same, and the shapes of its tables differ across albedos by 0.1-0.9%
+ * (energy-weighted L1 between albedos 0.3 and 0.995 at g 0.45, 0.8 and 0.95), while its
+ * error against Monte Carlo is 4.5% at every albedo (g 0.45; docs/network.md, *One double
+ * table per g*): the differences are the network's noise, not physics. So the renderer
+ * evaluates the double network once per g, at the albedo in the middle of its input
+ * (1 - sqrt(1 - albedo_max), 0.968), keeps that table per unit a^2, and makes every
+ * channel's double table a^2 times it: a new albedo at the same g runs the multiple network
+ * alone, and a material's tables do not depend on which albedos came before. One g is kept
+ * (10.6 MB); a sweep over g makes it again per g, one channel of one order. */
+static int unit_double(ns_context *ctx, float g, const float **unit, ns_error *err)
+{
+    struct ns_nn_state *nn = ctx->nn;
+    *unit = NULL;
+    if (nn->unit_double && nn->unit_double_g == g) {
+        *unit = nn->unit_double;
+        return NS_OK;
+    }
+    if (!nn->unit_double)
+        nn->unit_double = malloc(NS_TABLE_CELLS * sizeof(float));
+    if (!nn->unit_double)
+        return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
+    nn->unit_double_g = NAN; /* not valid until made */
+    double reference = 1.0 - sqrt(1.0 - (double)nn->nets[0].h.albedo_max);
+    /* Only channel 0 of the double order is written: the first cells of out. */
+    int status = reconstruct(ctx, g, &reference, 1, NS_NN_ORDER_DOUBLE, nn->unit_double, err);
+    if (status)
+        return status;
+    float per_unit = (float)(1.0 / (reference * reference));
+    for (size_t i = 0; i < NS_TABLE_CELLS; i++)
+        nn->unit_double[i] *= per_unit;
+    nn->unit_double_g = g;
+    *unit = nn->unit_double;
+    return NS_OK;
+}
+
+/* J of both orders from the networks for n (1 to 3) channels of albedo[c] and g, into out
+ * (float [2][3][cells]; only the n channels are defined): multiple scattering from its network
+ * at each albedo, double scattering a^2 times the g's unit table (unit_double). */
+static int network_tables(ns_context *ctx, float g, const double *albedo, uint32_t n, float *out,
+                          ns_error *err)
+{
+    const float *unit;
+    int status = unit_double(ctx, g, &unit, err);
+    if (!status)
+        status = reconstruct(ctx, g, albedo, n, NS_NN_ORDER_MULTIPLE, out, err);
+    for (uint32_t c = 0; c < n && !status; c++) {
+        float *j = out + (size_t)c * NS_TABLE_CELLS;
+        float energy = (float)(albedo[c] * albedo[c]);
+        for (size_t i = 0; i < NS_TABLE_CELLS; i++)
+            j[i] = unit[i] * energy;
+    }
+    return status;
 }
 
 static int network_j(ns_context *ctx, const ns_table_key *key, const float *albedo, uint32_t n,
@@ -981,10 +1042,11 @@ static cache_entry *find_node(struct ns_table_cache *cache, float g, ns_accumula
  * (their CRCs; nodes only), the SPIR-V of the three shaders that compute them
  * (nn_reconstruct, nn_interpolate, accumulate), the accumulation's parameters in both modes
  * (its cut, its floor, the paper's length, the step cap), the networks' sampling of the grid
- * and the node albedos' placement, and TABLE_FILE_CODE_VERSION for what none of those show (the renormalisation, the blend):
+ * and the node albedos' placement, and TABLE_FILE_CODE_VERSION for what none of those show (the
+ * renormalisation, the blend, double scattering from one table per g: 2 since 2026-12-02):
  * bump it when that changes. The folder is kept within ns_context_desc.table_dir_bytes, the
  * least recently used files first (prune_table_files). */
-#define TABLE_FILE_CODE_VERSION 1u
+#define TABLE_FILE_CODE_VERSION 2u
 enum { TABLE_FILE_NODE = 1 };
 typedef struct table_file_header {
     char magic[8];            /* TABLE_FILE_MAGIC */
@@ -1818,6 +1880,7 @@ void ns_tables_destroy(ns_context *ctx)
             __atomic_add_fetch(&ctx->dev.live_buffers, 2, __ATOMIC_SEQ_CST);
             ns_nn_gpu_destroy(&ctx->dev, &ctx->nn->gpu);
         }
+        free(ctx->nn->unit_double);
         free(ctx->nn);
         ctx->nn = NULL;
     }

@@ -54,7 +54,7 @@ float row_t(uint src, uvec3 lo, uvec3 hi, vec3 w, uvec3 stride, uint kp)
 
 void main()
 {
-    uint order = gl_WorkGroupID.z;
+    uint order = gl_WorkGroupID.z + P.orders.x; // P.orders: nn_shared.h
     uint channel = gl_WorkGroupID.y;
     uint row = gl_GlobalInvocationID.x;
     uint cells = P.info.x;

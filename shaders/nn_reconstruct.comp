@@ -60,7 +60,7 @@ void main()
 {
     // From the workgroup id, not the invocation id: the compiler then knows they are the same
     // for all lanes, so weight fetches stay scalar loads instead of per-lane gathers.
-    uint order = gl_WorkGroupID.z;
+    uint order = gl_WorkGroupID.z + P.orders.x; // P.orders: nn_shared.h
     uint channel = gl_WorkGroupID.y;
     uint first = gl_GlobalInvocationID.x * NS_NN_POINTS;
     uint count = P.info.x;

@@ -44,6 +44,8 @@ struct GpuNnParams {
     ns_vec4 interp[1024]; /* [axis][NS_NN_MAX_AXIS]: for node k of the axis .x = its bin;
                              for bin i .y = its lower node, .z = the weight of the next
                              node (interpolation in normalised input) */
+    ns_uvec4 orders;      /* x: the first order a table dispatch evaluates (workgroup z is the
+                             order less this: a dispatch of one order has z 0 only); yzw 0 */
 };
 
 #if !defined(__STDC__) && !defined(__cplusplus)
@@ -57,7 +59,7 @@ float nn_target_to_j(vec4 tt, float t, float energy)
 #endif
 
 #if defined(__STDC__) || defined(__cplusplus)
-_Static_assert(sizeof(struct GpuNnParams) == (2 * 794 + 256 + 2 + 3 + 2 + 1 + 1024) * 16,
+_Static_assert(sizeof(struct GpuNnParams) == (2 * 794 + 256 + 2 + 3 + 2 + 1 + 1024 + 1) * 16,
                "GpuNnParams");
 _Static_assert(offsetof(struct GpuNnParams, counts) == (2 * 794 + 256) * 16, "GpuNnParams");
 #endif

@@ -256,6 +256,54 @@ static void test_rejects_bad_material(void)
     CHECK_STR_CONTAINS(err.message, "normalise inputs differently");
 }
 
+/* One order alone (desc.orders): its tables bit for bit those of both orders evaluated
+ * together, the other order's part of out untouched, fewer evaluations; a value that names
+ * no order is refused, naming the field. */
+static void test_one_order_alone(void)
+{
+    ns_nn_weights w[2];
+    if (load_builtin(w))
+        return;
+    ns_table shape;
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
+    CHECK_INT(ns_table_create(&shape, n, NULL), 0);
+    ns_mc_default_edges(&shape);
+    size_t cells = ns_table_size(&shape);
+    float *both = malloc(cells * 6 * sizeof(float)), *alone = malloc(cells * 6 * sizeof(float));
+    ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]},
+                                .g = 0.6,
+                                .albedo = {0.9, 0.5, 0.99},
+                                .renormalise = 1,
+                                .channels = 2,
+                                .out = both};
+    for (int a = 0; a < 4; a++)
+        d.grid.n[a] = shape.n[a], d.grid.edges[a] = shape.edges[a];
+    ns_nn_reconstruct_stats st_both, st;
+    ns_error err = {0};
+    CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, &st_both, &err), 0);
+    const uint32_t orders[2] = {NS_NN_ORDER_DOUBLE, NS_NN_ORDER_MULTIPLE};
+    for (int o = 0; o < 2; o++) {
+        for (size_t i = 0; i < cells * 6; i++)
+            alone[i] = -1.0f;
+        d.out = alone;
+        d.orders = orders[o];
+        CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, &st, &err), 0);
+        for (int c = 0; c < 2; c++) {
+            size_t at = ((size_t)o * 3 + c) * cells, other = ((size_t)(1 - o) * 3 + c) * cells;
+            CHECK(memcmp(alone + at, both + at, cells * sizeof(float)) == 0);
+            CHECK(alone[other] == -1.0f && alone[other + cells - 1] == -1.0f);
+            CHECK(st.energy_raw[o][c] == st_both.energy_raw[o][c]);
+        }
+        CHECK(st.evaluations * 2 == st_both.evaluations);
+    }
+    d.orders = 3;
+    CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, NULL, &err), NS_ERR_INVALID_ARGUMENT);
+    CHECK_STR_CONTAINS(err.message, "orders");
+    free(both);
+    free(alone);
+    ns_table_free(&shape);
+}
+
 /* Is bin i of axis a a node of the sampling (the rule of nn_reconstruct.c's sample_axis)? */
 static int is_node(const ns_nn_grid *g, int a, uint32_t i, const ns_nn_sampling *s)
 {
@@ -371,6 +419,7 @@ int main(void)
     RUN(test_tables_on_grid);
     RUN(test_tables_off_grid);
     RUN(test_sampled_matches_every_cell);
+    RUN(test_one_order_alone);
     RUN(test_rejects_bad_sampling);
     ns_nn_gpu_destroy(&dev, &nn);
     gpu_device_destroy(&dev);

@@ -38,7 +38,12 @@ typedef struct ns_nn_reconstruct_desc {
     uint32_t channels; /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
     float *out;        /* [2][3][cells] J values: order-major, then channel */
     const ns_nn_sampling *sampling; /* NULL: ns_nn_sampling_default() */
+    /* 0: both orders; NS_NN_ORDER_DOUBLE or NS_NN_ORDER_MULTIPLE: that one alone (out's other
+     * order is left as it was, the energies of its stats 0). */
+    uint32_t orders;
 } ns_nn_reconstruct_desc;
+
+enum { NS_NN_ORDER_DOUBLE = 1, NS_NN_ORDER_MULTIPLE = 2 };
 
 typedef struct ns_nn_reconstruct_stats {
     double energy_raw[2][3];   /* energy of each table as the network gave it */
