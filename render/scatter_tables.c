@@ -706,7 +706,8 @@ static int reconstruct(ns_context *ctx, float g, const double *albedo, uint32_t 
  * (1 - sqrt(1 - albedo_max), 0.968), keeps that table per unit a^2, and makes every
  * channel's double table a^2 times it: a new albedo at the same g runs the multiple network
  * alone, and a material's tables do not depend on which albedos came before. One g is kept
- * (10.6 MB); a sweep over g makes it again per g, one channel of one order. */
+ * (10.6 MB): a sweep over g, or a scene of two media of different g at a new albedo, makes
+ * it again per g, one channel of one order (about a sixth of an RGB material's networks). */
 static int unit_double(ns_context *ctx, float g, const float **unit, ns_error *err)
 {
     struct ns_nn_state *nn = ctx->nn;
@@ -715,21 +716,24 @@ static int unit_double(ns_context *ctx, float g, const float **unit, ns_error *e
         *unit = nn->unit_double;
         return NS_OK;
     }
-    if (!nn->unit_double)
-        nn->unit_double = malloc(NS_TABLE_CELLS * sizeof(float));
-    if (!nn->unit_double)
+    /* Made aside: a failed or cancelled attempt keeps the last g's table. */
+    float *made = malloc(NS_TABLE_CELLS * sizeof(float));
+    if (!made)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "tables: out of memory for J");
-    nn->unit_double_g = NAN; /* not valid until made */
     double reference = 1.0 - sqrt(1.0 - (double)nn->nets[0].h.albedo_max);
-    /* Only channel 0 of the double order is written: the first cells of out. */
-    int status = reconstruct(ctx, g, &reference, 1, NS_NN_ORDER_DOUBLE, nn->unit_double, err);
-    if (status)
+    /* One channel of the double order alone writes the first cells of out (nn.h). */
+    int status = reconstruct(ctx, g, &reference, 1, NS_NN_ORDER_DOUBLE, made, err);
+    if (status) {
+        free(made);
         return status;
+    }
     float per_unit = (float)(1.0 / (reference * reference));
     for (size_t i = 0; i < NS_TABLE_CELLS; i++)
-        nn->unit_double[i] *= per_unit;
+        made[i] *= per_unit;
+    free(nn->unit_double);
+    nn->unit_double = made;
     nn->unit_double_g = g;
-    *unit = nn->unit_double;
+    *unit = made;
     return NS_OK;
 }
 

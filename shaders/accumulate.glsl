@@ -213,8 +213,10 @@ vec3 walk_line(int iz, int ir, int it, int ip, float phi, out uint steps, out bo
         }
         if (!fixed_length) {
             // The rest of the line lies in z bins from iz on (its way) and rho bins from
-            // ir_closest while it still heads inward, from ir once it heads outward.
-            int ir_rest = t0 - u * sin_theta > 0.0 ? min(ir_closest, ir) : ir;
+            // ir_closest while it still heads inward, from ir once it heads outward. A line
+            // that grazes its bin's inner edge has T about 0 there, which rounding may put on
+            // either side: the crossing ahead going inward says so too.
+            int ir_rest = t0 - u * sin_theta > 0.0 || rho_dir < 0 ? min(ir_closest, ir) : ir;
             uint bound_at = uint((bound_row + iz) * NRHO + ir_rest);
             adding_j = adding_j &&
                 !all(lessThanEqual(decay * j_at(params.counts.w + bound_at).xyz,

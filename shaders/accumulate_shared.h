@@ -38,7 +38,7 @@
 /* Uniform block (binding 0). Kept under 256 bytes so the generic warm-up buffer covers it. */
 struct GpuAccumulateParams {
     ns_vec4 grid;    /* x = sinh scale (mfp), y = sinh step, z = extent (mfp), w = unused */
-    ns_vec4 j_max;   /* xyz: the largest J of each channel's table (bounds the remainder), w 0 */
+    ns_vec4 j_max;   /* xyz: the largest J of each channel's table (sets the cut's floor), w 0 */
     ns_vec4 cut;     /* x = relative error allowed for the remainder, y = floor relative to
                         j_max (see accumulate.comp), z = fixed length (mfp, paper mode) or 0 */
     ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = the rho bin from

@@ -358,7 +358,7 @@ static void test_radial_support_skips_walks(void)
         j[2 * cells + i] = 0.5f * j[i]; /* channel 2 too; channel 1 stays 0 */
     uint64_t all = 0, skipped = 0;
     compare_skipped(j, "a tube near the axis", &all, &skipped);
-    CHECK(skipped > 0 && skipped < all);
+    CHECK(skipped > 0 && skipped < all * 9 / 10); /* 0.88 of them, 2026-12-02 */
     free(j);
 
     j = exponential_j();
@@ -571,9 +571,9 @@ static double table_value_between(const float *a, const double p[3], const doubl
 
 /* Double scattering depends on the albedo only through a^2 (scatter_tables.c, unit_double):
  * every channel's double J at one g is a^2 times one table, within float rounding, in one
- * material and across materials, whichever came first, with the exact energy a^2. The
- * networks evaluated at each albedo differ in shape by 0.1-0.9% (L1), single cells by far
- * more: this fails if each albedo's double table is the network's own. */
+ * material and in a later one, with the exact energy a^2. The networks evaluated at each
+ * albedo differ in shape by 0.1-0.9% (L1), single cells by far more: this fails if each
+ * albedo's double table is the network's own. */
 static void test_double_from_one_table_per_g(void)
 {
     const ns_table_key first = {.source = NS_METHOD_NN,
@@ -1024,22 +1024,24 @@ static void bench(int n)
     };
     for (size_t m = 0; m < sizeof materials / sizeof materials[0]; m++) {
         ns_table_stats made;
-        get_tables(&materials[m], &made);
-        float *j3 = malloc(3 * cells * sizeof(float));
-        for (int c = 0; c < 3; c++) {
+        float *j3 = get_tables(&materials[m], &made) ? malloc(3 * cells * sizeof(float)) : NULL;
+        int have = j3 != NULL;
+        for (int c = 0; c < 3 && have; c++) {
             float *jc = summed_j(&materials[m], c);
+            have = jc != NULL;
             if (jc)
                 memcpy(j3 + c * cells, jc, cells * sizeof(float));
             free(jc);
         }
         double walk_ms[64];
         uint64_t steps = 0;
-        for (int i = 0; i < n; i++) {
+        int walks = 0;
+        for (int i = 0; i < n && have; i++) {
             float *a_walk = NULL;
             double t0 = ns_now_ms();
             if (accumulate(j3, NS_ACCUMULATION_EXACT, &a_walk, &steps))
                 break;
-            walk_ms[i] = ns_now_ms() - t0;
+            walk_ms[walks++] = ns_now_ms() - t0;
             const char *dump = getenv("NSCATTER_BENCH_ACCUMULATE_DUMP");
             if (dump && i == 0) {
                 char path[512];
@@ -1052,10 +1054,11 @@ static void bench(int n)
             }
             free(a_walk);
         }
-        printf("nn J of g %.1f albedos %.3g / %.3g / %.3g: %llu steps, walk %.0f ms (median)\n",
-               (double)materials[m].g, (double)materials[m].albedo[0],
-               (double)materials[m].albedo[1], (double)materials[m].albedo[2],
-               (unsigned long long)steps, median(walk_ms, n));
+        if (walks)
+            printf("nn J of g %.1f albedos %.3g / %.3g / %.3g: %llu steps, walk %.0f ms (median)\n",
+                   (double)materials[m].g, (double)materials[m].albedo[0],
+                   (double)materials[m].albedo[1], (double)materials[m].albedo[2],
+                   (unsigned long long)steps, median(walk_ms, walks));
         free(j3);
     }
     float *j = exponential_j(), *a = NULL;

@@ -38,8 +38,10 @@ typedef struct ns_nn_reconstruct_desc {
     uint32_t channels; /* 1 to 3 channels evaluated (0 means 3); out keeps room for 3 */
     float *out;        /* [2][3][cells] J values: order-major, then channel */
     const ns_nn_sampling *sampling; /* NULL: ns_nn_sampling_default() */
-    /* 0: both orders; NS_NN_ORDER_DOUBLE or NS_NN_ORDER_MULTIPLE: that one alone (out's other
-     * order is left as it was, the energies of its stats 0). */
+    /* 0: both orders; NS_NN_ORDER_DOUBLE or NS_NN_ORDER_MULTIPLE: that one alone. Only the
+     * tables evaluated are written, at out + (order * 3 + channel) * cells (one channel of the
+     * double order alone: out[0, cells)); the rest of out is left as it was, and the stats'
+     * energies of an order not evaluated are 0. (Not a bit mask: 3 is refused.) */
     uint32_t orders;
 } ns_nn_reconstruct_desc;
 
@@ -50,8 +52,8 @@ typedef struct ns_nn_reconstruct_stats {
     double energy_exact[2][3]; /* E_k */
     double gpu_seconds;        /* dispatch, submit and wait */
     double total_seconds;      /* including upload, readback and renormalisation */
-    uint64_t evaluations;      /* network evaluations (nodes x channels x 2 orders) */
-    uint64_t cells;            /* table cells filled (cells x channels x 2 orders) */
+    uint64_t evaluations;      /* network evaluations (nodes x channels x orders evaluated) */
+    uint64_t cells;            /* table cells filled (cells x channels x orders evaluated) */
 } ns_nn_reconstruct_stats;
 
 /* Energy of one table in this grid: sum of J * ring volume * solid angle (DESIGN.md §3). */
