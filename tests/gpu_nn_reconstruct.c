@@ -170,6 +170,18 @@ static moments table_moments(const ns_nn_grid *g, const float *j)
     return m;
 }
 
+/* The Monte Carlo tables' default grid as a table (ns_table_free it) and as the
+ * reconstruction's grid, whose edges are the table's; returns its cells. */
+static size_t default_grid(ns_table *shape, ns_nn_grid *grid)
+{
+    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
+    CHECK_INT(ns_table_create(shape, n, NULL), 0);
+    ns_mc_default_edges(shape);
+    for (int a = 0; a < 4; a++)
+        grid->n[a] = shape->n[a], grid->edges[a] = shape->edges[a];
+    return ns_table_size(shape);
+}
+
 /* Energy (before renormalisation), <z>, <r^2> within 5% relative; <cos theta> within 0.05
  * (5% of its range: g^k is near 0 for the multiple order of low g, where relative error
  * means nothing). */
@@ -177,18 +189,15 @@ static void check_material(const ns_nn_weights w[2], double g, const double albe
                            const char *label)
 {
     ns_table shape;
-    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
-    CHECK_INT(ns_table_create(&shape, n, NULL), 0);
-    ns_mc_default_edges(&shape);
-    size_t cells = ns_table_size(&shape);
+    ns_nn_grid grid;
+    size_t cells = default_grid(&shape, &grid);
     float *out = malloc(cells * 6 * sizeof(float));
     ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]},
+                                .grid = grid,
                                 .g = g,
                                 .albedo = {albedo[0], albedo[1], albedo[2]},
                                 .renormalise = 1,
                                 .out = out};
-    for (int a = 0; a < 4; a++)
-        d.grid.n[a] = shape.n[a], d.grid.edges[a] = shape.edges[a];
     ns_nn_reconstruct_stats st;
     ns_error err = {0};
     uint32_t before = gpu_validation_count(&dev);
@@ -265,19 +274,16 @@ static void test_one_order_alone(void)
     if (load_builtin(w))
         return;
     ns_table shape;
-    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
-    CHECK_INT(ns_table_create(&shape, n, NULL), 0);
-    ns_mc_default_edges(&shape);
-    size_t cells = ns_table_size(&shape);
+    ns_nn_grid grid;
+    size_t cells = default_grid(&shape, &grid);
     float *both = malloc(cells * 6 * sizeof(float)), *alone = malloc(cells * 6 * sizeof(float));
     ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]},
+                                .grid = grid,
                                 .g = 0.6,
                                 .albedo = {0.9, 0.5, 0.99},
                                 .renormalise = 1,
                                 .channels = 2,
                                 .out = both};
-    for (int a = 0; a < 4; a++)
-        d.grid.n[a] = shape.n[a], d.grid.edges[a] = shape.edges[a];
     ns_nn_reconstruct_stats st_both, st;
     ns_error err = {0};
     CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, &st_both, &err), 0);
@@ -322,22 +328,19 @@ static void test_sampled_matches_every_cell(void)
     if (load_builtin(w))
         return;
     ns_table shape;
-    const uint32_t n[4] = {NS_TABLE_NZ, NS_TABLE_NRHO, NS_TABLE_NTHETA, NS_TABLE_NPHI};
-    CHECK_INT(ns_table_create(&shape, n, NULL), 0);
-    ns_mc_default_edges(&shape);
-    size_t cells = ns_table_size(&shape);
+    ns_nn_grid grid;
+    size_t cells = default_grid(&shape, &grid);
     float *out[2] = {malloc(cells * 6 * sizeof(float)), malloc(cells * 6 * sizeof(float))};
     ns_nn_sampling sampling[2] = {ns_nn_sampling_default(), ns_nn_sampling_every_cell()};
     ns_nn_reconstruct_stats st[2];
     for (int k = 0; k < 2; k++) {
         ns_nn_reconstruct_desc d = {.nets = {&w[0], &w[1]},
+                                    .grid = grid,
                                     .g = 0.75,
                                     .albedo = {0.97, 0, 0},
                                     .channels = 1,
                                     .out = out[k],
                                     .sampling = &sampling[k]};
-        for (int a = 0; a < 4; a++)
-            d.grid.n[a] = shape.n[a], d.grid.edges[a] = shape.edges[a];
         ns_error err = {0};
         uint32_t before = gpu_validation_count(&dev);
         CHECK_INT(ns_nn_reconstruct(&dev, &nn, &d, &st[k], &err), 0);
@@ -345,23 +348,22 @@ static void test_sampled_matches_every_cell(void)
     }
     CHECK(st[0].evaluations * 4 < st[1].evaluations);
     CHECK(st[0].cells == st[1].cells && st[1].evaluations == st[1].cells);
-    ns_nn_grid g;
-    for (int a = 0; a < 4; a++)
-        g.n[a] = shape.n[a], g.edges[a] = shape.edges[a];
     for (int o = 0; o < 2; o++) {
         const float *s = out[0] + (size_t)o * 3 * cells, *e = out[1] + (size_t)o * 3 * cells;
         double worst_node = 0, diff = 0, ref = 0;
         size_t c = 0, node_cells = 0;
-        for (uint32_t iz = 0; iz < n[0]; iz++)
-            for (uint32_t ir = 0; ir < n[1]; ir++) {
+        for (uint32_t iz = 0; iz < grid.n[0]; iz++)
+            for (uint32_t ir = 0; ir < grid.n[1]; ir++) {
                 double vol = ns_table_bin_volume(&shape, iz, ir);
-                for (uint32_t it = 0; it < n[2]; it++)
-                    for (uint32_t ip = 0; ip < n[3]; ip++, c++) {
+                for (uint32_t it = 0; it < grid.n[2]; it++)
+                    for (uint32_t ip = 0; ip < grid.n[3]; ip++, c++) {
                         double wgt = vol * ns_table_bin_solid_angle(&shape, it, ip);
                         diff += fabs((double)s[c] - e[c]) * wgt;
                         ref += e[c] * wgt;
-                        if (is_node(&g, 0, iz, &sampling[0]) && is_node(&g, 1, ir, &sampling[0]) &&
-                            is_node(&g, 2, it, &sampling[0]) && is_node(&g, 3, ip, &sampling[0])) {
+                        if (is_node(&grid, 0, iz, &sampling[0]) &&
+                            is_node(&grid, 1, ir, &sampling[0]) &&
+                            is_node(&grid, 2, it, &sampling[0]) &&
+                            is_node(&grid, 3, ip, &sampling[0])) {
                             node_cells++;
                             worst_node = fmax(worst_node, fabs(s[c] - e[c]) / fmax(e[c], 1e-30));
                         }
