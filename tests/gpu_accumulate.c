@@ -971,8 +971,11 @@ static void test_bad_keys(void)
 
 /* ---------------------------------------------------------------------------------------
  * Measurement (not a test): NSCATTER_BENCH_ACCUMULATE=N runs N RGB materials (distinct
- * albedos, so every one misses the cache) and N accumulations of the synthetic J, and prints
- * the medians.
+ * albedos, so every one misses the cache), N walks of the networks' J of two materials and
+ * N accumulations of the synthetic J, and prints the medians. With
+ * NSCATTER_BENCH_ACCUMULATE_DUMP=PREFIX it also writes the two materials' A (float
+ * [3][cells]) to PREFIX_0.f32 and PREFIX_1.f32, to compare two builds' tables (how the
+ * remainder bounds' A was compared with the walk before them, docs/bench.md).
  * ------------------------------------------------------------------------------------- */
 static int compare_doubles(const void *a, const void *b)
 {
@@ -1047,10 +1050,11 @@ static void bench(int n)
                 char path[512];
                 snprintf(path, sizeof path, "%s_%zu.f32", dump, m);
                 FILE *f = fopen(path, "wb");
-                if (f) {
-                    fwrite(a_walk, sizeof(float), 3 * cells, f);
-                    fclose(f);
-                }
+                int written = f && fwrite(a_walk, sizeof(float), 3 * cells, f) == 3 * cells;
+                if (f && fclose(f))
+                    written = 0;
+                if (!written)
+                    fprintf(stderr, "NSCATTER_BENCH_ACCUMULATE_DUMP: cannot write %s\n", path);
             }
             free(a_walk);
         }
