@@ -153,12 +153,15 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
          * back the noise they took away (docs/scattering.md, *Unscattered light's reflections in
          * expectation*). */
         const float *end = expected ? ends + 4 * (size_t)i : NULL;
-        if (end && end[3] > 0.0f) {
+        float chord = end ? sqrtf(end[0] * end[0] + end[1] * end[1] + end[2] * end[2]) : 0.0f;
+        if (end && end[3] > 0.0f && chord > 0.0f) {
             GpuVrl reflected = ghost;
-            /* Its chord (along the mirror direction) is unknown here: the widest tube. */
-            reflected.length = 0.0f;
+            /* The end's mirror direction comes scaled by its chord (vrl_method_shared.h),
+             * which narrows the reflected beam's first order's tube as a walk's own
+             * reflected stretch's length does. */
+            reflected.length = chord;
             for (int c = 0; c < 3; c++) {
-                reflected.direction[c] = end[c];
+                reflected.direction[c] = end[c] / chord;
                 reflected.power[c] = -end[3] * ghost.power[c];
             }
             reflected.events = reflected_events(v);

@@ -47,11 +47,12 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
  * entry_ghosts (the renderer asks for them: they are its endless VRLs' beams past their
  * exits; the toy checks of tests/unit_boundary.c count without), and a positive beam for
  * the light the boundary reflects back, all endless for the tables (their length is the
- * stretch's, the chord that narrows their first order's tube, or 0 for an expected
- * reflection, whose chord is not known: the widest tube). That beam is the walk's own,
+ * stretch's, or for an expected reflection the chord ahead of it: the chord narrows their
+ * first order's tube). That beam is the walk's own,
  * at the start of every stretch that begins with an internal reflection, except for light
  * that has not scattered yet when ends are given (ns_vrl_set.ends: per stretch, the mirror
- * direction and the Fresnel reflectance at its end): then it is its expectation, at the end
+ * direction, scaled by the chord ahead along it, and the Fresnel reflectance at its end;
+ * vrl_method_shared.h): then it is its expectation, at the end
  * of every unscattered stretch, F times the ghost's light reaching it, along the mirror
  * direction, whether or not the walk reflected there (the walk's own choice only decides
  * how it goes on). And a positive beam at the start of every stretch that re-enters its

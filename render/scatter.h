@@ -142,7 +142,8 @@ const float *ns_tables_cached_j(const ns_context *ctx, ns_method source, float g
 typedef struct ns_vrl_set {
     GpuVrl *vrls; /* malloc'd */
     /* The light's walks (ns_vrl_method_trace with NS_VRL_TRACE_ENDS): per stretch, the
-     * reflection at its end (vrl_method_shared.h), 4 floats each, malloc'd; else NULL. */
+     * reflection at its end (vrl_method_shared.h: the mirror direction, scaled by the
+     * chord ahead for unscattered light, and F), 4 floats each, malloc'd; else NULL. */
     float *ends;
     uint32_t count;
     uint64_t paths; /* light paths traced */

@@ -282,8 +282,8 @@ float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1,
 // a convex object, and the ghost that would take that part away keeps no first order there
 // (boundary.c; where the line returns into its medium the ghost keeps it, with the same
 // chord and so the same tube); cutting the line at the chord's end moved a thin sphere's
-// multiple scattering by 3 points where the tube's width moved it by 30. An expected
-// reflection of unscattered light (length 0) keeps the widest tube.
+// multiple scattering by 3 points where the tube's width moved it by 30. A source whose
+// chord is not known (length 0) keeps the widest tube.
 vec3 first_order(Vrl v, GpuSegment seg)
 {
     vec3 d = seg.direction, u = v.direction, off = seg.entry - v.origin;

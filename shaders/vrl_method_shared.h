@@ -53,8 +53,12 @@ struct GpuVrlTracePush {
 
 /* GpuVrlTracePush.options. MARK_LINES: set NS_VRL_LINE_RETURNS in the stored stretches'
  * events. ENDS: write each stored stretch's end (binding 8): where the walk leaves through
- * its medium's own refracting boundary, the direction it would reflect in and the Fresnel
- * reflectance F (1 on total internal reflection) that decides whether it does; else 0. */
+ * its medium's own refracting boundary, the direction it would reflect in, scaled by the
+ * chord ahead along it for a stretch of unscattered light (the distance to the boundary the
+ * reflected beam meets: render/boundary.c narrows its first order's tube to it; unit length
+ * after a scattering, where nothing reads it), and in w the Fresnel reflectance F (1 on
+ * total internal reflection) that decides whether it does; else 0 (also where the
+ * reflected beam of unscattered light would meet nothing ahead: the walk ends there). */
 NS_CONST(uint, NS_VRL_TRACE_MARK_LINES, 1);
 NS_CONST(uint, NS_VRL_TRACE_ENDS, 2);
 /* MARK_ENVIRONMENT: set NS_VRL_FROM_ENVIRONMENT in the events of the stored stretches of a

@@ -223,11 +223,17 @@ bool line_meets_medium(vec3 p, vec3 d, uint medium)
     return false;
 }
 
-// The stretch from o along d whose boundary ahead is at distance len.
-// The reflection at the end of a stretch that hit h: where walk_step would reflect there
-// (its medium's own refracting boundary, left from inside), the mirror direction and the
-// Fresnel reflectance walk_step draws against (1 on total internal reflection); else 0.
-vec4 end_reflection(GpuVrlWalk w, vec3 d, Hit h)
+// The reflection at the end of the stretch from o along d that hit h: where walk_step would
+// reflect there (its medium's own refracting boundary, left from inside), the mirror
+// direction and the Fresnel reflectance walk_step draws against (1 on total internal
+// reflection); else 0 (vrl_method_shared.h, NS_VRL_TRACE_ENDS). For unscattered light the
+// direction is scaled by the chord ahead, traced from where walk_step would start the
+// reflected stretch: boundary.c's expected reflection has no stretch of the walk's own to
+// take it from, and with the widest tube instead its first order lost a tenth of the
+// single scattering that a glass rod guides by total internal reflection, the part of the
+// tube beside its start lying outside the rod (docs/scattering.md, *The expected
+// reflections' chords*).
+vec4 end_reflection(GpuVrlWalk w, vec3 o, vec3 d, Hit h)
 {
     float ior = materials[w.state.z].sigma_t.w;
     if (h.front || prim_at(h.prim).info.y != w.state.z || ior == 1.0)
@@ -235,7 +241,15 @@ vec4 end_reflection(GpuVrlWalk w, vec3 d, Hit h)
     vec3 n = -h.normal;
     float cos_t;
     float f = fresnel(-dot(d, n), ior, cos_t);
-    return vec4(normalize(reflect(d, n)), f < 1.0 ? f : 1.0);
+    vec3 mirror = normalize(reflect(d, n));
+    if (w.state.y == 0u) {
+        vec3 p = o + h.t * d;
+        Hit ahead;
+        if (!trace_scene(p + n * ray_epsilon(p), mirror, 0.0, NS_INF, ahead))
+            return vec4(0.0);
+        mirror *= ahead.t;
+    }
+    return vec4(mirror, f < 1.0 ? f : 1.0);
 }
 
 void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, Hit h)
@@ -253,7 +267,7 @@ void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, Hit h)
             // A constructor: glslang reads `v.length` as the length() method.
             vrls[slot] = GpuVrl(o, len, d, w.state.z, w.flux.xyz, events);
             if ((push.options & NS_VRL_TRACE_ENDS) != 0u)
-                ends[slot] = end_reflection(w, d, h);
+                ends[slot] = end_reflection(w, o, d, h);
         }
     }
     w.count.x++;

@@ -204,17 +204,28 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
 
     /* The ends the trace recorded are the reflections the walks took: wherever a stretch
      * goes on reflected, the one before it ends with F > 0 and the mirror direction the
-     * walk took (and at ior 1 nothing reflects). */
-    uint32_t reflections = 0, mismatched = 0;
+     * walk took (and at ior 1 nothing reflects), scaled for unscattered light by the chord
+     * ahead, which is the reflected stretch's own length, and of unit length after a
+     * scattering. */
+    uint32_t reflections = 0, mismatched = 0, wrong_chord = 0, unscattered = 0;
     for (uint32_t i = 0; i + 1 < walks.count; i++) {
         if (ns_boundary_link_of(&walks.vrls[i], &walks.vrls[i + 1]) != NS_BOUNDARY_LINK_REFLECTED)
             continue;
-        const float *e = walks.ends + 4 * (size_t)i, *next = walks.vrls[i + 1].direction;
+        const float *e = walks.ends + 4 * (size_t)i;
+        const GpuVrl *next = &walks.vrls[i + 1];
+        float chord = sqrtf(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+        float along =
+            e[0] * next->direction[0] + e[1] * next->direction[1] + e[2] * next->direction[2];
         reflections++;
-        mismatched += !(e[3] > 0.0f && e[0] * next[0] + e[1] * next[1] + e[2] * next[2] > 0.9999f);
+        mismatched += !(e[3] > 0.0f && chord > 0.0f && along / chord > 0.9999f);
+        float want = walks.vrls[i].events == 0 ? next->length : 1.0f;
+        unscattered += walks.vrls[i].events == 0;
+        wrong_chord += !(fabsf(chord - want) <= 1e-3f * want);
     }
     CHECK(ior == 1.0 ? reflections == 0 : reflections > 100);
+    CHECK(ior == 1.0 || unscattered > 10);
     CHECK_INT(mismatched, 0);
+    CHECK_INT(wrong_chord, 0);
     /* Every end's F is a probability; at ior 1 every one is 0 (nothing reflects). */
     uint32_t bad_f = 0;
     for (uint32_t i = 0; i < walks.count; i++) {

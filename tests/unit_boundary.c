@@ -210,11 +210,13 @@ static void test_sources_with_ends(void)
     };
     CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_REFLECTED);
     CHECK_INT(ns_boundary_link_of(&walk[2], &walk[3]), NS_BOUNDARY_LINK_REFLECTED);
-    /* Each end: mirror direction, F. Stretch 0 ends on the floor with F 0.25, stretch 1 on
-     * the top face with F 0.1, stretch 2 on the top face (F 0.6: not used, k = 1), stretch
-     * 3 on the floor (F 1, total reflection: not used), stretch 4 on its floor with F 0.5. */
+    /* Each end: mirror direction, F; for unscattered light the direction times the chord
+     * ahead along it (2 across the slab). Stretch 0 ends on the floor with F 0.25, stretch 1
+     * on the top face with F 0.1, stretch 2 on the top face (F 0.6: not used, k = 1),
+     * stretch 3 on the floor (F 1, total reflection: not used), stretch 4 on its floor with
+     * F 0.5. */
     const float ends[5][4] = {
-        {0, 1, 0, 0.25f}, {0, -1, 0, 0.1f}, {0, -1, 0, 0.6f}, {0, 1, 0, 1.0f}, {0, 1, 0, 0.5f},
+        {0, 2, 0, 0.25f}, {0, -2, 0, 0.1f}, {0, -1, 0, 0.6f}, {0, 1, 0, 1.0f}, {0, 2, 0, 0.5f},
     };
     GpuVrl out[15];
     uint32_t n = ns_boundary_sources(walk, &ends[0][0], 5, &m, 1, out);
@@ -231,8 +233,9 @@ static void test_sources_with_ends(void)
         const GpuVrl *v = &walk[of_stretch[r]];
         const float *e = ends[of_stretch[r]];
         CHECK(fabsf(s->origin[1] - y_end[r]) < 1e-6f && s->origin[0] == v->origin[0]);
-        /* An expected reflection's chord is not known: 0, the widest tube. */
-        CHECK(s->direction[1] == e[1] && s->length == 0.0f && s->events == 0);
+        /* An expected reflection's length is the chord its end record carries (it narrows
+         * the first order's tube), its direction the record's, of unit length. */
+        CHECK(s->direction[1] == e[1] / 2.0f && s->length == 2.0f && s->events == 0);
         CHECK(ghost->length == v->length);
         for (int c = 0; c < 3; c++) {
             CHECK(ghost->power[c] < 0.0f);
@@ -242,6 +245,12 @@ static void test_sources_with_ends(void)
     }
     /* The walk's own reflected beam of scattered light: stretch 3's start, its full flux. */
     CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && out[5].events == 1);
+    /* A reflection of unscattered light with nothing ahead (chord 0: an open mesh, where
+     * the walk itself ends) gives no source: stretch 4's is left out. */
+    float open_ends[5][4];
+    memcpy(open_ends, ends, sizeof open_ends);
+    open_ends[4][1] = 0.0f;
+    CHECK_INT(ns_boundary_sources(walk, &open_ends[0][0], 5, &m, 1, out), 8);
     /* Without the ends: the walk's own beams only (stretch 1's and stretch 3's starts). */
     CHECK_INT(ns_boundary_sources(walk, NULL, 5, &m, 1, out), 7);
     /* The environment's mark rides on the unscattered stretches' reflected beams, with or
