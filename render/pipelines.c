@@ -35,6 +35,9 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                             GATHER_TABLE_TEXELS, GATHER_TABLE_TEXELS},
     [NS_PIPELINE_SINGLE] = {"single", 8, sizeof(GpuSinglePush), NS_PIPELINE_AT_START,
                             NS_TRACE_TEXEL_BINDINGS, 0},
+    /* Only scenes with a box of a refracting medium take it: made when one first does. */
+    [NS_PIPELINE_SINGLE_BOX_FACES] = {"single_box_faces", 8, sizeof(GpuSinglePush),
+                                      NS_PIPELINE_FIRST_USE, NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_VRL_TRACE] = {"vrl_trace", 9, sizeof(GpuVrlTracePush), NS_PIPELINE_AT_START,
                                NS_TRACE_TEXEL_BINDINGS, 0},
     [NS_PIPELINE_VRL_GATHER] = {"vrl_gather", 8, sizeof(GpuVrlGatherPush), NS_PIPELINE_AT_START,

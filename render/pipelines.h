@@ -14,6 +14,8 @@ typedef enum ns_pipeline_id {
     NS_PIPELINE_VRL,        /* shaders/vrl.comp */
     NS_PIPELINE_GATHER,     /* shaders/gather.comp: the default form (exact, endless beams) */
     NS_PIPELINE_SINGLE,     /* shaders/single.comp */
+    /* shaders/single_box_faces.comp: scenes with a box of a refracting medium (single.c) */
+    NS_PIPELINE_SINGLE_BOX_FACES,
     NS_PIPELINE_VRL_TRACE,  /* shaders/vrl_trace.comp (method vrl) */
     NS_PIPELINE_VRL_GATHER, /* shaders/vrl_gather.comp (method vrl) */
     /* The gather's other forms (render/gather.c ns_gather_pipeline), one shader each. */

@@ -115,7 +115,12 @@ static int run_dispatches(ns_context *ctx, gpu_buffer **bound, uint32_t segment_
 {
     const gpu_buffer *counters = bound[NS_SCENE_BUFFER_COUNT + 2];
     gpu_pipeline *pipeline;
-    int status = ns_pipeline(ctx, NS_PIPELINE_SINGLE, &pipeline, NULL, err);
+    /* A box of a refracting medium passes light through each face that sees a light: its
+     * own form of the shader (single_box_faces.comp), which other scenes do not carry. */
+    const GpuParams *params = bound[0]->mapped;
+    int status =
+        ns_pipeline(ctx, params->surface[2] ? NS_PIPELINE_SINGLE_BOX_FACES : NS_PIPELINE_SINGLE,
+                    &pipeline, NULL, err);
     if (status)
         return status;
     GpuSinglePush *push = calloc(samples, sizeof *push);

@@ -109,7 +109,9 @@ struct GpuParams {
                              render.adaptive_spp as used (ns_adaptive_spp_used: 0 where it
                              adds nothing; no shader reads it: it is here so
                              that a camera pass kept for a later render, which includes the
-                             added samples, is kept only for the same setting); zw unused */
+                             added samples, is kept only for the same setting); z = 1 when an
+                             object is a box of a refracting medium (render/single.c then
+                             takes single_box_faces.comp; no shader reads it); w unused */
 };
 
 /* Push constants of the camera pass: which samples this dispatch takes. The pass may be
