@@ -274,10 +274,16 @@ LightPath light_through_box_face(GpuLight light, vec3 x, vec3 wo, GpuMaterial ma
     uint axis = face / 2u;
     vec3 n = vec3(0.0);
     n[axis] = (face & 1u) != 0u ? 1.0 : -1.0;
-    // The face's point nearest x stands for b: on a flat face only the plane matters, and a
-    // sphere light is sampled from there.
+    // b, a point of the face's plane: where the line from x towards the light's centre
+    // crosses it (as light_refracted's b, where that face is the one the line crosses: a
+    // sphere light is sampled from b, and a large one close to the face reads differently
+    // from elsewhere), else the face's point nearest x. Only the plane matters otherwise.
+    float plane = (face & 1u) != 0u ? box.b[axis] : box.a[axis];
     vec3 b = clamp(x, box.a.xyz, box.b.xyz);
-    b[axis] = (face & 1u) != 0u ? box.b[axis] : box.a[axis];
+    b[axis] = plane;
+    vec3 to_centre = light.position.xyz - x;
+    if (light.info.x != NS_GPU_LIGHT_DIRECTIONAL && dot(to_centre, n) > 0.0)
+        b = x + to_centre * ((plane - x[axis]) / to_centre[axis]);
     float ior = mat.sigma_t.w;
     uint kind = light.info.x;
     if (kind == NS_GPU_LIGHT_DIRECTIONAL) {

@@ -260,22 +260,12 @@ static void test_facing_boxes(void)
     compare("facing boxes 2 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.15, 0.3, 2);
 }
 
-/* Double scattering in an index-matched convex object: the light scattered once on a VRL
- * that leaves the object never scatters again inside it, so the only sources with walks are
- * the ghosts of the entry stretches, the beams past their exits (scatter_render.c,
- * vrls_bounded), which the bounded beams subtract VRL by VRL: the two images agree within
- * the light paths' noise. The other ghosts take nothing away (boundary.c,
- * ns_boundary_source_orders): when they read the blurred first-order table, its tube reached
- * inside near each exit and removed light that is there (this sphere: 0.907 of pt against
- * the bounded beams' 0.959, 2026-11-29). Measured 2026-11-30: walks +0.2% of the bounded
- * beams in every channel, endless beams +7.7% (what the beams past the exits add). */
-#define WALKS_VS_BOUNDED 0.015
-/* A glass rod 1 x 6 x 1 (mfp 2, albedo 0.95 / 0.8 / 0.5, g 0, ior 1.5) under a small sphere
- * light just above its top face, which the side faces do not see: every refracted beam meets
- * a side wall at 48 degrees or more from its normal (the critical angle is 41.8) and is
- * guided down, so more than half of the single scattering comes from light the walls
- * reflected (single.comp connects straight through the top face only: the rest is the
- * walks' reflected beams' blurred first order, gather.glsl). pt reaches the light only by
+/* The glass rod (gpu_util.h, glass_rod) under a small sphere light just above its top face,
+ * which the side faces do not see: every refracted beam meets a side wall at 48 degrees or
+ * more from its normal (the critical angle is 41.8) and is guided down, so more than half of
+ * the single scattering comes from light the walls reflected (single scattering connects
+ * straight through the top face only: the rest is the walks' reflected beams' blurred first
+ * order, gather.glsl). pt reaches the light only by
  * its escaping rays hitting the small sphere: its image mean over four seeds of 4,096
  * samples has a standard error near 1%. The image is framed on the rod (10 x 48) and every
  * pixel gathered. Measured (2026-12-02, six seeds each): walks 0.998 of pt (+-0.6%), off
@@ -285,13 +275,9 @@ static void test_facing_boxes(void)
  * reflections' chords*), not tested. */
 static void test_light_guide(void)
 {
-    const double albedo[3] = {0.95, 0.8, 0.5};
-    ns_material m = material(albedo, 2.0, 0.0, 1.5);
+    ns_material m;
     ns_object rod;
-    memset(&rod, 0, sizeof rod);
-    rod.shape = NS_SHAPE_BOX;
-    set3(rod.min, -0.5, 0, -0.5);
-    set3(rod.max, 0.5, 6, 0.5);
+    glass_rod(&m, &rod);
     ns_light bulb = light(NS_LIGHT_SPHERE, 10, 10, 10);
     set3(bulb.position, 0, 6.5, 0);
     bulb.radius = 0.4;
@@ -303,22 +289,19 @@ static void test_light_guide(void)
     set3(s.camera.look_at, 0, 3, 0);
     s.render.components = NS_COMPONENT_SINGLE;
     s.render.gather_tile = 1;
-    enum { SEEDS = 4 };
-    double pt[3] = {0}, walks[3] = {0}, off[3] = {0};
-    for (uint32_t seed = 1; seed <= SEEDS; seed++) {
-        s.render.seed = seed;
-        means one[3];
-        if (mean_of(s, NS_METHOD_PT, NS_BOUNDARY_OFF, 4096, &one[0]) ||
-            mean_of(s, NS_METHOD_NN, NS_BOUNDARY_WALKS, 1, &one[1]) ||
-            mean_of(s, NS_METHOD_NN, NS_BOUNDARY_OFF, 1, &one[2]))
-            return;
-        CHECK(one[1].sources > 0);
-        for (int c = 0; c < 3; c++) {
-            pt[c] += one[0].v[c] / SEEDS;
-            walks[c] += one[1].v[c] / SEEDS;
-            off[c] += one[2].v[c] / SEEDS;
-        }
-    }
+    double pt[3], walks[3], off[3];
+    s.render.method = NS_METHOD_PT;
+    s.render.spp = 4096;
+    if (image_mean_over_seeds(s, 4, pt))
+        return;
+    s.render.method = NS_METHOD_NN;
+    s.render.spp = 1;
+    s.render.boundary = NS_BOUNDARY_WALKS;
+    if (image_mean_over_seeds(s, 4, walks))
+        return;
+    s.render.boundary = NS_BOUNDARY_OFF;
+    if (image_mean_over_seeds(s, 4, off))
+        return;
     for (int c = 0; c < 3; c++) {
         fprintf(stderr,
                 "  glass rod, single, channel %d: pt %.6g, nn walks %.6g (%+.1f%%), off %.6g "
@@ -331,6 +314,16 @@ static void test_light_guide(void)
     }
 }
 
+/* Double scattering in an index-matched convex object: the light scattered once on a VRL
+ * that leaves the object never scatters again inside it, so the only sources with walks are
+ * the ghosts of the entry stretches, the beams past their exits (scatter_render.c,
+ * vrls_bounded), which the bounded beams subtract VRL by VRL: the two images agree within
+ * the light paths' noise. The other ghosts take nothing away (boundary.c,
+ * ns_boundary_source_orders): when they read the blurred first-order table, its tube reached
+ * inside near each exit and removed light that is there (this sphere: 0.907 of pt against
+ * the bounded beams' 0.959, 2026-11-29). Measured 2026-11-30: walks +0.2% of the bounded
+ * beams in every channel, endless beams +7.7% (what the beams past the exits add). */
+#define WALKS_VS_BOUNDED 0.015
 static void test_double_walks_are_bounded_beams(void)
 {
     const double albedo[3] = {0.999, 0.9, 0.95};

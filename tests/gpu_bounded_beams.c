@@ -97,21 +97,12 @@ static void test_thin_slab(void)
 
 static void test_light_guide(void)
 {
-    /* A 1 x 6 x 1 rod, mfp 2, albedo 0.95 / 0.8 / 0.5, lit by a point light 0.3 above the
-     * centre of its top face: the side faces are not lit, and every refracted beam meets a
-     * side wall at 52 degrees or more (the critical angle is 41.8). Camera from the side. */
-    const double albedo[3] = {0.95, 0.8, 0.5};
-    double sigma_s[3], sigma_a[3];
-    for (int c = 0; c < 3; c++) {
-        sigma_s[c] = albedo[c] / 2;
-        sigma_a[c] = (1 - albedo[c]) / 2;
-    }
-    ns_material m = medium(sigma_s, sigma_a, 1.5);
+    /* The glass rod (gpu_util.h), lit by a point light 0.3 above the centre of its top face:
+     * the side faces are not lit, and every refracted beam meets a side wall at 52 degrees or
+     * more (the critical angle is 41.8). Camera from the side. */
+    ns_material m;
     ns_object box;
-    memset(&box, 0, sizeof box);
-    box.shape = NS_SHAPE_BOX;
-    set3(box.min, -0.5, 0, -0.5);
-    set3(box.max, 0.5, 6, 0.5);
+    glass_rod(&m, &box);
     ns_light lamp = light(NS_LIGHT_POINT, 1, 1, 1);
     set3(lamp.position, 0, 6.3, 0);
     ns_scene s = double_scene(&m, &box, &lamp);

@@ -243,6 +243,41 @@ static inline void image_mean(const ns_image *img, double out[3])
             out[c] += img->rgb[3 * i + c] / (double)n;
 }
 
+/* Image means over seeds 1 to `seeds` of s (each its own render), averaged: what a noisy
+ * reference or estimate is compared by. 0, or -1 when a render failed (checked). */
+static inline int image_mean_over_seeds(ns_scene s, uint32_t seeds, double out[3])
+{
+    for (int c = 0; c < 3; c++)
+        out[c] = 0;
+    for (uint32_t seed = 1; seed <= seeds; seed++) {
+        s.render.seed = seed;
+        ns_image img = {0};
+        double mean[3];
+        if (!render_ok(&s, &img, NULL))
+            return -1;
+        image_mean(&img, mean);
+        ns_image_free(&img);
+        for (int c = 0; c < 3; c++)
+            out[c] += mean[c] / seeds;
+    }
+    return 0;
+}
+
+/* The glass rod of the light-guide tests (gpu_bounded_beams, gpu_boundary, gpu_single): a
+ * box 1 x 6 x 1 standing on y = 0, of mfp 2, albedo 0.95 / 0.8 / 0.5, g 0, ior 1.5, which
+ * guides light that enters its top face by total internal reflection at its sides. */
+static inline void glass_rod(ns_material *m, ns_object *rod)
+{
+    const double albedo[3] = {0.95, 0.8, 0.5};
+    double sigma_s[3], sigma_a[3];
+    for (int c = 0; c < 3; c++) {
+        sigma_s[c] = albedo[c] / 2;
+        sigma_a[c] = (1 - albedo[c]) / 2;
+    }
+    *m = medium(sigma_s, sigma_a, 1.5);
+    *rod = cuboid(-0.5, 0, -0.5, 0.5, 6, 0.5, 0);
+}
+
 /* A small scene with every component lit: a unit medium sphere (sigma_s 4, 3, 2; ior 1.4;
  * g 0.5) above a diffuse floor, under a directional and an environment light, seen from
  * (0, 1, 5). The lists are the caller's and must outlive s; s's other fields are untouched. */
