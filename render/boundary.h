@@ -55,10 +55,10 @@ ns_boundary_link ns_boundary_link_of(const GpuVrl *previous, const GpuVrl *v);
  * vrl_method_shared.h): then it is its expectation, at the end
  * of every unscattered stretch, F times the ghost's light reaching it, along the mirror
  * direction, whether or not the walk reflected there (the walk's own choice only decides
- * how it goes on). And a positive beam at the start of every stretch that re-enters its
- * medium. At most two per stretch (a reflected or re-entered beam at its start and a ghost,
- * or a ghost and its expected reflection): out has room for 2 count. Returns how many were
- * written. */
+ * how it goes on), unless nothing lies ahead of it (chord 0: none). And a positive beam at the
+ * start of every stretch that re-enters its medium. At most two per stretch (a reflected or
+ * re-entered beam at its start and a ghost, or a ghost and its expected reflection): out has room
+ * for 2 count. Returns how many were written. */
 uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_t count,
                              const GpuMaterial *materials, int entry_ghosts, GpuVrl *out);
 

@@ -347,11 +347,13 @@ int ns_gpu_scene_build_reusing(const ns_scene *s, ns_bvh_keep *keep, ns_gpu_scen
     p->surface[0] = resolved.light_samples;
     float adaptive = ns_adaptive_spp_used(&resolved);
     memcpy(&p->surface[1], &adaptive, sizeof p->surface[1]);
-    /* single.c's form of single scattering: one that takes a box's faces one by one. */
+    /* single.c's form of single scattering: one that takes a box's faces one by one, where
+     * a box of a refracting medium scatters. */
     for (uint32_t i = 0; i < s->object_count; i++) {
         const ns_object *o = &s->objects[i];
         const ns_material *m = &s->materials[o->material];
-        if (o->shape == NS_SHAPE_BOX && m->type == NS_MATERIAL_MEDIUM && m->ior != 1.0f)
+        int scatters = m->sigma_s[0] > 0.0f || m->sigma_s[1] > 0.0f || m->sigma_s[2] > 0.0f;
+        if (o->shape == NS_SHAPE_BOX && m->type == NS_MATERIAL_MEDIUM && m->ior != 1.0f && scatters)
             p->surface[2] = 1;
     }
     p->counts[0] = s->render.max_depth;

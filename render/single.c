@@ -1,4 +1,5 @@
-/* single.c — single scattering along the camera segments (shaders/single.comp): checks the
+/* single.c — single scattering along the camera segments (shaders/single.comp, or
+ * single_box_faces.comp where a box of a refracting medium scatters): checks the
  * arguments and splits each segment's samples across dispatches so that no invocation runs
  * past lavapipe's loop limit (shared.h). The cost of a sample depends on the scene (BVH
  * depth, lights), so it is measured: a first dispatch takes sample 0 alone and reports the

@@ -110,7 +110,8 @@ struct GpuParams {
                              adds nothing; no shader reads it: it is here so
                              that a camera pass kept for a later render, which includes the
                              added samples, is kept only for the same setting); z = 1 when an
-                             object is a box of a refracting medium (render/single.c then
+                             object is a box of a refracting medium that scatters
+                             (render/single.c then
                              takes single_box_faces.comp; no shader reads it); w unused */
 };
 

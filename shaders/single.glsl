@@ -225,12 +225,60 @@ LightPath point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3
     return lp;
 }
 
+// A sphere light diverges like a point light: one point of it, taken along a direction
+// sampled from b at the centre's distance, with the intensity that gives b the sampled
+// irradiance (a small sphere is then the point light of equal power). false: the sample is
+// invalid (b inside the light).
+bool sphere_as_point(GpuLight light, vec3 b, out GpuLight point)
+{
+    point = light;
+    LightSample s = sample_light(light, b);
+    if (!s.valid)
+        return false;
+    float d_centre = distance(light.position.xyz, b);
+    point.position.xyz = b + s.toward * d_centre;
+    point.color.rgb = s.irradiance * (d_centre * d_centre);
+    return true;
+}
+
+// A directional light refracted into the medium through the plane (b, n) (n outward) on its
+// way to x: Snell, Fresnel, the irradiance carried in as E (1 - F) cos_i / cos_t, attenuated
+// over the exact distance from x back to the plane along the refracted direction; y, where
+// that refracted ray crosses the plane. The shadow ray leaves from b.
+LightPath directional_through_plane(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b,
+                                    vec3 n, out vec3 y)
+{
+    LightPath lp = no_light();
+    y = b;
+    LightSample s = sample_light(light, b);
+    float cos_i = dot(s.toward, n);
+    if (!s.valid || cos_i <= 0.0)
+        return lp; // the light is behind the plane
+    float ior = mat.sigma_t.w, cos_t;
+    float f = fresnel(cos_i, 1.0 / ior, cos_t);
+    if (f >= 1.0 || cos_t <= 1e-6)
+        return lp;
+    float eta = 1.0 / ior;
+    vec3 travel = normalize(-eta * s.toward + (eta * cos_i - cos_t) * n);
+    float s_inside = max(0.0, dot(b - x, n)) / cos_t;
+    y = x - travel * s_inside;
+    lp.traced = true;
+    lp.from = b + n * ray_epsilon(b);
+    lp.toward = s.toward;
+    lp.distance = s.distance;
+    lp.before = s.irradiance * ((1.0 - f) * cos_i / cos_t);
+    lp.inside = beer_lambert(mat.sigma_t.xyz, s_inside);
+    lp.phase = hg_phase(dot(travel, wo), mat.sigma_s.w);
+    return lp;
+}
+
 // A box's faces that can pass a light's light to a point inside: those with some of the
 // light beyond their plane (a sphere light's centre within its radius of it; a directional
 // light's direction against the outward normal). faces[k] = 2 axis + (1 on the max side).
 uint box_faces_lit(GpuLight light, GpuPrim box, out uint faces[6])
 {
     uint n = 0u;
+    loop_count += 3u; // lavapipe counts these iterations: so must the dispatch sizing
     for (uint axis = 0u; axis < 3u; axis++) {
         float lo = box.a[axis], hi = box.b[axis];
         bool up, down;
@@ -274,51 +322,34 @@ LightPath light_through_box_face(GpuLight light, vec3 x, vec3 wo, GpuMaterial ma
     uint axis = face / 2u;
     vec3 n = vec3(0.0);
     n[axis] = (face & 1u) != 0u ? 1.0 : -1.0;
-    // b, a point of the face's plane: where the line from x towards the light's centre
-    // crosses it (as light_refracted's b, where that face is the one the line crosses: a
-    // sphere light is sampled from b, and a large one close to the face reads differently
-    // from elsewhere), else the face's point nearest x. Only the plane matters otherwise.
+    // b, a point of the face: where the line from x towards the light's centre crosses its
+    // plane (as light_refracted's b, for the face that line leaves by: a sphere light is
+    // sampled from b, and a large one close to the face reads differently from elsewhere),
+    // held on the face; else the face's point nearest x. A point of the face lies outside
+    // the light unless the light overlaps the box.
     float plane = (face & 1u) != 0u ? box.b[axis] : box.a[axis];
-    vec3 b = clamp(x, box.a.xyz, box.b.xyz);
-    b[axis] = plane;
+    vec3 b = x;
     vec3 to_centre = light.position.xyz - x;
-    if (light.info.x != NS_GPU_LIGHT_DIRECTIONAL && dot(to_centre, n) > 0.0)
-        b = x + to_centre * ((plane - x[axis]) / to_centre[axis]);
-    float ior = mat.sigma_t.w;
     uint kind = light.info.x;
+    if (kind != NS_GPU_LIGHT_DIRECTIONAL && dot(to_centre, n) > 0.0) {
+        float t = (plane - x[axis]) / to_centre[axis];
+        if (t <= 1.0)
+            b = x + to_centre * t;
+    }
+    b = clamp(b, box.a.xyz, box.b.xyz);
+    b[axis] = plane;
     if (kind == NS_GPU_LIGHT_DIRECTIONAL) {
-        vec3 toward = -light.direction.xyz;
-        float cos_i = dot(toward, n);
-        if (cos_i <= 0.0)
-            return lp;
-        float cos_t;
-        float f = fresnel(cos_i, 1.0 / ior, cos_t);
-        if (f >= 1.0 || cos_t <= 1e-6)
-            return lp;
-        float eta = 1.0 / ior;
-        vec3 travel = normalize(-eta * toward + (eta * cos_i - cos_t) * n);
-        float s_inside = max(0.0, dot(b - x, n)) / cos_t;
-        vec3 y = x - travel * s_inside; // where the light that reaches x crossed the plane
-        if (!on_face(box, axis, y))
-            return lp;
-        lp.traced = true;
+        vec3 y;
+        lp = directional_through_plane(light, x, wo, mat, b, n, y);
+        // From where the light that reaches x crossed the plane, which must be the face.
+        if (!lp.traced || !on_face(box, axis, y))
+            return no_light();
         lp.from = y + n * ray_epsilon(y);
-        lp.toward = toward;
-        lp.distance = NS_INF;
-        lp.before = light.color.rgb * ((1.0 - f) * cos_i / cos_t);
-        lp.inside = beer_lambert(mat.sigma_t.xyz, s_inside);
-        lp.phase = hg_phase(dot(travel, wo), mat.sigma_s.w);
         return lp;
     }
     GpuLight point = light;
-    if (kind == NS_GPU_LIGHT_SPHERE) {
-        LightSample s = sample_light(light, b);
-        if (!s.valid)
-            return lp;
-        float d_centre = distance(light.position.xyz, b);
-        point.position.xyz = b + s.toward * d_centre;
-        point.color.rgb = s.irradiance * (d_centre * d_centre);
-    }
+    if (kind == NS_GPU_LIGHT_SPHERE && !sphere_as_point(light, b, point))
+        return lp;
     lp = point_refracted(point, x, wo, mat, b, n);
     // lp.from: the refraction point, moved off the plane along n (on_face ignores that axis).
     return lp.traced && !on_face(box, axis, lp.from) ? no_light() : lp;
@@ -331,7 +362,7 @@ LightPath light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMater
 {
     LightPath lp = no_light();
     in_box = false;
-    float g = mat.sigma_s.w, ior = mat.sigma_t.w;
+    float g = mat.sigma_s.w;
     float aim_distance;
     vec3 aim = light_aim(light, x, aim_distance);
     Hit h;
@@ -351,44 +382,16 @@ LightPath light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMater
     if (in_box)
         return lp;
     vec3 b = x + h.t * aim;
-    vec3 n = h.normal; // outward: the light arrives against it
+    vec3 n = h.normal; // outward: the light arrives against it, through the tangent plane at b
     uint kind = light.info.x;
-    // A sphere light diverges like a point light: one point of it, taken along the sampled
-    // direction at the centre's distance, with the intensity that gives b the sampled
-    // irradiance (a small sphere is then the point light of equal power).
-    LightSample s;
-    if (kind != NS_GPU_LIGHT_POINT)
-        s = sample_light(light, b);
     if (kind == NS_GPU_LIGHT_POINT || kind == NS_GPU_LIGHT_SPHERE) {
         GpuLight point = light;
-        if (kind == NS_GPU_LIGHT_SPHERE) {
-            if (!s.valid)
-                return lp;
-            float d_centre = distance(light.position.xyz, b);
-            point.position.xyz = b + s.toward * d_centre;
-            point.color.rgb = s.irradiance * (d_centre * d_centre);
-        }
+        if (kind == NS_GPU_LIGHT_SPHERE && !sphere_as_point(light, b, point))
+            return lp;
         return point_refracted(point, x, wo, mat, b, n);
     }
-    float cos_i = dot(s.toward, n);
-    if (!s.valid || cos_i <= 0.0)
-        return lp; // the light is behind the tangent plane at b
-    float cos_t;
-    float f = fresnel(cos_i, 1.0 / ior, cos_t);
-    if (f >= 1.0 || cos_t <= 1e-6)
-        return lp;
-    float eta = 1.0 / ior;
-    vec3 travel = normalize(-eta * s.toward + (eta * cos_i - cos_t) * n);
-    // Exact distance from x back to the plane through b along the refracted direction.
-    float s_inside = max(0.0, dot(b - x, n)) / cos_t;
-    lp.traced = true;
-    lp.from = b + n * ray_epsilon(b);
-    lp.toward = s.toward;
-    lp.distance = s.distance;
-    lp.before = s.irradiance * ((1.0 - f) * cos_i / cos_t);
-    lp.inside = beer_lambert(mat.sigma_t.xyz, s_inside);
-    lp.phase = hg_phase(dot(travel, wo), g);
-    return lp;
+    vec3 unused;
+    return directional_through_plane(light, x, wo, mat, b, n, unused);
 }
 
 vec3 light_in(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial mat)
@@ -401,6 +404,8 @@ vec3 light_in(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMaterial mat)
                                            : light_refracted(light, x, wo, medium, mat, in_box, box);
     uint faces[6];
     uint paths = in_box ? box_faces_lit(light, box, faces) : 1u;
+    if (in_box)
+        loop_count += paths; // lavapipe counts these iterations: so must the dispatch sizing
     vec3 sum = vec3(0.0);
     for (uint k = 0u; k < paths; k++) {
         LightPath lp = first;
