@@ -261,6 +261,39 @@ static void test_facing_boxes(void)
     compare("facing boxes 2 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 256, 0.15, 0.3, 2);
 }
 
+/* The glass rod (gpu_util.h, glass_rod) under `light`, framed from the side (10 x 48, every
+ * pixel gathered), single scattering: the image means of pt at pt_spp and of nn with the
+ * walks, and without them where off is given, each over four seeds. The lists are static:
+ * one such scene at a time. */
+static int rod_single_means(ns_light light, uint32_t pt_spp, double pt[3], double walks[3],
+                            double off[3])
+{
+    static ns_material m;
+    static ns_object rod;
+    static ns_light lit;
+    glass_rod(&m, &rod);
+    lit = light;
+    ns_scene s = medium_scene(&m, &rod, 1, &lit);
+    s.camera.width = 10;
+    s.camera.height = 48;
+    s.camera.fov_deg = 5.6f;
+    set3(s.camera.position, 0, 3, 14);
+    set3(s.camera.look_at, 0, 3, 0);
+    s.render.components = NS_COMPONENT_SINGLE;
+    s.render.gather_tile = 1;
+    s.render.method = NS_METHOD_PT;
+    s.render.spp = pt_spp;
+    if (image_mean_over_seeds(s, 4, pt))
+        return -1;
+    s.render.method = NS_METHOD_NN;
+    s.render.spp = 1;
+    s.render.boundary = NS_BOUNDARY_WALKS;
+    if (image_mean_over_seeds(s, 4, walks))
+        return -1;
+    s.render.boundary = NS_BOUNDARY_OFF;
+    return off ? image_mean_over_seeds(s, 4, off) : 0;
+}
+
 /* The glass rod (gpu_util.h, glass_rod) under a small sphere light just above its top face,
  * which the side faces do not see: every refracted beam meets a side wall at 48 degrees or
  * more from its normal (the critical angle is 41.8) and is guided down, so more than half of
@@ -276,32 +309,11 @@ static void test_facing_boxes(void)
  * reflections' chords*), not tested. */
 static void test_light_guide(void)
 {
-    ns_material m;
-    ns_object rod;
-    glass_rod(&m, &rod);
     ns_light bulb = light(NS_LIGHT_SPHERE, 10, 10, 10);
     set3(bulb.position, 0, 6.5, 0);
     bulb.radius = 0.4;
-    ns_scene s = medium_scene(&m, &rod, 1, &bulb);
-    s.camera.width = 10;
-    s.camera.height = 48;
-    s.camera.fov_deg = 5.6f;
-    set3(s.camera.position, 0, 3, 14);
-    set3(s.camera.look_at, 0, 3, 0);
-    s.render.components = NS_COMPONENT_SINGLE;
-    s.render.gather_tile = 1;
     double pt[3], walks[3], off[3];
-    s.render.method = NS_METHOD_PT;
-    s.render.spp = 4096;
-    if (image_mean_over_seeds(s, 4, pt))
-        return;
-    s.render.method = NS_METHOD_NN;
-    s.render.spp = 1;
-    s.render.boundary = NS_BOUNDARY_WALKS;
-    if (image_mean_over_seeds(s, 4, walks))
-        return;
-    s.render.boundary = NS_BOUNDARY_OFF;
-    if (image_mean_over_seeds(s, 4, off))
+    if (rod_single_means(bulb, 4096, pt, walks, off))
         return;
     for (int c = 0; c < 3; c++) {
         fprintf(stderr,
@@ -325,28 +337,11 @@ static void test_light_guide(void)
  * 0.3%); the image is framed on the rod. Measured (2026-12-02): +1.4%. */
 static void test_box_lit_on_two_faces(void)
 {
-    ns_material m;
-    ns_object rod;
-    glass_rod(&m, &rod);
     ns_light bulb = light(NS_LIGHT_SPHERE, 1, 1, 1);
     set3(bulb.position, 4, 3, 2);
     bulb.radius = 1.5;
-    ns_scene s = base_scene(10, 48, 5.6);
-    set3(s.camera.position, 0, 3, 14);
-    set3(s.camera.look_at, 0, 3, 0);
-    scene_lists(&s, &m, 1, &rod, 1, &bulb, 1);
-    s.render.components = NS_COMPONENT_SINGLE;
-    s.render.gather_tile = 1;
-    s.render.vrls = 40000;
-    s.render.boundary = NS_BOUNDARY_WALKS; /* a scene file's default for nn; C's is off */
     double pt[3], nn[3];
-    s.render.method = NS_METHOD_PT;
-    s.render.spp = 2048;
-    if (image_mean_over_seeds(s, 4, pt))
-        return;
-    s.render.method = NS_METHOD_NN;
-    s.render.spp = 1;
-    if (image_mean_over_seeds(s, 4, nn))
+    if (rod_single_means(bulb, 2048, pt, nn, NULL))
         return;
     for (int c = 0; c < 3; c++) {
         fprintf(stderr, "  channel %d: pt %.6g, nn %.6g (%+.1f%%)\n", c, pt[c], nn[c],

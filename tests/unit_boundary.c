@@ -245,8 +245,9 @@ static void test_sources_with_ends(void)
     }
     /* The walk's own reflected beam of scattered light: stretch 3's start, its full flux. */
     CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && out[5].events == 1);
-    /* A reflection of unscattered light with nothing ahead (chord 0: an open mesh, where
-     * the walk itself ends) gives no source: stretch 4's is left out. */
+    /* A record of chord 0 gives no source: stretch 4's is left out. (vrl_trace.comp writes
+     * all zeros where nothing lies ahead, an open mesh where the walk ends; a reflection of
+     * F > 0 that meets the boundary at once is refused too rather than divided by 0.) */
     float open_ends[5][4];
     memcpy(open_ends, ends, sizeof open_ends);
     open_ends[4][1] = 0.0f;
