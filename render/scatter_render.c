@@ -1408,8 +1408,9 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
-        for (uint32_t g = 0; g < v->boundary.count; g++)
-            stats->boundary_sources += v->boundary.group[g].set.count;
+        for (uint32_t g = 0; g < v->boundary.count; g++) /* the sources, not their images */
+            if (v->boundary.group[g].orders != NS_TABLE_FIRST_IMAGES)
+                stats->boundary_sources += v->boundary.group[g].set.count;
         stats->sources_reused |= (uint32_t)reused;
     }
     return status;

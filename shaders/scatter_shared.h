@@ -131,13 +131,6 @@ NS_CONST(uint, NS_GATHER_MODE_FIRST, 3);
  * reflected beams run at 42-90 degrees), and keeps the image from reaching far: an image
  * line that meets another part of the object adds light there that is not. */
 #define NS_FIRST_IMAGE_REACH 8.0
-/* How far behind a positive source's origin (in its tube's widths) the image of its first
- * order reaches (gather.glsl, first_order): the tube of a beam leaving a plane face at angle
- * beta to its normal loses what lies beyond the face up to about 3 tan(beta) widths from its
- * start, 8 takes all of it to beta = 70 degrees and 90% at 80 (a glass rod's totally
- * reflected beams run at 42-90 degrees), and keeps the image from reaching far: a backward
- * half that meets another part of the object adds light there that is not. */
-#define NS_FIRST_IMAGE_REACH 8.0
 
 /* The paper's accumulated length (mfp) for NS_GATHER_MODE_PAPER. */
 NS_CONST(uint, NS_PAPER_ACCUMULATION_MFP, 5);
