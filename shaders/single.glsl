@@ -225,20 +225,33 @@ LightPath point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3
     return lp;
 }
 
-// A sphere light diverges like a point light: one point of it, taken along a direction
-// sampled from b at the centre's distance, with the intensity that gives b the sampled
-// irradiance (a small sphere is then the point light of equal power). false: the sample is
-// invalid (b inside the light).
-bool sphere_as_point(GpuLight light, vec3 b, out GpuLight point)
+// A sphere light refracted into the medium through the plane (b, n) on its way to x: one
+// point y of its surface, drawn uniformly in the cone the sphere subtends seen straight
+// from x, refracted exactly as a point light (point_refracted) of the intensity its area
+// element sends towards the refraction point: L cos_r / pdf_area(y), pdf_area = cos_x /
+// (|y - x|^2 solid angle), with cos_x and cos_r the cosines at y towards x and towards the
+// refraction point. Unbiased wherever the points that reach x through the plane are seen
+// straight from x (refraction bends the path towards the normal inside, so the refraction
+// point lies between x's foot and where the straight line crosses). It was a point at the
+// centre's distance along a direction drawn from the plane, which a sphere of radius 0.4
+// whose bottom was 0.1 above a refracting slab read 7-8% high straight under it (and the
+// sampled point's own distance from the plane 30% low: light reaches x from a ring of the
+// sphere that the cone seen from the plane does not contain; docs/scattering.md, *The tube
+// at a face*).
+LightPath sphere_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, vec3 n)
 {
-    point = light;
-    LightSample s = sample_light(light, b);
+    LightSample s = sample_light(light, x);
     if (!s.valid)
-        return false;
-    float d_centre = distance(light.position.xyz, b);
-    point.position.xyz = b + s.toward * d_centre;
-    point.color.rgb = s.irradiance * (d_centre * d_centre);
-    return true;
+        return no_light();
+    GpuLight point = light;
+    vec3 y = x + s.toward * s.distance;
+    point.position.xyz = y;
+    point.color.rgb = s.irradiance * (s.distance * s.distance);
+    LightPath lp = point_refracted(point, x, wo, mat, b, n);
+    vec3 outward = normalize(y - light.position.xyz);
+    float cos_x = dot(outward, -s.toward), cos_r = dot(outward, -lp.toward);
+    lp.before *= cos_x > 0.0 ? max(cos_r, 0.0) / cos_x : 0.0;
+    return lp;
 }
 
 // A directional light refracted into the medium through the plane (b, n) (n outward) on its
@@ -323,10 +336,9 @@ LightPath light_through_box_face(GpuLight light, vec3 x, vec3 wo, GpuMaterial ma
     vec3 n = vec3(0.0);
     n[axis] = (face & 1u) != 0u ? 1.0 : -1.0;
     // b, a point of the face: where the line from x towards the light's centre crosses its
-    // plane (as light_refracted's b, for the face that line leaves by: a sphere light is
-    // sampled from b, and a large one close to the face reads differently from elsewhere),
-    // held on the face; else the face's point nearest x. A point of the face lies outside
-    // the light unless the light overlaps the box.
+    // plane (as light_refracted's b, for the face that line leaves by), held on the face;
+    // else the face's point nearest x. A point of the face lies outside the light unless the
+    // light overlaps the box.
     float plane = (face & 1u) != 0u ? box.b[axis] : box.a[axis];
     vec3 b = x;
     vec3 to_centre = light.position.xyz - x;
@@ -347,10 +359,8 @@ LightPath light_through_box_face(GpuLight light, vec3 x, vec3 wo, GpuMaterial ma
         lp.from = y + n * ray_epsilon(y);
         return lp;
     }
-    GpuLight point = light;
-    if (kind == NS_GPU_LIGHT_SPHERE && !sphere_as_point(light, b, point))
-        return lp;
-    lp = point_refracted(point, x, wo, mat, b, n);
+    lp = kind == NS_GPU_LIGHT_SPHERE ? sphere_refracted(light, x, wo, mat, b, n)
+                                     : point_refracted(light, x, wo, mat, b, n);
     // lp.from: the refraction point, moved off the plane along n (on_face ignores that axis).
     return lp.traced && !on_face(box, axis, lp.from) ? no_light() : lp;
 }
@@ -384,12 +394,10 @@ LightPath light_refracted(GpuLight light, vec3 x, vec3 wo, uint medium, GpuMater
     vec3 b = x + h.t * aim;
     vec3 n = h.normal; // outward: the light arrives against it, through the tangent plane at b
     uint kind = light.info.x;
-    if (kind == NS_GPU_LIGHT_POINT || kind == NS_GPU_LIGHT_SPHERE) {
-        GpuLight point = light;
-        if (kind == NS_GPU_LIGHT_SPHERE && !sphere_as_point(light, b, point))
-            return lp;
-        return point_refracted(point, x, wo, mat, b, n);
-    }
+    if (kind == NS_GPU_LIGHT_SPHERE)
+        return sphere_refracted(light, x, wo, mat, b, n);
+    if (kind == NS_GPU_LIGHT_POINT)
+        return point_refracted(light, x, wo, mat, b, n);
     vec3 unused;
     return directional_through_plane(light, x, wo, mat, b, n, unused);
 }
