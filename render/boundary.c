@@ -287,32 +287,19 @@ void ns_boundary_groups_free(ns_boundary_groups *g)
     memset(g, 0, sizeof *g);
 }
 
-GpuVrl ns_boundary_image(const GpuVrl *s)
-{
-    GpuVrl image = *s;
-    for (int c = 0; c < 3; c++)
-        image.direction[c] = -s->direction[c];
-    image.events = events_of(s);
-    return image;
-}
-
 int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components,
                       ns_boundary_groups *out, ns_error *err)
 {
     memset(out, 0, sizeof *out);
     /* Group by (table orders, sign): a grid cell's representative must never mix a ghost
-     * with a reflected beam, and one gather reads one table. Each positive source that gives
-     * its first order also puts its image in a group of images. */
+     * with a reflected beam, and one gather reads one table. */
     for (uint32_t pass = 0; pass < 2; pass++) {
-        for (uint32_t k = 0; k < 2 * count; k++) {
-            const GpuVrl *s = &sources[k / 2];
+        for (uint32_t i = 0; i < count; i++) {
+            const GpuVrl *s = &sources[i];
             uint32_t orders = ns_boundary_source_orders(s, components);
-            int negative = is_ghost(s), image = k % 2 == 1;
-            if (image)
-                orders =
-                    !negative && (orders & NS_TABLE_FIRST_BLURRED) ? NS_TABLE_FIRST_IMAGES : 0u;
             if (!orders)
                 continue;
+            int negative = is_ghost(s);
             uint32_t g = 0;
             while (g < out->count && !(out->group[g].orders == orders && out->group[g].negative == negative))
                 g++;
@@ -329,7 +316,7 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
                 grp->set.count++;
             else {
                 GpuVrl *kept = &grp->set.vrls[grp->filled++];
-                *kept = image ? ns_boundary_image(s) : *s;
+                *kept = *s;
                 kept->events = events_of(s);
             }
         }

@@ -94,24 +94,12 @@ uint32_t ns_boundary_orders(uint32_t events, uint32_t components);
  * with no events: single.comp follows it through internal reflections). */
 uint32_t ns_boundary_source_orders(const GpuVrl *s, uint32_t components);
 
-/* The image of positive source s's first order: the same line the other way from the same
- * origin, power and chord (so the same tube). A beam that starts on a face (every positive
- * source: a reflected or re-entered beam) has part of its first order's tube beside its
- * start beyond that face, where no camera segment reads it; the image's tube puts the same
- * part on the face's side (for a point at z along the line and any plane through the origin,
- * the point at -z puts on one side what it puts on the other), exactly for a plane face. The
- * gather computes an image's first order only within NS_FIRST_IMAGE_REACH tubes' widths of
- * its origin, with the phase of the beam it mirrors (gather.glsl, first_order;
- * ns_gather_params_images). docs/scattering.md, *The tube at a face*. */
-GpuVrl ns_boundary_image(const GpuVrl *s);
-
 /* Sources grouped by (orders, sign): one gather each. Each of events 0, 1 and more gives its
  * orders with and without the first order (a ghost without it, the environment's
  * unscattered beams without it), two signs: at most 8 of the 12 occur together (events 1
  * and more give the same orders with single, double and multiple asked; the first order of
- * events 0 only with single); a ninth holds the images of the positive sources that give a
- * first order (NS_TABLE_FIRST_IMAGES). */
-#define NS_BOUNDARY_GROUPS 9u
+ * events 0 only with single). */
+#define NS_BOUNDARY_GROUPS 8u
 typedef struct ns_source_group {
     ns_vrl_set set;
     uint32_t orders;

@@ -69,17 +69,6 @@ void ns_gather_params_first(GpuGatherParams *p, const GpuMaterial *m)
     p->first_blur[3] = 1.0f;           /* the form adds it */
 }
 
-void ns_gather_params_images(GpuGatherParams *p, const GpuMaterial *m)
-{
-    ns_gather_params_first(p, m);
-    p->first_blur[3] = 2.0f; /* images (gather.glsl, first_order) */
-    /* An image reaches NS_FIRST_IMAGE_REACH widest tubes along its line, and its tube ~9
-     * widths across (first_order's own cut-off). */
-    float s_min = fminf(m->sigma_t[0], fminf(m->sigma_t[1], m->sigma_t[2]));
-    p->cull[0] = s_min > 0.0f ? (float)((NS_FIRST_IMAGE_REACH + 9.0) * NS_BOUNDARY_BLUR_MFP) / s_min
-                              : INFINITY;
-}
-
 /* ---------------------------------------------------------------------------------------
  * The nodes the gather walks: the grid's tree with every leaf of more than
  * NS_GATHER_MAX_LEAF_VRLS VRLs cut into pieces (same box, a representative each), so that one

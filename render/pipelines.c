@@ -57,13 +57,13 @@ static const ns_pipeline_row pipeline_rows[NS_PIPELINE_COUNT] = {
                                           GATHER_TABLE_TEXELS},
     /* The walks' reflected beams' first order, with their tables (every render with walks
      * in a refracting medium: made at start-up, as the default form) or alone (single
-     * scattering's correction, beside the paper's accumulation, and the beams' images, which
-     * every such render gathers too: made at start-up as well). */
+     * scattering's correction, and beside the paper's accumulation: made on first use). */
     [NS_PIPELINE_GATHER_EXACT_FIRST] = {"gather_exact_first", 8, sizeof(GpuGatherPush),
                                         NS_PIPELINE_AT_START, GATHER_TABLE_TEXELS,
                                         GATHER_TABLE_TEXELS},
-    [NS_PIPELINE_GATHER_FIRST] = {"gather_first", 8, sizeof(GpuGatherPush), NS_PIPELINE_AT_START,
-                                  GATHER_TABLE_TEXELS, GATHER_TABLE_TEXELS},
+    [NS_PIPELINE_GATHER_FIRST] = {"gather_first", 8, sizeof(GpuGatherPush),
+                                  NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
+                                  GATHER_TABLE_TEXELS},
     [NS_PIPELINE_GATHER_DIPOLE] = {"gather_dipole", 8, sizeof(GpuGatherPush),
                                    NS_PIPELINE_FIRST_USE_WARMED, GATHER_TABLE_TEXELS,
                                    GATHER_TABLE_TEXELS},

@@ -28,10 +28,6 @@
  * angular and radial reads missed it by factors of 0.3-2 at g 0.9), and ns_tables_get
  * refuses it. */
 #define NS_TABLE_FIRST_BLURRED (1u << 16)
-/* The images of the blurred first order (ns_boundary_image): a group of them has only this
- * order, computed in the gather near each origin (ns_gather_params_images). */
-#define NS_TABLE_FIRST_IMAGES (1u << 17)
-#define NS_TABLE_COMPUTED (NS_TABLE_FIRST_BLURRED | NS_TABLE_FIRST_IMAGES)
 
 typedef struct ns_table_key {
     ns_method source;     /* NS_METHOD_NN (network) or NS_METHOD_TABLE (Monte Carlo) */
@@ -251,10 +247,6 @@ void ns_gather_params(GpuGatherParams *p, const GpuMaterial *m, uint32_t mode,
  * first_order): NS_GATHER_MODE_FIRST has it alone, the exact mode with endless beams besides
  * its table (gather_exact_first.comp). */
 void ns_gather_params_first(GpuGatherParams *p, const GpuMaterial *m);
-/* The first order of images (ns_boundary_image) in NS_GATHER_MODE_FIRST: only along the
- * NS_FIRST_IMAGE_REACH tubes' widths of each image's line past its origin, with the phase of
- * the beam it mirrors; the nodes farther from a segment than that reach are culled. */
-void ns_gather_params_images(GpuGatherParams *p, const GpuMaterial *m);
 
 typedef struct ns_gather_desc {
     GpuGatherParams params;       /* counts.x/y/z are filled by ns_gather_run */

@@ -1402,23 +1402,21 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     if (!status && scene->render.method != NS_METHOD_DIPOLE) {
         ns_tables_expect_orders(ctx, scene->render.components);
         for (uint32_t g = 0; g < v->boundary.count; g++)
-            if (v->boundary.group[g].orders & ~NS_TABLE_COMPUTED)
-                ns_tables_expect_orders(ctx, v->boundary.group[g].orders & ~NS_TABLE_COMPUTED);
+            if (v->boundary.group[g].orders & ~NS_TABLE_FIRST_BLURRED)
+                ns_tables_expect_orders(ctx, v->boundary.group[g].orders & ~NS_TABLE_FIRST_BLURRED);
     }
     if (!status && stats) {
         stats->vrl_paths = v->set.paths;
         stats->vrl_count = v->set.count;
-        for (uint32_t g = 0; g < v->boundary.count; g++) /* the sources, not their images */
-            if (v->boundary.group[g].orders != NS_TABLE_FIRST_IMAGES)
-                stats->boundary_sources += v->boundary.group[g].set.count;
+        for (uint32_t g = 0; g < v->boundary.count; g++)
+            stats->boundary_sources += v->boundary.group[g].set.count;
         stats->sources_reused |= (uint32_t)reused;
     }
     return status;
 }
 
 /* One form of the gather (gather.glsl) of a grid over medium m's segments of the round: into
- * out, or added to it; first_order 1 adds the blurred first order, 2 computes the images'
- * (ns_boundary_image). */
+ * out, or added to it. */
 static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
                        const ns_vrl_grid *grid, uint32_t mode, const ns_scatter_tables *tables,
                        int bounded, int first_order, const gather_list *list, gpu_buffer *seg_buf,
@@ -1435,9 +1433,7 @@ static int gather_form(ns_context *ctx, const ns_scatter_inputs *in, uint32_t m,
                            .add = add};
     ns_gather_params(&desc.params, &in->gs->materials[m], mode, tables,
                      in->scene->render.cull_solid_angle, bounded);
-    if (first_order == 2)
-        ns_gather_params_images(&desc.params, &in->gs->materials[m]);
-    else if (first_order)
+    if (first_order)
         ns_gather_params_first(&desc.params, &in->gs->materials[m]);
     /* A form other than those made at start-up compiles its shader on first use: its own
      * stage "gather_pipeline" (ns_gather_pipeline reports it). */
@@ -1477,9 +1473,8 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
     const GpuMaterial *mat = &in->gs->materials[m];
     uint32_t first = list->material_first[m], count = list->material_first[m + 1] - first;
     int dipole = scene->render.method == NS_METHOD_DIPOLE;
-    int first_order = !dipole && (orders & NS_TABLE_COMPUTED) != 0;
-    int images = (orders & NS_TABLE_FIRST_IMAGES) != 0; /* a group of nothing else */
-    uint32_t table_orders = orders & ~NS_TABLE_COMPUTED;
+    int first_order = !dipole && (orders & NS_TABLE_FIRST_BLURRED) != 0;
+    uint32_t table_orders = orders & ~NS_TABLE_FIRST_BLURRED;
     const ns_scatter_tables *tables = NULL;
     uint32_t mode = NS_GATHER_MODE_DIPOLE;
     int status = NS_OK;
@@ -1522,8 +1517,8 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
             wrote = 1;
         }
         if (!status && first_order && !(together && wrote))
-            status = gather_form(ctx, in, m, grid, NS_GATHER_MODE_FIRST, NULL, 0, 1 + images, list,
-                                 seg_buf, out, wrote, stats, times, err);
+            status = gather_form(ctx, in, m, grid, NS_GATHER_MODE_FIRST, NULL, 0, 1, list, seg_buf,
+                                 out, wrote, stats, times, err);
     } else if (!status) {
         memset((float(*)[4])out->mapped + first, 0, 16ull * count); /* no VRL in this medium */
     }

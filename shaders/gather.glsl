@@ -24,11 +24,6 @@
 #ifndef NS_GATHER_FIRST_ORDER
 #define NS_GATHER_FIRST_ORDER 0
 #endif
-// gather_first.comp also computes the images' first order (first_order; params.first_blur.w
-// says which a dispatch gathers), kept out of gather_exact_first.comp's walk over the tables.
-#ifndef NS_GATHER_FIRST_IMAGES
-#define NS_GATHER_FIRST_IMAGES 0
-#endif
 #extension GL_KHR_shader_subgroup_vote : require
 #extension GL_KHR_shader_subgroup_ballot : require
 #include "shared.h"
@@ -289,21 +284,6 @@ float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1,
 // chord and so the same tube); cutting the line at the chord's end moved a thin sphere's
 // multiple scattering by 3 points where the tube's width moved it by 30. A source whose
 // chord is not known (length 0) keeps the widest tube.
-// One channel of first_order_channel where the line lies within `reach` past the source's
-// origin (0 < z <= reach): an image's (first_order).
-float first_order_near(float z0, float c, float A, float B, vec3 r0, vec3 r1, float lo, float hi,
-                       float s, float b)
-{
-    float reach = NS_FIRST_IMAGE_REACH * b;
-    if (c > 0.0)
-        hi = min(hi, (reach - z0) / c);
-    else if (c < 0.0)
-        lo = max(lo, (reach - z0) / c);
-    else if (z0 > reach)
-        return 0.0;
-    return hi > lo ? first_order_channel(z0, c, A, B, r0, r1, lo, hi, s, b) : 0.0;
-}
-
 vec3 first_order(Vrl v, GpuSegment seg)
 {
     vec3 d = seg.direction, u = v.direction, off = seg.entry - v.origin;
@@ -328,22 +308,11 @@ vec3 first_order(Vrl v, GpuSegment seg)
     if (!(hi > lo) || closest > 80.0 * b_max * b_max)
         return vec3(0.0);
     float g = params.first_order.w, cos_theta = -c; // emitted towards the camera
-    vec3 s = params.sigma_t.xyz;
-    vec3 value;
-#if NS_GATHER_FIRST_IMAGES
-    // An image (render/boundary.h, ns_boundary_image): the beam it mirrors runs the other way
-    // (its phase), and only its line's first NS_FIRST_IMAGE_REACH tubes' widths count.
-    if (params.first_blur.w > 1.5) {
-        cos_theta = c;
-        value = vec3(first_order_near(z0, c, A, B, r0, r1, lo, hi, s.x, b.x),
-                     first_order_near(z0, c, A, B, r0, r1, lo, hi, s.y, b.y),
-                     first_order_near(z0, c, A, B, r0, r1, lo, hi, s.z, b.z));
-    } else
-#endif
-        value = vec3(first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.x, b.x),
-                     first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.y, b.y),
-                     first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.z, b.z));
     float phase = (1.0 - g * g) / (4.0 * PI * pow(max(1.0 + g * g - 2.0 * g * cos_theta, 1e-12), 1.5));
+    vec3 s = params.sigma_t.xyz;
+    vec3 value = vec3(first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.x, b.x),
+                      first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.y, b.y),
+                      first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.z, b.z));
     return v.power * params.first_order.xyz * s * phase * value;
 }
 #endif

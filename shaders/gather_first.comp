@@ -5,5 +5,4 @@
 #define NS_GATHER_FORM NS_GATHER_MODE_FIRST
 #define NS_BOUNDED_BEAMS 0
 #define NS_GATHER_FIRST_ORDER 1 // the preprocessor cannot read NS_GATHER_FORM's constant
-#define NS_GATHER_FIRST_IMAGES 1
 #include "gather.glsl"

@@ -89,8 +89,7 @@ struct GpuGatherParams {
                                 (scene units: NS_BOUNDARY_BLUR_MFP / sigma_t), the widest (a
                                 source's chord narrows it: NS_FIRST_BLUR_PER_CHORD); w = 1 when the form
                                 computes the first order (ns_gather_params_first), which picks
-                                its shader (ns_gather_pipeline), 2 for images
-                                (ns_gather_params_images) */
+                                its shader (ns_gather_pipeline) */
 };
 
 /* Bounded beams (render.vrl_beams): the beam past a VRL's exit is subtracted in the gather
@@ -124,13 +123,6 @@ NS_CONST(uint, NS_GATHER_MODE_FIRST, 3);
  * first order's tube*. */
 #define NS_FIRST_BLUR_PER_CHORD 0.03
 #define NS_FIRST_BLUR_FLOOR 0.1
-/* How far past its origin (in its tube's widths) an image of a beam's first order reaches
- * (render/boundary.h, ns_boundary_image): the tube of a beam leaving a plane face at angle
- * beta to its normal loses what lies beyond the face up to about 3 tan(beta) widths from its
- * start; 8 gives back all of it to beta = 70 degrees and 90% at 80 (a glass rod's totally
- * reflected beams run at 42-90 degrees), and keeps the image from reaching far: an image
- * line that meets another part of the object adds light there that is not. */
-#define NS_FIRST_IMAGE_REACH 8.0
 
 /* The paper's accumulated length (mfp) for NS_GATHER_MODE_PAPER. */
 NS_CONST(uint, NS_PAPER_ACCUMULATION_MFP, 5);

@@ -224,10 +224,9 @@ static void test_refracting_sphere(void)
     ns_scene s = medium_scene(&m, &ball, 1, &bulb);
     set3(s.camera.position, 0, 2, 20);
     set3(s.camera.look_at, 0, 0, 0);
-    /* Measured (2026-12-02): walks +1.2 / -0.2 / +2.3% (+0.9 / -0.5 / +1.9% before the
-     * reflected beams' tubes had their images, gather.glsl first_order), off -27 / -22 / -27%
-     * (2026-11-27, ghosts with the blurred first order: -1.5 / -3.0 / -1.1%; under the directional
-     * light before: +11 / +8 / +12% against -18 / -13 / -17%, pt low). */
+    /* Measured (2026-12-01): walks +0.9 / -0.5 / +1.9%, off -27 / -22 / -27% (2026-11-27,
+     * ghosts with the blurred first order: -1.5 / -3.0 / -1.1%; under the directional light
+     * before: +11 / +8 / +12% against -18 / -13 / -17%, pt low). */
     compare("sphere 8 mfp, ior 1.5", s, NS_COMPONENT_MULTIPLE, 1024, 0.06, 0.15, 4);
 }
 
@@ -235,11 +234,10 @@ static void test_refracting_sphere(void)
  * lit from above: much of the light that scatters in one leaves through its inner face into
  * the other. A walk that leaves its object goes on and enters the first scattering object
  * it meets (vrl_trace.comp; boundary.c makes the re-entered stretch a positive source), as
- * light that leaves a non-convex object and comes back does. Measured (2026-12-02): walks
- * +3.6 / +1.5 / +10.5% (+1.8 / -0.3 / +8.8% before the re-entered beams' tubes had their
- * images, gather.glsl first_order; 2026-12-01: +1.1 / -0.9 / +8.0%; -3.8 / -6.1 / +7.0% while every
- * ghost of a medium that a walk re-entered read its first order, not only those whose line comes
- * back); without re-entry (the walk ended where it left) -23 / -24 / -14%. */
+ * light that leaves a non-convex object and comes back does. Measured (2026-12-01): walks
+ * +1.1 / -0.9 / +8.0% (-3.8 / -6.1 / +7.0% while every ghost of a medium that a walk
+ * re-entered read its first order, not only those whose line comes back); without
+ * re-entry (the walk ended where it left) -23 / -24 / -14%. */
 static void test_facing_boxes(void)
 {
     const double albedo[3] = {0.95, 0.8, 0.99};
@@ -304,14 +302,15 @@ static int rod_single_means(ns_light light, uint32_t pt_spp, double pt[3], doubl
  * order, gather.glsl). pt reaches the light only by
  * its escaping rays hitting the small sphere: its image mean over four seeds of 4,096
  * samples has a standard error near 1%. The image is framed on the rod (10 x 48) and every
- * pixel gathered. Measured (2026-12-02, `pt` 30 seeds, walks 12): 0.972 of pt (+-0.7%; this
- * test's seeds -1.9%), off 0.38. Before: 1.042 while single.comp took this large sphere, so
- * near the face, as a point at its centre's distance (its light straight through the top
- * face read 7% high in a wide slab; single.glsl, sphere_refracted), 1.008 while the reflected
- * beams' tubes had no images (their loss hid that excess; render/boundary.h,
- * ns_boundary_image), 0.900 with an expected reflection's tube the widest (its chord
- * unknown). Against the same rod half as wide the walks still read low (docs/scattering.md,
- * *The expected reflections' chords*), not tested. */
+ * pixel gathered. Measured (2026-12-02): this test's seeds -5.7%, off 0.38. What is missing
+ * is the part of each reflected beam's first-order tube that lies beyond the face the beam
+ * starts on (about 3.4%: images of the beams gave it back, 0.972 of pt over 12 seeds, but cost
+ * the candle's gather 40% and were not kept; docs/scattering.md, *The tube at a face*), hence
+ * 8%. Before 2026-12-02 it read +1.4%: single.comp took this large sphere, so near the face,
+ * as a point at its centre's distance, whose light straight through the top face read 7%
+ * high (single.glsl, sphere_refracted), and that hid the tubes' loss; 0.900 with an expected
+ * reflection's tube the widest (its chord unknown). Against the same rod half as wide the
+ * walks still read lower (docs/scattering.md, *The expected reflections' chords*), not tested. */
 static void test_light_guide(void)
 {
     ns_light bulb = light(NS_LIGHT_SPHERE, 10, 10, 10);
@@ -327,7 +326,7 @@ static void test_light_guide(void)
                 c, pt[c], walks[c], 100 * (walks[c] / pt[c] - 1), off[c],
                 100 * (off[c] / pt[c] - 1));
         CHECK(pt[c] > 0);
-        CHECK(fabs(walks[c] / pt[c] - 1) < 0.05);
+        CHECK(fabs(walks[c] / pt[c] - 1) < 0.08);
         CHECK(off[c] / pt[c] < 0.7);
     }
 }
@@ -339,8 +338,8 @@ static void test_light_guide(void)
  * which spheres and meshes still take) the image read 17.6% low (checked). The whole render
  * (walks included: light that the faces reflect inside before it scatters) against pt's
  * single order, image means over four seeds each (pt 2,048 samples a pixel: standard error
- * 0.3%); the image is framed on the rod. Measured (2026-12-02): +1.2% (+2.0% with the
- * sphere as a point at its centre's distance, +1.1% before that and the tubes' images). */
+ * 0.3%); the image is framed on the rod. Measured (2026-12-02): +0.2% (+1.1% with the sphere
+ * as a point at its centre's distance, single.glsl sphere_refracted). */
 static void test_box_lit_on_two_faces(void)
 {
     ns_light bulb = light(NS_LIGHT_SPHERE, 1, 1, 1);

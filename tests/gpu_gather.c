@@ -567,19 +567,8 @@ static double first_order_by_quadrature(const GpuMaterial *m, int c, const GpuVr
 
 /* Runs the first-order form (gather_first.comp) of `grid` over `segs` into out (mapped);
  * returns the status. */
-static int run_first_order_form(const GpuMaterial *m, const ns_vrl_grid *grid,
-                                const GpuSegment *segs, uint32_t count, int images, gpu_buffer *out,
-                                ns_gather_counts *counts);
 static int run_first_order(const GpuMaterial *m, const ns_vrl_grid *grid, const GpuSegment *segs,
                            uint32_t count, gpu_buffer *out, ns_gather_counts *counts)
-{
-    return run_first_order_form(m, grid, segs, count, 0, out, counts);
-}
-
-/* run_first_order, or with images 1 the images' form (ns_gather_params_images). */
-static int run_first_order_form(const GpuMaterial *m, const ns_vrl_grid *grid,
-                                const GpuSegment *segs, uint32_t count, int images, gpu_buffer *out,
-                                ns_gather_counts *counts)
 {
     ns_context *ctx = test_context();
     ns_error err = {0};
@@ -589,8 +578,6 @@ static int run_first_order_form(const GpuMaterial *m, const ns_vrl_grid *grid,
         status = upload(out, NULL, 16ull * count, "test.out", &err);
     ns_gather_desc desc = {.segments = &seg_buf, .segment_count = count, .grid = grid, .out = out};
     ns_gather_params(&desc.params, m, NS_GATHER_MODE_FIRST, NULL, 0.0f, 0);
-    if (images)
-        ns_gather_params_images(&desc.params, m);
     if (!status)
         status = ns_gather_run(ctx, &desc, counts, &err);
     if (status)
@@ -718,68 +705,6 @@ static void test_first_order(void)
     ns_vrl_grid_free(&grid);
 }
 
-/* A beam that starts on a plane face, at 70 degrees to its normal (a totally reflected beam
- * in glass): y > 0 is the medium, camera segments start on the face and run straight in, one
- * for every point of a fine grid on it. Their first order, summed over the grid (times its
- * cell's area), is the volume integral of e^{-s y} J_1 over the medium: for the beam's line
- * itself, power x albedo x p / (1 + cos beta) in every channel, whatever the extinction. The
- * tube around the line puts part of that beyond the face near the start (here 6-13%); the
- * beam's image (ns_boundary_image, gathered in its own form) gives it back, within 2.5% (the
- * image's light lies at the lost light's depth mirrored, which e^{-s y} weighs a little
- * differently). docs/scattering.md, *The tube at a face*. */
-static void test_first_order_at_a_face(void)
-{
-    GpuMaterial m = test_material();
-    m.sigma_s[3] = 0.0f; /* isotropic: p = 1 / (4 pi) */
-    const double beta = 70.0 * M_PI / 180.0, h = 0.005, depth = 12.0 / 3.0;
-    /* The footprint of the line (to 12 mean free paths) and ~9 widest tubes around it. */
-    const double x_lo = -0.3, x_hi = 12.0 / 3.0 * sin(beta) + 0.3, z_lo = -0.3, z_hi = 0.3;
-    const uint32_t nx = (uint32_t)((x_hi - x_lo) / h), nz = (uint32_t)((z_hi - z_lo) / h);
-    const uint32_t count = nx * nz;
-    GpuSegment *segs = calloc(count, sizeof *segs);
-    for (uint32_t i = 0; i < count; i++) {
-        set3(segs[i].entry, (float)(x_lo + (i % nx + 0.5) * h), 0.0f,
-             (float)(z_lo + (i / nx + 0.5) * h));
-        set3(segs[i].exit, segs[i].entry[0], (float)depth, segs[i].entry[2]);
-        set3(segs[i].direction, 0, 1, 0);
-    }
-    /* The widest tube (no chord) and a chord's narrower one in two channels. */
-    const float chords[2] = {0.0f, 0.5f};
-    for (int chord = 0; chord < 2; chord++) {
-        GpuVrl beam = {.length = chords[chord]};
-        set3(beam.direction, (float)sin(beta), (float)cos(beta), 0);
-        set3(beam.power, 1, 1, 1);
-        double sums[2][3] = {{0}};
-        for (int images = 0; images < 2; images++) {
-            GpuVrl v = images ? ns_boundary_image(&beam) : beam;
-            GpuVrlCell cell = {.first = 0, .count = 1};
-            ns_vrl_grid grid = {
-                .vrls = &v, .vrl_count = 1, .cells = &cell, .cell_count = 1, .representatives = &v};
-            gpu_buffer out = {0};
-            ns_gather_counts counts;
-            CHECK_INT(run_first_order_form(&m, &grid, segs, count, images, &out, &counts), NS_OK);
-            const float(*value)[4] = out.mapped;
-            for (uint32_t i = 0; value && i < count; i++)
-                for (int c = 0; c < 3; c++)
-                    sums[images][c] += value[i][c] * h * h;
-            gpu_buffer_destroy(&test_context()->dev, &out);
-        }
-        double alone[3], with[3];
-        for (int c = 0; c < 3; c++) {
-            double line = (m.sigma_s[c] / m.sigma_t[c]) / (4 * M_PI) / (1 + cos(beta));
-            alone[c] = sums[0][c] / line;
-            with[c] = (sums[0][c] + sums[1][c]) / line;
-            CHECK(fabs(with[c] - 1) < 0.025);
-            CHECK(alone[c] < 0.95);
-        }
-        printf(
-            "first order at a face, chord %.1f: the beam alone %.4f / %.4f / %.4f of the line's, "
-            "with its image %.4f / %.4f / %.4f\n",
-            chords[chord], alone[0], alone[1], alone[2], with[0], with[1], with[2]);
-    }
-    free(segs);
-}
-
 /* 30,000 sources over 64 segments: every pair is evaluated although the dispatches are filled
  * to lavapipe's loop budget at NS_GATHER_ITERATIONS_PER_VRL per source. A loop inside the
  * form's evaluation (its erfc's continued fraction, its channels) spent more than that, and
@@ -899,7 +824,6 @@ int main(void)
     RUN(test_theta_read_keeps_lobe_energy);
     RUN(test_split_across_dispatches);
     RUN(test_first_order);
-    RUN(test_first_order_at_a_face);
     RUN(test_first_order_within_the_loop_budget);
     RUN(test_first_order_in_the_default_walk);
     return harness_report();
