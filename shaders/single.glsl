@@ -236,8 +236,8 @@ LightPath point_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3
 // centre's distance along a direction drawn from the plane, which a sphere of radius 0.4
 // whose bottom was 0.1 above a refracting slab read 7-8% high straight under it (and the
 // sampled point's own distance from the plane 30% low: light reaches x from a ring of the
-// sphere that the cone seen from the plane does not contain; docs/scattering.md, *The tube
-// at a face*).
+// sphere that the cone seen from the plane does not contain; docs/scattering.md, *A sphere
+// light through a refracting face*).
 LightPath sphere_refracted(GpuLight light, vec3 x, vec3 wo, GpuMaterial mat, vec3 b, vec3 n)
 {
     LightSample s = sample_light(light, x);
