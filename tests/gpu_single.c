@@ -308,6 +308,31 @@ static double slab_point(const GpuSegment *seg, const double p[3], double intens
     return sum * len / n / 3;
 }
 
+/* A point light of unit intensity at p above the slab's ior-`ior` top face, seen from x
+ * inside through that flat face exactly (planar_refracted_point, gpu_util.h): returns the
+ * refracted pencil's irradiance at x; *cos_theta is the cosine between the light's direction
+ * inside and -d (the segment's), *path_in the refracted path's length inside, rp the
+ * refraction point. */
+static double flat_face_point(const double x[3], const double p[3], double ior,
+                              const GpuSegment *seg, double *cos_theta, double *path_in,
+                              double rp[3])
+{
+    double a = p[1] - TOP, h = TOP - x[1];
+    double across[3] = {p[0] - x[0], 0, p[2] - x[2]};
+    double r = sqrt(dot3d(across, across)), cos_t, tan_t;
+    double e = planar_refracted_point(a, h, r, ior, &cos_t, &tan_t);
+    rp[0] = x[0] + (r > 0 ? across[0] / r : 0) * h * tan_t;
+    rp[1] = TOP;
+    rp[2] = x[2] + (r > 0 ? across[2] / r : 0) * h * tan_t;
+    double travel[3] = {x[0] - rp[0], x[1] - rp[1], x[2] - rp[2]},
+           len_in = sqrt(dot3d(travel, travel));
+    double d[3] = {seg->direction[0], seg->direction[1], seg->direction[2]};
+    /* At the face itself the light travels straight down, -n: cos = dot(-n, -d) = d_y. */
+    *cos_theta = len_in > 0 ? -dot3d(travel, d) / len_in : d[1];
+    *path_in = h / cos_t;
+    return e;
+}
+
 /* sigma_s p E ... for a point light of `intensity` at p above the slab's ior-`ior` top face,
  * through that flat face exactly (planar_refracted_point, gpu_util.h): at each point x of the
  * segment the refraction point, the refracted pencil's irradiance, the attenuation along
@@ -323,18 +348,9 @@ static double slab_point_refracted(const GpuSegment *seg, const double p[3], dou
         double t = len * i / n, x[3];
         for (int k = 0; k < 3; k++)
             x[k] = seg->entry[k] + t * seg->direction[k];
-        double a = p[1] - TOP, h = TOP - x[1];
-        double across[3] = {p[0] - x[0], 0, p[2] - x[2]};
-        double r = sqrt(dot3d(across, across)), cos_t, tan_t;
-        double e = intensity * planar_refracted_point(a, h, r, ior, &cos_t, &tan_t);
-        /* The light's direction inside, from the refraction point y down to x. */
-        double y[3] = {x[0] + (r > 0 ? across[0] / r : 0) * h * tan_t, TOP,
-                       x[2] + (r > 0 ? across[2] / r : 0) * h * tan_t};
-        double travel[3] = {x[0] - y[0], x[1] - y[1], x[2] - y[2]}, len_in = sqrt(dot3d(travel, travel));
-        double d[3] = {seg->direction[0], seg->direction[1], seg->direction[2]};
-        /* At the face itself the light travels straight down, -n: cos = dot(-n, -d) = d_y. */
-        double cos_theta = len_in > 0 ? -dot3d(travel, d) / len_in : d[1];
-        double f = SIGMA_S[channel] * hg(cos_theta, G) * e * exp(-st * (t + h / cos_t));
+        double cos_theta, path_in, unused[3];
+        double e = intensity * flat_face_point(x, p, ior, seg, &cos_theta, &path_in, unused);
+        double f = SIGMA_S[channel] * hg(cos_theta, G) * e * exp(-st * (t + path_in));
         sum += f * (i == 0 || i == n ? 1 : i % 2 ? 4 : 2);
     }
     return sum * len / n / 3;
@@ -443,7 +459,7 @@ static void slab_sphere_refracted(const GpuSegment *seg, const double c[3], doub
                                   const double radiance[3], double ior, double out[3])
 {
     enum { N_THETA = 40, N_PHI = 80, N = 20 /* even */ };
-    double len = seg_length(seg), d[3] = {seg->direction[0], seg->direction[1], seg->direction[2]};
+    double len = seg_length(seg);
     out[0] = out[1] = out[2] = 0;
     for (int i = 0; i <= N; i++) {
         double t = len * i / N, x[3], simpson = (i == 0 || i == N ? 1 : i % 2 ? 4 : 2);
@@ -455,23 +471,16 @@ static void slab_sphere_refracted(const GpuSegment *seg, const double c[3], doub
                 double m[3] = {sin(theta) * cos(phi), cos(theta), sin(theta) * sin(phi)};
                 double y[3] = {c[0] + r * m[0], c[1] + r * m[1], c[2] + r * m[2]};
                 double area = r * r * sin(theta) * (M_PI / N_THETA) * (2 * M_PI / N_PHI);
-                double a = y[1] - TOP, h = TOP - x[1];
-                double across[3] = {y[0] - x[0], 0, y[2] - x[2]};
-                double rho = sqrt(dot3d(across, across)), cos_t, tan_t;
-                double e = planar_refracted_point(a, h, rho, ior, &cos_t, &tan_t);
-                double rp[3] = {x[0] + (rho > 0 ? across[0] / rho : 0) * h * tan_t, TOP,
-                                x[2] + (rho > 0 ? across[2] / rho : 0) * h * tan_t};
+                double cos_theta, path_in, rp[3];
+                double e = flat_face_point(x, y, ior, seg, &cos_theta, &path_in, rp);
                 double out_dir[3] = {rp[0] - y[0], rp[1] - y[1], rp[2] - y[2]};
                 double cos_r = dot3d(m, out_dir) / sqrt(dot3d(out_dir, out_dir));
                 if (!(cos_r > 0))
                     continue;
-                double travel[3] = {x[0] - rp[0], x[1] - rp[1], x[2] - rp[2]};
-                double len_in = sqrt(dot3d(travel, travel));
-                double cos_theta = len_in > 0 ? -dot3d(travel, d) / len_in : d[1];
                 for (int ch = 0; ch < 3; ch++) {
                     double st = SIGMA_S[ch] + SIGMA_A[ch];
                     out[ch] += simpson * SIGMA_S[ch] * hg(cos_theta, G) * radiance[ch] * cos_r *
-                               area * e * exp(-st * (t + h / cos_t));
+                               area * e * exp(-st * (t + path_in));
                 }
             }
     }
