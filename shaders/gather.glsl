@@ -210,18 +210,24 @@ float erfcx_positive(float x)
         return t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429))));
     }
     // Written out: a loop here would count against lavapipe's loop budget, which the gather's
-    // dispatches fill at NS_GATHER_ITERATIONS_PER_VRL per source (scatter_shared.h).
-    float f = x + 5.0 / x;
-    f = x + 4.5 / f;
-    f = x + 4.0 / f;
-    f = x + 3.5 / f;
-    f = x + 3.0 / f;
-    f = x + 2.5 / f;
-    f = x + 2.0 / f;
-    f = x + 1.5 / f;
-    f = x + 1.0 / f;
-    f = x + 0.5 / f;
-    return 1.0 / (sqrt(PI) * f);
+    // dispatches fill at NS_GATHER_ITERATIONS_PER_VRL per source (scatter_shared.h). The
+    // fraction x + 5 / (x + 4.5 / (... x + 0.5 / x)), folded from the inside out, carried as
+    // numerator n over denominator d (each step n <- x n + a d, d <- n), both scaled by 1 / x
+    // each step so that they stay near 1 and x: two divisions instead of ten (lavapipe runs
+    // both sides of the branch above for a lane group that disagrees on it).
+    x = min(x, 1e18); // erfcx is 0 to float there; the scaling keeps an infinite x finite
+    float inv = 1.0 / x;
+    float n = x + 5.0 * inv, d = 1.0, m;
+    m = n; n = n + 4.5 * d * inv; d = m * inv;
+    m = n; n = n + 4.0 * d * inv; d = m * inv;
+    m = n; n = n + 3.5 * d * inv; d = m * inv;
+    m = n; n = n + 3.0 * d * inv; d = m * inv;
+    m = n; n = n + 2.5 * d * inv; d = m * inv;
+    m = n; n = n + 2.0 * d * inv; d = m * inv;
+    m = n; n = n + 1.5 * d * inv; d = m * inv;
+    m = n; n = n + 1.0 * d * inv; d = m * inv;
+    m = n; n = n + 0.5 * d * inv; d = m * inv;
+    return d / (sqrt(PI) * n);
 }
 
 // One channel of a source's first order seen along a segment: the integral over t in [0, L]
@@ -253,17 +259,16 @@ float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1,
     }
     float centre = -(B + 0.5 * two_b2 * s * (1.0 + c)) / A; // the Gaussian's centre in t
     float u_lo = (lo - centre) * k, u_hi = (hi - centre) * k;
-    float bracket, t_top;
-    if (u_lo >= 0.0) {
-        t_top = lo;
-        bracket = erfcx_positive(u_lo) - exp(u_lo * u_lo - u_hi * u_hi) * erfcx_positive(u_hi);
-    } else if (u_hi <= 0.0) {
-        t_top = hi;
-        bracket = erfcx_positive(-u_hi) - exp(u_hi * u_hi - u_lo * u_lo) * erfcx_positive(-u_lo);
-    } else {
-        t_top = centre;
-        bracket = 2.0 - exp(-u_hi * u_hi) * erfcx_positive(u_hi) - exp(-u_lo * u_lo) * erfcx_positive(-u_lo);
-    }
+    // The range after the centre (u_lo >= 0), before it (u_hi <= 0) or around it, each from
+    // erfcx at |u_lo| and |u_hi|, picked by selects: lavapipe runs every branch of a lane
+    // group whose lanes disagree, so three cases of two erfcx each cost six.
+    float x_lo = erfcx_positive(abs(u_lo)), x_hi = erfcx_positive(abs(u_hi));
+    bool after = u_lo >= 0.0, before = u_hi <= 0.0;
+    float d2 = u_lo * u_lo - u_hi * u_hi;
+    float side = after ? x_lo - exp(d2) * x_hi : x_hi - exp(-d2) * x_lo;
+    float around = 2.0 - exp(-u_hi * u_hi) * x_hi - exp(-u_lo * u_lo) * x_lo;
+    float bracket = after || before ? side : around;
+    float t_top = after ? lo : (before ? hi : centre);
     vec3 q_top = r0 + t_top * r1;
     float e_top = -s * (t_top + z0 + c * t_top) - dot(q_top, q_top) / two_b2;
     return exp(e_top) * 0.5 * sqrt(PI) / k * max(bracket, 0.0) / (PI * two_b2);
