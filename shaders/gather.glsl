@@ -264,8 +264,8 @@ float first_order_channel(float z0, float c, float A, float B, vec3 r0, vec3 r1,
     // group whose lanes disagree, so three cases of two erfcx each cost six.
     float x_lo = erfcx_positive(abs(u_lo)), x_hi = erfcx_positive(abs(u_hi));
     bool after = u_lo >= 0.0, before = u_hi <= 0.0;
-    float d2 = u_lo * u_lo - u_hi * u_hi;
-    float side = after ? x_lo - exp(d2) * x_hi : x_hi - exp(-d2) * x_lo;
+    float d2 = u_lo * u_lo - u_hi * u_hi, beyond = exp(after ? d2 : -d2);
+    float side = after ? x_lo - beyond * x_hi : x_hi - beyond * x_lo;
     float around = 2.0 - exp(-u_hi * u_hi) * x_hi - exp(-u_lo * u_lo) * x_lo;
     float bracket = after || before ? side : around;
     float t_top = after ? lo : (before ? hi : centre);
