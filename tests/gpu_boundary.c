@@ -2,7 +2,8 @@
  * path tracer, per order, where the paper's infinite-medium tables are known to be wrong:
  *   (a) an index-matched sphere ~3.3 mfp across (a cloud): the tables go on scattering light
  *       that has left, too bright;
- *   (b) index-matched slabs 0.5, 2 and 8 mfp thick under a directional light;
+ *   (b) index-matched slabs 0.5, 2 and 8 mfp thick under a directional light (the 2 and 8 mfp
+ *       ones also with Monte Carlo tables of the exact material, method "table": within 3%);
  *   (c) a sphere 8 mfp across at ior 1.5: Fresnel and total internal reflection send light
  *       back that the tables never see, too dark;
  *   (d) two boxes face to face: light that leaves one enters the other.
@@ -15,7 +16,7 @@
  * channel, and that without it nn is off by more (so that the scene tells them apart).
  * Image means over 32 x 32 pixels (the slabs: 16 x 16). Also: off is the default and adds no
  * source; the other methods refuse the setting naming it. */
-#include "gpu_util.h"
+#include "gpu_mc.h"
 #include "pipelines.h"
 
 typedef struct means {
@@ -23,14 +24,15 @@ typedef struct means {
     uint64_t sources;
 } means;
 
-static int mean_of(ns_scene s, ns_method method, ns_boundary boundary, uint32_t spp, means *out)
+static int mean_in(ns_context *ctx, ns_scene s, ns_method method, ns_boundary boundary,
+                   uint32_t spp, means *out)
 {
     s.render.method = method;
     s.render.boundary = boundary;
     s.render.spp = spp;
     ns_image img = {0};
     ns_render_stats stats = {0};
-    if (!render_ok(&s, &img, &stats))
+    if (!render_ok_in(ctx, &s, &img, &stats))
         return -1;
     image_mean(&img, out->v);
     out->sources = stats.boundary_sources;
@@ -38,19 +40,27 @@ static int mean_of(ns_scene s, ns_method method, ns_boundary boundary, uint32_t 
     return 0;
 }
 
+static int mean_of(ns_scene s, ns_method method, ns_boundary boundary, uint32_t spp, means *out)
+{
+    return mean_in(test_context(), s, method, boundary, spp, out);
+}
+
 /* walks_tolerance: |walks / pt - 1| allowed; off_off: |off / pt - 1| required; closer: walks
  * at least this many times closer to pt than off, in every channel. nn traces one camera
  * path per pixel: the noise of its image mean is the VRLs', not the camera's, while its
  * gather costs in proportion to camera paths (at 4 per pixel the slabs alone took 460 s;
- * the means moved by at most 1.1 points at 1). */
+ * the means moved by at most 1.1 points at 1). pt_means, when not NULL, receives pt's (0 where
+ * a render failed). */
 static void compare_at(const char *name, ns_scene s, uint32_t components, uint32_t pt_spp,
-                       uint32_t walks_spp, double walks_tolerance, double off_off,
-                       double closer)
+                       uint32_t walks_spp, double walks_tolerance, double off_off, double closer,
+                       means *pt_means)
 {
     s.render.components = components;
-    means pt, walks, off;
-    if (mean_of(s, NS_METHOD_PT, NS_BOUNDARY_OFF, pt_spp, &pt) ||
-        mean_of(s, NS_METHOD_NN, NS_BOUNDARY_WALKS, walks_spp, &walks) ||
+    means pt = {0}, walks, off;
+    int failed = mean_of(s, NS_METHOD_PT, NS_BOUNDARY_OFF, pt_spp, &pt);
+    if (pt_means)
+        *pt_means = pt;
+    if (failed || mean_of(s, NS_METHOD_NN, NS_BOUNDARY_WALKS, walks_spp, &walks) ||
         mean_of(s, NS_METHOD_NN, NS_BOUNDARY_OFF, 1, &off))
         return;
     CHECK(walks.sources > 0);
@@ -70,7 +80,7 @@ static void compare_at(const char *name, ns_scene s, uint32_t components, uint32
 static void compare(const char *name, ns_scene s, uint32_t components, uint32_t pt_spp,
                     double walks_tolerance, double off_off, double closer)
 {
-    compare_at(name, s, components, pt_spp, 1, walks_tolerance, off_off, closer);
+    compare_at(name, s, components, pt_spp, 1, walks_tolerance, off_off, closer, NULL);
 }
 
 static ns_material material(const double albedo[3], double mfp, double g, double ior)
@@ -143,7 +153,13 @@ static void test_cloud(void)
     CHECK(second->pipeline != VK_NULL_HANDLE);
 }
 
-static void test_slab(double thickness, double walks_tolerance, double off_off, double closer)
+/* exact_paths, when not 0: the same slab rendered with Monte Carlo tables of the exact
+ * material (method "table" with the walks, this many light paths) must read within issue 15's
+ * 3% of pt in every channel. That is the estimator's own error; nn's tolerances hold the
+ * network's on top of it (the two read 2-10% apart in the albedo-0.99 channel,
+ * docs/scattering.md, *The slabs with exact tables*). */
+static void test_slab(double thickness, double walks_tolerance, double off_off, double closer,
+                      uint32_t exact_paths)
 {
     const double albedo[3] = {0.909, 0.5, 0.99};
     ns_material m = material(albedo, 1.0, 0.5, 1.0);
@@ -164,10 +180,34 @@ static void test_slab(double thickness, double walks_tolerance, double off_off, 
     s.camera.width = s.camera.height = 16;
     char name[64];
     snprintf(name, sizeof name, "slab %g mfp, ior 1", thickness);
-    compare(name, s, NS_COMPONENT_MULTIPLE, 1024, walks_tolerance, off_off, closer);
+    means pt;
+    compare_at(name, s, NS_COMPONENT_MULTIPLE, 1024, 1, walks_tolerance, off_off, closer, &pt);
+    if (!exact_paths || !(pt.v[0] > 0))
+        return;
+    s.render.components = NS_COMPONENT_MULTIPLE;
+    s.render.vrls = exact_paths;
+    means exact;
+    if (mean_in(mc_test_context(), s, NS_METHOD_TABLE, NS_BOUNDARY_WALKS, 1, &exact))
+        return;
+    CHECK(exact.sources > 0);
+    for (int c = 0; c < 3; c++) {
+        fprintf(stderr,
+                "  %s, exact tables, %u light paths, channel %d: pt %.6g, table walks %.6g "
+                "(%+.1f%%)\n",
+                name, exact_paths, c, pt.v[c], exact.v[c], 100 * (exact.v[c] / pt.v[c] - 1));
+        CHECK(fabs(exact.v[c] / pt.v[c] - 1) < 0.03);
+    }
 }
 
-/* Over four seeds (2026-12-03; seed 1 is the test's): 0.5 mfp +5.0 / -0.6 / +0.5% (blue
+/* With exact tables ("table"; 2026-12-03, six seeds, each against its own pt, means of the
+ * ratios): 0.5 mfp 0.989 / 0.999 / 1.027, 2 mfp 1.000 / 0.994 / 1.022, 8 mfp 0.995 / 0.994 /
+ * 0.999; nn over table (the networks alone) 0.5 mfp 1.025 / 0.980 / 0.900, 2 mfp 1.032 /
+ * 1.008 / 1.064, 8 mfp 1.021 / 1.007 / 1.043. table's albedo-0.99 channel by seed: 2 mfp
+ * 0.964-1.077 at 100,000 light paths, 0.975-1.019 at 400,000, 1.001-1.007 at 700,000 (hence
+ * 700,000 here); 8 mfp 0.979-1.013 at 100,000; 0.5 mfp 0.80-1.16 at 400,000 (the ghosts take
+ * 96% of the infinite tables' blue away: too noisy to hold to 3%). docs/scattering.md, *The
+ * slabs with exact tables*.
+ * Over four seeds (2026-12-03; seed 1 is the test's): 0.5 mfp +5.0 / -0.6 / +0.5% (blue
  * +2.2 to -19.9%), 2 mfp +3.4 / +0.2 / +10.0% (blue +3.2 to +14.5%), 8 mfp +1.7 / +0.0 /
  * +4.7%: the albedo-0.99 channel reads high (docs/scattering.md, *A sphere 200 mfp across*).
  * Measured at 16 x 16 with the multiple network fine-tuned on its near field (2026-12-01,
@@ -189,9 +229,9 @@ static void test_slabs(void)
 {
     /* Tolerances with room for another CPU's lavapipe to draw other samples: one seed's
      * image mean still moves by a few per cent (docs/scattering.md, *The phi bins' mean*). */
-    test_slab(0.5, 0.2, 1.0, 3);
-    test_slab(2.0, 0.12, 0.1, 3);
-    test_slab(8.0, 0.15, 0.04, 1.5);
+    test_slab(0.5, 0.2, 1.0, 3, 0);
+    test_slab(2.0, 0.12, 0.1, 3, 700000);
+    test_slab(8.0, 0.15, 0.04, 1.5, 100000);
 }
 
 /* A sphere 200 mfp across (issue 15's "where the correction must vanish away from the
@@ -215,7 +255,7 @@ static void test_large_sphere(void)
      * +9.2 / +155.5%; the albedo-0.5 channel's off is nearly right already, so no "closer"
      * is asked, only that off is off (the correction fades inside). */
     s.render.gather_tile = 2;
-    compare_at("sphere 200 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 4096, 8, 0.03, 0.05, 0.0);
+    compare_at("sphere 200 mfp, ior 1", s, NS_COMPONENT_MULTIPLE, 4096, 8, 0.03, 0.05, 0.0, NULL);
 }
 
 /* Lit by a sphere light, not a directional one: behind a refracting boundary pt reaches a
@@ -497,6 +537,7 @@ int main(int argc, char **argv)
     PICK(test_double_walks_are_bounded_beams);
     PICK(test_correction_lattice);
     PICK(test_bad_setting);
+    mc_test_context_destroy();
     ns_context_destroy(test_context());
     return harness_report();
 }

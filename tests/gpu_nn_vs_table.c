@@ -5,25 +5,11 @@
  * upsampling are deterministic), so the difference is the network's error alone, as the
  * image sees it. The Monte Carlo tables come from the server's provider (computed once, then
  * cached in NSCATTER_CACHE_DIR, which ctest points at the build folder). */
-#include "gpu_util.h"
+#include "gpu_mc.h"
 #include "image_metrics.h"
-#include "mc_provider.h"
 
 #define W 256
 #define H 256
-
-static ns_context *context_with_mc(void)
-{
-    ns_context_desc desc = {0};
-    ns_mc_provider_attach(&desc);
-    ns_context *ctx = NULL;
-    ns_error err = {0};
-    if (ns_context_create(&desc, &ctx, &err)) {
-        fprintf(stderr, "ns_context_create: %s\n", err.message);
-        exit(1);
-    }
-    return ctx;
-}
 
 static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light lights[2], ns_method method)
 {
@@ -51,7 +37,7 @@ static void build(ns_scene *s, ns_material mats[2], ns_object objs[2], ns_light 
 
 static void test_nn_matches_table(void)
 {
-    ns_context *ctx = context_with_mc();
+    ns_context *ctx = mc_test_context();
     ns_image img[2] = {{0}};
     ns_method methods[2] = {NS_METHOD_NN, NS_METHOD_TABLE};
     for (int i = 0; i < 2; i++) {
@@ -67,7 +53,7 @@ static void test_nn_matches_table(void)
             fprintf(stderr, "ns_render (%s): %s\n", i ? "table" : "nn", err.message);
         CHECK_INT(status, NS_OK);
         if (status) {
-            ns_context_destroy(ctx);
+            mc_test_context_destroy();
             return;
         }
     }
@@ -79,7 +65,7 @@ static void test_nn_matches_table(void)
     CHECK(m.psnr[3] >= 40.0);
     ns_image_free(&img[0]);
     ns_image_free(&img[1]);
-    ns_context_destroy(ctx);
+    mc_test_context_destroy();
 }
 
 int main(void)

@@ -217,14 +217,21 @@ static inline void camera_ray(const ns_camera *c, double u, double v, double dir
         dir[k] /= n;
 }
 
-static inline int render_ok(const ns_scene *s, ns_image *img, ns_render_stats *stats)
+/* Renders s in ctx; a failure is a failed test, its message printed. */
+static inline int render_ok_in(ns_context *ctx, const ns_scene *s, ns_image *img,
+                               ns_render_stats *stats)
 {
     ns_error err = {0};
-    int status = ns_render(test_context(), s, img, stats, &err);
+    int status = ns_render(ctx, s, img, stats, &err);
     if (status)
         fprintf(stderr, "ns_render: %s (%s)\n", err.message, ns_status_name(status));
     CHECK_INT(status, NS_OK);
     return status == NS_OK;
+}
+
+static inline int render_ok(const ns_scene *s, ns_image *img, ns_render_stats *stats)
+{
+    return render_ok_in(test_context(), s, img, stats);
 }
 
 static inline const float *pixel_at(const ns_image *img, uint32_t x, uint32_t y)
