@@ -15,7 +15,8 @@ static const char usage_text[] =
     "                      [--lr L (0.003)] [--samples-per-table N (24000)] [--seed S]\n"
     "                      [--time-budget SECONDS] [--checkpoint-dir DIR] [--resume]\n"
     "                      [--eps E (logrel floor, 1e-13)] [--zero-floor F (10)]\n"
-    "                      [--oversample-albedo A:F] [--near-samples R:N] [--init DIR]\n"
+    "                      [--oversample-albedo A:F] [--near-samples R:N] [--near-uniform F]\n"
+    "                      [--init DIR]\n"
     "                      [--g-map linear|log] [--no-calibrate]\n"
     "                      [--threads T] [--quiet]\n"
     "\n"
@@ -37,6 +38,8 @@ static const char usage_text[] =
     "--near-samples R:N: N more samples per table (times F above where it applies), drawn\n"
     "in proportion to the energy of the cells within R mfp of the source: the near field\n"
     "a small object integrates, which holds under 1% of a high-albedo table's energy.\n"
+    "--near-uniform F (0): the share F of those drawn uniformly over the near cells instead,\n"
+    "the dim directions as much as the bright ones.\n"
     "--g-map log: g enters as the mean of g/0.99 and ln(1 - g)/ln(0.01), which widens the\n"
     "forward-scattering end (input map 2); linear (the default): g as it is (map 1).\n";
 
@@ -111,7 +114,9 @@ static int parse_value(ns_train_options *o, const char *arg, const char *val)
                                val);
         o->near_radius = r;
         o->near_samples = (uint32_t)n;
-    } else if (!strcmp(arg, "--init"))
+    } else if (!strcmp(arg, "--near-uniform"))
+        rc = parse_number(arg, val, 0, 1, &o->near_uniform);
+    else if (!strcmp(arg, "--init"))
         o->init_dir = val;
     else if (!strcmp(arg, "--zero-floor"))
         rc = parse_number(arg, val, 1, 1e6, &o->zero_floor);

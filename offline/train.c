@@ -137,6 +137,29 @@ static void add_cell(sample_set *s, const ns_nn_header *h, const ns_table *tab, 
     s->t[s->n++] = (float)ns_nn_j_to_target(h, tab->data[cell], tab->energy_expected);
 }
 
+/* Cell c's spatial bin centre lies within radius of the source. */
+static int cell_is_near(const ns_table *tab, size_t c, double radius)
+{
+    size_t spatial = c / ((size_t)tab->n[3] * tab->n[2]);
+    uint32_t iz = (uint32_t)(spatial / tab->n[1]), irho = (uint32_t)(spatial % tab->n[1]);
+    double z = 0.5 * (tab->edges[NS_AXIS_Z][iz] + tab->edges[NS_AXIS_Z][iz + 1]);
+    double rho = 0.5 * (tab->edges[NS_AXIS_RHO][irho] + tab->edges[NS_AXIS_RHO][irho + 1]);
+    return z * z + rho * rho < radius * radius;
+}
+
+/* A cell drawn uniformly among those cell_is_near, by rejection (the near cells of the
+ * training tables are a few per cent of them); the table's size when 10^5 draws found none. */
+static size_t uniform_near_cell(const ns_table *tab, double radius, uint64_t *rng)
+{
+    size_t cells = ns_table_size(tab);
+    for (int tries = 0; tries < 100000; tries++) {
+        size_t c = (size_t)(uniform01(rng) * (double)cells);
+        if (c < cells && cell_is_near(tab, c, radius))
+            return c;
+    }
+    return cells;
+}
+
 static int sample_table(sample_set *s, sample_set *near, const ns_train_options *o,
                         const ns_nn_header *h, const ns_table *tab, uint32_t k, uint32_t k_near,
                         uint64_t *rng, double *cdf, double *cdf_near)
@@ -158,9 +181,7 @@ static int sample_table(sample_set *s, sample_set *near, const ns_train_options 
         sum += e;
         cdf[c] = sum;
         if (k_near) {
-            double z = 0.5 * (tab->edges[NS_AXIS_Z][iz] + tab->edges[NS_AXIS_Z][iz + 1]);
-            double rho = 0.5 * (tab->edges[NS_AXIS_RHO][irho] + tab->edges[NS_AXIS_RHO][irho + 1]);
-            sum_near += z * z + rho * rho < o->near_radius * o->near_radius ? e : 0;
+            sum_near += cell_is_near(tab, c, o->near_radius) ? e : 0;
             cdf_near[c] = sum_near;
         }
     }
@@ -171,9 +192,15 @@ static int sample_table(sample_set *s, sample_set *near, const ns_train_options 
     }
     /* The near field in proportion to its energy: what a small object integrates. At high
      * albedo it holds under 1% of the table's energy, so the energy-proportional half above
-     * barely sees it, and the fit's error there (10% and more) is what such objects show. */
+     * barely sees it, and the fit's error there (10% and more) is what such objects show.
+     * A share near_uniform of them goes uniformly over the near cells instead, dim directions
+     * as much as bright ones (the shape that a boundary correction's differences read). */
     for (uint32_t i = 0; i < k_near && sum_near > 0; i++) {
-        size_t cell = upper_bound(cdf_near, cells, uniform01(rng) * sum_near);
+        size_t cell = cells;
+        if (uniform01(rng) < o->near_uniform)
+            cell = uniform_near_cell(tab, o->near_radius, rng);
+        if (cell >= cells)
+            cell = upper_bound(cdf_near, cells, uniform01(rng) * sum_near);
         add_cell(near, h, tab, cell < cells ? cell : cells - 1);
     }
     return 0;
@@ -515,15 +542,20 @@ static int write_json(const ns_train_options *o, ns_order order, const ns_nn_wei
             "  \"training_set\": {\"data\": \"%s\", \"train_materials\": %d, "
             "\"test_materials\": %d, \"held_out\": [%s], \"samples_per_table\": %u, "
             "\"oversampled_albedo_from\": %g, \"oversample_factor\": %g, "
-            "\"near_samples_per_table\": %u, \"near_radius\": %g, "
+            "\"near_samples_per_table\": %u, \"near_radius\": %g, \"near_uniform\": %g, "
             "\"train_samples\": %u, \"test_samples\": %u, \"sampling\": \"half uniform over "
             "cells, half proportional to cell energy%s\"},\n",
             o->data, d->train.materials, d->test.materials, d->names, o->samples_per_table,
             o->oversample_factor > 1 ? o->oversample_albedo : 1.0, o->oversample_factor,
-            o->near_samples, o->near_samples ? o->near_radius : 0.0, d->train.n, d->test.n,
-            o->near_samples ? "; then near_samples_per_table more proportional to cell energy "
-                              "within near_radius mfp of the source"
-                            : "");
+            o->near_samples, o->near_samples ? o->near_radius : 0.0,
+            o->near_samples ? o->near_uniform : 0.0, d->train.n, d->test.n,
+            !o->near_samples ? ""
+            : o->near_uniform > 0
+                ? "; then near_samples_per_table more within near_radius mfp of the source, "
+                  "the share near_uniform uniformly over those cells, the rest proportional "
+                  "to cell energy"
+                : "; then near_samples_per_table more proportional to cell energy "
+                  "within near_radius mfp of the source");
     fprintf(f,
             "  \"optimiser\": {\"name\": \"adam\", \"lr\": %g, \"batch\": %u, \"seed\": %llu},\n"
             "  \"epochs\": %d,\n  \"epochs_requested\": %d,\n  \"final_train_loss\": %.6g,\n"

@@ -28,6 +28,7 @@ typedef struct ns_train_options {
     uint32_t batch, samples_per_table;
     uint32_t near_samples; /* more per table, energy-proportional within near_radius mfp */
     double lr, time_budget, eps, zero_floor, oversample_albedo, oversample_factor, near_radius;
+    double near_uniform; /* the share of near_samples drawn uniformly over the near cells */
     uint64_t seed;
     char command[2048];
 } ns_train_options;

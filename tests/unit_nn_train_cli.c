@@ -305,6 +305,35 @@ static void test_near_samples_are_near(void)
     printf("near samples in the outer ring: %u of %.0f, expected %.1f\n", outer, n, n * p);
     CHECK(fabs(outer - n * p) < 4 * sqrt(n * p * (1 - p)));
     ns_train_samples_free(&s);
+
+    /* --near-uniform 1: every near sample uniform over the near cells, whatever their
+     * energy: the outer ring has 2 of the 6 near spatial cells (z = +-2.5 at rho 5), each
+     * with the same angular cells, so a third of the samples. */
+    o.near_uniform = 1;
+    CHECK_INT(ns_train_samples_load(&o, NS_ORDER_DOUBLE, &s), 0);
+    CHECK_INT(s.n, 2000);
+    outer = unmatched = 0;
+    for (uint32_t i = s.regular; i < s.n; i++) {
+        const float *x = s.x + (size_t)i * NS_NN_INPUTS;
+        int near = 0;
+        for (int r = 0; r < 2; r++)
+            for (int k = 0; k < 4; k++) {
+                float c[NS_NN_INPUTS];
+                ns_nn_normalise(&s.h, rho_mid[r], z_mid[k], 0, 0, 0, 0, c);
+                if (hypot(rho_mid[r], z_mid[k]) < 8 && fabsf(x[0] - c[0]) < 1e-6f &&
+                    fabsf(x[1] - c[1]) < 1e-6f) {
+                    near = 1;
+                    outer += r == 1;
+                }
+            }
+        unmatched += !near;
+    }
+    CHECK_INT(unmatched, 0);
+    p = 1.0 / 3;
+    printf("uniform near samples in the outer ring: %u of %.0f, expected %.1f (by energy %.1f)\n",
+           outer, n, n * p, n * weight[1] / (weight[0] + weight[1]));
+    CHECK(fabs(outer - n * p) < 4 * sqrt(n * p * (1 - p)));
+    ns_train_samples_free(&s);
 }
 
 static void test_argument_errors(void)
@@ -332,6 +361,11 @@ static void test_argument_errors(void)
     const char *bad_near[] = {"0", "8", "8:-1", "8:1.5", "-2:10", "8:1e8", "x:10"};
     for (int i = 0; i < 7; i++) {
         const char *bad[] = {"train", "--data", dir, "--near-samples", bad_near[i], NULL};
+        CHECK_INT(run(cmd_train, bad), 2);
+    }
+    const char *bad_uniform[] = {"-0.1", "1.5", "x", "nan"};
+    for (int i = 0; i < 4; i++) {
+        const char *bad[] = {"train", "--data", dir, "--near-uniform", bad_uniform[i], NULL};
         CHECK_INT(run(cmd_train, bad), 2);
     }
     /* A checkpoint folder that cannot be made is refused before any training. */
