@@ -194,10 +194,12 @@ static int sample_table(sample_set *s, sample_set *near, const ns_train_options 
      * albedo it holds under 1% of the table's energy, so the energy-proportional half above
      * barely sees it, and the fit's error there (10% and more) is what such objects show.
      * A share near_uniform of them goes uniformly over the near cells instead, dim directions
-     * as much as bright ones (the shape that a boundary correction's differences read). */
+     * as much as bright ones (the shape that a boundary correction's differences read).
+     * Without it no number is drawn for the choice, so the draws stay those of before the
+     * option (the committed weights' recorded commands). */
     for (uint32_t i = 0; i < k_near && sum_near > 0; i++) {
         size_t cell = cells;
-        if (uniform01(rng) < o->near_uniform)
+        if (o->near_uniform > 0 && uniform01(rng) < o->near_uniform)
             cell = uniform_near_cell(tab, o->near_radius, rng);
         if (cell >= cells)
             cell = upper_bound(cdf_near, cells, uniform01(rng) * sum_near);
