@@ -148,7 +148,8 @@ static void test_cloud(void)
      * 256 spp): walks 0.975 to 1.005 (mean 0.988 / 0.985 / 0.995), exact tables 0.995 / 0.993
      * / 0.996, nn over them 0.992 / 0.992 / 1.000; pt itself moved by up to 1.7% between seeds
      * (against pt pooled over the six, walks 0.979 to 1.010). So pt takes 1,024 spp here and
-     * walks are held to issue 15's 3% per channel. */
+     * walks are held to issue 15's 3% per channel (seed 1: -0.4 / -0.7 / +0.4%; -0.7 / -1.0 /
+     * +0.1% with the double network fine-tuned the same day). */
     /* Multiple scattering alone: the VRLs read its table, the walks' sources double +
      * multiple. The render says so, and both tables come from one walk: the first test of
      * the program, so its render is what makes the second three's shader (docs/rendering.md,
@@ -259,7 +260,8 @@ static void test_slabs(void)
     /* Double scattering, where the correction shows: the thinnest slab (2026-12-03, three
      * seeds, each against its own pt; one channel stands for three, the order's shape being
      * the albedo's alone): walks +3.5 / +4.2 / +1.1%, off +22.3% (seed 1), exact tables -0.8 /
-     * -0.1 / -2.8%. At 2 and 8 mfp off reads +2.5% and +2.3% (as walks: +1.9 and +2.3%), the
+     * -0.1 / -2.8%; with the double network fine-tuned the same day, seed 1's walks +3.0 ->
+     * +1.6%. At 2 and 8 mfp off reads +2.5% and +2.3% (as walks: +1.9 and +2.3%), the
      * light's second event lying near the lit face: nothing there to tell them apart. */
     ns_scene s = slab_scene(0.5);
     means pt;
