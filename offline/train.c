@@ -147,8 +147,9 @@ static int cell_is_near(const ns_table *tab, size_t c, double radius)
     return z * z + rho * rho < radius * radius;
 }
 
-/* A cell drawn uniformly among those cell_is_near, by rejection (the near cells of the
- * training tables are a few per cent of them); the table's size when 10^5 draws found none. */
+/* A cell drawn uniformly among those cell_is_near, by rejection: in the grid's tables (128 z
+ * x 64 rho bins, sinh-spaced to 400 mfp) 3.3% of the cells lie within 1 mfp, 18% within 6,
+ * so a draw takes 6 to 30 tries. The table's size when 10^5 tries found none. */
 static size_t uniform_near_cell(const ns_table *tab, double radius, uint64_t *rng)
 {
     size_t cells = ns_table_size(tab);

@@ -253,6 +253,25 @@ static void test_init_from_weights(void)
     CHECK_INT(run(cmd_train, missing), 2);
 }
 
+/* The centres of write_table's cells nearest the source (test_near_samples_are_near), and
+ * the ring (0: rho bin 0, 1: rho bin 1) of the one within 8 of it that sample i of s sits at,
+ * or -1 when it is at none. */
+static const double rho_mid[2] = {10.0 / 6, 5.0}, z_mid[4] = {-7.5, -2.5, 2.5, 7.5};
+
+static int near_ring(const ns_train_samples *s, uint32_t i)
+{
+    const float *x = s->x + (size_t)i * NS_NN_INPUTS;
+    for (int r = 0; r < 2; r++)
+        for (int k = 0; k < 4; k++) {
+            float c[NS_NN_INPUTS];
+            ns_nn_normalise(&s->h, rho_mid[r], z_mid[k], 0, 0, 0, 0, c);
+            if (hypot(rho_mid[r], z_mid[k]) < 8 && fabsf(x[0] - c[0]) < 1e-6f &&
+                fabsf(x[1] - c[1]) < 1e-6f)
+                return r;
+        }
+    return -1;
+}
+
 /* The near-field samples themselves (through the loader `nscatter train` uses, on the tables
  * test_train_and_resume wrote: a = 0.5 and 0.9 trained, 0.8 held out). write_table's cells
  * are 5 long in z from -20 and 3.33 wide in rho; their centres within 8 of the source are
@@ -272,7 +291,6 @@ static void test_near_samples_are_near(void)
     CHECK_INT(ns_train_samples_load(&o, NS_ORDER_DOUBLE, &s), 0);
     CHECK_INT(s.regular, 1600);
     CHECK_INT(s.n, 2000);
-    const double rho_mid[2] = {10.0 / 6, 5.0}, z_mid[4] = {-7.5, -2.5, 2.5, 7.5};
     const int iz_of[4] = {2, 3, 4, 5};
     double weight[2] = {0, 0}; /* energy of the near cells with rho bin 0 and 1 */
     for (int r = 0; r < 2; r++)
@@ -282,22 +300,12 @@ static void test_near_samples_are_near(void)
                              (pow(20.0 * (r + 1) / 6, 2) - pow(20.0 * r / 6, 2));
     uint32_t outer = 0, unmatched = 0, far_regular = 0;
     for (uint32_t i = 0; i < s.n; i++) {
-        const float *x = s.x + (size_t)i * NS_NN_INPUTS;
-        int near = 0;
-        for (int r = 0; r < 2; r++)
-            for (int k = 0; k < 4; k++) {
-                float c[NS_NN_INPUTS];
-                ns_nn_normalise(&s.h, rho_mid[r], z_mid[k], 0, 0, 0, 0, c);
-                if (hypot(rho_mid[r], z_mid[k]) < 8 && fabsf(x[0] - c[0]) < 1e-6f &&
-                    fabsf(x[1] - c[1]) < 1e-6f) {
-                    near = 1;
-                    outer += i >= s.regular && r == 1;
-                }
-            }
-        if (i >= s.regular)
-            unmatched += !near;
-        else
-            far_regular += !near;
+        int ring = near_ring(&s, i);
+        if (i >= s.regular) {
+            unmatched += ring < 0;
+            outer += ring == 1;
+        } else
+            far_regular += ring < 0;
     }
     CHECK_INT(unmatched, 0);
     CHECK(far_regular > 800); /* the regular ones cover the whole table */
@@ -314,19 +322,9 @@ static void test_near_samples_are_near(void)
     CHECK_INT(s.n, 2000);
     outer = unmatched = 0;
     for (uint32_t i = s.regular; i < s.n; i++) {
-        const float *x = s.x + (size_t)i * NS_NN_INPUTS;
-        int near = 0;
-        for (int r = 0; r < 2; r++)
-            for (int k = 0; k < 4; k++) {
-                float c[NS_NN_INPUTS];
-                ns_nn_normalise(&s.h, rho_mid[r], z_mid[k], 0, 0, 0, 0, c);
-                if (hypot(rho_mid[r], z_mid[k]) < 8 && fabsf(x[0] - c[0]) < 1e-6f &&
-                    fabsf(x[1] - c[1]) < 1e-6f) {
-                    near = 1;
-                    outer += r == 1;
-                }
-            }
-        unmatched += !near;
+        int ring = near_ring(&s, i);
+        unmatched += ring < 0;
+        outer += ring == 1;
     }
     CHECK_INT(unmatched, 0);
     p = 1.0 / 3;
