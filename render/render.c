@@ -529,6 +529,10 @@ static int render_run(ns_context *ctx, const ns_scene *scene, const ns_render_co
                       ns_image *out, ns_render_stats *stats, ns_render_debug *debug,
                       ns_error *err)
 {
+    /* This render's figures alone, whatever the struct held (the counts and stages add up
+     * inside a render, and a caller may hand the same struct to every render). */
+    if (stats)
+        memset(stats, 0, sizeof *stats);
     if (!out)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "ns_render: out is NULL");
     memset(out, 0, sizeof *out);

@@ -36,7 +36,17 @@ typedef struct ns_table_key {
     uint32_t orders;      /* NS_COMPONENT_DOUBLE and/or NS_COMPONENT_MULTIPLE (summed) */
     ns_accumulation accumulation; /* exact: A to infinity; paper: A over 5 mfp */
     ns_tables_mode tables;        /* exact, or blended from albedo nodes (nn only) */
+    /* Where A is read (ns_table_reach_bins): a render reads it only between points of its
+     * medium's objects, so cells beyond need no walk; 0 (or NS_TABLE_NRHO): every cell. A
+     * cached table that reaches as far or farther serves the key. */
+    uint32_t reach_bins;
 } ns_table_key;
+
+/* The table bins (each side of the source's plane in z, and in rho from the axis) that hold
+ * every cell the gather reads for points up to reach_mfp apart (mfp, in |z| and in rho), with
+ * a margin: NS_TABLE_NRHO (every cell) at or beyond the table's extent, or for a reach that
+ * is not a number. */
+uint32_t ns_table_reach_bins(double reach_mfp);
 
 typedef struct ns_scatter_tables {
     gpu_buffer a;      /* float [3][NS_TABLE_CELLS]: A per channel, mfp units */
@@ -112,10 +122,13 @@ int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation
 /* The same with the second three walked beside the three (shaders/accumulate_shared.h):
  * second_j float [3][NS_TABLE_CELLS], their A created in *second_out (both NULL: none). Each
  * set comes out as its own accumulation would make it, bit for bit; steps counts the bins of
- * the one walk, which lasts as long as its longer set. */
+ * the one walk, which lasts as long as its longer set. Only the cells within reach_bins
+ * (ns_table_reach_bins; NS_TABLE_NRHO: all) are walked, each as in the whole table, bit for
+ * bit; the others are 0. */
 int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
-                               ns_accumulation accumulation, ns_scatter_tables *out,
-                               ns_scatter_tables *second_out, uint64_t *steps, ns_error *err);
+                               ns_accumulation accumulation, uint32_t reach_bins,
+                               ns_scatter_tables *out, ns_scatter_tables *second_out,
+                               uint64_t *steps, ns_error *err);
 void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t);
 /* A copy of t's A (float [3][NS_TABLE_CELLS]) in out, read through a host-cached buffer
  * where t's own mapping is not host-cached (a discrete GPU's device memory: reading it

@@ -1226,7 +1226,54 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
     return 0;
 }
 
-static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32_t orders, ns_table_key *key)
+/* The diagonal of the bounds of the objects of material m (scene units), grown on each
+ * side by ten ray offsets (common.glsl, ray_epsilon) for hit points a hair outside;
+ * INFINITY where one of them is unbounded (a plane) or none is found. The gather reads a
+ * medium's table only at the offset between two points of those bounds: a source's origin
+ * (where light enters the medium, scatters in it or meets its boundary) and a camera
+ * segment's ends. */
+static double medium_diameter(const ns_scene *scene, uint32_t m)
+{
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t i = 0; i < scene->object_count; i++) {
+        const ns_object *o = &scene->objects[i];
+        if (o->material != m)
+            continue;
+        if (o->shape == NS_SHAPE_SPHERE) {
+            for (int k = 0; k < 3; k++) {
+                lo[k] = fmin(lo[k], (double)o->center[k] - o->radius);
+                hi[k] = fmax(hi[k], (double)o->center[k] + o->radius);
+            }
+        } else if (o->shape == NS_SHAPE_BOX) {
+            for (int k = 0; k < 3; k++) {
+                lo[k] = fmin(lo[k], o->min[k]);
+                hi[k] = fmax(hi[k], o->max[k]);
+            }
+        } else if (o->shape == NS_SHAPE_MESH) {
+            for (uint32_t t = o->first_triangle; t < o->first_triangle + o->triangle_count; t++)
+                for (int v = 0; v < 3; v++)
+                    for (int k = 0; k < 3; k++) {
+                        lo[k] = fmin(lo[k], scene->triangles[t].v[v][k]);
+                        hi[k] = fmax(hi[k], scene->triangles[t].v[v][k]);
+                    }
+        } else {
+            return INFINITY;
+        }
+    }
+    if (!(lo[0] <= hi[0]))
+        return INFINITY; /* no object of m */
+    double size = 1.0, squared = 0.0;
+    for (int k = 0; k < 3; k++)
+        size = fmax(size, fmax(fabs(lo[k]), fabs(hi[k])));
+    for (int k = 0; k < 3; k++) {
+        double span = hi[k] - lo[k] + 2e-3 * size;
+        squared += span * span;
+    }
+    return sqrt(squared);
+}
+
+static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32_t material,
+                             uint32_t orders, ns_table_key *key)
 {
     memset(key, 0, sizeof *key);
     key->source = scene->render.method;
@@ -1236,6 +1283,8 @@ static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32
     key->orders = orders;
     key->accumulation = scene->render.accumulation;
     key->tables = scene->render.tables;
+    double densest = fmax(m->sigma_t[0], fmax(m->sigma_t[1], m->sigma_t[2]));
+    key->reach_bins = ns_table_reach_bins(medium_diameter(scene, material) * densest);
 }
 
 /* What the table and dipole methods gather from, kept across the rounds of an adaptive
@@ -1480,7 +1529,7 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
     int status = NS_OK;
     if (!dipole && table_orders) {
         ns_table_key key;
-        ns_table_key_for(mat, scene, table_orders, &key);
+        ns_table_key_for(mat, scene, m, table_orders, &key);
         ns_table_stats ts = {0};
         /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks the
          * tables. */

@@ -176,12 +176,33 @@ typedef struct accumulate_parts {
     ns_scatter_tables *second_out;
 } accumulate_parts;
 
+/* The cells an accumulation within reach_bins walks (accumulate_shared.h, reach). */
+static uint32_t walked_cells(uint32_t reach_bins)
+{
+    return 2u * reach_bins * reach_bins * NS_TABLE_NTHETA * NS_TABLE_NPHI;
+}
+
+uint32_t ns_table_reach_bins(double reach_mfp)
+{
+    ns_table_grid grid;
+    ns_table_grid_default(&grid);
+    if (!(reach_mfp >= 0.0 && reach_mfp < grid.extent))
+        return NS_TABLE_NRHO;
+    /* A point at distance d <= reach (in |z| or in rho) sits at the continuous index
+     * asinh(d / scale) / step - 0.5 from the source's bin edge, and the gather's reads take
+     * the bin below and the one above it (gather.glsl, table_at): within ceil(q) + 1 bins of
+     * the source's plane and the axis. Two more bins stand for rounding. */
+    double q = asinh(reach_mfp / grid.scale) / grid.step;
+    double bins = ceil(q) + 3.0;
+    return bins < NS_TABLE_NRHO ? (uint32_t)bins : NS_TABLE_NRHO;
+}
+
 /* j_max: the three channels ([0..2]) and the second three ([3..5]); each set's J is 0 from
  * its own rho bin (*zero_from). */
 static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const float j_max[6],
                                              const accumulate_parts *parts,
                                              ns_accumulation accumulation, uint32_t zero_from,
-                                             uint32_t second_zero_from)
+                                             uint32_t second_zero_from, uint32_t reach_bins)
 {
     GpuAccumulateParams p;
     memset(&p, 0, sizeof p);
@@ -196,7 +217,8 @@ static GpuAccumulateParams accumulate_params(const ns_table_grid *grid, const fl
     p.cut[0] = CUT_RELATIVE;
     p.cut[1] = CUT_FLOOR;
     p.cut[2] = accumulation == NS_ACCUMULATION_PAPER ? (float)NS_PAPER_ACCUMULATION_MFP : 0.0f;
-    p.counts[0] = NS_TABLE_CELLS;
+    p.reach[0] = reach_bins;
+    p.counts[0] = walked_cells(reach_bins);
     p.counts[1] = zero_from;
     p.counts[2] = NS_ACCUMULATE_STEP_CAP;
     return p;
@@ -216,18 +238,18 @@ static void set_default_grid(ns_scatter_tables *t, uint64_t bytes)
 }
 
 static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], int second,
-                               ns_error *err)
+                               uint32_t cells, ns_error *err)
 {
     gpu_pipeline *pipeline;
     int status = ns_pipeline(ctx, second ? NS_PIPELINE_ACCUMULATE_SECOND : NS_PIPELINE_ACCUMULATE,
                              &pipeline, NULL, err);
     if (status)
         return status;
-    uint32_t dispatches = (NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH;
+    uint32_t dispatches = (cells + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH;
     GpuAccumulatePush push[(NS_TABLE_CELLS + CELLS_PER_DISPATCH - 1) / CELLS_PER_DISPATCH];
     for (uint32_t i = 0; i < dispatches; i++) {
         uint32_t first = i * CELLS_PER_DISPATCH;
-        uint32_t n = NS_TABLE_CELLS - first;
+        uint32_t n = cells - first;
         push[i] = (GpuAccumulatePush){
             .first_cell = first, .cell_count = n < CELLS_PER_DISPATCH ? n : CELLS_PER_DISPATCH};
     }
@@ -249,40 +271,41 @@ static int dispatch_accumulate(ns_context *ctx, gpu_buffer *bound[B_COUNT], int 
 }
 
 static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
-                      ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
-                      ns_scatter_tables *out, uint64_t *steps, ns_error *err);
+                      ns_accumulation accumulation, uint32_t zero_from, uint32_t reach_bins,
+                      int a_host_reads, ns_scatter_tables *out, uint64_t *steps, ns_error *err);
 
 int ns_tables_accumulate(ns_context *ctx, const float *j, ns_accumulation accumulation,
                          ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0,
-                      out, steps, err);
+    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+                      NS_TABLE_NRHO, 0, out, steps, err);
 }
 
 int ns_tables_accumulate_for_host(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                   ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
-    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 1,
-                      out, steps, err);
+    return accumulate(ctx, j, NULL, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+                      NS_TABLE_NRHO, 1, out, steps, err);
 }
 
 int ns_tables_accumulate_within(ns_context *ctx, const float *j, ns_accumulation accumulation,
                                 uint32_t zero_from, ns_scatter_tables *out, uint64_t *steps,
                                 ns_error *err)
 {
-    return accumulate(ctx, j, NULL, accumulation, zero_from, 0, out, steps, err);
+    return accumulate(ctx, j, NULL, accumulation, zero_from, NS_TABLE_NRHO, 0, out, steps, err);
 }
 
 int ns_tables_accumulate_parts(ns_context *ctx, const float *j, const float *second_j,
-                               ns_accumulation accumulation, ns_scatter_tables *out,
-                               ns_scatter_tables *second_out, uint64_t *steps, ns_error *err)
+                               ns_accumulation accumulation, uint32_t reach_bins,
+                               ns_scatter_tables *out, ns_scatter_tables *second_out,
+                               uint64_t *steps, ns_error *err)
 {
     if (!second_j != !second_out)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT,
                        "accumulate: the second three need their J and their A");
     accumulate_parts parts = {.second_j = second_j, .second_out = second_out};
-    return accumulate(ctx, j, &parts, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO, 0, out,
-                      steps, err);
+    return accumulate(ctx, j, &parts, accumulation, j ? zero_from_rho(j, 3) : NS_TABLE_NRHO,
+                      reach_bins, 0, out, steps, err);
 }
 
 /* J's texels (accumulate_shared.h): cell i of the three planes of j (float [3][cells]) as
@@ -343,8 +366,8 @@ static void remainder_bounds(float (*texel)[4], const float *j)
 
 /* j: float [3][cells]; parts (may be NULL): what the same walk makes beside it. */
 static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *parts,
-                      ns_accumulation accumulation, uint32_t zero_from, int a_host_reads,
-                      ns_scatter_tables *out, uint64_t *steps, ns_error *err)
+                      ns_accumulation accumulation, uint32_t zero_from, uint32_t reach_bins,
+                      int a_host_reads, ns_scatter_tables *out, uint64_t *steps, ns_error *err)
 {
     const float *second_j = parts ? parts->second_j : NULL;
     memset(out, 0, sizeof *out);
@@ -353,6 +376,9 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
     if (zero_from > NS_TABLE_NRHO)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: rho bin %u beyond the grid's %u",
                        zero_from, NS_TABLE_NRHO);
+    if (reach_bins < 1 || reach_bins > NS_TABLE_NRHO)
+        return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "accumulate: reach of %u bins outside 1 to %u",
+                       reach_bins, NS_TABLE_NRHO);
     if (accumulation != NS_ACCUMULATION_EXACT && accumulation != NS_ACCUMULATION_PAPER)
         return ns_fail(err, NS_ERR_INVALID_ARGUMENT, "render.accumulation: %d unknown",
                        (int)accumulation);
@@ -367,8 +393,11 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
     channel_max(j, 3, j_max);
     if (second_j)
         channel_max(second_j, 3, j_max + 3);
-    GpuAccumulateParams params = accumulate_params(&grid, j_max, parts, accumulation, zero_from,
-                                                   second_j ? zero_from_rho(second_j, 3) : 0);
+    GpuAccumulateParams params =
+        accumulate_params(&grid, j_max, parts, accumulation, zero_from,
+                          second_j ? zero_from_rho(second_j, 3) : 0, reach_bins);
+    /* Cells beyond the reach are not walked: they hold zeros. */
+    int every_cell = reach_bins == NS_TABLE_NRHO;
     int all_zero = 1;
     for (int c = 0; c < 6; c++)
         all_zero = all_zero && j_max[c] == 0.0f;
@@ -393,14 +422,14 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
         [B_J] = {.size = j_bytes, .uninitialized = 1, .label = "ns.accumulate.j"},
         /* A J of zeros (every albedo 0) needs no walk: A is the zeroed buffer. */
         [B_A] = {.size = table_bytes,
-                 .uninitialized = !all_zero,
+                 .uninitialized = !all_zero && every_cell,
                  .host_reads = a_host_reads,
                  .label = "ns.tables.a"},
         [B_COUNTERS] = {.size = NS_ACCUMULATE_COUNTER_COUNT * sizeof(uint32_t),
                         .label = "ns.accumulate.counters"},
         /* A table of its own, as the three's: a word stands in without the second three. */
         [B_SECOND] = {.size = second_j ? table_bytes : sizeof(float),
-                      .uninitialized = second_j && !all_zero,
+                      .uninitialized = second_j && !all_zero && every_cell,
                       .host_reads = a_host_reads,
                       .label = second_j ? "ns.tables.a" : "ns.accumulate.second"},
     };
@@ -417,7 +446,7 @@ static int accumulate(ns_context *ctx, const float *j, const accumulate_parts *p
     if (!status && !all_zero) {
         gpu_buffer *bound[B_COUNT] = {&own[B_PARAMS], &own[B_J], &own[B_A], &own[B_COUNTERS],
                                       &own[B_SECOND]};
-        status = dispatch_accumulate(ctx, bound, second_j != NULL, err);
+        status = dispatch_accumulate(ctx, bound, second_j != NULL, params.counts[0], err);
     }
     if (!status) {
         const uint32_t *c = own[B_COUNTERS].mapped;
@@ -454,6 +483,7 @@ void ns_scatter_tables_free(ns_context *ctx, ns_scatter_tables *t)
 /* ---------------------------------------------------------------------------------------
  * Cache
  * ------------------------------------------------------------------------------------- */
+/* The same material, orders and modes (reach aside: find_a). */
 static int same_key(const ns_table_key *a, const ns_table_key *b)
 {
     return a->source == b->source && a->g == b->g && a->albedo[0] == b->albedo[0] &&
@@ -461,11 +491,19 @@ static int same_key(const ns_table_key *a, const ns_table_key *b)
            a->accumulation == b->accumulation && a->tables == b->tables;
 }
 
+static uint32_t key_reach(const ns_table_key *key)
+{
+    return key->reach_bins && key->reach_bins < NS_TABLE_NRHO ? key->reach_bins : NS_TABLE_NRHO;
+}
+
+/* The A of key's material, orders and modes that reaches at least as far as key asks. */
 static cache_entry *find_a(struct ns_table_cache *cache, const ns_table_key *key)
 {
-    for (uint32_t i = 0; i < cache->count; i++)
-        if (cache->entries[i].kind == ENTRY_A && same_key(&cache->entries[i].key, key))
-            return &cache->entries[i];
+    for (uint32_t i = 0; i < cache->count; i++) {
+        cache_entry *e = &cache->entries[i];
+        if (e->kind == ENTRY_A && same_key(&e->key, key) && key_reach(&e->key) >= key_reach(key))
+            return e;
+    }
     return NULL;
 }
 
@@ -546,22 +584,22 @@ static cache_entry *insert(struct ns_table_cache *cache, const cache_entry *e)
  * Returns keep's new address (entries move when others are removed). */
 static cache_entry *evict(ns_context *ctx, struct ns_table_cache *cache, cache_entry *keep)
 {
-    ns_table_key kept_key = keep->key;
+    uint32_t kept = (uint32_t)(keep - cache->entries);
     while (cache->bytes > ctx->table_cache_bytes) {
         uint32_t oldest = UINT32_MAX;
         for (uint32_t i = 0; i < cache->count; i++) {
-            const cache_entry *e = &cache->entries[i];
-            if (e == keep)
+            if (i == kept)
                 continue;
-            if (oldest == UINT32_MAX || e->last_use < cache->entries[oldest].last_use)
+            if (oldest == UINT32_MAX || cache->entries[i].last_use < cache->entries[oldest].last_use)
                 oldest = i;
         }
         if (oldest == UINT32_MAX)
             break;
         remove_entry(ctx, cache, oldest);
-        keep = find_a(cache, &kept_key);
+        if (kept == cache->count) /* the last entry, moved into the slot removed */
+            kept = oldest;
     }
-    return keep;
+    return &cache->entries[kept];
 }
 
 void ns_tables_cache_usage(const ns_context *ctx, uint64_t *bytes, uint32_t *entries)
@@ -1105,7 +1143,8 @@ static uint64_t table_code_hash(void)
     const float no_j[6] = {0};
     for (int mode = 0; mode < 2; mode++) {
         GpuAccumulateParams p =
-            accumulate_params(&grid, no_j, NULL, (ns_accumulation)mode, NS_TABLE_NRHO, 0);
+            accumulate_params(&grid, no_j, NULL, (ns_accumulation)mode, NS_TABLE_NRHO, 0,
+                              NS_TABLE_NRHO);
         h = fnv_bytes(h, &p, sizeof p);
     }
     ns_nn_sampling sampling = ns_nn_sampling_default();
@@ -1802,6 +1841,7 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
     float *j = NULL, *second_j = NULL;
     if (key->tables == NS_TABLES_INTERPOLATED) {
         status = interpolate_table(ctx, key, &e.a, stats, err);
+        e.key.reach_bins = NS_TABLE_NRHO; /* a blend fills every cell */
     } else {
         int paired = companion_key(ctx, key, &second.key);
         status = ensure_j(ctx, key, stats, err);
@@ -1812,8 +1852,9 @@ int ns_tables_get(ns_context *ctx, const ns_table_key *key, const ns_scatter_tab
         if (!status) {
             ns_stage stage = ns_stage_begin(ctx, "accumulate", 0.5, 1.0);
             /* The companion's A on the same walk (accumulate_shared.h, the second three). */
-            status = ns_tables_accumulate_parts(ctx, j, second_j, key->accumulation, &e.a,
-                                                paired ? &second.a : NULL, NULL, err);
+            status = ns_tables_accumulate_parts(ctx, j, second_j, key->accumulation,
+                                                key_reach(key), &e.a, paired ? &second.a : NULL,
+                                                NULL, err);
             stats->accumulate_ms = ns_stage_end(ctx, &stage);
             stats->accumulated = 1;
         }

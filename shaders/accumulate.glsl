@@ -268,11 +268,13 @@ void main()
     uint order = push.first_cell + gl_GlobalInvocationID.x;
     if (gl_GlobalInvocationID.x >= push.cell_count || order >= params.counts.x)
         return;
-    uint rest = order;
-    int iz = int(rest % NS_TABLE_NZ);
-    rest /= NS_TABLE_NZ;
-    int ir = int(rest % NS_TABLE_NRHO);
-    rest /= NS_TABLE_NRHO;
+    // The cells walked: the z bins within reach.x of the source's plane and the rho bins
+    // below it (every cell when it is NRHO), z fastest.
+    uint reach = params.reach.x, rest = order;
+    int iz = int(rest % (2u * reach)) + NZ / 2 - int(reach);
+    rest /= 2u * reach;
+    int ir = int(rest % reach);
+    rest /= reach;
     int it = int(rest % NS_TABLE_NTHETA);
     int ip = int(rest / NS_TABLE_NTHETA);
     uint cell = ((uint(iz) * NS_TABLE_NRHO + uint(ir)) * NS_TABLE_NTHETA + uint(it)) *

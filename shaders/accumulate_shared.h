@@ -41,7 +41,7 @@ struct GpuAccumulateParams {
     ns_vec4 j_max;   /* xyz: the largest J of each channel's table (sets the cut's floor), w 0 */
     ns_vec4 cut;     /* x = relative error allowed for the remainder, y = floor relative to
                         j_max (see accumulate.comp), z = fixed length (mfp, paper mode) or 0 */
-    ns_uvec4 counts; /* x = cells (0: the warm-up, return at once), y = the rho bin from
+    ns_uvec4 counts; /* x = cells walked (0: the warm-up, return at once), y = the rho bin from
                         which J is 0 in every channel and cell (NS_TABLE_NRHO: none; a line
                         that never comes inside it meets only zeros, accumulate.comp),
                         z = step cap per cell, w = the texel of J's buffer where the
@@ -49,6 +49,11 @@ struct GpuAccumulateParams {
     ns_vec4 second_j_max; /* xyz: the largest J of each channel of the second three (below) */
     ns_uvec4 second;      /* x = 0 (none), or 1 + the rho bin from which their J is 0; y = the
                              texel where their remainder bounds begin; zw 0 */
+    ns_uvec4 reach;       /* x = k: the cells walked are those of the z bins NZ / 2 - k to
+                             NZ / 2 + k - 1 and the rho bins 0 to k - 1 (k = NS_TABLE_NRHO:
+                             every cell); the others are left as they are (zeroed by the C
+                             side). A render's table is read only within its media's size
+                             (render/scatter.h, ns_table_key.reach_bins); yzw 0 */
 };
 
 /* The second three (shaders/accumulate_second.comp). A render may ask for two tables of
@@ -123,7 +128,7 @@ NS_CONST(uint, NS_ACCUMULATE_COUNTER_COUNT, 4);
 #if defined(__STDC__) || defined(__cplusplus)
 typedef struct GpuAccumulateParams GpuAccumulateParams;
 typedef struct GpuAccumulatePush GpuAccumulatePush;
-_Static_assert(sizeof(GpuAccumulateParams) == 96, "GpuAccumulateParams std140 size");
+_Static_assert(sizeof(GpuAccumulateParams) == 112, "GpuAccumulateParams std140 size");
 _Static_assert(sizeof(GpuAccumulatePush) == 16, "GpuAccumulatePush size");
 #endif
 

@@ -10,7 +10,9 @@
  *   (d) the cache: a second call is a hit with no reconstruction, other components reuse J,
  *       eviction keeps the byte bound; bad keys are refused naming the field;
  *   (e) a plane of beams: A read as the gather reads it, averaged over where the beams start,
- *       equals the binned J's integral along the camera line.
+ *       equals the binned J's integral along the camera line;
+ *   (f) a walk within a reach (ns_table_key.reach_bins): its cells bit for bit the whole
+ *       walk's, the others 0; the reach holds every cell the gather reads up to that distance.
  * Validation layers on (NSCATTER_VALIDATION=1). */
 #include "accumulate_shared.h"
 #include "gpu_util.h"
@@ -1086,8 +1088,45 @@ static void bench(int n)
            median(synth, n), median(cpu, n), median(rate, n));
 }
 
+/* ns_table_reach_bins against the gather's reads (gather.glsl, table_at, in the same float
+ * arithmetic): every point up to the reach in |z| and in rho, at either side of the source's
+ * plane, reads bins inside it, with at most three spare bins beyond; a reach at or past the
+ * table's extent, infinite or not a number takes every cell. */
+static void test_reach_bins(void)
+{
+    const float scale = (float)grid.scale, inv_step = (float)(1.0 / grid.step);
+    const double reaches[] = {0.0, 1e-3, 0.05, 1.0, 2.86, 7.5, 17.9, 60.0, 250.0};
+    for (size_t r = 0; r < sizeof reaches / sizeof reaches[0]; r++) {
+        uint32_t k = ns_table_reach_bins(reaches[r]);
+        CHECK(k >= 1 && k <= NS_TABLE_NRHO);
+        int outside = 0, top_read = 0;
+        for (int n = 0; n <= 1000; n++) {
+            float d = (float)(reaches[r] * (n == 1000 ? 1.0 : uniform01()));
+            float fr = asinhf(d / scale) * inv_step - 0.5f;
+            fr = fr < 0.0f ? 0.0f : fr;
+            int ir = (int)fr < NS_TABLE_NRHO - 2 ? (int)fr : NS_TABLE_NRHO - 2;
+            top_read = ir + 1 > top_read ? ir + 1 : top_read;
+            outside += (uint32_t)(ir + 1) >= k && k < NS_TABLE_NRHO;
+            for (int side = -1; side <= 1; side += 2) {
+                float fz = asinhf(side * d / scale) * inv_step + ((float)(NS_TABLE_NZ / 2) - 0.5f);
+                fz = fz < 0.0f ? 0.0f : fz > NS_TABLE_NZ - 1 ? (float)(NS_TABLE_NZ - 1) : fz;
+                int iz = (int)fz < NS_TABLE_NZ - 2 ? (int)fz : NS_TABLE_NZ - 2;
+                outside += k < NS_TABLE_NRHO &&
+                           (iz < (int)(NS_TABLE_NZ / 2 - k) || iz + 1 >= (int)(NS_TABLE_NZ / 2 + k));
+            }
+        }
+        CHECK_INT(outside, 0);
+        CHECK((int)k - 1 - top_read <= 3 || k == NS_TABLE_NRHO); /* spare bins beyond the reads */
+        printf("reach %g mfp: %u bins (the reads' top rho bin %d)\n", reaches[r], k, top_read);
+    }
+    CHECK_INT(ns_table_reach_bins(grid.extent), NS_TABLE_NRHO);
+    CHECK_INT(ns_table_reach_bins(INFINITY), NS_TABLE_NRHO);
+    CHECK_INT(ns_table_reach_bins(NAN), NS_TABLE_NRHO);
+    CHECK_INT(ns_table_reach_bins(-1.0), NS_TABLE_NRHO);
+}
+
 /* A of j and of second (3 channels each), each walked alone, against both walked together
- * (ns_tables_accumulate_parts): the same floats, bit for bit. */
+ * (ns_tables_accumulate_parts): the same floats, bit for bit; and walked within a reach. */
 static void compare_parts(const float *j, const float *second, ns_accumulation mode, const char *what)
 {
     ns_context *ctx = test_context();
@@ -1096,7 +1135,7 @@ static void compare_parts(const float *j, const float *second, ns_accumulation m
     uint64_t steps_table = 0, steps_second = 0, steps_together = 0;
     CHECK_INT(ns_tables_accumulate(ctx, j, mode, &table, &steps_table, &err), NS_OK);
     CHECK_INT(ns_tables_accumulate(ctx, second, mode, &second_alone, &steps_second, &err), NS_OK);
-    int status = ns_tables_accumulate_parts(ctx, j, second, mode, &together, &second_together,
+    int status = ns_tables_accumulate_parts(ctx, j, second, mode, NS_TABLE_NRHO, &together, &second_together,
                                             &steps_together, &err);
     CHECK_INT(status, NS_OK);
     if (!status) {
@@ -1111,6 +1150,45 @@ static void compare_parts(const float *j, const float *second, ns_accumulation m
         ns_scatter_tables_free(ctx, &together);
         ns_scatter_tables_free(ctx, &second_together);
     }
+    /* Within a reach (ns_table_key.reach_bins): its cells as the whole walk makes them, bit
+     * for bit, the others 0, in fewer steps. */
+    const uint32_t reach = 20;
+    uint64_t steps_within = 0;
+    status = ns_tables_accumulate_parts(ctx, j, second, mode, reach, &together, &second_together,
+                                        &steps_within, &err);
+    CHECK_INT(status, NS_OK);
+    if (!status) {
+        size_t differ = 0, inside = 0, nonzero_outside = 0;
+        for (int part = 0; part < 2; part++) {
+            const float *whole = part ? second_alone.a.mapped : table.a.mapped;
+            const float *within = part ? second_together.a.mapped : together.a.mapped;
+            for (size_t i = 0; i < 3 * cells; i++) {
+                size_t cell = i % cells, ir = cell / (NS_TABLE_NTHETA * NS_TABLE_NPHI) % NS_TABLE_NRHO;
+                size_t iz = cell / ((size_t)NS_TABLE_NRHO * NS_TABLE_NTHETA * NS_TABLE_NPHI);
+                if (ir < reach && iz + reach >= NS_TABLE_NZ / 2 && iz < NS_TABLE_NZ / 2 + reach) {
+                    inside++;
+                    differ += memcmp(&whole[i], &within[i], sizeof(float)) != 0;
+                } else {
+                    nonzero_outside += within[i] != 0.0f;
+                }
+            }
+        }
+        CHECK_INT(inside, 2 * 3 * (size_t)2 * reach * reach * NS_TABLE_NTHETA * NS_TABLE_NPHI);
+        CHECK_INT(differ, 0);
+        CHECK_INT(nonzero_outside, 0);
+        CHECK(steps_within < steps_together);
+        printf("  within %u bins: %zu cells as the whole walk's, the rest 0; %llu steps\n", reach,
+               inside / 6, (unsigned long long)steps_within);
+        ns_scatter_tables_free(ctx, &together);
+        ns_scatter_tables_free(ctx, &second_together);
+    }
+    ns_error bad = {0};
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, second, mode, 0, &together, &second_together, NULL,
+                                         &bad),
+              NS_ERR_INVALID_ARGUMENT);
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, second, mode, NS_TABLE_NRHO + 1, &together,
+                                         &second_together, NULL, &bad),
+              NS_ERR_INVALID_ARGUMENT);
     ns_scatter_tables_free(ctx, &table);
     ns_scatter_tables_free(ctx, &second_alone);
 }
@@ -1135,11 +1213,11 @@ static void test_second_three_ride_along(void)
     float *bad3 = malloc(3 * cells * sizeof(float));
     memcpy(bad3, j, 3 * cells * sizeof(float));
     bad3[2 * cells + 7] = INFINITY;
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, bad3, NS_ACCUMULATION_EXACT, &t, &t2, NULL, &err),
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, bad3, NS_ACCUMULATION_EXACT, NS_TABLE_NRHO, &t, &t2, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(err.message, "J table") != NULL);
     free(bad3);
-    CHECK_INT(ns_tables_accumulate_parts(ctx, j, tube3, NS_ACCUMULATION_EXACT, &t, NULL, NULL, &err),
+    CHECK_INT(ns_tables_accumulate_parts(ctx, j, tube3, NS_ACCUMULATION_EXACT, NS_TABLE_NRHO, &t, NULL, NULL, &err),
               NS_ERR_INVALID_ARGUMENT);
     CHECK(strstr(err.message, "second three") != NULL);
     CHECK_INT(ns_tables_accumulate(ctx, NULL, NS_ACCUMULATION_EXACT, &t, NULL, &err),
@@ -1209,6 +1287,7 @@ int main(void)
     RUN(test_radial_support_skips_walks);
     RUN(test_remainder_bounds_stop_dark_lines);
     RUN(test_second_three_ride_along);
+    RUN(test_reach_bins);
     RUN(test_network_tables_brute_force);
     RUN(test_double_from_one_table_per_g);
     RUN(test_cache_hit_and_eviction);

@@ -14,6 +14,8 @@
  *     a cancellation; a table whose accumulation was cancelled is made again, not taken from
  *     the cache;
  *   - reuse: tables_made then tables_reused for a material, nothing made the second time;
+ *     a table walked only within its medium's reach gives the image a table of every cell
+ *     gives, bit for bit, and is not taken for a scene that reaches farther;
  *     bvh_reused 0, then 1 for the same geometry with other materials (images equal to a
  *     render that built its BVH), 0 after a geometry change; camera_reused 1 for another
  *     albedo and g at the same extinction (the image equal, bit for bit, to a render that
@@ -472,6 +474,80 @@ static void test_tables_counted(void)
         CHECK_INT(second.tables_reused, 1); /* A, found whole */
     }
     ns_image_free(&img);
+}
+
+/* The medium sphere of nn_scene with a box of the same medium beside it (light leaves one
+ * and enters the other: the gather reads the table across both), double and multiple
+ * scattering alone; with far_away also a small sphere of the medium behind the camera,
+ * some 800 mean free paths off, which takes the medium's table to its whole extent. */
+static ns_object reach_objs[4];
+
+static ns_scene reach_scene(int far_away)
+{
+    ns_scene s = nn_scene();
+    s.render.components = NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE;
+    reach_objs[0] = objs[0];
+    reach_objs[1] = objs[1];
+    memset(&reach_objs[2], 0, sizeof reach_objs[2]);
+    reach_objs[2].shape = NS_SHAPE_BOX;
+    set3(reach_objs[2].min, 1.2, -0.8, -0.6);
+    set3(reach_objs[2].max, 2.0, 0.2, 0.4);
+    reach_objs[2].material = 1;
+    reach_objs[3] = sphere(0, 0, 200, 0.5, 1);
+    s.objects = reach_objs;
+    s.object_count = far_away ? 4 : 3;
+    return s;
+}
+
+/* A render walks its table's cells only within its medium's reach (ns_table_key.reach_bins):
+ * the image is the same, bit for bit, as with a table of every cell (made for the same
+ * medium with an object far away, on another context, and found there in the cache); a
+ * table that reaches too short is not taken for a larger scene, one that reaches farther is. */
+static void test_tables_reach(void)
+{
+    ns_context *near_first = NULL, *far_first = NULL;
+    ns_error err = {0};
+    if (ns_context_create(&(ns_context_desc){0}, &near_first, &err) ||
+        ns_context_create(&(ns_context_desc){0}, &far_first, &err)) {
+        fprintf(stderr, "ns_context_create: %s\n", err.message);
+        CHECK(0);
+        ns_context_destroy(near_first);
+        return;
+    }
+    ns_scene near = reach_scene(0), far = reach_scene(1);
+    ns_image own = {0}, whole = {0}, again = {0}, far_img = {0};
+    ns_render_stats stats; /* one struct for every render: each clears it (ns_render) */
+    double ms;
+    /* near, then far: far's table reaches farther, so it is walked again (its J is kept). */
+    if (plain(near_first, &near, &own, &stats))
+        CHECK(stats.tables_made >= 2); /* J, A */
+    if (plain(near_first, &far, &far_img, &stats)) {
+        CHECK_INT(stats.tables_made, 1); /* A alone: near's reaches too short */
+        CHECK(is_stats_stage(&stats, "accumulate", &ms));
+    }
+    /* ... and near again takes one of the two. */
+    if (plain(near_first, &near, &again, &stats)) {
+        CHECK_INT(stats.tables_made, 0);
+        CHECK(same_image(&own, &again));
+    }
+    ns_image_free(&again);
+    ns_image_free(&far_img);
+    /* far, then near: near takes far's table of every cell, and its image is near's own. */
+    plain(far_first, &far, &far_img, NULL);
+    if (plain(far_first, &near, &whole, &stats)) {
+        CHECK_INT(stats.tables_made, 0);
+        CHECK(!is_stats_stage(&stats, "accumulate", &ms));
+        CHECK(same_image(&own, &whole));
+    }
+    double mean_own = 0;
+    for (uint32_t i = 0; own.rgb && i < 3u * own.width * own.height; i++)
+        mean_own += own.rgb[i];
+    CHECK(mean_own > 0); /* something was gathered */
+    ns_image_free(&own);
+    ns_image_free(&whole);
+    ns_image_free(&far_img);
+    ns_context_destroy(near_first);
+    ns_context_destroy(far_first);
 }
 
 /* Three diffuse objects and the medium sphere: a BVH of four primitives. */
@@ -1124,6 +1200,7 @@ int main(void)
     RUN(test_nn_cancel_at_first_single_tick);
     RUN(test_nn_cancel_at_first_gather_tick);
     RUN(test_tables_counted);
+    RUN(test_tables_reach);
     RUN(test_bvh_reused);
     RUN(test_camera_reused);
     RUN(test_single_reused);

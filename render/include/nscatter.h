@@ -577,7 +577,8 @@ typedef struct ns_render_stats {
  * (ns_render_settings). Checks the scene's structural invariants
  * again (indices in range, finite numbers) and fails with NS_ERR_INVALID_ARGUMENT rather
  * than trusting the caller. Requested components that this build cannot render yet fail
- * with NS_ERR_NOT_AVAILABLE and a message naming them. stats may be NULL. */
+ * with NS_ERR_NOT_AVAILABLE and a message naming them. stats may be NULL; else it is cleared
+ * first and holds this render's figures alone. */
 int ns_render(ns_context *ctx, const ns_scene *scene, ns_image *out, ns_render_stats *stats,
               ns_error *err);
 
