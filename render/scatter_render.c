@@ -1226,53 +1226,119 @@ static int gather_list_build(const tile_plan *t, const GpuSegment *segs, ns_meth
     return 0;
 }
 
-/* The diagonal of the bounds of the objects of material m (scene units), grown on each
- * side by ten ray offsets (common.glsl, ray_epsilon) for hit points a hair outside;
- * INFINITY where one of them is unbounded (a plane) or none is found. The gather reads a
- * medium's table only at the offset between two points of those bounds: a source's origin
- * (where light enters the medium, scatters in it or meets its boundary) and a camera
- * segment's ends. */
-static double medium_diameter(const ns_scene *scene, uint32_t m)
+/* Axis-aligned bounds (scene units); empty while lo > hi. */
+typedef struct bounds3 {
+    double lo[3], hi[3];
+} bounds3;
+
+static void bounds_empty(bounds3 *b)
 {
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int k = 0; k < 3; k++) {
+        b->lo[k] = INFINITY;
+        b->hi[k] = -INFINITY;
+    }
+}
+
+static void bounds_add(bounds3 *b, const float p[3])
+{
+    for (int k = 0; k < 3; k++) {
+        b->lo[k] = fmin(b->lo[k], p[k]);
+        b->hi[k] = fmax(b->hi[k], p[k]);
+    }
+}
+
+/* Adds the bounds of the objects of material m to b: 0 where one of them is unbounded (a
+ * plane). */
+static int objects_bounds_add(const ns_scene *scene, uint32_t m, bounds3 *b)
+{
     for (uint32_t i = 0; i < scene->object_count; i++) {
         const ns_object *o = &scene->objects[i];
         if (o->material != m)
             continue;
         if (o->shape == NS_SHAPE_SPHERE) {
+            float lo[3], hi[3];
             for (int k = 0; k < 3; k++) {
-                lo[k] = fmin(lo[k], (double)o->center[k] - o->radius);
-                hi[k] = fmax(hi[k], (double)o->center[k] + o->radius);
+                lo[k] = o->center[k] - o->radius;
+                hi[k] = o->center[k] + o->radius;
             }
+            bounds_add(b, lo);
+            bounds_add(b, hi);
         } else if (o->shape == NS_SHAPE_BOX) {
-            for (int k = 0; k < 3; k++) {
-                lo[k] = fmin(lo[k], o->min[k]);
-                hi[k] = fmax(hi[k], o->max[k]);
-            }
+            bounds_add(b, o->min);
+            bounds_add(b, o->max);
         } else if (o->shape == NS_SHAPE_MESH) {
             for (uint32_t t = o->first_triangle; t < o->first_triangle + o->triangle_count; t++)
                 for (int v = 0; v < 3; v++)
-                    for (int k = 0; k < 3; k++) {
-                        lo[k] = fmin(lo[k], scene->triangles[t].v[v][k]);
-                        hi[k] = fmax(hi[k], scene->triangles[t].v[v][k]);
-                    }
+                    bounds_add(b, scene->triangles[t].v[v]);
         } else {
-            return INFINITY;
+            return 0;
         }
     }
-    if (!(lo[0] <= hi[0]))
-        return INFINITY; /* no object of m */
-    double size = 1.0, squared = 0.0;
-    for (int k = 0; k < 3; k++)
-        size = fmax(size, fmax(fabs(lo[k]), fabs(hi[k])));
-    for (int k = 0; k < 3; k++) {
-        double span = hi[k] - lo[k] + 2e-3 * size;
-        squared += span * span;
-    }
-    return sqrt(squared);
+    return 1;
 }
 
-static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32_t material,
+/* Per medium, the table bins (ns_table_reach_bins) that its gather reads. The gather reads a
+ * medium's table only at the offset between a source's origin (where light enters the medium,
+ * scatters in it or meets its boundary; a grid's representative lies between such origins)
+ * and a camera segment's end, all of them within the bounds of the objects of that material
+ * when those are closed: their diagonal, grown by ten ray offsets (common.glsl, ray_epsilon)
+ * for hit points a hair outside, in mean free paths of the densest channel, which stays the
+ * same from view to view, so a camera move finds its tables cached. The segments' ends and
+ * the sources' origins are added all the same: an open mesh lets light and camera paths run
+ * on to whatever they meet next, and a plane of the medium reaches everywhere (every cell). */
+static void media_reach(const ns_scatter_inputs *in, const ns_vrl_set *vrls,
+                        const ns_boundary_groups *groups, uint32_t *reach_bins)
+{
+    const ns_gpu_scene *gs = in->gs;
+    uint32_t materials = gs->material_count;
+    bounds3 *b = malloc(materials * sizeof *b);
+    for (uint32_t m = 0; m < materials; m++) {
+        reach_bins[m] = NS_TABLE_NRHO; /* every cell: slower, never wrong */
+        if (!b)
+            continue;
+        bounds_empty(&b[m]);
+        if (!objects_bounds_add(in->scene, m, &b[m]) || !(b[m].lo[0] <= b[m].hi[0])) {
+            b[m].lo[0] = -INFINITY; /* unbounded, or no object: every cell */
+            continue;
+        }
+        /* Grown first, so that points a hair outside a closed object leave the reach as the
+         * objects alone make it, whatever the view. */
+        double size = 1.0;
+        for (int k = 0; k < 3; k++)
+            size = fmax(size, fmax(fabs(b[m].lo[k]), fabs(b[m].hi[k])));
+        for (int k = 0; k < 3; k++) {
+            b[m].lo[k] -= 1e-3 * size;
+            b[m].hi[k] += 1e-3 * size;
+        }
+    }
+    if (!b)
+        return;
+    const GpuSegment *segs = in->segments->mapped;
+    for (uint32_t i = 0; i < in->segment_count; i++)
+        if (segs[i].material < materials) {
+            bounds_add(&b[segs[i].material], segs[i].entry);
+            bounds_add(&b[segs[i].material], segs[i].exit);
+        }
+    for (uint32_t i = 0; i < vrls->count; i++)
+        if (vrls->vrls[i].material < materials)
+            bounds_add(&b[vrls->vrls[i].material], vrls->vrls[i].origin);
+    for (uint32_t g = 0; g < groups->count; g++)
+        for (uint32_t i = 0; i < groups->group[g].set.count; i++) {
+            const GpuVrl *v = &groups->group[g].set.vrls[i];
+            if (v->material < materials)
+                bounds_add(&b[v->material], v->origin);
+        }
+    for (uint32_t m = 0; m < materials; m++) {
+        const float *s = gs->materials[m].sigma_t;
+        double densest = fmax(s[0], fmax(s[1], s[2])), squared = 0.0;
+        for (int k = 0; k < 3; k++)
+            squared += (b[m].hi[k] - b[m].lo[k]) * (b[m].hi[k] - b[m].lo[k]);
+        reach_bins[m] = ns_table_reach_bins(sqrt(squared) * densest); /* not a number: all */
+    }
+    free(b);
+}
+
+static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32_t reach_bins,
                              uint32_t orders, ns_table_key *key)
 {
     memset(key, 0, sizeof *key);
@@ -1283,8 +1349,7 @@ static void ns_table_key_for(const GpuMaterial *m, const ns_scene *scene, uint32
     key->orders = orders;
     key->accumulation = scene->render.accumulation;
     key->tables = scene->render.tables;
-    double densest = fmax(m->sigma_t[0], fmax(m->sigma_t[1], m->sigma_t[2]));
-    key->reach_bins = ns_table_reach_bins(medium_diameter(scene, material) * densest);
+    key->reach_bins = reach_bins;
 }
 
 /* What the table and dipole methods gather from, kept across the rounds of an adaptive
@@ -1297,6 +1362,7 @@ typedef struct vrl_source {
     ns_vrl_grid *grids;       /* per material */
     uint8_t *grid_built;      /* per material */
     uint64_t *table_bytes;    /* per (orders, material): 0 until its tables were used */
+    uint32_t *reach_bins;     /* per material: where its gather reads the tables (media_reach) */
     /* render.boundary: the sources by group, and per (group, material) their grid. */
     ns_boundary_groups boundary;
     ns_vrl_grid *boundary_grids;  /* [group * materials + material] */
@@ -1312,6 +1378,7 @@ static void vrl_source_free(vrl_source *v, uint32_t material_count)
     free(v->grids);
     free(v->grid_built);
     free(v->table_bytes);
+    free(v->reach_bins);
     free(v->boundary_grids);
     free(v->boundary_grid_built);
     ns_boundary_groups_free(&v->boundary);
@@ -1414,9 +1481,11 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
     v->grids = calloc(materials, sizeof *v->grids);
     v->grid_built = calloc(materials, 1);
     v->table_bytes = calloc(ORDER_SETS * materials, sizeof *v->table_bytes);
+    v->reach_bins = calloc(materials, sizeof *v->reach_bins);
     v->boundary_grids = calloc(NS_BOUNDARY_GROUPS * materials, sizeof *v->boundary_grids);
     v->boundary_grid_built = calloc(NS_BOUNDARY_GROUPS * materials, 1);
-    if (!v->grids || !v->grid_built || !v->table_bytes || !v->boundary_grids || !v->boundary_grid_built)
+    if (!v->grids || !v->grid_built || !v->table_bytes || !v->reach_bins || !v->boundary_grids ||
+        !v->boundary_grid_built)
         return ns_fail(err, NS_ERR_OUT_OF_HOST_MEMORY, "gather: %u materials", materials);
     int boundary = scene->render.boundary != NS_BOUNDARY_OFF;
     /* Bounded beams (nn and table only: scene_check.c): the beam's internal reflections are
@@ -1445,6 +1514,8 @@ static int vrl_source_init(ns_context *ctx, const ns_scatter_inputs *in, vrl_sou
         }
     }
     free(signature);
+    if (!status && in->gs->material_count)
+        media_reach(in, &v->set, &v->boundary, v->reach_bins);
     /* The VRLs' orders and the groups' tables' (their blurred first order is computed in the
      * gather, not read from a table) are announced, so that a material's tables of two of
      * them share a walk. */
@@ -1529,7 +1600,7 @@ static int gather_grid(ns_context *ctx, const ns_scatter_inputs *in, vrl_source 
     int status = NS_OK;
     if (!dipole && table_orders) {
         ns_table_key key;
-        ns_table_key_for(mat, scene, m, table_orders, &key);
+        ns_table_key_for(mat, scene, source->reach_bins[m], table_orders, &key);
         ns_table_stats ts = {0};
         /* The stages "reconstruct" and "accumulate" run inside, when the cache lacks the
          * tables. */
