@@ -58,7 +58,22 @@ static float dist3(const float *a, const float *b)
 /* A stretch's or source's scattering events, without its flags (scatter_shared.h). */
 static uint32_t events_of(const GpuVrl *v)
 {
-    return v->events & ~(NS_VRL_LINE_RETURNS | NS_VRL_FROM_ENVIRONMENT);
+    return v->events & NS_VRL_EVENT_COUNT;
+}
+
+/* The face bits (scatter_shared.h, NS_VRL_FACE_COS_SHIFT) of a beam mirrored by a face, from
+ * the cosine of the turn between the incident and the reflected directions: the face's normal
+ * lies along their difference, at the angle beta from each with cos beta = sqrt((1 - turn) / 2). */
+static uint32_t face_bits(float cos_turn)
+{
+    float cos_beta = sqrtf(fmaxf(0.5f * (1.0f - cos_turn), 0.0f));
+    uint32_t q = (uint32_t)lrintf(fminf(cos_beta, 1.0f) * (float)NS_VRL_FACE_COS_MAX);
+    return (q ? q : 1u) << NS_VRL_FACE_COS_SHIFT;
+}
+
+static float dot3(const float *a, const float *b)
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
 /* Which of a stretch's flags its reflected beam keeps: where its light came from (the
@@ -117,6 +132,10 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
              * the ghost's at that chord's end does for the ghost (below). */
             GpuVrl r = *v;
             r.events = reflected_events(v);
+            /* A walk's own reflection starts on the face that mirrored the stretch before;
+             * a re-entered beam's face is not known (the flight outside is not a stretch). */
+            if (link == NS_BOUNDARY_LINK_REFLECTED)
+                r.events |= face_bits(dot3(stretches[i - 1].direction, v->direction));
             out[n++] = r;
         }
         /* A stretch that the next one continues along the same line has no boundary event
@@ -164,7 +183,7 @@ uint32_t ns_boundary_sources(const GpuVrl *stretches, const float *ends, uint32_
                 reflected.direction[c] = end[c] / chord;
                 reflected.power[c] = -end[3] * ghost.power[c];
             }
-            reflected.events = reflected_events(v);
+            reflected.events = reflected_events(v) | face_bits(dot3(v->direction, reflected.direction));
             out[n++] = reflected;
         }
     }
@@ -317,7 +336,7 @@ int ns_boundary_group(const GpuVrl *sources, uint32_t count, uint32_t components
             else {
                 GpuVrl *kept = &grp->set.vrls[grp->filled++];
                 *kept = *s;
-                kept->events = events_of(s);
+                kept->events = events_of(s) | (s->events & (NS_VRL_FACE_COS_MAX << NS_VRL_FACE_COS_SHIFT));
             }
         }
         if (pass == 0)

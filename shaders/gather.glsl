@@ -56,18 +56,28 @@ struct Vrl {
     float len; // 0: no exit was found, the beam is endless
     vec3 direction;
     vec3 power;
+    float face_cos; // a boundary source's line against the face it starts on (0: none known)
 };
+
+// The face bits of a source's events word (scatter_shared.h, NS_VRL_FACE_COS_SHIFT).
+float face_cos_of(float events_word)
+{
+    uint q = (floatBitsToUint(events_word) >> NS_VRL_FACE_COS_SHIFT) & NS_VRL_FACE_COS_MAX;
+    return float(q) * (1.0 / float(NS_VRL_FACE_COS_MAX));
+}
 
 Vrl vrl_at(uint k)
 {
-    return Vrl(vrl_words[3u * k].xyz, vrl_words[3u * k].w, vrl_words[3u * k + 1u].xyz,
-               vrl_words[3u * k + 2u].xyz);
+    vec4 power = vrl_words[3u * k + 2u];
+    return Vrl(vrl_words[3u * k].xyz, vrl_words[3u * k].w, vrl_words[3u * k + 1u].xyz, power.xyz,
+               face_cos_of(power.w));
 }
 
+// A representative stands for several sources: no one face.
 Vrl representative_at(uint k)
 {
     return Vrl(representative_words[3u * k].xyz, representative_words[3u * k].w,
-               representative_words[3u * k + 1u].xyz, representative_words[3u * k + 2u].xyz);
+               representative_words[3u * k + 1u].xyz, representative_words[3u * k + 2u].xyz, 0.0);
 }
 
 const float ANGLE_BINS_PER_RADIAN = float(NS_TABLE_NTHETA) / PI; // theta and phi: 10 degrees
@@ -318,6 +328,22 @@ vec3 first_order(Vrl v, GpuSegment seg)
     vec3 value = vec3(first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.x, b.x),
                       first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.y, b.y),
                       first_order_channel(z0, c, A, B, r0, r1, lo, hi, s.z, b.z));
+    if (v.face_cos > 0.0) {
+        // A beam that starts on a face (a reflected one) has part of its tube beyond that
+        // face near its start, where no camera segment reads it: at depth z along a line at
+        // angle beta to the face's normal, the face cuts the tube's cross-section z cot beta
+        // from its axis, and the medium's side holds Phi(z cot beta / b) of the tube. The tube
+        // is taken as renormalised to that side (a boundary-corrected kernel), its share read
+        // where the segment passes closest to the line: what the tube lost comes back where
+        // it was lost, without a source more (docs/scattering.md, *The tube at a face*).
+        float t_close = A > 1e-8 ? clamp(-B / A, lo, hi) : lo;
+        float z_close = max(z0 + c * t_close, 0.0);
+        float cot_beta = v.face_cos / sqrt(max(1.0 - v.face_cos * v.face_cos, 1e-12));
+        vec3 depth = z_close * cot_beta / max(b, vec3(1e-30)) * (1.0 / sqrt(2.0));
+        value /= vec3(1.0 - 0.5 * exp(-depth.x * depth.x) * erfcx_positive(depth.x),
+                      1.0 - 0.5 * exp(-depth.y * depth.y) * erfcx_positive(depth.y),
+                      1.0 - 0.5 * exp(-depth.z * depth.z) * erfcx_positive(depth.z));
+    }
     return v.power * params.first_order.xyz * s * phase * value;
 }
 #endif

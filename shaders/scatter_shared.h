@@ -34,6 +34,13 @@ struct GpuVrl {
  * itself, so render/boundary.c leaves out its reflected beams' first order). */
 NS_CONST(uint, NS_VRL_LINE_RETURNS, 0x80000000u);
 NS_CONST(uint, NS_VRL_FROM_ENVIRONMENT, 0x40000000u);
+/* The scattering events themselves: the low 16 bits. A positive boundary source that starts
+ * on a face it was reflected by (render/boundary.c) carries in bits 16-29 the cosine of its
+ * line's angle to that face's normal, times NS_VRL_FACE_COS_MAX (0: none known): the share
+ * of its first order's tube on the medium's side of the face (gather.glsl, first_order). */
+NS_CONST(uint, NS_VRL_EVENT_COUNT, 0xffffu);
+NS_CONST(uint, NS_VRL_FACE_COS_SHIFT, 16u);
+NS_CONST(uint, NS_VRL_FACE_COS_MAX, 0x3fffu);
 
 /* One cell of a VRL grid level: its VRLs are vrls[first, first + count) of the cell-sorted
  * buffer, their origins lie in [bmin, bmax] (the bounding box of the VRLs' origins, not of

@@ -279,10 +279,12 @@ static void run_channels(int which, double ior, const double sigma_t[3], const d
                     ns_boundary_sources(walks.vrls + i, ends ? ends + 4 * (size_t)i : NULL, end - i,
                                         d.gs.materials, 1, sources + next_source);
                 for (uint32_t k = next_source; k < next_source + made; k++) {
+                    /* The events alone (a reflected beam's face bits aside). */
+                    uint32_t events = sources[k].events & NS_VRL_EVENT_COUNT;
                     corrected += sources[k].power[c] *
-                                 table_walk(sources[k].origin, sources[k].direction,
-                                            sources[k].events, sigma_t[c], albedo[c], g, min_order);
-                    if (sources[k].events == 0 && sources[k].power[c] > 0)
+                                 table_walk(sources[k].origin, sources[k].direction, events,
+                                            sigma_t[c], albedo[c], g, min_order);
+                    if (events == 0 && sources[k].power[c] > 0)
                         reflected_k0 += sources[k].power[c];
                 }
                 next_source += made;

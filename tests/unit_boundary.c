@@ -3,6 +3,8 @@
  *     tables'), for every components set and event count;
  *   - the sources of a hand-made walk (entry, scattering, internal reflection, a grazing
  *     continuation): where, which sign, what power;
+ *   - the face a reflected beam starts on (its cosine, for the gather's tube), at normal and
+ *     oblique incidence;
  *   - grouping by (orders, sign). */
 #include <math.h>
 #include <stdlib.h>
@@ -10,6 +12,16 @@
 
 #include "boundary.h"
 #include "harness.h"
+
+/* A source's events without its face bits (scatter_shared.h), and the cosine they carry. */
+static uint32_t without_face(const GpuVrl *v)
+{
+    return v->events & ~(NS_VRL_FACE_COS_MAX << NS_VRL_FACE_COS_SHIFT);
+}
+static float face_cos(const GpuVrl *v)
+{
+    return (float)(v->events >> NS_VRL_FACE_COS_SHIFT & NS_VRL_FACE_COS_MAX) / (float)NS_VRL_FACE_COS_MAX;
+}
 
 static void test_orders(void)
 {
@@ -147,7 +159,10 @@ static void test_sources_of_a_walk(void)
     CHECK(out[0].length == 0.5f && out[0].events == 1); /* the ghost keeps its stretch's chord */
     CHECK(out[1].power[0] == 0.3f && out[1].origin[1] == 1.0f && out[1].direction[1] == -1.0f);
     /* The reflected beam keeps its chord (its first order's tube follows it). */
-    CHECK(out[1].length == 1.0f && out[1].events == 1);
+    CHECK(out[1].length == 1.0f && without_face(&out[1]) == 1);
+    /* ... and the face it starts on: the walk turned straight back, so its line runs along
+     * the face's normal. The ghosts start on no face of theirs. */
+    CHECK(face_cos(&out[1]) == 1.0f && face_cos(&out[0]) == 0.0f && face_cos(&out[2]) == 0.0f);
     CHECK(fabsf(out[2].origin[1] + 0.25f) < 1e-6f);
     for (int c = 0; c < 3; c++)
         CHECK(fabsf(out[2].power[c] + 0.3f * expf(-m.sigma_t[c] * 0.25f)) < 1e-6f);
@@ -235,7 +250,8 @@ static void test_sources_with_ends(void)
         CHECK(fabsf(s->origin[1] - y_end[r]) < 1e-6f && s->origin[0] == v->origin[0]);
         /* An expected reflection's length is the chord its end record carries (it narrows
          * the first order's tube), its direction the record's, of unit length. */
-        CHECK(s->direction[1] == e[1] / 2.0f && s->length == 2.0f && s->events == 0);
+        CHECK(s->direction[1] == e[1] / 2.0f && s->length == 2.0f && without_face(s) == 0);
+        CHECK(face_cos(s) == 1.0f); /* mirrored straight back by the face it starts on */
         CHECK(ghost->length == v->length);
         for (int c = 0; c < 3; c++) {
             CHECK(ghost->power[c] < 0.0f);
@@ -244,7 +260,7 @@ static void test_sources_with_ends(void)
         }
     }
     /* The walk's own reflected beam of scattered light: stretch 3's start, its full flux. */
-    CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && out[5].events == 1);
+    CHECK(out[5].power[0] == 0.3f && out[5].origin[1] == 1.0f && without_face(&out[5]) == 1);
     /* A record of chord 0 gives no source: stretch 4's is left out. (vrl_trace.comp writes
      * all zeros where nothing lies ahead, an open mesh where the walk ends; a reflection of
      * F > 0 that meets the boundary at once is refused too rather than divided by 0.) */
@@ -260,10 +276,11 @@ static void test_sources_with_ends(void)
     memcpy(marked, walk, sizeof marked);
     marked[0].events = marked[1].events = NS_VRL_FROM_ENVIRONMENT;
     CHECK_INT(ns_boundary_sources(marked, &ends[0][0], 5, &m, 1, out), 9);
-    CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT && out[3].events == NS_VRL_FROM_ENVIRONMENT);
-    CHECK(out[5].events == 1 && out[8].events == 0);
+    CHECK(without_face(&out[1]) == NS_VRL_FROM_ENVIRONMENT &&
+          without_face(&out[3]) == NS_VRL_FROM_ENVIRONMENT);
+    CHECK(without_face(&out[5]) == 1 && without_face(&out[8]) == 0);
     CHECK_INT(ns_boundary_sources(marked, NULL, 5, &m, 1, out), 7);
-    CHECK(out[1].events == NS_VRL_FROM_ENVIRONMENT);
+    CHECK(without_face(&out[1]) == NS_VRL_FROM_ENVIRONMENT);
     /* The first stretch's ghost drops the line-returns mark (its line is the VRL's, whose
      * first order is single.comp's); a reflected stretch's ghost keeps it. */
     memcpy(marked, walk, sizeof marked);
@@ -279,10 +296,50 @@ static void test_sources_with_ends(void)
                                 NS_COMPONENT_SINGLE | NS_COMPONENT_DOUBLE | NS_COMPONENT_MULTIPLE,
                                 &groups, &err),
               NS_OK);
+    /* The marks go; the events and the face bits stay (the gather reads the face). */
     for (uint32_t g = 0; g < groups.count; g++)
-        for (uint32_t i = 0; i < groups.group[g].set.count; i++)
-            CHECK(groups.group[g].set.vrls[i].events < 2);
+        for (uint32_t i = 0; i < groups.group[g].set.count; i++) {
+            const GpuVrl *kept = &groups.group[g].set.vrls[i];
+            CHECK(without_face(kept) < 2);
+            CHECK(face_cos(kept) == (groups.group[g].negative ? 0.0f : 1.0f));
+        }
     ns_boundary_groups_free(&groups);
+}
+
+/* The face a reflected beam starts on, at oblique incidence: a walk going down at 60 degrees
+ * from the floor's normal, reflected up at 60 degrees (its own reflection, and the expected
+ * one of an end record): the beam's line is at 60 degrees to the face's normal, cos 0.5. */
+static void test_face_of_an_oblique_reflection(void)
+{
+    GpuMaterial m;
+    memset(&m, 0, sizeof m);
+    m.sigma_t[0] = m.sigma_t[1] = m.sigma_t[2] = 1.0f;
+    const double s60 = sqrt(3.0) / 2.0;
+    const GpuVrl walk[] = {
+        stretch(0, 1, 0, s60, -0.5, 0, 2, 1.0, 1),
+        stretch(s60 * 2, 0, 0, s60, 0.5, 0, 2, 0.5, 1),
+    };
+    CHECK_INT(ns_boundary_link_of(&walk[0], &walk[1]), NS_BOUNDARY_LINK_REFLECTED);
+    GpuVrl out[6];
+    uint32_t n = ns_boundary_sources(walk, NULL, 2, &m, 0, out);
+    int beams = 0;
+    for (uint32_t i = 0; i < n; i++)
+        if (out[i].power[0] > 0.0f) {
+            beams++;
+            CHECK(fabsf(face_cos(&out[i]) - 0.5f) < 1e-4f);
+        }
+    CHECK_INT(beams, 1);
+    /* The expected reflection of unscattered light at the first stretch's end. */
+    GpuVrl unscattered[1] = {stretch(0, 1, 0, s60, -0.5, 0, 2, 1.0, 0)};
+    const float ends[1][4] = {{(float)(2 * s60), 1.0f, 0.0f, 0.25f}};
+    n = ns_boundary_sources(unscattered, &ends[0][0], 1, &m, 1, out);
+    beams = 0;
+    for (uint32_t i = 0; i < n; i++)
+        if (out[i].power[0] > 0.0f) {
+            beams++;
+            CHECK(fabsf(face_cos(&out[i]) - 0.5f) < 1e-4f);
+        }
+    CHECK_INT(beams, 1);
 }
 
 /* A walk that leaves its object after scattering and enters it (or another object of the
@@ -419,6 +476,7 @@ int main(void)
     RUN(test_groups_of_every_kind);
     RUN(test_sources_of_a_walk);
     RUN(test_sources_with_ends);
+    RUN(test_face_of_an_oblique_reflection);
     RUN(test_sources_of_a_reentry);
     return harness_report();
 }
