@@ -258,7 +258,9 @@ void store_vrl(inout GpuVrlWalk w, vec3 o, vec3 d, Hit h)
         uint slot = w.count.y + w.count.x;
         if (slot < push.vrl_capacity) {
             float len = h.t;
-            uint events = w.state.y;
+            // The count has the low 16 bits of the word (scatter_shared.h): a count past them
+            // (a walk that long) reads as that many, every order from 2 on being one table.
+            uint events = min(w.state.y, NS_VRL_EVENT_COUNT);
             if ((push.options & NS_VRL_TRACE_MARK_ENVIRONMENT) != 0u && events == 0u && w.mis.w != 0.0)
                 events |= NS_VRL_FROM_ENVIRONMENT;
             if ((push.options & NS_VRL_TRACE_MARK_LINES) != 0u &&
