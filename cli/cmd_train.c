@@ -163,6 +163,10 @@ static int parse_options(int argc, char **argv, ns_train_options *o)
     }
     if (!o->data)
         return usage_error("--data: missing (the directory written by nscatter mc --grid)");
+    /* A share of no samples would train as if it were not given. */
+    if (o->near_uniform > 0 && !o->near_samples)
+        return usage_error("--near-uniform: a share of the near samples, which need "
+                           "--near-samples R:N");
     if (!o->ckpt_dir)
         o->ckpt_dir = o->data;
     return 0;

@@ -363,9 +363,18 @@ static void test_argument_errors(void)
     }
     const char *bad_uniform[] = {"-0.1", "1.5", "x", "nan"};
     for (int i = 0; i < 4; i++) {
-        const char *bad[] = {"train", "--data", dir, "--near-uniform", bad_uniform[i], NULL};
+        const char *bad[] = {"train", "--data", dir, "--near-samples", "6:100",
+                             "--near-uniform", bad_uniform[i], NULL};
         CHECK_INT(run(cmd_train, bad), 2);
     }
+    /* A share of near samples without any near samples, in a command that trains otherwise
+     * (the same with --near-samples 8:100 runs). */
+    char uniform_out[300];
+    snprintf(uniform_out, sizeof uniform_out, "%s/w_uniform", dir);
+    const char *uniform_alone[] = {"train", "--data", dir, "--order", "double", "--out-dir",
+                                   uniform_out, "--epochs", "1", "--samples-per-table", "400",
+                                   "--batch", "64", "--near-uniform", "0.5", "--quiet", NULL};
+    CHECK_INT(run(cmd_train, uniform_alone), 2);
     /* A checkpoint folder that cannot be made is refused before any training. */
     char out[300];
     snprintf(out, sizeof out, "%s/w", dir);
