@@ -597,7 +597,7 @@ static int run_first_order(const GpuMaterial *m, const ns_vrl_grid *grid, const 
  * tube around the line puts part of that beyond the face near the start (here 6-13%); with
  * the face's cosine in its events (scatter_shared.h, NS_VRL_FACE_COS_SHIFT) the tube is
  * taken as renormalised to the medium's side, which gives it back, within 2%.
- * docs/scattering.md, *The tube at a face*. */
+ * docs/scattering.md, *The tube renormalised at its face*. */
 static void test_first_order_at_a_face(void)
 {
     GpuMaterial m = test_material();
