@@ -335,7 +335,8 @@ vec3 first_order(Vrl v, GpuSegment seg)
         // from its axis, and the medium's side holds Phi(z cot beta / b) of the tube. The tube
         // is taken as renormalised to that side (a boundary-corrected kernel), its share read
         // where the segment passes closest to the line: what the tube lost comes back where
-        // it was lost, without a source more (docs/scattering.md, *The tube renormalised at its face*).
+        // it was lost, without a source more (docs/scattering.md, *The tube renormalised at
+        // its face*).
         float t_close = A > 1e-8 ? clamp(-B / A, lo, hi) : lo;
         float z_close = max(z0 + c * t_close, 0.0);
         float cot_beta = v.face_cos / sqrt(max(1.0 - v.face_cos * v.face_cos, 1e-12));
